@@ -1,0 +1,1 @@
+"""Math only: kinematic models, identification, interpolation, diagnosis."""

@@ -1,0 +1,85 @@
+"""The project's exception hierarchy: one root, subclasses that carry data.
+
+Every package (calibration, cell_config, drivers, app) raises these, so the CLI can turn any of them
+into one clear line on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class CellCalError(Exception):
+    """Root of every error cellcal raises on purpose."""
+
+
+class ConfigError(CellCalError):
+    """A configuration file is malformed.
+
+    Args:
+        path: the file.
+        key: dotted key inside the file (``robots.R1.tool``), or ``""`` for the whole file.
+        reason: what was expected.
+    """
+
+    def __init__(self, path: str | Path, key: str, reason: str) -> None:
+        self.path = str(path)
+        self.key = key
+        self.reason = reason
+        where = f"{self.path}: {key}" if key else self.path
+        super().__init__(f"{where}: {reason}")
+
+
+class DataError(CellCalError):
+    """A data file (recording, joint list, model) is unusable.
+
+    Args:
+        path: the file.
+        row: 1-based row (header = row 1), or None when the problem is not tied to a row.
+        column: column name, or None.
+        reason: what is wrong and what was expected.
+    """
+
+    def __init__(self, path: str | Path, row: int | None, column: str | None, reason: str) -> None:
+        self.path = str(path)
+        self.row = row
+        self.column = column
+        self.reason = reason
+        where = self.path
+        if row is not None:
+            where += f", row {row}"
+        if column is not None:
+            where += f", column {column!r}"
+        super().__init__(f"{where}: {reason}")
+
+
+class ModelError(CellCalError):
+    """A kinematic model or identification request is inconsistent (unknown method, bad shapes)."""
+
+
+class UnsafeTarget(CellCalError):
+    """A motion target violates a joint limit or the cell's collision model; refused before motion.
+
+    Args:
+        robot: robot name (``R1``).
+        joint: 1-based joint number, or None for a collision.
+        value: the offending value [rad] (or clearance [mm] for a collision).
+        limit: the limit it violates.
+        reason: free text, e.g. which bodies collide.
+    """
+
+    def __init__(self, robot: str, joint: int | None, value: float, limit: float, reason: str = "") -> None:
+        self.robot = robot
+        self.joint = joint
+        self.value = value
+        self.limit = limit
+        if joint is not None:
+            import math
+
+            msg = (f"{robot} joint {joint}: target {math.degrees(value):.3f} deg is outside the limit "
+                   f"{math.degrees(limit):.3f} deg")
+        else:
+            msg = f"{robot}: {reason} (clearance {value:.1f} mm, required {limit:.1f} mm)"
+        if reason and joint is not None:
+            msg += f" ({reason})"
+        super().__init__(msg)

@@ -1,0 +1,234 @@
+"""Recordings: static samples of one robot (joint angles + measured tool-marker pose).
+
+Reads the project's recording CSV (``../shared/spec/recording-format.md``) and the Welding_Motoman folder
+layout, validates every value, and writes recordings atomically. Errors name the file, the 1-based row
+(header = row 1) and the column.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from calibration import so3
+from calibration.errors import DataError
+
+JOINT_COLUMNS = tuple(f"q{i}" for i in range(1, 7))
+POSE_COLUMNS = ("x", "y", "z", "qw", "qx", "qy", "qz")
+REQUIRED_COLUMNS = JOINT_COLUMNS + POSE_COLUMNS
+WELDING_LAYOUTS = (
+    ("train_data_robot_q_align.csv", "train_data_mocap_T_align.csv"),
+    ("robot_q_align.csv", "mocap_T_align.csv"),
+)
+QUAT_NORM_TOL = 1e-3
+DEFAULT_CLUSTER_SIZE = 7
+
+
+@dataclass(frozen=True)
+class Recording:
+    """Static samples of one robot.
+
+    Attributes:
+        q: joint angles [rad], shape (N, 6).
+        p: measured tool-marker position in the base frame [mm], shape (N, 3).
+        quat: measured orientation, unit quaternion (w, x, y, z), shape (N, 4).
+        extra: optional columns (``cluster``, ``t``, ``dir1``.., ``payload_kg``, ...), each shape (N,).
+        source: where it was read from.
+    """
+
+    q: np.ndarray
+    p: np.ndarray
+    quat: np.ndarray
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
+    source: str = ""
+
+    def __len__(self) -> int:
+        return self.q.shape[0]
+
+    @property
+    def R(self) -> np.ndarray:
+        """Measured orientation as rotation matrices, shape (N, 3, 3)."""
+        return so3.quat_to_R(self.quat)
+
+    def clusters(self, size: int = DEFAULT_CLUSTER_SIZE) -> np.ndarray:
+        """Cluster id of every sample: the ``cluster`` column, else consecutive groups of ``size`` rows.
+
+        Raises:
+            DataError: no cluster column and the row count is not a multiple of ``size``.
+        """
+        if "cluster" in self.extra:
+            return self.extra["cluster"].astype(int)
+        if len(self) % size:
+            raise DataError(self.source, None, "cluster",
+                            f"no cluster column and {len(self)} rows are not a multiple of the "
+                            f"{size}-sample anchor design; add a cluster column")
+        return np.arange(len(self)) // size
+
+    def subset(self, index: np.ndarray) -> "Recording":
+        """The samples selected by a boolean mask or an index array."""
+        return Recording(self.q[index], self.p[index], self.quat[index],
+                         {k: v[index] for k, v in self.extra.items()}, self.source)
+
+
+def _parse_float(text: str, path: Path, row: int, column: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise DataError(path, row, column, f"not a number: {text!r}") from None
+    if not math.isfinite(value):
+        raise DataError(path, row, column, f"not a finite number: {text!r}")
+    return value
+
+
+def _read_table(path: Path, columns: tuple[str, ...] | None) -> tuple[list[str], np.ndarray, int]:
+    """Read a numeric CSV. ``columns`` given: headerless with those names. Returns names, data, first row no."""
+    try:
+        with open(path, newline="", encoding="utf-8") as f:
+            rows = [r for r in csv.reader(f) if r and any(c.strip() for c in r)]
+    except FileNotFoundError:
+        raise DataError(path, None, None, "file not found") from None
+    except UnicodeDecodeError as e:
+        raise DataError(path, None, None, f"not UTF-8 text ({e.reason})") from None
+    if columns is None:
+        if not rows:
+            raise DataError(path, None, None, "empty file, expected a header row")
+        names = [c.strip() for c in rows[0]]
+        body, first = rows[1:], 2
+    else:
+        names, body, first = list(columns), rows, 1
+    if not body:
+        raise DataError(path, None, None, "no data rows")
+    data = np.empty((len(body), len(names)))
+    for i, r in enumerate(body):
+        row_no = first + i
+        if len(r) != len(names):
+            raise DataError(path, row_no, None, f"expected {len(names)} fields, found {len(r)}")
+        for j, text in enumerate(r):
+            data[i, j] = _parse_float(text.strip(), path, row_no, names[j])
+    return names, data, first
+
+
+def _check_pose(path: Path, q: np.ndarray, quat: np.ndarray, first_row: int,
+                lower: np.ndarray | None, upper: np.ndarray | None, q_path: Path | None = None) -> None:
+    norms = np.linalg.norm(quat, axis=1)
+    bad = np.flatnonzero(np.abs(norms - 1.0) > QUAT_NORM_TOL)
+    if bad.size:
+        i = int(bad[0])
+        raise DataError(path, first_row + i, "qw..qz", f"quaternion norm {norms[i]:.6f} is not 1 (tolerance {QUAT_NORM_TOL})")
+    if lower is not None and upper is not None:
+        outside = (q < lower - 1e-9) | (q > upper + 1e-9)
+        if outside.any():
+            i, j = (int(v) for v in np.argwhere(outside)[0])
+            raise DataError(q_path or path, first_row + i, JOINT_COLUMNS[j],
+                            f"{math.degrees(q[i, j]):.3f} deg is outside the joint limits "
+                            f"[{math.degrees(lower[j]):.1f}, {math.degrees(upper[j]):.1f}] deg")
+
+
+def read_recording(path: str | Path, lower: np.ndarray | None = None, upper: np.ndarray | None = None) -> Recording:
+    """Read a recording CSV or a Welding_Motoman folder.
+
+    Args:
+        path: recording CSV, or a folder with ``[train_data_]robot_q_align.csv`` + ``[train_data_]mocap_T_align.csv``.
+        lower, upper: joint limits [rad], shape (6,); when given, samples outside are an error.
+
+    Raises:
+        DataError: naming file, row and column of the first bad value.
+    """
+    path = Path(path)
+    if path.is_dir():
+        for q_name, t_name in WELDING_LAYOUTS:
+            if (path / q_name).exists() and (path / t_name).exists():
+                q_path, t_path = path / q_name, path / t_name
+                _, q, _ = _read_table(q_path, JOINT_COLUMNS)
+                _, T, _ = _read_table(t_path, POSE_COLUMNS)
+                if len(q) != len(T):
+                    raise DataError(t_path, None, None,
+                                    f"{len(T)} pose rows but {q_path.name} has {len(q)} joint rows")
+                _check_pose(t_path, q, T[:, 3:], 1, lower, upper, q_path)
+                return Recording(q, T[:, :3], T[:, 3:] / np.linalg.norm(T[:, 3:], axis=1, keepdims=True),
+                                 {}, str(path))
+        raise DataError(path, None, None, "folder has neither robot_q_align.csv + mocap_T_align.csv nor the "
+                                          "train_data_ variants")
+    names, data, first = _read_table(path, None)
+    missing = [c for c in REQUIRED_COLUMNS if c not in names]
+    if missing:
+        raise DataError(path, 1, missing[0], f"required column missing (required: {', '.join(REQUIRED_COLUMNS)})")
+    if len(set(names)) != len(names):
+        dup = next(n for n in names if names.count(n) > 1)
+        raise DataError(path, 1, dup, "column appears twice")
+    col = {n: data[:, i] for i, n in enumerate(names)}
+    q = np.stack([col[c] for c in JOINT_COLUMNS], axis=1)
+    quat = np.stack([col[c] for c in ("qw", "qx", "qy", "qz")], axis=1)
+    _check_pose(path, q, quat, first, lower, upper)
+    extra = {n: v for n, v in col.items() if n not in REQUIRED_COLUMNS}
+    if "cluster" in extra and np.any(extra["cluster"] != np.round(extra["cluster"])):
+        i = int(np.flatnonzero(extra["cluster"] != np.round(extra["cluster"]))[0])
+        raise DataError(path, first + i, "cluster", "expected an integer cluster id")
+    return Recording(q, np.stack([col["x"], col["y"], col["z"]], 1),
+                     quat / np.linalg.norm(quat, axis=1, keepdims=True), extra, str(path))
+
+
+def read_joints(path: str | Path) -> np.ndarray:
+    """Read joint angles [rad] for prediction: a header row with q1..q6, or a headerless 6-column file.
+
+    Returns:
+        shape (N, 6).
+    """
+    path = Path(path)
+    try:
+        with open(path, newline="", encoding="utf-8") as f:
+            first_line = next((r for r in csv.reader(f) if r), None)
+    except FileNotFoundError:
+        raise DataError(path, None, None, "file not found") from None
+    if first_line is None:
+        raise DataError(path, None, None, "empty file")
+    try:
+        [float(c) for c in first_line]
+        headerless = True
+    except ValueError:
+        headerless = False
+    if headerless:
+        _, data, _ = _read_table(path, JOINT_COLUMNS)
+        return data
+    names, data, _ = _read_table(path, None)
+    missing = [c for c in JOINT_COLUMNS if c not in names]
+    if missing:
+        raise DataError(path, 1, missing[0], "required column missing (need q1..q6 in rad, or no header and 6 columns)")
+    return np.stack([data[:, names.index(c)] for c in JOINT_COLUMNS], axis=1)
+
+
+def write_table(path: str | Path, columns: dict[str, np.ndarray]) -> None:
+    """Write named columns as a CSV with a header, atomically (a crash leaves no half-written file)."""
+    path = Path(path)
+    names = list(columns)
+    data = np.column_stack([np.asarray(columns[n], dtype=float) for n in names])
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", newline="", encoding="utf-8") as f:
+            w = csv.writer(f)
+            w.writerow(names)
+            for row in data:
+                w.writerow([repr(float(v)) for v in row])
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def write_recording(rec: Recording, path: str | Path) -> None:
+    """Write a recording CSV (required columns first, then the extra columns), atomically."""
+    cols: dict[str, np.ndarray] = {c: rec.q[:, i] for i, c in enumerate(JOINT_COLUMNS)}
+    cols.update({c: rec.p[:, i] for i, c in enumerate("xyz")})
+    cols.update({c: rec.quat[:, i] for i, c in enumerate(("qw", "qx", "qy", "qz"))})
+    cols.update(rec.extra)
+    write_table(path, cols)
