@@ -1,0 +1,215 @@
+"""Fitted kinematic models and their files.
+
+Every model maps joint angles to the tool-marker pose, ``fk(q) -> (R (N, 3, 3), p (N, 3))``, and saves to
+one versioned, human-readable file (``.yaml``/``.yml`` or ``.json``) that loads back to bit-identical
+predictions (floats are written with their shortest exact repr).
+"""
+
+from __future__ import annotations
+
+import abc
+import json
+import logging
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+import yaml
+
+from calibration.errors import DataError, ModelError
+from calibration.parameterisation import MinimalParameterisation
+from calibration.poe import PoeModel
+
+SCHEMA = "cellcal.model/1"
+log = logging.getLogger("cellcal.calibration")
+
+
+def poe_to_dict(m: PoeModel) -> dict[str, Any]:
+    return {"H": m.H.T.tolist(), "P": m.P.T.tolist(), "R_flange": m.R_flange.tolist(),
+            "R_flange_tool": m.R_flange_tool.tolist(), "p_flange_tool": m.p_flange_tool.tolist()}
+
+
+def poe_from_dict(d: dict[str, Any]) -> PoeModel:
+    return PoeModel(np.array(d["H"], dtype=float).T, np.array(d["P"], dtype=float).T,
+                    np.array(d["R_flange"], dtype=float), np.array(d["R_flange_tool"], dtype=float),
+                    np.array(d["p_flange_tool"], dtype=float))
+
+
+class KinematicModel(abc.ABC):
+    """A fitted model of one robot: joint angles in, tool-marker pose out."""
+
+    kind: ClassVar[str]
+    _registry: ClassVar[dict[str, type["KinematicModel"]]] = {}
+    robot: str
+    method: str
+    info: dict[str, Any]
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if "kind" in cls.__dict__:
+            KinematicModel._registry[cls.kind] = cls
+
+    @abc.abstractmethod
+    def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Tool pose for joint angles q [rad], shape (N, 6): ``(R (N, 3, 3), p (N, 3) [mm])``."""
+
+    def out_of_range(self, q: np.ndarray) -> np.ndarray:
+        """Boolean mask (N,) of configurations outside the region the model was fitted on."""
+        return np.zeros(np.atleast_2d(q).shape[0], dtype=bool)
+
+    @property
+    @abc.abstractmethod
+    def n_parameters(self) -> int:
+        """Number of identified parameters (for reports)."""
+
+    @abc.abstractmethod
+    def _body(self) -> dict[str, Any]:
+        """Kind-specific content of the model file."""
+
+    @classmethod
+    @abc.abstractmethod
+    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "KinematicModel":
+        """Inverse of :meth:`_body`."""
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"schema": SCHEMA, "kind": self.kind, "robot": self.robot, "method": self.method,
+                "n_parameters": self.n_parameters, "info": self.info, **self._body()}
+
+    @staticmethod
+    def from_dict(d: dict[str, Any]) -> "KinematicModel":
+        if d.get("schema") != SCHEMA:
+            raise ModelError(f"unsupported model schema {d.get('schema')!r}; expected {SCHEMA!r}")
+        kind = d.get("kind")
+        if kind not in KinematicModel._registry:
+            raise ModelError(f"unknown model kind {kind!r}; valid: {', '.join(sorted(KinematicModel._registry))}")
+        return KinematicModel._registry[kind]._from_body(d["robot"], d["method"], d.get("info", {}), d)
+
+
+@dataclass
+class ConstantModel(KinematicModel):
+    """One geometry for the whole workspace (nominal, base, CPA, NLS fits)."""
+
+    kind: ClassVar[str] = "constant"
+    robot: str
+    method: str
+    model: PoeModel
+    parameters: int = 0
+    info: dict[str, Any] = field(default_factory=dict)
+
+    def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.model.fk(q)
+
+    @property
+    def n_parameters(self) -> int:
+        return self.parameters
+
+    def _body(self) -> dict[str, Any]:
+        return {"geometry": poe_to_dict(self.model)}
+
+    @classmethod
+    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "ConstantModel":
+        return cls(robot, method, poe_from_dict(body["geometry"]), int(body.get("n_parameters", 0)), info)
+
+
+@dataclass
+class CdcModel(KinematicModel):
+    """Configuration-dependent model: minimal parameters interpolated over chosen joint angles."""
+
+    kind: ClassVar[str] = "cdc"
+    robot: str
+    method: str
+    parameterisation: MinimalParameterisation
+    interpolator: Any  # calibration.interpolation.Interpolator
+    inputs: tuple[int, ...] = (1, 2)  # 0-based joints the parameters depend on (q2, q3)
+    info: dict[str, Any] = field(default_factory=dict)
+
+    def parameters_at(self, q: np.ndarray) -> np.ndarray:
+        """Interpolated parameter vectors, shape (N, m)."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        return self.interpolator.predict(q[:, list(self.inputs)])
+
+    def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        H, P = self.parameterisation.geometry(self.parameters_at(q))
+        return self.parameterisation.nominal.fk(q, H, P)
+
+    def out_of_range(self, q: np.ndarray) -> np.ndarray:
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        return self.interpolator.out_of_range(q[:, list(self.inputs)])
+
+    @property
+    def n_parameters(self) -> int:
+        return int(self.info.get("n_parameters", self.parameterisation.size))
+
+    def _body(self) -> dict[str, Any]:
+        return {"nominal": poe_to_dict(self.parameterisation.nominal), "fit_tool": self.parameterisation.fit_tool,
+                "inputs": list(self.inputs), "interpolator": self.interpolator.to_dict()}
+
+    @classmethod
+    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "CdcModel":
+        from calibration.interpolation import interpolator_from_dict
+
+        par = MinimalParameterisation(poe_from_dict(body["nominal"]), bool(body["fit_tool"]))
+        return cls(robot, method, par, interpolator_from_dict(body["interpolator"]),
+                   tuple(int(i) for i in body["inputs"]), info)
+
+
+def _plain(obj: Any) -> Any:
+    """Convert numpy scalars/arrays inside ``obj`` to plain Python for YAML/JSON."""
+    if isinstance(obj, dict):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _plain(obj.tolist())
+    if isinstance(obj, np.generic):
+        return obj.item()
+    return obj
+
+
+def save_model(model: KinematicModel, path: str | Path) -> None:
+    """Write a model file (JSON for ``.json``, YAML otherwise), atomically."""
+    path = Path(path)
+    data = _plain(model.to_dict())
+    if path.suffix.lower() == ".json":
+        text = json.dumps(data, indent=1)
+    else:
+        text = yaml.dump(data, Dumper=getattr(yaml, "CSafeDumper", yaml.SafeDumper), sort_keys=False,
+                         default_flow_style=None, width=120)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def load_model(path: str | Path) -> KinematicModel:
+    """Read a model file written by :func:`save_model`."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise DataError(path, None, None, "model file not found") from None
+    try:
+        if path.suffix.lower() == ".json":
+            data = json.loads(text)
+        else:
+            data = yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
+    except (json.JSONDecodeError, yaml.YAMLError) as e:
+        raise DataError(path, None, None, f"not a valid model file ({e.__class__.__name__})") from e
+    if not isinstance(data, dict):
+        raise DataError(path, None, None, "not a model file (expected a mapping)")
+    try:
+        return KinematicModel.from_dict(data)
+    except (KeyError, TypeError, ValueError) as e:
+        raise DataError(path, None, None, f"malformed model file: {e!r}") from e
+    except ModelError as e:
+        raise DataError(path, None, None, str(e)) from e
