@@ -57,18 +57,26 @@ class Observability:
             out.append(f"{terms} (relative singular value {rel:.1e})")
         return out
 
+    def hidden_joints(self) -> list[int]:
+        """Joints (1-based) whose parameters dominate the hidden directions."""
+        joints: set[int] = set()
+        for i in range(self.rank, len(self.singular_values)):
+            for j in np.argsort(-np.abs(self.V[:, i]))[:2]:
+                head = self.names[j].split("_")[0]
+                if head[-1].isdigit():
+                    joints.add(int(head[-1]))
+        return sorted(joints)
+
     def summary(self) -> str:
         """A plain-language warning for users, empty when everything is observable."""
         hidden = len(self.singular_values) - self.rank
         if hidden == 0:
             return ""
-        joints = sorted({int(self.names[j].split("_")[0][-1]) for i in range(self.rank, len(self.names))
-                         for j in np.argsort(-np.abs(self.V[:, i]))[:2] if self.names[j][-1].isdigit() or True
-                         if self.names[j][0] in "ot" and self.names[j].split("_")[0][-1].isdigit()})
         return (f"The data cannot see {hidden} of {len(self.singular_values)} parameter directions "
                 f"(condition number {self.condition_number:.3g}); they mostly involve joints "
-                f"{', '.join(map(str, joints))}. These are kept at their reference values; to calibrate them, "
-                "collect poses that move those joints over a wider range.")
+                f"{', '.join(map(str, self.hidden_joints()))}. These are kept at their reference values, so the "
+                "model is only as good as the nominal one along them: to calibrate them, collect poses that move "
+                "those joints over a wider range.")
 
 
 def analyse(par: MinimalParameterisation, q: np.ndarray, x: np.ndarray | None = None,
