@@ -80,14 +80,18 @@ class GeometricProblem:
         N = self.q.shape[0]
         if R_meas.shape != (N, 3, 3) or p_meas.shape != (N, 3):
             raise ModelError(f"measurements must be (N, 3, 3) and (N, 3) for N = {N}, got {R_meas.shape}, {p_meas.shape}")
-        self.R_meas = R_meas
-        self.p_meas = p_meas
-        self.groups = np.zeros(N, dtype=int) if groups is None else np.asarray(groups, dtype=int)
-        if self.groups.shape != (N,) or self.groups.min() < 0:
+        groups = np.zeros(N, dtype=int) if groups is None else np.asarray(groups, dtype=int)
+        if groups.shape != (N,) or groups.min() < 0:
             raise ModelError("groups must be one non-negative integer per sample")
-        self.n_groups = int(self.groups.max()) + 1
-        if np.any(np.bincount(self.groups, minlength=self.n_groups) == 0):
+        self.n_groups = int(groups.max()) + 1
+        counts = np.bincount(groups, minlength=self.n_groups)
+        if np.any(counts == 0):
             raise ModelError("every group index 0..G-1 must have at least one sample")
+        # Samples sorted by group so per-group sums are contiguous reductions.
+        order = np.argsort(groups, kind="stable")
+        self.q, self.R_meas, self.p_meas, self.groups = self.q[order], R_meas[order], p_meas[order], groups[order]
+        self._starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        self._counts = counts
         self.w_rot = rotation_residual_scale(a)
         m = par.size
         self.basis = np.eye(m) if basis is None else np.asarray(basis, dtype=float)
@@ -108,7 +112,7 @@ class GeometricProblem:
             R, p = self.par.nominal.fk(self.q, H, P)
             J = None
         r, e = weighted_residuals(self.R_meas, self.p_meas, R, p, self.w_rot)
-        cost = np.bincount(self.groups, weights=np.einsum("ni,ni->n", r, r), minlength=self.n_groups)
+        cost = np.add.reduceat(np.sum(r * r, axis=1), self._starts)
         if self.prior_weight is not None:
             cost = cost + np.sum((self.prior_weight * (x - self.x_ref)) ** 2, axis=1)
         if J is None:
@@ -116,10 +120,20 @@ class GeometricProblem:
         # d r / dx: position rows -dp; rotation rows -w * Jr^-1(e) dtheta.
         Jr = np.empty_like(J)
         Jr[:, :3] = -J[:, :3]
-        Jr[:, 3:] = -self.w_rot * np.einsum("nij,njk->nik", so3.right_jacobian_inv(e), J[:, 3:])
+        Jr[:, 3:] = -self.w_rot * (so3.right_jacobian_inv(e) @ J[:, 3:])
         return r, Jr @ self.basis, cost
 
-    def solve(self, z0: np.ndarray | None = None, max_iter: int = 50, tol: float = 1e-10) -> NlsResult:
+    def _normal_equations(self, Jz: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per-group ``J^T J`` (G, k, k) and ``J^T r`` (G, k)."""
+        G, k = self.n_groups, Jz.shape[-1]
+        if np.all(self._counts == self._counts[0]):  # equal groups: one batched product
+            Jg = Jz.reshape(G, -1, k)
+            JgT = np.swapaxes(Jg, 1, 2)
+            return JgT @ Jg, (JgT @ r.reshape(G, -1, 1))[..., 0]
+        JzT = np.swapaxes(Jz, 1, 2)
+        return np.add.reduceat(JzT @ Jz, self._starts), np.add.reduceat((JzT @ r[:, :, None])[..., 0], self._starts)
+
+    def solve(self, z0: np.ndarray | None = None, max_iter: int = 50, tol: float = 1e-9) -> NlsResult:
         """Batched Levenberg-Marquardt from ``x_ref`` (or ``x_ref + basis @ z0``)."""
         start = time.perf_counter()
         G, k = self.n_groups, self.basis.shape[1]
@@ -130,29 +144,26 @@ class GeometricProblem:
         Bw = None if self.prior_weight is None else self.prior_weight[:, None] * self.basis  # (m, k)
         it = 0
         for it in range(1, max_iter + 1):
-            A = np.zeros((G, k, k))
-            g = np.zeros((G, k))
-            np.add.at(A, self.groups, np.einsum("nri,nrj->nij", Jz, Jz))
-            np.add.at(g, self.groups, np.einsum("nri,nr->ni", Jz, r))
+            A, g = self._normal_equations(Jz, r)
             if Bw is not None:
                 A += Bw.T @ Bw
                 g += (z @ self.basis.T * self.prior_weight**2) @ self.basis
             diag = np.einsum("gii->gi", A) + 1e-12
             step = np.linalg.solve(A + lam[:, None, None] * (diag[:, :, None] * np.eye(k)), -g[:, :, None])[..., 0]
             step[converged] = 0.0
-            z_try = z + step
-            r_try, _, cost_try = self._evaluate(z_try, False)
+            r_try, _, cost_try = self._evaluate(z + step, False)
             better = cost_try < cost
-            z = np.where(better[:, None], z_try, z)
             rel = np.abs(cost - cost_try) / np.maximum(cost, 1e-300)
-            converged |= better & (rel < tol) | (np.linalg.norm(step, axis=1) < 1e-12)
+            converged |= (better & (rel < tol)) | (np.linalg.norm(step, axis=1) < 1e-12)
             lam = np.where(better, np.maximum(lam / 3.0, 1e-9), lam * 4.0)
             converged |= lam > 1e8
             if converged.all():
+                z = np.where(better[:, None], z + step, z)
                 break
-            r, Jz, cost = self._evaluate(z, True)
+            if better.any():
+                z = np.where(better[:, None], z + step, z)
+                r, Jz, cost = self._evaluate(z, True)
         r, _, cost = self._evaluate(z, False)
-        rms = np.sqrt(np.bincount(self.groups, weights=np.sum(r[:, :3] ** 2, axis=1), minlength=G)
-                      / np.bincount(self.groups, minlength=G))
+        rms = np.sqrt(np.add.reduceat(np.sum(r[:, :3] ** 2, axis=1), self._starts) / self._counts)
         x = self.x_ref + z @ self.basis.T
         return NlsResult(x, cost, rms, it, converged, time.perf_counter() - start)

@@ -114,9 +114,9 @@ class PoeModel:
         origins = [p.copy()]
         axes = []
         for i in range(n):
-            axes.append(np.einsum("nij,nj->ni", R, Hs[:, :, i]))
+            axes.append((R @ Hs[:, :, i, None])[..., 0])
             R = R @ so3.rot(Hs[:, :, i], q[:, i])
-            p = p + np.einsum("nij,nj->ni", R, Ps[:, :, i + 1])
+            p = p + (R @ Ps[:, :, i + 1, None])[..., 0]
             Rs.append(R)
             origins.append(p.copy())
         R_tool = R @ self.R_6_tool

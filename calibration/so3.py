@@ -49,10 +49,10 @@ def rot(h: np.ndarray, q: np.ndarray) -> np.ndarray:
     """
     h = np.asarray(h, dtype=float)
     q = np.asarray(q, dtype=float)
-    K = hat(h)
     s = np.sin(q)[..., None, None]
     c = np.cos(q)[..., None, None]
-    return np.eye(3) + s * K + (1.0 - c) * (K @ K)
+    # R = c I + s [h]x + (1 - c) h h^T for unit h.
+    return c * np.eye(3) + s * hat(h) + (1.0 - c) * (h[..., :, None] * h[..., None, :])
 
 
 def exp(phi: np.ndarray) -> np.ndarray:

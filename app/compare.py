@@ -1,0 +1,92 @@
+"""The paper's comparison (Table IV): fit every method on a training set, evaluate on a test set."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from calibration.errors import ModelError
+from calibration.methods import CDC_METHODS, METHODS, Fitter
+from calibration.metrics import Errors, error_stats, errors, joint_correlation, paired_tests, parameter_spread
+from calibration.models import KinematicModel
+from calibration.recording import Recording
+
+log = logging.getLogger("cellcal.app")
+
+
+@dataclass
+class Comparison:
+    """Everything ``compare`` reports: per-method models, errors and statistics."""
+
+    robot: str
+    models: dict[str, KinematicModel] = field(default_factory=dict)
+    fit_seconds: dict[str, float] = field(default_factory=dict)
+    train_errors: dict[str, Errors] = field(default_factory=dict)
+    test_errors: dict[str, Errors] = field(default_factory=dict)
+    skipped: dict[str, str] = field(default_factory=dict)
+    analysis: dict[str, Any] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        """The documented ``compare --json`` shape (plus ``skipped`` and ``analysis``)."""
+        methods = {}
+        for m, model in self.models.items():
+            methods[m] = {"fit_seconds": self.fit_seconds[m], "n_parameters": model.n_parameters,
+                          "train": error_stats(self.train_errors[m]), "test": error_stats(self.test_errors[m])}
+        return {"robot": self.robot, "methods": methods, "skipped": self.skipped, "analysis": self.analysis}
+
+
+def parse_methods(text: str) -> list[str]:
+    """``all`` or a comma-separated list of methods, validated."""
+    if text == "all":
+        return list(METHODS)
+    chosen = [m.strip() for m in text.split(",") if m.strip()]
+    unknown = [m for m in chosen if m not in METHODS]
+    if unknown or not chosen:
+        raise ModelError(f"unknown method {unknown[0] if unknown else text!r}; valid: all, {', '.join(METHODS)}")
+    return chosen
+
+
+def run_comparison(fitter: Fitter, test: Recording, methods: list[str]) -> Comparison:
+    """Fit each method and evaluate it; a method whose data is missing (CPA sweeps) is skipped with a reason."""
+    out = Comparison(fitter.robot)
+    for method in methods:
+        if method == "cpa" and fitter.cpa_data is None:
+            out.skipped[method] = "no single-joint sweep data given (--cpa DATA)"
+            continue
+        model, seconds = fitter.fit(method)
+        log.info("%s fitted in %.3f s", method, seconds)
+        out.models[method] = model
+        out.fit_seconds[method] = seconds
+        out.train_errors[method] = errors(model, fitter.train)
+        out.test_errors[method] = errors(model, test)
+    out.analysis = _analysis(fitter, test, out)
+    return out
+
+
+def _analysis(fitter: Fitter, test: Recording, cmp: Comparison) -> dict[str, Any]:
+    """Paper tables II and V, paired tests against the nominal model, observability, Fourier spectrum."""
+    analysis: dict[str, Any] = {}
+    if "nominal" in cmp.models:
+        nominal_test = cmp.test_errors["nominal"].position_mm
+        analysis["nominal_error_joint_correlation_test"] = joint_correlation(nominal_test, test.q)
+        analysis["nominal_error_joint_correlation_train"] = joint_correlation(
+            cmp.train_errors["nominal"].position_mm, fitter.train.q)
+        analysis["paired_tests_vs_nominal"] = {
+            m: paired_tests(e.position_mm, nominal_test) for m, e in cmp.test_errors.items() if m != "nominal"}
+    obs = fitter.observability()
+    analysis["observability"] = {"condition_number": obs.condition_number, "rank": obs.rank,
+                                 "parameters": len(obs.singular_values),
+                                 "relative_singular_values": (obs.singular_values / obs.singular_values[0]).tolist(),
+                                 "hidden_directions": obs.unobservable(), "warning": obs.summary()}
+    if any(m in CDC_METHODS for m in cmp.models):
+        local = fitter.local_fits()
+        analysis["local_parameter_spread"] = parameter_spread(local.x, fitter.par.names())
+        analysis["local_fit_seconds"] = local.seconds
+        analysis["local_fit_rms_mm"] = {"mean": float(np.mean(local.rms_mm)), "max": float(np.max(local.rms_mm))}
+    if "fbf13" in cmp.models:
+        interp = cmp.models["fbf13"].interpolator  # type: ignore[attr-defined]
+        analysis["fourier_singular_values"] = np.asarray(interp.singular_values()).tolist()
+    return analysis

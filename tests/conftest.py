@@ -1,0 +1,76 @@
+"""Shared fixtures: a synthetic arm with planted errors and recordings generated from it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from calibration import so3
+from calibration.parameterisation import MinimalParameterisation
+from calibration.recording import Recording
+from cell_config import load_cell
+
+SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "welding_motoman"
+R1_TRAIN = SHARED_DATA / "PH_grad_data" / "test0801_R1"
+R1_TEST = SHARED_DATA / "kinematic_raw_data" / "test0801_R1"
+
+
+def needs_shared_data() -> pytest.MarkDecorator:
+    return pytest.mark.skipif(not (R1_TRAIN.exists() and R1_TEST.exists()),
+                              reason=f"real recordings not found at {SHARED_DATA}")
+
+
+def planted_parameters(par: MinimalParameterisation, seed: int = 1, offset_mm: float = 1.0,
+                       tilt_rad: float = 1e-3) -> np.ndarray:
+    """A random geometric error of realistic size."""
+    rng = np.random.default_rng(seed)
+    n = par.n_joints
+    x = np.concatenate([rng.normal(0, offset_mm, 2 * n), rng.normal(0, tilt_rad, 2 * n)])
+    if par.fit_tool:
+        x = np.concatenate([x, rng.normal(0, offset_mm, 3)])
+    return x
+
+
+def cluster_design(step_deg: float = 15.0, spread_wrist: bool = True, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Anchors on a (q2, q3) grid, each with +1 deg on every joint: (q (N, 6), cluster (N,))."""
+    rng = np.random.default_rng(seed)
+    anchors = []
+    for q2 in np.arange(-45.0, 46.0, step_deg):
+        for q3 in np.arange(-40.0, 31.0, step_deg):
+            other = rng.uniform(-40, 40, 4) if spread_wrist else np.ones(4)
+            anchors.append([other[0], q2, q3, *other[1:]])
+    q, cluster = [], []
+    for k, a in enumerate(np.radians(anchors)):
+        q.append(a)
+        for j in range(6):
+            b = a.copy()
+            b[j] += np.radians(1.0)
+            q.append(b)
+        cluster += [k] * 7
+    return np.array(q), np.array(cluster)
+
+
+def measure(truth_fk, q: np.ndarray, noise_mm: float, noise_deg: float, seed: int,
+            cluster: np.ndarray | None = None) -> Recording:
+    """A recording of ``truth_fk`` (q -> R, p) at q with Gaussian position and orientation noise."""
+    rng = np.random.default_rng(seed)
+    R, p = truth_fk(q)
+    p = p + rng.normal(0, noise_mm, p.shape)
+    R = so3.exp(rng.normal(0, np.radians(noise_deg), p.shape)) @ R
+    extra = {} if cluster is None else {"cluster": cluster.astype(float)}
+    return Recording(q, p, so3.R_to_quat(R), extra, "synthetic")
+
+
+@pytest.fixture(scope="session")
+def r1_nominal():
+    return load_cell().robot("R1").model()
+
+
+@pytest.fixture(scope="session")
+def synthetic_arm(r1_nominal):
+    """(parameterisation, planted x, truth model) for R1 with flange shift."""
+    par = MinimalParameterisation(r1_nominal, fit_tool=True)
+    x = planted_parameters(par)
+    return par, x, par.model(x)
