@@ -73,8 +73,13 @@ def plant(effect: Effect, model: PoeModel, magnitude_mm: float, rng: np.random.G
     x = rng.normal(size=effect.size)
     if effect.kind in _POSITIVE:
         x = np.abs(x) + 0.2  # one-signed and not vanishing
+    dp = np.einsum("nij,j->ni", effect.pose_jacobian(model, q_ref, context)[:, :3], x)
+    rms = float(np.sqrt(np.mean(np.sum(dp**2, axis=1))))
+    if rms <= 0:
+        raise ModelError(f"{effect.kind} does not move the tool over the reference poses and context")
+    x = x * magnitude_mm / rms  # first order; the passes below correct the small nonlinearity
     _, p0 = model.fk(q_ref)
-    for _ in range(2):  # the second pass corrects the small nonlinearity
+    for _ in range(2):
         _, p = apply_effects(model, [effect.with_values(x)], q_ref, context)
         rms = float(np.sqrt(np.mean(np.sum((p - p0) ** 2, axis=1))))
         if rms <= 0:
