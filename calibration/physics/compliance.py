@@ -40,7 +40,7 @@ class JointCompliance(Effect):
     """
 
     kind = "joint_compliance"
-    gravity: GravityModel = field(default_factory=lambda: GravityModel(np.zeros(24)))
+    gravity: GravityModel
     joints: tuple[int, ...] = (2, 3, 5)
     values: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
