@@ -1,0 +1,171 @@
+"""Every identification method of the paper behind one entry point.
+
+Constant-parameter methods: ``nominal``, ``base`` (3 base-position parameters), ``cpa`` (circular point
+analysis, needs single-joint sweeps), ``nls0`` (NLS on the clusters nearest q = 0), ``nls1`` (one NLS over
+all training data). Configuration-dependent methods interpolate local cluster fits over (q2, q3):
+``nearest``, ``linear``, ``cubic``, ``rbf``, ``fbf13``, ``fbf7``, ``nn``, ``ae``.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from calibration.cdc import LocalFits, build_cdc, cluster_anchors, fit_local
+from calibration.cpa import identify_cpa, split_sweeps
+from calibration.errors import ModelError
+from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, GeometricProblem
+from calibration.models import ConstantModel, KinematicModel
+from calibration.observability import DEFAULT_RELATIVE_TOLERANCE, Observability, analyse
+from calibration.parameterisation import MinimalParameterisation
+from calibration.poe import PoeModel
+from calibration.recording import Recording
+
+log = logging.getLogger("cellcal.calibration")
+
+CONSTANT_METHODS = ("nominal", "base", "cpa", "nls0", "nls1")
+CDC_METHODS = ("nearest", "linear", "cubic", "rbf", "fbf13", "fbf7", "nn", "ae")
+METHODS = CONSTANT_METHODS + CDC_METHODS
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """Identification settings.
+
+    Attributes:
+        a: orientation weight (1641: 1 mm ~ 1 deg).
+        tolerance: relative singular value below which a parameter direction counts as unobservable.
+        fit_tool: identify the flange-point shift too (3 parameters).
+        local_prior: ridge strength of local cluster fits toward the global fit [1/mm-equivalent].
+        nls0_clusters: number of clusters nearest q = 0 used by ``nls0``.
+        fbf7_rank: rank of the SVD-reduced Fourier basis.
+        cluster_size: samples per anchor when the recording has no cluster column.
+        seed: random seed of the neural interpolators.
+    """
+
+    a: float = DEFAULT_ORIENTATION_WEIGHT
+    tolerance: float = DEFAULT_RELATIVE_TOLERANCE
+    fit_tool: bool = True
+    local_prior: float = 0.1
+    nls0_clusters: int = 1
+    fbf7_rank: int = 7
+    cluster_size: int = 7
+    seed: int = 0
+
+
+@dataclass
+class Fitter:
+    """Fits methods on one training recording, sharing the global and local fits between methods."""
+
+    robot: str
+    nominal: PoeModel
+    train: Recording
+    options: FitOptions = field(default_factory=FitOptions)
+    cpa_data: Recording | None = None
+    _cache: dict[str, Any] = field(default_factory=dict, repr=False)
+
+    @property
+    def par(self) -> MinimalParameterisation:
+        if "par" not in self._cache:
+            self._cache["par"] = MinimalParameterisation(self.nominal, self.options.fit_tool)
+        return self._cache["par"]
+
+    def observability(self) -> Observability:
+        if "obs" not in self._cache:
+            self._cache["obs"] = analyse(self.par, self.train.q, a=self.options.a, tolerance=self.options.tolerance)
+        return self._cache["obs"]
+
+    def _global(self, rec: Recording, obs: Observability) -> np.ndarray:
+        problem = GeometricProblem(self.par, rec.q, rec.R, rec.p, a=self.options.a, basis=obs.basis)
+        res = problem.solve()
+        if not res.converged.all():
+            log.warning("global NLS stopped after %d iterations without converging", res.iterations)
+        return res.x[0]
+
+    def global_fit(self) -> np.ndarray:
+        if "x_global" not in self._cache:
+            self._cache["x_global"] = self._global(self.train, self.observability())
+        return self._cache["x_global"]
+
+    def local_fits(self) -> LocalFits:
+        if "local" not in self._cache:
+            self._cache["local"] = fit_local(self.par, self.train, self.global_fit(), self.observability(),
+                                             self.options.a, self.options.local_prior, self.options.cluster_size)
+        return self._cache["local"]
+
+    def fit(self, method: str) -> tuple[KinematicModel, float]:
+        """Fit one method. Returns the model and its fit time [s], shared global/local fits included."""
+        if method not in METHODS:
+            raise ModelError(f"unknown method {method!r}; valid: {', '.join(METHODS)}")
+        shared = self._prepare_shared(method)
+        start = time.perf_counter()
+        fit_one = getattr(self, f"_fit_{method}", None)
+        model = fit_one() if fit_one is not None else self._fit_cdc(method)
+        seconds = time.perf_counter() - start + shared
+        model.info.setdefault("fit_seconds", seconds)
+        model.info.setdefault("train_samples", len(self.train))
+        return model, seconds
+
+    def _prepare_shared(self, method: str) -> float:
+        """Run (once) the global/local fits ``method`` builds on; returns their wall time [s]."""
+        seconds = self._cache.setdefault("seconds", {})
+        if method == "nls1" or method in CDC_METHODS:
+            if "global" not in seconds:
+                start = time.perf_counter()
+                self.global_fit()
+                seconds["global"] = time.perf_counter() - start
+        if method in CDC_METHODS and "local" not in seconds:
+            seconds["local"] = self.local_fits().seconds
+        return seconds.get("global", 0.0) * (method == "nls1" or method in CDC_METHODS) + \
+            seconds.get("local", 0.0) * (method in CDC_METHODS)
+
+    def _constant(self, method: str, x: np.ndarray, n_params: int, **info: Any) -> ConstantModel:
+        return ConstantModel(self.robot, method, self.par.model(x), n_params, dict(info))
+
+    def _fit_nominal(self) -> ConstantModel:
+        return ConstantModel(self.robot, "nominal", self.nominal, 0, {})
+
+    def _fit_base(self) -> ConstantModel:
+        R, p = self.nominal.fk(self.train.q)
+        shift = np.mean(self.train.p - p, axis=0)  # the least-squares optimum: orientation does not change
+        P = self.nominal.P.copy()
+        P[:, 0] += shift
+        return ConstantModel(self.robot, "base", self.nominal.with_geometry(self.nominal.H, P), 3,
+                             {"base_shift_mm": shift.tolist()})
+
+    def _fit_cpa(self) -> ConstantModel:
+        if self.cpa_data is None:
+            raise ModelError("cpa needs single-joint sweep data (a recording with one cluster id per sweep); "
+                             "none was given")
+        x, circles = identify_cpa(self.par, split_sweeps(self.cpa_data))
+        return self._constant("cpa", x, self.par.size, circle_rms_mm=[c.rms_mm for c in circles])
+
+    def _fit_nls0(self) -> ConstantModel:
+        groups, anchors = cluster_anchors(self.train, self.options.cluster_size)
+        nearest = np.argsort(np.linalg.norm(anchors, axis=1))[: self.options.nls0_clusters]
+        sub = self.train.subset(np.isin(groups, nearest))
+        obs = analyse(self.par, sub.q, a=self.options.a, tolerance=self.options.tolerance)
+        x = self._global(sub, obs)
+        return self._constant("nls0", x, obs.rank, clusters=nearest.tolist(), hidden_directions=obs.unobservable())
+
+    def _fit_nls1(self) -> ConstantModel:
+        obs = self.observability()
+        return self._constant("nls1", self.global_fit(), obs.rank, hidden_directions=obs.unobservable(),
+                              warning=obs.summary())
+
+    def _fit_cdc(self, method: str) -> KinematicModel:
+        options: dict[str, Any] = {}
+        if method == "fbf7":
+            options["rank"] = self.options.fbf7_rank
+        if method in ("nn", "ae"):
+            options["seed"] = self.options.seed
+        return build_cdc(self.robot, method, self.par, self.local_fits(), **options)
+
+
+def with_options(fitter: Fitter, **changes: Any) -> Fitter:
+    """A new fitter with changed options (nothing cached)."""
+    return Fitter(fitter.robot, fitter.nominal, fitter.train, replace(fitter.options, **changes), fitter.cpa_data)
