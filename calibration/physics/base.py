@@ -1,0 +1,211 @@
+"""The base of the non-geometric effect models: parameters, context, registry and the combined pose.
+
+An effect is a small frozen dataclass with named parameters (units in the names, e.g. ``c2_rad_per_Nm``)
+held in ``values`` (m,). Most effects perturb the joint angles, ``q_true = q + delta_q(model, q, context)``,
+before POE forward kinematics; their first-order pose signature is ``jacobian_q(q) @ delta_q``. Effects with
+``target == "geometry"`` (thermal drift) instead change the link vectors per sample.
+
+The context is a mapping of per-sample arrays, each shape (N,) unless noted; missing keys take defaults
+that switch the effect off for static, cold, unloaded data:
+
+==============  =========================================  =======
+key             meaning                                    default
+==============  =========================================  =======
+``t``           time since the arm started working [s]     0
+``temp_c``      arm temperature [deg C]                    the effect's reference
+``dir1..dir6``  approach direction of joint i, in {-1,0,1} 0
+``payload_kg``  mass carried at the tool point [kg]        0
+``qd``          joint velocities [rad/s], shape (N, n)     0
+==============  =========================================  =======
+
+Effects that are linear in their parameters give a regressor ``Y (N, n, m)`` with
+``delta_q == Y @ values``, and every effect gives the first-order pose Jacobian ``(N, 6, m)`` (rows
+``[p (mm); rotation (rad)]`` in the base frame) so a fitter gets Jacobians cheaply.
+"""
+
+from __future__ import annotations
+
+import abc
+from dataclasses import dataclass, fields, replace
+from typing import Any, ClassVar, Literal, Mapping
+
+import numpy as np
+
+from calibration.errors import ModelError
+from calibration.poe import PoeModel
+
+Context = Mapping[str, Any]
+
+EFFECT_KINDS: dict[str, type["Effect"]] = {}
+
+
+def check_q(model: PoeModel, q: np.ndarray) -> np.ndarray:
+    """Joint angles as a float array (N, n), or ModelError naming the expected shape."""
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    if q.ndim != 2 or q.shape[1] != model.n_joints:
+        raise ModelError(f"q must have shape (N, {model.n_joints}), got {q.shape}")
+    return q
+
+
+def context_array(context: Context | None, key: str, N: int, default: float = 0.0) -> np.ndarray:
+    """One per-sample context entry broadcast to shape (N,).
+
+    Args:
+        context: the context mapping (may be None).
+        key: entry name (``t``, ``temp_c``, ``payload_kg``, ``dir3``).
+        N: number of samples.
+        default: value used when the key is absent.
+    """
+    if context is None or key not in context or context[key] is None:
+        return np.full(N, float(default))
+    a = np.asarray(context[key], dtype=float)
+    if a.ndim > 1 or (a.ndim == 1 and a.shape[0] not in (1, N)):
+        raise ModelError(f"context[{key!r}] must be a scalar or have shape ({N},), got {a.shape}")
+    return np.broadcast_to(a, (N,)).astype(float)
+
+
+def context_dirs(context: Context | None, N: int, n: int) -> np.ndarray:
+    """Approach directions ``dir1..dirn`` stacked to shape (N, n), entries in {-1, 0, 1}."""
+    d = np.stack([context_array(context, f"dir{i + 1}", N) for i in range(n)], axis=1)
+    if not np.all(np.isin(d, (-1.0, 0.0, 1.0))):
+        raise ModelError("context dir1..dir6 must contain only -1, 0 or 1")
+    return d
+
+
+def context_qd(context: Context | None, N: int, n: int) -> np.ndarray:
+    """Joint velocities ``qd`` [rad/s] as shape (N, n) (zeros when absent)."""
+    if context is None or context.get("qd") is None:
+        return np.zeros((N, n))
+    qd = np.asarray(context["qd"], dtype=float)
+    if qd.shape != (N, n):
+        raise ModelError(f"context['qd'] must have shape ({N}, {n}), got {qd.shape}")
+    return qd
+
+
+def check_joints(joints: tuple[int, ...], n: int = 6) -> tuple[int, ...]:
+    """Validate 1-based joint numbers."""
+    joints = tuple(int(j) for j in joints)
+    if not joints or any(j < 1 or j > n for j in joints) or len(set(joints)) != len(joints):
+        raise ModelError(f"joints must be distinct numbers in 1..{n}, got {list(joints)}")
+    return joints
+
+
+@dataclass(frozen=True, eq=False)
+class Effect(abc.ABC):
+    """One physical effect with named parameters ``values`` (m,).
+
+    Subclasses define ``kind`` (the spec's effect name), a ``values`` field, ``names`` and either
+    :meth:`regressor` (joint effects, linear) or :meth:`geometry` (geometry effects).
+    """
+
+    kind: ClassVar[str]
+    target: ClassVar[Literal["joints", "geometry"]] = "joints"
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if "kind" in cls.__dict__:
+            EFFECT_KINDS[cls.kind] = cls
+
+    def __post_init__(self) -> None:
+        values = np.array(getattr(self, "values"), dtype=float).reshape(-1)
+        if values.shape != (len(self.names),):
+            raise ModelError(f"{self.kind}: expected {len(self.names)} values for {list(self.names)}, "
+                             f"got shape {values.shape}")
+        if not np.all(np.isfinite(values)):
+            raise ModelError(f"{self.kind}: parameter values must be finite")
+        object.__setattr__(self, "values", values)
+
+    @property
+    @abc.abstractmethod
+    def names(self) -> tuple[str, ...]:
+        """Parameter names with units, in the order of ``values``."""
+
+    @property
+    def size(self) -> int:
+        return len(self.names)
+
+    def parameters(self) -> dict[str, float]:
+        """Parameters as ``{name: value}`` (the report's ``parameters`` entry)."""
+        return {k: float(v) for k, v in zip(self.names, self.values)}
+
+    def with_values(self, values: np.ndarray) -> "Effect":
+        """The same effect with other parameter values (m,)."""
+        return replace(self, values=np.asarray(values, dtype=float))
+
+    def regressor(self, model: PoeModel, q: np.ndarray, context: Context | None = None) -> np.ndarray:
+        """Linear form ``delta_q = Y @ values``; Y has shape (N, n, m). Joint effects only."""
+        raise ModelError(f"{self.kind} does not act on the joint angles; use pose_jacobian")
+
+    def delta_q(self, model: PoeModel, q: np.ndarray, context: Context | None = None) -> np.ndarray:
+        """Joint-angle perturbation [rad], shape (N, n); zero for geometry effects."""
+        q = check_q(model, q)
+        if self.target != "joints":
+            return np.zeros_like(q)
+        return self.regressor(model, q, context) @ self.values
+
+    def geometry(self, model: PoeModel, N: int, context: Context | None = None,
+                 P: np.ndarray | None = None) -> np.ndarray:
+        """Per-sample link vectors [mm] (N, 3, n+1) starting from ``P`` (model's when None). Geometry effects."""
+        raise ModelError(f"{self.kind} does not change the link geometry")
+
+    def pose_jacobian(self, model: PoeModel, q: np.ndarray, context: Context | None = None) -> np.ndarray:
+        """First-order pose change per parameter, ``d[p (mm); theta (rad)] / d values``, shape (N, 6, m)."""
+        q = check_q(model, q)
+        return model.jacobian_q(q) @ self.regressor(model, q, context)
+
+    def _config(self) -> dict[str, Any]:
+        """Settings other than ``values`` as plain Python (override when not plain fields)."""
+        out = {}
+        for f in fields(self):
+            if f.name != "values":
+                v = getattr(self, f.name)
+                out[f.name] = list(v) if isinstance(v, tuple) else v
+        return out
+
+    @classmethod
+    def _from_config(cls, config: dict[str, Any], values: np.ndarray) -> "Effect":
+        kw = {k: tuple(v) if isinstance(v, list) else v for k, v in config.items()}
+        return cls(values=values, **kw)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain mapping ``{kind, parameters: {name: value}, **config}`` that :func:`effect_from_dict` reads."""
+        return {"kind": self.kind, **self._config(), "parameters": self.parameters()}
+
+
+def effect_from_dict(d: Mapping[str, Any]) -> Effect:
+    """Inverse of :meth:`Effect.to_dict`."""
+    kind = d.get("kind")
+    if kind not in EFFECT_KINDS:
+        raise ModelError(f"unknown effect kind {kind!r}; valid: {', '.join(sorted(EFFECT_KINDS))}")
+    cls = EFFECT_KINDS[kind]
+    config = {k: v for k, v in d.items() if k not in ("kind", "parameters")}
+    params = dict(d["parameters"])
+    probe = cls._from_config(config, np.zeros(len(params)))
+    if list(probe.names) != list(params):
+        raise ModelError(f"{kind}: parameter names {list(params)} do not match {list(probe.names)}")
+    return probe.with_values(np.array([params[k] for k in probe.names], dtype=float))
+
+
+def apply_effects(model: PoeModel, effects: tuple[Effect, ...] | list[Effect], q: np.ndarray,
+                  context: Context | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Tool pose of a POE model with effects: geometry effects change P, joint effects add to q.
+
+    Args:
+        model: geometric model the effects act on.
+        effects: the effects, applied together (joint perturbations summed, geometry effects chained).
+        q: commanded/measured joint angles [rad], shape (N, n).
+        context: per-sample context, see the module docstring.
+
+    Returns:
+        ``(R_base_tool (N, 3, 3), p_base_tool (N, 3) [mm])``.
+    """
+    q = check_q(model, q)
+    N = q.shape[0]
+    dq = np.zeros_like(q)
+    P = None
+    for e in effects:
+        if e.target == "geometry":
+            P = e.geometry(model, N, context, P)
+        else:
+            dq = dq + e.delta_q(model, q, context)
+    return model.fk(q + dq, P=P)
