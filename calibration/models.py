@@ -213,3 +213,6 @@ def load_model(path: str | Path) -> KinematicModel:
         raise DataError(path, None, None, f"malformed model file: {e!r}") from e
     except ModelError as e:
         raise DataError(path, None, None, str(e)) from e
+
+# Registers the physics model kind with load_model (imported last: it subclasses KinematicModel).
+import calibration.physics.model  # noqa: E402,F401
