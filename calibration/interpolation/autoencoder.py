@@ -1,0 +1,118 @@
+"""Autoencoder interpolation (``ae``): interpolate the anchors' latent codes, then decode.
+
+1. Standardise the anchor values y (K, m) per column.
+2. Train a ReLU autoencoder ``y -> y`` with Adam (scikit-learn ``MLPRegressor``, fixed seed): encoder
+   ``hidden`` widths (default 3 x 200), a bottleneck of ``latent`` units (default 6), decoder with the
+   mirrored widths, identity output.
+3. Split the trained net at the bottleneck. The latent code of an anchor is the bottleneck's
+   *pre-activation* z (K, latent); the decoder starts with the ReLU that the trained net applies there,
+   so ``decode(z)`` reproduces the trained net exactly at the anchors, while the interpolated codes keep
+   the information that a ReLU would clip (scikit-learn has no per-layer activation, hence this split).
+4. Interpolate the codes piecewise-linearly over x (the ``linear`` kind: Delaunay triangulation of the
+   anchors; outside the convex hull the nearest anchor's code, flagged by ``out_of_range``) and decode.
+
+So outside the hull the value is the autoencoder's reconstruction of the nearest anchor's value (equal
+to that value up to the reconstruction error). Only the latent interpolator, the decoder weights and
+the output scaler are stored; prediction is a numpy forward pass, bit-identical after a round trip.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar, Sequence
+
+import numpy as np
+
+from calibration.errors import ModelError
+from calibration.interpolation.base import Interpolator, field
+from calibration.interpolation.mlp import (Standardiser, check_training_options, forward, layers_from_dict,
+                                           layers_to_dict, train_mlp)
+from calibration.interpolation.scattered import LinearInterpolator
+
+
+class AutoencoderInterpolator(Interpolator):
+    """Linear interpolation of autoencoder latent codes over x, decoded to values.
+
+    Args:
+        latent: bottleneck size (latent code dimension), >= 1.
+        hidden: encoder hidden widths; the decoder mirrors them.
+        max_iter: training epochs (always run in full; no early stopping).
+        learning_rate: Adam step size.
+        alpha: L2 weight penalty.
+        random_state: seed; the same seed and data give the same network.
+    """
+
+    kind: ClassVar[str] = "ae"
+
+    def __init__(self, latent: int = 6, hidden: Sequence[int] = (200, 200, 200), max_iter: int = 400,
+                 learning_rate: float = 1e-3, alpha: float = 1e-4, random_state: int = 0) -> None:
+        super().__init__()
+        if isinstance(latent, bool) or not isinstance(latent, (int, np.integer)) or latent < 1:
+            raise ModelError(f"{self.kind}: latent must be a positive int, got {latent!r}")
+        self.latent = int(latent)
+        self.hidden = check_training_options(self.kind, hidden, max_iter, learning_rate, alpha)
+        self.max_iter, self.learning_rate, self.alpha = int(max_iter), float(learning_rate), float(alpha)
+        self.random_state = int(random_state)
+        self._codes: LinearInterpolator | None = None
+        self._ys: Standardiser | None = None
+        self._w: list[np.ndarray] = []
+        self._b: list[np.ndarray] = []
+
+    def latent_codes(self, x: np.ndarray) -> np.ndarray:
+        """Interpolated latent codes (bottleneck pre-activations), shape (N, latent), at x (N, d)."""
+        return self._latent().predict(x)
+
+    def decode(self, z: np.ndarray) -> np.ndarray:
+        """Values, shape (N, m), decoded from latent codes z, shape (N, latent)."""
+        self._require_fitted()
+        z = np.asarray(z, dtype=np.float64)
+        if z.ndim != 2 or z.shape[1] != self.latent:
+            raise ModelError(f"{self.kind}: latent codes must have shape (N, {self.latent}), got {z.shape}")
+        return self._ys.invert(forward(z, self._w, self._b, relu_in=True))  # type: ignore[union-attr]
+
+    def out_of_range(self, x: np.ndarray) -> np.ndarray:
+        """Whether each query (N, d) lies outside the anchors' convex hull; bool (N,)."""
+        x = self._check_query(x)
+        return self._latent().out_of_range(x)
+
+    def _check_dim(self, d: int) -> None:
+        if d < 2:
+            raise ModelError(f"{self.kind}: needs x with at least 2 columns (codes are interpolated on a "
+                             f"Delaunay triangulation), got {d}")
+
+    def _fit(self, x: np.ndarray, y: np.ndarray) -> None:
+        self._ys = Standardiser.fit(y)
+        yz = self._ys.apply(y)
+        sizes = (*self.hidden, self.latent, *self.hidden[::-1])
+        w, b = train_mlp(yz, yz, sizes, self.max_iter, self.learning_rate, self.alpha, self.random_state)
+        cut = len(self.hidden) + 1  # layers up to and including the bottleneck
+        z = forward(yz, w[:cut], b[:cut])  # identity on the last of these: pre-activation codes
+        self._codes = LinearInterpolator().fit(x, z)
+        self._w, self._b = w[cut:], b[cut:]
+
+    def _predict(self, x: np.ndarray) -> np.ndarray:
+        z = self._latent().predict(x)
+        return self._ys.invert(forward(z, self._w, self._b, relu_in=True))  # type: ignore[union-attr]
+
+    def _state(self) -> dict[str, Any]:
+        return {"options": {"latent": self.latent, "hidden": list(self.hidden), "max_iter": self.max_iter,
+                            "learning_rate": self.learning_rate, "alpha": self.alpha,
+                            "random_state": self.random_state},
+                "latent_interpolator": self._latent().to_dict(),
+                "y_scaler": self._ys.to_dict(),  # type: ignore[union-attr]
+                "decoder": layers_to_dict(self._w, self._b)}
+
+    @classmethod
+    def _from_state(cls, d: dict[str, Any]) -> Interpolator:
+        self = cls(**field(d, "options"))
+        self._codes = LinearInterpolator.from_dict(field(d, "latent_interpolator"))  # type: ignore[assignment]
+        self._ys = Standardiser.from_dict({**field(d, "y_scaler"), "kind": cls.kind})
+        self._w, self._b = layers_from_dict(d, "decoder")
+        if self._w[0].shape[0] != self.latent or self._codes.n_outputs != self.latent:  # type: ignore[union-attr]
+            raise ModelError(f"{cls.kind} dict: decoder/latent codes do not match latent = {self.latent}")
+        return self
+
+    def _latent(self) -> LinearInterpolator:
+        if self._codes is None:
+            self._require_fitted()
+            raise ModelError(f"{self.kind}: latent interpolator missing")
+        return self._codes

@@ -1,0 +1,181 @@
+"""Fourier basis functions (FBF) in the shoulder/elbow angles (q2, q3), full (13 terms) and SVD-reduced.
+
+The 13-term basis of the CDC paper, in the column order of ``FBF13_TERMS``::
+
+    b(q2, q3) = [sin q2, sin q3, cos q2, cos q3, sin(q2+q3), cos(q2+q3),            (a = 1)
+                 sin 2q2, sin 2q3, cos 2q2, cos 2q3, sin 2(q2+q3), cos 2(q2+q3),    (a = 2)
+                 1]
+
+The values are modelled as ``y(x) = A b(x)`` with the coefficient matrix A, shape (m, 13), fitted by least
+squares (pseudo-inverse) over the anchors. The reduced kind takes the SVD ``A = U S V^T``, keeps the top
+``rank`` right singular vectors ``V_r`` (13, r) as new basis functions ``V_r^T b(x)`` and refits
+coefficients C, shape (m, r), by least squares on them.
+
+Both are global smooth fits: they are exact only when the values lie in the span of the basis, and they
+extrapolate outside the anchors' convex hull, where ``out_of_range`` flags queries (see ``support``).
+Serialisation stores the coefficient arrays themselves, so prediction after a round trip is bit-identical.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+
+from calibration.errors import ModelError
+from calibration.interpolation.base import Interpolator, array_field, as_matrix, field
+from calibration.interpolation.support import AnchorSupport
+
+#: Names of the 13 basis functions, in column order (labels for the singular-vector heat map).
+FBF13_TERMS = ("sin q2", "sin q3", "cos q2", "cos q3", "sin(q2+q3)", "cos(q2+q3)",
+               "sin 2q2", "sin 2q3", "cos 2q2", "cos 2q3", "sin 2(q2+q3)", "cos 2(q2+q3)", "1")
+
+
+def fbf13_basis(x: np.ndarray) -> np.ndarray:
+    """The 13 Fourier basis functions at each configuration.
+
+    Args:
+        x: configurations (q2, q3) [rad], shape (N, 2).
+
+    Returns:
+        Basis matrix, shape (N, 13), columns ordered as ``FBF13_TERMS``.
+    """
+    x = as_matrix(x, "x", allow_empty=True)
+    if x.shape[1] != 2:
+        raise ModelError(f"fbf13 basis: needs x with 2 columns (q2, q3) [rad], got {x.shape[1]}")
+    q2, q3 = x[:, 0], x[:, 1]
+    cols = []
+    for a in (1.0, 2.0):
+        cols += [np.sin(a * q2), np.sin(a * q3), np.cos(a * q2), np.cos(a * q3),
+                 np.sin(a * (q2 + q3)), np.cos(a * (q2 + q3))]
+    cols.append(np.ones_like(q2))
+    return np.stack(cols, axis=1)
+
+
+class _FourierBase(Interpolator):
+    """Shared parts: d = 2, the anchors' hull for ``out_of_range``, the 13-term basis."""
+
+    input_dim: ClassVar[int | None] = 2
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._anchors: np.ndarray | None = None
+        self._support: AnchorSupport | None = None
+
+    def basis(self, x: np.ndarray) -> np.ndarray:
+        """The 13 Fourier basis functions, shape (N, 13), at configurations x (N, 2) [rad]."""
+        return fbf13_basis(x)
+
+    def out_of_range(self, x: np.ndarray) -> np.ndarray:
+        """Whether each query (N, 2) lies outside the anchors' convex hull; bool (N,)."""
+        x = self._check_query(x)
+        return self._support.outside(x)  # type: ignore[union-attr]
+
+    def _set_anchors(self, x: np.ndarray) -> None:
+        if x.shape[0] < 13:
+            raise ModelError(f"{self.kind}: needs at least 13 anchors for 13 basis functions, got {x.shape[0]}")
+        self._support = AnchorSupport(x)
+        self._anchors = x
+
+
+class Fourier13Interpolator(_FourierBase):
+    """Least-squares fit of the 13-term Fourier basis: ``y(x) = A b(x)``, A shape (m, 13)."""
+
+    kind: ClassVar[str] = "fbf13"
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._A: np.ndarray | None = None
+
+    @property
+    def coefficients(self) -> np.ndarray:
+        """Coefficient matrix A, shape (m, 13) (rows: outputs, columns: ``FBF13_TERMS``)."""
+        self._require_fitted()
+        return self._A.copy()  # type: ignore[union-attr]
+
+    def singular_values(self) -> np.ndarray:
+        """Singular values of A, descending, shape (min(m, 13),)."""
+        return np.linalg.svd(self.coefficients, compute_uv=False)
+
+    def right_singular_vectors(self) -> np.ndarray:
+        """V of ``A = U S V^T``, shape (13, 13): column j is the j-th right singular vector, row i is
+        basis term ``FBF13_TERMS[i]``. Columns beyond min(m, 13) span the null space of A."""
+        return np.linalg.svd(self.coefficients, full_matrices=True)[2].T
+
+    def _fit(self, x: np.ndarray, y: np.ndarray) -> None:
+        self._set_anchors(x)
+        self._A = (np.linalg.pinv(fbf13_basis(x)) @ y).T
+
+    def _predict(self, x: np.ndarray) -> np.ndarray:
+        return fbf13_basis(x) @ self._A.T  # type: ignore[union-attr]
+
+    def _state(self) -> dict[str, Any]:
+        return {"anchors": self._anchors.tolist(), "coefficients": self._A.tolist()}  # type: ignore[union-attr]
+
+    @classmethod
+    def _from_state(cls, d: dict[str, Any]) -> Interpolator:
+        self = cls()
+        self._set_anchors(array_field(d, "anchors", 2))
+        self._A = _checked(d, "coefficients", (None, 13))
+        return self
+
+
+class FourierReducedInterpolator(_FourierBase):
+    """SVD-reduced Fourier basis: ``y(x) = C V_r^T b(x)``, C shape (m, r), V_r shape (13, r).
+
+    Args:
+        rank: number r of reduced basis functions kept, 1..13 (the paper uses 7).
+    """
+
+    kind: ClassVar[str] = "fbf7"
+
+    def __init__(self, rank: int = 7) -> None:
+        super().__init__()
+        if isinstance(rank, bool) or not isinstance(rank, (int, np.integer)) or not 1 <= rank <= 13:
+            raise ModelError(f"{self.kind}: rank must be an int in 1..13, got {rank!r}")
+        self.rank = int(rank)
+        self._V: np.ndarray | None = None
+        self._C: np.ndarray | None = None
+
+    @property
+    def reduced_basis(self) -> np.ndarray:
+        """V_r, shape (13, r): column j holds the weights of reduced basis function j on ``FBF13_TERMS``."""
+        self._require_fitted()
+        return self._V.copy()  # type: ignore[union-attr]
+
+    @property
+    def coefficients(self) -> np.ndarray:
+        """Coefficients C on the reduced basis, shape (m, r)."""
+        self._require_fitted()
+        return self._C.copy()  # type: ignore[union-attr]
+
+    def _fit(self, x: np.ndarray, y: np.ndarray) -> None:
+        self._set_anchors(x)
+        b = fbf13_basis(x)
+        A = (np.linalg.pinv(b) @ y).T
+        V = np.linalg.svd(A, full_matrices=True)[2].T  # (13, 13), columns by decreasing singular value
+        self._V = np.ascontiguousarray(V[:, :self.rank])
+        self._C = (np.linalg.pinv(b @ self._V) @ y).T
+
+    def _predict(self, x: np.ndarray) -> np.ndarray:
+        return (fbf13_basis(x) @ self._V) @ self._C.T  # type: ignore[operator,union-attr]
+
+    def _state(self) -> dict[str, Any]:
+        return {"options": {"rank": self.rank}, "anchors": self._anchors.tolist(),  # type: ignore[union-attr]
+                "reduced_basis": self._V.tolist(), "coefficients": self._C.tolist()}  # type: ignore[union-attr]
+
+    @classmethod
+    def _from_state(cls, d: dict[str, Any]) -> Interpolator:
+        self = cls(**field(d, "options"))
+        self._set_anchors(array_field(d, "anchors", 2))
+        self._V = _checked(d, "reduced_basis", (13, self.rank))
+        self._C = _checked(d, "coefficients", (None, self.rank))
+        return self
+
+
+def _checked(d: dict[str, Any], key: str, shape: tuple[int | None, int]) -> np.ndarray:
+    arr = array_field(d, key, 2)
+    if any(s is not None and s != a for s, a in zip(shape, arr.shape)):
+        raise ModelError(f"{d.get('kind')} dict: {key!r} has shape {arr.shape}, expected "
+                         f"{tuple('m' if s is None else s for s in shape)}")
+    return arr

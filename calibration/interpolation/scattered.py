@@ -1,0 +1,121 @@
+"""Local interpolants through the anchors: nearest anchor, piecewise linear and Clough-Tocher cubic.
+
+All three pass exactly through the anchor values. Linear and cubic are defined on the Delaunay
+triangulation of the anchors; outside its convex hull scipy would return NaN, so there they return the
+nearest anchor's value instead, and ``out_of_range`` flags those queries.
+
+Serialisation stores the anchors and values; loading rebuilds the triangulation (Qhull is deterministic
+for the same input), so prediction after a round trip is bit-identical.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+
+from calibration.errors import ModelError
+from calibration.interpolation.base import Interpolator, array_field
+from calibration.interpolation.support import AnchorSupport
+
+
+class AnchoredInterpolator(Interpolator):
+    """Base for the kinds whose whole state is the anchors, the values and a few options."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._anchors: np.ndarray | None = None
+        self._values: np.ndarray | None = None
+        self._support: AnchorSupport | None = None
+
+    def out_of_range(self, x: np.ndarray) -> np.ndarray:
+        """Whether each query (N, d) lies outside the anchors' convex hull; bool (N,)."""
+        x = self._check_query(x)
+        return self._hull().outside(x)
+
+    def _fit(self, x: np.ndarray, y: np.ndarray) -> None:
+        self._support = AnchorSupport(x, unique=True)
+        self._anchors, self._values = x, y
+        self._build()
+
+    def _build(self) -> None:
+        """Build the scipy object from ``self._anchors`` and ``self._values`` (fit and load)."""
+
+    def _options(self) -> dict[str, Any]:
+        """Constructor keyword arguments, stored with the arrays."""
+        return {}
+
+    def _state(self) -> dict[str, Any]:
+        return {"options": self._options(), "anchors": self._anchors.tolist(),  # type: ignore[union-attr]
+                "values": self._values.tolist()}  # type: ignore[union-attr]
+
+    @classmethod
+    def _from_state(cls, d: dict[str, Any]) -> Interpolator:
+        options = d.get("options", {})
+        if not isinstance(options, dict):
+            raise ModelError(f"{cls.kind} dict: 'options' must be a mapping")
+        self = cls(**options)
+        self._fit(array_field(d, "anchors", 2), array_field(d, "values", 2))
+        return self
+
+    def _hull(self) -> AnchorSupport:
+        if self._support is None:
+            self._require_fitted()
+            raise ModelError(f"{self.kind}: support not built")
+        return self._support
+
+    def _nearest_values(self, x: np.ndarray) -> np.ndarray:
+        return self._values[self._hull().nearest(x)]  # type: ignore[index]
+
+
+class NearestInterpolator(AnchoredInterpolator):
+    """Value of the nearest anchor (Euclidean distance in x); defined everywhere, flagged outside the hull."""
+
+    kind: ClassVar[str] = "nearest"
+
+    def _predict(self, x: np.ndarray) -> np.ndarray:
+        return self._nearest_values(x)
+
+
+class _TriangulatedInterpolator(AnchoredInterpolator):
+    """Piecewise interpolant on the anchors' Delaunay triangulation, nearest anchor outside the hull."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._interp: Any = None
+
+    def _predict(self, x: np.ndarray) -> np.ndarray:
+        out = self._interp(x)
+        # Same point location as scipy's, plus any NaN scipy produced on the hull boundary.
+        fill = self._hull().outside(x) | np.isnan(out).any(axis=1)
+        if fill.any():
+            out[fill] = self._nearest_values(x[fill])
+        return out
+
+
+class LinearInterpolator(_TriangulatedInterpolator):
+    """Piecewise-linear (barycentric) interpolation on the Delaunay triangulation; any d >= 2."""
+
+    kind: ClassVar[str] = "linear"
+
+    def _check_dim(self, d: int) -> None:
+        if d < 2:
+            raise ModelError(f"{self.kind}: needs x with at least 2 columns, got {d}; use 'nearest' or "
+                             "'rbf' for one input")
+
+    def _build(self) -> None:
+        from scipy.interpolate import LinearNDInterpolator
+
+        self._interp = LinearNDInterpolator(self._hull().tri, self._values)
+
+
+class CubicInterpolator(_TriangulatedInterpolator):
+    """Clough-Tocher C1 piecewise-cubic interpolation on the Delaunay triangulation; d = 2 only."""
+
+    kind: ClassVar[str] = "cubic"
+    input_dim: ClassVar[int | None] = 2
+
+    def _build(self) -> None:
+        from scipy.interpolate import CloughTocher2DInterpolator
+
+        self._interp = CloughTocher2DInterpolator(self._hull().tri, self._values)
