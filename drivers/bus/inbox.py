@@ -8,7 +8,7 @@ import threading
 from dataclasses import dataclass
 from typing import Callable, Generic, TypeVar
 
-from drivers.errors import ProtocolError
+from drivers.errors import DriverError, ProtocolError
 
 log = logging.getLogger("cellcal.drivers")
 T = TypeVar("T")
@@ -42,7 +42,7 @@ class Inbox(Generic[T]):
 
     def __init__(self, name: str, decode: Callable[[bytes], T], capacity: int) -> None:
         if capacity < 1:
-            raise ValueError(f"capacity must be >= 1, got {capacity}")
+            raise DriverError("zenoh", f"{name}: buffer capacity must be >= 1, got {capacity}")
         self.name = name
         self._decode = decode
         self._items: collections.deque[T] = collections.deque(maxlen=capacity)

@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from drivers.errors import DriverError, DriverTimeout
+from drivers.errors import DriverError, DriverTimeout, ProtocolError
 from drivers.natnet import FakeBody, FakeFrame, FakeNatNetServer, NatNetSource, encode_frame
 
 GROUP = "239.255.42.99"
@@ -72,6 +72,13 @@ def test_configured_version_does_not_wait_for_the_server():
             assert time.monotonic() - t0 < 0.5 and src.server_info is None
             server.send_frame(_frame(7), to=("127.0.0.1", src.data_port))
             assert [f.frame_number for f in _read_until(src, 2)] == [7, 7]
+
+
+def test_bad_constructor_arguments():
+    with pytest.raises(DriverError, match="max_buffered_frames must be >= 1, got 0"):
+        NatNetSource(max_buffered_frames=0)
+    with pytest.raises(ProtocolError, match="supported: 3.0 to 4.x"):
+        NatNetSource(version=(2, 10))
 
 
 def test_silent_server_times_out_with_a_clear_message():

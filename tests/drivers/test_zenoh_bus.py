@@ -173,9 +173,13 @@ def test_bridge_stops_on_source_failure_and_close_is_clean(publisher_session, en
     assert threading.active_count() == before
 
 
-def test_config_and_session_are_exclusive(publisher_session):
+def test_constructor_errors(publisher_session):
     with pytest.raises(DriverError, match="either config or session"):
         ZenohMocapSource(CELL, config=ZenohConfig(), session=publisher_session)
+    with pytest.raises(DriverError, match="buffer capacity must be >= 1, got 0"):
+        ZenohMocapSource(CELL, session=publisher_session, max_buffered_frames=0)
+    with pytest.raises(DriverError, match="rigid body name 'a/b' is not a valid key chunk"):
+        ZenohMocapSource(CELL, session=publisher_session, rigid_bodies=["a/b"])
 
 
 def test_unusable_endpoint_is_a_driver_error():
