@@ -162,7 +162,7 @@ class Fitter:
         if method == "fbf7":
             options["rank"] = self.options.fbf7_rank
         if method in ("nn", "ae"):
-            options["seed"] = self.options.seed
+            options["random_state"] = self.options.seed
         return build_cdc(self.robot, method, self.par, self.local_fits(), **options)
 
 

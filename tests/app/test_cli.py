@@ -1,0 +1,101 @@
+"""The command line end to end on synthetic recordings, and every bad-input path."""
+
+import json
+
+import numpy as np
+import pytest
+
+from app.cli import main
+from calibration.recording import write_recording
+from tests.conftest import cluster_design, measure
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory, synthetic_arm):
+    _, _, truth = synthetic_arm
+    root = tmp_path_factory.mktemp("data")
+    q, cluster = cluster_design(step_deg=15.0)
+    write_recording(measure(truth.fk, q, 0.02, 0.01, 1, cluster), root / "train.csv")
+    q_test = np.random.default_rng(3).uniform(-0.8, 0.8, (200, 6))
+    write_recording(measure(truth.fk, q_test, 0.02, 0.01, 2), root / "test.csv")
+    np.savetxt(root / "q.csv", q_test[:10], delimiter=",")
+    return root
+
+
+def test_fit_predict_evaluate(tmp_path, data, capsys):
+    model = tmp_path / "m.yaml"
+    assert main(["fit", "--robot", "R1", "--train", str(data / "train.csv"), "--method", "nls1",
+                 "--out", str(model)]) == 0
+    poses = tmp_path / "poses.csv"
+    assert main(["predict", "--model", str(model), "--joints", str(data / "q.csv"), "--out", str(poses)]) == 0
+    header = poses.read_text().splitlines()[0]
+    assert header == "x,y,z,qw,qx,qy,qz"
+    assert len(poses.read_text().splitlines()) == 11
+    out = tmp_path / "eval.json"
+    assert main(["evaluate", "--model", str(model), "--test", str(data / "test.csv"), "--json", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert result["test"]["position_mm"]["mean"] < 0.1  # planted errors recovered, noise 0.02 mm per axis
+
+
+def test_compare_json_shape_and_report(tmp_path, data):
+    out = tmp_path / "cmp.json"
+    report = tmp_path / "report"
+    assert main(["compare", "--robot", "R1", "--train", str(data / "train.csv"), "--test", str(data / "test.csv"),
+                 "--methods", "nominal,base,nls1,fbf13,fbf7", "--json", str(out), "--report", str(report)]) == 0
+    cmp = json.loads(out.read_text())
+    assert cmp["robot"] == "R1"
+    for m in ("nominal", "base", "nls1", "fbf13", "fbf7"):
+        entry = cmp["methods"][m]
+        assert entry["fit_seconds"] >= 0
+        for split in ("train", "test"):
+            for kind in ("position_mm", "orientation_deg"):
+                assert set(entry[split][kind]) >= {"mean", "std", "max", "rms"}
+    assert cmp["methods"]["nls1"]["test"]["position_mm"]["mean"] < cmp["methods"]["nominal"]["test"]["position_mm"]["mean"]
+    for name in ("report.md", "error_along_path.png", "fourier_singular_values.png", "fourier_v_heatmap.png"):
+        assert (report / name).stat().st_size > 0
+
+
+def _bad(capsys, argv, *fragments):
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    for f in fragments:
+        assert f in err[0]
+
+
+def test_bad_inputs_exit_2_and_write_nothing(tmp_path, data, capsys):
+    out = tmp_path / "never.yaml"
+    bad = tmp_path / "bad.csv"
+    bad.write_text("q1,q2,q3,q4,q5,q6,x,y,z,qw,qx,qy,qz\n0,0,0,0,0,0,1,2,nan,1,0,0,0\n")
+    _bad(capsys, ["fit", "--robot", "R1", "--train", str(bad), "--method", "nls1", "--out", str(out)],
+         "row 2", "'z'", "not a finite number")
+    _bad(capsys, ["fit", "--robot", "R9", "--train", str(data / "train.csv"), "--method", "nls1", "--out", str(out)],
+         "unknown robot 'R9'")
+    _bad(capsys, ["compare", "--robot", "R1", "--train", str(data / "train.csv"), "--test", str(data / "test.csv"),
+                  "--methods", "fbf13,magic", "--json", str(tmp_path / "c.json")], "unknown method 'magic'")
+    short = tmp_path / "short"
+    short.mkdir()
+    (short / "robot_q_align.csv").write_text("0,0,0,0,0,0\n0,0,0,0,0,0\n")
+    (short / "mocap_T_align.csv").write_text("1,2,3,1,0,0,0\n")
+    _bad(capsys, ["evaluate", "--model", str(out), "--test", str(short)], "not found")
+    quat = tmp_path / "quat.csv"
+    quat.write_text("q1,q2,q3,q4,q5,q6,x,y,z,qw,qx,qy,qz\n0,0,0,0,0,0,1,2,3,0.5,0,0,0\n")
+    _bad(capsys, ["fit", "--robot", "R1", "--train", str(quat), "--method", "base", "--out", str(out)],
+         "row 2", "quaternion norm")
+    limits = tmp_path / "limits.csv"
+    limits.write_text("q1,q2,q3,q4,q5,q6,x,y,z,qw,qx,qy,qz\n0,0,3.0,0,0,0,1,2,3,1,0,0,0\n")
+    _bad(capsys, ["fit", "--robot", "R1", "--train", str(limits), "--method", "base", "--out", str(out)],
+         "row 2", "'q3'", "joint limits")
+    assert not out.exists() and not (tmp_path / "c.json").exists()
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+
+
+def test_predict_rejects_bad_joint_file(tmp_path, data, capsys):
+    model = tmp_path / "m.json"
+    assert main(["fit", "--robot", "R1", "--train", str(data / "train.csv"), "--method", "nls1",
+                 "--out", str(model)]) == 0
+    q = tmp_path / "q.csv"
+    q.write_text("q1,q2,q3,q4,q5,q6\n0,0,x,0,0,0\n")
+    out = tmp_path / "poses.csv"
+    _bad(capsys, ["predict", "--model", str(model), "--joints", str(q), "--out", str(out)], "row 2", "'q3'")
+    assert not out.exists()

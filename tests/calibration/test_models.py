@@ -1,0 +1,54 @@
+"""Every model kind saves to one file and loads back to bit-identical predictions."""
+
+import numpy as np
+import pytest
+
+from calibration.errors import DataError
+from calibration.methods import METHODS, FitOptions, Fitter
+from calibration.models import load_model, save_model
+from tests.conftest import cluster_design, measure
+
+
+@pytest.fixture(scope="module")
+def fitter(synthetic_arm, r1_nominal):
+    _, _, truth = synthetic_arm
+    q, cluster = cluster_design(step_deg=15.0)
+    rec = measure(truth.fk, q, 0.02, 0.01, 1, cluster)
+    return Fitter("R1", r1_nominal, rec, FitOptions())
+
+
+@pytest.fixture(scope="module")
+def fitted(fitter):
+    cache = {}
+
+    def get(method):
+        if method not in cache:
+            cache[method] = fitter.fit(method)[0]
+        return cache[method]
+    return get
+
+
+@pytest.mark.parametrize("method", [m for m in METHODS if m != "cpa"])
+@pytest.mark.parametrize("suffix", [".yaml", ".json"])
+def test_round_trip_bit_identical(tmp_path, fitted, method, suffix):
+    model = fitted(method)
+    path = tmp_path / f"model{suffix}"
+    save_model(model, path)
+    back = load_model(path)
+    q = np.random.default_rng(0).uniform(-1, 1, (50, 6))
+    R0, p0 = model.fk(q)
+    R1, p1 = back.fk(q)
+    assert np.array_equal(p0, p1) and np.array_equal(R0, R1)
+    assert back.method == method and back.robot == "R1"
+
+
+def test_bad_model_files(tmp_path):
+    path = tmp_path / "m.yaml"
+    path.write_text("schema: other/1\n")
+    with pytest.raises(DataError, match="unsupported model schema"):
+        load_model(path)
+    path.write_text("[1, 2")
+    with pytest.raises(DataError, match="not a valid model file"):
+        load_model(path)
+    with pytest.raises(DataError, match="not found"):
+        load_model(tmp_path / "none.yaml")

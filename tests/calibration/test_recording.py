@@ -1,0 +1,88 @@
+"""Recordings: both layouts read, and every bad input named by file, row and column."""
+
+import numpy as np
+import pytest
+
+from calibration.errors import DataError
+from calibration.recording import read_joints, read_recording, write_recording
+from tests.conftest import cluster_design, measure
+
+HEADER = "q1,q2,q3,q4,q5,q6,x,y,z,qw,qx,qy,qz"
+ROW = "0.1,0.2,0.3,0.4,0.5,0.6,1000,2,3,1,0,0,0"
+
+
+def write(tmp_path, text, name="rec.csv"):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def test_round_trip_with_extra_columns(tmp_path, synthetic_arm):
+    _, _, truth = synthetic_arm
+    q, cluster = cluster_design(step_deg=45.0)
+    rec = measure(truth.fk, q, 0.02, 0.01, 0, cluster)
+    path = tmp_path / "out.csv"
+    write_recording(rec, path)
+    back = read_recording(path)
+    np.testing.assert_array_equal(back.q, rec.q)
+    np.testing.assert_array_equal(back.p, rec.p)
+    np.testing.assert_allclose(back.quat, rec.quat, atol=1e-15)
+    np.testing.assert_array_equal(back.clusters(), cluster)
+
+
+def test_welding_layout(tmp_path):
+    folder = tmp_path / "run"
+    folder.mkdir()
+    (folder / "robot_q_align.csv").write_text("0.1,0.2,0.3,0.4,0.5,0.6\n0,0,0,0,0,0\n")
+    (folder / "mocap_T_align.csv").write_text("1,2,3,1,0,0,0\n4,5,6,0,1,0,0\n")
+    rec = read_recording(folder)
+    assert len(rec) == 2
+    np.testing.assert_array_equal(rec.p[1], [4, 5, 6])
+
+
+@pytest.mark.parametrize("text, row, column, reason", [
+    ("q1,q2,q3,q4,q5,q6,x,y,z,qw,qx,qy\n" + ROW[:-2], 1, "qz", "required column missing"),
+    (HEADER + "\n" + ROW.replace("1000", "abc"), 2, "x", "not a number"),
+    (HEADER + "\n" + ROW + "\n" + ROW.replace("1000", "nan"), 3, "x", "not a finite number"),
+    (HEADER + "\n" + ROW.replace(",1,0,0,0", ",0.9,0,0,0"), 2, "qw..qz", "quaternion norm"),
+    (HEADER + "\n" + ROW + ",7", 2, None, "expected 13 fields"),
+    (HEADER, None, None, "no data rows"),
+])
+def test_bad_recordings_are_named(tmp_path, text, row, column, reason):
+    path = write(tmp_path, text)
+    with pytest.raises(DataError) as e:
+        read_recording(path)
+    assert e.value.row == row and e.value.column == column
+    assert reason in str(e.value) and str(path) in str(e.value)
+
+
+def test_joint_limits_checked(tmp_path):
+    path = write(tmp_path, HEADER + "\n" + ROW.replace("0.1,", "3.5,", 1))
+    with pytest.raises(DataError, match="outside the joint limits") as e:
+        read_recording(path, np.radians([-180] * 6), np.radians([180] * 6))
+    assert e.value.column == "q1" and e.value.row == 2
+
+
+def test_welding_layout_row_count_mismatch(tmp_path):
+    folder = tmp_path / "run"
+    folder.mkdir()
+    (folder / "robot_q_align.csv").write_text("0,0,0,0,0,0\n0,0,0,0,0,0\n")
+    (folder / "mocap_T_align.csv").write_text("1,2,3,1,0,0,0\n")
+    with pytest.raises(DataError, match="1 pose rows but robot_q_align.csv has 2"):
+        read_recording(folder)
+
+
+def test_read_joints_with_and_without_header(tmp_path):
+    a = read_joints(write(tmp_path, "q1,q2,q3,q4,q5,q6\n0,1,2,3,4,5\n", "a.csv"))
+    b = read_joints(write(tmp_path, "0,1,2,3,4,5\n", "b.csv"))
+    np.testing.assert_array_equal(a, b)
+    with pytest.raises(DataError, match="q6"):
+        read_joints(write(tmp_path, "q1,q2,q3,q4,q5\n0,1,2,3,4\n", "c.csv"))
+    with pytest.raises(DataError, match="expected 6 fields"):
+        read_joints(write(tmp_path, "0,1,2\n", "d.csv"))
+
+
+def test_missing_cluster_column_needs_whole_anchor_groups(tmp_path):
+    path = write(tmp_path, HEADER + "\n" + ROW + "\n" + ROW)
+    with pytest.raises(DataError, match="not a multiple"):
+        read_recording(path).clusters()
