@@ -253,7 +253,7 @@ class SimRobotDriver(RobotDriver):
         starts = np.array([s.t0 for s in segs])
         k = np.clip(np.searchsorted(starts, t, side="right") - 1, 0, len(segs) - 1)
         q = np.empty((t.size, 6))
-        for i in np.unique(k):
+        for i in set(k.tolist()):
             s = segs[i]
             sel = k == i
             span = s.t1 - s.t0
