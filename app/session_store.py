@@ -173,8 +173,9 @@ class SessionStore:
     def add_skipped(self, target_index: int, robot: str, kind: str, cluster: int, reason: str,
                     attempts: int) -> None:
         """Commit a target that could not be measured, with the reason."""
-        row = [target_index, "skipped", robot, kind, cluster] + [None] * 19 + [None] * 6 + [attempts, reason,
-                                                                                           time.time()]
+        values = {"target_index": target_index, "status": "skipped", "robot": robot, "kind": kind,
+                  "cluster": cluster, "attempts": attempts, "reason": reason, "recorded_at": time.time()}
+        row = [values.get(c) for c in _SAMPLE_COLUMNS]
         self._insert(row)
 
     def forget_skipped(self) -> int:
