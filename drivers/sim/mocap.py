@@ -106,16 +106,21 @@ class SimMocapSource(MocapSource):
         with self._lock:
             self._connected = False
 
-    def blackout(self, duration_s: float, missing: bool = False) -> None:
+    def blackout(self, duration_s: float, missing: bool = False) -> tuple[float, float]:
         """Lose tracking of every body for ``duration_s`` simulated seconds from now.
 
         Args:
             duration_s: length of the outage [s, simulated].
             missing: True to deliver no frames at all, False to deliver frames with ``tracking_valid`` False.
+
+        Returns:
+            The capture-time window [s, simulated] of the outage.
         """
         now = self.clock.now()
+        window = (now - self.config.latency_s, now + duration_s)
         with self._lock:
-            self._blackouts.append((now - self.config.latency_s, now + duration_s, missing))
+            self._blackouts.append((*window, missing))
+        return window
 
     def _due_frame(self) -> int:
         """Index one past the last frame delivered by now."""

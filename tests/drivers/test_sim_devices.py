@@ -154,11 +154,12 @@ def test_mocap_blackout_and_cell_frame(r1):
         f2 = [f for f in frames if f.body_id == 2][-1]
         _, p2 = r2.model().fk(np.zeros((1, 6)))
         np.testing.assert_allclose(f2.position_mm, r2.T_cell_base[:3, :3] @ p2[0] + r2.T_cell_base[:3, 3], atol=1e-9)
-        t_lost = arm.clock.now()
-        mocap.blackout(0.2)
+        t_lost, t_back = mocap.blackout(0.2)
         arm.clock.sleep(0.1)
-        lost = [f for f in mocap.read(1.0) if f.capture_time >= t_lost]
+        frames = mocap.read(1.0)
+        lost = [f for f in frames if t_lost <= f.capture_time < t_back]
         assert lost and not any(f.tracking_valid for f in lost)
+        assert all(f.tracking_valid for f in frames if f.capture_time >= t_back)
         arm.clock.sleep(0.3)
         mocap.read(0.0)
         assert all(f.tracking_valid for f in mocap.read(1.0))
