@@ -1,0 +1,165 @@
+"""Simulated arm and mocap: motion timing, settling, quantisation, faults, noise statistics, determinism."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from calibration import so3
+from cell_config import load_cell
+from drivers.errors import DriverDisconnected, DriverTimeout, RobotFault
+from drivers.sim import (PoeTruth, SimClock, SimFault, SimMocapConfig, SimMocapSource, SimRobotConfig,
+                         SimRobotDriver, planted_truth)
+
+
+@pytest.fixture
+def r1():
+    return load_cell().robot("R1")
+
+
+def make_arm(r1, scale=200.0, **cfg):
+    truth = planted_truth(r1.model(), seed=3)
+    return SimRobotDriver("R1", r1.robot, truth, clock=SimClock(scale), config=SimRobotConfig(**cfg))
+
+
+def test_move_takes_the_time_the_speed_allows_then_settles(r1):
+    arm = make_arm(r1, scale=20.0, settle_time_s=0.2)
+    with arm:
+        arm.move_to(np.zeros(6), 1.0)  # warm-up (first numpy calls are slow)
+        arm.wait_settled(1.0)
+        target = np.radians([10, 20, -10, 5, 5, 5])
+        t0 = arm.clock.now()
+        arm.move_to(target, 0.5)
+        assert arm.status().in_motion
+        state = arm.wait_settled(timeout_s=10.0)
+        elapsed = arm.clock.now() - t0
+        # joint 2 limits the move: 20 deg at half of 190 deg/s, smoothstep peak 1.5 x mean speed
+        expected = 20 / (0.5 * 190) * 1.5 + 0.2
+        assert elapsed == pytest.approx(expected, abs=0.05)
+        assert not arm.status().in_motion
+        np.testing.assert_allclose(state.q, target, atol=1e-4)
+
+
+def test_readback_is_quantised_to_encoder_pulses(r1):
+    arm = make_arm(r1)
+    with arm:
+        arm.move_to(np.radians([10.123456, 0, 0, 0, 0, 33.3333]), 1.0)
+        q = arm.wait_settled(5.0).q
+        pulses = q * r1.robot.pulses_per_rad
+        np.testing.assert_allclose(pulses, np.round(pulses), atol=1e-6)
+        assert not np.allclose(q, arm.true_joints(np.array([arm.clock.now()]))[0], atol=1e-12)
+
+
+def test_wait_times_out_when_the_move_needs_longer(r1):
+    arm = make_arm(r1)
+    with arm:
+        arm.move_to(np.radians([90, 0, 0, 0, 0, 0]), 0.1)
+        with pytest.raises(DriverTimeout, match="timed out"):
+            arm.wait_settled(timeout_s=1.0)
+
+
+def test_faults(r1):
+    arm = make_arm(r1)
+    with arm:
+        arm.inject_fault(SimFault.DISCONNECT)
+        with pytest.raises(DriverDisconnected):
+            arm.read_joints()
+        arm.connect()
+        arm.inject_fault(SimFault.ALARM)
+        assert arm.status().alarm and not arm.status().ready
+        with pytest.raises(RobotFault, match="alarm"):
+            arm.move_to(np.zeros(6), 0.5)
+        arm.clear_faults()
+        arm.inject_fault(SimFault.ESTOP)
+        with pytest.raises(RobotFault, match="e-stop"):
+            arm.move_to(np.zeros(6), 0.5)
+        arm.clear_faults()
+        arm.inject_fault(SimFault.STALL)
+        arm.move_to(np.radians([5, 0, 0, 0, 0, 0]), 0.5)
+        with pytest.raises(DriverTimeout):
+            arm.wait_settled(2.0)
+        arm.schedule_fault(SimFault.DISCONNECT, at_call=arm.move_calls + 2)
+        arm.move_to(np.zeros(6), 1.0)
+        with pytest.raises(DriverDisconnected):
+            arm.move_to(np.radians([1, 0, 0, 0, 0, 0]), 1.0)
+
+
+def test_estop_stops_the_arm_where_it_is(r1):
+    arm = make_arm(r1, scale=10.0)
+    with arm:
+        arm.move_to(np.radians([60, 0, 0, 0, 0, 0]), 0.2)
+        time.sleep(0.05)
+        arm.inject_fault(SimFault.ESTOP)
+        q1 = arm.read_joints().q[0]
+        time.sleep(0.05)
+        assert arm.read_joints().q[0] == q1
+        assert 0 < math.degrees(q1) < 60
+
+
+def test_mocap_noise_statistics_and_truth(r1):
+    arm = make_arm(r1, scale=200.0)
+    cfg = SimMocapConfig(noise_pos_mm=0.05, noise_rot_deg=0.02, bias_pos_mm=(0.3, 0, 0), seed=5)
+    mocap = SimMocapSource({7: arm}, cfg)
+    with arm, mocap:
+        arm.move_to(np.radians([1, 10, -20, 1, 1, 1]), 1.0)
+        arm.wait_settled(5.0)
+        mocap.read(0.0)
+        frames = []
+        while len(frames) < 2000:
+            frames += mocap.read(1.0)
+    R, p = arm.true_pose(np.array([frames[-1].capture_time]))
+    P = np.array([f.position_mm for f in frames])
+    assert all(f.body_id == 7 and f.tracking_valid for f in frames)
+    np.testing.assert_allclose(P.std(axis=0), 0.05, rtol=0.1)
+    np.testing.assert_allclose(P.mean(axis=0) - p[0], [0.3, 0, 0], atol=0.01)
+    Q = np.array([f.quat_wxyz for f in frames])
+    rotvec = so3.log(np.swapaxes(R, -1, -2) @ so3.quat_to_R(Q))
+    np.testing.assert_allclose(np.degrees(rotvec.std(axis=0)), 0.02, rtol=0.1)
+    numbers = [f.frame_number for f in frames]
+    assert numbers == sorted(numbers) and len(set(numbers)) == len(numbers)
+
+
+def test_mocap_dropouts_missing_frames_and_determinism(r1):
+    arm = make_arm(r1, scale=10.0)  # slow enough for the reader to keep up with 240 Hz
+    cfg = SimMocapConfig(dropout_prob=0.2, missing_prob=0.1, marker_spike_prob=0.05, seed=11)
+    mocap = SimMocapSource({1: arm}, cfg)
+    with arm, mocap:
+        mocap.read(0.0)
+        frames = []
+        while len(frames) < 1500:
+            frames += mocap.read(1.0)
+        again = {f.frame_number: f for f in mocap._make_frames(frames[0].frame_number, frames[-1].frame_number + 1)}
+    invalid = np.mean([not f.tracking_valid for f in frames])
+    span = frames[-1].frame_number - frames[0].frame_number + 1
+    assert invalid == pytest.approx(0.2, abs=0.03)
+    assert 1 - len(frames) / span == pytest.approx(0.1, abs=0.03)
+    assert np.mean([f.marker_error_mm == cfg.marker_spike_mm for f in frames]) == pytest.approx(0.05, abs=0.02)
+    for f in frames[:50]:  # noise depends on the seed and frame number only
+        np.testing.assert_array_equal(f.position_mm, again[f.frame_number].position_mm)
+
+
+def test_mocap_blackout_and_cell_frame(r1):
+    cell = load_cell()
+    arm = make_arm(r1, scale=200.0)
+    r2 = cell.robot("R2")
+    arm2 = SimRobotDriver("R2", r2.robot, PoeTruth(r2.model()), clock=arm.clock)
+    mocap = SimMocapSource({1: arm, 2: arm2}, SimMocapConfig(noise_pos_mm=0.0, noise_rot_deg=0.0),
+                           T_ref_base={2: r2.T_cell_base})
+    with arm, arm2, mocap:
+        mocap.read(0.0)
+        frames = mocap.read(1.0)
+        f2 = [f for f in frames if f.body_id == 2][-1]
+        _, p2 = r2.model().fk(np.zeros((1, 6)))
+        np.testing.assert_allclose(f2.position_mm, r2.T_cell_base[:3, :3] @ p2[0] + r2.T_cell_base[:3, 3], atol=1e-9)
+        t_lost, t_back = mocap.blackout(0.2)
+        arm.clock.sleep(0.1)
+        frames = mocap.read(1.0)
+        lost = [f for f in frames if t_lost <= f.capture_time < t_back]
+        assert lost and not any(f.tracking_valid for f in lost)
+        assert all(f.tracking_valid for f in frames if f.capture_time >= t_back)
+        arm.clock.sleep(0.3)
+        mocap.read(0.0)
+        assert all(f.tracking_valid for f in mocap.read(1.0))
