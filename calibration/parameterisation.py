@@ -70,21 +70,25 @@ class MinimalParameterisation:
         tool = x[..., 4 * n:] if self.fit_tool else np.zeros(x.shape[:-1] + (3,))
         return d, t, tool
 
-    def axes(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Tilted axes and their derivatives with respect to the two tilt angles.
+    def axes(self, t: np.ndarray, derivatives: bool = False) -> tuple[np.ndarray, ...]:
+        """Tilted axes, and with ``derivatives`` their derivatives with respect to the two tilt angles.
 
         Args:
             t: tilt angles [rad], shape (..., n, 2).
 
         Returns:
-            ``(h, dh/da, dh/db)``, each shape (..., n, 3).
+            ``(h,)`` or ``(h, dh/da, dh/db)``, each shape (..., n, 3).
         """
-        Ra = so3.rot(self.k1, t[..., 0])
-        Rb = so3.rot(self.k2, t[..., 1])
-        v = np.einsum("...ij,...j->...i", Ra, self.nominal.H.T)
-        h = np.einsum("...ij,...j->...i", Rb, v)
-        dh_da = np.einsum("...ij,...j->...i", Rb, np.cross(self.k1, v))
-        dh_db = np.cross(self.k2, h)
+        # h = rot(k2, b) rot(k1, a) h_nom = cos a cos b h_nom + cos a sin b k1 - sin a k2, as (k1, k2, h_nom) is
+        # a right-handed frame; the derivatives follow directly.
+        ca, sa = np.cos(t[..., 0])[..., None], np.sin(t[..., 0])[..., None]
+        cb, sb = np.cos(t[..., 1])[..., None], np.sin(t[..., 1])[..., None]
+        hn = self.nominal.H.T
+        h = ca * (cb * hn + sb * self.k1) - sa * self.k2
+        if not derivatives:
+            return (h,)
+        dh_da = -sa * (cb * hn + sb * self.k1) - ca * self.k2
+        dh_db = ca * (cb * self.k1 - sb * hn)
         return h, dh_da, dh_db
 
     def geometry(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -97,7 +101,7 @@ class MinimalParameterisation:
             ``(H, P)`` with shapes (3, n), (3, n+1) or per sample (N, 3, n), (N, 3, n+1).
         """
         d, t, tool = self._split(x)
-        h, _, _ = self.axes(t)
+        (h,) = self.axes(t)
         dO = d[..., 0:1] * self.k1 + d[..., 1:2] * self.k2  # (..., n, 3)
         P = np.array(np.broadcast_to(self.nominal.P.T, dO.shape[:-2] + self.nominal.P.T.shape))
         P[..., 0, :] += dO[..., 0, :]
@@ -152,7 +156,7 @@ class MinimalParameterisation:
         N, n = q.shape
         x = np.broadcast_to(np.asarray(x, dtype=float), (N, self.size))
         d, t, _ = self._split(x)
-        h, dh_da, dh_db = self.axes(t)  # (N, n, 3)
+        h, dh_da, dh_db = self.axes(t, derivatives=True)  # (N, n, 3)
         H, P = self.geometry(x)
         c = self.nominal.chain(q, H, P)
         J = np.zeros((N, 6, self.size))

@@ -99,15 +99,8 @@ class PoeModel:
             H: axes overriding the model's, shape (3, n) or per sample (N, 3, n).
             P: link vectors overriding the model's, shape (3, n+1) or per sample (N, 3, n+1).
         """
-        q = np.atleast_2d(np.asarray(q, dtype=float))
-        n = self.n_joints
-        if q.shape[1] != n:
-            raise ModelError(f"q must have {n} columns, got shape {q.shape}")
-        N = q.shape[0]
-        H = self.H if H is None else np.asarray(H, dtype=float)
-        P = self.P if P is None else np.asarray(P, dtype=float)
-        Hs = np.broadcast_to(H, (N, 3, n)) if H.ndim == 3 else np.broadcast_to(H, (N, 3, n))
-        Ps = np.broadcast_to(P, (N, 3, n + 1))
+        q, Hs, Ps = self._inputs(q, H, P)
+        N, n = q.shape
         R = np.broadcast_to(np.eye(3), (N, 3, 3)).copy()
         p = Ps[:, :, 0].copy()
         Rs = [R]
@@ -123,6 +116,17 @@ class PoeModel:
         p_tool = p + R @ self.p_6_tool
         return Chain(np.stack(Rs), np.stack(origins), np.stack(axes), R_tool, p_tool)
 
+    def _inputs(self, q: np.ndarray, H: np.ndarray | None, P: np.ndarray | None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Validated q (N, n) and geometry broadcast to (N, 3, n), (N, 3, n+1)."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        n = self.n_joints
+        if q.shape[1] != n:
+            raise ModelError(f"q must have {n} columns, got shape {q.shape}")
+        H = self.H if H is None else np.asarray(H, dtype=float)
+        P = self.P if P is None else np.asarray(P, dtype=float)
+        return q, np.broadcast_to(H, (q.shape[0], 3, n)), np.broadcast_to(P, (q.shape[0], 3, n + 1))
+
     def fk(self, q: np.ndarray, H: np.ndarray | None = None, P: np.ndarray | None = None
            ) -> tuple[np.ndarray, np.ndarray]:
         """Tool pose in the base frame.
@@ -134,8 +138,13 @@ class PoeModel:
         Returns:
             ``(R_base_tool (N, 3, 3), p_base_tool (N, 3) [mm])``.
         """
-        c = self.chain(q, H, P)
-        return c.R_base_tool, c.p_base_tool
+        q, Hs, Ps = self._inputs(q, H, P)
+        R = so3.rot(Hs[:, :, 0], q[:, 0])
+        p = Ps[:, :, 0] + (R @ Ps[:, :, 1, None])[..., 0]
+        for i in range(1, self.n_joints):
+            R = R @ so3.rot(Hs[:, :, i], q[:, i])
+            p = p + (R @ Ps[:, :, i + 1, None])[..., 0]
+        return R @ self.R_6_tool, p + R @ self.p_6_tool
 
     def jacobian_q(self, q: np.ndarray) -> np.ndarray:
         """Geometric Jacobian of the tool pose with respect to the joint angles.

@@ -49,10 +49,25 @@ def rot(h: np.ndarray, q: np.ndarray) -> np.ndarray:
     """
     h = np.asarray(h, dtype=float)
     q = np.asarray(q, dtype=float)
-    s = np.sin(q)[..., None, None]
-    c = np.cos(q)[..., None, None]
-    # R = c I + s [h]x + (1 - c) h h^T for unit h.
-    return c * np.eye(3) + s * hat(h) + (1.0 - c) * (h[..., :, None] * h[..., None, :])
+    x, y, z = h[..., 0], h[..., 1], h[..., 2]
+    s = np.sin(q)
+    c = np.cos(q)
+    v = 1.0 - c
+    shape = np.broadcast_shapes(x.shape, q.shape)
+    out = np.empty(shape + (3, 3))
+    # R = c I + s [h]x + (1 - c) h h^T for unit h, written out entry by entry (no temporaries of (..., 3, 3)).
+    xv, yv, zv = x * v, y * v, z * v
+    xs, ys, zs = x * s, y * s, z * s
+    out[..., 0, 0] = c + x * xv
+    out[..., 0, 1] = x * yv - zs
+    out[..., 0, 2] = x * zv + ys
+    out[..., 1, 0] = y * xv + zs
+    out[..., 1, 1] = c + y * yv
+    out[..., 1, 2] = y * zv - xs
+    out[..., 2, 0] = z * xv - ys
+    out[..., 2, 1] = z * yv + xs
+    out[..., 2, 2] = c + z * zv
+    return out
 
 
 def exp(phi: np.ndarray) -> np.ndarray:
