@@ -30,6 +30,15 @@ log = logging.getLogger("cellcal.drivers")
 _POLL_S = 0.05
 
 
+def _hang_up(sock: socket.socket) -> None:
+    """Close ``sock`` now: shutdown sends the FIN even while another thread is blocked on the socket."""
+    try:
+        sock.shutdown(socket.SHUT_RDWR)
+    except OSError:
+        pass  # already disconnected
+    sock.close()
+
+
 class FakeMotorosController:
     """Simulated MotoROS controller. Use as a context manager, or call ``start`` and ``close``.
 
@@ -41,11 +50,12 @@ class FakeMotorosController:
         host: address to bind.
         motion_port: motion port to bind; 0 picks a free one.
         state_port: state port to bind; 0 picks a free one.
+        initial_q: starting joint angles [rad], shape (n_groups, n_joints); zeros by default.
     """
 
     def __init__(self, n_groups: int = 2, n_joints: int = 6, max_speed_rad_s: float | np.ndarray = 2.0,
                  publish_hz: float = 100.0, host: str = "127.0.0.1", motion_port: int = 0,
-                 state_port: int = 0) -> None:
+                 state_port: int = 0, initial_q: np.ndarray | None = None) -> None:
         if not 1 <= n_groups <= 4:
             raise ValueError(f"n_groups must be 1..4, got {n_groups}")
         self.host = host
@@ -53,6 +63,12 @@ class FakeMotorosController:
         self.state_port = state_port
         self.period_s = 1.0 / publish_hz
         self.groups = [SimulatedGroup(n_joints, max_speed_rad_s) for _ in range(n_groups)]
+        if initial_q is not None:
+            q0 = np.asarray(initial_q, dtype=float)
+            if q0.shape != (n_groups, n_joints):
+                raise ValueError(f"initial_q must have shape ({n_groups}, {n_joints}), got {q0.shape}")
+            for group, q in zip(self.groups, q0):
+                group.q = q.copy()
         self.received: list[Message] = []  # every decoded request, for tests to inspect
         self._lock = threading.Lock()
         self._servo_on = True
@@ -136,7 +152,7 @@ class FakeMotorosController:
             self._state_clients = []
             self._motion_client = None
         for sock in clients:
-            sock.close()
+            _hang_up(sock)
 
     def inject_state_bytes(self, data: bytes) -> None:
         """Write raw bytes to every state connection (garbage, a forged length, ...)."""

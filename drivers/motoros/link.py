@@ -14,6 +14,7 @@ controller, so R1 and R2 on one controller cannot each open their own: they shar
 from __future__ import annotations
 
 import logging
+import select
 import socket
 import threading
 import time
@@ -31,6 +32,17 @@ STATE_PORT = 50241
 
 
 _M = TypeVar("_M", JointFeedback, RobotStatusMsg)
+
+
+def _peer_closed(sock: socket.socket) -> bool:
+    """True when the peer has closed ``sock`` (readable with nothing to read, or an error pending)."""
+    try:
+        readable, _, _ = select.select([sock], [], [], 0.0)
+        return bool(readable) and sock.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT) == b""
+    except BlockingIOError:
+        return False
+    except OSError:
+        return True
 
 
 class MotorosLink:
@@ -73,6 +85,7 @@ class MotorosLink:
         self._feedback: dict[int, tuple[JointFeedback, float]] = {}
         self._status: tuple[RobotStatusMsg, float] | None = None
         self._state_up = False
+        self.state_connections = 0  # state connections opened so far (reconnects included)
         self._state_error = "not connected yet"
         self._stop = threading.Event()
         self._reader: threading.Thread | None = None
@@ -142,6 +155,7 @@ class MotorosLink:
         sock.settimeout(0.1)
         with self._state_cond:
             self._state_up = True
+            self.state_connections += 1
         try:
             while not self._stop.is_set():
                 try:
@@ -204,7 +218,14 @@ class MotorosLink:
 
     # -- motion ----------------------------------------------------------------------------------
     def _motion_socket(self) -> tuple[socket.socket, Framer]:
-        """The motion connection, opened with bounded back-off if needed; caller holds the motion lock."""
+        """The motion connection, opened with bounded back-off if needed; caller holds the motion lock.
+
+        An idle connection the controller has closed is noticed here, before a request is written to it,
+        and replaced, so a request is never lost on a connection that was already dead.
+        """
+        if self._motion is not None and _peer_closed(self._motion[0]):
+            log.info("%s: controller closed the idle connection; reconnecting", self.motion_device)
+            self._drop_motion()
         if self._motion is not None:
             return self._motion
         delay = self.backoff_s
