@@ -1,8 +1,10 @@
 """``RobotDriver`` for one motion group of a MotoROS controller.
 
 A joint move is a two-point trajectory: point 0 is the current position at t = 0 (MotoROS rejects a start
-that differs from where the arm is), point 1 is the target at t = T, where T makes the slowest joint run at
-``speed_fraction`` of its maximum speed. Both points have zero velocity. Points go out as JointTrajPtFull
+that differs from where the arm is), point 1 is the target at t = T. Both points have zero velocity.
+MotoROS joins points with a cubic Hermite, whose peak speed with zero end velocities is 1.5 times the mean
+speed, so T = 1.5 * max_j |dq_j| / (speed_fraction * max_speed_j) keeps every joint at or below
+``speed_fraction`` of its maximum speed. Points go out as JointTrajPtFull
 (14) or, if asked, JointTrajPtFullEx (2016) with one group; a BUSY reply (queue full) is retried until the
 reply timeout.
 
@@ -26,6 +28,7 @@ from drivers.motoros.link import MotorosLink
 log = logging.getLogger("cellcal.drivers")
 
 _SETTLE_SAMPLES = 3
+CUBIC_PEAK_RATIO = 1.5  # peak / mean speed of a cubic Hermite segment with zero end velocities
 _BUSY_RETRY_S = 0.01
 
 
@@ -142,7 +145,7 @@ class MotorosDriver(RobotDriver):
             raise ValueError(f"{self.name}: speed_fraction must be in (0, 1], got {speed_fraction}")
         self._check_ready()
         q_now = self.read_joints().q
-        duration = float(np.max(np.abs(q - q_now) / (self.max_speed_rad_s * speed_fraction)))
+        duration = CUBIC_PEAK_RATIO * float(np.max(np.abs(q - q_now) / (self.max_speed_rad_s * speed_fraction)))
         self._command(Command.START_TRAJ_MODE)
         self._sequence = 0
         self._send_point(0, 0.0, q_now)

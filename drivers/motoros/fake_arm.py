@@ -1,7 +1,9 @@
 """Joint motion of one simulated motion group, as the fake MotoROS controller plays it.
 
-Each accepted trajectory point after point 0 becomes a segment: move linearly from where the arm is to
-the point's position over the point's time step, slowed down if a joint would exceed its speed limit.
+Each accepted trajectory point after point 0 becomes a segment from where the arm is to the point's
+position over the point's time step, shaped like MotoROS's cubic interpolation with zero end velocities
+(s = 3 tau^2 - 2 tau^3), and stretched if a joint's peak speed would exceed its limit. Point velocities and
+accelerations are ignored.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ import numpy as np
 
 from drivers.motoros.codec import Result
 
+_PEAK_RATIO = 1.5  # peak / mean speed of the cubic profile
 START_TOLERANCE_RAD = 1e-3  # MotoROS allows a few encoder pulses between point 0 and the arm
 QUEUE_LENGTH = 20
 
@@ -79,12 +82,12 @@ class SimulatedGroup:
         q_before = self.q.copy()
         if self._segment is None and self.queue:
             target, duration = self.queue.popleft()
-            duration = max(duration, float(np.max(np.abs(target - self.q) / self.max_speed_rad_s)))
+            duration = max(duration, _PEAK_RATIO * float(np.max(np.abs(target - self.q) / self.max_speed_rad_s)))
             self._segment = _Segment(self.q.copy(), target, now, duration)
         if self._segment is not None:
             seg = self._segment
-            s = 1.0 if seg.duration_s <= 0 else min(1.0, (now - seg.t0) / seg.duration_s)
-            self.q = seg.q_from + s * (seg.q_to - seg.q_from)
-            if s >= 1.0:
+            tau = 1.0 if seg.duration_s <= 0 else min(1.0, (now - seg.t0) / seg.duration_s)
+            self.q = seg.q_from + (3 * tau**2 - 2 * tau**3) * (seg.q_to - seg.q_from)
+            if tau >= 1.0:
                 self._segment = None
         self.qd = (self.q - q_before) / dt if dt > 0 else np.zeros(self.n_joints)

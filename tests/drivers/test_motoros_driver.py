@@ -66,7 +66,17 @@ def test_speed_fraction_sets_the_duration(fake, arms) -> None:
     r1, _ = arms
     r1.move_to(Q0[0] + np.array([0.4, 0, 0, 0, 0, 0]), speed_fraction=0.5)
     last = _traj_points(fake)[-1]
-    assert last.time == pytest.approx(0.4 / (4.0 * 0.5))
+    assert last.time == pytest.approx(1.5 * 0.4 / (4.0 * 0.5))  # cubic peak speed = 0.5 * max
+
+
+def test_feedback_speed_stays_within_the_limit(fake, arms) -> None:
+    r1, _ = arms
+    r1.move_to(Q0[0] + 1.0, speed_fraction=1.0)
+    peak = 0.0
+    while r1.status().in_motion or peak == 0.0:
+        peak = max(peak, float(np.max(np.abs(r1.link.feedback(0)[0].vel))))
+        r1.link.wait_state(0.05)
+    assert 0.8 * 4.0 < peak <= 4.0 * 1.01
 
 
 def test_both_arms_move_at_once_through_the_shared_link(fake, arms) -> None:
@@ -100,8 +110,8 @@ def test_full_ex_trajectory_message(fake) -> None:
 def test_stop_halts_short_of_the_target(fake, arms) -> None:
     r1, _ = arms
     target = Q0[0] + 2.0
-    r1.move_to(target, speed_fraction=0.25)  # 4 s move
-    time.sleep(0.1)
+    r1.move_to(target, speed_fraction=1.0)  # 0.75 s move
+    time.sleep(0.15)
     r1.stop()
     held = r1.wait_settled(timeout_s=1.0)
     assert np.max(np.abs(held.q - Q0[0])) > 0.01
