@@ -69,9 +69,27 @@ class MotorosDriver(RobotDriver):
         self._target: np.ndarray | None = None
 
     def connect(self) -> None:
-        if not self._connected:
-            self.link.connect()
-            self._connected = True
+        """Connect the shared link and wait for this group's first feedback.
+
+        Raises:
+            DriverDisconnected: the controller cannot be reached.
+            DriverTimeout: no feedback for this group (the controller may not have it).
+        """
+        if self._connected:
+            return
+        self.link.connect()
+        deadline = time.monotonic() + self.link.connect_timeout_s
+        while True:
+            try:
+                self.link.feedback(self.group)
+                break
+            except DriverError:
+                if time.monotonic() > deadline:
+                    self.link.close()
+                    raise DriverTimeout(self.device, f"feedback of motion group {self.group}",
+                                        self.link.connect_timeout_s) from None
+                self.link.wait_state(0.05)
+        self._connected = True
 
     def close(self) -> None:
         if self._connected:

@@ -102,9 +102,8 @@ class FakeMotorosController:
         self.drop_connections()
         for sock in self._listeners:
             sock.close()
-        for thread in self._threads:
-            thread.join(timeout=2.0)
-        self._threads.clear()
+        while self._threads:  # an acceptor may still spawn a handler until it sees the stop flag
+            self._threads.pop().join(timeout=2.0)
 
     def __enter__(self) -> "FakeMotorosController":
         return self.start()

@@ -255,6 +255,11 @@ class MotorosLink:
     def request(self, payload: bytes, group: int, sequence: int, command: int) -> MotionReply:
         """Send one encoded request and return the reply matching (group, sequence, command).
 
+        A connection opened for this request and closed by the controller before any reply means the
+        controller refused it (its single motion slot is still held, e.g. by a connection it has not yet
+        noticed is gone); that is retried with back-off up to ``reconnect_attempts`` times. Retrying is safe:
+        the control commands are idempotent and a repeated trajectory point is rejected for its sequence.
+
         Raises:
             DriverDisconnected: no connection, or it broke (the request may or may not have arrived).
             DriverTimeout: no matching reply within ``reply_timeout_s``.
@@ -263,29 +268,44 @@ class MotorosLink:
         if self._users == 0:
             raise DriverDisconnected(self.motion_device, "link is not connected; call connect() first")
         with self._motion_lock:
-            sock, framer = self._motion_socket()
+            delay = self.backoff_s
+            for attempt in range(1, self.reconnect_attempts + 1):
+                fresh = self._motion is None
+                sock, framer = self._motion_socket()
+                try:
+                    return self._exchange(sock, framer, payload, (group, sequence, command))
+                except DriverDisconnected as e:
+                    self._drop_motion()
+                    if not fresh or attempt == self.reconnect_attempts:
+                        raise
+                    log.info("%s: connection refused by the controller (%s); retrying", self.motion_device,
+                             e.reason)
+                except DriverError:
+                    self._drop_motion()
+                    raise
+                if self._stop.wait(delay):
+                    break
+                delay = min(2 * delay, self.max_backoff_s)
+            raise DriverDisconnected(self.motion_device, "link closed while retrying")
+
+    def _exchange(self, sock: socket.socket, framer: Framer, payload: bytes,
+                  match: tuple[int, int, int]) -> MotionReply:
+        try:
+            sock.sendall(payload)
+        except OSError as e:
+            raise DriverDisconnected(self.motion_device, f"send failed: {e}") from e
+        deadline = time.monotonic() + self.reply_timeout_s
+        while (remaining := deadline - time.monotonic()) > 0:
+            sock.settimeout(remaining)
             try:
-                sock.sendall(payload)
-            except OSError as e:
-                self._drop_motion()
-                raise DriverDisconnected(self.motion_device, f"send failed: {e}") from e
-            deadline = time.monotonic() + self.reply_timeout_s
-            try:
-                while (remaining := deadline - time.monotonic()) > 0:
-                    sock.settimeout(remaining)
-                    try:
-                        packets = recv_into_framer(sock, framer)
-                    except TimeoutError:
-                        continue
-                    for packet in packets:
-                        msg = decode(packet)
-                        if (isinstance(msg, MotionReply)
-                                and (msg.group, msg.sequence, msg.command) == (group, sequence, command)):
-                            return msg
-                        log.warning("%s: discarding unexpected %s", self.motion_device, type(msg).__name__)
-            except DriverError:
-                self._drop_motion()
-                raise
-            self._drop_motion()
-            raise DriverTimeout(self.motion_device, f"reply to command {command} (sequence {sequence})",
-                                self.reply_timeout_s)
+                packets = recv_into_framer(sock, framer)
+            except TimeoutError:
+                continue
+            for packet in packets:
+                msg = decode(packet)
+                if isinstance(msg, MotionReply) and (msg.group, msg.sequence, msg.command) == match:
+                    return msg
+                log.warning("%s: discarding unexpected %s", self.motion_device, type(msg).__name__)
+        self._drop_motion()  # a late reply must never be read as the answer to a later request
+        raise DriverTimeout(self.motion_device, f"reply to command {match[2]} (sequence {match[1]})",
+                            self.reply_timeout_s)

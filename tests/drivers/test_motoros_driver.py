@@ -156,6 +156,14 @@ def test_alarm_during_motion_raises_while_waiting(fake, arms) -> None:
         r1.wait_settled(timeout_s=1.0)
 
 
+def test_missing_group_fails_at_connect(fake) -> None:
+    link = _link(fake, connect_timeout_s=0.2)
+    with pytest.raises(DriverTimeout, match="R3: timed out after 0.2 s waiting for feedback of motion group 2"):
+        MotorosDriver(link, 2, SPEED).connect()
+    with MotorosDriver(link, 0, SPEED):  # the failed driver released its share of the link
+        pass
+
+
 def test_bad_arguments_are_refused_with_nothing_sent(fake, arms) -> None:
     r1, _ = arms
     with pytest.raises(ValueError, match="R1: q must be 6 finite joint angles"):
@@ -218,11 +226,13 @@ def test_stalled_reply_times_out_then_recovers(fake, arms) -> None:
     r1.stop()  # a fresh connection, so the stale reply cannot be mistaken for this one
 
 
-def test_messages_split_into_one_byte_chunks(fake, arms) -> None:
-    r1, _ = arms
-    fake.split_messages(1, delay_s=0.0)
-    r1.move_to(Q0[0] + 0.05, 1.0)
-    np.testing.assert_allclose(r1.wait_settled(2.0).q, Q0[0] + 0.05, atol=1e-4)
+def test_messages_split_into_one_byte_chunks() -> None:
+    # 25 Hz: one send() per byte is costly, and a loaded test machine must not starve the publisher
+    with FakeMotorosController(max_speed_rad_s=SPEED, initial_q=Q0, publish_hz=25.0) as fake:
+        fake.split_messages(1, delay_s=0.0)
+        with MotorosDriver(_link(fake, stale_after_s=1.0, reply_timeout_s=1.0), 0, SPEED) as r1:
+            r1.move_to(Q0[0] + 0.05, 1.0)
+            np.testing.assert_allclose(r1.wait_settled(3.0).q, Q0[0] + 0.05, atol=1e-4)
 
 
 def test_garbage_on_the_state_stream_is_survived(fake, arms, caplog) -> None:
