@@ -43,7 +43,7 @@ class AutoencoderInterpolator(Interpolator):
 
     kind: ClassVar[str] = "ae"
 
-    def __init__(self, latent: int = 6, hidden: Sequence[int] = (200, 200, 200), max_iter: int = 400,
+    def __init__(self, latent: int = 6, hidden: Sequence[int] = (200, 200, 200), max_iter: int = 300,
                  learning_rate: float = 1e-3, alpha: float = 1e-4, random_state: int = 0) -> None:
         super().__init__()
         if isinstance(latent, bool) or not isinstance(latent, (int, np.integer)) or latent < 1:

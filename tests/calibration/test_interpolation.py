@@ -157,6 +157,34 @@ def test_nn_and_ae_fit_the_anchors(fitted: dict, anchors: np.ndarray, values: np
     assert rms(fitted["ae"].predict(anchors), values) < 0.02
 
 
+@pytest.mark.parametrize("kind", ["nearest", "linear", "rbf", "nn"])
+def test_three_inputs(kind: str) -> None:
+    rng = np.random.default_rng(3)
+    x = rng.uniform(-1.0, 1.0, size=(60, 3))
+    y = np.column_stack([np.sin(x).sum(axis=1), x[:, 0] * x[:, 2]])
+    options = {"hidden": (32, 32), "max_iter": 50} if kind == "nn" else {}
+    interp = make_interpolator(kind, **options).fit(x, y)
+    if kind != "nn":
+        np.testing.assert_allclose(interp.predict(x), y, atol=1e-9)
+    assert interp.out_of_range(np.array([[2.0, 0.0, 0.0]])).all()
+    assert not interp.out_of_range(x).any()
+    xq = rng.uniform(-1.2, 1.2, size=(50, 3))
+    loaded = interpolator_from_dict(json.loads(json.dumps(interp.to_dict())))
+    assert np.array_equal(loaded.predict(xq), interp.predict(xq))
+
+
+def test_one_input() -> None:
+    x = np.linspace(0.0, 1.0, 11)[:, None]
+    y = np.column_stack([np.sin(3 * x[:, 0]), x[:, 0] ** 2])
+    for kind in ("nearest", "rbf"):
+        interp = make_interpolator(kind).fit(x, y)
+        np.testing.assert_allclose(interp.predict(x), y, atol=1e-9)
+        np.testing.assert_array_equal(interp.out_of_range(np.array([[-0.1], [0.0], [0.5], [1.0], [1.1]])),
+                                      [True, False, False, False, True])
+    with pytest.raises(ModelError, match="at least 2 columns"):
+        make_interpolator("linear").fit(x, y)
+
+
 # -- outside the support --------------------------------------------------------------------------
 
 
