@@ -24,7 +24,7 @@ from typing import Any, ClassVar, Iterator, Sequence
 import numpy as np
 
 from calibration.errors import ModelError
-from calibration.interpolation.base import Interpolator, array_field, field
+from calibration.interpolation.base import Interpolator, array_field, field, from_options
 from calibration.interpolation.support import AnchorSupport
 
 logger = logging.getLogger("cellcal.calibration")
@@ -227,10 +227,10 @@ class MlpInterpolator(Interpolator):
 
     @classmethod
     def _from_state(cls, d: dict[str, Any]) -> Interpolator:
-        self = cls(**field(d, "options"))
+        obj = from_options(cls, d)
         anchors = array_field(d, "anchors", 2)
-        self._support, self._anchors = AnchorSupport(anchors), anchors
-        self._xs = Standardiser.from_dict({**field(d, "x_scaler"), "kind": cls.kind})
-        self._ys = Standardiser.from_dict({**field(d, "y_scaler"), "kind": cls.kind})
-        self._w, self._b = layers_from_dict(d, "network")
-        return self
+        obj._support, obj._anchors = AnchorSupport(anchors), anchors
+        obj._xs = Standardiser.from_dict({**field(d, "x_scaler"), "kind": cls.kind})
+        obj._ys = Standardiser.from_dict({**field(d, "y_scaler"), "kind": cls.kind})
+        obj._w, obj._b = layers_from_dict(d, "network")
+        return obj
