@@ -23,7 +23,7 @@ from typing import Any, ClassVar, Sequence
 import numpy as np
 
 from calibration.errors import ModelError
-from calibration.interpolation.base import Interpolator, field
+from calibration.interpolation.base import Interpolator, field, from_options
 from calibration.interpolation.mlp import (Standardiser, check_training_options, forward, layers_from_dict,
                                            layers_to_dict, train_mlp)
 from calibration.interpolation.scattered import LinearInterpolator
@@ -43,7 +43,7 @@ class AutoencoderInterpolator(Interpolator):
 
     kind: ClassVar[str] = "ae"
 
-    def __init__(self, latent: int = 6, hidden: Sequence[int] = (200, 200, 200), max_iter: int = 400,
+    def __init__(self, latent: int = 6, hidden: Sequence[int] = (200, 200, 200), max_iter: int = 300,
                  learning_rate: float = 1e-3, alpha: float = 1e-4, random_state: int = 0) -> None:
         super().__init__()
         if isinstance(latent, bool) or not isinstance(latent, (int, np.integer)) or latent < 1:
@@ -103,16 +103,15 @@ class AutoencoderInterpolator(Interpolator):
 
     @classmethod
     def _from_state(cls, d: dict[str, Any]) -> Interpolator:
-        self = cls(**field(d, "options"))
-        self._codes = LinearInterpolator.from_dict(field(d, "latent_interpolator"))  # type: ignore[assignment]
-        self._ys = Standardiser.from_dict({**field(d, "y_scaler"), "kind": cls.kind})
-        self._w, self._b = layers_from_dict(d, "decoder")
-        if self._w[0].shape[0] != self.latent or self._codes.n_outputs != self.latent:  # type: ignore[union-attr]
-            raise ModelError(f"{cls.kind} dict: decoder/latent codes do not match latent = {self.latent}")
-        return self
+        obj = from_options(cls, d)
+        obj._codes = LinearInterpolator.from_dict(field(d, "latent_interpolator"))  # type: ignore[assignment]
+        obj._ys = Standardiser.from_dict({**field(d, "y_scaler"), "kind": cls.kind})
+        obj._w, obj._b = layers_from_dict(d, "decoder")
+        if obj._w[0].shape[0] != obj.latent or obj._codes.n_outputs != obj.latent:  # type: ignore[union-attr]
+            raise ModelError(f"{cls.kind} dict: decoder/latent codes do not match latent = {obj.latent}")
+        return obj
 
     def _latent(self) -> LinearInterpolator:
         if self._codes is None:
-            self._require_fitted()
-            raise ModelError(f"{self.kind}: latent interpolator missing")
+            raise ModelError(f"{self.kind} interpolator is not fitted: call fit(x, y) or from_dict() first")
         return self._codes

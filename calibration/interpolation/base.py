@@ -122,9 +122,9 @@ class Interpolator(abc.ABC):
         if d.get("version") != FORMAT_VERSION:
             raise ModelError(f"{cls.kind}: unsupported format version {d.get('version')!r}; "
                              f"this cellcal reads version {FORMAT_VERSION}")
-        self = cls._from_state(d)
-        self._d, self._m = int(field(d, "n_inputs")), int(field(d, "n_outputs"))
-        return self
+        obj = cls._from_state(d)
+        obj._d, obj._m = int(field(d, "n_inputs")), int(field(d, "n_outputs"))
+        return obj
 
     # -- for subclasses ---------------------------------------------------------------------------
 
@@ -179,6 +179,17 @@ def as_matrix(a: Any, name: str, allow_empty: bool = False) -> np.ndarray:
     if not np.all(np.isfinite(arr)):
         raise ModelError(f"{name}: contains NaN or infinite entries")
     return arr
+
+
+def from_options(cls: type[Interpolator], d: dict[str, Any]) -> Any:
+    """``cls(**d["options"])`` (empty options when absent), or ModelError for a malformed mapping."""
+    options = d.get("options", {})
+    if not isinstance(options, dict):
+        raise ModelError(f"{cls.kind} dict: 'options' must be a mapping, got {type(options).__name__}")
+    try:
+        return cls(**options)
+    except TypeError as e:
+        raise ModelError(f"{cls.kind} dict: bad 'options' {sorted(options)}: {e}") from e
 
 
 def field(d: dict[str, Any], key: str) -> Any:

@@ -23,7 +23,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from calibration.errors import ModelError
-from calibration.interpolation.base import Interpolator, array_field, as_matrix, field
+from calibration.interpolation.base import Interpolator, array_field, as_matrix, from_options
 from calibration.interpolation.support import AnchorSupport
 
 #: Names of the 13 basis functions, in column order (labels for the singular-vector heat map).
@@ -114,10 +114,10 @@ class Fourier13Interpolator(_FourierBase):
 
     @classmethod
     def _from_state(cls, d: dict[str, Any]) -> Interpolator:
-        self = cls()
-        self._set_anchors(array_field(d, "anchors", 2))
-        self._A = _checked(d, "coefficients", (None, 13))
-        return self
+        obj = cls()
+        obj._set_anchors(array_field(d, "anchors", 2))
+        obj._A = _checked(d, "coefficients", (None, 13))
+        return obj
 
 
 class FourierReducedInterpolator(_FourierBase):
@@ -166,11 +166,11 @@ class FourierReducedInterpolator(_FourierBase):
 
     @classmethod
     def _from_state(cls, d: dict[str, Any]) -> Interpolator:
-        self = cls(**field(d, "options"))
-        self._set_anchors(array_field(d, "anchors", 2))
-        self._V = _checked(d, "reduced_basis", (13, self.rank))
-        self._C = _checked(d, "coefficients", (None, self.rank))
-        return self
+        obj = from_options(cls, d)
+        obj._set_anchors(array_field(d, "anchors", 2))
+        obj._V = _checked(d, "reduced_basis", (13, obj.rank))
+        obj._C = _checked(d, "coefficients", (None, obj.rank))
+        return obj
 
 
 def _checked(d: dict[str, Any], key: str, shape: tuple[int | None, int]) -> np.ndarray:

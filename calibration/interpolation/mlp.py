@@ -14,16 +14,17 @@ The helpers ``Standardiser``, ``train_mlp`` and ``forward`` are shared with the 
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
 import warnings
 from dataclasses import dataclass
-from typing import Any, ClassVar, Sequence
+from typing import Any, ClassVar, Iterator, Sequence
 
 import numpy as np
 
 from calibration.errors import ModelError
-from calibration.interpolation.base import Interpolator, array_field, field
+from calibration.interpolation.base import Interpolator, array_field, field, from_options
 from calibration.interpolation.support import AnchorSupport
 
 logger = logging.getLogger("cellcal.calibration")
@@ -77,6 +78,23 @@ def check_training_options(kind: str, hidden: Sequence[int], max_iter: int, lear
     return tuple(int(h) for h in hidden)
 
 
+@contextlib.contextmanager
+def one_blas_thread() -> Iterator[None]:
+    """Run the enclosed matrix products on one BLAS thread (no-op without ``threadpoolctl``).
+
+    The products here are small (K x 200, or blocks of 8192 x 200), so BLAS threads mostly add
+    synchronisation: measured 2-4x slower with 2 threads on a loaded 2-core machine, with stalls of
+    seconds. One thread also makes training independent of the core count. Costs ~1 ms per entry.
+    """
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:
+        yield
+        return
+    with threadpool_limits(limits=1, user_api="blas"):
+        yield
+
+
 def train_mlp(x: np.ndarray, y: np.ndarray, hidden: Sequence[int], max_iter: int, learning_rate: float,
               alpha: float, random_state: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Train a ReLU MLP ``x -> y`` (identity output) with Adam, full budget of epochs.
@@ -96,17 +114,13 @@ def train_mlp(x: np.ndarray, y: np.ndarray, hidden: Sequence[int], max_iter: int
     try:
         from sklearn.exceptions import ConvergenceWarning
         from sklearn.neural_network import MLPRegressor
-        from threadpoolctl import threadpool_limits
     except ImportError as e:
         raise ModelError("training the nn/ae interpolators needs scikit-learn: pip install scikit-learn") from e
     net = MLPRegressor(hidden_layer_sizes=tuple(hidden), activation="relu", solver="adam", alpha=alpha,
                        learning_rate_init=learning_rate, max_iter=max_iter, tol=0.0,
                        n_iter_no_change=max_iter + 1, random_state=random_state, shuffle=True)
     t0 = time.perf_counter()
-    # One BLAS thread: the matrices are small (K x 200), so threads only add synchronisation (measured
-    # 4x slower with 2 threads on a 2-core machine), and one thread keeps the result independent of the
-    # machine's core count.
-    with warnings.catch_warnings(), threadpool_limits(limits=1, user_api="blas"):
+    with warnings.catch_warnings(), one_blas_thread():
         warnings.simplefilter("ignore", ConvergenceWarning)  # we always run the full epoch budget
         net.fit(x, y)
     logger.info("trained MLP %s: %d epochs, final loss %.3g, %.2f s", hidden, net.n_iter_, net.loss_,
@@ -116,23 +130,35 @@ def train_mlp(x: np.ndarray, y: np.ndarray, hidden: Sequence[int], max_iter: int
 
 
 def forward(z: np.ndarray, weights: Sequence[np.ndarray], biases: Sequence[np.ndarray],
-            relu_in: bool = False) -> np.ndarray:
+            relu_in: bool = False, chunk: int = 8192) -> np.ndarray:
     """ReLU MLP forward pass: ReLU after every layer but the last (identity output).
+
+    Rows are processed in blocks of ``chunk`` so 10^5 queries through 200-wide layers need a few MB of
+    scratch instead of hundreds of MB. The blocking is fixed, so the same queries give the same bits.
 
     Args:
         z: layer input, shape (N, n_in).
         weights, biases: the layers, as returned by ``train_mlp`` (or a slice of them).
         relu_in: apply a ReLU to z first (a decoder fed with pre-activation latent codes).
+        chunk: rows per block.
 
     Returns:
         Output, shape (N, n_out).
     """
-    h = np.maximum(z, 0.0) if relu_in else z
-    for i, (w, b) in enumerate(zip(weights, biases)):
-        h = h @ w + b
-        if i < len(weights) - 1:
-            np.maximum(h, 0.0, out=h)
-    return h
+    out = np.empty((z.shape[0], weights[-1].shape[1]))
+    last = len(weights) - 1
+    with one_blas_thread():
+        for start in range(0, z.shape[0], chunk):
+            h = z[start:start + chunk]
+            if relu_in:
+                h = np.maximum(h, 0.0)
+            for i, (w, b) in enumerate(zip(weights, biases)):
+                h = h @ w
+                h += b
+                if i < last:
+                    np.maximum(h, 0.0, out=h)
+            out[start:start + chunk] = h
+    return out
 
 
 def layers_to_dict(weights: Sequence[np.ndarray], biases: Sequence[np.ndarray]) -> dict[str, Any]:
@@ -164,7 +190,7 @@ class MlpInterpolator(Interpolator):
 
     kind: ClassVar[str] = "nn"
 
-    def __init__(self, hidden: Sequence[int] = (200, 200, 200), max_iter: int = 500,
+    def __init__(self, hidden: Sequence[int] = (200, 200, 200), max_iter: int = 300,
                  learning_rate: float = 1e-3, alpha: float = 1e-4, random_state: int = 0) -> None:
         super().__init__()
         self.hidden = check_training_options(self.kind, hidden, max_iter, learning_rate, alpha)
@@ -201,10 +227,10 @@ class MlpInterpolator(Interpolator):
 
     @classmethod
     def _from_state(cls, d: dict[str, Any]) -> Interpolator:
-        self = cls(**field(d, "options"))
+        obj = from_options(cls, d)
         anchors = array_field(d, "anchors", 2)
-        self._support, self._anchors = AnchorSupport(anchors), anchors
-        self._xs = Standardiser.from_dict({**field(d, "x_scaler"), "kind": cls.kind})
-        self._ys = Standardiser.from_dict({**field(d, "y_scaler"), "kind": cls.kind})
-        self._w, self._b = layers_from_dict(d, "network")
-        return self
+        obj._support, obj._anchors = AnchorSupport(anchors), anchors
+        obj._xs = Standardiser.from_dict({**field(d, "x_scaler"), "kind": cls.kind})
+        obj._ys = Standardiser.from_dict({**field(d, "y_scaler"), "kind": cls.kind})
+        obj._w, obj._b = layers_from_dict(d, "network")
+        return obj

@@ -15,7 +15,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from calibration.errors import ModelError
-from calibration.interpolation.base import Interpolator, array_field
+from calibration.interpolation.base import Interpolator, array_field, from_options
 from calibration.interpolation.support import AnchorSupport
 
 
@@ -51,17 +51,13 @@ class AnchoredInterpolator(Interpolator):
 
     @classmethod
     def _from_state(cls, d: dict[str, Any]) -> Interpolator:
-        options = d.get("options", {})
-        if not isinstance(options, dict):
-            raise ModelError(f"{cls.kind} dict: 'options' must be a mapping")
-        self = cls(**options)
-        self._fit(array_field(d, "anchors", 2), array_field(d, "values", 2))
-        return self
+        obj = from_options(cls, d)
+        obj._fit(array_field(d, "anchors", 2), array_field(d, "values", 2))
+        return obj
 
     def _hull(self) -> AnchorSupport:
         if self._support is None:
-            self._require_fitted()
-            raise ModelError(f"{self.kind}: support not built")
+            raise ModelError(f"{self.kind} interpolator is not fitted: call fit(x, y) or from_dict() first")
         return self._support
 
     def _nearest_values(self, x: np.ndarray) -> np.ndarray:
