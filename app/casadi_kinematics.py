@@ -1,7 +1,7 @@
 """Forward kinematics of every model kind as casadi functions, for planners that need exact Jacobians.
 
 ``casadi_fk(model)`` returns a :class:`CasadiFk` whose ``function`` maps ``(q (6,), x (k,))`` to the tool
-pose and the joint origins, all as casadi expressions of ``q``:
+pose, the joint origins and axes, all as casadi expressions of ``q``:
 
 * ``ConstantModel`` (or a bare :class:`~calibration.poe.PoeModel`): the POE chain, ``k = 0``.
 * ``CdcModel`` whose interpolator is casadi-expressible: the minimal parameters are casadi expressions of the
@@ -36,8 +36,9 @@ class CasadiFk:
     """A model's forward kinematics as a casadi function.
 
     Attributes:
-        function: ``(q (6,), x (k,)) -> (R_base_tool (3, 3), p_base_tool (3,) [mm], origins (3, 7) [mm])``;
-            ``origins`` are the joint-axis points and the flange point (the arm's skeleton, for capsules).
+        function: ``(q (6,), x (k,)) -> (R_base_tool (3, 3), p_base_tool (3,) [mm], origins (3, 7) [mm],
+            axes (3, 6))``; ``origins`` are the joint-axis points and the flange point (the arm's skeleton,
+            for capsules), ``axes`` the joint axes, all in the base frame.
         n_frozen: k, the size of the frozen-parameter input (0 when the model is fully casadi-expressible).
         params_at: for frozen models, ``q (6,) -> x (k,)`` evaluated with numpy; None otherwise.
         kind: model kind (``constant``, ``cdc``, ``cdc-frozen``, ``poe``), with ``+dq`` when a dq hook is used.
@@ -62,11 +63,11 @@ def _rot(ca: Any, h: Any, q: Any) -> Any:
     return ca.SX.eye(3) + ca.sin(q) * K + (1 - ca.cos(q)) * (K @ K)
 
 
-def poe_chain(ca: Any, model: PoeModel, q: Any, H: Any = None, P: Any = None) -> tuple[Any, Any, Any]:
+def poe_chain(ca: Any, model: PoeModel, q: Any, H: Any = None, P: Any = None) -> tuple[Any, Any, Any, Any]:
     """POE forward kinematics on casadi symbols, same convention as :meth:`PoeModel.chain`.
 
     Returns:
-        ``(R_base_tool (3, 3), p_base_tool (3,), origins (3, n+1))`` as casadi SX.
+        ``(R_base_tool (3, 3), p_base_tool (3,), origins (3, n+1), axes (3, n))`` as casadi SX.
     """
     n = model.n_joints
     H = ca.DM(model.H) if H is None else H
@@ -74,11 +75,14 @@ def poe_chain(ca: Any, model: PoeModel, q: Any, H: Any = None, P: Any = None) ->
     R = ca.SX.eye(3)
     p = ca.SX(P[:, 0])
     origins = [p]
+    axes = []
     for i in range(n):
+        axes.append(R @ H[:, i])
         R = R @ _rot(ca, H[:, i], q[i])
         p = p + R @ P[:, i + 1]
         origins.append(p)
-    return R @ ca.DM(model.R_6_tool), p + R @ ca.DM(model.p_6_tool), ca.horzcat(*origins)
+    return (R @ ca.DM(model.R_6_tool), p + R @ ca.DM(model.p_6_tool), ca.horzcat(*origins),
+            ca.horzcat(*axes))
 
 
 def geometry_sx(ca: Any, par: MinimalParameterisation, x: Any) -> tuple[Any, Any]:
@@ -158,8 +162,8 @@ def casadi_fk(model: Any, dq: Any = None) -> CasadiFk:
     if isinstance(model, PoeModel) or hasattr(model, "model") and isinstance(model.model, PoeModel):
         poe = model if isinstance(model, PoeModel) else model.model
         x = ca.SX.sym("x", 0)
-        R, p, O = poe_chain(ca, poe, q_chain)
-        f = ca.Function("fk", [q, x], [R, p, O], ["q", "x"], ["R", "p", "origins"])
+        R, p, O, A = poe_chain(ca, poe, q_chain)
+        f = ca.Function("fk", [q, x], [R, p, O, A], ["q", "x"], ["R", "p", "origins", "axes"])
         return CasadiFk(f, 0, None, ("poe" if isinstance(model, PoeModel) else "constant") + suffix)
     if hasattr(model, "parameterisation") and hasattr(model, "interpolator"):
         par: MinimalParameterisation = model.parameterisation
@@ -169,13 +173,14 @@ def casadi_fk(model: Any, dq: Any = None) -> CasadiFk:
         if expr is not None:
             xq = ca.substitute(expr, u, ca.vertcat(*[q[i] for i in inputs]))
             H, P = geometry_sx(ca, par, xq)
-            R, p, O = poe_chain(ca, par.nominal, q_chain, H, P)
-            f = ca.Function("fk", [q, ca.SX.sym("x", 0)], [R, p, O], ["q", "x"], ["R", "p", "origins"])
+            R, p, O, A = poe_chain(ca, par.nominal, q_chain, H, P)
+            f = ca.Function("fk", [q, ca.SX.sym("x", 0)], [R, p, O, A], ["q", "x"],
+                            ["R", "p", "origins", "axes"])
             return CasadiFk(f, 0, None, "cdc" + suffix)
         x = ca.SX.sym("x", par.size)
         H, P = geometry_sx(ca, par, x)
-        R, p, O = poe_chain(ca, par.nominal, q_chain, H, P)
-        f = ca.Function("fk", [q, x], [R, p, O], ["q", "x"], ["R", "p", "origins"])
+        R, p, O, A = poe_chain(ca, par.nominal, q_chain, H, P)
+        f = ca.Function("fk", [q, x], [R, p, O, A], ["q", "x"], ["R", "p", "origins", "axes"])
         return CasadiFk(f, par.size, lambda qq: model.parameters_at(np.asarray(qq)[None])[0], "cdc-frozen" + suffix)
     raise ModelError(f"cannot build casadi kinematics for {type(model).__name__} "
                      f"(kind {getattr(model, 'kind', '?')!r}); supported: constant, cdc, PoeModel, "

@@ -56,7 +56,7 @@ class OpaqueStub(FourierStub):
 
 
 def _eval(cfk, q):
-    R, p, _ = cfk.function(q, cfk.x0(q))
+    R, p, _, _ = cfk.function(q, cfk.x0(q))
     return np.asarray(R), np.asarray(p).ravel()
 
 
@@ -95,7 +95,7 @@ def test_cdc_jacobian_includes_parameter_dependence(cell):
     model = CdcModel("R1", "fbf13", par, FourierStub(par.size, scale=1e-2))
     cfk = casadi_fk(model)
     q = ca.SX.sym("q", 6)
-    _, p, _ = cfk.function(q, ca.SX(0, 1))
+    _, p, _, _ = cfk.function(q, ca.SX(0, 1))
     J = ca.Function("J", [q], [ca.jacobian(p, q)])
     q0 = np.array([0.1, 0.3, -0.2, 0.4, -0.5, 0.6])
     eps = 1e-6
