@@ -19,7 +19,10 @@ sin(upper arm, forearm) (elbow) and the wrist centre's distance from axis 1 over
 
 from __future__ import annotations
 
+import csv
 import hashlib
+import io
+import json
 import logging
 import os
 import shutil
@@ -34,7 +37,7 @@ import numpy as np
 
 from app.casadi_kinematics import casadi_fk
 from calibration import so3
-from calibration.errors import ModelError
+from calibration.errors import ModelError, UnsafeTarget
 from calibration.models import ConstantModel
 from cell_config.loader import CellSpec
 
@@ -393,14 +396,20 @@ class DualPlanner:
         q = np.clip(q, self.lower, self.upper)
         q_ref = q.copy() if q_ref is None else np.asarray(q_ref, dtype=float)
         o = self.options
+        frozen = self.fks["R1"].frozen or self.fks["R2"].frozen
         it = 0
         for it in range(1, o.max_iter + 1):
             ev = self.evaluate(q, T_wp_gun, T_cell_target)
             dq = self._step(q, q_ref, ev)
             q = q + dq
             small = np.abs(dq).max()
-            if small < o.step_tol_rad or (small < 1e-5 and np.linalg.norm(ev["e"][:3]) < 1e-3):
-                break  # e was small before this step; the step makes it quadratically smaller
+            e_mm, e_rad = np.linalg.norm(ev["e"][:3]), np.linalg.norm(ev["e"][3:])
+            if frozen:  # fixed point: the parameters move after the step, so require e small before it
+                done = e_mm < 0.1 * o.tol_mm and e_rad < 0.1 * o.tol_rad and small < 1e-5
+            else:  # e was small before this step; the (exact Newton) step makes it quadratically smaller
+                done = e_mm < 1e-3 and small < 1e-5
+            if done or small < o.step_tol_rad:
+                break
         return self._check(q, T_wp_gun, T_cell_target, it, t0)
 
     def _check(self, q: np.ndarray, T_wp_gun: np.ndarray, T_cell_target: np.ndarray, it: int,
@@ -493,6 +502,94 @@ def sweep_path(planner: DualPlanner, n: int = 200, q_inward_deg: np.ndarray | No
     if n < 2:
         raise ModelError(f"a sweep needs n >= 2 waypoints, got {n}")
     qa = np.radians([-5.0, -5.0, 5.0, -10.0, -35.0, 10.0] if q_inward_deg is None else q_inward_deg)
-    qb = np.radians([10.0, 35.0, -15.0, 15.0, -35.0, -10.0] if q_outward_deg is None else q_outward_deg)
+    qb = np.radians([10.0, 25.0, -5.0, 10.0, -20.0, -10.0] if q_outward_deg is None else q_outward_deg)
     s = 0.5 - 0.5 * np.cos(np.linspace(0.0, np.pi, n))  # rest-to-rest timing
     return np.array([tool_pose(planner, "R2", qa + si * (qb - qa)) for si in s])
+
+
+def save_plan(plan: PlanResult, path: str | Path) -> None:
+    """Write the plan file (JSON, schema ``cellcal.plan/1``) atomically."""
+    _write_atomic(Path(path), json.dumps(plan.to_dict(), indent=1))
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def rpy_deg(R: np.ndarray) -> np.ndarray:
+    """Yaskawa fixed-axis angles ``(Rx, Ry, Rz)`` [deg] with ``R = Rz @ Ry @ Rx``, shape (..., 3)."""
+    rx = np.arctan2(R[..., 2, 1], R[..., 2, 2])
+    ry = np.arctan2(-R[..., 2, 0], np.hypot(R[..., 0, 0], R[..., 1, 0]))
+    rz = np.arctan2(R[..., 1, 0], R[..., 0, 0])
+    return np.degrees(np.stack([rx, ry, rz], axis=-1))
+
+
+def export_rows(plan: PlanResult, cell: CellSpec, frame: str = "flange", skip_failed: bool = False
+                ) -> list[dict[str, Any]]:
+    """Controller targets of a plan: joint angles, encoder pulses and "filtered" nominal poses.
+
+    The pose of each row is what the controller's nominal kinematics gives at the planned q, in the robot's
+    base frame: sent as a Cartesian target, the controller's inverse kinematics returns the planned q, so the
+    real arm lands where the calibrated model says (the program is filtered through the model).
+
+    Args:
+        plan: a planned sequence.
+        cell: gives pulses per radian, limits and the nominal geometry.
+        frame: ``"flange"`` (tool 0 of the controller) or ``"tool"`` (the cell's tool marker frame).
+        skip_failed: leave out waypoints that did not converge instead of refusing the export.
+
+    Returns:
+        One dict per (waypoint, robot): ``index, robot, q_rad (6), pulses (6), p_mm (3), rpy_deg (3)``.
+
+    Raises:
+        UnsafeTarget: a waypoint did not converge (unless ``skip_failed``) or is outside the joint limits.
+        ModelError: unknown frame.
+    """
+    if frame not in ("flange", "tool"):
+        raise ModelError(f"unknown frame {frame!r}; valid: flange, tool")
+    rows: list[dict[str, Any]] = []
+    for i, w in enumerate(plan.waypoints):
+        if not w.converged:
+            if skip_failed:
+                continue
+            raise UnsafeTarget("R1+R2", None, w.clearance_mm, 0.0, f"waypoint {i} was not solved: {w.reason}")
+        for name, q in (("R1", w.q_R1), ("R2", w.q_R2)):
+            spec = cell.robot(name)
+            bad = np.flatnonzero((q < spec.robot.lower_rad) | (q > spec.robot.upper_rad))
+            if bad.size:
+                j = int(bad[0])
+                lim = spec.robot.lower_rad[j] if q[j] < spec.robot.lower_rad[j] else spec.robot.upper_rad[j]
+                raise UnsafeTarget(name, j + 1, float(q[j]), float(lim), f"waypoint {i}")
+            nominal = spec.robot.model(spec.tool if frame == "tool" else None)
+            R, p = nominal.fk(q[None])
+            rows.append({"index": i, "robot": name, "q_rad": q.tolist(),
+                         "pulses": np.rint(q * spec.robot.pulses_per_rad).astype(int).tolist(),
+                         "p_mm": p[0].tolist(), "rpy_deg": rpy_deg(R[0]).tolist()})
+    return rows
+
+
+def write_targets(rows: list[dict[str, Any]], path: str | Path, frame: str = "flange") -> None:
+    """Write export rows as CSV (one line per waypoint and robot) or JSON (by suffix), atomically."""
+    path = Path(path)
+    if path.suffix.lower() == ".json":
+        _write_atomic(path, json.dumps({"schema": "cellcal.targets/1", "frame": frame, "rows": rows}, indent=1))
+        return
+    if path.suffix.lower() != ".csv":
+        raise ModelError(f"unknown target file type {path.suffix!r}; valid: .csv, .json")
+    buf = io.StringIO()
+    wr = csv.writer(buf, lineterminator="\n")
+    wr.writerow(["index", "robot"] + [f"q{j}_rad" for j in range(1, 7)] + [f"pulse{j}" for j in range(1, 7)]
+                + ["x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg"])
+    for r in rows:
+        wr.writerow([r["index"], r["robot"]] + [repr(v) for v in r["q_rad"]] + r["pulses"]
+                    + [f"{v:.4f}" for v in r["p_mm"] + r["rpy_deg"]])
+    _write_atomic(path, buf.getvalue())
