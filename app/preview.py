@@ -61,7 +61,7 @@ def load_plan(plan: str | Path | dict[str, Any]) -> list[dict[str, np.ndarray]]:
             raise DataError(path, None, None, "plan file not found") from None
         except json.JSONDecodeError as e:
             raise DataError(path, None, None, f"not a JSON plan ({e})") from e
-    if not isinstance(plan, dict) or not (isinstance(plan.get("waypoints"), list) or isinstance(plan.get("targets"), list)):
+    if not isinstance(plan, dict) or not any(isinstance(plan.get(k), list) for k in ("waypoints", "targets")):
         raise DataError(path, None, None, "expected a plan with 'waypoints' ({R1: [6], R2: [6]}) or 'targets' "
                                           "({robot: R1|R2, q: [6]})")
     entries = plan["waypoints"] if isinstance(plan.get("waypoints"), list) else plan["targets"]
@@ -70,7 +70,7 @@ def load_plan(plan: str | Path | dict[str, Any]) -> list[dict[str, np.ndarray]]:
     for i, e in enumerate(entries):
         if not isinstance(e, dict):
             raise DataError(path, None, None, f"entry {i}: expected a mapping")
-        items = [(e["robot"], e.get("q")) ] if "robot" in e else [(k, e[k]) for k in ("R1", "R2") if k in e]
+        items = [(e["robot"], e.get("q"))] if "robot" in e else [(k, e[k]) for k in ("R1", "R2") if k in e]
         if not items:
             raise DataError(path, None, None, f"entry {i}: names no robot (expected keys R1/R2 or robot + q)")
         for robot, q in items:
@@ -203,12 +203,14 @@ def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve
         url = live.url()
         windows.append(live.window)
     for window in windows:
-        vis = meshcat.Visualizer(window=window)
-        vis["/Background"].set_property("top_color", [0.93, 0.93, 0.93])
-        vis["/Background"].set_property("bottom_color", [0.75, 0.75, 0.75])
-        vis["/Grid"].set_property("visible", False)
-        vis["/Cameras/default"].set_transform(tf.translation_matrix([1.35, -0.2, 0.2]))
-        vis["/Cameras/default/rotated/<object>"].set_property("position", [0.0, 1.0, 3.0])
+        top = meshcat.Visualizer(window=window)
+        top["/Background"].set_property("top_color", [0.93, 0.93, 0.93])
+        top["/Background"].set_property("bottom_color", [0.75, 0.75, 0.75])
+        top["/Grid"].set_property("visible", False)
+        top["/Axes"].set_property("visible", False)
+        top["/Cameras/default/rotated/<object>"].set_property("position", [0.0, 1.4, 3.4])
+        vis = top["cellcal"]  # the viewer orbits the origin: centre the cell on it
+        vis.set_transform(tf.translation_matrix([-1.35, 0.2, -0.1]))
         vis["cell/floor"].set_object(g.Box([4.2, 2.4, 0.02]), g.MeshLambertMaterial(color=0x9E9E8E))
         vis["cell/floor"].set_transform(tf.translation_matrix([1.35, -0.2, FLOOR_Z_MM * 1e-3 - 0.01]))
         anim = Animation(default_framerate=fps)
@@ -240,7 +242,7 @@ def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve
                 vis[f"{name}/link{k}"].set_transform(_segment_transform(pts[i], pts[j]))
                 vis[f"{name}/joint{k}"].set_transform(tf.translation_matrix(pts[i]))
             vis[f"{name}/tool"].set_transform(tool)
-        vis.set_animation(anim, play=True, repetitions=1)
+        top.set_animation(anim, play=True, repetitions=1)
     path = None
     if html_out is not None:
         path = Path(html_out)

@@ -148,7 +148,7 @@ def test_export_pulses_and_filtered_poses(cell, nominal, tmp_path):
     R, p = spec.model().fk(q[None])  # nominal flange pose in R2's base frame
     np.testing.assert_allclose(r["p_mm"], p[0], atol=1e-9)
     rx, ry, rz = np.radians(r["rpy_deg"])
-    Rz, Ry, Rx = so3.rot(np.array([0, 0, 1.0]), rz), so3.rot(np.array([0, 1.0, 0]), ry), so3.rot(np.array([1.0, 0, 0]), rx)
+    Rz, Ry, Rx = (so3.rot(np.eye(3)[k], a) for k, a in ((2, rz), (1, ry), (0, rx)))
     np.testing.assert_allclose(Rz @ Ry @ Rx, R[0], atol=1e-12)
     np.testing.assert_allclose(rpy_deg(R[0]), r["rpy_deg"])
     write_targets(rows, tmp_path / "t.csv")

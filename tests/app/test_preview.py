@@ -38,7 +38,8 @@ def test_load_dual_and_collection_plans(tmp_path):
     p.write_text(json.dumps(_dual_plan(3)))
     frames = load_plan(p)
     assert len(frames) == 3 and frames[2]["R1"].shape == (6,)
-    coll = {"schema": "cellcal.collection/1", "targets": [{"robot": "R1", "q": [0.1] * 6}, {"robot": "R1", "q": [0.2] * 6}]}
+    coll = {"schema": "cellcal.collection/1",
+            "targets": [{"robot": "R1", "q": [0.1] * 6}, {"robot": "R1", "q": [0.2] * 6}]}
     frames = load_plan(coll)
     assert len(frames) == 2
     np.testing.assert_array_equal(frames[1]["R1"], [0.2] * 6)
