@@ -20,24 +20,21 @@ sin(upper arm, forearm) (elbow) and the wrist centre's distance from axis 1 over
 from __future__ import annotations
 
 import csv
-import hashlib
 import io
 import json
 import logging
 import os
-import shutil
-import subprocess
 import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
-from app.casadi_kinematics import casadi_fk
+from app.casadi_kinematics import buffer_evaluator, casadi_fk, compile_function
 from calibration import so3
-from calibration.errors import ModelError, UnsafeTarget
+from calibration.errors import DataError, ModelError, UnsafeTarget
 from calibration.models import ConstantModel
 from cell_config.loader import CellSpec
 
@@ -181,57 +178,6 @@ def _capsule_distance(ca: Any, a0: Any, a1: Any, b0: Any, b1: Any) -> Any:
     return ca.sqrt(ca.dot(w, w) + 1e-12)
 
 
-def compile_function(ca: Any, F: Any, cache_dir: str | Path | None = None) -> Any:
-    """F compiled to a shared library with gcc, cached by the hash of its C source; F itself on failure.
-
-    The cache lives in ``$CELLCAL_CACHE`` or ``~/.cache/cellcal`` so only the first build of a given model pays
-    the compile time (seconds); later builds load the library in milliseconds.
-    """
-    cc = shutil.which(os.environ.get("CC", "gcc"))
-    if cc is None:
-        logger.info("no C compiler found; using the interpreted casadi function (slower)")
-        return F
-    cg = ca.CodeGenerator(f"{F.name()}.c", {"with_header": False})
-    cg.add(F)
-    src = cg.dump()
-    digest = hashlib.sha256(src.encode()).hexdigest()[:16]
-    root = Path(cache_dir or os.environ.get("CELLCAL_CACHE") or Path.home() / ".cache" / "cellcal")
-    lib = root / f"{F.name()}_{digest}.so"
-    try:
-        if not lib.exists():
-            root.mkdir(parents=True, exist_ok=True)
-            with tempfile.TemporaryDirectory(dir=root) as tmp:
-                c_file = Path(tmp) / f"{F.name()}.c"
-                c_file.write_text(src)
-                out = Path(tmp) / lib.name
-                subprocess.run([cc, "-O1", "-fPIC", "-shared", str(c_file), "-o", str(out), "-lm"],
-                               check=True, capture_output=True, timeout=300)
-                os.replace(out, lib)
-            logger.info("compiled %s to %s", F.name(), lib)
-        return ca.external(F.name(), str(lib))
-    except (OSError, subprocess.SubprocessError, RuntimeError) as e:
-        logger.warning("could not compile %s (%s); using the interpreted casadi function", F.name(), e)
-        return F
-
-
-def _buffer(F: Any, z: np.ndarray, out: np.ndarray) -> Callable[[], None]:
-    """A zero-copy evaluator: reads ``z``, writes ``out`` in place."""
-    try:
-        buf, trigger = F.buffer()
-        buf.set_arg(0, memoryview(z))
-        buf.set_res(0, memoryview(out))
-    except (AttributeError, NotImplementedError, RuntimeError):
-        def run() -> None:
-            out[:] = np.asarray(F(z)).ravel()
-        return run
-
-    def run_buffer() -> None:
-        trigger()
-        if buf is None:  # keeps the buffer (which owns the pointers) alive as long as the evaluator
-            raise RuntimeError("casadi buffer released")
-    return run_buffer
-
-
 _LIMIT_J = np.vstack([-np.eye(12), np.eye(12)])
 
 
@@ -313,7 +259,7 @@ class DualPlanner:
         F = ca.Function("cellcal_dual", [z], [ca.densify(ca.vertcat(*outs))])
         self._F = compile_function(ca, F) if o.compile else F
         self._z, self._out = np.zeros(z.shape[0]), np.zeros(k + 24)
-        self._eval = _buffer(self._F, self._z, self._out)
+        self._eval = buffer_evaluator(self._F, self._z, self._out)
 
     def evaluate(self, q: np.ndarray, T_wp_gun: np.ndarray, T_cell_target: np.ndarray) -> dict[str, np.ndarray]:
         """Residuals and Jacobians at q [rad] (12,).
@@ -593,3 +539,79 @@ def write_targets(rows: list[dict[str, Any]], path: str | Path, frame: str = "fl
         wr.writerow([r["index"], r["robot"]] + [repr(v) for v in r["q_rad"]] + r["pulses"]
                     + [f"{v:.4f}" for v in r["p_mm"] + r["rpy_deg"]])
     _write_atomic(path, buf.getvalue())
+
+
+def plan_from_dict(d: dict[str, Any], source: str | Path = "<plan>") -> PlanResult:
+    """A :class:`PlanResult` from a plan file's content; entries without ``converged: true`` count as unsolved.
+
+    Raises:
+        DataError: not a dual plan, or joint vectors that are not 6 finite numbers.
+    """
+    if not isinstance(d, dict) or d.get("schema") != PLAN_SCHEMA or not isinstance(d.get("waypoints"), list):
+        raise DataError(source, None, None, f"expected a dual plan (schema {PLAN_SCHEMA!r} with 'waypoints')")
+    out = []
+    for i, w in enumerate(d["waypoints"]):
+        try:
+            q1, q2 = np.asarray(w["R1"], dtype=float), np.asarray(w["R2"], dtype=float)
+        except (KeyError, TypeError, ValueError) as e:
+            raise DataError(source, None, None, f"waypoint {i}: expected R1 and R2 with 6 numbers each [rad]") from e
+        if q1.shape != (6,) or q2.shape != (6,) or not np.all(np.isfinite(np.r_[q1, q2])):
+            raise DataError(source, None, None, f"waypoint {i}: expected R1 and R2 with 6 finite numbers each [rad]")
+        ok = w.get("converged") is True
+        nan = float("nan")
+        out.append(WaypointResult(q1, q2, float(w.get("residual_mm", nan)), float(w.get("residual_deg", nan)),
+                                  float(w.get("track_mm", nan)), nan, float(w.get("clearance_mm", nan)), nan,
+                                  float(w.get("solve_ms", nan)), 0, ok,
+                                  w.get("reason", "") if ok else (w.get("reason") or "not marked converged")))
+    return PlanResult(tuple(out), np.asarray(d.get("T_wp_gun", np.eye(4)), dtype=float), dict(d.get("models", {})))
+
+
+def load_plan_result(path: str | Path) -> PlanResult:
+    """Read a plan file written by :func:`save_plan`."""
+    path = Path(path)
+    try:
+        return plan_from_dict(json.loads(path.read_text(encoding="utf-8")), path)
+    except FileNotFoundError:
+        raise DataError(path, None, None, "plan file not found") from None
+    except json.JSONDecodeError as e:
+        raise DataError(path, None, None, f"not a JSON plan ({e})") from e
+
+
+def plan_dual(cell: CellSpec, model_R1: Any = None, model_R2: Any = None, path: np.ndarray | None = None,
+              T_wp_gun: np.ndarray | None = None, n: int = 200, q_start: np.ndarray | None = None,
+              options: PlannerOptions | None = None) -> PlanResult:
+    """Plan a dual-robot path in one call (what ``cellcal plan-dual`` runs).
+
+    Args:
+        cell: the loaded cell.
+        model_R1, model_R2: kinematic models (``load_model`` results); nominal when None.
+        path: workpiece poses in the cell frame (N, 4, 4) [mm]; the inward-to-outstretched sweep when None.
+        T_wp_gun: gun pose in the workpiece frame (4, 4) [mm]; the reference one (:data:`Q_REF_DEG`) when None.
+        n: waypoints of the default sweep.
+        q_start: first guess (12,) [rad]; the reference configuration when None.
+        options: planner options.
+    """
+    planner = DualPlanner(cell, model_R1, model_R2, options or PlannerOptions())
+    q0 = np.radians(Q_REF_DEG) if q_start is None else np.asarray(q_start, dtype=float)
+    T_rel = relative_pose(planner, np.radians(Q_REF_DEG)) if T_wp_gun is None else T_wp_gun
+    return planner.plan(sweep_path(planner, n) if path is None else path, T_rel, q0)
+
+
+def export_targets(plan: PlanResult | str | Path, cell: CellSpec, out: str | Path, frame: str = "flange",
+                   skip_failed: bool = False) -> int:
+    """Export a plan (object or plan file) as controller targets to ``out`` (.csv or .json).
+
+    Returns:
+        The number of rows written (waypoints x 2 robots).
+
+    Raises:
+        UnsafeTarget: an unsolved waypoint (unless ``skip_failed``) or a joint beyond its limit; nothing is written.
+        DataError, ModelError: unreadable plan, unknown frame or file type.
+    """
+    if not isinstance(plan, PlanResult):
+        plan = load_plan_result(plan)
+    if Path(out).suffix.lower() not in (".csv", ".json"):
+        raise ModelError(f"unknown target file type {Path(out).suffix!r}; valid: .csv, .json")
+    rows = export_rows(plan, cell, frame, skip_failed)
+    write_targets(rows, out, frame)
+    return len(rows)

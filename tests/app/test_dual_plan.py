@@ -10,10 +10,11 @@ import pytest
 
 pytest.importorskip("casadi")
 
-from app.dual_plan import (Q_REF_DEG, DualPlanner, PlannerOptions, export_rows, relative_pose, rpy_deg,  # noqa: E402
-                           save_plan, sweep_path, write_targets)
+from app.dual_plan import (Q_REF_DEG, DualPlanner, PlannerOptions, export_rows, export_targets,  # noqa: E402
+                           load_plan_result, plan_dual, relative_pose, rpy_deg, save_plan, sweep_path,
+                           write_targets)
 from calibration import so3  # noqa: E402
-from calibration.errors import ModelError, UnsafeTarget  # noqa: E402
+from calibration.errors import DataError, ModelError, UnsafeTarget  # noqa: E402
 from calibration.models import CdcModel  # noqa: E402
 from calibration.parameterisation import MinimalParameterisation  # noqa: E402
 from cell_config.loader import load_cell  # noqa: E402
@@ -173,3 +174,32 @@ def test_export_refuses_targets_outside_limits(cell, nominal):
     plan_bad = type(plan)((bad,), plan.T_wp_gun, plan.models)
     with pytest.raises(UnsafeTarget, match="R2 joint 5"):
         export_rows(plan_bad, cell)
+
+
+def test_plan_dual_file_round_trip_and_export(cell, tmp_path):
+    plan = plan_dual(cell, n=5, options=FAST)
+    assert plan.converged and len(plan.waypoints) == 5
+    save_plan(plan, tmp_path / "plan.json")
+    back = load_plan_result(tmp_path / "plan.json")
+    np.testing.assert_array_equal(back.q(), plan.q())
+    assert export_targets(tmp_path / "plan.json", cell, tmp_path / "t.csv") == 10
+    d = json.loads((tmp_path / "plan.json").read_text())
+    d["waypoints"][2].pop("converged")  # hand-edited plans are not trusted
+    (tmp_path / "edited.json").write_text(json.dumps(d))
+    with pytest.raises(UnsafeTarget, match="waypoint 2 was not solved: not marked converged"):
+        export_targets(tmp_path / "edited.json", cell, tmp_path / "e.csv")
+    assert not (tmp_path / "e.csv").exists()
+    assert export_targets(tmp_path / "edited.json", cell, tmp_path / "e.json", skip_failed=True) == 8
+
+
+@pytest.mark.parametrize("content, message", [
+    ({"schema": "other", "waypoints": []}, "expected a dual plan"),
+    ({"schema": "cellcal.plan/1", "waypoints": [{"R1": [0] * 6}]}, "waypoint 0: expected R1 and R2"),
+    ({"schema": "cellcal.plan/1", "waypoints": [{"R1": [0] * 6, "R2": [0] * 5}]}, "6 finite numbers"),
+])
+def test_bad_plan_files(cell, tmp_path, content, message):
+    p = tmp_path / "bad.json"
+    p.write_text(json.dumps(content))
+    with pytest.raises(DataError, match=message):
+        export_targets(p, cell, tmp_path / "t.csv")
+    assert not (tmp_path / "t.csv").exists()
