@@ -15,6 +15,8 @@ Arms are cylinders between the joint origins of the chain (no meshes); viewer un
 from __future__ import annotations
 
 import base64
+import contextlib
+import io
 import json
 import logging
 from dataclasses import dataclass
@@ -175,7 +177,8 @@ def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve
         cell: the loaded cell.
         plan: plan file path, its parsed dict, or a ``PlanResult`` (anything with ``to_dict()``).
         html_out: write the self-contained static page here.
-        serve: also start a meshcat server and draw there (prints nothing; the URL is returned).
+        serve: also start a meshcat server (a subprocess on 127.0.0.1, alive while this process runs) and draw
+            there; the URL is returned. The caller keeps the process alive (e.g. waits for Enter).
         models: PoeModel per robot used for drawing (``chain``); the cell's nominal models when None.
         fps: animation frames (waypoints) per second.
 
@@ -199,8 +202,10 @@ def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve
     windows = [RecordingWindow()] if html_out is not None else []
     url = None
     if serve:
-        live = meshcat.Visualizer()
+        with contextlib.redirect_stdout(io.StringIO()):  # meshcat prints the URL; we return and log it
+            live = meshcat.Visualizer()
         url = live.url()
+        logger.info("meshcat viewer at %s (the server lives as long as this process)", url)
         windows.append(live.window)
     for window in windows:
         top = meshcat.Visualizer(window=window)
