@@ -5,7 +5,8 @@ Usage: ``python scripts/bench_dual.py [--n 200] [--json FILE] [--no-compile]``
 A 200-waypoint sweep of the workpiece from tucked-in to outstretched, solved with the nominal models and
 with a synthetic configuration-dependent (fbf13-style: 13 Fourier terms in q2, q3) model on both arms, and
 with the same model hidden behind ``predict`` only (the frozen-parameter fixed-point fallback).
-Warm: each waypoint starts from the previous solution. Cold: each starts from the fixed reference guess.
+Warm: each waypoint starts from the previous solution. Cold: each starts from the fixed reference guess
+(``Q_REF_DEG``); "from q=0" starts from all-zero joints (both wrists singular) as a harder cold case.
 Figures are medians over waypoints; residuals are the largest over all runs. The top-level
 ``warm_ms_median``/``cold_ms_median`` are the worse of the nominal and casadi-CDC runs (the speed goals); the
 frozen fallback is reported under ``cdc_frozen``.
@@ -75,14 +76,16 @@ def run(planner: DualPlanner, n: int) -> dict[str, float]:
     planner.plan(path[:3], T_rel, q0)  # warm-up (first calls, caches)
     warm = planner.plan(path, T_rel, q0, warm=True)
     cold = planner.plan(path, T_rel, q0, warm=False)
-    both = warm.waypoints + cold.waypoints
+    cold_zero = planner.plan(path, T_rel, np.zeros(12), warm=False)  # q = 0: both wrists singular
+    both = warm.waypoints + cold.waypoints + cold_zero.waypoints
     return {"warm_ms_median": float(np.median([w.solve_ms for w in warm.waypoints])),
             "warm_ms_p95": float(np.percentile([w.solve_ms for w in warm.waypoints], 95)),
             "warm_iter_median": float(np.median([w.iterations for w in warm.waypoints])),
             "cold_ms_median": float(np.median([w.solve_ms for w in cold.waypoints])),
             "cold_ms_p95": float(np.percentile([w.solve_ms for w in cold.waypoints], 95)),
             "cold_iter_median": float(np.median([w.iterations for w in cold.waypoints])),
-            "failed_warm": len(warm.failed), "failed_cold": len(cold.failed),
+            "cold_zero_ms_median": float(np.median([w.solve_ms for w in cold_zero.waypoints])),
+            "failed_warm": len(warm.failed), "failed_cold": len(cold.failed), "failed_cold_zero": len(cold_zero.failed),
             "max_residual_mm": float(max(w.residual_mm for w in both)),
             "max_residual_deg": float(max(w.residual_deg for w in both)),
             "max_track_mm": float(max(w.track_mm for w in warm.waypoints)),
@@ -117,8 +120,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{label:10s} ({r['model_kinds']}): build {build_s:.2f} s"
               f" | warm median {r['warm_ms_median']:.2f} ms (p95 {r['warm_ms_p95']:.2f},"
               f" {r['warm_iter_median']:.0f} it) | cold median {r['cold_ms_median']:.2f} ms"
-              f" (p95 {r['cold_ms_p95']:.2f}, {r['cold_iter_median']:.0f} it)"
-              f" | failed {r['failed_warm']}/{r['failed_cold']}"
+              f" (p95 {r['cold_ms_p95']:.2f}, {r['cold_iter_median']:.0f} it; from q=0 {r['cold_zero_ms_median']:.2f} ms)"
+              f" | failed {r['failed_warm']}/{r['failed_cold']}/{r['failed_cold_zero']}"
               f" | max residual {r['max_residual_mm']:.2e} mm {r['max_residual_deg']:.2e} deg"
               f" | track {r['max_track_mm']:.2f} mm | clearance {r['min_clearance_mm']:.0f} mm")
     for key in ("warm_ms_median", "cold_ms_median"):  # goal figures: worst of the casadi-expressible models
