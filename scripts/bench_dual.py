@@ -120,7 +120,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{label:10s} ({r['model_kinds']}): build {build_s:.2f} s"
               f" | warm median {r['warm_ms_median']:.2f} ms (p95 {r['warm_ms_p95']:.2f},"
               f" {r['warm_iter_median']:.0f} it) | cold median {r['cold_ms_median']:.2f} ms"
-              f" (p95 {r['cold_ms_p95']:.2f}, {r['cold_iter_median']:.0f} it; from q=0 {r['cold_zero_ms_median']:.2f} ms)"
+              f" (p95 {r['cold_ms_p95']:.2f}, {r['cold_iter_median']:.0f} it;"
+              f" from q=0 {r['cold_zero_ms_median']:.2f} ms)"
               f" | failed {r['failed_warm']}/{r['failed_cold']}/{r['failed_cold_zero']}"
               f" | max residual {r['max_residual_mm']:.2e} mm {r['max_residual_deg']:.2e} deg"
               f" | track {r['max_track_mm']:.2f} mm | clearance {r['min_clearance_mm']:.0f} mm")
