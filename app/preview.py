@@ -1,0 +1,257 @@
+"""meshcat preview of a plan: both arms drawn from their kinematic model, tool frames, floor, animation.
+
+``preview(cell, plan, html_out=...)`` writes one self-contained HTML page (meshcat's viewer JavaScript is
+inlined and every drawing command is an embedded ``data:`` URL, so it opens from disk with no server and no
+network). The commands are recorded in-process by a small window object that stands in for meshcat's
+zmq server, so no server process or port is needed; ``serve=True`` uses a real meshcat server instead (for
+a live view in the browser).
+
+Plans: a dual plan (``{"schema": "cellcal.plan/1", "waypoints": [{"R1": [6 rad], "R2": [6 rad]}, ...]}``) or
+a single-robot collection plan with ``targets: [{"robot": "R1", "q": [6 rad]}, ...]``; a robot a frame does
+not mention keeps its previous configuration (the home configuration q = 0 at the start).
+Arms are cylinders between the joint origins of the chain (no meshes); viewer units are metres.
+"""
+
+from __future__ import annotations
+
+import base64
+import contextlib
+import io
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from calibration.errors import DataError
+from cell_config.loader import CellSpec
+
+logger = logging.getLogger("cellcal.app")
+COLORS = {"R1": 0xFF7F0E, "R2": 0x1F77B4}  # R1 orange (gun), R2 blue (workpiece)
+RADII_M = {"R1": 0.09, "R2": 0.07}
+FLOOR_Z_MM = -505.0  # R1's joint-2 height above the floor (the cell frame sits at that height)
+
+
+@dataclass(frozen=True)
+class PreviewResult:
+    """What :func:`preview` produced.
+
+    Attributes:
+        n_frames: animation frames (plan waypoints).
+        html_path: the static page, or None.
+        url: the live viewer's address when served, or None.
+    """
+
+    n_frames: int
+    html_path: Path | None = None
+    url: str | None = None
+
+
+def load_plan(plan: str | Path | dict[str, Any]) -> list[dict[str, np.ndarray]]:
+    """Frames of a dual or collection plan: one ``{"R1": q (6,), "R2": q (6,)}`` per waypoint [rad].
+
+    Raises:
+        DataError: unreadable file, unknown layout, or a joint vector that is not 6 finite numbers.
+    """
+    path = Path(plan) if not isinstance(plan, dict) else Path("<plan>")
+    if not isinstance(plan, dict):
+        try:
+            plan = json.loads(path.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise DataError(path, None, None, "plan file not found") from None
+        except json.JSONDecodeError as e:
+            raise DataError(path, None, None, f"not a JSON plan ({e})") from e
+    if not isinstance(plan, dict) or not any(isinstance(plan.get(k), list) for k in ("waypoints", "targets")):
+        raise DataError(path, None, None, "expected a plan with 'waypoints' ({R1: [6], R2: [6]}) or 'targets' "
+                                          "({robot: R1|R2, q: [6]})")
+    entries = plan["waypoints"] if isinstance(plan.get("waypoints"), list) else plan["targets"]
+    current = {"R1": np.zeros(6), "R2": np.zeros(6)}
+    frames = []
+    for i, e in enumerate(entries):
+        if not isinstance(e, dict):
+            raise DataError(path, None, None, f"entry {i}: expected a mapping")
+        items = [(e["robot"], e.get("q"))] if "robot" in e else [(k, e[k]) for k in ("R1", "R2") if k in e]
+        if not items:
+            raise DataError(path, None, None, f"entry {i}: names no robot (expected keys R1/R2 or robot + q)")
+        for robot, q in items:
+            if robot not in current:
+                raise DataError(path, None, None, f"entry {i}: unknown robot {robot!r}; valid: R1, R2")
+            try:
+                qa = np.asarray(q, dtype=float)
+            except (TypeError, ValueError):
+                qa = np.full(0, np.nan)
+            if qa.shape != (6,) or not np.all(np.isfinite(qa)):
+                raise DataError(path, None, None, f"entry {i}: {robot} joint angles must be 6 finite numbers [rad]")
+            current[robot] = qa
+        frames.append({k: v.copy() for k, v in current.items()})
+    if not frames:
+        raise DataError(path, None, None, "the plan has no waypoints")
+    return frames
+
+
+class RecordingWindow:
+    """Stands in for meshcat's zmq server: keeps the scene and renders it as one static page."""
+
+    def __init__(self) -> None:
+        self.nodes: dict[str, dict[str, Any]] = {}
+
+    def send(self, command: Any) -> None:
+        import umsgpack
+
+        data = command.lower()
+        kind, path = data["type"], data["path"]
+        if kind == "delete":
+            self.nodes = {p: n for p, n in self.nodes.items() if p != path and not p.startswith(path + "/")}
+            return
+        node = self.nodes.setdefault(path, {"object": None, "transform": None, "properties": [], "animation": None})
+        blob = umsgpack.packb(data)
+        if kind == "set_object":
+            node["object"], node["properties"] = blob, []
+        elif kind == "set_transform":
+            node["transform"] = blob
+        elif kind == "set_property":
+            node["properties"].append(blob)
+        elif kind == "set_animation":
+            node["animation"] = blob
+
+    def get_scene(self) -> str:
+        from meshcat.servers.zmqserver import VIEWER_ROOT
+
+        js = (Path(VIEWER_ROOT) / "main.min.js").read_text(encoding="utf-8")
+        cmds = []
+        for node in self.nodes.values():
+            for blob in [node["object"], *node["properties"], node["transform"], node["animation"]]:
+                if blob is not None:
+                    cmds.append('fetch("data:application/octet-binary;base64,%s").then(r => r.arrayBuffer())'
+                                ".then(b => viewer.handle_command_bytearray(new Uint8Array(b)));"
+                                % base64.b64encode(blob).decode())
+        return ("<!DOCTYPE html>\n<html><head><meta charset=utf-8><title>cellcal preview</title>"
+                "<style>body{margin:0}#meshcat-pane{width:100vw;height:100vh;overflow:hidden}</style></head>"
+                f"<body><div id=\"meshcat-pane\"></div><script>{js}</script><script>"
+                "var viewer = new MeshCat.Viewer(document.getElementById(\"meshcat-pane\"));\n"
+                + "\n".join(cmds) + "</script></body></html>")
+
+
+def _segment_transform(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Pose of a meshcat cylinder (axis y, centred) spanning a -> b [m]."""
+    d = b - a
+    y = d / np.linalg.norm(d)
+    helper = np.array([1.0, 0, 0]) if abs(y[0]) < 0.9 else np.array([0, 0, 1.0])
+    x = np.cross(y, helper)
+    x /= np.linalg.norm(x)
+    T = np.eye(4)
+    T[:3, :3] = np.column_stack([x, y, np.cross(x, y)])
+    T[:3, 3] = 0.5 * (a + b)
+    return T
+
+
+def _skeleton(cell: CellSpec, models: dict[str, Any], name: str, q: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+    """Joint origins + tool point in the cell frame [m], and the tool pose (4, 4) [m]."""
+    c = models[name].chain(q[None])
+    T = cell.robot(name).T_cell_base
+    pts = [T[:3, :3] @ p[0] + T[:3, 3] for p in c.p_base_origin] + [T[:3, :3] @ c.p_base_tool[0] + T[:3, 3]]
+    pts = [p * 1e-3 for p in pts]
+    tool = np.eye(4)
+    tool[:3, :3] = T[:3, :3] @ c.R_base_tool[0]
+    tool[:3, 3] = pts[-1]
+    return pts, tool
+
+
+def _links(pts: list[np.ndarray]) -> list[tuple[int, int]]:
+    """Index pairs of consecutive distinct skeleton points (zero-length wrist offsets skipped)."""
+    out, last = [], 0
+    for i in range(1, len(pts)):
+        if np.linalg.norm(pts[i] - pts[last]) > 1e-4:
+            out.append((last, i))
+            last = i
+    return out
+
+
+def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve: bool = False,
+            models: dict[str, Any] | None = None, fps: float = 10.0) -> PreviewResult:
+    """Draw the cell and animate a plan.
+
+    Args:
+        cell: the loaded cell.
+        plan: plan file path, its parsed dict, or a ``PlanResult`` (anything with ``to_dict()``).
+        html_out: write the self-contained static page here.
+        serve: also start a meshcat server (a subprocess on 127.0.0.1, alive while this process runs) and draw
+            there; the URL is returned. The caller keeps the process alive (e.g. waits for Enter).
+        models: PoeModel per robot used for drawing (``chain``); the cell's nominal models when None.
+        fps: animation frames (waypoints) per second.
+
+    Returns:
+        The :class:`PreviewResult`.
+
+    Raises:
+        DataError: the plan is malformed. ModelError: neither ``html_out`` nor ``serve`` was asked for.
+    """
+    import meshcat
+    import meshcat.geometry as g
+    import meshcat.transformations as tf
+    from meshcat.animation import Animation
+
+    from calibration.errors import ModelError
+
+    if html_out is None and not serve:
+        raise ModelError("preview needs html_out (a static page) or serve=True (a live viewer)")
+    frames = load_plan(plan.to_dict() if hasattr(plan, "to_dict") else plan)
+    models = models or {n: cell.robot(n).model() for n in ("R1", "R2")}
+    windows = [RecordingWindow()] if html_out is not None else []
+    url = None
+    if serve:
+        with contextlib.redirect_stdout(io.StringIO()):  # meshcat prints the URL; we return and log it
+            live = meshcat.Visualizer()
+        url = live.url()
+        logger.info("meshcat viewer at %s (the server lives as long as this process)", url)
+        windows.append(live.window)
+    for window in windows:
+        top = meshcat.Visualizer(window=window)
+        top["/Background"].set_property("top_color", [0.93, 0.93, 0.93])
+        top["/Background"].set_property("bottom_color", [0.75, 0.75, 0.75])
+        top["/Grid"].set_property("visible", False)
+        top["/Axes"].set_property("visible", False)
+        top["/Cameras/default/rotated/<object>"].set_property("position", [0.0, 1.4, 3.4])
+        vis = top["cellcal"]  # the viewer orbits the origin: centre the cell on it
+        vis.set_transform(tf.translation_matrix([-1.35, 0.2, -0.1]))
+        vis["cell/floor"].set_object(g.Box([4.2, 2.4, 0.02]), g.MeshLambertMaterial(color=0x9E9E8E))
+        vis["cell/floor"].set_transform(tf.translation_matrix([1.35, -0.2, FLOOR_Z_MM * 1e-3 - 0.01]))
+        anim = Animation(default_framerate=fps)
+        for name in ("R1", "R2"):
+            pts, tool = _skeleton(cell, models, name, frames[0][name])
+            mat = g.MeshPhongMaterial(color=COLORS[name])
+            base = cell.robot(name).T_cell_base[:3, 3] * 1e-3
+            foot = base.copy()
+            foot[2] = FLOOR_Z_MM * 1e-3
+            vis[f"{name}/base"].set_object(g.Cylinder(float(base[2] - foot[2]), 0.22), mat)
+            vis[f"{name}/base"].set_transform(_segment_transform(foot, base))
+            for k, (i, j) in enumerate(_links(pts)):
+                r = RADII_M[name] * (0.6 if i >= 4 else 1.0)
+                vis[f"{name}/link{k}"].set_object(g.Cylinder(float(np.linalg.norm(pts[j] - pts[i])), r), mat)
+                vis[f"{name}/joint{k}"].set_object(g.Sphere(r * 1.15), g.MeshPhongMaterial(color=0x404040))
+            vis[f"{name}/tool"].set_object(g.triad(0.25))
+            if name == "R2":
+                vis["R2/tool/workpiece"].set_object(g.Box([0.12, 0.12, 0.01]), g.MeshLambertMaterial(color=0xD0D0D0))
+            for f, frame in enumerate(frames):
+                pts, tool = _skeleton(cell, models, name, frame[name])
+                with anim.at_frame(vis, f) as af:
+                    for k, (i, j) in enumerate(_links(pts)):
+                        af[f"{name}/link{k}"].set_transform(_segment_transform(pts[i], pts[j]))
+                        af[f"{name}/joint{k}"].set_transform(tf.translation_matrix(pts[i]))
+                    af[f"{name}/tool"].set_transform(tool)
+            # the first frame as static transforms too, so the page shows the arms before the clip starts
+            pts, tool = _skeleton(cell, models, name, frames[0][name])
+            for k, (i, j) in enumerate(_links(pts)):
+                vis[f"{name}/link{k}"].set_transform(_segment_transform(pts[i], pts[j]))
+                vis[f"{name}/joint{k}"].set_transform(tf.translation_matrix(pts[i]))
+            vis[f"{name}/tool"].set_transform(tool)
+        top.set_animation(anim, play=True, repetitions=1)
+    path = None
+    if html_out is not None:
+        path = Path(html_out)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(meshcat.Visualizer(window=windows[0]).static_html(), encoding="utf-8")
+        logger.info("wrote preview of %d frames to %s", len(frames), path)
+    return PreviewResult(len(frames), path, url)

@@ -1,0 +1,129 @@
+"""casadi forward kinematics against the numpy models."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from app.casadi_kinematics import casadi_fk
+from calibration.errors import ModelError
+from calibration.models import CdcModel, ConstantModel
+from calibration.parameterisation import MinimalParameterisation
+from cell_config.loader import load_cell
+
+ca = pytest.importorskip("casadi")
+
+
+class FourierStub:
+    """Test-only stand-in for the fbf13 interpolator: 13 Fourier terms in (q2, q3), numpy ufuncs only."""
+
+    kind = "fbf13-stub"
+
+    def __init__(self, m: int, seed: int = 1, scale: float = 1e-3) -> None:
+        self.C = np.random.default_rng(seed).normal(0, scale, (13, m))
+
+    def basis(self, x: np.ndarray) -> np.ndarray:
+        a, b = x[:, 0], x[:, 1]
+        cols = [np.ones(x.shape[0], dtype=x.dtype) * 1.0]
+        for k in (1, 2, 3):
+            cols += [np.sin(k * a), np.cos(k * a), np.sin(k * b), np.cos(k * b)]
+        return np.stack(cols, axis=1)
+
+    @property
+    def coefficients(self) -> np.ndarray:
+        return self.C
+
+    def predict(self, x: np.ndarray) -> np.ndarray:
+        return self.basis(np.asarray(x, dtype=float)) @ self.C
+
+    def out_of_range(self, x: np.ndarray) -> np.ndarray:
+        return np.zeros(len(x), dtype=bool)
+
+
+class OpaqueStub(FourierStub):
+    """An interpolator casadi cannot see through (no basis): forces the frozen-parameter fallback."""
+
+    kind = "opaque-stub"
+    basis_ = FourierStub.basis
+
+    def __getattribute__(self, name):  # hide basis from hasattr
+        if name == "basis":
+            raise AttributeError(name)
+        return object.__getattribute__(self, name)
+
+    def predict(self, x: np.ndarray) -> np.ndarray:
+        return FourierStub.basis(self, np.asarray(x, dtype=float)) @ self.C
+
+
+def _eval(cfk, q):
+    R, p, _, _ = cfk.function(q, cfk.x0(q))
+    return np.asarray(R), np.asarray(p).ravel()
+
+
+def _check(model, cfk, seed=0, n=20):
+    rng = np.random.default_rng(seed)
+    qs = rng.uniform(-2.0, 2.0, (n, 6))
+    R_np, p_np = model.fk(qs)
+    for i, q in enumerate(qs):
+        R, p = _eval(cfk, q)
+        np.testing.assert_allclose(p, p_np[i], atol=1e-9, rtol=0)
+        np.testing.assert_allclose(R, R_np[i], atol=1e-12, rtol=0)
+
+
+@pytest.fixture(scope="module")
+def cell():
+    return load_cell()
+
+
+def test_constant_matches_numpy(cell):
+    model = ConstantModel("R1", "nominal", cell.robot("R1").model())
+    cfk = casadi_fk(model)
+    assert cfk.kind == "constant" and not cfk.frozen
+    _check(model, cfk)
+
+
+def test_cdc_fourier_matches_numpy_and_is_exact(cell):
+    par = MinimalParameterisation(cell.robot("R2").model())
+    model = CdcModel("R2", "fbf13", par, FourierStub(par.size, scale=0.5))  # large deviations: strict test
+    cfk = casadi_fk(model)
+    assert cfk.kind == "cdc" and not cfk.frozen
+    _check(model, cfk, seed=3)
+
+
+def test_cdc_jacobian_includes_parameter_dependence(cell):
+    par = MinimalParameterisation(cell.robot("R1").model())
+    model = CdcModel("R1", "fbf13", par, FourierStub(par.size, scale=1e-2))
+    cfk = casadi_fk(model)
+    q = ca.SX.sym("q", 6)
+    _, p, _, _ = cfk.function(q, ca.SX(0, 1))
+    J = ca.Function("J", [q], [ca.jacobian(p, q)])
+    q0 = np.array([0.1, 0.3, -0.2, 0.4, -0.5, 0.6])
+    eps = 1e-6
+    fd = np.column_stack([(model.fk(q0 + eps * e)[1][0] - model.fk(q0 - eps * e)[1][0]) / (2 * eps)
+                          for e in np.eye(6)])
+    np.testing.assert_allclose(np.asarray(J(q0)), fd, atol=1e-5)
+
+
+def test_cdc_opaque_interpolator_freezes_parameters(cell):
+    par = MinimalParameterisation(cell.robot("R1").model())
+    model = CdcModel("R1", "opaque", par, OpaqueStub(par.size))
+    cfk = casadi_fk(model)
+    assert cfk.frozen and cfk.n_frozen == par.size and cfk.kind == "cdc-frozen"
+    _check(model, cfk, seed=5)  # exact when frozen at the same q
+
+
+def test_dq_hook_shifts_joints(cell):
+    model = ConstantModel("R1", "nominal", cell.robot("R1").model())
+    q = ca.SX.sym("q", 6)
+    dq = ca.Function("dq", [q], [1e-3 * ca.sin(q)])
+    cfk = casadi_fk(model, dq=dq)
+    assert cfk.kind == "constant+dq"
+    q0 = np.array([0.2, -0.3, 0.4, 0.5, -0.6, 0.7])
+    R, p = _eval(cfk, q0)
+    R_np, p_np = model.fk(q0 + 1e-3 * np.sin(q0))
+    np.testing.assert_allclose(p, p_np[0], atol=1e-9)
+
+
+def test_unknown_model_kind_names_supported_kinds():
+    with pytest.raises(ModelError, match="supported: constant, cdc"):
+        casadi_fk(object())

@@ -1,0 +1,123 @@
+"""meshcat preview: plan reading, a self-contained static page, and a real render in headless Chromium."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+pytest.importorskip("meshcat")
+
+from app.preview import load_plan, preview  # noqa: E402
+from calibration.errors import DataError, ModelError  # noqa: E402
+from cell_config.loader import load_cell  # noqa: E402
+
+BROWSERS = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
+
+
+@pytest.fixture(scope="module")
+def cell():
+    return load_cell()
+
+
+def _dual_plan(n: int = 12) -> dict:
+    s = np.linspace(0.0, 1.0, n)[:, None]
+    q1 = np.radians([0, 15, 5, 0, 30, 0]) + s * np.radians([-10, 10, -30, 10, 50, -15])
+    q2 = np.radians([-5, -5, 5, -10, -35, 10]) + s * np.radians([15, 30, -10, 20, 15, -20])
+    return {"schema": "cellcal.plan/1", "waypoints": [{"R1": a.tolist(), "R2": b.tolist()} for a, b in zip(q1, q2)]}
+
+
+def test_load_dual_and_collection_plans(tmp_path):
+    p = tmp_path / "plan.json"
+    p.write_text(json.dumps(_dual_plan(3)))
+    frames = load_plan(p)
+    assert len(frames) == 3 and frames[2]["R1"].shape == (6,)
+    coll = {"schema": "cellcal.collection/1",
+            "targets": [{"robot": "R1", "q": [0.1] * 6}, {"robot": "R1", "q": [0.2] * 6}]}
+    frames = load_plan(coll)
+    assert len(frames) == 2
+    np.testing.assert_array_equal(frames[1]["R1"], [0.2] * 6)
+    np.testing.assert_array_equal(frames[1]["R2"], np.zeros(6))  # the other arm stays home
+
+
+@pytest.mark.parametrize("plan, message", [
+    ({"schema": "x"}, "expected a plan with 'waypoints'"),
+    ({"targets": [{"robot": "R3", "q": [0] * 6}]}, "unknown robot 'R3'; valid: R1, R2"),
+    ({"targets": [{"robot": "R1", "q": [0] * 5}]}, "6 finite numbers"),
+    ({"waypoints": [{"R1": [0, 0, 0, 0, 0, "a"]}]}, "6 finite numbers"),
+    ({"waypoints": [{"foo": 1}]}, "names no robot"),
+    ({"waypoints": []}, "no waypoints"),
+])
+def test_bad_plans_are_refused_and_nothing_is_written(cell, tmp_path, plan, message):
+    out = tmp_path / "p.html"
+    with pytest.raises(DataError, match=re.escape(message)):
+        preview(cell, plan, html_out=out)
+    assert not out.exists()
+
+
+def test_missing_plan_file(tmp_path):
+    with pytest.raises(DataError, match="plan file not found"):
+        load_plan(tmp_path / "nope.json")
+
+
+def test_preview_needs_an_output(cell):
+    with pytest.raises(ModelError, match="html_out"):
+        preview(cell, _dual_plan(2))
+
+
+def test_static_page_is_self_contained(cell, tmp_path):
+    out = tmp_path / "preview.html"
+    r = preview(cell, _dual_plan(), html_out=out)
+    assert r.n_frames == 12 and r.html_path == out
+    html = out.read_text()
+    assert "MeshCat.Viewer" in html and html.count("data:application/octet-binary;base64,") > 20
+    assert not re.search(r"<script[^>]+src=|<link[^>]+href=", html)  # nothing loaded from elsewhere
+    urls = set(re.findall(r"https?://[^\s\"'()\\]+", html))
+    assert urls <= {"http://www.w3.org/1999/xhtml"}, urls  # a namespace name, never fetched
+
+
+def _browser() -> str | None:
+    for name in BROWSERS:
+        path = shutil.which(name)
+        if path:
+            return path
+    return None
+
+
+def test_browser_renders_both_arms(cell, tmp_path):
+    browser = _browser()
+    if browser is None:
+        pytest.skip(f"no headless browser found (tried {', '.join(BROWSERS)}); apt-get install chromium")
+    import matplotlib.image as mpimg
+
+    out, png = tmp_path / "preview.html", tmp_path / "shot.png"
+    preview(cell, _dual_plan(), html_out=out)
+    cmd = [browser, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+           "--disable-background-networking", "--disable-component-update", "--disable-sync",
+           f"--user-data-dir={tmp_path / 'profile'}", f"--screenshot={png}", "--window-size=1024,768",
+           "--virtual-time-budget=5000", out.as_uri()]
+    log = tmp_path / "browser.log"
+    with open(log, "w") as err:  # no pipes: chromium's helpers would keep them open and block the wait
+        proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err,
+                                start_new_session=True)
+        try:
+            proc.wait(timeout=120)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)  # the browser we started, and its helpers
+            proc.wait()
+            pytest.fail(f"headless browser did not finish in 120 s: {log.read_text()[-1000:]}")
+    assert png.exists(), log.read_text()[-2000:]
+    img = mpimg.imread(png)[..., :3]
+    assert img.shape == (768, 1024, 3)
+    r, g, b = img[..., 0], img[..., 1], img[..., 2]
+    coloured = (img.max(-1) - img.min(-1)) > 0.25  # the background, floor and grid are grey
+    assert coloured.mean() > 0.01, f"only {coloured.mean():.2%} coloured pixels: the scene was not drawn"
+    orange = ((r > 0.7) & (g > 0.3) & (g < 0.65) & (b < 0.3)).sum()
+    blue = ((b > 0.55) & (r < 0.3) & (g > 0.3) & (g < 0.65)).sum()
+    assert orange > 1000 and blue > 1000, (orange, blue)  # R1 and R2 both drawn
