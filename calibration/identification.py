@@ -10,12 +10,27 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
 from calibration import so3
 from calibration.errors import ModelError
-from calibration.parameterisation import MinimalParameterisation
+
+
+class Kinematics(Protocol):
+    """A parameterised arm: what identification and observability need (MinimalParameterisation, ExtendedKinematics)."""
+
+    @property
+    def size(self) -> int: ...
+
+    def names(self) -> list[str]: ...
+
+    def scale(self, reach_mm: float = 1000.0) -> np.ndarray: ...
+
+    def pose(self, q: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def jacobian(self, q: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
 
 DEFAULT_ORIENTATION_WEIGHT = 1641.0
 
@@ -56,10 +71,11 @@ class NlsResult:
 
 
 class GeometricProblem:
-    """Identification of minimal POE parameters from static pose samples, built once and then solved.
+    """Identification of kinematic parameters from static pose samples, built once and then solved.
 
     Args:
-        par: the parameterisation (nominal arm, parameter layout).
+        kin: the parameterised kinematics: ``size``, ``pose(q, x)`` and ``jacobian(q, x) -> (R, p, J)`` with J rows
+            ``d[p; theta] / dx`` (see :class:`Kinematics`).
         q: joint angles [rad], shape (N, n).
         R_meas: measured tool orientations, shape (N, 3, 3).
         p_meas: measured tool positions [mm], shape (N, 3).
@@ -71,11 +87,11 @@ class GeometricProblem:
         x_ref: reference parameters (m,) or per problem (G, m); defaults to nominal (zeros).
     """
 
-    def __init__(self, par: MinimalParameterisation, q: np.ndarray, R_meas: np.ndarray, p_meas: np.ndarray,
+    def __init__(self, kin: Kinematics, q: np.ndarray, R_meas: np.ndarray, p_meas: np.ndarray,
                  groups: np.ndarray | None = None, a: float = DEFAULT_ORIENTATION_WEIGHT,
                  basis: np.ndarray | None = None, prior_weight: np.ndarray | None = None,
                  x_ref: np.ndarray | None = None) -> None:
-        self.par = par
+        self.kin = kin
         self.q = np.atleast_2d(np.asarray(q, dtype=float))
         N = self.q.shape[0]
         if R_meas.shape != (N, 3, 3) or p_meas.shape != (N, 3):
@@ -93,7 +109,7 @@ class GeometricProblem:
         self._starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
         self._counts = counts
         self.w_rot = rotation_residual_scale(a)
-        m = par.size
+        m = kin.size
         self.basis = np.eye(m) if basis is None else np.asarray(basis, dtype=float)
         if self.basis.shape[0] != m:
             raise ModelError(f"basis must have {m} rows, got {self.basis.shape}")
@@ -106,10 +122,9 @@ class GeometricProblem:
         x = self.x_ref + z @ self.basis.T
         xs = x[self.groups]
         if with_jacobian:
-            R, p, J = self.par.jacobian(self.q, xs)
+            R, p, J = self.kin.jacobian(self.q, xs)
         else:
-            H, P = self.par.geometry(xs)
-            R, p = self.par.nominal.fk(self.q, H, P)
+            R, p = self.kin.pose(self.q, xs)
             J = None
         r, e = weighted_residuals(self.R_meas, self.p_meas, R, p, self.w_rot)
         cost = np.add.reduceat(np.sum(r * r, axis=1), self._starts)

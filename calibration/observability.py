@@ -12,8 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, rotation_residual_scale
-from calibration.parameterisation import MinimalParameterisation
+from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, Kinematics, rotation_residual_scale
 
 DEFAULT_REACH_MM = 1000.0
 DEFAULT_RELATIVE_TOLERANCE = 1e-2
@@ -79,19 +78,21 @@ class Observability:
                 "those joints over a wider range.")
 
 
-def analyse(par: MinimalParameterisation, q: np.ndarray, x: np.ndarray | None = None,
+def analyse(kin: Kinematics, q: np.ndarray, x: np.ndarray | None = None,
             a: float = DEFAULT_ORIENTATION_WEIGHT, tolerance: float = DEFAULT_RELATIVE_TOLERANCE,
             reach_mm: float = DEFAULT_REACH_MM) -> Observability:
-    """Observability of ``par``'s parameters on joint samples ``q`` (N, n) around ``x`` (default nominal)."""
-    x = np.zeros(par.size) if x is None else np.asarray(x, dtype=float)
-    _, _, J = par.jacobian(q, x)
+    """Observability of ``kin``'s parameters on joint samples ``q`` (N, n) around ``x`` (default nominal).
+
+    ``kin`` provides ``size``, ``jacobian(q, x)``, ``names()`` and ``scale(reach_mm)`` (parameter units per
+    millimetre of tool motion).
+    """
+    x = np.zeros(kin.size) if x is None else np.asarray(x, dtype=float)
+    _, _, J = kin.jacobian(q, x)
     J = J.copy()
     J[:, 3:] *= rotation_residual_scale(a)
-    n = par.n_joints
-    scale = np.ones(par.size)
-    scale[2 * n: 4 * n] = 1.0 / reach_mm
-    Js = J.reshape(-1, par.size) * scale
+    scale = kin.scale(reach_mm)
+    Js = J.reshape(-1, kin.size) * scale
     _, s, Vt = np.linalg.svd(Js, full_matrices=False)
     rank = int(np.sum(s >= tolerance * s[0]))
     cond = float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
-    return Observability(s, cond, scale, Vt.T, rank, tolerance, tuple(par.names()))
+    return Observability(s, cond, scale, Vt.T, rank, tolerance, tuple(kin.names()))

@@ -109,6 +109,16 @@ class MinimalParameterisation:
         P[..., -1, :] += tool - dO[..., -1, :]
         return np.swapaxes(h, -1, -2), np.swapaxes(P, -1, -2)
 
+    def scale(self, reach_mm: float = 1000.0) -> np.ndarray:
+        """Parameter units per millimetre of tool motion: 1 for offsets, 1/reach for tilts, shape (m,)."""
+        scale = np.ones(self.size)
+        scale[2 * self.n_joints: 4 * self.n_joints] = 1.0 / reach_mm
+        return scale
+
+    def pose(self, q: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Tool pose for joint angles q (N, n) and parameters x (m,) or (N, m): ``(R (N, 3, 3), p (N, 3))``."""
+        return self.nominal.fk(q, *self.geometry(x))
+
     def model(self, x: np.ndarray) -> PoeModel:
         """A constant POE model for one parameter vector (m,)."""
         H, P = self.geometry(np.asarray(x, dtype=float))
