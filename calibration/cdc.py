@@ -1,25 +1,28 @@
 """Configuration-dependent calibration: local identification per cluster, then interpolation.
 
-Every cluster (an anchor pose and its +1 deg neighbours) gets its own minimal parameter vector from one
-batched identification of all clusters at once. Each cluster's fit is pulled toward a global fit by a weak
-ridge prior (in millimetre-equivalent units), so directions a 7-sample cluster cannot see stay at the
-global values instead of absorbing noise. The local parameters are then interpolated over the anchors'
-shoulder and elbow angles (q2, q3).
+Every cluster (an anchor pose and its +1 deg neighbours) gets its own minimal geometric parameter vector
+from one batched identification of all clusters at once. The clusters share a global reference model (the
+physics-informed fit: geometry, tool rotation, gravity compliance, structural deflection); only the
+geometric block varies per cluster, pulled toward the global values by a weak ridge prior (in
+millimetre-equivalent units) so directions a 7-sample cluster cannot see stay at the global values instead
+of absorbing noise. The local geometric parameters are then interpolated over the anchors' shoulder and
+elbow angles (q2, q3).
 """
 
 from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
 
 import numpy as np
 
 from calibration.errors import ModelError
 from calibration.identification import GeometricProblem
-from calibration.models import CdcModel
-from calibration.observability import Observability
+from calibration.models import KinematicModel, poe_from_dict, poe_to_dict
 from calibration.parameterisation import MinimalParameterisation
+from calibration.physics_informed import ExtendedKinematics
 from calibration.recording import Recording
 
 log = logging.getLogger("cellcal.calibration")
@@ -32,9 +35,9 @@ class LocalFits:
 
     Attributes:
         anchors: interpolation inputs of each cluster's anchor (q2, q3) [rad], shape (K, 2).
-        x: local parameters, shape (K, m).
+        x: local geometric parameters, shape (K, m).
         rms_mm: position RMS of each local fit [mm], shape (K,).
-        x_global: the global fit the local fits were pulled toward, shape (m,).
+        theta_ref: the global extended-model parameters the local fits start from and are pulled toward.
         converged: per cluster, shape (K,).
         seconds: wall time of the batched local fits.
     """
@@ -42,7 +45,7 @@ class LocalFits:
     anchors: np.ndarray
     x: np.ndarray
     rms_mm: np.ndarray
-    x_global: np.ndarray
+    theta_ref: np.ndarray
     converged: np.ndarray
     seconds: float
 
@@ -54,38 +57,84 @@ def cluster_anchors(rec: Recording, cluster_size: int = 7) -> tuple[np.ndarray, 
     return index, rec.q[first]
 
 
-def fit_local(par: MinimalParameterisation, rec: Recording, x_global: np.ndarray, obs: Observability,
-              a: float, prior: float, cluster_size: int = 7) -> LocalFits:
-    """Identify every cluster's parameters in one batched problem.
+def fit_local(kin: ExtendedKinematics, rec: Recording, theta_ref: np.ndarray, a: float, prior: float,
+              cluster_size: int = 7) -> LocalFits:
+    """Identify every cluster's geometric parameters in one batched problem.
 
     Args:
-        par: parameterisation.
+        kin: the extended kinematics of the global reference model.
         rec: training recording with clusters.
-        x_global: global fit used as each cluster's reference, shape (m,).
-        obs: observability of the whole set (its scale converts parameters to millimetre equivalents).
+        theta_ref: global fit; its non-geometric terms stay fixed, its geometry is each cluster's reference.
         a: orientation weight.
-        prior: ridge strength toward ``x_global`` [1/mm-equivalent].
+        prior: ridge strength toward the reference geometry [1/mm-equivalent].
     """
     if prior <= 0:
         raise ModelError(f"local prior must be > 0 (clusters cannot see every direction), got {prior}")
     groups, anchor_q = cluster_anchors(rec, cluster_size)
+    view = kin.geometry_view(theta_ref)
     start = time.perf_counter()
-    problem = GeometricProblem(par, rec.q, rec.R, rec.p, groups=groups, a=a, prior_weight=prior / obs.scale,
-                               x_ref=x_global)
-    res = problem.solve()
+    res = GeometricProblem(view, rec.q, rec.R, rec.p, groups=groups, a=a, prior_weight=prior / view.scale(),
+                           x_ref=theta_ref[: view.size]).solve()
     seconds = time.perf_counter() - start
     if not res.converged.all():
         log.warning("%d of %d local fits stopped before converging", int((~res.converged).sum()), len(res.x))
-    return LocalFits(anchor_q[:, list(CDC_INPUTS)], res.x, res.rms_mm, np.asarray(x_global), res.converged, seconds)
+    return LocalFits(anchor_q[:, list(CDC_INPUTS)], res.x, res.rms_mm, np.asarray(theta_ref), res.converged, seconds)
 
 
-def build_cdc(robot: str, method: str, par: MinimalParameterisation, local: LocalFits, **options: object) -> CdcModel:
+@dataclass
+class CdcModel(KinematicModel):
+    """Configuration-dependent model: the geometric block of an extended model interpolated over (q2, q3)."""
+
+    kind: ClassVar[str] = "cdc"
+    robot: str
+    method: str
+    kinematics: ExtendedKinematics
+    theta_ref: np.ndarray
+    interpolator: Any  # calibration.interpolation.Interpolator
+    inputs: tuple[int, ...] = CDC_INPUTS
+    info: dict[str, Any] = field(default_factory=dict)
+
+    def parameters_at(self, q: np.ndarray) -> np.ndarray:
+        """Full extended parameters per sample, shape (N, size): the reference with interpolated geometry."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        theta = np.array(np.broadcast_to(self.theta_ref, (q.shape[0], self.kinematics.size)))
+        theta[:, : self.kinematics.par.size] = self.interpolator.predict(q[:, list(self.inputs)])
+        return theta
+
+    def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.kinematics.pose(q, self.parameters_at(q))
+
+    def out_of_range(self, q: np.ndarray) -> np.ndarray:
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        return self.interpolator.out_of_range(q[:, list(self.inputs)])
+
+    @property
+    def n_parameters(self) -> int:
+        return int(self.info.get("n_parameters", self.kinematics.size))
+
+    def _body(self) -> dict[str, Any]:
+        return {"nominal": poe_to_dict(self.kinematics.par.nominal), "fit_tool": self.kinematics.par.fit_tool,
+                "theta_ref": self.theta_ref.tolist(), "inputs": list(self.inputs),
+                "interpolator": self.interpolator.to_dict()}
+
+    @classmethod
+    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "CdcModel":
+        from calibration.interpolation import interpolator_from_dict
+
+        kin = ExtendedKinematics(MinimalParameterisation(poe_from_dict(body["nominal"]), bool(body["fit_tool"])))
+        return cls(robot, method, kin, np.array(body["theta_ref"], dtype=float),
+                   interpolator_from_dict(body["interpolator"]), tuple(int(i) for i in body["inputs"]), info)
+
+
+def build_cdc(robot: str, method: str, kin: ExtendedKinematics, local: LocalFits, **options: object) -> CdcModel:
     """Fit interpolator ``method`` (nearest, linear, cubic, rbf, fbf13, fbf7, nn, ae) to the local parameters."""
     from calibration.interpolation import make_interpolator
 
     interp = make_interpolator(method, **options).fit(local.anchors, local.x)
-    n_params = local.x.shape[1] * _effective_terms(interp, local.x.shape[0])
-    return CdcModel(robot, method, par, interp, CDC_INPUTS, {"n_parameters": int(n_params), "clusters": len(local.x)})
+    g = local.x.shape[1]
+    n_params = g * _effective_terms(interp, local.x.shape[0]) + kin.size - g
+    return CdcModel(robot, method, kin, local.theta_ref, interp, CDC_INPUTS,
+                    {"n_parameters": int(n_params), "clusters": len(local.x)})
 
 
 def _effective_terms(interp: object, n_anchors: int) -> int:

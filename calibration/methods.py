@@ -3,7 +3,9 @@
 Constant-parameter methods: ``nominal``, ``base`` (3 base-position parameters), ``cpa`` (circular point
 analysis, needs single-joint sweeps), ``nls0`` (NLS on the clusters nearest q = 0), ``nls1`` (one NLS over
 all training data). Configuration-dependent methods interpolate local cluster fits over (q2, q3):
-``nearest``, ``linear``, ``cubic``, ``rbf``, ``fbf13``, ``fbf7``, ``nn``, ``ae``.
+``nearest``, ``linear``, ``cubic``, ``rbf``, ``fbf13``, ``fbf7``, ``nn``, ``ae``. Beyond the paper, ``pi`` is
+the physics-informed model (geometry + tool rotation + gravity compliance + smooth structural deflection, see
+:mod:`calibration.physics_informed`).
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, GeometricProb
 from calibration.models import ConstantModel, KinematicModel
 from calibration.observability import DEFAULT_RELATIVE_TOLERANCE, Observability, analyse
 from calibration.parameterisation import MinimalParameterisation
+from calibration.physics_informed import ExtendedKinematics, PhysicsInformedModel
 from calibration.poe import PoeModel
 from calibration.recording import Recording
 
@@ -29,7 +32,8 @@ log = logging.getLogger("cellcal.calibration")
 
 CONSTANT_METHODS = ("nominal", "base", "cpa", "nls0", "nls1")
 CDC_METHODS = ("nearest", "linear", "cubic", "rbf", "fbf13", "fbf7", "nn", "ae")
-METHODS = CONSTANT_METHODS + CDC_METHODS
+PHYSICS_METHODS = ("pi",)
+METHODS = CONSTANT_METHODS + CDC_METHODS + PHYSICS_METHODS
 
 
 @dataclass(frozen=True)
@@ -51,7 +55,7 @@ class FitOptions:
     tolerance: float = DEFAULT_RELATIVE_TOLERANCE
     fit_tool: bool = True
     local_prior: float = 0.1
-    nls0_clusters: int = 1
+    nls0_clusters: int = 9
     fbf7_rank: int = 7
     cluster_size: int = 7
     seed: int = 0
@@ -91,10 +95,24 @@ class Fitter:
             self._cache["x_global"] = self._global(self.train, self.observability())
         return self._cache["x_global"]
 
+    def physics_informed(self) -> PhysicsInformedModel:
+        """The global physics-informed fit (cached): method ``pi`` and the reference of the CDC local fits."""
+        if "pi" not in self._cache:
+            kin = ExtendedKinematics(self.par)
+            obs = analyse(kin, self.train.q, a=self.options.a, tolerance=self.options.tolerance)
+            res = GeometricProblem(kin, self.train.q, self.train.R, self.train.p, a=self.options.a,
+                                   basis=obs.basis).solve()
+            if not res.converged.all():
+                log.warning("physics-informed fit stopped after %d iterations without converging", res.iterations)
+            self._cache["pi"] = PhysicsInformedModel(self.robot, "pi", kin, res.x[0], obs.rank,
+                                                     {"hidden_directions": len(obs.singular_values) - obs.rank})
+        return self._cache["pi"]
+
     def local_fits(self) -> LocalFits:
         if "local" not in self._cache:
-            self._cache["local"] = fit_local(self.par, self.train, self.global_fit(), self.observability(),
-                                             self.options.a, self.options.local_prior, self.options.cluster_size)
+            pi = self.physics_informed()
+            self._cache["local"] = fit_local(pi.kinematics, self.train, pi.theta, self.options.a,
+                                             self.options.local_prior, self.options.cluster_size)
         return self._cache["local"]
 
     def fit(self, method: str) -> tuple[KinematicModel, float]:
@@ -111,17 +129,16 @@ class Fitter:
         return model, seconds
 
     def _prepare_shared(self, method: str) -> float:
-        """Run (once) the global/local fits ``method`` builds on; returns their wall time [s]."""
+        """Run (once) the shared fits ``method`` builds on; returns their wall time [s], charged to each user."""
+        needs = {"nls1": ("global",), "pi": ("pi",)}.get(method, ("pi", "local") if method in CDC_METHODS else ())
+        steps = {"global": self.global_fit, "pi": self.physics_informed, "local": self.local_fits}
         seconds = self._cache.setdefault("seconds", {})
-        if method == "nls1" or method in CDC_METHODS:
-            if "global" not in seconds:
+        for step in needs:
+            if step not in seconds:
                 start = time.perf_counter()
-                self.global_fit()
-                seconds["global"] = time.perf_counter() - start
-        if method in CDC_METHODS and "local" not in seconds:
-            seconds["local"] = self.local_fits().seconds
-        return seconds.get("global", 0.0) * (method == "nls1" or method in CDC_METHODS) + \
-            seconds.get("local", 0.0) * (method in CDC_METHODS)
+                steps[step]()
+                seconds[step] = time.perf_counter() - start
+        return sum(seconds[step] for step in needs)
 
     def _constant(self, method: str, x: np.ndarray, n_params: int, **info: Any) -> ConstantModel:
         return ConstantModel(self.robot, method, self.par.model(x), n_params, dict(info))
@@ -157,13 +174,16 @@ class Fitter:
         return self._constant("nls1", self.global_fit(), obs.rank, hidden_directions=obs.unobservable(),
                               warning=obs.summary())
 
+    def _fit_pi(self) -> PhysicsInformedModel:
+        return self.physics_informed()
+
     def _fit_cdc(self, method: str) -> KinematicModel:
         options: dict[str, Any] = {}
         if method == "fbf7":
             options["rank"] = self.options.fbf7_rank
         if method in ("nn", "ae"):
             options["random_state"] = self.options.seed
-        return build_cdc(self.robot, method, self.par, self.local_fits(), **options)
+        return build_cdc(self.robot, method, self.physics_informed().kinematics, self.local_fits(), **options)
 
 
 def with_options(fitter: Fitter, **changes: Any) -> Fitter:

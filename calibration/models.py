@@ -20,7 +20,6 @@ import numpy as np
 import yaml
 
 from calibration.errors import DataError, ModelError
-from calibration.parameterisation import MinimalParameterisation
 from calibration.poe import PoeModel
 
 SCHEMA = "cellcal.model/1"
@@ -114,49 +113,6 @@ class ConstantModel(KinematicModel):
         return cls(robot, method, poe_from_dict(body["geometry"]), int(body.get("n_parameters", 0)), info)
 
 
-@dataclass
-class CdcModel(KinematicModel):
-    """Configuration-dependent model: minimal parameters interpolated over chosen joint angles."""
-
-    kind: ClassVar[str] = "cdc"
-    robot: str
-    method: str
-    parameterisation: MinimalParameterisation
-    interpolator: Any  # calibration.interpolation.Interpolator
-    inputs: tuple[int, ...] = (1, 2)  # 0-based joints the parameters depend on (q2, q3)
-    info: dict[str, Any] = field(default_factory=dict)
-
-    def parameters_at(self, q: np.ndarray) -> np.ndarray:
-        """Interpolated parameter vectors, shape (N, m)."""
-        q = np.atleast_2d(np.asarray(q, dtype=float))
-        return self.interpolator.predict(q[:, list(self.inputs)])
-
-    def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        q = np.atleast_2d(np.asarray(q, dtype=float))
-        H, P = self.parameterisation.geometry(self.parameters_at(q))
-        return self.parameterisation.nominal.fk(q, H, P)
-
-    def out_of_range(self, q: np.ndarray) -> np.ndarray:
-        q = np.atleast_2d(np.asarray(q, dtype=float))
-        return self.interpolator.out_of_range(q[:, list(self.inputs)])
-
-    @property
-    def n_parameters(self) -> int:
-        return int(self.info.get("n_parameters", self.parameterisation.size))
-
-    def _body(self) -> dict[str, Any]:
-        return {"nominal": poe_to_dict(self.parameterisation.nominal), "fit_tool": self.parameterisation.fit_tool,
-                "inputs": list(self.inputs), "interpolator": self.interpolator.to_dict()}
-
-    @classmethod
-    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "CdcModel":
-        from calibration.interpolation import interpolator_from_dict
-
-        par = MinimalParameterisation(poe_from_dict(body["nominal"]), bool(body["fit_tool"]))
-        return cls(robot, method, par, interpolator_from_dict(body["interpolator"]),
-                   tuple(int(i) for i in body["inputs"]), info)
-
-
 def _plain(obj: Any) -> Any:
     """Convert numpy scalars/arrays inside ``obj`` to plain Python for YAML/JSON."""
     if isinstance(obj, dict):
@@ -214,5 +170,7 @@ def load_model(path: str | Path) -> KinematicModel:
     except ModelError as e:
         raise DataError(path, None, None, str(e)) from e
 
-# Registers the physics model kind with load_model (imported last: it subclasses KinematicModel).
+# Registers the physics model kinds with load_model (imported last: they subclass KinematicModel).
 import calibration.physics.model  # noqa: E402,F401
+import calibration.physics_informed  # noqa: E402,F401
+import calibration.cdc  # noqa: E402,F401

@@ -146,17 +146,18 @@ class PoeModel:
             p = p + (R @ Ps[:, :, i + 1, None])[..., 0]
         return R @ self.R_6_tool, p + R @ self.p_6_tool
 
-    def jacobian_q(self, q: np.ndarray) -> np.ndarray:
+    def jacobian_q(self, q: np.ndarray, H: np.ndarray | None = None, P: np.ndarray | None = None) -> np.ndarray:
         """Geometric Jacobian of the tool pose with respect to the joint angles.
 
         Args:
             q: joint angles [rad], shape (N, n).
+            H, P: optional geometry overrides, see :meth:`chain`.
 
         Returns:
             ``d[p; theta] / dq``, shape (N, 6, n): rows 0-2 tool velocity [mm/rad], rows 3-5 angular velocity
             in the base frame.
         """
-        c = self.chain(q)
+        c = self.chain(q, H, P)
         w = c.axes_base  # (n, N, 3)
         r = c.p_base_tool[None] - c.p_base_origin[:-1]  # (n, N, 3)
         J = np.concatenate([np.cross(w, r), w], axis=-1)  # (n, N, 6)

@@ -108,6 +108,18 @@ def right_jacobian_inv(e: np.ndarray) -> np.ndarray:
     return np.eye(3) + 0.5 * K + coef[..., None, None] * (K @ K)
 
 
+def left_jacobian(phi: np.ndarray) -> np.ndarray:
+    """Left Jacobian of SO(3): ``exp(phi + d) ~= exp(left_jacobian(phi) @ d) @ exp(phi)``, (..., 3) -> (..., 3, 3)."""
+    phi = np.asarray(phi, dtype=float)
+    theta = np.linalg.norm(phi, axis=-1)
+    small = theta < 1e-6
+    t = np.where(small, 1.0, theta)
+    a = np.where(small, 0.5 - theta**2 / 24.0, (1.0 - np.cos(t)) / t**2)
+    b = np.where(small, 1.0 / 6.0 - theta**2 / 120.0, (t - np.sin(t)) / t**3)
+    K = hat(phi)
+    return np.eye(3) + a[..., None, None] * K + b[..., None, None] * (K @ K)
+
+
 def quat_to_R(quat: np.ndarray) -> np.ndarray:
     """Rotation matrices from unit quaternions (w, x, y, z), shape (..., 4) -> (..., 3, 3)."""
     quat = np.asarray(quat, dtype=float)

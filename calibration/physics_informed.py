@@ -1,0 +1,198 @@
+"""The physics-informed model: geometry plus what the diagnosis of the real R1 data found.
+
+Beyond the minimal POE geometry (27 parameters with the flange shift), the model carries
+- the tool-marker rotation (3): ``R_flange_tool <- R_flange_tool exp(w)``;
+- joint compliance under gravity in the mass-free form (5): with ``u = q2 - q3`` (the forearm angle),
+  ``dq2 = c1 sin q2 + c2 cos u + c3 sin u`` and ``dq3 = c4 cos u + c5 sin u``, the shape of the shoulder and
+  elbow gravity torques of a planar two-link arm with unknown lumped masses; added to q before the kinematics;
+- a smooth structural deflection (6 x 7): a small pose correction ``xi = F7(q2, q3) C`` (translation mm,
+  rotation rad) in the joint-1 frame, ``F7 = [1, sin q2, sin q3, cos q2, cos q3, sin(q2+q3), cos(q2+q3)]``,
+  which takes up link bending that joint compliance alone cannot represent.
+All terms are fitted jointly by the batched LM with one SVD truncation of the joint, mm-scaled Jacobian, so
+directions the data cannot see stay at nominal.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+from calibration import so3
+from calibration.models import KinematicModel, poe_from_dict, poe_to_dict
+from calibration.parameterisation import MinimalParameterisation
+
+COMPLIANCE_NAMES = ("c2_sin_q2_rad", "c2_cos_u_rad", "c2_sin_u_rad", "c3_cos_u_rad", "c3_sin_u_rad")
+DEFLECTION_TERMS = ("1", "sin_q2", "sin_q3", "cos_q2", "cos_q3", "sin_q2q3", "cos_q2q3")
+DEFLECTION_AXES = ("dx_mm", "dy_mm", "dz_mm", "rx_rad", "ry_rad", "rz_rad")
+EZ = np.array([0.0, 0.0, 1.0])
+
+
+def deflection_basis(q: np.ndarray) -> np.ndarray:
+    """F7 basis at joint angles q (N, 6), shape (N, 7)."""
+    q2, q3 = q[:, 1], q[:, 2]
+    return np.stack([np.ones_like(q2), np.sin(q2), np.sin(q3), np.cos(q2), np.cos(q3), np.sin(q2 + q3),
+                     np.cos(q2 + q3)], axis=1)
+
+
+def compliance_regressor(q: np.ndarray) -> np.ndarray:
+    """d(dq)/dc, shape (N, 6, 5): gravity-shaped joint deflections of joints 2 and 3."""
+    q2, u = q[:, 1], q[:, 1] - q[:, 2]
+    Y = np.zeros((q.shape[0], 6, 5))
+    Y[:, 1, 0], Y[:, 1, 1], Y[:, 1, 2] = np.sin(q2), np.cos(u), np.sin(u)
+    Y[:, 2, 3], Y[:, 2, 4] = np.cos(u), np.sin(u)
+    return Y
+
+
+@dataclass(frozen=True)
+class ExtendedKinematics:
+    """Geometry (minimal POE) + tool rotation + gravity compliance + structural deflection.
+
+    Layout of theta: ``[x (27), w_tool (3), c (5), C (7 x 6, row-major)]``, 77 parameters.
+    """
+
+    par: MinimalParameterisation
+
+    @property
+    def sizes(self) -> tuple[int, int, int, int]:
+        return self.par.size, 3, len(COMPLIANCE_NAMES), len(DEFLECTION_TERMS) * 6
+
+    @property
+    def size(self) -> int:
+        return sum(self.sizes)
+
+    def names(self) -> list[str]:
+        return (self.par.names() + ["tool_rx_rad", "tool_ry_rad", "tool_rz_rad"] + list(COMPLIANCE_NAMES)
+                + [f"deflect_{t}_{a}" for t in DEFLECTION_TERMS for a in DEFLECTION_AXES])
+
+    def scale(self, reach_mm: float = 1000.0) -> np.ndarray:
+        """Parameter units per mm of tool motion: angles (tilts, tool and deflection rotations, compliance) / reach."""
+        g, t, c, _ = self.sizes
+        deflect = np.tile([1.0, 1.0, 1.0, 1.0 / reach_mm, 1.0 / reach_mm, 1.0 / reach_mm], len(DEFLECTION_TERMS))
+        return np.concatenate([self.par.scale(reach_mm), np.full(t + c, 1.0 / reach_mm), deflect])
+
+    def split(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        g, t, c, _ = self.sizes
+        return (theta[..., :g], theta[..., g:g + t], theta[..., g + t:g + t + c],
+                theta[..., g + t + c:].reshape(theta.shape[:-1] + (len(DEFLECTION_TERMS), 6)))
+
+    def _parts(self, q: np.ndarray, theta: np.ndarray) -> tuple[Any, ...]:
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        theta = np.broadcast_to(np.asarray(theta, dtype=float), (q.shape[0], self.size))
+        x, w_tool, c, C = self.split(theta)
+        Y = compliance_regressor(q)
+        qe = q + (Y @ c[:, :, None])[..., 0]
+        xi = np.einsum("nk,nkj->nj", deflection_basis(q), C)
+        Rz = so3.rot(EZ, q[:, 0])
+        w_base = (Rz @ xi[:, 3:, None])[..., 0]
+        return q, theta, x, w_tool, Y, qe, xi, Rz, w_base
+
+    def _flange_pose(self, qe: np.ndarray, x: np.ndarray, w_tool: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        R, p = self.par.pose(qe, x)
+        return R @ so3.exp(w_tool), p  # the tool position is fixed in the flange frame; only its rotation moves
+
+    def pose(self, q: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        q, theta, x, w_tool, _, qe, xi, Rz, w_base = self._parts(q, theta)
+        R0, p0 = self._flange_pose(qe, x, w_tool)
+        E = so3.exp(w_base)
+        return E @ R0, (E @ p0[:, :, None])[..., 0] + (Rz @ xi[:, :3, None])[..., 0]
+
+    def geometry_view(self, theta_ref: np.ndarray) -> "GeometryView":
+        """The geometric block alone as kinematics, with every other term fixed at ``theta_ref``."""
+        return GeometryView(self, np.asarray(theta_ref, dtype=float))
+
+    def jacobian(self, q: np.ndarray, theta: np.ndarray, geometry_only: bool = False
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Pose and ``d[p; theta_rot] / d theta``, shape (N, 6, 77), or (N, 6, 27) with ``geometry_only``."""
+        q, theta, x, w_tool, Y, qe, xi, Rz, w_base = self._parts(q, theta)
+        N = q.shape[0]
+        g, t, c, _ = self.sizes
+        E = so3.exp(w_base)
+        _, _, Jx = self.par.jacobian(qe, x)
+        if geometry_only:
+            R0, p0 = self._flange_pose(qe, x, w_tool)
+            Jg = np.concatenate([E @ Jx[:, :3], E @ Jx[:, 3:]], axis=1)
+            return E @ R0, (E @ p0[:, :, None])[..., 0] + (Rz @ xi[:, :3, None])[..., 0], Jg
+        R0, p0 = self._flange_pose(qe, x, w_tool)
+        J0 = np.zeros((N, 6, g + t + c))
+        J0[:, :, :g] = Jx
+        # R0 = R_side exp(w_tool): a change dw rotates the tool by R0 J_r(w_tool) dw (base frame), J_r(w) = J_l(-w).
+        J0[:, 3:, g:g + t] = R0 @ so3.left_jacobian(-w_tool)
+        J0[:, :, g + t:] = self.par.nominal.jacobian_q(qe, *self.par.geometry(x)) @ Y
+        # The deflection rotates everything by E = exp(w_base) and shifts it by Rz v.
+        J = np.empty((N, 6, self.size))
+        J[:, :3, : g + t + c] = E @ J0[:, :3]
+        J[:, 3:, : g + t + c] = E @ J0[:, 3:]
+        p_rot = (E @ p0[:, :, None])[..., 0]
+        Jl = so3.left_jacobian(w_base) @ Rz  # d w_base-equivalent rotation / d w
+        F = deflection_basis(q)  # (N, 7)
+        dp_dv = Rz
+        dp_dw = -so3.hat(p_rot) @ Jl
+        blocks = np.concatenate([np.concatenate([dp_dv, dp_dw], axis=2),
+                                 np.concatenate([np.zeros((N, 3, 3)), Jl], axis=2)], axis=1)  # (N, 6, 6)
+        J[:, :, g + t + c:] = (blocks[:, :, None, :] * F[:, None, :, None]).reshape(N, 6, -1)
+        return E @ R0, p_rot + (Rz @ xi[:, :3, None])[..., 0], J
+
+
+@dataclass(frozen=True)
+class GeometryView:
+    """Kinematics over the geometric parameters of an :class:`ExtendedKinematics`, other terms held fixed."""
+
+    kin: ExtendedKinematics
+    theta_ref: np.ndarray
+
+    @property
+    def size(self) -> int:
+        return self.kin.par.size
+
+    def names(self) -> list[str]:
+        return self.kin.par.names()
+
+    def scale(self, reach_mm: float = 1000.0) -> np.ndarray:
+        return self.kin.par.scale(reach_mm)
+
+    def full(self, x: np.ndarray) -> np.ndarray:
+        """Extended parameters with geometry ``x`` (m,) or (N, m), shape (..., 77)."""
+        x = np.asarray(x, dtype=float)
+        theta = np.array(np.broadcast_to(self.theta_ref, x.shape[:-1] + (self.kin.size,)))
+        theta[..., : self.size] = x
+        return theta
+
+    def pose(self, q: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.kin.pose(q, self.full(x))
+
+    def jacobian(self, q: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return self.kin.jacobian(q, self.full(x), geometry_only=True)
+
+
+@dataclass
+class PhysicsInformedModel(KinematicModel):
+    """A fitted :class:`ExtendedKinematics` (kind ``pi``)."""
+
+    kind: ClassVar[str] = "pi"
+    robot: str
+    method: str
+    kinematics: ExtendedKinematics
+    theta: np.ndarray
+    rank: int = 0
+    info: dict[str, Any] = field(default_factory=dict)
+
+    def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.kinematics.pose(q, self.theta)
+
+    @property
+    def n_parameters(self) -> int:
+        return self.kinematics.size
+
+    def parameters(self) -> dict[str, float]:
+        return dict(zip(self.kinematics.names(), self.theta.tolist()))
+
+    def _body(self) -> dict[str, Any]:
+        return {"nominal": poe_to_dict(self.kinematics.par.nominal), "fit_tool": self.kinematics.par.fit_tool,
+                "rank": self.rank, "theta": self.theta.tolist(), "names": self.kinematics.names()}
+
+    @classmethod
+    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "PhysicsInformedModel":
+        kin = ExtendedKinematics(MinimalParameterisation(poe_from_dict(body["nominal"]), bool(body["fit_tool"])))
+        return cls(robot, method, kin, np.array(body["theta"], dtype=float), int(body["rank"]), info)
