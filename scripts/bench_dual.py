@@ -29,7 +29,8 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from app.dual_plan import Q_REF_DEG, DualPlanner, PlannerOptions, relative_pose, sweep_path  # noqa: E402
+from app.dual_paths import Q_REF_DEG, relative_pose, sweep_path  # noqa: E402
+from app.dual_plan import DualPlanner, PlannerOptions  # noqa: E402
 from calibration.models import CdcModel  # noqa: E402
 from calibration.parameterisation import MinimalParameterisation  # noqa: E402
 from cell_config.loader import load_cell  # noqa: E402
