@@ -336,7 +336,7 @@ class DualPlanner:
             out.append(r)
         n_bad = sum(not r.converged for r in out)
         if n_bad:
-            logger.warning("%d of %d waypoints not solved; first: %s", n_bad, len(out),
+            logger.info("%d of %d waypoints not solved; first: %s", n_bad, len(out),
                            next(r.reason for r in out if not r.converged))
         return PlanResult(tuple(out), np.asarray(T_wp_gun, dtype=float),
                           {n: self.fks[n].kind for n in ("R1", "R2")})
