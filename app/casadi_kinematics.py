@@ -6,16 +6,20 @@ pose, the joint origins and axes, all as casadi expressions of ``q``:
 * ``ConstantModel`` (or a bare :class:`~calibration.poe.PoeModel`): the POE chain, ``k = 0``.
 * ``CdcModel`` whose interpolator is casadi-expressible: the minimal parameters are casadi expressions of the
   interpolator inputs (q2, q3), so derivatives include the parameters' dependence on q; ``k = 0``.
-  Expressible means the interpolator has ``casadi_predict(x_sx) -> SX (m,)``, or ``basis(x) (N, r)`` written
-  with numpy ufuncs plus ``coefficients`` (r, m) (the Fourier kinds ``fbf13``/``fbf7``); either is checked
-  against ``interpolator.predict`` at random inputs before it is trusted.
+  Expressible means the interpolator has ``casadi_predict(x_sx) -> SX (m,)`` (the Fourier kinds
+  ``fbf13``/``fbf7`` do), or ``basis(x) (N, r)`` written with numpy ufuncs plus ``coefficients`` (r, m);
+  either is checked against ``interpolator.predict`` at random inputs before it is trusted.
 * Any other ``CdcModel``: the parameters are an input ``x`` (``k = m``, ``frozen = True``). The caller
   evaluates ``params_at(q)`` with numpy at the previous iterate and solves again until they stop changing
   (a fixed point; it converges because the parameters vary by micro-radians per radian of q2, q3).
 * ``compile_function`` turns a casadi function into C once (gcc, cached by source hash) and
   ``buffer_evaluator`` calls it without copies: together about 50x faster than the interpreted call.
-* Models with a joint-space effect ``q -> q + dq(q)`` (the physics kind): pass ``dq`` (a casadi Function
-  (6,) -> (6,)) or give the model a ``casadi_dq()`` method; the chain is evaluated at ``q + dq(q)``.
+* Models with a joint-space effect ``q -> q + dq(q)``: pass ``dq`` (a casadi Function (6,) -> (6,)) or give
+  the model a ``casadi_dq()`` method; the chain is evaluated at ``q + dq(q)``.
+* ``PhysicsModel`` (geometry + effects) without such a hook: its joint effects' ``dq`` at the default context
+  becomes the frozen input (``k = 6``, kind ``physics-frozen``), solved by the same fixed point as above
+  (gravity sag changes by micro-radians per radian). Geometry effects that change the links at the default
+  context cannot be expressed and are refused, never dropped.
 """
 
 from __future__ import annotations
@@ -164,6 +168,8 @@ def casadi_fk(model: Any, dq: Any = None) -> CasadiFk:
         return model.casadi_fk()
     if dq is None and hasattr(model, "casadi_dq"):
         dq = model.casadi_dq()
+    if dq is None and hasattr(model, "effects") and isinstance(getattr(model, "model", None), PoeModel):
+        return _physics_fk(ca, model)
     q = ca.SX.sym("q", 6)
     q_chain = q if dq is None else q + dq(q)
     suffix = "" if dq is None else "+dq"
@@ -193,6 +199,27 @@ def casadi_fk(model: Any, dq: Any = None) -> CasadiFk:
     raise ModelError(f"cannot build casadi kinematics for {type(model).__name__} "
                      f"(kind {getattr(model, 'kind', '?')!r}); supported: constant, cdc, PoeModel, "
                      "or a model with casadi_fk()")
+
+
+def _physics_fk(ca: Any, model: Any) -> CasadiFk:
+    """Frozen-dq kinematics of a model with effects: the chain at ``q + x``, ``x = sum of effects' dq(q)``."""
+    poe: PoeModel = model.model
+    for e in model.effects:
+        if e.target != "joints":
+            P = e.geometry(poe, 1, None)
+            if not np.allclose(P[0], poe.P, rtol=0.0, atol=1e-12):
+                raise ModelError(f"cannot build casadi kinematics for a physics model with the geometry effect "
+                                 f"{e.kind!r} active at the default context; supported: joint effects")
+    joint_effects = [e for e in model.effects if e.target == "joints"]
+    q, x = ca.SX.sym("q", 6), ca.SX.sym("x", 6)
+    R, p, O, A = poe_chain(ca, poe, q + x)
+    f = ca.Function("fk", [q, x], [R, p, O, A], ["q", "x"], ["R", "p", "origins", "axes"])
+
+    def dq_at(qq: np.ndarray) -> np.ndarray:
+        qq = np.asarray(qq, dtype=float)[None]
+        return sum((e.delta_q(poe, qq, None)[0] for e in joint_effects), np.zeros(6))
+
+    return CasadiFk(f, 6, dq_at, "physics-frozen")
 
 
 def compile_function(ca: Any, F: Any, cache_dir: str | Path | None = None) -> Any:

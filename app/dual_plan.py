@@ -19,28 +19,23 @@ sin(upper arm, forearm) (elbow) and the wrist centre's distance from axis 1 over
 
 from __future__ import annotations
 
-import csv
-import io
-import json
 import logging
-import os
-import tempfile
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from app.casadi_kinematics import buffer_evaluator, casadi_fk, compile_function
+from app.plan_result import PlanResult, WaypointResult
 from calibration import so3
-from calibration.errors import DataError, ModelError, UnsafeTarget
+from calibration.errors import ModelError
 from calibration.models import ConstantModel
 from cell_config.loader import CellSpec
 
 logger = logging.getLogger("cellcal.app")
-PLAN_SCHEMA = "cellcal.plan/1"
 CAPSULES = ("base", "upper", "forearm", "wrist")
+__all__ = ["CAPSULES", "DualPlanner", "PlanResult", "PlannerOptions", "WaypointResult"]
 
 
 @dataclass(frozen=True)
@@ -88,73 +83,6 @@ class PlannerOptions:
     max_step_rad: float = 0.3
     compile: bool = True
 
-
-@dataclass(frozen=True)
-class WaypointResult:
-    """One solved (or refused) waypoint.
-
-    Attributes:
-        q_R1, q_R2: joint angles [rad], shape (6,).
-        residual_mm, residual_deg: relative-pose error in the models (numpy FK) [mm], [deg].
-        track_mm, track_deg: workpiece distance from its target pose [mm], [deg].
-        clearance_mm: smallest capsule surface distance between the arms [mm].
-        singularity: smallest singularity measure (0 = singular, 1 = far).
-        solve_ms: wall time of the solve including the checks [ms].
-        iterations: Newton iterations.
-        converged: every hard condition holds; only then may the waypoint be executed.
-        reason: why not, or "" when converged.
-    """
-
-    q_R1: np.ndarray
-    q_R2: np.ndarray
-    residual_mm: float
-    residual_deg: float
-    track_mm: float
-    track_deg: float
-    clearance_mm: float
-    singularity: float
-    solve_ms: float
-    iterations: int
-    converged: bool
-    reason: str = ""
-
-
-@dataclass(frozen=True)
-class PlanResult:
-    """A planned sequence.
-
-    Attributes:
-        waypoints: per-waypoint results in path order.
-        T_wp_gun: the relative pose that was held, shape (4, 4) [mm].
-        models: model kind per robot, e.g. ``{"R1": "cdc", "R2": "constant"}``.
-    """
-
-    waypoints: tuple[WaypointResult, ...]
-    T_wp_gun: np.ndarray
-    models: dict[str, str]
-
-    @property
-    def converged(self) -> bool:
-        return all(w.converged for w in self.waypoints)
-
-    @property
-    def failed(self) -> list[int]:
-        """Indices of waypoints that must not be executed."""
-        return [i for i, w in enumerate(self.waypoints) if not w.converged]
-
-    def q(self) -> np.ndarray:
-        """Joint angles of all waypoints [rad], shape (N, 12): R1 then R2."""
-        return np.array([np.concatenate([w.q_R1, w.q_R2]) for w in self.waypoints])
-
-    def to_dict(self) -> dict[str, Any]:
-        """The plan file content (schema ``cellcal.plan/1``)."""
-        wps = []
-        for w in self.waypoints:
-            wps.append({"R1": w.q_R1.tolist(), "R2": w.q_R2.tolist(), "converged": w.converged, "reason": w.reason,
-                        "residual_mm": w.residual_mm, "residual_deg": w.residual_deg, "track_mm": w.track_mm,
-                        "clearance_mm": w.clearance_mm, "solve_ms": w.solve_ms})
-        return {"schema": PLAN_SCHEMA, "kind": "dual", "models": self.models, "T_wp_gun": self.T_wp_gun.tolist(),
-                "converged": self.converged, "waypoints": wps}
 
 
 def _pose(T: np.ndarray, name: str) -> np.ndarray:
@@ -408,210 +336,8 @@ class DualPlanner:
             out.append(r)
         n_bad = sum(not r.converged for r in out)
         if n_bad:
-            logger.warning("%d of %d waypoints not solved; first: %s", n_bad, len(out),
+            logger.info("%d of %d waypoints not solved; first: %s", n_bad, len(out),
                            next(r.reason for r in out if not r.converged))
         return PlanResult(tuple(out), np.asarray(T_wp_gun, dtype=float),
                           {n: self.fks[n].kind for n in ("R1", "R2")})
 
-
-#: Reference configuration of the cell [deg]: tools about 410 mm apart, facing, 300 mm arm clearance.
-Q_REF_DEG = np.array([0.0, 15.0, 5.0, 0.0, 30.0, 0.0, 0.0, 0.0, 0.0, 0.0, -30.0, 0.0])
-
-
-def tool_pose(planner: DualPlanner, name: str, q: np.ndarray) -> np.ndarray:
-    """Tool pose of robot ``name`` in the cell frame for joint angles q [rad] (6,), shape (4, 4) [mm]."""
-    R, p = planner.models[name].fk(np.asarray(q, dtype=float)[None])
-    T = planner.T_cell_base[name]
-    out = np.eye(4)
-    out[:3, :3], out[:3, 3] = T[:3, :3] @ R[0], T[:3, :3] @ p[0] + T[:3, 3]
-    return out
-
-
-def relative_pose(planner: DualPlanner, q: np.ndarray) -> np.ndarray:
-    """Gun pose in the workpiece frame at q [rad] (12,), shape (4, 4) [mm]: a relative pose known to be reachable."""
-    q = np.asarray(q, dtype=float)
-    return np.linalg.inv(tool_pose(planner, "R2", q[6:])) @ tool_pose(planner, "R1", q[:6])
-
-
-def sweep_path(planner: DualPlanner, n: int = 200, q_inward_deg: np.ndarray | None = None,
-               q_outward_deg: np.ndarray | None = None) -> np.ndarray:
-    """Workpiece poses sweeping R2 from tucked-in to outstretched (joint-space interpolation of R2).
-
-    Args:
-        planner: gives R2's model and base pose.
-        n: number of waypoints.
-        q_inward_deg, q_outward_deg: R2 end configurations [deg], shape (6,).
-
-    Returns:
-        Workpiece target poses in the cell frame, shape (n, 4, 4) [mm].
-    """
-    if n < 2:
-        raise ModelError(f"a sweep needs n >= 2 waypoints, got {n}")
-    qa = np.radians([-5.0, -5.0, 5.0, -10.0, -35.0, 10.0] if q_inward_deg is None else q_inward_deg)
-    qb = np.radians([10.0, 25.0, -5.0, 10.0, -20.0, -10.0] if q_outward_deg is None else q_outward_deg)
-    s = 0.5 - 0.5 * np.cos(np.linspace(0.0, np.pi, n))  # rest-to-rest timing
-    return np.array([tool_pose(planner, "R2", qa + si * (qb - qa)) for si in s])
-
-
-def save_plan(plan: PlanResult, path: str | Path) -> None:
-    """Write the plan file (JSON, schema ``cellcal.plan/1``) atomically."""
-    _write_atomic(Path(path), json.dumps(plan.to_dict(), indent=1))
-
-
-def _write_atomic(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
-def rpy_deg(R: np.ndarray) -> np.ndarray:
-    """Yaskawa fixed-axis angles ``(Rx, Ry, Rz)`` [deg] with ``R = Rz @ Ry @ Rx``, shape (..., 3)."""
-    rx = np.arctan2(R[..., 2, 1], R[..., 2, 2])
-    ry = np.arctan2(-R[..., 2, 0], np.hypot(R[..., 0, 0], R[..., 1, 0]))
-    rz = np.arctan2(R[..., 1, 0], R[..., 0, 0])
-    return np.degrees(np.stack([rx, ry, rz], axis=-1))
-
-
-def export_rows(plan: PlanResult, cell: CellSpec, frame: str = "flange", skip_failed: bool = False
-                ) -> list[dict[str, Any]]:
-    """Controller targets of a plan: joint angles, encoder pulses and "filtered" nominal poses.
-
-    The pose of each row is what the controller's nominal kinematics gives at the planned q, in the robot's
-    base frame: sent as a Cartesian target, the controller's inverse kinematics returns the planned q, so the
-    real arm lands where the calibrated model says (the program is filtered through the model).
-
-    Args:
-        plan: a planned sequence.
-        cell: gives pulses per radian, limits and the nominal geometry.
-        frame: ``"flange"`` (tool 0 of the controller) or ``"tool"`` (the cell's tool marker frame).
-        skip_failed: leave out waypoints that did not converge instead of refusing the export.
-
-    Returns:
-        One dict per (waypoint, robot): ``index, robot, q_rad (6), pulses (6), p_mm (3), rpy_deg (3)``.
-
-    Raises:
-        UnsafeTarget: a waypoint did not converge (unless ``skip_failed``) or is outside the joint limits.
-        ModelError: unknown frame.
-    """
-    if frame not in ("flange", "tool"):
-        raise ModelError(f"unknown frame {frame!r}; valid: flange, tool")
-    rows: list[dict[str, Any]] = []
-    for i, w in enumerate(plan.waypoints):
-        if not w.converged:
-            if skip_failed:
-                continue
-            raise UnsafeTarget("R1+R2", None, w.clearance_mm, 0.0, f"waypoint {i} was not solved: {w.reason}")
-        for name, q in (("R1", w.q_R1), ("R2", w.q_R2)):
-            spec = cell.robot(name)
-            bad = np.flatnonzero((q < spec.robot.lower_rad) | (q > spec.robot.upper_rad))
-            if bad.size:
-                j = int(bad[0])
-                lim = spec.robot.lower_rad[j] if q[j] < spec.robot.lower_rad[j] else spec.robot.upper_rad[j]
-                raise UnsafeTarget(name, j + 1, float(q[j]), float(lim), f"waypoint {i}")
-            nominal = spec.robot.model(spec.tool if frame == "tool" else None)
-            R, p = nominal.fk(q[None])
-            rows.append({"index": i, "robot": name, "q_rad": q.tolist(),
-                         "pulses": np.rint(q * spec.robot.pulses_per_rad).astype(int).tolist(),
-                         "p_mm": p[0].tolist(), "rpy_deg": rpy_deg(R[0]).tolist()})
-    return rows
-
-
-def write_targets(rows: list[dict[str, Any]], path: str | Path, frame: str = "flange") -> None:
-    """Write export rows as CSV (one line per waypoint and robot) or JSON (by suffix), atomically."""
-    path = Path(path)
-    if path.suffix.lower() == ".json":
-        _write_atomic(path, json.dumps({"schema": "cellcal.targets/1", "frame": frame, "rows": rows}, indent=1))
-        return
-    if path.suffix.lower() != ".csv":
-        raise ModelError(f"unknown target file type {path.suffix!r}; valid: .csv, .json")
-    buf = io.StringIO()
-    wr = csv.writer(buf, lineterminator="\n")
-    wr.writerow(["index", "robot"] + [f"q{j}_rad" for j in range(1, 7)] + [f"pulse{j}" for j in range(1, 7)]
-                + ["x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_deg"])
-    for r in rows:
-        wr.writerow([r["index"], r["robot"]] + [repr(v) for v in r["q_rad"]] + r["pulses"]
-                    + [f"{v:.4f}" for v in r["p_mm"] + r["rpy_deg"]])
-    _write_atomic(path, buf.getvalue())
-
-
-def plan_from_dict(d: dict[str, Any], source: str | Path = "<plan>") -> PlanResult:
-    """A :class:`PlanResult` from a plan file's content; entries without ``converged: true`` count as unsolved.
-
-    Raises:
-        DataError: not a dual plan, or joint vectors that are not 6 finite numbers.
-    """
-    if not isinstance(d, dict) or d.get("schema") != PLAN_SCHEMA or not isinstance(d.get("waypoints"), list):
-        raise DataError(source, None, None, f"expected a dual plan (schema {PLAN_SCHEMA!r} with 'waypoints')")
-    out = []
-    for i, w in enumerate(d["waypoints"]):
-        try:
-            q1, q2 = np.asarray(w["R1"], dtype=float), np.asarray(w["R2"], dtype=float)
-        except (KeyError, TypeError, ValueError) as e:
-            raise DataError(source, None, None, f"waypoint {i}: expected R1 and R2 with 6 numbers each [rad]") from e
-        if q1.shape != (6,) or q2.shape != (6,) or not np.all(np.isfinite(np.r_[q1, q2])):
-            raise DataError(source, None, None, f"waypoint {i}: expected R1 and R2 with 6 finite numbers each [rad]")
-        ok = w.get("converged") is True
-        nan = float("nan")
-        out.append(WaypointResult(q1, q2, float(w.get("residual_mm", nan)), float(w.get("residual_deg", nan)),
-                                  float(w.get("track_mm", nan)), nan, float(w.get("clearance_mm", nan)), nan,
-                                  float(w.get("solve_ms", nan)), 0, ok,
-                                  w.get("reason", "") if ok else (w.get("reason") or "not marked converged")))
-    return PlanResult(tuple(out), np.asarray(d.get("T_wp_gun", np.eye(4)), dtype=float), dict(d.get("models", {})))
-
-
-def load_plan_result(path: str | Path) -> PlanResult:
-    """Read a plan file written by :func:`save_plan`."""
-    path = Path(path)
-    try:
-        return plan_from_dict(json.loads(path.read_text(encoding="utf-8")), path)
-    except FileNotFoundError:
-        raise DataError(path, None, None, "plan file not found") from None
-    except json.JSONDecodeError as e:
-        raise DataError(path, None, None, f"not a JSON plan ({e})") from e
-
-
-def plan_dual(cell: CellSpec, model_R1: Any = None, model_R2: Any = None, path: np.ndarray | None = None,
-              T_wp_gun: np.ndarray | None = None, n: int = 200, q_start: np.ndarray | None = None,
-              options: PlannerOptions | None = None) -> PlanResult:
-    """Plan a dual-robot path in one call (what ``cellcal plan-dual`` runs).
-
-    Args:
-        cell: the loaded cell.
-        model_R1, model_R2: kinematic models (``load_model`` results); nominal when None.
-        path: workpiece poses in the cell frame (N, 4, 4) [mm]; the inward-to-outstretched sweep when None.
-        T_wp_gun: gun pose in the workpiece frame (4, 4) [mm]; the reference one (:data:`Q_REF_DEG`) when None.
-        n: waypoints of the default sweep.
-        q_start: first guess (12,) [rad]; the reference configuration when None.
-        options: planner options.
-    """
-    planner = DualPlanner(cell, model_R1, model_R2, options or PlannerOptions())
-    q0 = np.radians(Q_REF_DEG) if q_start is None else np.asarray(q_start, dtype=float)
-    T_rel = relative_pose(planner, np.radians(Q_REF_DEG)) if T_wp_gun is None else T_wp_gun
-    return planner.plan(sweep_path(planner, n) if path is None else path, T_rel, q0)
-
-
-def export_targets(plan: PlanResult | str | Path, cell: CellSpec, out: str | Path, frame: str = "flange",
-                   skip_failed: bool = False) -> int:
-    """Export a plan (object or plan file) as controller targets to ``out`` (.csv or .json).
-
-    Returns:
-        The number of rows written (waypoints x 2 robots).
-
-    Raises:
-        UnsafeTarget: an unsolved waypoint (unless ``skip_failed``) or a joint beyond its limit; nothing is written.
-        DataError, ModelError: unreadable plan, unknown frame or file type.
-    """
-    if not isinstance(plan, PlanResult):
-        plan = load_plan_result(plan)
-    if Path(out).suffix.lower() not in (".csv", ".json"):
-        raise ModelError(f"unknown target file type {Path(out).suffix!r}; valid: .csv, .json")
-    rows = export_rows(plan, cell, frame, skip_failed)
-    write_targets(rows, out, frame)
-    return len(rows)

@@ -14,6 +14,8 @@ coefficients C, shape (m, r), by least squares on them.
 Both are global smooth fits: they are exact only when the values lie in the span of the basis, and they
 extrapolate outside the anchors' convex hull, where ``out_of_range`` flags queries (see ``support``).
 Serialisation stores the coefficient arrays themselves, so prediction after a round trip is bit-identical.
+``casadi_predict(u)`` gives the same prediction as a casadi expression of symbolic (q2, q3), so planners
+get exact derivatives of the parameters with respect to the joints (casadi is imported only there).
 """
 
 from __future__ import annotations
@@ -50,6 +52,31 @@ def fbf13_basis(x: np.ndarray) -> np.ndarray:
                  np.sin(a * (q2 + q3)), np.cos(a * (q2 + q3))]
     cols.append(np.ones_like(q2))
     return np.stack(cols, axis=1)
+
+
+def fbf13_basis_casadi(u: Any) -> Any:
+    """The 13 Fourier basis functions of one symbolic configuration.
+
+    Args:
+        u: casadi SX/MX (or DM) 2-vector (q2, q3) [rad].
+
+    Returns:
+        casadi column (13, 1), terms ordered as ``FBF13_TERMS``.
+
+    Raises:
+        ModelError: u does not have 2 entries.
+    """
+    import casadi as ca
+
+    if u.numel() != 2:
+        raise ModelError(f"fbf13 basis: needs u with 2 entries (q2, q3) [rad], got {u.numel()}")
+    q2, q3 = u[0], u[1]
+    terms = []
+    for a in (1.0, 2.0):
+        terms += [ca.sin(a * q2), ca.sin(a * q3), ca.cos(a * q2), ca.cos(a * q3),
+                  ca.sin(a * (q2 + q3)), ca.cos(a * (q2 + q3))]
+    terms.append(1.0)
+    return ca.vertcat(*terms)
 
 
 class _FourierBase(Interpolator):
@@ -106,6 +133,20 @@ class Fourier13Interpolator(_FourierBase):
         self._set_anchors(x)
         self._A = (np.linalg.pinv(fbf13_basis(x)) @ y).T
 
+    def casadi_predict(self, u: Any) -> Any:
+        """The prediction as a casadi expression: ``A b(u)``.
+
+        Args:
+            u: casadi SX/MX 2-vector (q2, q3) [rad].
+
+        Returns:
+            casadi column (m, 1) of the interpolated values, equal to ``predict`` at numeric u.
+        """
+        import casadi as ca
+
+        self._require_fitted()
+        return ca.mtimes(ca.DM(self._A), fbf13_basis_casadi(u))
+
     def _predict(self, x: np.ndarray) -> np.ndarray:
         return fbf13_basis(x) @ self._A.T  # type: ignore[union-attr]
 
@@ -159,6 +200,20 @@ class FourierReducedInterpolator(_FourierBase):
 
     def _predict(self, x: np.ndarray) -> np.ndarray:
         return (fbf13_basis(x) @ self._V) @ self._C.T  # type: ignore[operator,union-attr]
+
+    def casadi_predict(self, u: Any) -> Any:
+        """The prediction as a casadi expression: ``C V_r^T b(u)``.
+
+        Args:
+            u: casadi SX/MX 2-vector (q2, q3) [rad].
+
+        Returns:
+            casadi column (m, 1) of the interpolated values, equal to ``predict`` at numeric u.
+        """
+        import casadi as ca
+
+        self._require_fitted()
+        return ca.mtimes(ca.DM(self._C @ self._V.T), fbf13_basis_casadi(u))  # type: ignore[operator,union-attr]
 
     def _state(self) -> dict[str, Any]:
         return {"options": {"rank": self.rank}, "anchors": self._anchors.tolist(),  # type: ignore[union-attr]

@@ -127,3 +127,23 @@ def test_dq_hook_shifts_joints(cell):
 def test_unknown_model_kind_names_supported_kinds():
     with pytest.raises(ModelError, match="supported: constant, cdc"):
         casadi_fk(object())
+
+
+def test_fitted_fbf13_model_takes_the_exact_path(cell):
+    """A real fbf13 model from Fitter is expressed in casadi (no frozen-parameter fallback) and matches numpy."""
+    from calibration.methods import Fitter
+    from tests.conftest import cluster_design, measure, planted_parameters
+
+    nominal = cell.robot("R1").model()
+    par = MinimalParameterisation(nominal, fit_tool=True)
+    truth = par.model(planted_parameters(par))
+    q, cluster = cluster_design(step_deg=15.0)
+    model, _ = Fitter("R1", nominal, measure(truth.fk, q, 0.02, 0.01, 1, cluster)).fit("fbf13")
+    fk = casadi_fk(model)
+    assert (fk.kind, fk.n_frozen, fk.params_at) == ("cdc", 0, None)
+    qs = np.random.default_rng(5).uniform(-1.0, 1.0, (5, 6))
+    R, p = model.fk(qs)
+    for i, qi in enumerate(qs):
+        Rc, pc, _, _ = fk.function(qi, np.zeros(0))
+        np.testing.assert_allclose(np.asarray(pc).ravel(), p[i], atol=1e-9)
+        np.testing.assert_allclose(np.asarray(Rc), R[i], atol=1e-12)

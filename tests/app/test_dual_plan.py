@@ -10,9 +10,10 @@ import pytest
 
 pytest.importorskip("casadi")
 
-from app.dual_plan import (Q_REF_DEG, DualPlanner, PlannerOptions, export_rows, export_targets,  # noqa: E402
-                           load_plan_result, plan_dual, relative_pose, rpy_deg, save_plan, sweep_path,
-                           write_targets)
+from app.dual_paths import Q_REF_DEG, plan_dual, relative_pose, sweep_path  # noqa: E402
+from app.dual_plan import DualPlanner, PlannerOptions  # noqa: E402
+from app.export_targets import export_rows, export_targets, rpy_deg, write_targets  # noqa: E402
+from app.plan_result import load_plan_result, save_plan  # noqa: E402
 from calibration import so3  # noqa: E402
 from calibration.errors import DataError, ModelError, UnsafeTarget  # noqa: E402
 from calibration.models import CdcModel  # noqa: E402

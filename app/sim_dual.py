@@ -1,0 +1,196 @@
+"""The simulated dual-robot cell for validation: true twins, calibration data from them, fitted model sets.
+
+Each arm's truth is a :class:`~calibration.physics.Twin`: the nominal arm with planted geometric errors
+(joint-origin offsets and axis tilts) and a gravity-like joint compliance (joints 2, 3, 5 sag in proportion to
+the arm's own gravity torque, link masses from the robot YAML). Calibration data are measured from the twin
+directly with Gaussian position/orientation noise (no simulated motion, so it stays fast):
+
+* training: the paper's cluster design, anchors on a (q2, q3) grid each followed by +1 deg on every joint;
+* CPA: one single-joint sweep per joint about a mid-workspace pose (120 deg each: shorter arcs make the circle
+  fits, hence the axes, noise-sensitive).
+
+Model sets fitted on them with :class:`~calibration.methods.Fitter` (``nominal``, ``cpa``, ``fbf13``,
+``ae``, ...), plus ``physics``: the geometry and the joint compliances identified together by one
+least-squares fit, with the link masses taken from the robot YAML (the structure is known, the values are
+not).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from calibration import so3
+from calibration.errors import ModelError
+from calibration.models import KinematicModel
+from calibration.recording import Recording
+from cell_config.loader import CellSpec
+
+logger = logging.getLogger("cellcal.app")
+ROBOTS = ("R1", "R2")
+#: Model sets the simulated validation fits by default, in table order.
+SIM_METHODS = ("nominal", "cpa", "fbf13", "ae", "physics")
+
+
+@dataclass(frozen=True)
+class SimCellOptions:
+    """How wrong the simulated arms are and how they are measured.
+
+    Attributes:
+        seed: seed of every random draw (R2 uses ``seed + 1``).
+        offset_sigma_mm: standard deviation of the planted joint-origin offsets [mm].
+        tilt_sigma_rad: standard deviation of the planted axis tilts [rad].
+        compliance_mm: RMS tool displacement of the planted joint compliance [mm].
+        noise_mm, noise_deg: measurement noise per axis [mm], [deg].
+        grid_step_deg: (q2, q3) spacing of the training anchors [deg].
+        wrist_spread_deg: joints 1, 4, 5, 6 of each anchor uniform in +- this [deg].
+    """
+
+    seed: int = 7
+    offset_sigma_mm: float = 0.3
+    tilt_sigma_rad: float = 4e-4
+    compliance_mm: float = 0.6
+    noise_mm: float = 0.03
+    noise_deg: float = 0.01
+    grid_step_deg: float = 10.0
+    wrist_spread_deg: float = 30.0
+
+
+def make_twins(cell: CellSpec, options: SimCellOptions = SimCellOptions()) -> dict[str, Any]:
+    """The true twin of each arm: planted geometry errors plus joint compliance under gravity."""
+    from calibration.physics import GravityModel, Twin
+
+    twins = {}
+    for k, name in enumerate(ROBOTS):
+        spec = cell.robot(name)
+        nominal = spec.model()
+        gravity = GravityModel.from_spec(spec.robot, nominal)
+        twins[name] = Twin.random(nominal, {"joint_compliance": options.compliance_mm}, options.seed + k,
+                                  gravity=gravity, offset_sigma_mm=options.offset_sigma_mm,
+                                  tilt_sigma_rad=options.tilt_sigma_rad)
+    return twins
+
+
+def measure(twin: Any, q: np.ndarray, options: SimCellOptions, seed: int,
+            cluster: np.ndarray | None = None) -> Recording:
+    """A recording of the twin at joint angles q [rad] (N, 6) with Gaussian noise; ``cluster`` (N,) ids."""
+    rng = np.random.default_rng(seed)
+    R, p = twin.pose(q)
+    p = p + rng.normal(0.0, options.noise_mm, p.shape)
+    R = so3.exp(rng.normal(0.0, np.radians(options.noise_deg), p.shape)) @ R
+    extra = {} if cluster is None else {"cluster": np.asarray(cluster, dtype=float)}
+    return Recording(np.asarray(q, dtype=float), p, so3.R_to_quat(R), extra, "simulated twin")
+
+
+def training_design(cell: CellSpec, name: str, options: SimCellOptions) -> tuple[np.ndarray, np.ndarray]:
+    """Cluster design inside the arm's limits: ``(q (N, 6) [rad], cluster (N,))``, 7 samples per anchor."""
+    spec = cell.robot(name).robot
+    lo, hi = np.degrees(spec.lower_rad) + 5.0, np.degrees(spec.upper_rad) - 5.0
+    rng = np.random.default_rng(options.seed + 100)
+    s = options.grid_step_deg
+    anchors = []
+    for q2 in np.arange(max(-45.0, lo[1]), min(50.0, hi[1]) + 1e-9, s):
+        for q3 in np.arange(max(-45.0, lo[2]), min(35.0, hi[2]) + 1e-9, s):
+            w = rng.uniform(-options.wrist_spread_deg, options.wrist_spread_deg, 4)
+            anchors.append([w[0], q2, q3, w[1], w[2], w[3]])
+    q, cluster = [], []
+    for k, a in enumerate(np.radians(anchors)):
+        q.append(a)
+        for j in range(6):
+            b = a.copy()
+            b[j] += np.radians(1.0)
+            q.append(b)
+        cluster += [k] * 7
+    return np.array(q), np.array(cluster)
+
+
+def cpa_design(n_per_sweep: int = 15, span_deg: float = 120.0) -> tuple[np.ndarray, np.ndarray]:
+    """Single-joint sweeps about a mid-workspace pose: ``(q (6 n, 6) [rad], cluster (6 n,))``."""
+    base = np.radians([0.0, 10.0, 0.0, 0.0, -30.0, 0.0])
+    q, cluster = [], []
+    for j in range(6):
+        for v in np.linspace(-0.5, 0.5, n_per_sweep) * np.radians(span_deg):
+            b = base.copy()
+            b[j] += v
+            q.append(b)
+            cluster.append(j)
+    return np.array(q), np.array(cluster)
+
+
+def fit_physics(name: str, nominal: Any, gravity: Any, train: Recording, a_mm_per_rad: float = 180.0 / np.pi
+                ) -> KinematicModel:
+    """Geometry (minimal parameters with flange shift) and joint compliances (2, 3, 5) fitted together.
+
+    Args:
+        name: robot name.
+        nominal: the nominal arm with tool (PoeModel).
+        gravity: link masses and centres of mass (GravityModel) that give the torque.
+        train: the training recording.
+        a_mm_per_rad: orientation weight [mm/rad] (default: 1 mm ~ 1 deg).
+
+    Returns:
+        A ``PhysicsModel`` (kind ``physics``, method ``physics-ls``).
+    """
+    from scipy.optimize import least_squares
+
+    from calibration.parameterisation import MinimalParameterisation
+    from calibration.physics import JointCompliance, PhysicsModel, apply_effects
+
+    par = MinimalParameterisation(nominal, fit_tool=True)
+    template = JointCompliance(gravity)
+    tau = gravity.torque(nominal, train.q)[:, [j - 1 for j in template.joints]]  # [N m]
+    c_scale = 1e-4 / max(float(np.abs(tau).max()), 1e-9)  # compliance unit: 1e-4 rad at the largest torque
+    R_meas = train.R
+
+    def residual(z: np.ndarray) -> np.ndarray:
+        model = par.model(z[:par.size])
+        R, p = apply_effects(model, [template.with_values(z[par.size:] * c_scale)], train.q)
+        e_rot = so3.log(np.einsum("nji,njk->nik", R, R_meas)) * a_mm_per_rad
+        return np.concatenate([(p - train.p).ravel(), e_rot.ravel()])
+
+    sol = least_squares(residual, np.zeros(par.size + template.size), method="lm", x_scale=1.0)
+    if not sol.success:
+        raise ModelError(f"physics fit of {name} did not converge: {sol.message}")
+    geometry = par.model(sol.x[:par.size])
+    effect = template.with_values(sol.x[par.size:] * c_scale)
+    rms = float(np.sqrt(np.mean(sol.fun[: 3 * len(train)] ** 2) * 3))
+    return PhysicsModel(name, "physics-ls", geometry, (effect,), par.size,
+                        {"train_rms_mm": rms, "train_samples": len(train)})
+
+
+def fit_model_sets(cell: CellSpec, twins: dict[str, Any], methods: tuple[str, ...] = SIM_METHODS,
+                   options: SimCellOptions = SimCellOptions()) -> dict[str, dict[str, KinematicModel]]:
+    """Fit every requested model set on data measured from the twins.
+
+    Returns:
+        ``{method: {"R1": model, "R2": model}}`` in the order of ``methods``.
+
+    Raises:
+        ModelError: an unknown method (the message names the valid ones).
+    """
+    from calibration.methods import METHODS, Fitter
+    from calibration.physics import GravityModel
+
+    valid = METHODS + ("physics",)
+    bad = [m for m in methods if m not in valid]
+    if bad:
+        raise ModelError(f"unknown model set {bad[0]!r}; valid: {', '.join(valid)}")
+    out: dict[str, dict[str, KinematicModel]] = {m: {} for m in methods}
+    for k, name in enumerate(ROBOTS):
+        spec = cell.robot(name)
+        nominal = spec.model()
+        q, cluster = training_design(cell, name, options)
+        train = measure(twins[name], q, options, options.seed + 10 + k, cluster)
+        qc, cc = cpa_design()
+        cpa = measure(twins[name], qc, options, options.seed + 20 + k, cc)
+        fitter = Fitter(name, nominal, train, cpa_data=cpa)
+        for method in methods:
+            if method == "physics":
+                out[method][name] = fit_physics(name, nominal, GravityModel.from_spec(spec.robot, nominal), train)
+            else:
+                out[method][name] = fitter.fit(method)[0]
+            logger.info("fitted %s for %s on %d samples", method, name, len(train))
+    return out

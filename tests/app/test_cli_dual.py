@@ -1,0 +1,125 @@
+"""plan-dual, export-targets, preview and validate-dual end to end, and their bad-input paths."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+pytest.importorskip("casadi")
+
+from app.cli import main  # noqa: E402
+from calibration.interpolation.fourier import Fourier13Interpolator  # noqa: E402
+from calibration.models import CdcModel, save_model  # noqa: E402
+from calibration.parameterisation import MinimalParameterisation  # noqa: E402
+from cell_config.loader import load_cell  # noqa: E402
+
+
+def _bad(capsys, argv, *fragments):
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    for f in fragments:
+        assert f in err[0], err[0]
+
+
+@pytest.fixture(scope="module")
+def planned(tmp_path_factory):
+    root = tmp_path_factory.mktemp("dual")
+    assert main(["plan-dual", "--path", "sweep:12", "--out", str(root / "plan.json"),
+                 "--json", str(root / "summary.json")]) == 0
+    return root
+
+
+def test_plan_dual_export_and_preview(planned, tmp_path, capsys):
+    summary = json.loads((planned / "summary.json").read_text())
+    assert summary["converged"] and summary["waypoints"] == 12 and summary["failed"] == []
+    assert summary["max_residual_mm"] < 1e-6
+    plan = json.loads((planned / "plan.json").read_text())
+    assert plan["schema"] == "cellcal.plan/1" and all(w["converged"] for w in plan["waypoints"])
+    out = tmp_path / "targets.csv"
+    assert main(["export-targets", "--plan", str(planned / "plan.json"), "--out", str(out)]) == 0
+    assert len(out.read_text().splitlines()) == 1 + 24
+    html = tmp_path / "p.html"
+    assert main(["preview", "--cell", str(load_cell().path), "--plan", str(planned / "plan.json"),
+                 "--html", str(html)]) == 0
+    assert html.stat().st_size > 10_000 and "12 frames" in capsys.readouterr().out
+
+
+def test_plan_dual_with_model_files_pose_and_path_files(tmp_path):
+    cell = load_cell()
+    par = MinimalParameterisation(cell.robot("R2").model())
+    rng = np.random.default_rng(2)
+    x = rng.uniform(-1.0, 1.0, (30, 2))
+    y = np.column_stack([0.2 * np.sin(x[:, 0] + k) for k in range(par.size)]) * np.r_[np.ones(12), np.full(12, 1e-3)]
+    save_model(CdcModel("R2", "fbf13", par, Fourier13Interpolator().fit(x, y)), tmp_path / "r2.json")
+    ref = tmp_path / "ref.json"
+    assert main(["plan-dual", "--path", "sweep:3", "--out", str(ref)]) == 0
+    T = np.array(json.loads(ref.read_text())["T_wp_gun"])
+    from calibration import so3
+
+    pose = list(T[:3, 3]) + list(so3.R_to_quat(T[:3, :3]))
+    (tmp_path / "pose.json").write_text(json.dumps({"p_mm": pose[:3], "quat": pose[3:]}))
+    from app.dual_paths import sweep_path
+    from app.dual_plan import DualPlanner, PlannerOptions
+
+    wp = sweep_path(DualPlanner(cell, options=PlannerOptions(compile=False)), 4)
+    rows = ["x,y,z,qw,qx,qy,qz"] + [",".join(f"{v:.17g}" for v in np.r_[t[:3, 3], so3.R_to_quat(t[:3, :3])])
+                                    for t in wp]
+    (tmp_path / "path.csv").write_text("\n".join(rows) + "\n")
+    out = tmp_path / "plan.json"
+    assert main(["plan-dual", "--models", f"R2={tmp_path / 'r2.json'}", "--relative-pose", str(tmp_path / "pose.json"),
+                 "--path", str(tmp_path / "path.csv"), "--out", str(out), "--json", str(tmp_path / "s.json")]) == 0
+    s = json.loads((tmp_path / "s.json").read_text())
+    assert s["models"] == {"R1": "constant", "R2": "cdc"} and s["waypoints"] == 4 and s["converged"]
+
+
+def test_plan_dual_bad_inputs_write_nothing(tmp_path, capsys):
+    out = tmp_path / "never.json"
+    model = tmp_path / "m.json"
+    model.write_text(json.dumps({"schema": "cellcal.model/1", "kind": "spline", "robot": "R1", "method": "x"}))
+    _bad(capsys, ["plan-dual", "--models", f"R1={model}", "--out", str(out)], "unknown model kind 'spline'", "valid:")
+    _bad(capsys, ["plan-dual", "--models", "R7=x.yaml", "--out", str(out)], "bad model entry", "R1=FILE,R2=FILE")
+    _bad(capsys, ["plan-dual", "--relative-pose", "1,2,3", "--out", str(out)], "7 numbers")
+    _bad(capsys, ["plan-dual", "--relative-pose", "1,2,3,1,0,0,0.5", "--out", str(out)], "quaternion norm")
+    _bad(capsys, ["plan-dual", "--path", "sweep:x", "--out", str(out)], "sweep:N")
+    _bad(capsys, ["plan-dual", "--path", str(tmp_path / "none.csv"), "--out", str(out)], "path file not found")
+    # the gun at the workpiece frame's origin puts the arms into each other: infeasible, reported, not written
+    _bad(capsys, ["plan-dual", "--relative-pose", "0,0,0,1,0,0,0", "--path", "sweep:3", "--no-compile",
+                  "--out", str(out)], "3 of 3 waypoints not solved, nothing written", "waypoint 0:", "collision")
+    assert not out.exists()
+
+
+def test_export_and_preview_bad_inputs(tmp_path, planned, capsys):
+    plan = json.loads((planned / "plan.json").read_text())
+    plan["waypoints"][1]["converged"] = False
+    plan["waypoints"][1]["reason"] = "near singularity"
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(plan))
+    out = tmp_path / "t.csv"
+    _bad(capsys, ["export-targets", "--plan", str(bad), "--out", str(out)], "waypoint 1 was not solved")
+    _bad(capsys, ["export-targets", "--plan", str(planned / "plan.json"), "--out", str(tmp_path / "t.txt")],
+         "valid: .csv, .json")
+    _bad(capsys, ["preview", "--plan", str(planned / "plan.json")], "--html OUT", "--serve")
+    _bad(capsys, ["preview", "--plan", str(tmp_path / "missing.json"), "--html", str(tmp_path / "p.html")],
+         "plan file not found")
+    assert not out.exists() and not (tmp_path / "p.html").exists()
+
+
+def test_validate_dual_sim_json_and_bad_inputs(tmp_path, capsys):
+    pytest.importorskip("can")
+    out = tmp_path / "v.json"
+    assert main(["validate-dual", "--sim", "--configurations", "3", "--methods", "nominal,fbf13",
+                 "--json", str(out)]) == 0
+    table = capsys.readouterr().out
+    assert "nominal" in table and "fbf13" in table
+    v = json.loads(out.read_text())
+    assert v["configurations"] == 3 and set(v["models"]) == {"nominal", "fbf13"}
+    assert v["models"]["fbf13"]["mean_mm"] < v["models"]["nominal"]["mean_mm"]
+    never = tmp_path / "never.json"
+    _bad(capsys, ["validate-dual", "--configurations", "3", "--json", str(never)], "use --sim")
+    _bad(capsys, ["validate-dual", "--sim", "--configurations", "1", "--json", str(never)], ">= 2")
+    _bad(capsys, ["validate-dual", "--sim", "--methods", "nominal,magic", "--json", str(never)],
+         "unknown model set 'magic'")
+    assert not never.exists()
