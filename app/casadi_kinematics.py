@@ -4,8 +4,11 @@
 pose, the joint origins and axes, all as casadi expressions of ``q``:
 
 * ``ConstantModel`` (or a bare :class:`~calibration.poe.PoeModel`): the POE chain, ``k = 0``.
-* ``CdcModel`` whose interpolator is casadi-expressible: the minimal parameters are casadi expressions of the
-  interpolator inputs (q2, q3), so derivatives include the parameters' dependence on q; ``k = 0``.
+* ``PhysicsInformedModel`` (kind ``pi``): geometry, tool rotation, gravity compliance and structural deflection
+  written out in casadi (:func:`extended_sx`); ``k = 0``.
+* ``CdcModel`` whose interpolator is casadi-expressible: the geometric parameters are casadi expressions of the
+  interpolator inputs (q2, q3), the other terms of its reference model constants, so derivatives include the
+  parameters' dependence on q; ``k = 0``.
   Expressible means the interpolator has ``casadi_predict(x_sx) -> SX (m,)`` (the Fourier kinds
   ``fbf13``/``fbf7`` do), or ``basis(x) (N, r)`` written with numpy ufuncs plus ``coefficients`` (r, m);
   either is checked against ``interpolator.predict`` at random inputs before it is trusted.
@@ -36,8 +39,10 @@ from typing import Any, Callable
 
 import numpy as np
 
+from calibration.cdc import CdcModel
 from calibration.errors import ModelError
 from calibration.parameterisation import MinimalParameterisation
+from calibration.physics_informed import DEFLECTION_TERMS, ExtendedKinematics, PhysicsInformedModel
 from calibration.poe import PoeModel
 
 logger = logging.getLogger("cellcal.app")
@@ -114,6 +119,52 @@ def geometry_sx(ca: Any, par: MinimalParameterisation, x: Any) -> tuple[Any, Any
     return ca.horzcat(*hs), ca.horzcat(*cols)
 
 
+MAX_SERIES_ANGLE_RAD = 0.2
+
+
+def exp_sx(ca: Any, w: Any) -> Any:
+    """Rotation matrix of a small rotation vector w (3,) by the Rodrigues series, exact to machine precision
+    for |w| < 0.2 rad (no division, so derivatives stay finite at w = 0)."""
+    t2 = ca.dot(w, w)
+    a = 1 - t2 / 6 + t2**2 / 120 - t2**3 / 5040 + t2**4 / 362880
+    b = 0.5 - t2 / 24 + t2**2 / 720 - t2**3 / 40320 + t2**4 / 3628800
+    K = ca.skew(w)
+    return ca.SX.eye(3) + a * K + b * (K @ K)
+
+
+def extended_sx(ca: Any, kin: ExtendedKinematics, q: Any, theta: Any) -> tuple[Any, Any, Any, Any]:
+    """casadi version of :meth:`ExtendedKinematics.pose` (plus the skeleton) for one parameter vector.
+
+    Returns:
+        ``(R_base_tool, p_base_tool, origins (3, n+1), axes (3, n))`` with the deflection applied to all of them.
+    """
+    g, t, c, _ = kin.sizes
+    x, w_tool, cc = theta[:g], theta[g:g + t], theta[g + t:g + t + c]
+    off = g + t + c
+    u = q[1] - q[2]
+    dq = ca.vertcat(0, cc[0] * ca.sin(q[1]) + cc[1] * ca.cos(u) + cc[2] * ca.sin(u),
+                    cc[3] * ca.cos(u) + cc[4] * ca.sin(u), 0, 0, 0)
+    H, P = geometry_sx(ca, kin.par, x)
+    R0, p0, O, A = poe_chain(ca, kin.par.nominal, q + dq, H, P)
+    R0 = R0 @ exp_sx(ca, w_tool)
+    F = [1, ca.sin(q[1]), ca.sin(q[2]), ca.cos(q[1]), ca.cos(q[2]), ca.sin(q[1] + q[2]), ca.cos(q[1] + q[2])]
+    xi = [sum(F[k] * theta[off + 6 * k + j] for k in range(len(DEFLECTION_TERMS))) for j in range(6)]
+    Rz = _rot(ca, ca.DM([0.0, 0.0, 1.0]), q[0])
+    E = exp_sx(ca, Rz @ ca.vertcat(*xi[3:]))
+    shift = Rz @ ca.vertcat(*xi[:3])
+    O = E @ O + ca.repmat(shift, 1, O.shape[1])
+    return E @ R0, E @ p0 + shift, O, E @ A
+
+
+def _check_small_rotations(kin: ExtendedKinematics, theta: np.ndarray) -> None:
+    g, t, c, _ = kin.sizes
+    C = theta[g + t + c:].reshape(len(DEFLECTION_TERMS), 6)
+    bound = max(np.linalg.norm(theta[g:g + t]), float(np.abs(C[:, 3:]).sum(axis=0).max()) * np.sqrt(3))
+    if bound >= MAX_SERIES_ANGLE_RAD:
+        raise ModelError(f"tool or deflection rotation up to {bound:.3f} rad exceeds the {MAX_SERIES_ANGLE_RAD} rad "
+                         "the casadi kinematics are exact for")
+
+
 def interpolator_sx(ca: Any, interp: Any, u: Any, m: int, check_seed: int = 0) -> Any | None:
     """The interpolator's prediction as a casadi expression of its inputs u (d,), or None if not expressible.
 
@@ -179,26 +230,32 @@ def casadi_fk(model: Any, dq: Any = None) -> CasadiFk:
         R, p, O, A = poe_chain(ca, poe, q_chain)
         f = ca.Function("fk", [q, x], [R, p, O, A], ["q", "x"], ["R", "p", "origins", "axes"])
         return CasadiFk(f, 0, None, ("poe" if isinstance(model, PoeModel) else "constant") + suffix)
-    if hasattr(model, "parameterisation") and hasattr(model, "interpolator"):
-        par: MinimalParameterisation = model.parameterisation
+    if isinstance(model, PhysicsInformedModel):
+        _check_small_rotations(model.kinematics, model.theta)
+        R, p, O, A = extended_sx(ca, model.kinematics, q_chain, ca.DM(model.theta))
+        f = ca.Function("fk", [q, ca.SX.sym("x", 0)], [R, p, O, A], ["q", "x"], ["R", "p", "origins", "axes"])
+        return CasadiFk(f, 0, None, "pi" + suffix)
+    if isinstance(model, CdcModel):
+        kin = model.kinematics
+        g = kin.par.size
+        _check_small_rotations(kin, model.theta_ref)
         inputs = list(model.inputs)
         u = ca.SX.sym("u", len(inputs))
-        expr = interpolator_sx(ca, model.interpolator, u, par.size)
+        expr = interpolator_sx(ca, model.interpolator, u, g)
+        rest = ca.DM(model.theta_ref[g:])
         if expr is not None:
             xq = ca.substitute(expr, u, ca.vertcat(*[q[i] for i in inputs]))
-            H, P = geometry_sx(ca, par, xq)
-            R, p, O, A = poe_chain(ca, par.nominal, q_chain, H, P)
+            R, p, O, A = extended_sx(ca, kin, q_chain, ca.vertcat(xq, rest))
             f = ca.Function("fk", [q, ca.SX.sym("x", 0)], [R, p, O, A], ["q", "x"],
                             ["R", "p", "origins", "axes"])
             return CasadiFk(f, 0, None, "cdc" + suffix)
-        x = ca.SX.sym("x", par.size)
-        H, P = geometry_sx(ca, par, x)
-        R, p, O, A = poe_chain(ca, par.nominal, q_chain, H, P)
+        x = ca.SX.sym("x", g)
+        R, p, O, A = extended_sx(ca, kin, q_chain, ca.vertcat(x, rest))
         f = ca.Function("fk", [q, x], [R, p, O, A], ["q", "x"], ["R", "p", "origins", "axes"])
-        return CasadiFk(f, par.size, lambda qq: model.parameters_at(np.asarray(qq)[None])[0], "cdc-frozen" + suffix)
+        return CasadiFk(f, g, lambda qq: model.parameters_at(np.asarray(qq)[None])[0, :g], "cdc-frozen" + suffix)
     raise ModelError(f"cannot build casadi kinematics for {type(model).__name__} "
-                     f"(kind {getattr(model, 'kind', '?')!r}); supported: constant, cdc, PoeModel, "
-                     "or a model with casadi_fk()")
+                     f"(kind {getattr(model, 'kind', '?')!r}); supported: constant, cdc, pi, physics, "
+                     "PoeModel, or a model with casadi_fk()")
 
 
 def _physics_fk(ca: Any, model: Any) -> CasadiFk:

@@ -126,6 +126,12 @@ class CdcModel(KinematicModel):
                    interpolator_from_dict(body["interpolator"]), tuple(int(i) for i in body["inputs"]), info)
 
 
+def geometric_cdc(par: MinimalParameterisation) -> tuple[ExtendedKinematics, np.ndarray]:
+    """Kinematics and reference for a purely geometric CDC model (no physics terms): ``CdcModel(r, m, *this, i)``."""
+    kin = ExtendedKinematics(par)
+    return kin, np.zeros(kin.size)
+
+
 def build_cdc(robot: str, method: str, kin: ExtendedKinematics, local: LocalFits, **options: object) -> CdcModel:
     """Fit interpolator ``method`` (nearest, linear, cubic, rbf, fbf13, fbf7, nn, ae) to the local parameters."""
     from calibration.interpolation import make_interpolator

@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from app.dual_paths import Q_REF_DEG, relative_pose, sweep_path  # noqa: E402
 from app.dual_plan import DualPlanner, PlannerOptions  # noqa: E402
-from calibration.models import CdcModel  # noqa: E402
+from calibration.cdc import CdcModel, geometric_cdc  # noqa: E402
 from calibration.parameterisation import MinimalParameterisation  # noqa: E402
 from cell_config.loader import load_cell  # noqa: E402
 
@@ -112,9 +112,10 @@ def main(argv: list[str] | None = None) -> int:
     models = {}
     for i, name in enumerate(("R1", "R2")):
         par = MinimalParameterisation(cell.robot(name).model())
-        models[name] = CdcModel(name, "fbf13", par, SyntheticFbf13(par.size, seed=i))
+        models[name] = CdcModel(name, "fbf13", *geometric_cdc(par), SyntheticFbf13(par.size, seed=i))
     results = {"cpus": os.cpu_count(), "n_waypoints": args.n}
-    opaque = {n: CdcModel(n, "opaque", m.parameterisation, PredictOnly(m.interpolator)) for n, m in models.items()}
+    opaque = {n: CdcModel(n, "opaque", m.kinematics, m.theta_ref, PredictOnly(m.interpolator))
+              for n, m in models.items()}
     fitted = fitted_fbf13(cell)
     configs = {"nominal": {}, "cdc_fbf13": {"model_R1": models["R1"], "model_R2": models["R2"]},
                "cdc_fitted": {"model_R1": fitted["R1"], "model_R2": fitted["R2"]},

@@ -11,7 +11,8 @@ pytest.importorskip("casadi")
 
 from app.cli import main  # noqa: E402
 from calibration.interpolation.fourier import Fourier13Interpolator  # noqa: E402
-from calibration.models import CdcModel, save_model  # noqa: E402
+from calibration.cdc import CdcModel, geometric_cdc  # noqa: E402
+from calibration.models import save_model  # noqa: E402
 from calibration.parameterisation import MinimalParameterisation  # noqa: E402
 from cell_config.loader import load_cell  # noqa: E402
 
@@ -53,7 +54,7 @@ def test_plan_dual_with_model_files_pose_and_path_files(tmp_path):
     rng = np.random.default_rng(2)
     x = rng.uniform(-1.0, 1.0, (30, 2))
     y = np.column_stack([0.2 * np.sin(x[:, 0] + k) for k in range(par.size)]) * np.r_[np.ones(12), np.full(12, 1e-3)]
-    save_model(CdcModel("R2", "fbf13", par, Fourier13Interpolator().fit(x, y)), tmp_path / "r2.json")
+    save_model(CdcModel("R2", "fbf13", *geometric_cdc(par), Fourier13Interpolator().fit(x, y)), tmp_path / "r2.json")
     ref = tmp_path / "ref.json"
     assert main(["plan-dual", "--path", "sweep:3", "--out", str(ref)]) == 0
     T = np.array(json.loads(ref.read_text())["T_wp_gun"])

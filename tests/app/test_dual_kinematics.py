@@ -7,7 +7,8 @@ import pytest
 
 from app.casadi_kinematics import casadi_fk
 from calibration.errors import ModelError
-from calibration.models import CdcModel, ConstantModel
+from calibration.cdc import CdcModel, geometric_cdc
+from calibration.models import ConstantModel
 from calibration.parameterisation import MinimalParameterisation
 from cell_config.loader import load_cell
 
@@ -84,7 +85,7 @@ def test_constant_matches_numpy(cell):
 
 def test_cdc_fourier_matches_numpy_and_is_exact(cell):
     par = MinimalParameterisation(cell.robot("R2").model())
-    model = CdcModel("R2", "fbf13", par, FourierStub(par.size, scale=0.5))  # large deviations: strict test
+    model = CdcModel("R2", "fbf13", *geometric_cdc(par), FourierStub(par.size, scale=0.5))  # large deviations: strict test
     cfk = casadi_fk(model)
     assert cfk.kind == "cdc" and not cfk.frozen
     _check(model, cfk, seed=3)
@@ -92,7 +93,7 @@ def test_cdc_fourier_matches_numpy_and_is_exact(cell):
 
 def test_cdc_jacobian_includes_parameter_dependence(cell):
     par = MinimalParameterisation(cell.robot("R1").model())
-    model = CdcModel("R1", "fbf13", par, FourierStub(par.size, scale=1e-2))
+    model = CdcModel("R1", "fbf13", *geometric_cdc(par), FourierStub(par.size, scale=1e-2))
     cfk = casadi_fk(model)
     q = ca.SX.sym("q", 6)
     _, p, _, _ = cfk.function(q, ca.SX(0, 1))
@@ -106,7 +107,7 @@ def test_cdc_jacobian_includes_parameter_dependence(cell):
 
 def test_cdc_opaque_interpolator_freezes_parameters(cell):
     par = MinimalParameterisation(cell.robot("R1").model())
-    model = CdcModel("R1", "opaque", par, OpaqueStub(par.size))
+    model = CdcModel("R1", "opaque", *geometric_cdc(par), OpaqueStub(par.size))
     cfk = casadi_fk(model)
     assert cfk.frozen and cfk.n_frozen == par.size and cfk.kind == "cdc-frozen"
     _check(model, cfk, seed=5)  # exact when frozen at the same q
@@ -147,3 +148,20 @@ def test_fitted_fbf13_model_takes_the_exact_path(cell):
         Rc, pc, _, _ = fk.function(qi, np.zeros(0))
         np.testing.assert_allclose(np.asarray(pc).ravel(), p[i], atol=1e-9)
         np.testing.assert_allclose(np.asarray(Rc), R[i], atol=1e-12)
+
+
+def test_physics_informed_and_cdc_over_it_match_numpy(cell):
+    """Compliance, tool rotation and deflection terms are written out exactly in casadi."""
+    from calibration.physics_informed import ExtendedKinematics, PhysicsInformedModel
+
+    par = MinimalParameterisation(cell.robot("R1").model(), fit_tool=True)
+    kin = ExtendedKinematics(par)
+    theta = np.random.default_rng(7).normal(size=kin.size) * kin.scale() * 0.5
+    pi = PhysicsInformedModel("R1", "pi", kin, theta, kin.size)
+    fk = casadi_fk(pi)
+    assert (fk.kind, fk.n_frozen) == ("pi", 0)
+    _check(pi, fk, seed=8)
+    cdc = CdcModel("R1", "fbf13", kin, theta, FourierStub(par.size, scale=1e-2))
+    fk = casadi_fk(cdc)
+    assert (fk.kind, fk.n_frozen) == ("cdc", 0)
+    _check(cdc, fk, seed=9)

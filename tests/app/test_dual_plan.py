@@ -16,7 +16,7 @@ from app.export_targets import export_rows, export_targets, rpy_deg, write_targe
 from app.plan_result import load_plan_result, save_plan  # noqa: E402
 from calibration import so3  # noqa: E402
 from calibration.errors import DataError, ModelError, UnsafeTarget  # noqa: E402
-from calibration.models import CdcModel  # noqa: E402
+from calibration.cdc import CdcModel, geometric_cdc  # noqa: E402
 from calibration.parameterisation import MinimalParameterisation  # noqa: E402
 from cell_config.loader import load_cell  # noqa: E402
 
@@ -74,7 +74,7 @@ def test_nominal_sweep_holds_relative_pose_exactly(nominal):
 
 def test_cdc_fourier_model_exact(cell):
     par = MinimalParameterisation(cell.robot("R1").model())
-    model = CdcModel("R1", "fbf13", par, FourierStub(par.size, scale=2e-3))
+    model = CdcModel("R1", "fbf13", *geometric_cdc(par), FourierStub(par.size, scale=2e-3))
     planner = DualPlanner(cell, model_R1=model, options=FAST)
     assert planner.fks["R1"].kind == "cdc"
     plan, T_rel = _plan(planner, 8)
@@ -83,7 +83,7 @@ def test_cdc_fourier_model_exact(cell):
 
 def test_cdc_frozen_fallback_reaches_the_true_model(cell):
     par = MinimalParameterisation(cell.robot("R2").model())
-    model = CdcModel("R2", "opaque", par, OpaqueStub(par.size, scale=2e-3))
+    model = CdcModel("R2", "opaque", *geometric_cdc(par), OpaqueStub(par.size, scale=2e-3))
     planner = DualPlanner(cell, model_R2=model, options=FAST)
     assert planner.fks["R2"].frozen
     plan, T_rel = _plan(planner, 8)
