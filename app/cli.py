@@ -115,6 +115,19 @@ def cmd_compare(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_demo(args: argparse.Namespace) -> int:
+    from app.demo import DemoConfig, run_demo, summary_table
+
+    result = run_demo(args.out, _cell(args), DemoConfig(full=args.full, seed=args.seed,
+                                                        progress=not args.no_progress))
+    print(summary_table(result.summary))
+    print(f"demo finished in {result.seconds:.1f} s; {result.summary['mocap_frames_received']} mocap frames "
+          f"received over zenoh")
+    print(f"summary: {result.out_dir / 'summary.json'}")
+    print(f"report: {result.report}")
+    return 0
+
+
 def _add_fit_inputs(p: argparse.ArgumentParser) -> None:
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
     p.add_argument("--train", required=True, help="training recording CSV or Welding_Motoman folder")
@@ -153,6 +166,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--methods", default="all", help="all, or a comma-separated list")
     p.add_argument("--json", help="write the comparison as JSON")
     p.add_argument("--report", help="write Markdown tables and PNG plots into this folder")
+    p = add("demo", cmd_demo, "the main job on the simulated cell: collect both arms over zenoh, fit, evaluate, "
+                              "report")
+    p.add_argument("--out", default="demo_out", help="output folder (an earlier demo there is replaced)")
+    p.add_argument("--full", action="store_true", help="the paper's 248-anchor design (5 deg steps; ~4x longer)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the planted errors, the noise and the validation poses")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
     return parser
 
 
