@@ -33,6 +33,11 @@ PARK_DEG: dict[str, tuple[float, ...]] = {"R1": (-90.0, -20.0, -20.0, 0.0, 0.0, 
                                           "R2": (90.0, 0.0, 0.0, 0.0, 0.0, 0.0)}
 
 
+def park_q(robot: str) -> np.ndarray:
+    """Parking pose [rad] of ``robot`` (6,): turned away from the other arm (zeros for an unknown name)."""
+    return np.radians(PARK_DEG.get(robot, (0.0,) * 6))
+
+
 @dataclass(frozen=True)
 class SimCellConfig:
     """How the simulated cell behaves.
@@ -177,7 +182,7 @@ class SimCell:
 
     def park_q(self, robot: str) -> np.ndarray:
         """Parking pose [rad] of ``robot`` (6,)."""
-        return np.radians(PARK_DEG.get(robot, (0.0,) * 6))
+        return park_q(robot)
 
     def open(self) -> "SimCell":
         """Build and connect everything; on failure whatever was opened is closed again."""
@@ -275,8 +280,3 @@ def move_safely(driver: RobotDriver, q: np.ndarray, safety: Any, others: dict[st
     safety.check_motion(driver.name, q_now, q, {n: d.read_joints().q for n, d in others.items()})
     driver.move_to(np.asarray(q, dtype=float), speed_fraction)
     driver.wait_settled(timeout_s)
-
-
-def deg(values: np.ndarray) -> list[float]:
-    """Angles [rad] as rounded degrees, for messages."""
-    return [round(math.degrees(float(v)), 3) for v in np.asarray(values).ravel()]

@@ -111,11 +111,11 @@ class Recordings:
     test: Any
 
 
-def collect_arm(sim: SimCell, safety: CellSafety, robot: str, plan: Plan, session_dir: Path,
+def collect_arm(sim: SimCell, safety: CellSafety, robot: str, plan: Plan | None, session_dir: Path,
                 config: CollectConfig, *, resume: bool = False, progress: bool = True) -> SessionResult:
     """Collect one arm's session while the other arms stay parked, then park the arm again.
 
-    The other arms' live poses (their drivers) feed every safety check.
+    The other arms' live poses (their drivers) feed every safety check. ``plan`` may be None on resume.
     """
     driver = sim.drivers[robot]
     others = sim.others(robot)
