@@ -3,7 +3,7 @@
 from drivers.sim.clock import SimClock
 from drivers.sim.mocap import SimMocapConfig, SimMocapSource
 from drivers.sim.robot import SimFault, SimRobotConfig, SimRobotDriver
-from drivers.sim.truth import PoeTruth, Truth, planted_truth
+from drivers.sim.truth import PoeTruth, Truth, TwinTruth, physics_truth, planted_truth, sim_context_to_twin
 
 __all__ = [
     "PoeTruth",
@@ -14,5 +14,8 @@ __all__ = [
     "SimRobotConfig",
     "SimRobotDriver",
     "Truth",
+    "TwinTruth",
+    "physics_truth",
     "planted_truth",
+    "sim_context_to_twin",
 ]

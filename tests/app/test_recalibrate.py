@@ -1,0 +1,131 @@
+"""Recalibration decisions, and the bad-input paths of plan/collect/export/recalibrate/demo."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from app.cli import main
+from app.recalibrate import decide_and_install
+from calibration.errors import DataError
+from calibration.models import ConstantModel, load_model, save_model
+from calibration.parameterisation import MinimalParameterisation
+from tests.conftest import measure, planted_parameters
+
+
+@pytest.fixture(scope="module")
+def arm(r1_nominal):
+    """(truth model, validation recording, a good and a poor model of it)."""
+    par = MinimalParameterisation(r1_nominal, fit_tool=True)
+    x = planted_parameters(par)
+    truth = par.model(x)
+    q = np.random.default_rng(4).uniform(-0.6, 0.6, (40, 6))
+    validation = measure(truth.fk, q, 0.01, 0.001, 5)
+    good = ConstantModel("R1", "nls1", par.model(0.98 * x), 27, {})
+    poor = ConstantModel("R1", "nominal", r1_nominal, 0, {})
+    return truth, validation, good, poor
+
+
+def test_first_model_is_installed(tmp_path, arm):
+    _, validation, good, _ = arm
+    d = decide_and_install(tmp_path, good, validation)
+    assert d.replaced and d.current is None and d.archived is None
+    assert load_model(tmp_path / "current.yaml").method == "nls1"
+    assert d.to_json()["decision"] == "installed"
+
+
+def test_better_model_replaces_and_the_old_one_is_archived(tmp_path, arm):
+    _, validation, good, poor = arm
+    save_model(poor, tmp_path / "current.yaml")
+    d = decide_and_install(tmp_path, good, validation)
+    assert d.replaced and d.candidate_rms_mm < d.current_rms_mm
+    assert load_model(tmp_path / "current.yaml").method == "nls1"
+    archived = list((tmp_path / "previous").iterdir())
+    assert archived == [d.archived] and load_model(archived[0]).method == "nominal"
+    j = d.to_json()
+    assert j["decision"] == "replaced" and j["current"]["position_rms_mm"] > j["candidate"]["position_rms_mm"]
+
+
+def test_worse_model_is_kept_out(tmp_path, arm):
+    _, validation, good, poor = arm
+    save_model(good, tmp_path / "current.yaml")
+    before = (tmp_path / "current.yaml").read_bytes()
+    d = decide_and_install(tmp_path, poor, validation)
+    assert not d.replaced and d.candidate_rms_mm > d.current_rms_mm
+    assert (tmp_path / "current.yaml").read_bytes() == before
+    assert not (tmp_path / "previous").exists()
+    assert d.rejected is not None and load_model(d.rejected).method == "nominal"
+    assert d.to_json()["decision"] == "kept"
+
+
+def test_model_in_service_for_another_robot_is_refused(tmp_path, arm):
+    _, validation, good, _ = arm
+    _, _, _, poor = arm
+    save_model(ConstantModel("R2", "nominal", poor.model, 0, {}), tmp_path / "current.yaml")
+    with pytest.raises(DataError, match="for R2, not R1"):
+        decide_and_install(tmp_path, good, validation)
+
+
+def test_recalibrate_cli_on_the_simulated_cell(tmp_path, capsys):
+    plan = tmp_path / "plan.json"
+    assert main(["plan", "--robot", "R1", "--out", str(plan), "--q2-step", "35", "--q3-step", "30"]) == 0
+    models = tmp_path / "models"
+    args = ["recalibrate", "--robot", "R1", "--plan", str(plan), "--model-dir", str(models), "--method", "nls1",
+            "--validation", "6", "--validation-seed", "2", "--sim", "--no-progress"]
+    assert main(args + ["--json", str(tmp_path / "d1.json")]) == 0
+    d1 = json.loads((tmp_path / "d1.json").read_text())
+    assert d1["decision"] == "installed" and d1["validation_samples"] == 6
+    assert "installed candidate nls1" in capsys.readouterr().out
+    assert load_model(models / "current.yaml").method == "nls1"
+
+
+def _bad(capsys, argv, *fragments):
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    for f in fragments:
+        assert f in err[0], err[0]
+
+
+def test_bad_inputs_exit_2_and_write_nothing(tmp_path, capsys):
+    bad_plan = tmp_path / "bad_plan.json"
+    bad_plan.write_text('{"schema": "cellcal.plan/1", "targets": [{"robot": "R1", "q_rad": [0, 0], '
+                        '"cluster": 0, "kind": "anchor"}]}')
+    not_json = tmp_path / "not_json.json"
+    not_json.write_text("{nope")
+    r2_plan = tmp_path / "r2.json"
+    assert main(["plan", "--robot", "R2", "--out", str(r2_plan), "--q2-step", "50", "--q3-step", "50"]) == 0
+    capsys.readouterr()
+    before = sorted(p.name for p in tmp_path.iterdir())
+    session, out, models = tmp_path / "s", tmp_path / "rec.csv", tmp_path / "models"
+
+    _bad(capsys, ["collect", "--robot", "R1", "--plan", str(bad_plan), "--session", str(session)],
+         "no real robot controller or mocap is configured", "--sim")
+    _bad(capsys, ["collect", "--robot", "R1", "--plan", str(bad_plan), "--session", str(session), "--sim"],
+         "targets[0].q_rad", "expected 6 finite numbers")
+    _bad(capsys, ["collect", "--robot", "R1", "--plan", str(not_json), "--session", str(session), "--sim"],
+         "not valid JSON")
+    _bad(capsys, ["collect", "--robot", "R1", "--plan", str(r2_plan), "--session", str(session), "--sim"],
+         "the plan moves R2, expected R1 only")
+    _bad(capsys, ["collect", "--robot", "R1", "--plan", str(tmp_path / "missing.json"), "--session", str(session),
+                  "--sim"], "file not found")
+    _bad(capsys, ["collect", "--robot", "R1", "--session", str(session), "--resume", "--sim"], "no session here")
+    _bad(capsys, ["collect", "--robot", "R1", "--session", str(session), "--sim"], "needs --plan")
+    _bad(capsys, ["export", "--session", str(session), "--out", str(out)], "no session here")
+    _bad(capsys, ["export", "--session", str(session), "--out", str(out), "--kinds", "anchor,bogus"],
+         "unknown target kind 'bogus'")
+    _bad(capsys, ["recalibrate", "--robot", "R1", "--session", str(session), "--model-dir", str(models), "--sim"],
+         "no session here")
+    _bad(capsys, ["recalibrate", "--robot", "R1", "--plan", str(bad_plan), "--model-dir", str(models), "--sim"],
+         "expected 6 finite numbers")
+    _bad(capsys, ["recalibrate", "--robot", "R1", "--plan", str(r2_plan), "--model-dir", str(models)],
+         "the plan moves R2")
+    _bad(capsys, ["recalibrate", "--robot", "R9", "--plan", str(r2_plan), "--model-dir", str(models), "--sim"],
+         "unknown robot 'R9'")
+    _bad(capsys, ["recalibrate", "--robot", "R1", "--plan", str(bad_plan), "--model-dir", str(bad_plan), "--sim"],
+         "model folder is a file")
+    _bad(capsys, ["plan", "--robot", "R1", "--out", str(tmp_path / "p.json"), "--q2-step", "-5"], "positive steps")
+    _bad(capsys, ["demo", "--out", str(bad_plan)], "must be a folder")
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
