@@ -159,6 +159,14 @@ class Fitter:
             raise ModelError("cpa needs single-joint sweep data (a recording with one cluster id per sweep); "
                              "none was given")
         x, circles = identify_cpa(self.par, split_sweeps(self.cpa_data))
+        if self.par.fit_tool:
+            # Circles give axes and points on them, not where along the last axes the tool sits: the flange
+            # shift is fitted on the sweep positions with the axes held.
+            g = 4 * self.par.n_joints
+            basis = np.zeros((self.par.size, 3))
+            basis[g:] = np.eye(3)
+            d = self.cpa_data
+            x = GeometricProblem(self.par, d.q, d.R, d.p, a=0.0, basis=basis, x_ref=x).solve().x[0]
         return self._constant("cpa", x, self.par.size, circle_rms_mm=[c.rms_mm for c in circles])
 
     def _fit_nls0(self) -> ConstantModel:

@@ -58,3 +58,18 @@ def test_cpa_rejects_data_that_is_not_sweeps(r1_nominal):
         split_sweeps(rec)
     with pytest.raises(ModelError, match="cluster column"):
         split_sweeps(Recording(q, p, so3.R_to_quat(R), {}, "x.csv"))
+
+
+def test_cpa_method_is_exact_on_noiseless_sweeps(r1_nominal):
+    """Through the Fitter (with the flange shift fitted on the sweeps), CPA recovers the arm exactly."""
+    from calibration.methods import Fitter
+    from tests.conftest import cluster_design
+
+    par = MinimalParameterisation(r1_nominal, fit_tool=True)
+    truth = par.model(planted_parameters(par, seed=501))
+    q, cluster = sweeps_design()
+    sweeps = measure(truth.fk, q, 0.0, 0.0, 1, cluster)
+    q_train, c_train = cluster_design(step_deg=45.0)
+    model, _ = Fitter("R1", r1_nominal, measure(truth.fk, q_train, 0.0, 0.0, 1, c_train), cpa_data=sweeps).fit("cpa")
+    q_test = np.random.default_rng(0).uniform(-0.7, 0.7, (200, 6))
+    assert pose_error(*truth.fk(q_test), *model.fk(q_test))[0].max() < 1e-8
