@@ -33,6 +33,7 @@ from calibration.observability import DEFAULT_RELATIVE_TOLERANCE, analyse
 from calibration.parameterisation import MinimalParameterisation
 from calibration.physics.base import Context, Effect, apply_effects
 from calibration.physics.gravity import GravityModel
+from calibration.physics.joint_effects import JointOffset
 from calibration.physics.model import PhysicsModel
 from calibration.physics.thermal import ThermalDrift
 from calibration.poe import PoeModel, pose_error
@@ -194,10 +195,16 @@ def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording 
     cands, untested = library(geo, fit.q, ctx, gravity, tuple(k for k in opts.kinds if k not in present))
     q_ref, ctx_ref = _reference(None if source == "split" else heldout, fit.q, ctx, joint_limits, opts)
     Q = np.linalg.qr(A)[0]
+
+    def sig_offset(j: int) -> np.ndarray:
+        return signature(JointOffset((j,), np.zeros(1)), geo, fit.q, ctx, w_rot)
     pool, hidden, bases = [], [], {}
     for c in cands:
         S = signature(c.effect, geo, fit.q, ctx, w_rot)
-        vis, exc, B = visibility(S, Q, signature(c.effect, geo, q_ref, ctx_ref, w_rot), len(fit), q_ref.shape[0],
+        Qc = Q
+        if c.kind == "gear_transmission":  # its constant part is a joint offset, not a transmission error
+            Qc = np.linalg.qr(np.concatenate([A, sig_offset(c.joints[0])], axis=1))[0]
+        vis, exc, B = visibility(S, Qc, signature(c.effect, geo, q_ref, ctx_ref, w_rot), len(fit), q_ref.shape[0],
                                  opts.selection.visible_min)
         if vis < opts.selection.visible_min:
             hidden.append(explain.not_identifiable(c, vis, exc, fit.q, q_ref))
@@ -243,44 +250,62 @@ def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording 
 
     steps, step_S = forward_select(problem, pool, refine, rebuild)
 
-    # 5. Joint refit, effects in the order they were first selected.
+    # 5. Joint refit, effects in the order they were first selected; each confirmed on the held-out data.
     kinds_in_order = list(dict.fromkeys(s.candidate.kind for s in steps))
     merged = [_merge(k, [s.candidate for s in steps if s.candidate.kind == k], bases) for k in kinds_in_order]
-    found = tuple(e for e, _ in merged)
-    fits: list[JointFit] = []
-    for i in range(len(found) + 1):
-        B = block_diag(np.eye(sum(e.size for e in base_effects)), *[b for _, b in merged[:i]])
-        B = B if B.size else None
-        fits.append(JointProblem(par, fit.q, fit.R, fit.p, ctx, x_base, basis, base_effects + found[:i], w_rot,
-                                 B).solve())
-    final_fit = fits[-1]
+    n_base = sum(e.size for e in base_effects)
 
-    # 6. Evidence, noise floor, verdict.
-    accs = [_accuracy("+".join([base_name] + kinds_in_order[:i]), par.model(f.x), f.effects, heldout, ctx_ho)
-            for i, f in enumerate(fits)]
-    effects_out = []
-    for i, kind in enumerate(kinds_in_order):
-        mine = [j for j, s in enumerate(steps) if s.candidate.kind == kind]
-        others = [j for j in range(len(steps)) if j not in mine]
+    def joint_fit(chosen: list[tuple[Effect, np.ndarray]]) -> JointFit:
+        B = block_diag(np.eye(n_base), *[b for _, b in chosen])
+        return JointProblem(par, fit.q, fit.R, fit.p, ctx, x_base, basis, base_effects + tuple(e for e, _ in chosen),
+                            w_rot, B if B.size else None).solve()
+
+    kept: list[tuple[Effect, np.ndarray]] = []
+    kept_kinds: list[str] = []
+    final_fit = joint_fit([])
+    cur_acc, cur_dp = baseline, before_dp
+    effects_out, rejected = [], []
+    for kind, (e0, B) in zip(kinds_in_order, merged):
+        trial = joint_fit(kept + [(e0, B)])
+        acc, dp = _accuracy("+".join([base_name] + kept_kinds + [kind]), par.model(trial.x), trial.effects,
+                            heldout, ctx_ho)
+        mine = [j for j, st in enumerate(steps) if st.candidate.kind == kind]
+        others = [j for j, st in enumerate(steps) if st.candidate.kind in kept_kinds]
         ev = problem.compare([step_S[j] for j in others], sum(steps[j].candidate.extra_dof for j in others),
                              [step_S[j] for j in mine], sum(steps[j].candidate.extra_dof for j in mine))
-        e = final_fit.effects[len(base_effects) + i]
-        std = final_fit.effect_std[len(base_effects) + i]
-        evidence = Evidence(ev["delta_bic"], ev["f_pvalue"], steps[mine[0]].cv_z, accs[i][0], accs[i + 1][0])
-        effects_out.append(explain.found(e, std, evidence))
+        z_ho = _paired_z(cur_dp**2 - dp**2)
+        evidence = Evidence(ev["delta_bic"], ev["f_pvalue"], steps[mine[0]].cv_z, cur_acc, acc, z_ho)
+        item = explain.found(trial.effects[-1], trial.effect_std[-1], evidence)
+        fit_ok = ev["delta_bic"] < opts.selection.bic_threshold and ev["f_pvalue"] < opts.selection.f_alpha
+        if fit_ok and z_ho > opts.selection.z_min and acc.rms_mm < cur_acc.rms_mm:
+            kept.append((e0, B))
+            kept_kinds.append(kind)
+            effects_out.append(item)
+            final_fit, cur_acc, cur_dp = trial, acc, dp
+        else:
+            rejected.append(item)
+    # Parameters and uncertainties of the kept effects from the final joint fit.
+    effects_out = [explain.found(final_fit.effects[len(base_effects) + i], final_fit.effect_std[len(base_effects) + i],
+                                 item.evidence) for i, item in enumerate(effects_out)]
+
+    # 6. Noise floor, verdict.
     R, p = apply_effects(par.model(final_fit.x), final_fit.effects, fit.q, ctx)
     r_final, _ = weighted_residuals(fit.R, fit.p, R, p, w_rot)
     noise = noise_floor(r_final, groups, final_fit.n_parameters)
-    final_acc, after_dp = accs[-1]
-    final_acc = Accuracy(final_acc.model, final_acc.rms_mm, final_acc.max_mm, final_acc.rms_deg, final_acc.max_deg)
     notes = tuple(n for n in [obs.summary()] if n)
     physics = PhysicsModel(robot, "diagnose", par.model(final_fit.x), final_fit.effects, basis.shape[1],
-                           {"baseline": base_name, "fit_samples": len(fit),
-                            "effects_found": [e.kind for e in found]})
-    verdict = explain.verdict(effects_out, baseline, final_acc, noise.floor_mm, hidden, untested)
-    return Diagnosis(robot, len(fit), len(heldout), source, noise, baseline, final_acc, tuple(mismatch),
+                           {"baseline": base_name, "fit_samples": len(fit), "effects_found": kept_kinds})
+    verdict = explain.verdict(effects_out, baseline, cur_acc, noise.floor_mm, hidden, untested, rejected)
+    return Diagnosis(robot, len(fit), len(heldout), source, noise, baseline, cur_acc, tuple(mismatch),
                      tuple(effects_out), tuple(hidden), tuple(untested), verdict, physics, notes,
-                     PlotData(np.linalg.norm(r0[:, :3], axis=1), tuple(drv), before_dp, after_dp))
+                     PlotData(np.linalg.norm(r0[:, :3], axis=1), tuple(drv), before_dp, cur_dp), tuple(rejected))
+
+
+def _paired_z(d: np.ndarray) -> float:
+    """z-score of the mean of paired differences (positive: the second model is better)."""
+    if d.size < 2 or d.std(ddof=1) == 0:
+        return 0.0
+    return float(d.mean() / (d.std(ddof=1) / np.sqrt(d.size)))
 
 
 def _tune_warmup(pool: list[tuple[Candidate, np.ndarray]], rss: Callable[[Effect], float],

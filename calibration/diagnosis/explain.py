@@ -101,7 +101,7 @@ def _on(e: FoundEffect) -> str:
 
 
 def verdict(effects: list[FoundEffect], baseline: Accuracy, final: Accuracy, floor_mm: float,
-            hidden: list[Untested], untested: list[Untested]) -> str:
+            hidden: list[Untested], untested: list[Untested], rejected: list[FoundEffect] | None = None) -> str:
     """One paragraph: what was left out, the gain, and what the data could not show."""
     if effects:
         names = _and([f"{PHYSICS[e.kind]} on {_on(e)}" for e in effects])
@@ -115,11 +115,18 @@ def verdict(effects: list[FoundEffect], baseline: Accuracy, final: Accuracy, flo
     if final.rms_mm > 1.5 * floor_mm:
         text += (f" The held-out error stays {final.rms_mm / floor_mm:.1f}x the noise floor: something the candidate "
                  "library does not describe, or that this data cannot identify, remains.")
-    joints = sorted({j for u in hidden for j in u.joints})
-    if joints:
-        text += (f" Not identifiable from this data: effects on joint{'s' if len(joints) > 1 else ''} "
-                 f"{_and([str(j) for j in joints])} ({len(hidden)} candidates the geometric fit absorbs or the data "
-                 "barely excite).")
+    if rejected:
+        names = _and([f"{PHYSICS[e.kind]} on {_on(e)}" for e in rejected])
+        text += (f" Rejected: {names} fitted the fit data but did not improve the held-out data beyond noise "
+                 "(not confirmed: it does not extrapolate beyond the poses it was fitted on, or is too weak).")
+    by_kind: dict[str, list[str]] = {}
+    for u in hidden:
+        if u.kind != "joint_offset":  # an absorbed offset is simply part of the fitted geometry
+            by_kind.setdefault(u.kind, []).extend(str(j) for j in u.joints)
+    if by_kind:
+        parts = [f"{PHYSICS[k]} on joint{'s' if len(js) > 1 else ''} {_and(js)}" for k, js in by_kind.items()]
+        text += (f" Not identifiable from this data (the fit data barely move those joints, or the geometric fit "
+                 f"absorbs the effect): {_and(parts)}.")
     kinds = sorted({u.kind for u in untested})
     if kinds:
         text += f" Untested for lack of data columns: {', '.join(kinds)}."

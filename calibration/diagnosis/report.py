@@ -1,8 +1,9 @@
 """The results of a diagnosis as frozen dataclasses, and their ``cellcal.diagnose/1`` JSON form.
 
-The JSON keys follow ``shared/spec/diagnose-report.md``; two keys are added for what the data could not
-show: ``not_identifiable`` (candidates the geometric fit absorbs or the data barely excite) and
-``untested`` (candidates whose driving column is missing from the data).
+The JSON keys follow ``shared/spec/diagnose-report.md``; keys are added for what the data could not
+show: ``not_identifiable`` (candidates the geometric fit absorbs or the data barely excite),
+``untested`` (candidates whose driving column is missing from the data) and ``rejected_on_heldout``
+(selected on the fit data, not confirmed on the held-out data), plus ``noise_estimates_mm`` and ``notes``.
 """
 
 from __future__ import annotations
@@ -55,7 +56,8 @@ class Evidence:
         delta_bic: BIC of the final model minus that of the final model without this effect (fit data).
         f_pvalue: nested F-test p-value of the same comparison.
         cv_z: z-score of the cross-validated held-out improvement when the effect was selected.
-        before, after: held-out accuracy of the model with the effects selected before it, and with it too.
+        before, after: held-out accuracy of the model with the effects kept before it, and with it too.
+        heldout_z: z-score of the per-sample held-out improvement (the confirmation on held-out data).
     """
 
     delta_bic: float
@@ -63,9 +65,10 @@ class Evidence:
     cv_z: float
     before: Accuracy
     after: Accuracy
+    heldout_z: float = float("nan")
 
     def to_json(self) -> dict[str, Any]:
-        return {"delta_bic": self.delta_bic, "f_pvalue": self.f_pvalue, "cv_z": self.cv_z,
+        return {"delta_bic": self.delta_bic, "f_pvalue": self.f_pvalue, "cv_z": self.cv_z, "heldout_z": self.heldout_z,
                 "heldout_rms_mm_before": self.before.rms_mm, "heldout_rms_mm_after": self.after.rms_mm,
                 "heldout_max_mm_before": self.before.max_mm, "heldout_max_mm_after": self.after.max_mm}
 
@@ -135,6 +138,8 @@ class Diagnosis:
         model: the fitted physics model (geometry + effects).
         notes: further plain-language remarks (observability of the geometry).
         plots: arrays for plots.
+        rejected: effects the fit data selected but the held-out data did not confirm (they would not
+            extrapolate), with their figures; they are not in ``model``.
     """
 
     robot: str
@@ -152,6 +157,7 @@ class Diagnosis:
     model: PhysicsModel
     notes: tuple[str, ...] = ()
     plots: PlotData | None = field(default=None, repr=False)
+    rejected: tuple[FoundEffect, ...] = ()
 
     def to_json(self) -> dict[str, Any]:
         """The ``cellcal.diagnose/1`` report as plain Python (finite floats; NaN becomes None)."""
@@ -168,6 +174,7 @@ class Diagnosis:
             "mismatch": [{"regressor": m.regressor, "correlation": m.correlation, "where": m.where}
                          for m in self.mismatch],
             "effects": [e.to_json() for e in self.effects],
+            "rejected_on_heldout": [e.to_json() for e in self.rejected],
             "not_identifiable": [skipped(u) for u in self.not_identifiable],
             "untested": [skipped(u) for u in self.untested],
             "final": self.final.to_json(),
