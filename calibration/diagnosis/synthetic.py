@@ -9,12 +9,18 @@ cluster, random approach directions ``dir1..6`` and joint speeds ``qd1..qd6`` (p
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from calibration import so3
 from calibration.physics.twin import Twin
 from calibration.recording import Recording
+
+if TYPE_CHECKING:
+    from calibration.physics.base import Effect
+    from calibration.physics.gravity import GravityModel
+    from calibration.poe import PoeModel
 
 
 @dataclass(frozen=True)
@@ -106,3 +112,29 @@ def heldout_design(design: Design, n: int, seed: int) -> tuple[np.ndarray, dict[
     cols["t"] = np.sort(rng.uniform(0, span, n))
     cols["temp_c"] = 20.0 + 10.0 * (1 - np.exp(-cols["t"] / 1500.0)) + rng.normal(0, 0.1, n)
     return q, cols
+
+
+def proof_templates(gravity: "GravityModel", seed: int) -> dict[str, "Effect"]:
+    """Where the proof plants each kind: compliances on joints 2 and 3, the gear error on a joint that
+    changes with the seed, backlash on joints 1-3, growth of links p23 and p34 (warm-up, 1800 s)."""
+    from calibration.physics import Backlash, GearTransmission, JointCompliance, PayloadCompliance, ThermalDrift
+
+    j = (1, 2, 3, 4, 5, 6)[seed % 6]
+    return {"joint_compliance": JointCompliance(gravity, (2, 3), np.zeros(2)),
+            "payload_compliance": PayloadCompliance((2, 3), np.zeros(2)),
+            "gear_transmission": GearTransmission(((j, (1, 2)),), np.zeros(4)),
+            "backlash": Backlash((1, 2, 3), np.zeros(3)),
+            "thermal_drift": ThermalDrift(("p23", "p34"), np.zeros(2), "warmup", 1800.0)}
+
+
+def make_case(nominal: "PoeModel", gravity: "GravityModel", magnitudes_mm: dict[str, float], seed: int,
+              design: Design = Design(), n_heldout: int = 300) -> tuple[Twin, Recording, Recording]:
+    """A twin with the given effects concealed (magnitudes = RMS tool displacement on the design), planted
+    geometric errors (0.5 mm, 0.5 mrad), and its fit and held-out recordings."""
+    q, _, cols = design_and_context(design, seed)
+    twin = Twin.random(nominal, magnitudes_mm, seed, gravity=gravity, offset_sigma_mm=0.5, tilt_sigma_rad=5e-4,
+                       templates=proof_templates(gravity, seed), q_ref=q, context=context_of(cols))
+    rng = np.random.default_rng(seed + 100_000)
+    fit = measure(twin, q, cols, design, rng, "synthetic fit")
+    qh, colsh = heldout_design(design, n_heldout, seed + 1)
+    return twin, fit, measure(twin, qh, colsh, design, rng, "synthetic held-out")
