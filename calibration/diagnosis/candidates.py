@@ -1,0 +1,169 @@
+"""The library of candidate effects and their signatures on the data.
+
+A candidate is one effect kind acting on one joint (or one link), with zero parameters: its *signature*
+is the first-order change of the weighted residual per parameter, ``S = d[p (mm); w * theta] / d values``,
+stacked over samples to shape (6N, m) (rows ordered sample-major). What the geometric parameters can
+already absorb is projected out: an effect whose signature, after that projection, is a small fraction of
+what it would be over the reference workspace (the held-out poses, or the robot's joint range) cannot be
+identified from the data, and is reported as such rather than searched for.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from calibration.physics.base import Context, Effect
+from calibration.physics.compliance import JointCompliance, PayloadCompliance
+from calibration.physics.gravity import GravityModel
+from calibration.physics.joint_effects import Backlash, GearTransmission, JointOffset, MocapLatency
+from calibration.physics.thermal import ThermalDrift, link_names
+from calibration.poe import PoeModel
+
+#: Warm-up time constants [s] scanned for thermal drift driven by ``t`` (refined afterwards).
+TAU_GRID_S = (300.0, 900.0, 2700.0, 8100.0)
+#: Order in which kinds are listed (and tie-broken).
+KINDS = ("joint_compliance", "payload_compliance", "gear_transmission", "backlash", "thermal_drift",
+         "mocap_latency", "joint_offset")
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One effect kind on one joint or link, as a template with zero parameters.
+
+    Attributes:
+        kind: effect kind (``joint_compliance``, ...).
+        label: what it acts on, in words (``joint 2``, ``link p23``).
+        joints: 1-based joints it acts on (empty for links and latency).
+        effect: the template effect (settings fixed, values zero).
+        extra_dof: settings chosen from the data (a warm-up time constant), counted in the BIC.
+    """
+
+    kind: str
+    label: str
+    joints: tuple[int, ...]
+    effect: Effect
+    extra_dof: int = 0
+
+    def key(self) -> tuple:
+        """Identity of the candidate including its settings (for de-duplication)."""
+        return (self.kind, self.label, getattr(self.effect, "mode", ""), getattr(self.effect, "tau_s", 0.0))
+
+
+@dataclass(frozen=True)
+class Untested:
+    """A candidate that could not be tested, and why.
+
+    Attributes:
+        kind: effect kind.
+        label: what it would act on.
+        joints: 1-based joints.
+        reason: plain-language reason (missing context column, not identifiable from this data, ...).
+    """
+
+    kind: str
+    label: str
+    joints: tuple[int, ...]
+    reason: str
+
+
+def signature(effect: Effect, model: PoeModel, q: np.ndarray, context: Context | None, w_rot: float) -> np.ndarray:
+    """Weighted first-order residual signature of an effect, shape (6N, m)."""
+    J = effect.pose_jacobian(model, q, context).copy()
+    J[:, 3:] *= w_rot
+    return J.reshape(-1, J.shape[-1])
+
+
+def _varies(context: Context, key: str) -> bool:
+    return key in context and np.ptp(np.asarray(context[key], dtype=float)) > 0
+
+
+def library(model: PoeModel, q: np.ndarray, context: Context, gravity: GravityModel | None = None,
+            kinds: tuple[str, ...] = KINDS) -> tuple[list[Candidate], list[Untested]]:
+    """Every candidate the data can test, and the ones it cannot with the reason.
+
+    Args:
+        model: the geometry in use.
+        q: joint angles of the fit data [rad], shape (N, 6).
+        context: their context (columns ``t``, ``temp_c``, ``payload_kg``, ``dir1..6``, ``qd``).
+        gravity: link masses (needed by ``joint_compliance``).
+        kinds: the kinds to consider.
+    """
+    n = model.n_joints
+    cands: list[Candidate] = []
+    skipped: list[Untested] = []
+    if "joint_compliance" in kinds:
+        if gravity is None:
+            skipped.append(Untested("joint_compliance", "joints 2-6", (), "no link masses to compute gravity torque"))
+        else:
+            tau = gravity.torque(model, q)
+            for j in range(2, n + 1):
+                if np.ptp(tau[:, j - 1]) > 1e-6:
+                    cands.append(Candidate("joint_compliance", f"joint {j}", (j,), JointCompliance(gravity, (j,), np.zeros(1))))
+    if "payload_compliance" in kinds:
+        if "payload_kg" not in context or not np.any(np.asarray(context["payload_kg"]) != 0):
+            skipped.append(Untested("payload_compliance", "joints 2-6", (), "no payload_kg column (or no payload carried)"))
+        else:
+            cands += [Candidate("payload_compliance", f"joint {j}", (j,), PayloadCompliance((j,), np.zeros(1)))
+                      for j in range(2, n + 1)]
+    if "gear_transmission" in kinds:
+        cands += [Candidate("gear_transmission", f"joint {j}", (j,), GearTransmission(((j, (1, 2)),), np.zeros(4)))
+                  for j in range(1, n + 1)]
+    if "backlash" in kinds:
+        for j in range(1, n + 1):
+            d = np.asarray(context.get(f"dir{j}", np.zeros(1)), dtype=float)
+            if np.any(d > 0) and np.any(d < 0):
+                cands.append(Candidate("backlash", f"joint {j}", (j,), Backlash((j,), np.zeros(1))))
+            else:
+                skipped.append(Untested("backlash", f"joint {j}", (j,),
+                                        f"no dir{j} column with both approach directions"))
+    if "thermal_drift" in kinds:
+        links = [l for c, l in enumerate(link_names(n)) if np.linalg.norm(model.P[:, c]) > 1e-9]
+        if _varies(context, "t"):
+            cands += [Candidate("thermal_drift", f"link {l}", (), ThermalDrift((l,), np.zeros(1), "warmup", tau), 1)
+                      for l in links for tau in TAU_GRID_S]
+        if _varies(context, "temp_c"):
+            ref = float(np.min(context["temp_c"]))
+            cands += [Candidate("thermal_drift", f"link {l}", (),
+                                ThermalDrift((l,), np.zeros(1), "temperature", ref_temp_c=ref)) for l in links]
+        if not (_varies(context, "t") or _varies(context, "temp_c")):
+            skipped.append(Untested("thermal_drift", "links", (), "no t or temp_c column that varies"))
+    if "mocap_latency" in kinds:
+        if "qd" in context and np.any(np.asarray(context["qd"]) != 0):
+            cands.append(Candidate("mocap_latency", "all joints", (), MocapLatency(values=np.zeros(1))))
+        else:
+            skipped.append(Untested("mocap_latency", "all joints", (), "static samples: no joint speeds qd1..qd6"))
+    if "joint_offset" in kinds:
+        cands += [Candidate("joint_offset", f"joint {j}", (j,), JointOffset((j,), np.zeros(1))) for j in range(1, n + 1)]
+    return cands, skipped
+
+
+def visibility(S_fit: np.ndarray, Q_geo: np.ndarray, S_ref: np.ndarray, n_fit: int, n_ref: int, visible_min: float
+               ) -> tuple[float, float, np.ndarray]:
+    """How much of a candidate the fit data can see once the geometric fit has absorbed what it can.
+
+    Args:
+        S_fit: signature on the fit data (6N, m).
+        Q_geo: orthonormal basis of the geometric columns on the fit data (6N, k).
+        S_ref: signature on the reference workspace (6M, m).
+        n_fit, n_ref: sample counts N and M.
+        visible_min: parameter directions whose visible fraction is below this are absorbed.
+
+    Returns:
+        ``(visible, excited, basis)``: the largest visible fraction (singular value of the projected
+        signature per fit sample, each column relative to its reference RMS); the fit/reference RMS ratio of
+        the raw signature (small when the data barely move what drives the effect); and the (m, k)
+        parameter directions that are visible (the others are left to the geometry and held at zero).
+    """
+    ref_rms = np.sqrt(np.sum(S_ref**2, axis=0) / n_ref)
+    ref_rms = np.where(ref_rms > 0, ref_rms, 1.0)
+    S = S_fit / ref_rms
+    S_perp = S - Q_geo @ (Q_geo.T @ S)
+    _, sv, Vt = np.linalg.svd(S_perp / np.sqrt(n_fit), full_matrices=False)
+    excited = float(np.max(np.sqrt(np.sum(S**2, axis=0) / n_fit)))
+    keep = sv >= visible_min
+    basis = Vt[keep].T / ref_rms[:, None]
+    if keep.all():
+        basis = np.eye(S.shape[1])
+    return float(sv[0]), excited, basis

@@ -1,0 +1,340 @@
+"""Diagnose a kinematic model against recordings: find the physics it left out, model it, show the gain.
+
+1. Fit the model in use (geometric NLS, or refit a given model's geometry along the observable directions).
+2. Locate the mismatch: correlate its residual with every driver (:mod:`.drivers`).
+3. Hypothesise: the candidate library with signatures, what the geometry absorbs projected out
+   (:mod:`.candidates`).
+4. Select with blocked cross-validation, the BIC and nested F-tests (:mod:`.selection`).
+5. Refit geometry and the selected effects together (:mod:`.refit`) into a :class:`PhysicsModel`.
+6. Report held-out accuracy before and after, per effect, with a plain-language verdict (:mod:`.explain`).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+from scipy.linalg import block_diag
+from scipy.optimize import minimize_scalar
+
+from calibration.diagnosis import explain
+from calibration.diagnosis.candidates import KINDS, Candidate, Untested, library, signature, visibility
+from calibration.diagnosis.drivers import context_from_recording, drivers, locate_mismatch
+from calibration.diagnosis.noise import noise_floor
+from calibration.diagnosis.refit import JointFit, JointProblem
+from calibration.diagnosis.report import Accuracy, Diagnosis, Evidence, FoundEffect, PlotData
+from calibration.diagnosis.selection import LinearSelection, SelectionOptions, blocked_folds, forward_select
+from calibration.errors import DataError, ModelError
+from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, rotation_residual_scale, weighted_residuals
+from calibration.models import ConstantModel, KinematicModel
+from calibration.observability import DEFAULT_RELATIVE_TOLERANCE, analyse
+from calibration.parameterisation import MinimalParameterisation
+from calibration.physics.base import Context, Effect, apply_effects
+from calibration.physics.gravity import GravityModel
+from calibration.physics.joint_effects import JointOffset
+from calibration.physics.model import PhysicsModel
+from calibration.physics.thermal import ThermalDrift
+from calibration.poe import PoeModel, pose_error
+from calibration.recording import Recording
+
+log = logging.getLogger("cellcal.calibration")
+
+
+@dataclass(frozen=True)
+class DiagnoseOptions:
+    """Settings of a diagnosis.
+
+    Attributes:
+        a: orientation weight (1641: 1 mm ~ 1 deg).
+        tolerance: relative singular value below which a geometric direction is held at its reference.
+        selection: selection thresholds.
+        kinds: effect kinds to consider.
+        heldout_fraction: share of clusters set aside when no held-out recording is given.
+        cluster_size: samples per cluster when the data has no cluster column.
+        n_reference: random poses of the reference workspace when no held-out recording is given.
+        seed: seed of the reference workspace and of the context resampling.
+    """
+
+    a: float = DEFAULT_ORIENTATION_WEIGHT
+    tolerance: float = DEFAULT_RELATIVE_TOLERANCE
+    selection: SelectionOptions = field(default_factory=SelectionOptions)
+    kinds: tuple[str, ...] = KINDS
+    heldout_fraction: float = 0.2
+    cluster_size: int = 7
+    n_reference: int = 1000
+    seed: int = 0
+
+
+def _groups(rec: Recording, size: int) -> np.ndarray:
+    try:
+        return rec.clusters(size)
+    except DataError:
+        return np.arange(len(rec)) // size
+
+
+def _accuracy(name: str, model: PoeModel, effects: tuple[Effect, ...], rec: Recording, ctx: Context
+              ) -> tuple[Accuracy, np.ndarray]:
+    R, p = apply_effects(model, effects, rec.q, ctx)
+    dp, dR = pose_error(rec.R, rec.p, R, p)
+    return Accuracy.of(name, dp, dR), dp
+
+
+def _reference(heldout: Recording | None, fit_q: np.ndarray, ctx: Context, limits: tuple[np.ndarray, np.ndarray] | None,
+               options: DiagnoseOptions) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Reference workspace: the held-out poses, else uniform in the joint limits; context resampled from the fit."""
+    rng = np.random.default_rng(options.seed)
+    if heldout is not None:
+        q = heldout.q
+    elif limits is not None:
+        q = rng.uniform(limits[0], limits[1], (options.n_reference, fit_q.shape[1]))
+    else:
+        q = fit_q
+    idx = rng.integers(0, fit_q.shape[0], q.shape[0])
+    return q, {k: np.asarray(v)[idx] for k, v in ctx.items()}
+
+
+def _geometric_columns(par: MinimalParameterisation, q: np.ndarray, x: np.ndarray, basis: np.ndarray,
+                       w_rot: float) -> np.ndarray:
+    _, _, J = par.jacobian(q, x)
+    J = J @ basis
+    J[:, 3:] *= w_rot
+    return J.reshape(-1, J.shape[-1])
+
+
+def _merge(kind: str, cands: list[Candidate], bases: dict[tuple, np.ndarray]) -> tuple[Effect, np.ndarray]:
+    """One effect of ``kind`` acting on every joint/link of the chosen candidates, and its parameter basis."""
+    cands = sorted(cands, key=lambda c: (c.joints, c.label))
+    B = block_diag(*[bases.get(c.key(), np.eye(c.effect.size)) for c in cands])
+    return _merged_effect(kind, cands), B
+
+
+def _merged_effect(kind: str, cands: list[Candidate]) -> Effect:
+    first = cands[0].effect
+    if kind == "thermal_drift":
+        links = tuple(c.effect.links[0] for c in cands)  # type: ignore[attr-defined]
+        return ThermalDrift(links, np.zeros(len(links)), first.mode, first.tau_s, first.ref_temp_c)  # type: ignore[attr-defined]
+    if kind == "mocap_latency":
+        return first
+    joints = tuple(sorted(j for c in cands for j in c.joints))
+    if kind == "gear_transmission":
+        return type(first)(tuple((j, (1, 2)) for j in joints), np.zeros(4 * len(joints)))
+    if kind == "joint_compliance":
+        return type(first)(first.gravity, joints, np.zeros(len(joints)))  # type: ignore[attr-defined]
+    return type(first)(joints=joints, values=np.zeros(len(joints)))  # type: ignore[call-arg]
+
+
+def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording | None = None,
+             model: KinematicModel | None = None, gravity: GravityModel | None = None,
+             joint_limits: tuple[np.ndarray, np.ndarray] | None = None,
+             options: DiagnoseOptions | None = None) -> Diagnosis:
+    """Find, model and quantify the physics a kinematic model leaves out.
+
+    Args:
+        robot: robot name (``R1``).
+        nominal: the nominal arm with its tool.
+        data: the recording to diagnose on (extra columns ``t``, ``temp_c``, ``payload_kg``, ``dir1..6``,
+            ``qd1..qd6``, ``cluster`` are used when present).
+        heldout: a separate recording for the before/after figures; None sets aside a share of the clusters.
+        model: the model in use (constant or physics); None fits the geometric NLS (``nls1``).
+        gravity: link masses for gravity torques (``joint_compliance``); None leaves that kind untested.
+        joint_limits: ``(lower, upper)`` [rad] (6,), the reference workspace when no held-out data is given.
+        options: settings.
+
+    Raises:
+        ModelError: a model kind whose geometry cannot be refitted (configuration-dependent models).
+    """
+    opts = options or DiagnoseOptions()
+    w_rot = rotation_residual_scale(opts.a)
+    groups_all = _groups(data, opts.cluster_size)
+    source = "given"
+    if heldout is None:
+        k = max(2, int(round(1.0 / opts.heldout_fraction)))
+        ho = blocked_folds(groups_all, k) == 0
+        data, heldout, groups_all = data.subset(~ho), data.subset(ho), groups_all[~ho]
+        source = "split"
+    fit, groups = data, groups_all
+    ctx, ctx_ho = context_from_recording(fit), context_from_recording(heldout)
+    par = MinimalParameterisation(nominal, fit_tool=True)
+
+    # 1. The model in use, fitted.
+    base_effects: tuple[Effect, ...] = ()
+    if model is None:
+        from calibration.methods import FitOptions, Fitter
+
+        fitter = Fitter(robot, nominal, fit, FitOptions(a=opts.a, tolerance=opts.tolerance, cluster_size=opts.cluster_size))
+        base_model, _ = fitter.fit("nls1")
+        obs = fitter.observability()
+        x_base = par.from_geometry(base_model.model.H, base_model.model.P)  # type: ignore[attr-defined]
+        base_name = "geometric"
+    elif isinstance(model, (ConstantModel, PhysicsModel)):
+        x_model = par.from_geometry(model.model.H, model.model.P)
+        obs = analyse(par, fit.q, x_model, opts.a, opts.tolerance)
+        base_effects = tuple(model.effects) if isinstance(model, PhysicsModel) else ()
+        sol = JointProblem(par, fit.q, fit.R, fit.p, ctx, x_model, obs.basis, base_effects, w_rot).solve()
+        x_base, base_effects = sol.x, sol.effects
+        base_name = "+".join(["geometric"] + [e.kind for e in base_effects])
+    else:
+        raise ModelError(f"diagnose refits the geometry of the model in use; a {model.kind!r} model has none to "
+                         "refit. Give a constant or physics model, or none for the geometric NLS fit")
+    basis = obs.basis
+    geo = par.model(x_base)
+    baseline, before_dp = _accuracy(base_name, geo, base_effects, heldout, ctx_ho)
+
+    # 2. Where the mismatch is.
+    R, p = apply_effects(geo, base_effects, fit.q, ctx)
+    r0, _ = weighted_residuals(fit.R, fit.p, R, p, w_rot)
+    drv = drivers(geo, fit.q, ctx, gravity)
+    mismatch = locate_mismatch(r0, drv)
+
+    # 3. Candidates, with what the geometry absorbs projected out.
+    A = np.concatenate([_geometric_columns(par, fit.q, x_base, basis, w_rot)]
+                       + [signature(e, geo, fit.q, ctx, w_rot) for e in base_effects], axis=1)
+    present = {e.kind for e in base_effects}
+    cands, untested = library(geo, fit.q, ctx, gravity, tuple(k for k in opts.kinds if k not in present))
+    q_ref, ctx_ref = _reference(None if source == "split" else heldout, fit.q, ctx, joint_limits, opts)
+    Q = np.linalg.qr(A)[0]
+
+    def sig_offset(j: int) -> np.ndarray:
+        return signature(JointOffset((j,), np.zeros(1)), geo, fit.q, ctx, w_rot)
+    pool, hidden, bases = [], [], {}
+    for c in cands:
+        S = signature(c.effect, geo, fit.q, ctx, w_rot)
+        Qc = Q
+        if c.kind == "gear_transmission":  # its constant part is a joint offset, not a transmission error
+            Qc = np.linalg.qr(np.concatenate([A, sig_offset(c.joints[0])], axis=1))[0]
+        vis, exc, B = visibility(S, Qc, signature(c.effect, geo, q_ref, ctx_ref, w_rot), len(fit), q_ref.shape[0],
+                                 opts.selection.visible_min)
+        if vis < opts.selection.visible_min:
+            hidden.append(explain.not_identifiable(c, vis, exc, fit.q, q_ref))
+        else:
+            bases[c.key()] = B
+            pool.append((c, S @ B))
+    problem = LinearSelection(A, r0, groups, opts.selection)
+
+    def sig(e: Effect) -> np.ndarray:
+        return signature(e, geo, fit.q, ctx, w_rot)
+
+    pool = _tune_warmup(pool, lambda e: problem.rss([], sig(e)), sig)
+    pool = [(c, problem.add(S)) for c, S in pool]
+    hidden = _dedupe(hidden, {c.label for c, _ in pool})
+    log.info("diagnose: %d candidates testable, %d not identifiable, %d untested", len(pool), len(hidden), len(untested))
+
+    # 4. Selection.
+    def refine(c: Candidate, S: np.ndarray, chosen_S: list[np.ndarray]) -> tuple[Candidate, np.ndarray]:
+        e = c.effect
+        if c.kind != "thermal_drift" or getattr(e, "mode", "") != "warmup" or c.extra_dof == 0:
+            return c, S
+        cost = lambda lt: problem.rss(chosen_S, sig(e.__class__(e.links, e.values, "warmup", float(np.exp(lt)))))  # type: ignore[attr-defined]  # noqa: E731
+        lt0 = np.log(e.tau_s)  # type: ignore[attr-defined]
+        res = minimize_scalar(cost, bounds=(lt0 - 1.2, lt0 + 1.2), method="bounded", options={"xatol": 1e-3})
+        e2 = ThermalDrift(e.links, e.values, "warmup", float(np.exp(res.x)))  # type: ignore[attr-defined]
+        return Candidate(c.kind, c.label, c.joints, e2, c.extra_dof), problem.add(sig(e2))
+
+    def rebuild(c: Candidate, S: np.ndarray, chosen: list[Candidate]) -> tuple[Candidate, np.ndarray] | None:
+        if any(o.kind == c.kind and o.label == c.label for o in chosen):
+            return None
+        if c.kind != "thermal_drift":
+            return c, S
+        th = [o for o in chosen if o.kind == "thermal_drift"]
+        if not th:
+            return c, S
+        e, t0 = c.effect, th[0].effect
+        if e.mode != t0.mode:  # type: ignore[attr-defined]
+            return None
+        if e.mode == "warmup" and e.tau_s != t0.tau_s:  # type: ignore[attr-defined]
+            e = ThermalDrift(e.links, e.values, "warmup", t0.tau_s)  # type: ignore[attr-defined]
+            return Candidate(c.kind, c.label, c.joints, e, 0), problem.add(sig(e))
+        return Candidate(c.kind, c.label, c.joints, e, 0), S
+
+    steps, step_S = forward_select(problem, pool, refine, rebuild)
+
+    # 5. Joint refit, effects in the order they were first selected; each confirmed on the held-out data.
+    kinds_in_order = list(dict.fromkeys(s.candidate.kind for s in steps))
+    merged = [_merge(k, [s.candidate for s in steps if s.candidate.kind == k], bases) for k in kinds_in_order]
+    n_base = sum(e.size for e in base_effects)
+
+    def joint_fit(chosen: list[tuple[Effect, np.ndarray]]) -> JointFit:
+        B = block_diag(np.eye(n_base), *[b for _, b in chosen])
+        return JointProblem(par, fit.q, fit.R, fit.p, ctx, x_base, basis, base_effects + tuple(e for e, _ in chosen),
+                            w_rot, B if B.size else None).solve()
+
+    kept: list[tuple[Effect, np.ndarray]] = []
+    kept_kinds: list[str] = []
+    final_fit = joint_fit([])
+    cur_acc, cur_dp = baseline, before_dp
+    effects_out, rejected = [], []
+    for kind, (e0, B) in zip(kinds_in_order, merged):
+        trial = joint_fit(kept + [(e0, B)])
+        acc, dp = _accuracy("+".join([base_name] + kept_kinds + [kind]), par.model(trial.x), trial.effects,
+                            heldout, ctx_ho)
+        mine = [j for j, st in enumerate(steps) if st.candidate.kind == kind]
+        others = [j for j, st in enumerate(steps) if st.candidate.kind in kept_kinds]
+        ev = problem.compare([step_S[j] for j in others], sum(steps[j].candidate.extra_dof for j in others),
+                             [step_S[j] for j in mine], sum(steps[j].candidate.extra_dof for j in mine))
+        z_ho = _paired_z(cur_dp**2 - dp**2)
+        evidence = Evidence(ev["delta_bic"], ev["f_pvalue"], steps[mine[0]].cv_z, cur_acc, acc, z_ho)
+        item = explain.found(trial.effects[-1], trial.effect_std[-1], evidence)
+        fit_ok = ev["delta_bic"] < opts.selection.bic_threshold and ev["f_pvalue"] < opts.selection.f_alpha
+        if fit_ok and z_ho > opts.selection.z_min and acc.rms_mm < cur_acc.rms_mm:
+            kept.append((e0, B))
+            kept_kinds.append(kind)
+            effects_out.append(item)
+            final_fit, cur_acc, cur_dp = trial, acc, dp
+        else:
+            rejected.append(item)
+    # Parameters and uncertainties of the kept effects from the final joint fit.
+    effects_out = [explain.found(final_fit.effects[len(base_effects) + i], final_fit.effect_std[len(base_effects) + i],
+                                 item.evidence) for i, item in enumerate(effects_out)]
+
+    # 6. Noise floor, verdict.
+    R, p = apply_effects(par.model(final_fit.x), final_fit.effects, fit.q, ctx)
+    r_final, _ = weighted_residuals(fit.R, fit.p, R, p, w_rot)
+    noise = noise_floor(r_final, groups, final_fit.n_parameters)
+    notes = tuple(n for n in [obs.summary()] if n)
+    physics = PhysicsModel(robot, "diagnose", par.model(final_fit.x), final_fit.effects, basis.shape[1],
+                           {"baseline": base_name, "fit_samples": len(fit), "effects_found": kept_kinds})
+    verdict = explain.verdict(effects_out, baseline, cur_acc, noise.floor_mm, hidden, untested, rejected)
+    return Diagnosis(robot, len(fit), len(heldout), source, noise, baseline, cur_acc, tuple(mismatch),
+                     tuple(effects_out), tuple(hidden), tuple(untested), verdict, physics, notes,
+                     PlotData(np.linalg.norm(r0[:, :3], axis=1), tuple(drv), before_dp, cur_dp), tuple(rejected))
+
+
+def _paired_z(d: np.ndarray) -> float:
+    """z-score of the mean of paired differences (positive: the second model is better)."""
+    if d.size < 2 or d.std(ddof=1) == 0:
+        return 0.0
+    return float(d.mean() / (d.std(ddof=1) / np.sqrt(d.size)))
+
+
+def _tune_warmup(pool: list[tuple[Candidate, np.ndarray]], rss: Callable[[Effect], float],
+                 sig: Callable[[Effect], np.ndarray]) -> list[tuple[Candidate, np.ndarray]]:
+    """One warm-up thermal candidate per link, its time constant refined from the best of the grid."""
+    out, best = [], {}
+    for c, S in pool:
+        e = c.effect
+        if c.kind == "thermal_drift" and e.mode == "warmup":  # type: ignore[attr-defined]
+            cost = rss(e)
+            if c.label not in best or cost < best[c.label][0]:
+                best[c.label] = (cost, c)
+        else:
+            out.append((c, S))
+    for _, c in best.values():
+        e = c.effect
+        f = lambda lt: rss(ThermalDrift(e.links, e.values, "warmup", float(np.exp(lt))))  # type: ignore[attr-defined]  # noqa: E731
+        lt0 = np.log(e.tau_s)  # type: ignore[attr-defined]
+        lt = minimize_scalar(f, bounds=(lt0 - 1.2, lt0 + 1.2), method="bounded", options={"xatol": 1e-3}).x
+        e2 = ThermalDrift(e.links, np.zeros(e.size), "warmup", float(np.exp(lt)))  # type: ignore[attr-defined]
+        out.append((Candidate(c.kind, c.label, c.joints, e2, c.extra_dof), sig(e2)))
+    return out
+
+
+def _dedupe(items: list[Untested], testable: set[str]) -> list[Untested]:
+    """One entry per (kind, label), none for labels testable at other settings (thermal time constants)."""
+    seen, out = set(), []
+    for u in items:
+        if (u.kind, u.label) not in seen and not (u.kind == "thermal_drift" and u.label in testable):
+            seen.add((u.kind, u.label))
+            out.append(u)
+    return out

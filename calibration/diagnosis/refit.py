@@ -1,0 +1,165 @@
+"""Joint refit of geometry and physics: Levenberg-Marquardt on ``[geometric parameters; effect parameters]``.
+
+The geometric parameters move only along the observable basis (hidden directions stay at their start),
+``x = x0 + basis @ z``; every effect keeps its settings and refits its ``values``. The residual is exact
+(POE forward kinematics with the effects applied); the Jacobian uses the analytic geometric Jacobian at the
+perturbed joint angles and each effect's analytic pose Jacobian (first order in the small effects). The
+parameter covariance is the Gauss-Newton one scaled by the residual variance,
+``cov = s^2 (J^T J)^-1`` with ``s^2 = RSS / (6N - p)``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from calibration import so3
+from calibration.errors import ModelError
+from calibration.identification import weighted_residuals
+from calibration.parameterisation import MinimalParameterisation
+from calibration.physics.base import Context, Effect, apply_effects
+
+
+@dataclass(frozen=True)
+class JointFit:
+    """Outcome of a joint geometry + physics fit.
+
+    Attributes:
+        x: geometric parameters (m,) of the parameterisation.
+        effects: effects with fitted values.
+        effect_std: one-sigma uncertainty of each effect's values, same shapes as their values.
+        covariance: covariance of ``[z; effect values]`` (k + p_e, k + p_e).
+        residual_variance: ``s^2`` per weighted residual component [mm^2].
+        rms_mm: position RMS on the fit data [mm].
+        n_parameters: k + the free effect directions.
+        iterations: LM iterations run.
+        converged: whether the relative cost change fell below tolerance.
+        seconds: wall time.
+    """
+
+    x: np.ndarray
+    effects: tuple[Effect, ...]
+    effect_std: tuple[np.ndarray, ...]
+    covariance: np.ndarray
+    residual_variance: float
+    rms_mm: float
+    n_parameters: int
+    iterations: int
+    converged: bool
+    seconds: float
+
+
+def _split(effects: tuple[Effect, ...], theta: np.ndarray) -> tuple[Effect, ...]:
+    out, i = [], 0
+    for e in effects:
+        out.append(e.with_values(theta[i: i + e.size]))
+        i += e.size
+    return tuple(out)
+
+
+class JointProblem:
+    """Geometry + effects identification from static samples, built once and then solved.
+
+    Args:
+        par: geometric parameterisation.
+        q: joint angles [rad], shape (N, n).
+        R_meas: measured orientations (N, 3, 3).
+        p_meas: measured positions [mm] (N, 3).
+        context: per-sample context of the effects.
+        x0: starting (and hidden-direction) geometric parameters (m,).
+        basis: (m, k) observable directions of the geometric parameters.
+        effects: the effects to fit (their current values are the start).
+        w_rot: rotation residual scale (``sqrt(2a)``).
+        effect_basis: optional (p_e, k_e) matrix; effect parameters move only in its column space from their
+            start (directions the geometry absorbs stay put).
+    """
+
+    def __init__(self, par: MinimalParameterisation, q: np.ndarray, R_meas: np.ndarray, p_meas: np.ndarray,
+                 context: Context | None, x0: np.ndarray, basis: np.ndarray, effects: tuple[Effect, ...],
+                 w_rot: float, effect_basis: np.ndarray | None = None) -> None:
+        self.par, self.q, self.R_meas, self.p_meas, self.context = par, np.atleast_2d(q), R_meas, p_meas, context
+        N = self.q.shape[0]
+        if R_meas.shape != (N, 3, 3) or p_meas.shape != (N, 3):
+            raise ModelError(f"measurements must be (N, 3, 3) and (N, 3) for N = {N}")
+        self.x0 = np.asarray(x0, dtype=float)
+        self.basis = np.asarray(basis, dtype=float)
+        if self.basis.shape[0] != par.size or self.x0.shape != (par.size,):
+            raise ModelError(f"x0 must be ({par.size},) and basis ({par.size}, k)")
+        self.effects = tuple(effects)
+        self.w_rot = w_rot
+        self.k = self.basis.shape[1]
+        self.theta0 = np.concatenate([e.values for e in self.effects]) if self.effects else np.zeros(0)
+        self.B = np.eye(self.theta0.size) if effect_basis is None else np.asarray(effect_basis, dtype=float)
+        if self.B.shape[0] != self.theta0.size:
+            raise ModelError(f"effect_basis must have {self.theta0.size} rows, got {self.B.shape}")
+
+    def unpack(self, u: np.ndarray) -> tuple[np.ndarray, tuple[Effect, ...]]:
+        """Geometric parameters (m,) and effects for a stacked vector ``[z; theta]``."""
+        return self.x0 + self.basis @ u[: self.k], _split(self.effects, self.theta0 + self.B @ u[self.k:])
+
+    def residual(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted residuals (N, 6) and rotation error vectors (N, 3)."""
+        x, effects = self.unpack(u)
+        R, p = apply_effects(self.par.model(x), effects, self.q, self.context)
+        return weighted_residuals(self.R_meas, self.p_meas, R, p, self.w_rot)
+
+    def jacobian(self, u: np.ndarray, e: np.ndarray) -> np.ndarray:
+        """d residual / d u, shape (6N, k + p_e)."""
+        x, effects = self.unpack(u)
+        model = self.par.model(x)
+        dq = sum((ef.delta_q(model, self.q, self.context) for ef in effects), np.zeros_like(self.q))
+        _, _, Jg = self.par.jacobian(self.q + dq, x)
+        blocks = [Jg @ self.basis] + [ef.pose_jacobian(model, self.q, self.context) for ef in effects]
+        J = np.concatenate(blocks, axis=-1)
+        J = np.concatenate([J[..., : self.k], J[..., self.k:] @ self.B], axis=-1)
+        Jr = np.empty_like(J)
+        Jr[:, :3] = -J[:, :3]
+        Jr[:, 3:] = -self.w_rot * (so3.right_jacobian_inv(e) @ J[:, 3:])
+        return Jr.reshape(-1, J.shape[-1])
+
+    def solve(self, max_iter: int = 40, tol: float = 1e-10) -> JointFit:
+        """Levenberg-Marquardt from ``[0; current effect values]``."""
+        start = time.perf_counter()
+        u = np.zeros(self.k + self.B.shape[1])
+        r, e = self.residual(u)
+        cost = float(np.sum(r * r))
+        lam, converged, it = 1e-4, False, 0
+        J = self.jacobian(u, e)
+        for it in range(1, max_iter + 1):
+            A = J.T @ J
+            g = J.T @ r.ravel()
+            diag = np.diag(A).copy() + 1e-300
+            step = np.linalg.lstsq(A + lam * np.diag(diag), -g, rcond=None)[0]
+            r_try, e_try = self.residual(u + step)
+            cost_try = float(np.sum(r_try * r_try))
+            if cost_try < cost:
+                rel = (cost - cost_try) / max(cost, 1e-300)
+                u, r, e, cost = u + step, r_try, e_try, cost_try
+                lam = max(lam / 3.0, 1e-12)
+                if rel < tol:
+                    converged = True
+                    break
+                J = self.jacobian(u, e)
+            else:
+                lam *= 4.0
+                if lam > 1e8:
+                    converged = True
+                    break
+        J = self.jacobian(u, e)
+        n_res, p = r.size, u.size
+        s2 = cost / max(n_res - p, 1)
+        cov = s2 * np.linalg.pinv(J.T @ J)
+        T = np.zeros((self.k + self.theta0.size, u.size))
+        T[: self.k, : self.k] = np.eye(self.k)
+        T[self.k:, self.k:] = self.B
+        cov = T @ cov @ T.T  # covariance of [z; effect values]
+        std = np.sqrt(np.clip(np.diag(cov), 0, None))
+        x, effects = self.unpack(u)
+        stds, i = [], self.k
+        for ef in effects:
+            stds.append(std[i: i + ef.size])
+            i += ef.size
+        rms = float(np.sqrt(np.mean(np.sum(r[:, :3] ** 2, axis=1))))
+        return JointFit(x, effects, tuple(stds), cov, s2, rms, p, it, converged, time.perf_counter() - start)
