@@ -422,6 +422,15 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_diagnose(args: argparse.Namespace) -> int:
+    from app.diagnose import run_diagnose
+
+    result = run_diagnose(args.robot, args.data, heldout=args.heldout, model=args.model, json_path=args.json,
+                          report_dir=args.report, model_out=args.out, cell=args.cell)
+    print(result.verdict)
+    return 0
+
+
 def _add_fit_inputs(p: argparse.ArgumentParser) -> None:
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
     p.add_argument("--train", required=True, help="training recording CSV or Welding_Motoman folder")
@@ -460,6 +469,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--methods", default="all", help="all, or a comma-separated list")
     p.add_argument("--json", help="write the comparison as JSON")
     p.add_argument("--report", help="write Markdown tables and PNG plots into this folder")
+    p = add("diagnose", cmd_diagnose, "find the physics the model in use left out, model it, show the fit improve")
+    p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
+    p.add_argument("--data", required=True, help="recording CSV or Welding_Motoman folder to fit on")
+    p.add_argument("--heldout", help="recording the selection never fits on (default: held-out clusters of --data)")
+    p.add_argument("--model", help="model in use (default: the geometric NLS fit of --data)")
+    p.add_argument("--json", help="write the report (schema cellcal.diagnose/1)")
+    p.add_argument("--report", help="write the report as Markdown with plots into this folder")
+    p.add_argument("--out", help="save the refitted geometry + physics model")
     _add_dual_parsers(add)
     p = add("plan", cmd_plan, "make a collection plan for one arm (anchor grid, CPA sweeps, validation poses)")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
