@@ -27,7 +27,15 @@ class Errors:
 
 
 def errors(model: KinematicModel, rec: Recording) -> Errors:
-    R, p = model.fk(rec.q)
+    """Errors of ``model`` on ``rec``; models whose effects depend on the sample's context (time, approach
+    direction, payload...) are evaluated with the recording's context columns."""
+    fk_context = getattr(model, "fk_context", None)
+    if fk_context is not None:
+        from calibration.diagnosis.drivers import context_from_recording
+
+        R, p = fk_context(rec.q, context_from_recording(rec))
+    else:
+        R, p = model.fk(rec.q)
     dp, dR = pose_error(rec.R, rec.p, R, p)
     return Errors(dp, dR)
 
