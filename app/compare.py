@@ -49,10 +49,15 @@ def parse_methods(text: str) -> list[str]:
     return chosen
 
 
-def run_comparison(fitter: Fitter, test: Recording, methods: list[str]) -> Comparison:
+def run_comparison(fitter: Fitter, test: Recording, methods: list[str] | tuple[str, ...],
+                   progress: bool = False) -> Comparison:
     """Fit each method and evaluate it; a method whose data is missing (CPA sweeps) is skipped with a reason."""
+    from tqdm import tqdm
+
     out = Comparison(fitter.robot)
-    for method in methods:
+    bar = tqdm(methods, desc=f"{fitter.robot} fit", unit="method", disable=not progress)
+    for method in bar:
+        bar.set_postfix_str(method)
         if method == "cpa" and fitter.cpa_data is None:
             out.skipped[method] = "no single-joint sweep data given (--cpa DATA)"
             continue

@@ -27,21 +27,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from tqdm import tqdm
-
 from app.cell_runtime import SimCell, SimCellConfig, move_safely
 from app.collect import CollectConfig, SessionResult, export, run_session
 from app.planning import Plan
 from app.safety import CellSafety
 from app.session_plan import PlanSpec, session_plan
 from calibration.errors import ConfigError
+from calibration.methods import METHODS
 from cell_config.loader import CellSpec
 
 log = logging.getLogger("cellcal.app")
 
 #: Methods the demo fits: every method (the neural ones take ~3 s each on the reduced grid).
-DEMO_METHODS = ("nominal", "base", "cpa", "nls0", "nls1", "nearest", "linear", "cubic", "rbf", "fbf13", "fbf7",
-                "nn", "ae")
+DEMO_METHODS = METHODS
 
 #: Collection settings of the demo: short dwell windows, generous frame timeout (the clock runs fast).
 DEMO_COLLECT = CollectConfig(speed_fraction=0.5, settle_timeout_s=60.0, dwell_s=0.2, discard_s=0.03,
@@ -155,31 +153,11 @@ def fit_and_compare(cell: CellSpec, robot: str, rec: Recordings, methods: tuple[
     from calibration.models import save_model
 
     fitter = Fitter(robot, cell.robot(robot).model(), rec.train, cpa_data=rec.cpa)
-    parts = []
-    bar = tqdm(methods, desc=f"{robot} fit", unit="method", disable=not progress)
-    for m in bar:
-        bar.set_postfix_str(m)
-        parts.append(run_comparison(fitter, rec.test, [m]))
-    cmp = _merge(parts, fitter, rec.test)
+    cmp = run_comparison(fitter, rec.test, methods, progress)
     model_dir.mkdir(parents=True, exist_ok=True)
     for m, model in cmp.models.items():
         save_model(model, model_dir / f"{m}.yaml")
     return cmp
-
-
-def _merge(parts: list[Any], fitter: Any, test: Any) -> Any:
-    """One Comparison from per-method ones (fitted one at a time for the progress bar)."""
-    from app.compare import Comparison, _analysis
-
-    out = Comparison(fitter.robot)
-    for p in parts:
-        out.models.update(p.models)
-        out.fit_seconds.update(p.fit_seconds)
-        out.train_errors.update(p.train_errors)
-        out.test_errors.update(p.test_errors)
-        out.skipped.update(p.skipped)
-    out.analysis = _analysis(fitter, test, out)
-    return out
 
 
 def robot_summary(session: SessionResult, rec: Recordings, cmp: Any, left_out: dict[str, str]) -> dict[str, Any]:
