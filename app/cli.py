@@ -42,11 +42,9 @@ def _fitter(args: argparse.Namespace) -> Any:
 
 def _write_json(path: str | None, data: dict[str, Any]) -> None:
     if path:
-        target = Path(path)
-        target.parent.mkdir(parents=True, exist_ok=True)
-        tmp = target.with_name(f".{target.name}.tmp")
-        tmp.write_text(json.dumps(data, indent=1), encoding="utf-8")
-        tmp.replace(target)
+        from calibration.files import atomic_write_text
+
+        atomic_write_text(path, json.dumps(data, indent=1))
 
 
 def cmd_fit(args: argparse.Namespace) -> int:

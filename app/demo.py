@@ -33,6 +33,7 @@ from app.planning import Plan
 from app.safety import CellSafety
 from app.session_plan import PlanSpec, session_plan
 from calibration.errors import ConfigError
+from calibration.files import atomic_write_text
 from calibration.methods import METHODS
 from cell_config.loader import CellSpec
 
@@ -239,9 +240,7 @@ def run_demo(out_dir: str | Path, cell: CellSpec, config: DemoConfig = DemoConfi
     report = write_html(out, comparisons, tests, summary)
     seconds = time.monotonic() - t0
     summary["seconds"] = round(seconds, 3)
-    tmp = out / ".summary.json.tmp"
-    tmp.write_text(json.dumps(summary, indent=1), encoding="utf-8")
-    tmp.replace(out / "summary.json")
+    atomic_write_text(out / "summary.json", json.dumps(summary, indent=1))
     return DemoResult(out, report, summary, seconds)
 
 

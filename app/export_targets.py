@@ -14,7 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from app.plan_result import PlanResult, load_plan_result, write_atomic
+from app.plan_result import PlanResult, load_plan_result
+from calibration.files import atomic_write_text
 from calibration.errors import ModelError, UnsafeTarget
 from cell_config.loader import CellSpec
 
@@ -75,7 +76,7 @@ def write_targets(rows: list[dict[str, Any]], path: str | Path, frame: str = "fl
     """Write export rows as CSV (one line per waypoint and robot) or JSON (by suffix), atomically."""
     path = Path(path)
     if path.suffix.lower() == ".json":
-        write_atomic(path, json.dumps({"schema": "cellcal.targets/1", "frame": frame, "rows": rows}, indent=1))
+        atomic_write_text(path, json.dumps({"schema": "cellcal.targets/1", "frame": frame, "rows": rows}, indent=1))
         return
     if path.suffix.lower() != ".csv":
         raise ModelError(f"unknown target file type {path.suffix!r}; valid: .csv, .json")
@@ -86,7 +87,7 @@ def write_targets(rows: list[dict[str, Any]], path: str | Path, frame: str = "fl
     for r in rows:
         wr.writerow([r["index"], r["robot"]] + [repr(v) for v in r["q_rad"]] + r["pulses"]
                     + [f"{v:.4f}" for v in r["p_mm"] + r["rpy_deg"]])
-    write_atomic(path, buf.getvalue())
+    atomic_write_text(path, buf.getvalue())
 
 
 

@@ -8,8 +8,6 @@ so nothing downstream (export, execution) can take an unproven waypoint for a so
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -17,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from calibration.errors import DataError
+from calibration.files import atomic_write_text
 
 PLAN_SCHEMA = "cellcal.plan/1"
 
@@ -91,20 +90,7 @@ class PlanResult:
 
 def save_plan(plan: PlanResult, path: str | Path) -> None:
     """Write the plan file (JSON, schema ``cellcal.plan/1``) atomically."""
-    write_atomic(Path(path), json.dumps(plan.to_dict(), indent=1))
-
-
-def write_atomic(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    atomic_write_text(Path(path), json.dumps(plan.to_dict(), indent=1))
 
 
 

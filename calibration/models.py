@@ -10,8 +10,6 @@ from __future__ import annotations
 import abc
 import json
 import logging
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
@@ -20,6 +18,7 @@ import numpy as np
 import yaml
 
 from calibration.errors import DataError, ModelError
+from calibration.files import atomic_write_text
 from calibration.poe import PoeModel
 
 SCHEMA = "cellcal.model/1"
@@ -135,16 +134,7 @@ def save_model(model: KinematicModel, path: str | Path) -> None:
     else:
         text = yaml.dump(data, Dumper=getattr(yaml, "CSafeDumper", yaml.SafeDumper), sort_keys=False,
                          default_flow_style=None, width=120)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    atomic_write_text(path, text)
 
 
 def load_model(path: str | Path) -> KinematicModel:

@@ -8,9 +8,8 @@ layout, validates every value, and writes recordings atomically. Errors name the
 from __future__ import annotations
 
 import csv
+import io
 import math
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -18,6 +17,7 @@ import numpy as np
 
 from calibration import so3
 from calibration.errors import DataError
+from calibration.files import atomic_write_text
 
 JOINT_COLUMNS = tuple(f"q{i}" for i in range(1, 7))
 POSE_COLUMNS = ("x", "y", "z", "qw", "qx", "qy", "qz")
@@ -205,24 +205,13 @@ def read_joints(path: str | Path) -> np.ndarray:
 
 def write_table(path: str | Path, columns: dict[str, np.ndarray]) -> None:
     """Write named columns as a CSV with a header, atomically (a crash leaves no half-written file)."""
-    path = Path(path)
     names = list(columns)
     data = np.column_stack([np.asarray(columns[n], dtype=float) for n in names])
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", newline="", encoding="utf-8") as f:
-            w = csv.writer(f)
-            w.writerow(names)
-            for row in data:
-                w.writerow([repr(float(v)) for v in row])
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(names)
+    w.writerows([repr(float(v)) for v in row] for row in data)
+    atomic_write_text(path, buf.getvalue())
 
 
 def write_recording(rec: Recording, path: str | Path) -> None:

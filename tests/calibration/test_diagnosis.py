@@ -14,7 +14,7 @@ from calibration.diagnosis.drivers import Driver, multiple_correlation
 from calibration.diagnosis.synthetic import Design, make_case
 from calibration.errors import ModelError
 from calibration.identification import rotation_residual_scale
-from calibration.models import CdcModel
+from calibration.cdc import CdcModel, geometric_cdc
 from calibration.parameterisation import MinimalParameterisation
 from calibration.physics import Backlash, GravityModel
 from cell_config import load_cell
@@ -121,7 +121,7 @@ def test_split_heldout_when_none_given(arm):
 def test_cdc_model_is_refused(arm):
     cr, nominal, gravity = arm
     _, fit, ho = make_case(nominal, gravity, {}, 0, DESIGN, n_heldout=20)
-    cdc = CdcModel("R1", "fbf13", MinimalParameterisation(nominal, True), object())
+    cdc = CdcModel("R1", "fbf13", *geometric_cdc(MinimalParameterisation(nominal, True)), object())
     with pytest.raises(ModelError, match="constant or physics"):
         diagnose("R1", nominal, fit, ho, cdc)
 
