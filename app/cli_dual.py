@@ -1,0 +1,152 @@
+"""``cellcal`` subcommands of the dual-robot spray task: plan-dual, validate-dual, preview, export-targets."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any, Callable
+
+from app.cli_common import cell_spec, write_json
+
+
+def _model_pair(spec: str | None, where: str) -> dict[str, Any]:
+    """``R1=a.yaml,R2=b.yaml`` -> {robot: model}; robots not named stay nominal (absent from the dict)."""
+    from calibration.errors import DataError
+    from calibration.models import load_model
+
+    models: dict[str, Any] = {}
+    for item in filter(None, (spec or "").split(",")):
+        robot, sep, path = item.partition("=")
+        if not sep or robot.strip() not in ("R1", "R2") or not path.strip():
+            raise DataError(where, None, None, f"bad model entry {item!r}; expected R1=FILE,R2=FILE")
+        models[robot.strip()] = load_model(path.strip())
+    return models
+
+
+def cmd_plan_dual(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from app.dual_paths import Q_REF_DEG, read_path, read_pose, relative_pose
+    from app.dual_plan import DualPlanner, PlannerOptions
+    from app.plan_result import save_plan
+    from calibration.errors import ModelError
+
+    models = _model_pair(args.models, "--models")
+    T_rel = read_pose(args.relative_pose) if args.relative_pose else None
+    planner = DualPlanner(cell_spec(args), models.get("R1"), models.get("R2"), PlannerOptions(compile=not args.no_compile))
+    path = read_path(args.path, planner)
+    q0 = np.radians(Q_REF_DEG)
+    plan = planner.plan(path, relative_pose(planner, q0) if T_rel is None else T_rel, q0)
+    ms = [w.solve_ms for w in plan.waypoints]
+    summary = {"waypoints": len(plan.waypoints), "converged": plan.converged, "failed": plan.failed,
+               "models": plan.models, "solve_ms_median": float(np.median(ms)),
+               "max_residual_mm": max(w.residual_mm for w in plan.waypoints),
+               "max_residual_deg": max(w.residual_deg for w in plan.waypoints),
+               "min_clearance_mm": min(w.clearance_mm for w in plan.waypoints), "out": args.out}
+    if not plan.converged:
+        i = plan.failed[0]
+        raise ModelError(f"{len(plan.failed)} of {len(plan.waypoints)} waypoints not solved, nothing written; "
+                         f"first: waypoint {i}: {plan.waypoints[i].reason}")
+    if args.out:
+        save_plan(plan, args.out)
+    write_json(args.json, summary)
+    print(f"{len(plan.waypoints)} waypoints solved ({plan.models['R1']}/{plan.models['R2']}), median "
+          f"{summary['solve_ms_median']:.2f} ms, residual <= {summary['max_residual_mm']:.1e} mm, clearance >= "
+          f"{summary['min_clearance_mm']:.0f} mm" + (f" -> {args.out}" if args.out else ""))
+    return 0
+
+
+def _model_sets(specs: list[str] | None, cell: Any) -> dict[str, dict[str, Any]]:
+    """``[LABEL:]R1=a,R2=b`` per entry -> {label: {R1, R2}} (label: the models' method by default)."""
+    from calibration.models import ConstantModel
+
+    out: dict[str, dict[str, Any]] = {}
+    for spec in specs or []:
+        label, sep, rest = spec.partition(":")
+        if not sep or "=" in label:
+            label, rest = "", spec
+        pair = _model_pair(rest, "--models")
+        if not label:
+            label = "/".join(sorted({m.method for m in pair.values()})) or "nominal"
+        for robot in ("R1", "R2"):
+            pair.setdefault(robot, ConstantModel(robot, "nominal", cell.robot(robot).model()))
+        out[label] = pair
+    return out
+
+
+def cmd_validate_dual(args: argparse.Namespace) -> int:
+    from app.validate_dual import run_sim_validation
+    from calibration.errors import ConfigError, ModelError
+
+    if not args.sim:
+        raise ConfigError(args.cell if getattr(args, "cell", None) else "cell.yaml", "probe",
+                          "no robot drivers or CAN contact probe are configured for a real-cell validation; "
+                          "use --sim for the simulated cell")
+    if args.configurations < 2:
+        raise ModelError(f"--configurations must be >= 2, got {args.configurations}")
+    methods = tuple(m.strip() for m in args.methods.split(",") if m.strip()) if args.methods else None
+    cell = cell_spec(args)
+    result = run_sim_validation(cell, args.configurations, _model_sets(args.models, cell) or None, methods)
+    print(result.table())
+    write_json(args.json, result.to_json())
+    return 0
+
+
+def cmd_preview(args: argparse.Namespace) -> int:
+    from app.preview import preview
+    from calibration.errors import ModelError
+
+    if not args.html and not args.serve:
+        raise ModelError("preview needs --html OUT (a static page) or --serve (a live viewer)")
+    result = preview(cell_spec(args), args.plan, html_out=args.html, serve=args.serve)
+    if result.html_path:
+        print(f"{result.n_frames} frames -> {result.html_path}")
+    if result.url:
+        print(f"live viewer at {result.url}; press Enter to stop", flush=True)
+        try:
+            input()
+        except (EOFError, KeyboardInterrupt):
+            pass
+    return 0
+
+
+def cmd_export_targets(args: argparse.Namespace) -> int:
+    from app.export_targets import export_targets
+
+    n = export_targets(args.plan, cell_spec(args), args.out, args.frame, args.skip_failed)
+    print(f"{n} targets ({args.frame} frame) -> {args.out}")
+    return 0
+
+
+def add_dual_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
+    def cell_arg(p: argparse.ArgumentParser) -> None:  # also accepted after the subcommand
+        p.add_argument("--cell", default=argparse.SUPPRESS, help="cell.yaml (default: the packaged Motoman cell)")
+
+    p = add("plan-dual", cmd_plan_dual, "plan both arms holding a relative tool pose along a workpiece path")
+    cell_arg(p)
+    p.add_argument("--models", help="R1=FILE,R2=FILE (a robot left out uses its nominal model)")
+    p.add_argument("--relative-pose", help="gun pose in the workpiece frame: a file (JSON {p_mm, quat} or CSV) or "
+                                           "inline x,y,z,qw,qx,qy,qz [mm]; default: the reference pose")
+    p.add_argument("--path", default="sweep:200", help="CSV/JSON of workpiece poses in the cell frame "
+                                                       "(x,y,z,qw,qx,qy,qz [mm]) or sweep:N (default sweep:200)")
+    p.add_argument("--out", help="write the plan file (JSON)")
+    p.add_argument("--json", help="write a summary as JSON")
+    p.add_argument("--no-compile", action="store_true", help="interpreted casadi function (no C compiler)")
+    p = add("validate-dual", cmd_validate_dual, "contact validation of model sets (the paper's dual-robot check)")
+    cell_arg(p)
+    p.add_argument("--sim", action="store_true", help="run on the simulated cell (twins, simulated arms and probe)")
+    p.add_argument("--configurations", type=int, default=20, help="contact configurations, inward to outstretched")
+    p.add_argument("--models", action="append", help="[LABEL:]R1=FILE,R2=FILE, repeatable; with --sim and none, "
+                                                     "the model sets are fitted on twin data")
+    p.add_argument("--methods", help="model sets to fit with --sim (default nominal,cpa,fbf13,ae,physics)")
+    p.add_argument("--json", help="write the statistics as JSON")
+    p = add("preview", cmd_preview, "meshcat preview of a plan (static HTML page or live viewer)")
+    cell_arg(p)
+    p.add_argument("--plan", required=True, help="plan file (dual or collection)")
+    p.add_argument("--html", help="write a self-contained HTML page")
+    p.add_argument("--serve", action="store_true", help="start a live meshcat viewer and wait for Enter")
+    p = add("export-targets", cmd_export_targets, "controller targets (rad, pulses, poses) from a dual plan")
+    cell_arg(p)
+    p.add_argument("--plan", required=True, help="plan file written by plan-dual")
+    p.add_argument("--out", required=True, help="targets file (.csv or .json)")
+    p.add_argument("--frame", choices=("flange", "tool"), default="flange", help="pose frame of the targets")
+    p.add_argument("--skip-failed", action="store_true", help="leave out unsolved waypoints instead of refusing")
