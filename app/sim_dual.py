@@ -9,10 +9,9 @@ directly with Gaussian position/orientation noise (no simulated motion, so it st
 * CPA: one single-joint sweep per joint about a mid-workspace pose (120 deg each: shorter arcs make the circle
   fits, hence the axes, noise-sensitive).
 
-Model sets fitted on them with :class:`~calibration.methods.Fitter` (``nominal``, ``cpa``, ``fbf13``,
-``ae``, ...), plus ``physics``: the geometry and the joint compliances identified together by one
-least-squares fit, with the link masses taken from the robot YAML (the structure is known, the values are
-not).
+Model sets are fitted on them with :class:`~calibration.methods.Fitter` (``nominal``, ``cpa``, ``fbf13``,
+``ae``, ``pi`` the physics-informed model, ...). ``pi`` knows the shape of gravity torques but not the link
+masses, so it does not get the twin's structure for free.
 """
 
 from __future__ import annotations
@@ -32,7 +31,7 @@ from cell_config.loader import CellSpec
 logger = logging.getLogger("cellcal.app")
 ROBOTS = ("R1", "R2")
 #: Model sets the simulated validation fits by default, in table order.
-SIM_METHODS = ("nominal", "cpa", "fbf13", "ae", "physics")
+SIM_METHODS = ("nominal", "cpa", "fbf13", "ae", "pi")
 
 
 @dataclass(frozen=True)
@@ -120,47 +119,6 @@ def cpa_design(n_per_sweep: int = 15, span_deg: float = 120.0) -> tuple[np.ndarr
     return np.array(q), np.array(cluster)
 
 
-def fit_physics(name: str, nominal: Any, gravity: Any, train: Recording, a_mm_per_rad: float = 180.0 / np.pi
-                ) -> KinematicModel:
-    """Geometry (minimal parameters with flange shift) and joint compliances (2, 3, 5) fitted together.
-
-    Args:
-        name: robot name.
-        nominal: the nominal arm with tool (PoeModel).
-        gravity: link masses and centres of mass (GravityModel) that give the torque.
-        train: the training recording.
-        a_mm_per_rad: orientation weight [mm/rad] (default: 1 mm ~ 1 deg).
-
-    Returns:
-        A ``PhysicsModel`` (kind ``physics``, method ``physics-ls``).
-    """
-    from scipy.optimize import least_squares
-
-    from calibration.parameterisation import MinimalParameterisation
-    from calibration.physics import JointCompliance, PhysicsModel, apply_effects
-
-    par = MinimalParameterisation(nominal, fit_tool=True)
-    template = JointCompliance(gravity)
-    tau = gravity.torque(nominal, train.q)[:, [j - 1 for j in template.joints]]  # [N m]
-    c_scale = 1e-4 / max(float(np.abs(tau).max()), 1e-9)  # compliance unit: 1e-4 rad at the largest torque
-    R_meas = train.R
-
-    def residual(z: np.ndarray) -> np.ndarray:
-        model = par.model(z[:par.size])
-        R, p = apply_effects(model, [template.with_values(z[par.size:] * c_scale)], train.q)
-        e_rot = so3.log(np.einsum("nji,njk->nik", R, R_meas)) * a_mm_per_rad
-        return np.concatenate([(p - train.p).ravel(), e_rot.ravel()])
-
-    sol = least_squares(residual, np.zeros(par.size + template.size), method="lm", x_scale=1.0)
-    if not sol.success:
-        raise ModelError(f"physics fit of {name} did not converge: {sol.message}")
-    geometry = par.model(sol.x[:par.size])
-    effect = template.with_values(sol.x[par.size:] * c_scale)
-    rms = float(np.sqrt(np.mean(sol.fun[: 3 * len(train)] ** 2) * 3))
-    return PhysicsModel(name, "physics-ls", geometry, (effect,), par.size,
-                        {"train_rms_mm": rms, "train_samples": len(train)})
-
-
 def fit_model_sets(cell: CellSpec, twins: dict[str, Any], methods: tuple[str, ...] = SIM_METHODS,
                    options: SimCellOptions = SimCellOptions()) -> dict[str, dict[str, KinematicModel]]:
     """Fit every requested model set on data measured from the twins.
@@ -172,12 +130,10 @@ def fit_model_sets(cell: CellSpec, twins: dict[str, Any], methods: tuple[str, ..
         ModelError: an unknown method (the message names the valid ones).
     """
     from calibration.methods import METHODS, Fitter
-    from calibration.physics import GravityModel
 
-    valid = METHODS + ("physics",)
-    bad = [m for m in methods if m not in valid]
+    bad = [m for m in methods if m not in METHODS]
     if bad:
-        raise ModelError(f"unknown model set {bad[0]!r}; valid: {', '.join(valid)}")
+        raise ModelError(f"unknown model set {bad[0]!r}; valid: {', '.join(METHODS)}")
     out: dict[str, dict[str, KinematicModel]] = {m: {} for m in methods}
     for k, name in enumerate(ROBOTS):
         spec = cell.robot(name)
@@ -188,9 +144,6 @@ def fit_model_sets(cell: CellSpec, twins: dict[str, Any], methods: tuple[str, ..
         cpa = measure(twins[name], qc, options, options.seed + 20 + k, cc)
         fitter = Fitter(name, nominal, train, cpa_data=cpa)
         for method in methods:
-            if method == "physics":
-                out[method][name] = fit_physics(name, nominal, GravityModel.from_spec(spec.robot, nominal), train)
-            else:
-                out[method][name] = fitter.fit(method)[0]
+            out[method][name] = fitter.fit(method)[0]
             logger.info("fitted %s for %s on %d samples", method, name, len(train))
     return out

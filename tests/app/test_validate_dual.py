@@ -23,22 +23,22 @@ def cell():
 
 @pytest.fixture(scope="module")
 def result(cell):
-    return run_sim_validation(cell, 4, methods=("nominal", "cpa", "fbf13", "physics"), options=FAST,
+    return run_sim_validation(cell, 4, methods=("nominal", "cpa", "fbf13", "pi"), options=FAST,
                               channel="test-validate-dual")
 
 
 def test_calibrated_sets_are_closer_to_contact_than_nominal(result):
     assert result.configurations == 4 and result.unconfirmed == 0
-    assert list(result.models) == ["nominal", "cpa", "fbf13", "physics"]
+    assert list(result.models) == ["nominal", "cpa", "fbf13", "pi"]
     nominal = result.models["nominal"].mean_mm
     assert result.models["fbf13"].mean_mm < nominal
-    assert result.models["physics"].mean_mm < 0.25 * nominal  # the right structure recovers the truth
+    assert result.models["pi"].mean_mm < 0.5 * nominal
     assert result.truth.max_mm <= 0.1  # the probe confirmed contact within its tolerance
     for s in result.models.values():
         assert 0 <= s.std_mm <= s.max_mm and s.mean_mm <= s.max_mm
     js = result.to_json()
     assert set(js["models"]["nominal"]) == {"mean_mm", "std_mm", "max_mm"} and js["configurations"] == 4
-    assert "nominal" in result.table() and "physics" in result.table()
+    assert "nominal" in result.table() and "pi" in result.table()
 
 
 def test_relative_position_is_the_gun_point_in_the_workpiece_frame(cell):
@@ -74,6 +74,6 @@ def test_physics_model_plans_through_frozen_dq(cell):
 def test_bad_requests(cell):
     with pytest.raises(ModelError, match="at least 2"):
         run_sim_validation(cell, 1)
-    with pytest.raises(ModelError, match="unknown model set 'bogus'; valid: .*fbf13.*physics"):
+    with pytest.raises(ModelError, match="unknown model set 'bogus'; valid: .*fbf13.*pi"):
         fit_model_sets(cell, make_twins(cell, FAST), ("bogus",), FAST)
     assert DeviationStats.of(np.array([1.0, 3.0])) == DeviationStats(2.0, 1.0, 3.0)
