@@ -345,8 +345,8 @@ def run_session(session_dir: str | Path, driver: RobotDriver, mocap: MocapSource
         except BaseException:
             try:
                 driver.stop()
-            except DriverError:
-                pass
+            except DriverError as e:
+                log.warning("could not stop %s after the session failed: %s", driver.name, e)
             raise
         finally:
             bar.close()

@@ -55,7 +55,7 @@ def write_html(out_dir: Path, comparisons: dict[str, Any], tests: dict[str, Any]
     """
     out_dir = Path(out_dir)
     cfg, planted = summary["config"], summary["planted"]
-    body = [f"<h1>cellcal demo: calibration of the simulated cell</h1>",
+    body = ["<h1>cellcal demo: calibration of the simulated cell</h1>",
             f"<p>Both arms simulated with planted geometric errors (joint origins &sigma; {planted['origin_std_mm']} mm, "
             f"axis tilts &sigma; {planted['tilt_std_deg']} deg) and a gravity joint compliance "
             f"({planted['compliance_rms_mm']} mm RMS); mocap noise {planted['mocap_noise_mm']} mm per axis per frame, "

@@ -14,7 +14,6 @@ from app.cell_runtime import SimCell, SimCellConfig
 from app.demo import DEMO_COLLECT, collect_arm, export_recordings, fit_and_compare
 from app.safety import CellSafety
 from app.session_plan import PlanSpec, session_plan
-from calibration.metrics import errors
 from cell_config import load_cell
 
 # q1 and the wrist stay near 1 deg in the anchor design, so their geometry is not observable: validation poses
