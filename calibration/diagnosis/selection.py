@@ -37,6 +37,9 @@ class SelectionOptions:
         visible_min: candidates whose visible fraction (see :func:`candidates.visibility`) is below this are
             not identifiable from the data.
         max_steps: at most this many candidates are added.
+        fallback_kinds: generic kinds (many parameters, able to mimic specific physics: the structural
+            deflection takes up joint compliance and first gear harmonics of joints 2-3) that are tried only
+            when no other candidate passes, so a specific effect keeps its name.
     """
 
     bic_threshold: float = -10.0
@@ -45,6 +48,7 @@ class SelectionOptions:
     folds: int = 5
     visible_min: float = 0.05
     max_steps: int = 12
+    fallback_kinds: tuple[str, ...] = ("structural_deflection",)
 
 
 @dataclass(frozen=True)
@@ -206,7 +210,8 @@ Rebuilder = Callable[[Candidate, np.ndarray, list[Candidate]], "tuple[Candidate,
 
 def forward_select(problem: LinearSelection, pool: list[tuple[Candidate, np.ndarray]], refine: Refiner,
                    rebuild: Rebuilder) -> tuple[list[Step], list[np.ndarray]]:
-    """Greedy forward selection, then backward confirmation per kind.
+    """Greedy forward selection (fallback kinds only when nothing else passes), then backward confirmation
+    per kind.
 
     Args:
         problem: the linearised problem.
@@ -226,10 +231,15 @@ def forward_select(problem: LinearSelection, pool: list[tuple[Candidate, np.ndar
         dof = sum(c.extra_dof for c in chosen)
         cv_base = problem.cv(chosen_S)
         best = None
-        for cand, S in pool:
-            ev = problem.compare(chosen_S, dof, [S], cand.extra_dof, cv_base)
-            if problem.accepts(ev) and (best is None or ev["delta_bic"] < best[2]["delta_bic"]):
-                best = (cand, S, ev)
+        for tier in (False, True):
+            for cand, S in pool:
+                if (cand.kind in problem.options.fallback_kinds) != tier:
+                    continue
+                ev = problem.compare(chosen_S, dof, [S], cand.extra_dof, cv_base)
+                if problem.accepts(ev) and (best is None or ev["delta_bic"] < best[2]["delta_bic"]):
+                    best = (cand, S, ev)
+            if best is not None:
+                break
         if best is None:
             break
         cand, S = refine(best[0], best[1], chosen_S)

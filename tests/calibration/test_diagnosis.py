@@ -14,7 +14,7 @@ from calibration.diagnosis.drivers import Driver, multiple_correlation
 from calibration.diagnosis.synthetic import Design, make_case
 from calibration.errors import ModelError
 from calibration.identification import rotation_residual_scale
-from calibration.models import CdcModel
+from calibration.cdc import CdcModel
 from calibration.parameterisation import MinimalParameterisation
 from calibration.physics import Backlash, GravityModel
 from cell_config import load_cell
