@@ -61,6 +61,10 @@ class DiagnoseOptions:
         compliance_form: ``joint_compliance`` candidates: ``masses`` (per joint, proportional to the gravity
             torque of the link masses), ``mass_free`` (the 5-term form of joints 2 and 3), ``auto`` (masses
             when known, else mass-free).
+        refit_geometry: refit the geometric block of a given model along its observable directions: ``yes``,
+            ``no``, or ``auto`` (constant and physics models yes; pi models no, so the baseline is the model's
+            own predictions: refitting a pi model's geometry alone on the fit data moves it off its joint fit
+            and worsens the held-out error on the real R1 data; cdc never, see :mod:`.model`).
     """
 
     a: float = DEFAULT_ORIENTATION_WEIGHT
@@ -68,6 +72,7 @@ class DiagnoseOptions:
     selection: SelectionOptions = field(default_factory=SelectionOptions)
     kinds: tuple[str, ...] = KINDS
     compliance_form: str = "auto"
+    refit_geometry: str = "auto"
     heldout_fraction: float = 0.2
     cluster_size: int = 7
     n_reference: int = 1000
@@ -105,7 +110,7 @@ def _reference(heldout: Recording | None, fit_q: np.ndarray, ctx: Context, limit
 def _geometric_columns(inuse: InUse, q: np.ndarray, theta: np.ndarray, basis: np.ndarray, w_rot: float) -> np.ndarray:
     J = inuse.jacobian_geometry(q, theta) @ basis
     J[:, 3:] *= w_rot
-    return J.reshape(-1, J.shape[-1])
+    return J.reshape(J.shape[0] * 6, J.shape[-1])
 
 
 def _merge(kind: str, cands: list[Candidate], bases: dict[tuple, np.ndarray]) -> tuple[Effect, np.ndarray]:
@@ -176,8 +181,9 @@ def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording 
     else:
         inuse = InUse.from_model(model, nominal)
         g = inuse.n_geometric
-        if inuse.kind == "cdc":
-            basis = np.zeros((g, 0))  # the interpolated geometry is held: a file cannot carry a shift of it
+        refit = opts.refit_geometry == "yes" or (opts.refit_geometry == "auto" and inuse.kind in ("constant", "physics"))
+        if inuse.kind == "cdc" or not refit:
+            basis = np.zeros((g, 0))  # cdc: a file cannot carry a shift of the interpolated geometry
         else:
             view = inuse.par if inuse.plain(inuse.theta) else inuse.kin.geometry_view(inuse.theta)
             obs = analyse(view, fit.q, inuse.theta[:g], opts.a, opts.tolerance)

@@ -72,7 +72,8 @@ class InUse:
             theta = np.asarray(model.theta_ref, dtype=float).copy()
             theta[: model.kinematics.par.size] = 0.0
             return cls(model.kinematics, theta, "cdc", model.parameters_at)
-        raise ModelError(f"diagnose cannot use a {model.kind!r} model; valid kinds: constant, physics, pi, cdc")
+        kind = getattr(model, "kind", type(model).__name__)
+        raise ModelError(f"diagnose cannot use a {kind!r} model; valid kinds: constant, physics, pi, cdc")
 
     @property
     def par(self) -> MinimalParameterisation:
@@ -179,4 +180,4 @@ class InUse:
         """Weighted first-order residual signature of an effect, shape (6N, m)."""
         J = self.effect_jacobian(effect, q, context, theta).copy()
         J[:, 3:] *= w_rot
-        return J.reshape(-1, J.shape[-1])
+        return J.reshape(J.shape[0] * 6, J.shape[-1])

@@ -95,7 +95,7 @@ def result_model(robot: str, inuse: InUse, used: KinematicModel | None, theta: n
     g = inuse.n_geometric
     full, rest = InUse.split_effects(theta, effects, g)
     extended = [e for e in effects if isinstance(e, ExtendedEffect)]
-    what = "geometric block" if n_geometric_free else "interpolated geometry held, not refitted"
+    what = "geometric block" if n_geometric_free else "geometric block held (not refitted)"
     if inuse.kind in ("constant", "physics") and all(isinstance(e, ToolFrame) for e in extended):
         geo = inuse.geometry(theta)
         for e in extended:

@@ -136,7 +136,7 @@ class JointProblem:
         Jr = np.empty_like(J)
         Jr[:, :3] = -J[:, :3]
         Jr[:, 3:] = -self.w_rot * (so3.right_jacobian_inv(e) @ J[:, 3:])
-        return Jr.reshape(-1, J.shape[-1])
+        return Jr.reshape(Jr.shape[0] * 6, J.shape[-1])
 
     def solve(self, max_iter: int = 40, tol: float = 1e-10) -> JointFit:
         """Levenberg-Marquardt from ``[0; current effect values]``."""

@@ -115,6 +115,8 @@ class LinearSelection:
 
     def add(self, S: np.ndarray) -> np.ndarray:
         """Add columns (6N, m) (normalised to unit norm); returns their indices."""
+        if np.asarray(S).shape[-1] == 0:
+            return np.zeros(0, dtype=int)
         S = np.asarray(S, dtype=float).reshape(self.N, 6, -1)[self.order]
         S = S / np.maximum(np.sqrt(np.sum(S**2, axis=(0, 1))), 1e-300)
         P0, m = self.Z.shape[2], S.shape[2]
@@ -126,8 +128,9 @@ class LinearSelection:
         zp = np.concatenate([self.zp, np.zeros((C, m))], axis=1)
         for c, (a, b) in enumerate(self.bounds):
             Zc, Sc = Z[a:b], S[a:b]
-            cross = Zc.reshape(-1, P0 + m).T @ Sc.reshape(-1, m)
-            crossp = Zc[:, :3].reshape(-1, P0 + m).T @ Sc[:, :3].reshape(-1, m)
+            nc = b - a
+            cross = Zc.reshape(nc * 6, P0 + m).T @ Sc.reshape(nc * 6, m)
+            crossp = Zc[:, :3].reshape(nc * 3, P0 + m).T @ Sc[:, :3].reshape(nc * 3, m)
             G[c, :, P0:], G[c, P0:, :] = cross, cross.T
             Gp[c, :, P0:], Gp[c, P0:, :] = crossp, crossp.T
             z[c, P0:] = Sc.reshape(-1, m).T @ self.r[a:b].ravel()
@@ -152,7 +155,7 @@ class LinearSelection:
         G = self.G[:, idx][:, :, idx].sum(axis=0)
         z = self.z[:, idx].sum(axis=0)
         if extra is not None:
-            X = self.Z[:, :, idx].reshape(-1, idx.size)
+            X = self.Z[:, :, idx].reshape(self.N * 6, idx.size)
             S = np.asarray(extra, dtype=float).reshape(self.N, 6, -1)[self.order].reshape(-1, extra.shape[-1])
             S = S / np.maximum(np.linalg.norm(S, axis=0), 1e-300)
             G = np.block([[G, X.T @ S], [S.T @ X, S.T @ S]])
