@@ -62,9 +62,9 @@ class DiagnoseOptions:
             torque of the link masses), ``mass_free`` (the 5-term form of joints 2 and 3), ``auto`` (masses
             when known, else mass-free).
         refit_geometry: refit the geometric block of a given model along its observable directions: ``yes``,
-            ``no``, or ``auto`` (constant and physics models yes; pi models no, so the baseline is the model's
-            own predictions: refitting a pi model's geometry alone on the fit data moves it off its joint fit
-            and worsens the held-out error on the real R1 data; cdc never, see :mod:`.model`).
+            ``no``, or ``auto`` (constant and physics models yes; pi models no, so the baseline and the residuals
+            are the model's own predictions; on the real R1 data refitting the pi geometry alone changes the
+            held-out RMS only from 0.2932 to 0.2929 mm; cdc never, see :mod:`.model`).
     """
 
     a: float = DEFAULT_ORIENTATION_WEIGHT
