@@ -90,8 +90,11 @@ def cmd_compare(args: argparse.Namespace) -> int:
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from app.diagnose import run_diagnose
 
+    from calibration.diagnosis import DiagnoseOptions
+
     result = run_diagnose(args.robot, args.data, heldout=args.heldout, model=args.model, json_path=args.json,
-                          report_dir=args.report, model_out=args.out, cell=args.cell)
+                          report_dir=args.report, model_out=args.out, cell=args.cell,
+                          options=DiagnoseOptions(compliance_form=args.compliance_form))
     print(result.verdict)
     return 0
 
@@ -142,6 +145,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", help="write the report (schema cellcal.diagnose/1)")
     p.add_argument("--report", help="write the report as Markdown with plots into this folder")
     p.add_argument("--out", help="save the refitted geometry + physics model")
+    p.add_argument("--compliance-form", choices=("auto", "masses", "mass_free"), default="auto",
+                   help="joint compliance from the robot YAML's link masses, or in the mass-free gravity form "
+                        "(auto: masses when the YAML has them)")
     add_dual_parsers(add)
     add_cell_parsers(add)
     return parser

@@ -44,10 +44,12 @@ def run_diagnose(robot: str, data: str | Path, heldout: str | Path | None = None
         robot: robot name in the cell (``R1``, ``R2``).
         data: recording CSV or Welding_Motoman folder to diagnose on.
         heldout: recording for the before/after figures; None sets aside a fifth of the clusters of ``data``.
-        model: model file in use (constant or physics); None fits the geometric NLS (``nls1``) on ``data``.
+        model: model file in use (constant, physics, pi or cdc; a diagnosed file is refused: give its base); None fits the
+            geometric NLS (``nls1``) on ``data``.
         json_path: write the ``cellcal.diagnose/1`` JSON report here.
         report_dir: write ``report.md`` and PNG plots into this folder.
-        model_out: write the fitted physics model (geometry + effects) here (``.yaml``/``.json``).
+        model_out: write the refitted model (physics, pi, cdc or diagnosed, see
+            :func:`calibration.diagnosis.result_model`) here (``.yaml``/``.json``).
         cell: cell YAML (default: the packaged Motoman cell).
         options: diagnosis settings.
 

@@ -163,4 +163,5 @@ def load_model(path: str | Path) -> KinematicModel:
 # Registers the physics model kinds with load_model (imported last: they subclass KinematicModel).
 import calibration.physics.model  # noqa: E402,F401
 import calibration.physics_informed  # noqa: E402,F401
-import calibration.cdc  # noqa: E402,F401  # pyflakes: registers the cdc kind
+import calibration.cdc  # noqa: E402,F401
+import calibration.diagnosis.model  # noqa: E402,F401

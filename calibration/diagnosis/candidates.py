@@ -14,6 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from calibration.diagnosis.extended import MassFreeCompliance, StructuralDeflection, ToolFrame
+from calibration.errors import ModelError
 from calibration.physics.base import Context, Effect
 from calibration.physics.compliance import JointCompliance, PayloadCompliance
 from calibration.physics.gravity import GravityModel
@@ -25,7 +27,9 @@ from calibration.poe import PoeModel
 TAU_GRID_S = (300.0, 900.0, 2700.0, 8100.0)
 #: Order in which kinds are listed (and tie-broken).
 KINDS = ("joint_compliance", "payload_compliance", "gear_transmission", "backlash", "thermal_drift",
-         "mocap_latency", "joint_offset")
+         "mocap_latency", "joint_offset", "tool_frame", "structural_deflection")
+#: ``joint_compliance`` forms: per joint with the link masses, the 5-term mass-free form, or masses when known.
+COMPLIANCE_FORMS = ("auto", "masses", "mass_free")
 
 
 @dataclass(frozen=True)
@@ -80,22 +84,30 @@ def _varies(context: Context, key: str) -> bool:
 
 
 def library(model: PoeModel, q: np.ndarray, context: Context, gravity: GravityModel | None = None,
-            kinds: tuple[str, ...] = KINDS) -> tuple[list[Candidate], list[Untested]]:
+            kinds: tuple[str, ...] = KINDS, compliance_form: str = "auto") -> tuple[list[Candidate], list[Untested]]:
     """Every candidate the data can test, and the ones it cannot with the reason.
 
     Args:
         model: the geometry in use.
         q: joint angles of the fit data [rad], shape (N, 6).
         context: their context (columns ``t``, ``temp_c``, ``payload_kg``, ``dir1..6``, ``qd``).
-        gravity: link masses (needed by ``joint_compliance``).
+        gravity: link masses (``joint_compliance`` per joint; without them the mass-free form is used).
         kinds: the kinds to consider.
+        compliance_form: one of :data:`COMPLIANCE_FORMS`.
+
+    Raises:
+        ModelError: an unknown compliance form, or ``masses`` without link masses.
     """
+    if compliance_form not in COMPLIANCE_FORMS:
+        raise ModelError(f"unknown compliance form {compliance_form!r}; valid: {', '.join(COMPLIANCE_FORMS)}")
+    if compliance_form == "masses" and gravity is None and "joint_compliance" in kinds:
+        raise ModelError("compliance form 'masses' needs link masses; use 'mass_free' or 'auto'")
     n = model.n_joints
     cands: list[Candidate] = []
     skipped: list[Untested] = []
     if "joint_compliance" in kinds:
-        if gravity is None:
-            skipped.append(Untested("joint_compliance", "joints 2-6", (), "no link masses to compute gravity torque"))
+        if compliance_form == "mass_free" or (compliance_form == "auto" and gravity is None):
+            cands.append(Candidate("joint_compliance", "joints 2-3 (mass-free form)", (2, 3), MassFreeCompliance()))
         else:
             tau = gravity.torque(model, q)
             for j in range(2, n + 1):
@@ -136,6 +148,11 @@ def library(model: PoeModel, q: np.ndarray, context: Context, gravity: GravityMo
             skipped.append(Untested("mocap_latency", "all joints", (), "static samples: no joint speeds qd1..qd6"))
     if "joint_offset" in kinds:
         cands += [Candidate("joint_offset", f"joint {j}", (j,), JointOffset((j,), np.zeros(1))) for j in range(1, n + 1)]
+    if "tool_frame" in kinds:
+        cands.append(Candidate("tool_frame", "tool marker", (), ToolFrame()))
+    if "structural_deflection" in kinds:
+        cands.append(Candidate("structural_deflection", "links 2-3 (q2, q3; joint-1 frame)", (2, 3),
+                               StructuralDeflection()))
     return cands, skipped
 
 

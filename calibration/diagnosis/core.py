@@ -1,11 +1,13 @@
 """Diagnose a kinematic model against recordings: find the physics it left out, model it, show the gain.
 
-1. Fit the model in use (geometric NLS, or refit a given model's geometry along the observable directions).
+1. Fit the model in use (geometric NLS, or refit a given model's geometry along the observable directions; any
+   kind: constant, physics, pi, cdc, see :mod:`.inuse`).
 2. Locate the mismatch: correlate its residual with every driver (:mod:`.drivers`).
 3. Hypothesise: the candidate library with signatures, what the geometry absorbs projected out
    (:mod:`.candidates`).
 4. Select with blocked cross-validation, the BIC and nested F-tests (:mod:`.selection`).
-5. Refit geometry and the selected effects together (:mod:`.refit`) into a :class:`PhysicsModel`.
+5. Refit the model in use and the selected effects together (:mod:`.refit`) into a model file
+   (:func:`.model.result_model`).
 6. Report held-out accuracy before and after, per effect, with a plain-language verdict (:mod:`.explain`).
 """
 
@@ -20,21 +22,22 @@ from scipy.linalg import block_diag
 from scipy.optimize import minimize_scalar
 
 from calibration.diagnosis import explain
-from calibration.diagnosis.candidates import KINDS, Candidate, Untested, library, signature, visibility
+from calibration.diagnosis.candidates import KINDS, Candidate, Untested, library, visibility
+from calibration.diagnosis.extended import ExtendedEffect
+from calibration.diagnosis.inuse import InUse
+from calibration.diagnosis.model import result_model
 from calibration.diagnosis.drivers import context_from_recording, drivers, locate_mismatch
 from calibration.diagnosis.noise import noise_floor
 from calibration.diagnosis.refit import JointFit, JointProblem
-from calibration.diagnosis.report import Accuracy, Diagnosis, Evidence, FoundEffect, PlotData
+from calibration.diagnosis.report import Accuracy, Diagnosis, Evidence, PlotData
 from calibration.diagnosis.selection import LinearSelection, SelectionOptions, blocked_folds, forward_select
-from calibration.errors import DataError, ModelError
+from calibration.errors import DataError
 from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, rotation_residual_scale, weighted_residuals
-from calibration.models import ConstantModel, KinematicModel
+from calibration.models import KinematicModel
 from calibration.observability import DEFAULT_RELATIVE_TOLERANCE, analyse
-from calibration.parameterisation import MinimalParameterisation
-from calibration.physics.base import Context, Effect, apply_effects
+from calibration.physics.base import Context, Effect
 from calibration.physics.gravity import GravityModel
 from calibration.physics.joint_effects import JointOffset
-from calibration.physics.model import PhysicsModel
 from calibration.physics.thermal import ThermalDrift
 from calibration.poe import PoeModel, pose_error
 from calibration.recording import Recording
@@ -55,12 +58,21 @@ class DiagnoseOptions:
         cluster_size: samples per cluster when the data has no cluster column.
         n_reference: random poses of the reference workspace when no held-out recording is given.
         seed: seed of the reference workspace and of the context resampling.
+        compliance_form: ``joint_compliance`` candidates: ``masses`` (per joint, proportional to the gravity
+            torque of the link masses), ``mass_free`` (the 5-term form of joints 2 and 3), ``auto`` (masses
+            when known, else mass-free).
+        refit_geometry: refit the geometric block of a given model along its observable directions: ``yes``,
+            ``no``, or ``auto`` (constant and physics models yes; pi models no, so the baseline and the residuals
+            are the model's own predictions; on the real R1 data refitting the pi geometry alone changes the
+            held-out RMS only from 0.2932 to 0.2929 mm; cdc never, see :mod:`.model`).
     """
 
     a: float = DEFAULT_ORIENTATION_WEIGHT
     tolerance: float = DEFAULT_RELATIVE_TOLERANCE
     selection: SelectionOptions = field(default_factory=SelectionOptions)
     kinds: tuple[str, ...] = KINDS
+    compliance_form: str = "auto"
+    refit_geometry: str = "auto"
     heldout_fraction: float = 0.2
     cluster_size: int = 7
     n_reference: int = 1000
@@ -74,9 +86,9 @@ def _groups(rec: Recording, size: int) -> np.ndarray:
         return np.arange(len(rec)) // size
 
 
-def _accuracy(name: str, model: PoeModel, effects: tuple[Effect, ...], rec: Recording, ctx: Context
+def _accuracy(name: str, inuse: InUse, theta: np.ndarray, effects: tuple[Effect, ...], rec: Recording, ctx: Context
               ) -> tuple[Accuracy, np.ndarray]:
-    R, p = apply_effects(model, effects, rec.q, ctx)
+    R, p = inuse.pose(rec.q, effects, ctx, theta)
     dp, dR = pose_error(rec.R, rec.p, R, p)
     return Accuracy.of(name, dp, dR), dp
 
@@ -95,12 +107,10 @@ def _reference(heldout: Recording | None, fit_q: np.ndarray, ctx: Context, limit
     return q, {k: np.asarray(v)[idx] for k, v in ctx.items()}
 
 
-def _geometric_columns(par: MinimalParameterisation, q: np.ndarray, x: np.ndarray, basis: np.ndarray,
-                       w_rot: float) -> np.ndarray:
-    _, _, J = par.jacobian(q, x)
-    J = J @ basis
+def _geometric_columns(inuse: InUse, q: np.ndarray, theta: np.ndarray, basis: np.ndarray, w_rot: float) -> np.ndarray:
+    J = inuse.jacobian_geometry(q, theta) @ basis
     J[:, 3:] *= w_rot
-    return J.reshape(-1, J.shape[-1])
+    return J.reshape(J.shape[0] * 6, J.shape[-1])
 
 
 def _merge(kind: str, cands: list[Candidate], bases: dict[tuple, np.ndarray]) -> tuple[Effect, np.ndarray]:
@@ -115,7 +125,7 @@ def _merged_effect(kind: str, cands: list[Candidate]) -> Effect:
     if kind == "thermal_drift":
         links = tuple(c.effect.links[0] for c in cands)  # type: ignore[attr-defined]
         return ThermalDrift(links, np.zeros(len(links)), first.mode, first.tau_s, first.ref_temp_c)  # type: ignore[attr-defined]
-    if kind == "mocap_latency":
+    if kind in ("mocap_latency", "tool_frame", "structural_deflection") or isinstance(first, ExtendedEffect):
         return first
     joints = tuple(sorted(j for c in cands for j in c.joints))
     if kind == "gear_transmission":
@@ -137,13 +147,13 @@ def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording 
         data: the recording to diagnose on (extra columns ``t``, ``temp_c``, ``payload_kg``, ``dir1..6``,
             ``qd1..qd6``, ``cluster`` are used when present).
         heldout: a separate recording for the before/after figures; None sets aside a share of the clusters.
-        model: the model in use (constant or physics); None fits the geometric NLS (``nls1``).
+        model: the model in use (constant, physics, pi or cdc); None fits the geometric NLS (``nls1``).
         gravity: link masses for gravity torques (``joint_compliance``); None leaves that kind untested.
         joint_limits: ``(lower, upper)`` [rad] (6,), the reference workspace when no held-out data is given.
         options: settings.
 
     Raises:
-        ModelError: a model kind whose geometry cannot be refitted (configuration-dependent models).
+        ModelError: a model kind diagnose does not know.
     """
     opts = options or DiagnoseOptions()
     w_rot = rotation_residual_scale(opts.a)
@@ -156,55 +166,71 @@ def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording 
         source = "split"
     fit, groups = data, groups_all
     ctx, ctx_ho = context_from_recording(fit), context_from_recording(heldout)
-    par = MinimalParameterisation(nominal, fit_tool=True)
-
-    # 1. The model in use, fitted.
+    # 1. The model in use, fitted: its geometric block (cdc: held) and its own effects refitted.
     base_effects: tuple[Effect, ...] = ()
+    obs = None
     if model is None:
         from calibration.methods import FitOptions, Fitter
 
         fitter = Fitter(robot, nominal, fit, FitOptions(a=opts.a, tolerance=opts.tolerance, cluster_size=opts.cluster_size))
         base_model, _ = fitter.fit("nls1")
         obs = fitter.observability()
-        x_base = par.from_geometry(base_model.model.H, base_model.model.P)  # type: ignore[attr-defined]
+        inuse = InUse.from_model(base_model, nominal)
+        basis = obs.basis
         base_name = "geometric"
-    elif isinstance(model, (ConstantModel, PhysicsModel)):
-        x_model = par.from_geometry(model.model.H, model.model.P)
-        obs = analyse(par, fit.q, x_model, opts.a, opts.tolerance)
-        base_effects = tuple(model.effects) if isinstance(model, PhysicsModel) else ()
-        sol = JointProblem(par, fit.q, fit.R, fit.p, ctx, x_model, obs.basis, base_effects, w_rot).solve()
-        x_base, base_effects = sol.x, sol.effects
-        base_name = "+".join(["geometric"] + [e.kind for e in base_effects])
     else:
-        raise ModelError(f"diagnose refits the geometry of the model in use; a {model.kind!r} model has none to "
-                         "refit. Give a constant or physics model, or none for the geometric NLS fit")
-    basis = obs.basis
-    geo = par.model(x_base)
-    baseline, before_dp = _accuracy(base_name, geo, base_effects, heldout, ctx_ho)
+        inuse = InUse.from_model(model, nominal)
+        g = inuse.n_geometric
+        refit = opts.refit_geometry == "yes" or (opts.refit_geometry == "auto" and inuse.kind in ("constant", "physics"))
+        if inuse.kind == "cdc" or not refit:
+            basis = np.zeros((g, 0))  # cdc: a file cannot carry a shift of the interpolated geometry
+        else:
+            view = inuse.par if inuse.plain(inuse.theta) else inuse.kin.geometry_view(inuse.theta)
+            obs = analyse(view, fit.q, inuse.theta[:g], opts.a, opts.tolerance)
+            basis = obs.basis
+        sol = JointProblem(inuse.par, fit.q, fit.R, fit.p, ctx, inuse.theta[:g], basis, inuse.effects, w_rot,
+                           inuse=inuse).solve()
+        inuse, base_effects = inuse.with_theta(sol.theta, ()), sol.effects
+        base_name = "+".join([_base_name(model)] + [e.kind for e in base_effects])
+    par = inuse.par
+    theta_base = inuse.theta
+    x_base = theta_base[: par.size]
+
+    def theta_at(x: np.ndarray) -> np.ndarray:
+        th = theta_base.copy()
+        th[: par.size] = x
+        return th
+    geo = inuse.geometry(theta_base)
+    baseline, before_dp = _accuracy(base_name, inuse, theta_base, base_effects, heldout, ctx_ho)
 
     # 2. Where the mismatch is.
-    R, p = apply_effects(geo, base_effects, fit.q, ctx)
+    R, p = inuse.pose(fit.q, base_effects, ctx, theta_base)
     r0, _ = weighted_residuals(fit.R, fit.p, R, p, w_rot)
     drv = drivers(geo, fit.q, ctx, gravity)
     mismatch = locate_mismatch(r0, drv)
 
     # 3. Candidates, with what the geometry absorbs projected out.
-    A = np.concatenate([_geometric_columns(par, fit.q, x_base, basis, w_rot)]
-                       + [signature(e, geo, fit.q, ctx, w_rot) for e in base_effects], axis=1)
+    def signature(e: Effect, q: np.ndarray, c: Context) -> np.ndarray:
+        return inuse.signature(e, q, c, theta_base, w_rot)
+    A = np.concatenate([_geometric_columns(inuse, fit.q, theta_base, basis, w_rot)]
+                       + [signature(e, fit.q, ctx) for e in base_effects], axis=1)
     present = {e.kind for e in base_effects}
-    cands, untested = library(geo, fit.q, ctx, gravity, tuple(k for k in opts.kinds if k not in present))
+    if inuse.kind in ("pi", "cdc"):  # they carry the tool rotation, the mass-free compliance and the deflection
+        present |= {"tool_frame", "joint_compliance", "structural_deflection"}
+    cands, untested = library(geo, fit.q, ctx, gravity, tuple(k for k in opts.kinds if k not in present),
+                              opts.compliance_form)
     q_ref, ctx_ref = _reference(None if source == "split" else heldout, fit.q, ctx, joint_limits, opts)
     Q = np.linalg.qr(A)[0]
 
     def sig_offset(j: int) -> np.ndarray:
-        return signature(JointOffset((j,), np.zeros(1)), geo, fit.q, ctx, w_rot)
+        return signature(JointOffset((j,), np.zeros(1)), fit.q, ctx)
     pool, hidden, bases = [], [], {}
     for c in cands:
-        S = signature(c.effect, geo, fit.q, ctx, w_rot)
+        S = signature(c.effect, fit.q, ctx)
         Qc = Q
         if c.kind == "gear_transmission":  # its constant part is a joint offset, not a transmission error
             Qc = np.linalg.qr(np.concatenate([A, sig_offset(c.joints[0])], axis=1))[0]
-        vis, exc, B = visibility(S, Qc, signature(c.effect, geo, q_ref, ctx_ref, w_rot), len(fit), q_ref.shape[0],
+        vis, exc, B = visibility(S, Qc, signature(c.effect, q_ref, ctx_ref), len(fit), q_ref.shape[0],
                                  opts.selection.visible_min)
         if vis < opts.selection.visible_min:
             hidden.append(explain.not_identifiable(c, vis, exc, fit.q, q_ref))
@@ -214,7 +240,7 @@ def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording 
     problem = LinearSelection(A, r0, groups, opts.selection)
 
     def sig(e: Effect) -> np.ndarray:
-        return signature(e, geo, fit.q, ctx, w_rot)
+        return signature(e, fit.q, ctx)
 
     pool = _tune_warmup(pool, lambda e: problem.rss([], sig(e)), sig)
     pool = [(c, problem.add(S)) for c, S in pool]
@@ -258,7 +284,7 @@ def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording 
     def joint_fit(chosen: list[tuple[Effect, np.ndarray]]) -> JointFit:
         B = block_diag(np.eye(n_base), *[b for _, b in chosen])
         return JointProblem(par, fit.q, fit.R, fit.p, ctx, x_base, basis, base_effects + tuple(e for e, _ in chosen),
-                            w_rot, B if B.size else None).solve()
+                            w_rot, B if B.size else None, inuse=inuse).solve()
 
     kept: list[tuple[Effect, np.ndarray]] = []
     kept_kinds: list[str] = []
@@ -267,7 +293,7 @@ def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording 
     effects_out, rejected = [], []
     for kind, (e0, B) in zip(kinds_in_order, merged):
         trial = joint_fit(kept + [(e0, B)])
-        acc, dp = _accuracy("+".join([base_name] + kept_kinds + [kind]), par.model(trial.x), trial.effects,
+        acc, dp = _accuracy("+".join([base_name] + kept_kinds + [kind]), inuse, theta_at(trial.x), trial.effects,
                             heldout, ctx_ho)
         mine = [j for j, st in enumerate(steps) if st.candidate.kind == kind]
         others = [j for j, st in enumerate(steps) if st.candidate.kind in kept_kinds]
@@ -289,16 +315,20 @@ def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording 
                                  item.evidence) for i, item in enumerate(effects_out)]
 
     # 6. Noise floor, verdict.
-    R, p = apply_effects(par.model(final_fit.x), final_fit.effects, fit.q, ctx)
+    R, p = inuse.pose(fit.q, final_fit.effects, ctx, theta_at(final_fit.x))
     r_final, _ = weighted_residuals(fit.R, fit.p, R, p, w_rot)
     noise = noise_floor(r_final, groups, final_fit.n_parameters)
-    notes = tuple(n for n in [obs.summary()] if n)
-    physics = PhysicsModel(robot, "diagnose", par.model(final_fit.x), final_fit.effects, basis.shape[1],
-                           {"baseline": base_name, "fit_samples": len(fit), "effects_found": kept_kinds})
+    physics, refit_note = result_model(robot, inuse, model, theta_at(final_fit.x), final_fit.effects, basis.shape[1],
+                                       {"baseline": base_name, "fit_samples": len(fit), "effects_found": kept_kinds})
+    notes = tuple(n for n in [obs.summary() if obs is not None else "", refit_note] if n)
     verdict = explain.verdict(effects_out, baseline, cur_acc, noise.floor_mm, hidden, untested, rejected)
     return Diagnosis(robot, len(fit), len(heldout), source, noise, baseline, cur_acc, tuple(mismatch),
                      tuple(effects_out), tuple(hidden), tuple(untested), verdict, physics, notes,
                      PlotData(np.linalg.norm(r0[:, :3], axis=1), tuple(drv), before_dp, cur_dp), tuple(rejected))
+
+
+def _base_name(model: KinematicModel) -> str:
+    return {"constant": "geometric", "physics": "geometric", "pi": "pi"}.get(model.kind, f"{model.kind}-{model.method}")
 
 
 def _paired_z(d: np.ndarray) -> float:

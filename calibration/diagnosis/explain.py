@@ -17,6 +17,8 @@ PHYSICS = {
     "thermal_drift": "thermal drift",
     "mocap_latency": "motion-capture latency",
     "joint_offset": "joint zero offset",
+    "tool_frame": "tool-marker rotation",
+    "structural_deflection": "structural deflection",
 }
 
 
@@ -71,6 +73,20 @@ def found(effect: Effect, std: np.ndarray, evidence: Evidence) -> FoundEffect:
                    f"time constant of {effect.tau_s:.0f} s."  # type: ignore[attr-defined]
         else:
             text = f"The arm grows with temperature: link{'s' if len(links) > 1 else ''} {_and(grow)}."
+    elif kind == "tool_frame":
+        ang = 1e3 * np.linalg.norm(effect.values)
+        text = f"The tool marker is rotated in the flange frame by {ang:.3f} mrad " \
+               f"(rx, ry, rz = {', '.join(_pm(1e3 * params[n], 1e3 * unc[n] if unc[n] is not None else None) for n in effect.names)} mrad)."  # type: ignore[operator]
+    elif kind == "structural_deflection":
+        C = effect.values.reshape(-1, 6)
+        text = f"The structure bends with the shoulder and elbow angles beyond what joint compliance explains: a " \
+               f"smooth pose correction in the joint-1 frame of up to {np.abs(C[1:, :3]).sum(axis=0).max():.3f} mm " \
+               f"and {1e3 * np.abs(C[1:, 3:]).sum(axis=0).max():.3f} mrad over (q2, q3) (7 Fourier terms per axis)."
+    elif kind == "joint_compliance" and "c2_sin_q2_rad" in effect.names:
+        v = 1e3 * effect.values
+        text = f"The arm sags under its own weight (mass-free form, link masses unknown): joint 2 deflects by " \
+               f"{v[0]:.3f} sin q2 + {v[1]:.3f} cos u + {v[2]:.3f} sin u mrad and joint 3 by {v[3]:.3f} cos u + " \
+               f"{v[4]:.3f} sin u mrad (u = q2 - q3, the shape of the shoulder and elbow gravity torques)."
     elif kind == "mocap_latency":
         text = f"The pose is measured late while the arm moves: latency " \
                f"{_pm(1e3 * params['latency_s'], 1e3 * unc['latency_s'], ' ms')}."  # type: ignore[operator]
@@ -93,6 +109,8 @@ def found(effect: Effect, std: np.ndarray, evidence: Evidence) -> FoundEffect:
 
 
 def _on(e: FoundEffect) -> str:
+    if e.kind == "tool_frame":
+        return "the tool marker"
     if e.links:
         return f"links {_and(list(e.links))}"
     if e.joints:

@@ -16,10 +16,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from calibration import so3
+from calibration.diagnosis.inuse import InUse
 from calibration.errors import ModelError
 from calibration.identification import weighted_residuals
 from calibration.parameterisation import MinimalParameterisation
-from calibration.physics.base import Context, Effect, apply_effects
+from calibration.physics.base import Context, Effect
+from calibration.physics_informed import ExtendedKinematics
 
 
 @dataclass(frozen=True)
@@ -37,6 +39,7 @@ class JointFit:
         iterations: LM iterations run.
         converged: whether the relative cost change fell below tolerance.
         seconds: wall time.
+        theta: the model in use's extended parameters (77,) with ``x`` and the extended effects' values in.
     """
 
     x: np.ndarray
@@ -49,6 +52,7 @@ class JointFit:
     iterations: int
     converged: bool
     seconds: float
+    theta: np.ndarray | None = None
 
 
 def _split(effects: tuple[Effect, ...], theta: np.ndarray) -> tuple[Effect, ...]:
@@ -74,11 +78,13 @@ class JointProblem:
         w_rot: rotation residual scale (``sqrt(2a)``).
         effect_basis: optional (p_e, k_e) matrix; effect parameters move only in its column space from their
             start (directions the geometry absorbs stay put).
+        inuse: the model in use (pi, cdc, ...) the effects are added to; None: the POE geometry of ``par``
+            (``x`` is then its geometric block; for cdc a shift of the interpolated geometry).
     """
 
     def __init__(self, par: MinimalParameterisation, q: np.ndarray, R_meas: np.ndarray, p_meas: np.ndarray,
                  context: Context | None, x0: np.ndarray, basis: np.ndarray, effects: tuple[Effect, ...],
-                 w_rot: float, effect_basis: np.ndarray | None = None) -> None:
+                 w_rot: float, effect_basis: np.ndarray | None = None, inuse: InUse | None = None) -> None:
         self.par, self.q, self.R_meas, self.p_meas, self.context = par, np.atleast_2d(q), R_meas, p_meas, context
         N = self.q.shape[0]
         if R_meas.shape != (N, 3, 3) or p_meas.shape != (N, 3):
@@ -88,6 +94,9 @@ class JointProblem:
         if self.basis.shape[0] != par.size or self.x0.shape != (par.size,):
             raise ModelError(f"x0 must be ({par.size},) and basis ({par.size}, k)")
         self.effects = tuple(effects)
+        self.inuse = inuse if inuse is not None else InUse(ExtendedKinematics(par), np.zeros(ExtendedKinematics(par).size))
+        if self.inuse.par.size != par.size:
+            raise ModelError(f"the model in use has {self.inuse.par.size} geometric parameters, par {par.size}")
         self.w_rot = w_rot
         self.k = self.basis.shape[1]
         self.theta0 = np.concatenate([e.values for e in self.effects]) if self.effects else np.zeros(0)
@@ -99,25 +108,35 @@ class JointProblem:
         """Geometric parameters (m,) and effects for a stacked vector ``[z; theta]``."""
         return self.x0 + self.basis @ u[: self.k], _split(self.effects, self.theta0 + self.B @ u[self.k:])
 
+    def theta(self, x: np.ndarray, effects: tuple[Effect, ...]) -> tuple[np.ndarray, tuple[Effect, ...]]:
+        """Extended parameters with geometry ``x`` and the extended effects in, and the other effects."""
+        theta = self.inuse.theta.copy()
+        theta[: self.par.size] = x
+        return InUse.split_effects(theta, effects, self.par.size)
+
     def residual(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Weighted residuals (N, 6) and rotation error vectors (N, 3)."""
         x, effects = self.unpack(u)
-        R, p = apply_effects(self.par.model(x), effects, self.q, self.context)
+        theta = self.inuse.theta.copy()
+        theta[: self.par.size] = x
+        R, p = self.inuse.pose(self.q, effects, self.context, theta)
         return weighted_residuals(self.R_meas, self.p_meas, R, p, self.w_rot)
 
     def jacobian(self, u: np.ndarray, e: np.ndarray) -> np.ndarray:
         """d residual / d u, shape (6N, k + p_e)."""
         x, effects = self.unpack(u)
-        model = self.par.model(x)
-        dq = sum((ef.delta_q(model, self.q, self.context) for ef in effects), np.zeros_like(self.q))
-        _, _, Jg = self.par.jacobian(self.q + dq, x)
-        blocks = [Jg @ self.basis] + [ef.pose_jacobian(model, self.q, self.context) for ef in effects]
+        theta, rest = self.theta(x, effects)
+        geo = self.inuse.geometry(theta)
+        dq = sum((ef.delta_q(geo, self.q, self.context) for ef in rest if ef.target != "geometry"),
+                 np.zeros_like(self.q))
+        Jg = self.inuse.jacobian_geometry(self.q + dq, theta)
+        blocks = [Jg @ self.basis] + [self.inuse.effect_jacobian(ef, self.q, self.context, theta) for ef in effects]
         J = np.concatenate(blocks, axis=-1)
         J = np.concatenate([J[..., : self.k], J[..., self.k:] @ self.B], axis=-1)
         Jr = np.empty_like(J)
         Jr[:, :3] = -J[:, :3]
         Jr[:, 3:] = -self.w_rot * (so3.right_jacobian_inv(e) @ J[:, 3:])
-        return Jr.reshape(-1, J.shape[-1])
+        return Jr.reshape(Jr.shape[0] * 6, J.shape[-1])
 
     def solve(self, max_iter: int = 40, tol: float = 1e-10) -> JointFit:
         """Levenberg-Marquardt from ``[0; current effect values]``."""
@@ -162,4 +181,5 @@ class JointProblem:
             stds.append(std[i: i + ef.size])
             i += ef.size
         rms = float(np.sqrt(np.mean(np.sum(r[:, :3] ** 2, axis=1))))
-        return JointFit(x, effects, tuple(stds), cov, s2, rms, p, it, converged, time.perf_counter() - start)
+        theta, _ = self.theta(x, effects)
+        return JointFit(x, effects, tuple(stds), cov, s2, rms, p, it, converged, time.perf_counter() - start, theta)

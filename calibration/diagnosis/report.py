@@ -17,7 +17,7 @@ import numpy as np
 from calibration.diagnosis.candidates import Untested
 from calibration.diagnosis.drivers import Driver, Mismatch
 from calibration.diagnosis.noise import NoiseFloor
-from calibration.physics.model import PhysicsModel
+from calibration.models import KinematicModel
 
 SCHEMA = "cellcal.diagnose/1"
 
@@ -135,7 +135,7 @@ class Diagnosis:
         not_identifiable: candidates the data cannot identify, with reasons.
         untested: candidates the data cannot test (missing columns), with reasons.
         verdict: plain-language summary.
-        model: the fitted physics model (geometry + effects).
+        model: the refitted model (physics, pi, cdc or diagnosed; see :func:`.model.result_model`).
         notes: further plain-language remarks (observability of the geometry).
         plots: arrays for plots.
         rejected: effects the fit data selected but the held-out data did not confirm (they would not
@@ -154,7 +154,7 @@ class Diagnosis:
     not_identifiable: tuple[Untested, ...]
     untested: tuple[Untested, ...]
     verdict: str
-    model: PhysicsModel
+    model: KinematicModel
     notes: tuple[str, ...] = ()
     plots: PlotData | None = field(default=None, repr=False)
     rejected: tuple[FoundEffect, ...] = ()

@@ -37,6 +37,9 @@ class SelectionOptions:
         visible_min: candidates whose visible fraction (see :func:`candidates.visibility`) is below this are
             not identifiable from the data.
         max_steps: at most this many candidates are added.
+        fallback_kinds: generic kinds (many parameters, able to mimic specific physics: the structural
+            deflection takes up joint compliance and first gear harmonics of joints 2-3) that are tried only
+            when no other candidate passes, so a specific effect keeps its name.
     """
 
     bic_threshold: float = -10.0
@@ -45,6 +48,7 @@ class SelectionOptions:
     folds: int = 5
     visible_min: float = 0.05
     max_steps: int = 12
+    fallback_kinds: tuple[str, ...] = ("structural_deflection",)
 
 
 @dataclass(frozen=True)
@@ -111,6 +115,8 @@ class LinearSelection:
 
     def add(self, S: np.ndarray) -> np.ndarray:
         """Add columns (6N, m) (normalised to unit norm); returns their indices."""
+        if np.asarray(S).shape[-1] == 0:
+            return np.zeros(0, dtype=int)
         S = np.asarray(S, dtype=float).reshape(self.N, 6, -1)[self.order]
         S = S / np.maximum(np.sqrt(np.sum(S**2, axis=(0, 1))), 1e-300)
         P0, m = self.Z.shape[2], S.shape[2]
@@ -122,8 +128,9 @@ class LinearSelection:
         zp = np.concatenate([self.zp, np.zeros((C, m))], axis=1)
         for c, (a, b) in enumerate(self.bounds):
             Zc, Sc = Z[a:b], S[a:b]
-            cross = Zc.reshape(-1, P0 + m).T @ Sc.reshape(-1, m)
-            crossp = Zc[:, :3].reshape(-1, P0 + m).T @ Sc[:, :3].reshape(-1, m)
+            nc = b - a
+            cross = Zc.reshape(nc * 6, P0 + m).T @ Sc.reshape(nc * 6, m)
+            crossp = Zc[:, :3].reshape(nc * 3, P0 + m).T @ Sc[:, :3].reshape(nc * 3, m)
             G[c, :, P0:], G[c, P0:, :] = cross, cross.T
             Gp[c, :, P0:], Gp[c, P0:, :] = crossp, crossp.T
             z[c, P0:] = Sc.reshape(-1, m).T @ self.r[a:b].ravel()
@@ -148,7 +155,7 @@ class LinearSelection:
         G = self.G[:, idx][:, :, idx].sum(axis=0)
         z = self.z[:, idx].sum(axis=0)
         if extra is not None:
-            X = self.Z[:, :, idx].reshape(-1, idx.size)
+            X = self.Z[:, :, idx].reshape(self.N * 6, idx.size)
             S = np.asarray(extra, dtype=float).reshape(self.N, 6, -1)[self.order].reshape(-1, extra.shape[-1])
             S = S / np.maximum(np.linalg.norm(S, axis=0), 1e-300)
             G = np.block([[G, X.T @ S], [S.T @ X, S.T @ S]])
@@ -206,7 +213,8 @@ Rebuilder = Callable[[Candidate, np.ndarray, list[Candidate]], "tuple[Candidate,
 
 def forward_select(problem: LinearSelection, pool: list[tuple[Candidate, np.ndarray]], refine: Refiner,
                    rebuild: Rebuilder) -> tuple[list[Step], list[np.ndarray]]:
-    """Greedy forward selection, then backward confirmation per kind.
+    """Greedy forward selection (fallback kinds only when nothing else passes), then backward confirmation
+    per kind.
 
     Args:
         problem: the linearised problem.
@@ -226,10 +234,15 @@ def forward_select(problem: LinearSelection, pool: list[tuple[Candidate, np.ndar
         dof = sum(c.extra_dof for c in chosen)
         cv_base = problem.cv(chosen_S)
         best = None
-        for cand, S in pool:
-            ev = problem.compare(chosen_S, dof, [S], cand.extra_dof, cv_base)
-            if problem.accepts(ev) and (best is None or ev["delta_bic"] < best[2]["delta_bic"]):
-                best = (cand, S, ev)
+        for tier in (False, True):
+            for cand, S in pool:
+                if (cand.kind in problem.options.fallback_kinds) != tier:
+                    continue
+                ev = problem.compare(chosen_S, dof, [S], cand.extra_dof, cv_base)
+                if problem.accepts(ev) and (best is None or ev["delta_bic"] < best[2]["delta_bic"]):
+                    best = (cand, S, ev)
+            if best is not None:
+                break
         if best is None:
             break
         cand, S = refine(best[0], best[1], chosen_S)

@@ -14,7 +14,7 @@ from calibration.diagnosis.drivers import Driver, multiple_correlation
 from calibration.diagnosis.synthetic import Design, make_case
 from calibration.errors import ModelError
 from calibration.identification import rotation_residual_scale
-from calibration.cdc import CdcModel, geometric_cdc
+from calibration.cdc import CdcModel
 from calibration.parameterisation import MinimalParameterisation
 from calibration.physics import Backlash, GravityModel
 from cell_config import load_cell
@@ -118,12 +118,77 @@ def test_split_heldout_when_none_given(arm):
     assert [e.kind for e in res.effects] == ["backlash"]
 
 
-def test_cdc_model_is_refused(arm):
+def _pi_and_cdc(nominal, twin, anchors):
+    """A pi model and a cdc model (nearest-anchor interpolation of one geometry) of the twin's geometry."""
+    from calibration.interpolation import make_interpolator
+    from calibration.physics_informed import ExtendedKinematics, PhysicsInformedModel
+
+    kin = ExtendedKinematics(MinimalParameterisation(nominal, True))
+    theta = np.zeros(kin.size)
+    theta[:27] = kin.par.from_geometry(twin.geometry.H, twin.geometry.P)
+    interp = make_interpolator("nearest").fit(anchors, np.tile(theta[:27], (len(anchors), 1)))
+    return PhysicsInformedModel("R1", "pi", kin, theta), CdcModel("R1", "nearest", kin, theta, interp)
+
+
+@pytest.mark.parametrize("kind", ["pi", "cdc"])
+def test_pi_and_cdc_models_in_use_get_effects_added_and_save(arm, kind, tmp_path):
+    from calibration.diagnosis import context_from_recording
+    from calibration.models import load_model, save_model
+
+    cr, nominal, gravity = arm
+    twin, fit, ho = make_case(nominal, gravity, {"backlash": 0.3}, 2, DESIGN, n_heldout=200)
+    used = dict(zip(("pi", "cdc"), _pi_and_cdc(nominal, twin, fit.q[::7, 1:3])))[kind]
+    res = diagnose("R1", nominal, fit, ho, used, gravity)
+    assert res.baseline.model.startswith(kind) and [e.kind for e in res.effects] == ["backlash"]
+    np.testing.assert_allclose(res.baseline.rms_mm, np.sqrt(np.mean(np.sum((used.fk(ho.q)[1] - ho.p) ** 2, axis=1))),
+                               rtol=1e-9)  # the baseline is the model's own predictions
+    assert res.final.rms_mm <= 1.3 * res.noise.floor_mm
+    save_model(res.model, tmp_path / "m.yaml")
+    m = load_model(tmp_path / "m.yaml")
+    assert m.kind == "diagnosed" and m.base.kind == kind and [e.kind for e in m.effects] == ["backlash"]
+    _, p = m.fk_context(ho.q, context_from_recording(ho))
+    np.testing.assert_allclose(np.sqrt(np.mean(np.sum((p - ho.p) ** 2, axis=1))), res.final.rms_mm, rtol=1e-9)
+
+
+def test_tool_frame_is_found_and_folded_into_the_tool(arm):
+    from dataclasses import replace
+
+    from calibration import so3
+    from calibration.diagnosis.synthetic import measure
+
+    cr, nominal, gravity = arm
+    twin, fit, ho = make_case(nominal, gravity, {}, 8, DESIGN, n_heldout=200)
+    w = np.array([2e-3, -1.5e-3, 1e-3])
+    g = twin.geometry
+    twin = replace(twin, geometry=replace(g, R_flange_tool=g.R_flange_tool @ so3.exp(w)))
+    rng = np.random.default_rng(1)
+    fit = measure(twin, fit.q, dict(fit.extra), DESIGN, rng)
+    ho = measure(twin, ho.q, dict(ho.extra), DESIGN, rng)
+    res = diagnose("R1", nominal, fit, ho, gravity=gravity)
+    assert [e.kind for e in res.effects] == ["tool_frame"]
+    np.testing.assert_allclose(list(res.effects[0].parameters.values()), w, atol=3e-4)
+    assert res.model.kind == "physics" and res.final.rms_mm <= 1.3 * res.noise.floor_mm
+    np.testing.assert_allclose(res.model.model.R_flange_tool, twin.geometry.R_flange_tool, atol=5e-4)
+
+
+def test_mass_free_compliance_when_masses_are_unknown(arm):
+    cr, nominal, gravity = arm
+    twin, fit, ho = make_case(nominal, gravity, {"joint_compliance": 0.3}, 1, DESIGN, n_heldout=200)
+    res = diagnose("R1", nominal, fit, ho)  # no link masses
+    assert [e.kind for e in res.effects] == ["joint_compliance"]
+    assert "c2_sin_q2_rad" in res.effects[0].parameters and res.effects[0].joints == (2, 3)
+    assert res.model.kind == "pi" and res.final.rms_mm <= 1.3 * res.noise.floor_mm
+    _, p = res.model.fk(ho.q)
+    np.testing.assert_allclose(np.sqrt(np.mean(np.sum((p - ho.p) ** 2, axis=1))), res.final.rms_mm, rtol=1e-9)
+
+
+def test_unknown_model_kind_and_compliance_form_are_refused(arm):
     cr, nominal, gravity = arm
     _, fit, ho = make_case(nominal, gravity, {}, 0, DESIGN, n_heldout=20)
-    cdc = CdcModel("R1", "fbf13", *geometric_cdc(MinimalParameterisation(nominal, True)), object())
-    with pytest.raises(ModelError, match="constant or physics"):
-        diagnose("R1", nominal, fit, ho, cdc)
+    with pytest.raises(ModelError, match="valid kinds"):
+        diagnose("R1", nominal, fit, ho, object())  # type: ignore[arg-type]
+    with pytest.raises(ModelError, match="mass_free"):
+        diagnose("R1", nominal, fit, ho, options=DiagnoseOptions(compliance_form="masses"))
 
 
 def test_joint_refit_recovers_planted_backlash_and_geometry(arm):
