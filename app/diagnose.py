@@ -9,29 +9,16 @@ from __future__ import annotations
 
 import json
 import logging
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from app.report import save_figure
 from calibration.diagnosis import DiagnoseOptions, Diagnosis, diagnose
 from calibration.errors import ModelError
+from calibration.files import atomic_write_text
 
 log = logging.getLogger("cellcal.app")
-
-
-def _atomic_text(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def run_diagnose(robot: str, data: str | Path, heldout: str | Path | None = None, model: str | Path | None = None,
@@ -82,7 +69,7 @@ def run_diagnose(robot: str, data: str | Path, heldout: str | Path | None = None
     if model_out is not None:
         save_model(result.model, model_out)
     if json_path is not None:
-        _atomic_text(Path(json_path), json.dumps(result.to_json(), indent=1))
+        atomic_write_text(Path(json_path), json.dumps(result.to_json(), indent=1))
     if report_dir is not None:
         write_report(result, report_dir)
     return result
@@ -150,7 +137,7 @@ def write_report(result: Diagnosis, out_dir: str | Path) -> list[Path]:
             ax.set_xlabel(f"{d.name} [{d.unit}]")
             ax.set_ylabel("baseline position residual [mm]")
             ax.grid(alpha=0.3)
-        files.append(_save(fig, out / "mismatch.png"))
+        files.append(save_figure(fig, out / "mismatch.png"))
         fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 3.8))
         a1.plot(pd.heldout_before_mm, lw=0.8, label=f"before ({result.baseline.model})")
         a1.plot(pd.heldout_after_mm, lw=0.8, label=f"after ({result.final.model})")
@@ -163,17 +150,8 @@ def write_report(result: Diagnosis, out_dir: str | Path) -> list[Path]:
         a2.hist(pd.heldout_after_mm, bins, alpha=0.6, label="after")
         a2.set_xlabel("position error [mm]")
         a2.legend(fontsize=7)
-        files.append(_save(fig, out / "heldout.png"))
+        files.append(save_figure(fig, out / "heldout.png"))
     md = out / "report.md"
-    _atomic_text(md, markdown(result))
+    atomic_write_text(md, markdown(result))
     files.append(md)
     return files
-
-
-def _save(fig: object, path: Path) -> Path:
-    import matplotlib.pyplot as plt
-
-    fig.tight_layout()  # type: ignore[attr-defined]
-    fig.savefig(path, dpi=110)  # type: ignore[attr-defined]
-    plt.close(fig)  # type: ignore[arg-type]
-    return path

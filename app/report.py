@@ -81,7 +81,7 @@ def write_report(cmp: Comparison, test: Recording, out_dir: str | Path, with_pap
     ax.set_ylabel("position error [mm]")
     ax.legend(ncol=5, fontsize=7)
     ax.grid(alpha=0.3)
-    files.append(_save(fig, out / "error_along_path.png"))
+    files.append(save_figure(fig, out / "error_along_path.png"))
     lines += ["## Plots", "", "![error along the test path](error_along_path.png)", ""]
     if "fbf13" in cmp.models:
         interp = cmp.models["fbf13"].interpolator  # type: ignore[attr-defined]
@@ -91,12 +91,12 @@ def write_report(cmp: Comparison, test: Recording, out_dir: str | Path, with_pap
         ax.set_xlabel("singular value index")
         ax.set_ylabel("singular value of the Fourier coefficient matrix")
         ax.grid(alpha=0.3)
-        files.append(_save(fig, out / "fourier_singular_values.png"))
+        files.append(save_figure(fig, out / "fourier_singular_values.png"))
         fig, ax = plt.subplots(figsize=(6, 5))
         im = ax.imshow(np.abs(interp.right_singular_vectors().T), cmap="viridis")
         ax.set_title("|V^T| of the Fourier coefficient matrix")
         fig.colorbar(im)
-        files.append(_save(fig, out / "fourier_v_heatmap.png"))
+        files.append(save_figure(fig, out / "fourier_v_heatmap.png"))
         lines += ["![Fourier singular values](fourier_singular_values.png)", "",
                   "![Fourier V heat map](fourier_v_heatmap.png)", ""]
     md = out / "report.md"
@@ -105,7 +105,8 @@ def write_report(cmp: Comparison, test: Recording, out_dir: str | Path, with_pap
     return files
 
 
-def _save(fig: object, path: Path) -> Path:
+def save_figure(fig: object, path: Path) -> Path:
+    """Save a matplotlib figure as PNG (tight layout, 110 dpi) and close it."""
     import matplotlib.pyplot as plt
 
     fig.tight_layout()  # type: ignore[attr-defined]

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from calibration import so3
+from calibration.cdc import expand_anchors
 from calibration.errors import ModelError
 from calibration.models import KinematicModel
 from calibration.recording import Recording
@@ -95,15 +96,7 @@ def training_design(cell: CellSpec, name: str, options: SimCellOptions) -> tuple
         for q3 in np.arange(max(-45.0, lo[2]), min(35.0, hi[2]) + 1e-9, s):
             w = rng.uniform(-options.wrist_spread_deg, options.wrist_spread_deg, 4)
             anchors.append([w[0], q2, q3, w[1], w[2], w[3]])
-    q, cluster = [], []
-    for k, a in enumerate(np.radians(anchors)):
-        q.append(a)
-        for j in range(6):
-            b = a.copy()
-            b[j] += np.radians(1.0)
-            q.append(b)
-        cluster += [k] * 7
-    return np.array(q), np.array(cluster)
+    return expand_anchors(np.radians(anchors))
 
 
 def cpa_design(n_per_sweep: int = 15, span_deg: float = 120.0) -> tuple[np.ndarray, np.ndarray]:

@@ -50,6 +50,22 @@ class LocalFits:
     seconds: float
 
 
+def expand_anchors(anchors: np.ndarray, perturb_rad: float = np.radians(1.0)) -> tuple[np.ndarray, np.ndarray]:
+    """The paper's cluster design: each anchor, then the anchor with ``perturb_rad`` on joint 1..n in turn.
+
+    Args:
+        anchors: anchor joint angles [rad], shape (K, n).
+
+    Returns:
+        ``(q (K (n+1), n), cluster (K (n+1),))``.
+    """
+    anchors = np.atleast_2d(np.asarray(anchors, dtype=float))
+    K, n = anchors.shape
+    q = np.repeat(anchors[:, None, :], n + 1, axis=1)
+    q[:, 1:, :] += perturb_rad * np.eye(n)
+    return q.reshape(-1, n), np.repeat(np.arange(K), n + 1)
+
+
 def cluster_anchors(rec: Recording, cluster_size: int = 7) -> tuple[np.ndarray, np.ndarray]:
     """Cluster index (0..K-1) of each sample and the anchor joint angles (K, 6) (the first sample of each)."""
     ids = rec.clusters(cluster_size)

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from calibration import so3
+from calibration.cdc import expand_anchors
 from calibration.parameterisation import MinimalParameterisation
 from calibration.recording import Recording
 from cell_config import load_cell
@@ -41,15 +42,7 @@ def cluster_design(step_deg: float = 15.0, spread_wrist: bool = True, seed: int 
         for q3 in np.arange(-40.0, 31.0, step_deg):
             other = rng.uniform(-40, 40, 4) if spread_wrist else np.ones(4)
             anchors.append([other[0], q2, q3, *other[1:]])
-    q, cluster = [], []
-    for k, a in enumerate(np.radians(anchors)):
-        q.append(a)
-        for j in range(6):
-            b = a.copy()
-            b[j] += np.radians(1.0)
-            q.append(b)
-        cluster += [k] * 7
-    return np.array(q), np.array(cluster)
+    return expand_anchors(np.radians(anchors))
 
 
 def measure(truth_fk, q: np.ndarray, noise_mm: float, noise_deg: float, seed: int,

@@ -54,3 +54,13 @@ def test_bad_groups_rejected(synthetic_arm):
         GeometricProblem(par, q, R, p, groups=np.array([0, 0, 2, 2]))
     with pytest.raises(ModelError, match="measurements"):
         GeometricProblem(par, q, R[:2], p, groups=None)
+
+
+def test_cluster_design_is_anchor_then_one_degree_per_joint():
+    from calibration.cdc import expand_anchors
+
+    anchors = np.radians([[1.0, -10.0, 20.0, 1.0, 1.0, 1.0], [1.0, 5.0, -5.0, 1.0, 1.0, 1.0]])
+    q, cluster = expand_anchors(anchors)
+    assert q.shape == (14, 6) and cluster.tolist() == [0] * 7 + [1] * 7
+    np.testing.assert_allclose(q[0], anchors[0])
+    np.testing.assert_allclose(np.degrees(q[1:7] - anchors[0]), np.eye(6), atol=1e-12)
