@@ -72,7 +72,7 @@ def run_comparison(fitter: Fitter, test: Recording, methods: list[str] | tuple[s
 
 
 def _analysis(fitter: Fitter, test: Recording, cmp: Comparison) -> dict[str, Any]:
-    """Paper tables II and V, paired tests against the nominal model, observability, Fourier spectrum."""
+    """Paper tables II and V, paired tests against the nominal and Fourier models, observability, Fourier spectrum."""
     analysis: dict[str, Any] = {}
     if "nominal" in cmp.models:
         nominal_test = cmp.test_errors["nominal"].position_mm
@@ -81,6 +81,10 @@ def _analysis(fitter: Fitter, test: Recording, cmp: Comparison) -> dict[str, Any
             cmp.train_errors["nominal"].position_mm, fitter.train.q)
         analysis["paired_tests_vs_nominal"] = {
             m: paired_tests(e.position_mm, nominal_test) for m, e in cmp.test_errors.items() if m != "nominal"}
+    if "fbf13" in cmp.models:
+        fourier_test = cmp.test_errors["fbf13"].position_mm
+        analysis["paired_tests_vs_fbf13"] = {
+            m: paired_tests(e.position_mm, fourier_test) for m, e in cmp.test_errors.items() if m != "fbf13"}
     obs = fitter.observability()
     analysis["observability"] = {"condition_number": obs.condition_number, "rank": obs.rank,
                                  "parameters": len(obs.singular_values),

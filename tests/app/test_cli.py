@@ -99,3 +99,14 @@ def test_predict_rejects_bad_joint_file(tmp_path, data, capsys):
     out = tmp_path / "poses.csv"
     _bad(capsys, ["predict", "--model", str(model), "--joints", str(q), "--out", str(out)], "row 2", "'q3'")
     assert not out.exists()
+
+
+def test_paired_tests_between_methods(tmp_path, data):
+    out = tmp_path / "cmp.json"
+    assert main(["compare", "--robot", "R1", "--train", str(data / "train.csv"), "--test", str(data / "test.csv"),
+                 "--methods", "nominal,nls1,fbf13", "--json", str(out)]) == 0
+    analysis = json.loads(out.read_text())["analysis"]
+    vs_nominal = analysis["paired_tests_vs_nominal"]["nls1"]
+    assert vs_nominal["mean_difference"] < 0 and vs_nominal["t_pvalue"] < 1e-6 and vs_nominal["wilcoxon_pvalue"] < 1e-6
+    assert set(analysis["paired_tests_vs_fbf13"]) == {"nominal", "nls1"}
+    assert len(analysis["nominal_error_joint_correlation_test"]) == 6
