@@ -20,6 +20,8 @@ get exact derivatives of the parameters with respect to the joints (casadi is im
 
 from __future__ import annotations
 
+import abc
+
 from typing import Any, ClassVar
 
 import numpy as np
@@ -98,6 +100,24 @@ class _FourierBase(Interpolator):
         x = self._check_query(x)
         return self._support.outside(x)  # type: ignore[union-attr]
 
+    def casadi_predict(self, u: Any) -> Any:
+        """The prediction as a casadi expression: ``M b(u)`` with M the (m, 13) map from the 13-term basis.
+
+        Args:
+            u: casadi SX/MX 2-vector (q2, q3) [rad].
+
+        Returns:
+            casadi column (m, 1) of the interpolated values, equal to ``predict`` at numeric u.
+        """
+        import casadi as ca
+
+        self._require_fitted()
+        return ca.mtimes(ca.DM(self._basis_map()), fbf13_basis_casadi(u))
+
+    @abc.abstractmethod
+    def _basis_map(self) -> np.ndarray:
+        """The (m, 13) matrix taking the 13-term basis to the outputs."""
+
     def _set_anchors(self, x: np.ndarray) -> None:
         if x.shape[0] < 13:
             raise ModelError(f"{self.kind}: needs at least 13 anchors for 13 basis functions, got {x.shape[0]}")
@@ -133,19 +153,8 @@ class Fourier13Interpolator(_FourierBase):
         self._set_anchors(x)
         self._A = (np.linalg.pinv(fbf13_basis(x)) @ y).T
 
-    def casadi_predict(self, u: Any) -> Any:
-        """The prediction as a casadi expression: ``A b(u)``.
-
-        Args:
-            u: casadi SX/MX 2-vector (q2, q3) [rad].
-
-        Returns:
-            casadi column (m, 1) of the interpolated values, equal to ``predict`` at numeric u.
-        """
-        import casadi as ca
-
-        self._require_fitted()
-        return ca.mtimes(ca.DM(self._A), fbf13_basis_casadi(u))
+    def _basis_map(self) -> np.ndarray:
+        return self._A  # type: ignore[return-value]
 
     def _predict(self, x: np.ndarray) -> np.ndarray:
         return fbf13_basis(x) @ self._A.T  # type: ignore[union-attr]
@@ -201,19 +210,8 @@ class FourierReducedInterpolator(_FourierBase):
     def _predict(self, x: np.ndarray) -> np.ndarray:
         return (fbf13_basis(x) @ self._V) @ self._C.T  # type: ignore[operator,union-attr]
 
-    def casadi_predict(self, u: Any) -> Any:
-        """The prediction as a casadi expression: ``C V_r^T b(u)``.
-
-        Args:
-            u: casadi SX/MX 2-vector (q2, q3) [rad].
-
-        Returns:
-            casadi column (m, 1) of the interpolated values, equal to ``predict`` at numeric u.
-        """
-        import casadi as ca
-
-        self._require_fitted()
-        return ca.mtimes(ca.DM(self._C @ self._V.T), fbf13_basis_casadi(u))  # type: ignore[operator,union-attr]
+    def _basis_map(self) -> np.ndarray:
+        return self._C @ self._V.T  # type: ignore[operator,union-attr]
 
     def _state(self) -> dict[str, Any]:
         return {"options": {"rank": self.rank}, "anchors": self._anchors.tolist(),  # type: ignore[union-attr]
