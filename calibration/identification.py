@@ -148,7 +148,7 @@ class GeometricProblem:
         JzT = np.swapaxes(Jz, 1, 2)
         return np.add.reduceat(JzT @ Jz, self._starts), np.add.reduceat((JzT @ r[:, :, None])[..., 0], self._starts)
 
-    def solve(self, z0: np.ndarray | None = None, max_iter: int = 50, tol: float = 1e-9) -> NlsResult:
+    def solve(self, z0: np.ndarray | None = None, max_iter: int = 50, tol: float = 1e-6) -> NlsResult:
         """Batched Levenberg-Marquardt from ``x_ref`` (or ``x_ref + basis @ z0``)."""
         start = time.perf_counter()
         G, k = self.n_groups, self.basis.shape[1]

@@ -100,8 +100,10 @@ class Fitter:
         if "pi" not in self._cache:
             kin = ExtendedKinematics(self.par)
             obs = analyse(kin, self.train.q, a=self.options.a, tolerance=self.options.tolerance)
+            # Tikhonov filter with the truncation's cutoff: directions whose singular value is below
+            # tolerance x the largest are damped smoothly toward nominal instead of being cut off.
             res = GeometricProblem(kin, self.train.q, self.train.R, self.train.p, a=self.options.a,
-                                   basis=obs.basis).solve()
+                                   prior_weight=obs.tolerance * obs.singular_values[0] / obs.scale).solve()
             if not res.converged.all():
                 log.warning("physics-informed fit stopped after %d iterations without converging", res.iterations)
             self._cache["pi"] = PhysicsInformedModel(self.robot, "pi", kin, res.x[0], obs.rank,

@@ -8,6 +8,7 @@ predictions (floats are written with their shortest exact repr).
 from __future__ import annotations
 
 import abc
+import importlib
 import json
 import logging
 from dataclasses import dataclass, field
@@ -22,6 +23,9 @@ from calibration.files import atomic_write_text
 from calibration.poe import PoeModel
 
 SCHEMA = "cellcal.model/1"
+#: Where each model kind is defined; imported on first load so this module imports none of them.
+MODEL_KIND_MODULES = {"constant": "calibration.models", "cdc": "calibration.cdc", "pi": "calibration.physics_informed",
+                      "physics": "calibration.physics.model", "diagnosed": "calibration.diagnosis.model"}
 log = logging.getLogger("cellcal.calibration")
 
 
@@ -81,8 +85,10 @@ class KinematicModel(abc.ABC):
         if d.get("schema") != SCHEMA:
             raise ModelError(f"unsupported model schema {d.get('schema')!r}; expected {SCHEMA!r}")
         kind = d.get("kind")
+        if kind in MODEL_KIND_MODULES and kind not in KinematicModel._registry:
+            importlib.import_module(MODEL_KIND_MODULES[kind])  # defining the class registers the kind
         if kind not in KinematicModel._registry:
-            raise ModelError(f"unknown model kind {kind!r}; valid: {', '.join(sorted(KinematicModel._registry))}")
+            raise ModelError(f"unknown model kind {kind!r}; valid: {', '.join(sorted(MODEL_KIND_MODULES))}")
         return KinematicModel._registry[kind]._from_body(d["robot"], d["method"], d.get("info", {}), d)
 
 
@@ -159,9 +165,3 @@ def load_model(path: str | Path) -> KinematicModel:
         raise DataError(path, None, None, f"malformed model file: {e!r}") from e
     except ModelError as e:
         raise DataError(path, None, None, str(e)) from e
-
-# Registers the physics model kinds with load_model (imported last: they subclass KinematicModel).
-import calibration.physics.model  # noqa: E402,F401
-import calibration.physics_informed  # noqa: E402,F401
-import calibration.cdc  # noqa: E402,F401
-import calibration.diagnosis.model  # noqa: E402,F401

@@ -162,6 +162,11 @@ class MinimalParameterisation:
             ``(R_base_tool (N, 3, 3), p_base_tool (N, 3), J (N, 6, m))`` where J rows are
             ``d[p (mm); theta (rad)] / dx`` in the base frame.
         """
+        R, p, J, _ = self.jacobians(q, x)
+        return R, p, J
+
+    def jacobians(self, q: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Like :meth:`jacobian`, plus the joint Jacobian ``d[p; theta] / dq`` (N, 6, n) from the same pass."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
         N, n = q.shape
         x = np.broadcast_to(np.asarray(x, dtype=float), (N, self.size))
@@ -184,4 +189,7 @@ class MinimalParameterisation:
                 J[:, :3, col] = np.cross(w, r)
         if self.fit_tool:
             J[:, :3, 4 * n:] = c.R_base_link[n]
-        return c.R_base_tool, c.p_base_tool, J
+        w = c.axes_base  # (n, N, 3)
+        Jq = np.transpose(np.concatenate([np.cross(w, c.p_base_tool[None] - c.p_base_origin[:-1]), w], axis=-1),
+                          (1, 2, 0))
+        return c.R_base_tool, c.p_base_tool, J, Jq

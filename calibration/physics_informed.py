@@ -109,17 +109,16 @@ class ExtendedKinematics:
         N = q.shape[0]
         g, t, c, _ = self.sizes
         E = so3.exp(w_base)
-        _, _, Jx = self.par.jacobian(qe, x)
+        R_side, p0, Jx, Jq = self.par.jacobians(qe, x)
+        R0 = R_side @ so3.exp(w_tool)  # the tool position is fixed in the flange frame; only its rotation moves
         if geometry_only:
-            R0, p0 = self._flange_pose(qe, x, w_tool)
             Jg = np.concatenate([E @ Jx[:, :3], E @ Jx[:, 3:]], axis=1)
             return E @ R0, (E @ p0[:, :, None])[..., 0] + (Rz @ xi[:, :3, None])[..., 0], Jg
-        R0, p0 = self._flange_pose(qe, x, w_tool)
         J0 = np.zeros((N, 6, g + t + c))
         J0[:, :, :g] = Jx
         # R0 = R_side exp(w_tool): a change dw rotates the tool by R0 J_r(w_tool) dw (base frame), J_r(w) = J_l(-w).
         J0[:, 3:, g:g + t] = R0 @ so3.left_jacobian(-w_tool)
-        J0[:, :, g + t:] = self.par.nominal.jacobian_q(qe, *self.par.geometry(x)) @ Y
+        J0[:, :, g + t:] = Jq @ Y
         # The deflection rotates everything by E = exp(w_base) and shifts it by Rz v.
         J = np.empty((N, 6, self.size))
         J[:, :3, : g + t + c] = E @ J0[:, :3]
