@@ -42,9 +42,10 @@ class FitOptions:
 
     Attributes:
         a: orientation weight (1641: 1 mm ~ 1 deg).
-        tolerance: relative singular value below which a parameter direction counts as unobservable.
+        tolerance: relative singular value below which a parameter direction counts as unobservable: held at
+            its reference by nls0/nls1 (truncation), damped toward nominal by pi (Tikhonov filter at that cutoff).
         fit_tool: identify the flange-point shift too (3 parameters).
-        local_prior: ridge strength of local cluster fits toward the global fit [1/mm-equivalent].
+        local_prior: ridge strength of local cluster fits toward the pi reference geometry [1/mm-equivalent].
         nls0_clusters: number of clusters nearest q = 0 used by ``nls0``.
         fbf7_rank: rank of the SVD-reduced Fourier basis.
         cluster_size: samples per anchor when the recording has no cluster column.

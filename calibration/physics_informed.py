@@ -8,8 +8,9 @@ Beyond the minimal POE geometry (27 parameters with the flange shift), the model
 - a smooth structural deflection (6 x 7): a small pose correction ``xi = F7(q2, q3) C`` (translation mm,
   rotation rad) in the joint-1 frame, ``F7 = [1, sin q2, sin q3, cos q2, cos q3, sin(q2+q3), cos(q2+q3)]``,
   which takes up link bending that joint compliance alone cannot represent.
-All terms are fitted jointly by the batched LM with one SVD truncation of the joint, mm-scaled Jacobian, so
-directions the data cannot see stay at nominal.
+All terms are fitted jointly by the batched LM (``Fitter.physics_informed``) with a Tikhonov filter on the
+joint, mm-scaled Jacobian: directions whose singular value is below 1 % of the largest are damped toward
+nominal, so what the data cannot see stays near the vendor arm.
 """
 
 from __future__ import annotations
