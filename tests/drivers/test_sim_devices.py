@@ -26,7 +26,9 @@ def make_arm(r1, scale=200.0, **cfg):
 
 
 def test_move_takes_the_time_the_speed_allows_then_settles(r1):
-    arm = make_arm(r1, scale=20.0, settle_time_s=0.2)
+    # A slow simulated clock: the wait polls in real time, so a loaded machine's scheduling delay is multiplied
+    # by the time scale in simulated seconds.
+    arm = make_arm(r1, scale=2.0, settle_time_s=0.2)
     with arm:
         arm.move_to(np.zeros(6), 1.0)  # warm-up (first numpy calls are slow)
         arm.wait_settled(1.0)
