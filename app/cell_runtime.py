@@ -205,7 +205,7 @@ class SimCell:
             self._sim_mocap = SimMocapSource(
                 {self.body_ids[n]: self.drivers[n] for n in self.robots},
                 SimMocapConfig(rate_hz=c.mocap_rate_hz, noise_pos_mm=c.noise_pos_mm, noise_rot_deg=c.noise_rot_deg,
-                               buffer_frames=max(480, int(4 * c.mocap_rate_hz)), seed=c.seed))
+                               buffer_frames=int(30 * c.mocap_rate_hz), seed=c.seed))  # 30 s: a slow bridge catches up
             self._sim_mocap.connect()
             bridge_cfg, collector_cfg = loopback_pair(self.cell.zenoh)
             bridge_session = open_session(bridge_cfg)

@@ -24,7 +24,7 @@ def make_cell(scale: float = 30.0, seed: int = 1, mocap: SimMocapConfig | None =
     truth = planted_truth(r1.model(), seed=seed)
     driver = SimRobotDriver("R1", r1.robot, truth, q0=np.radians([1, -50, -50, 1, 1, 1]), clock=SimClock(scale),
                             config=SimRobotConfig(settle_time_s=0.2))
-    source = SimMocapSource({1: driver}, mocap or SimMocapConfig(rate_hz=120.0, seed=seed))
+    source = SimMocapSource({1: driver}, mocap or SimMocapConfig(rate_hz=120.0, seed=seed, buffer_frames=3600))
     return cell, driver, source, truth, CellSafety(cell)
 
 
