@@ -31,9 +31,7 @@ def errors(model: KinematicModel, rec: Recording) -> Errors:
     direction, payload...) are evaluated with the recording's context columns."""
     fk_context = getattr(model, "fk_context", None)
     if fk_context is not None:
-        from calibration.diagnosis.drivers import context_from_recording
-
-        R, p = fk_context(rec.q, context_from_recording(rec))
+        R, p = fk_context(rec.q, rec.context())
     else:
         R, p = model.fk(rec.q)
     dp, dR = pose_error(rec.R, rec.p, R, p)

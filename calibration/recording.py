@@ -27,6 +27,8 @@ WELDING_LAYOUTS = (
     ("robot_q_align.csv", "mocap_T_align.csv"),
 )
 QUAT_NORM_TOL = 1e-3
+CONTEXT_COLUMNS = ("t", "temp_c", "payload_kg") + tuple(f"dir{i}" for i in range(1, 7))
+SPEED_COLUMNS = tuple(f"qd{i}" for i in range(1, 7))
 DEFAULT_CLUSTER_SIZE = 7
 
 
@@ -69,6 +71,17 @@ class Recording:
                             f"no cluster column and {len(self)} rows are not a multiple of the "
                             f"{size}-sample anchor design; add a cluster column")
         return np.arange(len(self)) // size
+
+    def context(self) -> dict[str, np.ndarray]:
+        """Per-sample context for context-dependent models: the ``t``, ``temp_c``, ``payload_kg`` and
+        ``dir1..6`` (as signs) columns present, and ``qd`` (N, 6) [rad/s] when all of ``qd1..qd6`` are."""
+        ctx = {k: np.asarray(self.extra[k], dtype=float) for k in CONTEXT_COLUMNS if k in self.extra}
+        for i in range(1, 7):
+            if f"dir{i}" in ctx:
+                ctx[f"dir{i}"] = np.sign(ctx[f"dir{i}"])
+        if all(c in self.extra for c in SPEED_COLUMNS):
+            ctx["qd"] = np.stack([self.extra[c] for c in SPEED_COLUMNS], axis=1).astype(float)
+        return ctx
 
     def subset(self, index: np.ndarray) -> "Recording":
         """The samples selected by a boolean mask or an index array."""

@@ -85,9 +85,8 @@ def run_case(case: str, kinds: tuple, mag: float, seed: int, nominal, gravity, o
     res = run_diagnose("R1", out / "data" / f"{stem}_fit.csv", out / "data" / f"{stem}_heldout.csv").to_json()
     seconds = time.perf_counter() - t0
     truth = Twin.from_dict(json.loads((out / "truth" / f"{stem}.json").read_text(encoding="utf-8")))
-    from calibration.diagnosis.drivers import context_from_recording
 
-    ctx = context_from_recording(ho)
+    ctx = ho.context()
     found = {e["kind"]: e for e in res["effects"]}
     rows = []
     ok_all = True

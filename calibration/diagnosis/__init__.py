@@ -8,7 +8,7 @@ from calibration.diagnosis.core import DiagnoseOptions, diagnose
 from calibration.diagnosis.extended import ExtendedEffect, MassFreeCompliance, StructuralDeflection, ToolFrame
 from calibration.diagnosis.inuse import InUse
 from calibration.diagnosis.model import DiagnosedModel, result_model
-from calibration.diagnosis.drivers import Driver, Mismatch, context_from_recording, drivers, locate_mismatch
+from calibration.diagnosis.drivers import Driver, Mismatch, drivers, locate_mismatch
 from calibration.diagnosis.noise import NoiseFloor, noise_floor
 from calibration.diagnosis.refit import JointFit, JointProblem
 from calibration.diagnosis.report import SCHEMA, Accuracy, Diagnosis, Evidence, FoundEffect, PlotData
@@ -18,6 +18,6 @@ __all__ = [
     "Accuracy", "Candidate", "DiagnoseOptions", "DiagnosedModel", "Diagnosis", "Driver", "Evidence",
     "ExtendedEffect", "FoundEffect", "InUse", "JointFit", "JointProblem", "MassFreeCompliance",
     "StructuralDeflection", "ToolFrame", "result_model", "KINDS", "LinearSelection", "Mismatch", "NoiseFloor", "PlotData", "SCHEMA", "SelectionOptions",
-    "Step", "Untested", "blocked_folds", "context_from_recording", "diagnose", "drivers", "forward_select",
+    "Step", "Untested", "blocked_folds", "diagnose", "drivers", "forward_select",
     "library", "locate_mismatch", "noise_floor", "signature", "visibility",
 ]

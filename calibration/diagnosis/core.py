@@ -26,7 +26,7 @@ from calibration.diagnosis.candidates import KINDS, Candidate, Untested, library
 from calibration.diagnosis.extended import ExtendedEffect
 from calibration.diagnosis.inuse import InUse
 from calibration.diagnosis.model import result_model
-from calibration.diagnosis.drivers import context_from_recording, drivers, locate_mismatch
+from calibration.diagnosis.drivers import drivers, locate_mismatch
 from calibration.diagnosis.noise import noise_floor
 from calibration.diagnosis.refit import JointFit, JointProblem
 from calibration.diagnosis.report import Accuracy, Diagnosis, Evidence, PlotData
@@ -165,7 +165,7 @@ def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording 
         data, heldout, groups_all = data.subset(~ho), data.subset(ho), groups_all[~ho]
         source = "split"
     fit, groups = data, groups_all
-    ctx, ctx_ho = context_from_recording(fit), context_from_recording(heldout)
+    ctx, ctx_ho = fit.context(), heldout.context()
     # 1. The model in use, fitted: its geometric block (cdc: held) and its own effects refitted.
     base_effects: tuple[Effect, ...] = ()
     obs = None

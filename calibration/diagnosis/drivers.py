@@ -20,11 +20,8 @@ from calibration.errors import ModelError
 from calibration.physics.base import Context
 from calibration.physics.gravity import GravityModel, point_mass_torque
 from calibration.poe import PoeModel
-from calibration.recording import Recording
 
 N_JOINTS = 6
-CONTEXT_COLUMNS = ("t", "temp_c", "payload_kg") + tuple(f"dir{i}" for i in range(1, 7))
-SPEED_COLUMNS = tuple(f"qd{i}" for i in range(1, 7))
 
 
 @dataclass(frozen=True)
@@ -59,25 +56,13 @@ class Mismatch:
     rms_mm_there: float
 
 
-def context_from_recording(rec: Recording) -> dict[str, np.ndarray]:
-    """The effect context of a recording: its ``t``, ``temp_c``, ``payload_kg``, ``dir1..6`` columns, and
-    ``qd`` (N, 6) [rad/s] assembled from ``qd1..qd6`` when all six are present."""
-    ctx = {k: np.asarray(rec.extra[k], dtype=float) for k in CONTEXT_COLUMNS if k in rec.extra}
-    for i in range(1, 7):
-        if f"dir{i}" in ctx:
-            ctx[f"dir{i}"] = np.sign(ctx[f"dir{i}"])
-    if all(c in rec.extra for c in SPEED_COLUMNS):
-        ctx["qd"] = np.stack([rec.extra[c] for c in SPEED_COLUMNS], axis=1).astype(float)
-    return ctx
-
-
 def drivers(model: PoeModel, q: np.ndarray, context: Context, gravity: GravityModel | None = None) -> list[Driver]:
     """Every candidate driver available on the data.
 
     Args:
         model: the geometry in use (places the links for the torques).
         q: joint angles [rad], shape (N, 6).
-        context: per-sample context (see :func:`context_from_recording`).
+        context: per-sample context (see :meth:`Recording.context`).
         gravity: link masses; without it no gravity-torque drivers.
     """
     q = np.atleast_2d(np.asarray(q, dtype=float))

@@ -132,7 +132,6 @@ def _pi_and_cdc(nominal, twin, anchors):
 
 @pytest.mark.parametrize("kind", ["pi", "cdc"])
 def test_pi_and_cdc_models_in_use_get_effects_added_and_save(arm, kind, tmp_path):
-    from calibration.diagnosis import context_from_recording
     from calibration.models import load_model, save_model
 
     cr, nominal, gravity = arm
@@ -146,7 +145,7 @@ def test_pi_and_cdc_models_in_use_get_effects_added_and_save(arm, kind, tmp_path
     save_model(res.model, tmp_path / "m.yaml")
     m = load_model(tmp_path / "m.yaml")
     assert m.kind == "diagnosed" and m.base.kind == kind and [e.kind for e in m.effects] == ["backlash"]
-    _, p = m.fk_context(ho.q, context_from_recording(ho))
+    _, p = m.fk_context(ho.q, ho.context())
     np.testing.assert_allclose(np.sqrt(np.mean(np.sum((p - ho.p) ** 2, axis=1))), res.final.rms_mm, rtol=1e-9)
 
 
@@ -194,12 +193,11 @@ def test_unknown_model_kind_and_compliance_form_are_refused(arm):
 def test_joint_refit_recovers_planted_backlash_and_geometry(arm):
     cr, nominal, gravity = arm
     twin, fit, _ = make_case(nominal, gravity, {"backlash": 0.3}, 7, DESIGN, n_heldout=5)
-    from calibration.diagnosis import context_from_recording
     from calibration.observability import analyse
 
     par = MinimalParameterisation(nominal, fit_tool=True)
     obs = analyse(par, fit.q)
-    sol = JointProblem(par, fit.q, fit.R, fit.p, context_from_recording(fit), np.zeros(par.size), obs.basis,
+    sol = JointProblem(par, fit.q, fit.R, fit.p, fit.context(), np.zeros(par.size), obs.basis,
                        (Backlash((1, 2, 3), np.zeros(3)),), rotation_residual_scale(1641.0)).solve()
     np.testing.assert_allclose(sol.effects[0].values, twin.effect("backlash").values, rtol=0.05)
     assert sol.rms_mm < 0.06 and sol.converged

@@ -86,3 +86,11 @@ def test_missing_cluster_column_needs_whole_anchor_groups(tmp_path):
     path = write(tmp_path, HEADER + "\n" + ROW + "\n" + ROW)
     with pytest.raises(DataError, match="not a multiple"):
         read_recording(path).clusters()
+
+
+def test_context_columns(tmp_path):
+    head = HEADER + ",t,dir2,qd1,qd2,qd3,qd4,qd5,qd6,payload_kg"
+    path = write(tmp_path, head + "\n" + ROW + ",1.5,-3,0.1,0.2,0.3,0.4,0.5,0.6,6\n")
+    ctx = read_recording(path).context()
+    assert set(ctx) == {"t", "dir2", "qd", "payload_kg"}
+    assert ctx["dir2"].tolist() == [-1.0] and ctx["qd"].shape == (1, 6) and ctx["t"].tolist() == [1.5]
