@@ -67,3 +67,14 @@ def synthetic_arm(r1_nominal):
     par = MinimalParameterisation(r1_nominal, fit_tool=True)
     x = planted_parameters(par)
     return par, x, par.model(x)
+
+
+def assert_bad_input(capsys: pytest.CaptureFixture, argv: list[str], *fragments: str) -> None:
+    """The CLI exits 2 on ``argv`` with exactly one stderr line containing every fragment."""
+    from app.cli import main
+
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    for f in fragments:
+        assert f in err[0], err[0]

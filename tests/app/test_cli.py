@@ -7,7 +7,7 @@ import pytest
 
 from app.cli import main
 from calibration.recording import write_recording
-from tests.conftest import cluster_design, measure
+from tests.conftest import assert_bad_input, cluster_design, measure
 
 
 @pytest.fixture(scope="module")
@@ -55,36 +55,28 @@ def test_compare_json_shape_and_report(tmp_path, data):
         assert (report / name).stat().st_size > 0
 
 
-def _bad(capsys, argv, *fragments):
-    assert main(argv) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1, err
-    for f in fragments:
-        assert f in err[0]
-
-
 def test_bad_inputs_exit_2_and_write_nothing(tmp_path, data, capsys):
     out = tmp_path / "never.yaml"
     bad = tmp_path / "bad.csv"
     bad.write_text("q1,q2,q3,q4,q5,q6,x,y,z,qw,qx,qy,qz\n0,0,0,0,0,0,1,2,nan,1,0,0,0\n")
-    _bad(capsys, ["fit", "--robot", "R1", "--train", str(bad), "--method", "nls1", "--out", str(out)],
+    assert_bad_input(capsys, ["fit", "--robot", "R1", "--train", str(bad), "--method", "nls1", "--out", str(out)],
          "row 2", "'z'", "not a finite number")
-    _bad(capsys, ["fit", "--robot", "R9", "--train", str(data / "train.csv"), "--method", "nls1", "--out", str(out)],
+    assert_bad_input(capsys, ["fit", "--robot", "R9", "--train", str(data / "train.csv"), "--method", "nls1", "--out", str(out)],
          "unknown robot 'R9'")
-    _bad(capsys, ["compare", "--robot", "R1", "--train", str(data / "train.csv"), "--test", str(data / "test.csv"),
+    assert_bad_input(capsys, ["compare", "--robot", "R1", "--train", str(data / "train.csv"), "--test", str(data / "test.csv"),
                   "--methods", "fbf13,magic", "--json", str(tmp_path / "c.json")], "unknown method 'magic'")
     short = tmp_path / "short"
     short.mkdir()
     (short / "robot_q_align.csv").write_text("0,0,0,0,0,0\n0,0,0,0,0,0\n")
     (short / "mocap_T_align.csv").write_text("1,2,3,1,0,0,0\n")
-    _bad(capsys, ["evaluate", "--model", str(out), "--test", str(short)], "not found")
+    assert_bad_input(capsys, ["evaluate", "--model", str(out), "--test", str(short)], "not found")
     quat = tmp_path / "quat.csv"
     quat.write_text("q1,q2,q3,q4,q5,q6,x,y,z,qw,qx,qy,qz\n0,0,0,0,0,0,1,2,3,0.5,0,0,0\n")
-    _bad(capsys, ["fit", "--robot", "R1", "--train", str(quat), "--method", "base", "--out", str(out)],
+    assert_bad_input(capsys, ["fit", "--robot", "R1", "--train", str(quat), "--method", "base", "--out", str(out)],
          "row 2", "quaternion norm")
     limits = tmp_path / "limits.csv"
     limits.write_text("q1,q2,q3,q4,q5,q6,x,y,z,qw,qx,qy,qz\n0,0,3.0,0,0,0,1,2,3,1,0,0,0\n")
-    _bad(capsys, ["fit", "--robot", "R1", "--train", str(limits), "--method", "base", "--out", str(out)],
+    assert_bad_input(capsys, ["fit", "--robot", "R1", "--train", str(limits), "--method", "base", "--out", str(out)],
          "row 2", "'q3'", "joint limits")
     assert not out.exists() and not (tmp_path / "c.json").exists()
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
@@ -97,7 +89,7 @@ def test_predict_rejects_bad_joint_file(tmp_path, data, capsys):
     q = tmp_path / "q.csv"
     q.write_text("q1,q2,q3,q4,q5,q6\n0,0,x,0,0,0\n")
     out = tmp_path / "poses.csv"
-    _bad(capsys, ["predict", "--model", str(model), "--joints", str(q), "--out", str(out)], "row 2", "'q3'")
+    assert_bad_input(capsys, ["predict", "--model", str(model), "--joints", str(q), "--out", str(out)], "row 2", "'q3'")
     assert not out.exists()
 
 

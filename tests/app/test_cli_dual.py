@@ -15,14 +15,7 @@ from calibration.cdc import CdcModel, geometric_cdc  # noqa: E402
 from calibration.models import save_model  # noqa: E402
 from calibration.parameterisation import MinimalParameterisation  # noqa: E402
 from cell_config.loader import load_cell  # noqa: E402
-
-
-def _bad(capsys, argv, *fragments):
-    assert main(argv) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1, err
-    for f in fragments:
-        assert f in err[0], err[0]
+from tests.conftest import assert_bad_input  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -80,14 +73,14 @@ def test_plan_dual_bad_inputs_write_nothing(tmp_path, capsys):
     out = tmp_path / "never.json"
     model = tmp_path / "m.json"
     model.write_text(json.dumps({"schema": "cellcal.model/1", "kind": "spline", "robot": "R1", "method": "x"}))
-    _bad(capsys, ["plan-dual", "--models", f"R1={model}", "--out", str(out)], "unknown model kind 'spline'", "valid:")
-    _bad(capsys, ["plan-dual", "--models", "R7=x.yaml", "--out", str(out)], "bad model entry", "R1=FILE,R2=FILE")
-    _bad(capsys, ["plan-dual", "--relative-pose", "1,2,3", "--out", str(out)], "7 numbers")
-    _bad(capsys, ["plan-dual", "--relative-pose", "1,2,3,1,0,0,0.5", "--out", str(out)], "quaternion norm")
-    _bad(capsys, ["plan-dual", "--path", "sweep:x", "--out", str(out)], "sweep:N")
-    _bad(capsys, ["plan-dual", "--path", str(tmp_path / "none.csv"), "--out", str(out)], "path file not found")
+    assert_bad_input(capsys, ["plan-dual", "--models", f"R1={model}", "--out", str(out)], "unknown model kind 'spline'", "valid:")
+    assert_bad_input(capsys, ["plan-dual", "--models", "R7=x.yaml", "--out", str(out)], "bad model entry", "R1=FILE,R2=FILE")
+    assert_bad_input(capsys, ["plan-dual", "--relative-pose", "1,2,3", "--out", str(out)], "7 numbers")
+    assert_bad_input(capsys, ["plan-dual", "--relative-pose", "1,2,3,1,0,0,0.5", "--out", str(out)], "quaternion norm")
+    assert_bad_input(capsys, ["plan-dual", "--path", "sweep:x", "--out", str(out)], "sweep:N")
+    assert_bad_input(capsys, ["plan-dual", "--path", str(tmp_path / "none.csv"), "--out", str(out)], "path file not found")
     # the gun at the workpiece frame's origin puts the arms into each other: infeasible, reported, not written
-    _bad(capsys, ["plan-dual", "--relative-pose", "0,0,0,1,0,0,0", "--path", "sweep:3", "--no-compile",
+    assert_bad_input(capsys, ["plan-dual", "--relative-pose", "0,0,0,1,0,0,0", "--path", "sweep:3", "--no-compile",
                   "--out", str(out)], "3 of 3 waypoints not solved, nothing written", "waypoint 0:", "collision")
     assert not out.exists()
 
@@ -99,11 +92,11 @@ def test_export_and_preview_bad_inputs(tmp_path, planned, capsys):
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps(plan))
     out = tmp_path / "t.csv"
-    _bad(capsys, ["export-targets", "--plan", str(bad), "--out", str(out)], "waypoint 1 was not solved")
-    _bad(capsys, ["export-targets", "--plan", str(planned / "plan.json"), "--out", str(tmp_path / "t.txt")],
+    assert_bad_input(capsys, ["export-targets", "--plan", str(bad), "--out", str(out)], "waypoint 1 was not solved")
+    assert_bad_input(capsys, ["export-targets", "--plan", str(planned / "plan.json"), "--out", str(tmp_path / "t.txt")],
          "valid: .csv, .json")
-    _bad(capsys, ["preview", "--plan", str(planned / "plan.json")], "--html OUT", "--serve")
-    _bad(capsys, ["preview", "--plan", str(tmp_path / "missing.json"), "--html", str(tmp_path / "p.html")],
+    assert_bad_input(capsys, ["preview", "--plan", str(planned / "plan.json")], "--html OUT", "--serve")
+    assert_bad_input(capsys, ["preview", "--plan", str(tmp_path / "missing.json"), "--html", str(tmp_path / "p.html")],
          "plan file not found")
     assert not out.exists() and not (tmp_path / "p.html").exists()
 
@@ -119,8 +112,8 @@ def test_validate_dual_sim_json_and_bad_inputs(tmp_path, capsys):
     assert v["configurations"] == 3 and set(v["models"]) == {"nominal", "fbf13"}
     assert v["models"]["fbf13"]["mean_mm"] < v["models"]["nominal"]["mean_mm"]
     never = tmp_path / "never.json"
-    _bad(capsys, ["validate-dual", "--configurations", "3", "--json", str(never)], "use --sim")
-    _bad(capsys, ["validate-dual", "--sim", "--configurations", "1", "--json", str(never)], ">= 2")
-    _bad(capsys, ["validate-dual", "--sim", "--methods", "nominal,magic", "--json", str(never)],
+    assert_bad_input(capsys, ["validate-dual", "--configurations", "3", "--json", str(never)], "use --sim")
+    assert_bad_input(capsys, ["validate-dual", "--sim", "--configurations", "1", "--json", str(never)], ">= 2")
+    assert_bad_input(capsys, ["validate-dual", "--sim", "--methods", "nominal,magic", "--json", str(never)],
          "unknown model set 'magic'")
     assert not never.exists()

@@ -12,7 +12,7 @@ from app.recalibrate import decide_and_install
 from calibration.errors import DataError
 from calibration.models import ConstantModel, load_model, save_model
 from calibration.parameterisation import MinimalParameterisation
-from tests.conftest import measure, planted_parameters
+from tests.conftest import assert_bad_input, measure, planted_parameters
 
 
 @pytest.fixture(scope="module")
@@ -81,14 +81,6 @@ def test_recalibrate_cli_on_the_simulated_cell(tmp_path, capsys):
     assert load_model(models / "current.yaml").method == "nls1"
 
 
-def _bad(capsys, argv, *fragments):
-    assert main(argv) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1, err
-    for f in fragments:
-        assert f in err[0], err[0]
-
-
 def test_bad_inputs_exit_2_and_write_nothing(tmp_path, capsys):
     bad_plan = tmp_path / "bad_plan.json"
     bad_plan.write_text('{"schema": "cellcal.plan/1", "targets": [{"robot": "R1", "q_rad": [0, 0], '
@@ -101,31 +93,31 @@ def test_bad_inputs_exit_2_and_write_nothing(tmp_path, capsys):
     before = sorted(p.name for p in tmp_path.iterdir())
     session, out, models = tmp_path / "s", tmp_path / "rec.csv", tmp_path / "models"
 
-    _bad(capsys, ["collect", "--robot", "R1", "--plan", str(bad_plan), "--session", str(session)],
+    assert_bad_input(capsys, ["collect", "--robot", "R1", "--plan", str(bad_plan), "--session", str(session)],
          "no real robot controller or mocap is configured", "--sim")
-    _bad(capsys, ["collect", "--robot", "R1", "--plan", str(bad_plan), "--session", str(session), "--sim"],
+    assert_bad_input(capsys, ["collect", "--robot", "R1", "--plan", str(bad_plan), "--session", str(session), "--sim"],
          "targets[0].q_rad", "expected 6 finite numbers")
-    _bad(capsys, ["collect", "--robot", "R1", "--plan", str(not_json), "--session", str(session), "--sim"],
+    assert_bad_input(capsys, ["collect", "--robot", "R1", "--plan", str(not_json), "--session", str(session), "--sim"],
          "not valid JSON")
-    _bad(capsys, ["collect", "--robot", "R1", "--plan", str(r2_plan), "--session", str(session), "--sim"],
+    assert_bad_input(capsys, ["collect", "--robot", "R1", "--plan", str(r2_plan), "--session", str(session), "--sim"],
          "the plan moves R2, expected R1 only")
-    _bad(capsys, ["collect", "--robot", "R1", "--plan", str(tmp_path / "missing.json"), "--session", str(session),
+    assert_bad_input(capsys, ["collect", "--robot", "R1", "--plan", str(tmp_path / "missing.json"), "--session", str(session),
                   "--sim"], "file not found")
-    _bad(capsys, ["collect", "--robot", "R1", "--session", str(session), "--resume", "--sim"], "no session here")
-    _bad(capsys, ["collect", "--robot", "R1", "--session", str(session), "--sim"], "needs --plan")
-    _bad(capsys, ["export", "--session", str(session), "--out", str(out)], "no session here")
-    _bad(capsys, ["export", "--session", str(session), "--out", str(out), "--kinds", "anchor,bogus"],
+    assert_bad_input(capsys, ["collect", "--robot", "R1", "--session", str(session), "--resume", "--sim"], "no session here")
+    assert_bad_input(capsys, ["collect", "--robot", "R1", "--session", str(session), "--sim"], "needs --plan")
+    assert_bad_input(capsys, ["export", "--session", str(session), "--out", str(out)], "no session here")
+    assert_bad_input(capsys, ["export", "--session", str(session), "--out", str(out), "--kinds", "anchor,bogus"],
          "unknown target kind 'bogus'")
-    _bad(capsys, ["recalibrate", "--robot", "R1", "--session", str(session), "--model-dir", str(models), "--sim"],
+    assert_bad_input(capsys, ["recalibrate", "--robot", "R1", "--session", str(session), "--model-dir", str(models), "--sim"],
          "no session here")
-    _bad(capsys, ["recalibrate", "--robot", "R1", "--plan", str(bad_plan), "--model-dir", str(models), "--sim"],
+    assert_bad_input(capsys, ["recalibrate", "--robot", "R1", "--plan", str(bad_plan), "--model-dir", str(models), "--sim"],
          "expected 6 finite numbers")
-    _bad(capsys, ["recalibrate", "--robot", "R1", "--plan", str(r2_plan), "--model-dir", str(models)],
+    assert_bad_input(capsys, ["recalibrate", "--robot", "R1", "--plan", str(r2_plan), "--model-dir", str(models)],
          "the plan moves R2")
-    _bad(capsys, ["recalibrate", "--robot", "R9", "--plan", str(r2_plan), "--model-dir", str(models), "--sim"],
+    assert_bad_input(capsys, ["recalibrate", "--robot", "R9", "--plan", str(r2_plan), "--model-dir", str(models), "--sim"],
          "unknown robot 'R9'")
-    _bad(capsys, ["recalibrate", "--robot", "R1", "--plan", str(bad_plan), "--model-dir", str(bad_plan), "--sim"],
+    assert_bad_input(capsys, ["recalibrate", "--robot", "R1", "--plan", str(bad_plan), "--model-dir", str(bad_plan), "--sim"],
          "model folder is a file")
-    _bad(capsys, ["plan", "--robot", "R1", "--out", str(tmp_path / "p.json"), "--q2-step", "-5"], "positive steps")
-    _bad(capsys, ["demo", "--out", str(bad_plan)], "must be a folder")
+    assert_bad_input(capsys, ["plan", "--robot", "R1", "--out", str(tmp_path / "p.json"), "--q2-step", "-5"], "positive steps")
+    assert_bad_input(capsys, ["demo", "--out", str(bad_plan)], "must be a folder")
     assert sorted(p.name for p in tmp_path.iterdir()) == before
