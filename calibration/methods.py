@@ -22,7 +22,7 @@ from calibration.cpa import identify_cpa, split_sweeps
 from calibration.errors import ModelError
 from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, GeometricProblem
 from calibration.models import ConstantModel, KinematicModel
-from calibration.observability import DEFAULT_RELATIVE_TOLERANCE, Observability, analyse
+from calibration.observability import DEFAULT_RELATIVE_TOLERANCE, Observability, analyse, filter_weights
 from calibration.parameterisation import MinimalParameterisation
 from calibration.physics_informed import ExtendedKinematics, PhysicsInformedModel
 from calibration.poe import PoeModel
@@ -101,10 +101,8 @@ class Fitter:
         if "pi" not in self._cache:
             kin = ExtendedKinematics(self.par)
             obs = analyse(kin, self.train.q, a=self.options.a, tolerance=self.options.tolerance)
-            # Tikhonov filter with the truncation's cutoff: directions whose singular value is below
-            # tolerance x the largest are damped smoothly toward nominal instead of being cut off.
             res = GeometricProblem(kin, self.train.q, self.train.R, self.train.p, a=self.options.a,
-                                   prior_weight=obs.tolerance * obs.singular_values[0] / obs.scale).solve()
+                                   prior_weight=filter_weights(obs)).solve()
             if not res.converged.all():
                 log.warning("physics-informed fit stopped after %d iterations without converging", res.iterations)
             self._cache["pi"] = PhysicsInformedModel(self.robot, "pi", kin, res.x[0], obs.rank,

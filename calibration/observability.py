@@ -88,11 +88,26 @@ def analyse(kin: Kinematics, q: np.ndarray, x: np.ndarray | None = None,
     """
     x = np.zeros(kin.size) if x is None else np.asarray(x, dtype=float)
     _, _, J = kin.jacobian(q, x)
-    J = J.copy()
+    return analyse_jacobian(J, kin.scale(reach_mm), tuple(kin.names()), a, tolerance)
+
+
+def analyse_jacobian(J: np.ndarray, scale: np.ndarray, names: tuple[str, ...], a: float = DEFAULT_ORIENTATION_WEIGHT,
+                     tolerance: float = DEFAULT_RELATIVE_TOLERANCE) -> Observability:
+    """Observability from a pose Jacobian ``d[p; theta] / d params`` (N, 6, m) and the column scaling (m,)."""
+    J = np.array(J, dtype=float)
     J[:, 3:] *= rotation_residual_scale(a)
-    scale = kin.scale(reach_mm)
-    Js = J.reshape(-1, kin.size) * scale
+    Js = J.reshape(-1, J.shape[-1]) * scale
     _, s, Vt = np.linalg.svd(Js, full_matrices=False)
     rank = int(np.sum(s >= tolerance * s[0]))
     cond = float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
-    return Observability(s, cond, scale, Vt.T, rank, tolerance, tuple(kin.names()))
+    return Observability(s, cond, np.asarray(scale, dtype=float), Vt.T, rank, tolerance, tuple(names))
+
+
+def filter_weights(obs: Observability) -> np.ndarray:
+    """Prior weights (m,) of the Tikhonov filter at the truncation cutoff: ``tolerance * s_max / scale``.
+
+    Used as ``prior_weight`` of a least-squares fit, directions whose scaled singular value is well above the
+    cutoff are fitted as without a prior; those below it are damped smoothly toward the prior's reference
+    (nominal) instead of being cut off.
+    """
+    return obs.tolerance * obs.singular_values[0] / obs.scale

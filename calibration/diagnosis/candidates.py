@@ -25,6 +25,9 @@ from calibration.poe import PoeModel
 
 #: Warm-up time constants [s] scanned for thermal drift driven by ``t`` (refined afterwards).
 TAU_GRID_S = (300.0, 900.0, 2700.0, 8100.0)
+#: Links shorter than this [mm] are not thermal candidates: they cannot grow measurably, and a zero-length
+#: nominal link has no direction to grow in.
+MIN_LINK_MM = 1.0
 #: Order in which kinds are listed (and tie-broken).
 KINDS = ("joint_compliance", "payload_compliance", "gear_transmission", "backlash", "thermal_drift",
          "mocap_latency", "joint_offset", "tool_frame", "structural_deflection")
@@ -131,7 +134,7 @@ def library(model: PoeModel, q: np.ndarray, context: Context, gravity: GravityMo
                 skipped.append(Untested("backlash", f"joint {j}", (j,),
                                         f"no dir{j} column with both approach directions"))
     if "thermal_drift" in kinds:
-        links = [l for c, l in enumerate(link_names(n)) if np.linalg.norm(model.P[:, c]) > 1e-9]
+        links = [l for c, l in enumerate(link_names(n)) if np.linalg.norm(model.P[:, c]) > MIN_LINK_MM]
         if _varies(context, "t"):
             cands += [Candidate("thermal_drift", f"link {l}", (), ThermalDrift((l,), np.zeros(1), "warmup", tau), 1)
                       for l in links for tau in TAU_GRID_S]

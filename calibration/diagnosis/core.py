@@ -28,7 +28,7 @@ from calibration.diagnosis.inuse import InUse
 from calibration.diagnosis.model import result_model
 from calibration.diagnosis.drivers import drivers, locate_mismatch
 from calibration.diagnosis.noise import noise_floor
-from calibration.diagnosis.refit import JointFit, JointProblem
+from calibration.diagnosis.refit import JointFit, JointProblem, filter_prior
 from calibration.diagnosis.report import Accuracy, Diagnosis, Evidence, PlotData
 from calibration.diagnosis.selection import LinearSelection, SelectionOptions, blocked_folds, forward_select
 from calibration.errors import DataError
@@ -169,14 +169,15 @@ def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording 
     # 1. The model in use, fitted: its geometric block (cdc: held) and its own effects refitted.
     base_effects: tuple[Effect, ...] = ()
     obs = None
+    prior = model is None  # the geometric model and the effects are fitted with the Tikhonov filter
     if model is None:
-        from calibration.methods import FitOptions, Fitter
-
-        fitter = Fitter(robot, nominal, fit, FitOptions(a=opts.a, tolerance=opts.tolerance, cluster_size=opts.cluster_size))
-        base_model, _ = fitter.fit("nls1")
-        obs = fitter.observability()
-        inuse = InUse.from_model(base_model, nominal)
-        basis = obs.basis
+        inuse = InUse.from_model(None, nominal)
+        g = inuse.n_geometric
+        obs = analyse(inuse.par, fit.q, a=opts.a, tolerance=opts.tolerance)
+        sol = JointProblem(inuse.par, fit.q, fit.R, fit.p, ctx, np.zeros(g), np.eye(g), (), w_rot,
+                           prior_weight=filter_prior(inuse, fit.q, ctx, (), opts.a, opts.tolerance)).solve()
+        inuse = inuse.with_theta(sol.theta)
+        basis = obs.basis  # the selection's geometric columns: what the data see
         base_name = "geometric"
     else:
         inuse = InUse.from_model(model, nominal)
@@ -283,8 +284,13 @@ def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording 
 
     def joint_fit(chosen: list[tuple[Effect, np.ndarray]]) -> JointFit:
         B = block_diag(np.eye(n_base), *[b for _, b in chosen])
-        return JointProblem(par, fit.q, fit.R, fit.p, ctx, x_base, basis, base_effects + tuple(e for e, _ in chosen),
-                            w_rot, B if B.size else None, inuse=inuse).solve()
+        effects = base_effects + tuple(e for e, _ in chosen)
+        if not prior:
+            return JointProblem(par, fit.q, fit.R, fit.p, ctx, x_base, basis, effects, w_rot, B if B.size else None,
+                                inuse=inuse).solve()
+        return JointProblem(par, fit.q, fit.R, fit.p, ctx, x_base, np.eye(par.size), effects, w_rot,
+                            B if B.size else None, inuse=inuse,
+                            prior_weight=filter_prior(inuse, fit.q, ctx, effects, opts.a, opts.tolerance)).solve()
 
     kept: list[tuple[Effect, np.ndarray]] = []
     kept_kinds: list[str] = []
@@ -318,7 +324,8 @@ def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording 
     R, p = inuse.pose(fit.q, final_fit.effects, ctx, theta_at(final_fit.x))
     r_final, _ = weighted_residuals(fit.R, fit.p, R, p, w_rot)
     noise = noise_floor(r_final, groups, final_fit.n_parameters)
-    physics, refit_note = result_model(robot, inuse, model, theta_at(final_fit.x), final_fit.effects, basis.shape[1],
+    physics, refit_note = result_model(robot, inuse, model, theta_at(final_fit.x), final_fit.effects,
+                                       par.size if prior else basis.shape[1],
                                        {"baseline": base_name, "fit_samples": len(fit), "effects_found": kept_kinds})
     notes = tuple(n for n in [obs.summary() if obs is not None else "", refit_note] if n)
     verdict = explain.verdict(effects_out, baseline, cur_acc, noise.floor_mm, hidden, untested, rejected)

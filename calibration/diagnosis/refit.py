@@ -1,7 +1,9 @@
 """Joint refit of geometry and physics: Levenberg-Marquardt on ``[geometric parameters; effect parameters]``.
 
-The geometric parameters move only along the observable basis (hidden directions stay at their start),
-``x = x0 + basis @ z``; every effect keeps its settings and refits its ``values``. The residual is exact
+The geometric parameters move only along ``basis`` (directions outside it stay at their start),
+``x = x0 + basis @ z``; every effect keeps its settings and refits its ``values``. An optional Gaussian prior
+(the Tikhonov filter of :func:`calibration.observability.filter_weights`) pulls the geometry toward
+``x_prior`` and the effect values toward zero, so what the data barely see stays near nominal. The residual is exact
 (POE forward kinematics with the effects applied); the Jacobian uses the analytic geometric Jacobian at the
 perturbed joint angles and each effect's analytic pose Jacobian (first order in the small effects). The
 parameter covariance is the Gauss-Newton one scaled by the residual variance,
@@ -16,9 +18,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from calibration import so3
+from calibration.diagnosis.extended import ExtendedEffect
 from calibration.diagnosis.inuse import InUse
 from calibration.errors import ModelError
-from calibration.identification import weighted_residuals
+from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, weighted_residuals
+from calibration.observability import DEFAULT_RELATIVE_TOLERANCE, analyse_jacobian, filter_weights
 from calibration.parameterisation import MinimalParameterisation
 from calibration.physics.base import Context, Effect
 from calibration.physics_informed import ExtendedKinematics
@@ -55,6 +59,32 @@ class JointFit:
     theta: np.ndarray | None = None
 
 
+def filter_prior(inuse: InUse, q: np.ndarray, context: Context | None, effects: tuple[Effect, ...],
+                 a: float = DEFAULT_ORIENTATION_WEIGHT, tolerance: float = DEFAULT_RELATIVE_TOLERANCE) -> np.ndarray:
+    """Prior weights (27 + p_e,) of the Tikhonov filter over the geometry and ``effects``, around nominal.
+
+    The rule of the ``pi`` fit (:func:`calibration.observability.filter_weights`) applied to the joint
+    Jacobian. Each parameter is scaled to millimetres of tool motion: geometry and extended blocks by their
+    kinematics' scale, a physics effect by the change that moves the tool 1 mm RMS over the data.
+    """
+    theta = np.zeros(inuse.kin.size)
+    J = [inuse.jacobian_geometry(q, theta)]
+    scale = [inuse.par.scale()]
+    names = list(inuse.par.names())
+    full_scale = inuse.kin.scale()
+    for e in effects:
+        Je = inuse.effect_jacobian(e, q, context, theta)
+        J.append(Je)
+        if isinstance(e, ExtendedEffect):
+            scale.append(full_scale[e.block(inuse.n_geometric)])
+        else:
+            rms = np.sqrt(np.mean(np.sum(Je[:, :3] ** 2, axis=1), axis=0))
+            scale.append(1.0 / np.maximum(rms, 1e-12))
+        names += [f"{e.kind}:{n}" for n in e.names]
+    obs = analyse_jacobian(np.concatenate(J, axis=-1), np.concatenate(scale), tuple(names), a, tolerance)
+    return filter_weights(obs)
+
+
 def _split(effects: tuple[Effect, ...], theta: np.ndarray) -> tuple[Effect, ...]:
     out, i = [], 0
     for e in effects:
@@ -80,11 +110,14 @@ class JointProblem:
             start (directions the geometry absorbs stay put).
         inuse: the model in use (pi, cdc, ...) the effects are added to; None: the POE geometry of ``par``
             (``x`` is then its geometric block; for cdc a shift of the interpolated geometry).
+        prior_weight: optional (m + p_e,) weights of a prior ``|w * ([x; effect values] - [x_prior; 0])|^2``.
+        x_prior: the geometry the prior pulls toward (default nominal, zeros).
     """
 
     def __init__(self, par: MinimalParameterisation, q: np.ndarray, R_meas: np.ndarray, p_meas: np.ndarray,
                  context: Context | None, x0: np.ndarray, basis: np.ndarray, effects: tuple[Effect, ...],
-                 w_rot: float, effect_basis: np.ndarray | None = None, inuse: InUse | None = None) -> None:
+                 w_rot: float, effect_basis: np.ndarray | None = None, inuse: InUse | None = None,
+                 prior_weight: np.ndarray | None = None, x_prior: np.ndarray | None = None) -> None:
         self.par, self.q, self.R_meas, self.p_meas, self.context = par, np.atleast_2d(q), R_meas, p_meas, context
         N = self.q.shape[0]
         if R_meas.shape != (N, 3, 3) or p_meas.shape != (N, 3):
@@ -103,10 +136,26 @@ class JointProblem:
         self.B = np.eye(self.theta0.size) if effect_basis is None else np.asarray(effect_basis, dtype=float)
         if self.B.shape[0] != self.theta0.size:
             raise ModelError(f"effect_basis must have {self.theta0.size} rows, got {self.B.shape}")
+        self.prior_weight = None if prior_weight is None else np.asarray(prior_weight, dtype=float)
+        if self.prior_weight is not None and self.prior_weight.shape != (par.size + self.theta0.size,):
+            raise ModelError(f"prior_weight must be ({par.size + self.theta0.size},), got {self.prior_weight.shape}")
+        self.x_prior = np.zeros(par.size) if x_prior is None else np.asarray(x_prior, dtype=float)
 
     def unpack(self, u: np.ndarray) -> tuple[np.ndarray, tuple[Effect, ...]]:
         """Geometric parameters (m,) and effects for a stacked vector ``[z; theta]``."""
         return self.x0 + self.basis @ u[: self.k], _split(self.effects, self.theta0 + self.B @ u[self.k:])
+
+    def prior(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Prior residual (m + p_e,) and its Jacobian d/du; empty without a prior."""
+        if self.prior_weight is None:
+            return np.zeros(0), np.zeros((0, u.size))
+        x = self.x0 + self.basis @ u[: self.k]
+        values = self.theta0 + self.B @ u[self.k:]
+        r = self.prior_weight * np.concatenate([x - self.x_prior, values])
+        J = np.zeros((r.size, u.size))
+        J[: self.par.size, : self.k] = self.basis
+        J[self.par.size:, self.k:] = self.B
+        return r, self.prior_weight[:, None] * J
 
     def theta(self, x: np.ndarray, effects: tuple[Effect, ...]) -> tuple[np.ndarray, tuple[Effect, ...]]:
         """Extended parameters with geometry ``x`` and the extended effects in, and the other effects."""
@@ -142,17 +191,21 @@ class JointProblem:
         """Levenberg-Marquardt from ``[0; current effect values]``."""
         start = time.perf_counter()
         u = np.zeros(self.k + self.B.shape[1])
-        r, e = self.residual(u)
-        cost = float(np.sum(r * r))
+
+        def total(u: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+            r, e = self.residual(u)
+            rp = self.prior(u)[0]
+            return r, e, float(np.sum(r * r) + np.sum(rp * rp))
+        r, e, cost = total(u)
         lam, converged, it = 1e-4, False, 0
         J = self.jacobian(u, e)
         for it in range(1, max_iter + 1):
-            A = J.T @ J
-            g = J.T @ r.ravel()
+            rp, Jp = self.prior(u)
+            A = J.T @ J + Jp.T @ Jp
+            g = J.T @ r.ravel() + Jp.T @ rp
             diag = np.diag(A).copy() + 1e-300
             step = np.linalg.lstsq(A + lam * np.diag(diag), -g, rcond=None)[0]
-            r_try, e_try = self.residual(u + step)
-            cost_try = float(np.sum(r_try * r_try))
+            r_try, e_try, cost_try = total(u + step)
             if cost_try < cost:
                 rel = (cost - cost_try) / max(cost, 1e-300)
                 u, r, e, cost = u + step, r_try, e_try, cost_try
@@ -167,9 +220,11 @@ class JointProblem:
                     converged = True
                     break
         J = self.jacobian(u, e)
+        Jp = self.prior(u)[1]
         n_res, p = r.size, u.size
-        s2 = cost / max(n_res - p, 1)
-        cov = s2 * np.linalg.pinv(J.T @ J)
+        rss = float(np.sum(r * r))
+        s2 = rss / max(n_res - p, 1)
+        cov = s2 * np.linalg.pinv(J.T @ J + Jp.T @ Jp)
         T = np.zeros((self.k + self.theta0.size, u.size))
         T[: self.k, : self.k] = np.eye(self.k)
         T[self.k:, self.k:] = self.B
