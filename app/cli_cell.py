@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any, Callable
 
-from app.cli_common import cell_spec, write_json
+from app.cli_common import cell_spec, fitter_for, write_json
 from calibration.errors import CellCalError
 
 _NO_HARDWARE = ("no real robot controller or mocap is configured for {robot} in {cell} (only the simulated devices "
@@ -116,7 +116,6 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     from app.recalibrate import check_model_dir, current_model, decide_and_install
     from app.safety import CellSafety
     from app.session_plan import validation_plan
-    from calibration.methods import Fitter
     from calibration.recording import read_recording
 
     cell = cell_spec(args)
@@ -148,7 +147,7 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         export(session, work / "cpa.csv", kinds=("cpa",))
         cpa = read(work / "cpa.csv")
     export(work / "validation", work / "validation.csv")
-    fitter = Fitter(args.robot, robot.model(), read(work / "train.csv"), cpa_data=cpa)
+    fitter = fitter_for(robot, read(work / "train.csv"), cpa)
     model, _ = fitter.fit(args.method)
     decision = decide_and_install(model_dir, model, read(work / "validation.csv"))
     print(decision.summary())

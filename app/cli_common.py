@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 from typing import Any
+
+log = logging.getLogger("cellcal.app")
 
 
 def cell_spec(args: argparse.Namespace) -> Any:
@@ -23,14 +26,30 @@ def read_recording_arg(path: str, robot: Any | None = None) -> Any:
     return read_recording(path, robot.robot.lower_rad, robot.robot.upper_rad)
 
 
+def fitter_for(robot: Any, train: Any, cpa: Any | None = None, options: Any | None = None) -> Any:
+    """A Fitter for one arm of the cell: its nominal model, link masses and joint limits."""
+    from calibration.errors import ModelError
+    from calibration.methods import FitOptions, Fitter
+    from calibration.physics.gravity import GravityModel
+
+    nominal = robot.model()
+    try:
+        gravity = GravityModel.from_spec(robot.robot, nominal)
+    except ModelError as e:
+        log.warning("%s: joint compliance takes the mass-free form: %s", robot.name, e)
+        gravity = None
+    return Fitter(robot.name, nominal, train, options or FitOptions(), cpa, gravity,
+                  (robot.robot.lower_rad, robot.robot.upper_rad))
+
+
 def fitter_from_args(args: argparse.Namespace) -> Any:
     """A Fitter for ``--robot``/``--train``/``--cpa``/``--a``, and the robot's cell entry."""
-    from calibration.methods import FitOptions, Fitter
+    from calibration.methods import FitOptions
 
     robot = cell_spec(args).robot(args.robot)
     train = read_recording_arg(args.train, robot)
     cpa = read_recording_arg(args.cpa, robot) if args.cpa else None
-    return Fitter(args.robot, robot.model(), train, FitOptions(a=args.a), cpa), robot
+    return fitter_for(robot, train, cpa, FitOptions(a=args.a)), robot
 
 
 def write_json(path: str | None, data: dict[str, Any]) -> None:

@@ -150,10 +150,10 @@ def fit_and_compare(cell: CellSpec, robot: str, rec: Recordings, methods: tuple[
                     progress: bool = True) -> Any:
     """Fit ``methods`` on the training set, evaluate them on the test set, save every model as YAML."""
     from app.compare import run_comparison
-    from calibration.methods import Fitter
+    from app.cli_common import fitter_for
     from calibration.models import save_model
 
-    fitter = Fitter(robot, cell.robot(robot).model(), rec.train, cpa_data=rec.cpa)
+    fitter = fitter_for(cell.robot(robot), rec.train, rec.cpa)
     cmp = run_comparison(fitter, rec.test, methods, progress)
     model_dir.mkdir(parents=True, exist_ok=True)
     for m, model in cmp.models.items():

@@ -122,7 +122,8 @@ def fit_model_sets(cell: CellSpec, twins: dict[str, Any], methods: tuple[str, ..
     Raises:
         ModelError: an unknown method (the message names the valid ones).
     """
-    from calibration.methods import METHODS, Fitter
+    from app.cli_common import fitter_for
+    from calibration.methods import METHODS
 
     bad = [m for m in methods if m not in METHODS]
     if bad:
@@ -135,7 +136,7 @@ def fit_model_sets(cell: CellSpec, twins: dict[str, Any], methods: tuple[str, ..
         train = measure(twins[name], q, options, options.seed + 10 + k, cluster)
         qc, cc = cpa_design()
         cpa = measure(twins[name], qc, options, options.seed + 20 + k, cc)
-        fitter = Fitter(name, nominal, train, cpa_data=cpa)
+        fitter = fitter_for(spec, train, cpa)
         for method in methods:
             out[method][name] = fitter.fit(method)[0]
             logger.info("fitted %s for %s on %d samples", method, name, len(train))

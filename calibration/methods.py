@@ -5,7 +5,8 @@ analysis, needs single-joint sweeps), ``nls0`` (NLS on the clusters nearest q = 
 all training data). Configuration-dependent methods interpolate local cluster fits over (q2, q3):
 ``nearest``, ``linear``, ``cubic``, ``rbf``, ``fbf13``, ``fbf7``, ``nn``, ``ae``. Beyond the paper, ``pi`` is
 the physics-informed model (geometry + tool rotation + gravity compliance + smooth structural deflection, see
-:mod:`calibration.physics_informed`).
+:mod:`calibration.physics_informed`), and ``diagnosed`` is what :func:`calibration.diagnosis.diagnose` finds on
+the training data alone (effects chosen on set-aside training clusters), refitted on all of it.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, GeometricProb
 from calibration.models import ConstantModel, KinematicModel
 from calibration.observability import DEFAULT_RELATIVE_TOLERANCE, Observability, analyse, filter_weights
 from calibration.parameterisation import MinimalParameterisation
+from calibration.physics.gravity import GravityModel
 from calibration.physics_informed import ExtendedKinematics, PhysicsInformedModel
 from calibration.poe import PoeModel
 from calibration.recording import Recording
@@ -32,7 +34,7 @@ log = logging.getLogger("cellcal.calibration")
 
 CONSTANT_METHODS = ("nominal", "base", "cpa", "nls0", "nls1")
 CDC_METHODS = ("nearest", "linear", "cubic", "rbf", "fbf13", "fbf7", "nn", "ae")
-PHYSICS_METHODS = ("pi",)
+PHYSICS_METHODS = ("pi", "diagnosed")
 METHODS = CONSTANT_METHODS + CDC_METHODS + PHYSICS_METHODS
 
 
@@ -64,13 +66,19 @@ class FitOptions:
 
 @dataclass
 class Fitter:
-    """Fits methods on one training recording, sharing the global and local fits between methods."""
+    """Fits methods on one training recording, sharing the global and local fits between methods.
+
+    ``gravity`` (link masses) and ``joint_limits`` serve ``diagnosed``: without masses its joint compliance
+    takes the mass-free form; without limits the training poses stand in for the workspace.
+    """
 
     robot: str
     nominal: PoeModel
     train: Recording
     options: FitOptions = field(default_factory=FitOptions)
     cpa_data: Recording | None = None
+    gravity: GravityModel | None = None
+    joint_limits: tuple[np.ndarray, np.ndarray] | None = None
     _cache: dict[str, Any] = field(default_factory=dict, repr=False)
 
     @property
@@ -186,6 +194,16 @@ class Fitter:
     def _fit_pi(self) -> PhysicsInformedModel:
         return self.physics_informed()
 
+    def _fit_diagnosed(self) -> KinematicModel:
+        from calibration.diagnosis import DiagnoseOptions, diagnose
+
+        opts = DiagnoseOptions(a=self.options.a, tolerance=self.options.tolerance, cluster_size=self.options.cluster_size)
+        found = diagnose(self.robot, self.nominal, self.train, gravity=self.gravity, joint_limits=self.joint_limits,
+                         options=opts)
+        model = replace(found.model, method="diagnosed")
+        model.info.update(verdict=found.verdict, effects=[e.kind for e in found.effects])
+        return model
+
     def _fit_cdc(self, method: str) -> KinematicModel:
         options: dict[str, Any] = {}
         if method == "fbf7":
@@ -197,4 +215,5 @@ class Fitter:
 
 def with_options(fitter: Fitter, **changes: Any) -> Fitter:
     """A new fitter with changed options (nothing cached)."""
-    return Fitter(fitter.robot, fitter.nominal, fitter.train, replace(fitter.options, **changes), fitter.cpa_data)
+    return Fitter(fitter.robot, fitter.nominal, fitter.train, replace(fitter.options, **changes), fitter.cpa_data,
+                  fitter.gravity, fitter.joint_limits)

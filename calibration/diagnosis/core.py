@@ -158,6 +158,7 @@ def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording 
     opts = options or DiagnoseOptions()
     w_rot = rotation_residual_scale(opts.a)
     groups_all = _groups(data, opts.cluster_size)
+    everything = data
     source = "given"
     if heldout is None:
         k = max(2, int(round(1.0 / opts.heldout_fraction)))
@@ -282,15 +283,16 @@ def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording 
     merged = [_merge(k, [s.candidate for s in steps if s.candidate.kind == k], bases) for k in kinds_in_order]
     n_base = sum(e.size for e in base_effects)
 
-    def joint_fit(chosen: list[tuple[Effect, np.ndarray]]) -> JointFit:
+    def joint_fit(chosen: list[tuple[Effect, np.ndarray]], rec: Recording = fit) -> JointFit:
         B = block_diag(np.eye(n_base), *[b for _, b in chosen])
         effects = base_effects + tuple(e for e, _ in chosen)
+        c = rec.context()
         if not prior:
-            return JointProblem(par, fit.q, fit.R, fit.p, ctx, x_base, basis, effects, w_rot, B if B.size else None,
+            return JointProblem(par, rec.q, rec.R, rec.p, c, x_base, basis, effects, w_rot, B if B.size else None,
                                 inuse=inuse).solve()
-        return JointProblem(par, fit.q, fit.R, fit.p, ctx, x_base, np.eye(par.size), effects, w_rot,
+        return JointProblem(par, rec.q, rec.R, rec.p, c, x_base, np.eye(par.size), effects, w_rot,
                             B if B.size else None, inuse=inuse,
-                            prior_weight=filter_prior(inuse, fit.q, ctx, effects, opts.a, opts.tolerance)).solve()
+                            prior_weight=filter_prior(inuse, rec.q, c, effects, opts.a, opts.tolerance)).solve()
 
     kept: list[tuple[Effect, np.ndarray]] = []
     kept_kinds: list[str] = []
@@ -324,10 +326,15 @@ def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording 
     R, p = inuse.pose(fit.q, final_fit.effects, ctx, theta_at(final_fit.x))
     r_final, _ = weighted_residuals(fit.R, fit.p, R, p, w_rot)
     noise = noise_floor(r_final, groups, final_fit.n_parameters)
-    physics, refit_note = result_model(robot, inuse, model, theta_at(final_fit.x), final_fit.effects,
+    saved, saved_on, all_note = final_fit, fit, ""
+    if source == "split":  # the set-aside clusters chose the effects; the saved model learns from them too
+        saved, saved_on = joint_fit(kept, everything), everything
+        all_note = (f"The saved model is refitted on all {len(everything)} samples (the {len(fit)} fit samples and "
+                    f"the {len(heldout)} set-aside ones); the held-out figures are those of the fit on {len(fit)}.")
+    physics, refit_note = result_model(robot, inuse, model, theta_at(saved.x), saved.effects,
                                        par.size if prior else basis.shape[1],
-                                       {"baseline": base_name, "fit_samples": len(fit), "effects_found": kept_kinds})
-    notes = tuple(n for n in [obs.summary() if obs is not None else "", refit_note] if n)
+                                       {"baseline": base_name, "fit_samples": len(saved_on), "effects_found": kept_kinds})
+    notes = tuple(n for n in [obs.summary() if obs is not None else "", refit_note, all_note] if n)
     verdict = explain.verdict(effects_out, baseline, cur_acc, noise.floor_mm, hidden, untested, rejected)
     return Diagnosis(robot, len(fit), len(heldout), source, noise, baseline, cur_acc, tuple(mismatch),
                      tuple(effects_out), tuple(hidden), tuple(untested), verdict, physics, notes,

@@ -102,7 +102,8 @@ def result_model(robot: str, inuse: InUse, used: KinematicModel | None, theta: n
             geo = _fold_tool(geo, e.values)
         note = f"Refitted: the geometric block ({n_geometric_free} observable directions) and the effects; saved as " \
                "a physics model" + (" (tool-marker rotation folded into the POE tool frame)." if extended else ".")
-        return PhysicsModel(robot, "diagnose", geo, rest, n_geometric_free, info), note
+        folded = sum(e.size for e in extended)  # fitted tool rotations count as identified parameters
+        return PhysicsModel(robot, "diagnose", geo, rest, n_geometric_free + folded, info), note
     if inuse.kind == "cdc":
         owner = getattr(inuse.interpolate, "__self__")
         ref = full.copy()
