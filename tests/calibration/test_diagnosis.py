@@ -274,3 +274,18 @@ def test_filter_prior_leaves_a_well_seen_fit_alone_and_damps_what_is_hidden(arm)
     free = JointProblem(inuse.par, fit.q, fit.R, fit.p, fit.context(), np.zeros(g), np.eye(g), effects,
                         rotation_residual_scale(1641.0), inuse=inuse).solve()
     assert np.linalg.norm(sol.x) < np.linalg.norm(free.x)  # the unregularised fit wanders along hidden directions
+
+
+def test_method_diagnosed_finds_and_models_the_concealed_effect(arm):
+    cr, nominal, gravity = arm
+    twin, fit, ho = make_case(nominal, gravity, {"joint_compliance": 0.3}, 4, DESIGN, n_heldout=200)
+    from calibration.methods import Fitter
+    from calibration.metrics import errors
+
+    fitter = Fitter("R1", nominal, fit, gravity=gravity, joint_limits=(cr.robot.lower_rad, cr.robot.upper_rad))
+    model, _ = fitter.fit("diagnosed")
+    assert model.method == "diagnosed" and model.info["effects"] == ["joint_compliance"]
+    assert model.info["fit_samples"] == len(fit)  # refitted on every training sample
+    after = errors(model, ho).position_mm
+    before = errors(fitter.fit("nls1")[0], ho).position_mm
+    assert np.sqrt(np.mean(after**2)) < 0.5 * np.sqrt(np.mean(before**2))
