@@ -229,14 +229,19 @@ def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording 
     pool, hidden, bases = [], [], {}
     for c in cands:
         S = signature(c.effect, fit.q, ctx)
+        # A gear error is identifiable only beyond its mean over the data (a joint offset), but once identified it
+        # carries that mean itself, so a transmission error is not reported as a gear error plus an offset.
         Qc = Q
-        if c.kind == "gear_transmission":  # its constant part is a joint offset, not a transmission error
+        if c.kind == "gear_transmission":
             Qc = np.linalg.qr(np.concatenate([A, sig_offset(c.joints[0])], axis=1))[0]
         vis, exc, B = visibility(S, Qc, signature(c.effect, q_ref, ctx_ref), len(fit), q_ref.shape[0],
                                  opts.selection.visible_min)
         if vis < opts.selection.visible_min:
             hidden.append(explain.not_identifiable(c, vis, exc, fit.q, q_ref))
         else:
+            if c.kind == "gear_transmission":
+                B = visibility(S, Q, signature(c.effect, q_ref, ctx_ref), len(fit), q_ref.shape[0],
+                               opts.selection.visible_min)[2]
             bases[c.key()] = B
             pool.append((c, S @ B))
     problem = LinearSelection(A, r0, groups, opts.selection)
