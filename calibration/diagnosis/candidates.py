@@ -25,9 +25,10 @@ from calibration.poe import PoeModel
 
 #: Warm-up time constants [s] scanned for thermal drift driven by ``t`` (refined afterwards).
 TAU_GRID_S = (300.0, 900.0, 2700.0, 8100.0)
-#: Links shorter than this [mm] are not thermal candidates: they cannot grow measurably, and a zero-length
-#: nominal link has no direction to grow in.
-MIN_LINK_MM = 1.0
+#: Links shorter than this [mm] are not thermal candidates: growth is proportional to length (10 mm of steel
+#: grows 2.4 um over 20 K), and a link that is zero in the nominal model (a fitted one is a few mm at most) has
+#: no direction to grow in.
+MIN_LINK_MM = 10.0
 #: Order in which kinds are listed (and tie-broken).
 KINDS = ("joint_compliance", "payload_compliance", "gear_transmission", "backlash", "thermal_drift",
          "mocap_latency", "joint_offset", "tool_frame", "structural_deflection")
