@@ -131,7 +131,6 @@ def fit_model_sets(cell: CellSpec, twins: dict[str, Any], methods: tuple[str, ..
     out: dict[str, dict[str, KinematicModel]] = {m: {} for m in methods}
     for k, name in enumerate(ROBOTS):
         spec = cell.robot(name)
-        nominal = spec.model()
         q, cluster = training_design(cell, name, options)
         train = measure(twins[name], q, options, options.seed + 10 + k, cluster)
         qc, cc = cpa_design()

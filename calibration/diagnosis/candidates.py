@@ -6,15 +6,21 @@ stacked over samples to shape (6N, m) (rows ordered sample-major). What the geom
 already absorb is projected out: an effect whose signature, after that projection, is a small fraction of
 what it would be over the reference workspace (the held-out poses, or the robot's joint range) cannot be
 identified from the data, and is reported as such rather than searched for.
+
+Once selected, the candidates of one kind are merged into one effect acting on all their joints or links
+(:func:`merge`); warm-up thermal candidates have their time constant refined first (:func:`tune_warmup`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
+from scipy.linalg import block_diag
+from scipy.optimize import minimize_scalar
 
-from calibration.diagnosis.extended import MassFreeCompliance, StructuralDeflection, ToolFrame
+from calibration.diagnosis.extended import ExtendedEffect, MassFreeCompliance, StructuralDeflection, ToolFrame
 from calibration.errors import ModelError
 from calibration.physics.base import Context, Effect
 from calibration.physics.compliance import JointCompliance, PayloadCompliance
@@ -188,3 +194,57 @@ def visibility(S_fit: np.ndarray, Q_geo: np.ndarray, S_ref: np.ndarray, n_fit: i
     if keep.all():
         basis = np.eye(S.shape[1])
     return float(sv[0]), excited, basis
+
+
+def merge(kind: str, cands: list[Candidate], bases: dict[tuple, np.ndarray]) -> tuple[Effect, np.ndarray]:
+    """One effect of ``kind`` acting on every joint/link of the chosen candidates, and its parameter basis."""
+    cands = sorted(cands, key=lambda c: (c.joints, c.label))
+    B = block_diag(*[bases.get(c.key(), np.eye(c.effect.size)) for c in cands])
+    return merged_effect(kind, cands), B
+
+
+def merged_effect(kind: str, cands: list[Candidate]) -> Effect:
+    first = cands[0].effect
+    if kind == "thermal_drift":
+        links = tuple(c.effect.links[0] for c in cands)  # type: ignore[attr-defined]
+        return ThermalDrift(links, np.zeros(len(links)), first.mode, first.tau_s, first.ref_temp_c)  # type: ignore[attr-defined]
+    if kind in ("mocap_latency", "tool_frame", "structural_deflection") or isinstance(first, ExtendedEffect):
+        return first
+    joints = tuple(sorted(j for c in cands for j in c.joints))
+    if kind == "gear_transmission":
+        return type(first)(tuple((j, (1, 2)) for j in joints), np.zeros(4 * len(joints)))
+    if kind == "joint_compliance":
+        return type(first)(first.gravity, joints, np.zeros(len(joints)))  # type: ignore[attr-defined]
+    return type(first)(joints=joints, values=np.zeros(len(joints)))  # type: ignore[call-arg]
+
+
+def tune_warmup(pool: list[tuple[Candidate, np.ndarray]], rss: Callable[[Effect], float],
+                 sig: Callable[[Effect], np.ndarray]) -> list[tuple[Candidate, np.ndarray]]:
+    """One warm-up thermal candidate per link, its time constant refined from the best of the grid."""
+    out, best = [], {}
+    for c, S in pool:
+        e = c.effect
+        if c.kind == "thermal_drift" and e.mode == "warmup":  # type: ignore[attr-defined]
+            cost = rss(e)
+            if c.label not in best or cost < best[c.label][0]:
+                best[c.label] = (cost, c)
+        else:
+            out.append((c, S))
+    for _, c in best.values():
+        e = c.effect
+        f = lambda lt: rss(ThermalDrift(e.links, e.values, "warmup", float(np.exp(lt))))  # type: ignore[attr-defined]  # noqa: E731
+        lt0 = np.log(e.tau_s)  # type: ignore[attr-defined]
+        lt = minimize_scalar(f, bounds=(lt0 - 1.2, lt0 + 1.2), method="bounded", options={"xatol": 1e-3}).x
+        e2 = ThermalDrift(e.links, np.zeros(e.size), "warmup", float(np.exp(lt)))  # type: ignore[attr-defined]
+        out.append((Candidate(c.kind, c.label, c.joints, e2, c.extra_dof), sig(e2)))
+    return out
+
+
+def dedupe(items: list[Untested], testable: set[str]) -> list[Untested]:
+    """One entry per (kind, label), none for labels testable at other settings (thermal time constants)."""
+    seen, out = set(), []
+    for u in items:
+        if (u.kind, u.label) not in seen and not (u.kind == "thermal_drift" and u.label in testable):
+            seen.add((u.kind, u.label))
+            out.append(u)
+    return out

@@ -15,15 +15,13 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 from scipy.linalg import block_diag
 from scipy.optimize import minimize_scalar
 
 from calibration.diagnosis import explain
-from calibration.diagnosis.candidates import KINDS, Candidate, Untested, library, visibility
-from calibration.diagnosis.extended import ExtendedEffect
+from calibration.diagnosis.candidates import KINDS, Candidate, dedupe, library, merge, tune_warmup, visibility
 from calibration.diagnosis.inuse import InUse
 from calibration.diagnosis.model import result_model
 from calibration.diagnosis.drivers import drivers, locate_mismatch
@@ -111,28 +109,6 @@ def _geometric_columns(inuse: InUse, q: np.ndarray, theta: np.ndarray, basis: np
     J = inuse.jacobian_geometry(q, theta) @ basis
     J[:, 3:] *= w_rot
     return J.reshape(J.shape[0] * 6, J.shape[-1])
-
-
-def _merge(kind: str, cands: list[Candidate], bases: dict[tuple, np.ndarray]) -> tuple[Effect, np.ndarray]:
-    """One effect of ``kind`` acting on every joint/link of the chosen candidates, and its parameter basis."""
-    cands = sorted(cands, key=lambda c: (c.joints, c.label))
-    B = block_diag(*[bases.get(c.key(), np.eye(c.effect.size)) for c in cands])
-    return _merged_effect(kind, cands), B
-
-
-def _merged_effect(kind: str, cands: list[Candidate]) -> Effect:
-    first = cands[0].effect
-    if kind == "thermal_drift":
-        links = tuple(c.effect.links[0] for c in cands)  # type: ignore[attr-defined]
-        return ThermalDrift(links, np.zeros(len(links)), first.mode, first.tau_s, first.ref_temp_c)  # type: ignore[attr-defined]
-    if kind in ("mocap_latency", "tool_frame", "structural_deflection") or isinstance(first, ExtendedEffect):
-        return first
-    joints = tuple(sorted(j for c in cands for j in c.joints))
-    if kind == "gear_transmission":
-        return type(first)(tuple((j, (1, 2)) for j in joints), np.zeros(4 * len(joints)))
-    if kind == "joint_compliance":
-        return type(first)(first.gravity, joints, np.zeros(len(joints)))  # type: ignore[attr-defined]
-    return type(first)(joints=joints, values=np.zeros(len(joints)))  # type: ignore[call-arg]
 
 
 def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording | None = None,
@@ -249,9 +225,9 @@ def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording 
     def sig(e: Effect) -> np.ndarray:
         return signature(e, fit.q, ctx)
 
-    pool = _tune_warmup(pool, lambda e: problem.rss([], sig(e)), sig)
+    pool = tune_warmup(pool, lambda e: problem.rss([], sig(e)), sig)
     pool = [(c, problem.add(S)) for c, S in pool]
-    hidden = _dedupe(hidden, {c.label for c, _ in pool})
+    hidden = dedupe(hidden, {c.label for c, _ in pool})
     log.info("diagnose: %d candidates testable, %d not identifiable, %d untested", len(pool), len(hidden), len(untested))
 
     # 4. Selection.
@@ -285,7 +261,7 @@ def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording 
 
     # 5. Joint refit, effects in the order they were first selected; each confirmed on the held-out data.
     kinds_in_order = list(dict.fromkeys(s.candidate.kind for s in steps))
-    merged = [_merge(k, [s.candidate for s in steps if s.candidate.kind == k], bases) for k in kinds_in_order]
+    merged = [merge(k, [s.candidate for s in steps if s.candidate.kind == k], bases) for k in kinds_in_order]
     n_base = sum(e.size for e in base_effects)
 
     def joint_fit(chosen: list[tuple[Effect, np.ndarray]], rec: Recording = fit) -> JointFit:
@@ -355,35 +331,3 @@ def _paired_z(d: np.ndarray) -> float:
     if d.size < 2 or d.std(ddof=1) == 0:
         return 0.0
     return float(d.mean() / (d.std(ddof=1) / np.sqrt(d.size)))
-
-
-def _tune_warmup(pool: list[tuple[Candidate, np.ndarray]], rss: Callable[[Effect], float],
-                 sig: Callable[[Effect], np.ndarray]) -> list[tuple[Candidate, np.ndarray]]:
-    """One warm-up thermal candidate per link, its time constant refined from the best of the grid."""
-    out, best = [], {}
-    for c, S in pool:
-        e = c.effect
-        if c.kind == "thermal_drift" and e.mode == "warmup":  # type: ignore[attr-defined]
-            cost = rss(e)
-            if c.label not in best or cost < best[c.label][0]:
-                best[c.label] = (cost, c)
-        else:
-            out.append((c, S))
-    for _, c in best.values():
-        e = c.effect
-        f = lambda lt: rss(ThermalDrift(e.links, e.values, "warmup", float(np.exp(lt))))  # type: ignore[attr-defined]  # noqa: E731
-        lt0 = np.log(e.tau_s)  # type: ignore[attr-defined]
-        lt = minimize_scalar(f, bounds=(lt0 - 1.2, lt0 + 1.2), method="bounded", options={"xatol": 1e-3}).x
-        e2 = ThermalDrift(e.links, np.zeros(e.size), "warmup", float(np.exp(lt)))  # type: ignore[attr-defined]
-        out.append((Candidate(c.kind, c.label, c.joints, e2, c.extra_dof), sig(e2)))
-    return out
-
-
-def _dedupe(items: list[Untested], testable: set[str]) -> list[Untested]:
-    """One entry per (kind, label), none for labels testable at other settings (thermal time constants)."""
-    seen, out = set(), []
-    for u in items:
-        if (u.kind, u.label) not in seen and not (u.kind == "thermal_drift" and u.label in testable):
-            seen.add((u.kind, u.label))
-            out.append(u)
-    return out
