@@ -66,14 +66,19 @@ class Observability:
                     joints.add(int(head[-1]))
         return sorted(joints)
 
-    def summary(self) -> str:
-        """A plain-language warning for users, empty when everything is observable."""
+    def summary(self, damped: bool = False) -> str:
+        """A plain-language warning for users, empty when everything is observable.
+
+        Args:
+            damped: the fit damps hidden directions toward nominal (Tikhonov filter) instead of holding them.
+        """
         hidden = len(self.singular_values) - self.rank
         if hidden == 0:
             return ""
+        how = "damped toward" if damped else "kept at"
         return (f"The data cannot see {hidden} of {len(self.singular_values)} parameter directions "
                 f"(condition number {self.condition_number:.3g}); they mostly involve joints "
-                f"{', '.join(map(str, self.hidden_joints()))}. These are kept at their reference values, so the "
+                f"{', '.join(map(str, self.hidden_joints()))}. These are {how} their reference values, so the "
                 "model is only as good as the nominal one along them: to calibrate them, collect poses that move "
                 "those joints over a wider range.")
 

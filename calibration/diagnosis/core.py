@@ -315,7 +315,7 @@ def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording 
     physics, refit_note = result_model(robot, inuse, model, theta_at(saved.x), saved.effects,
                                        par.size if prior else basis.shape[1],
                                        {"baseline": base_name, "fit_samples": len(saved_on), "effects_found": kept_kinds})
-    notes = tuple(n for n in [obs.summary() if obs is not None else "", refit_note, all_note] if n)
+    notes = tuple(n for n in [obs.summary(damped=prior) if obs is not None else "", refit_note, all_note] if n)
     verdict = explain.verdict(effects_out, baseline, cur_acc, noise.floor_mm, hidden, untested, rejected)
     return Diagnosis(robot, len(fit), len(heldout), source, noise, baseline, cur_acc, tuple(mismatch),
                      tuple(effects_out), tuple(hidden), tuple(untested), verdict, physics, notes,
