@@ -8,7 +8,8 @@ A candidate joins only if all three hold:
 2. the nested F-test against the current set rejects at ``f_alpha``;
 3. the held-out residual improves beyond noise: with blocked cross-validation (contiguous runs of clusters,
    so neither a cluster nor a stretch of time is split between fit and check) the per-cluster drop of the
-   held-out squared error has a z-score above ``z_min``.
+   held-out squared error has a z-score above ``z_min``, or above ``z_extend`` for one more joint or link of a
+   kind already selected (the physics is established; the question left is where it acts).
 
 After the forward pass each selected kind is confirmed by the nested test of the final set against the
 final set without it; a kind that fails is dropped.
@@ -33,6 +34,7 @@ class SelectionOptions:
         bic_threshold: a candidate must change the BIC by less than this (negative).
         f_alpha: significance level of the nested F-test.
         z_min: minimum z-score of the held-out improvement (one-sided).
+        z_extend: minimum z-score for one more joint or link of a kind already selected.
         folds: cross-validation folds.
         visible_min: candidates whose visible fraction (see :func:`candidates.visibility`) is below this are
             not identifiable from the data.
@@ -45,6 +47,7 @@ class SelectionOptions:
     bic_threshold: float = -10.0
     f_alpha: float = 1e-3
     z_min: float = 3.0
+    z_extend: float = 2.0
     folds: int = 5
     visible_min: float = 0.05
     max_steps: int = 12
@@ -201,10 +204,11 @@ class LinearSelection:
         return {"delta_bic": float(d_bic), "f_pvalue": pval, "cv_rms_mm_before": float(np.sqrt(ssp0.sum() / self.N)),
                 "cv_rms_mm_after": float(np.sqrt(ssp1.sum() / self.N)), "cv_z": z}
 
-    def accepts(self, ev: dict[str, float]) -> bool:
+    def accepts(self, ev: dict[str, float], extends: bool = False) -> bool:
+        """Whether the evidence admits a candidate (``extends``: its kind is already selected)."""
         o = self.options
-        return (ev["delta_bic"] < o.bic_threshold and ev["f_pvalue"] < o.f_alpha and ev["cv_z"] > o.z_min
-                and ev["cv_rms_mm_after"] < ev["cv_rms_mm_before"])
+        return (ev["delta_bic"] < o.bic_threshold and ev["f_pvalue"] < o.f_alpha
+                and ev["cv_z"] > (o.z_extend if extends else o.z_min) and ev["cv_rms_mm_after"] < ev["cv_rms_mm_before"])
 
 
 Refiner = Callable[[Candidate, np.ndarray, list[np.ndarray]], tuple[Candidate, np.ndarray]]
@@ -239,7 +243,8 @@ def forward_select(problem: LinearSelection, pool: list[tuple[Candidate, np.ndar
                 if (cand.kind in problem.options.fallback_kinds) != tier:
                     continue
                 ev = problem.compare(chosen_S, dof, [S], cand.extra_dof, cv_base)
-                if problem.accepts(ev) and (best is None or ev["delta_bic"] < best[2]["delta_bic"]):
+                extends = any(c.kind == cand.kind for c in chosen)
+                if problem.accepts(ev, extends) and (best is None or ev["delta_bic"] < best[2]["delta_bic"]):
                     best = (cand, S, ev)
             if best is not None:
                 break
@@ -247,7 +252,7 @@ def forward_select(problem: LinearSelection, pool: list[tuple[Candidate, np.ndar
             break
         cand, S = refine(best[0], best[1], chosen_S)
         ev = problem.compare(chosen_S, dof, [S], cand.extra_dof, cv_base)
-        if not problem.accepts(ev):
+        if not problem.accepts(ev, any(c.kind == cand.kind for c in chosen)):
             cand, S, ev = best
         chosen.append(cand)
         chosen_S.append(S)
