@@ -69,10 +69,15 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from app.compare import parse_methods, run_comparison
     from app.report import comparison_table, write_report
 
+    from pathlib import Path
+
+    from calibration.models import load_model
+
     methods = parse_methods(args.methods)
+    files = {f"{Path(f).stem} (file)": load_model(f) for f in args.model}
     fitter, robot = fitter_from_args(args)
     test = read_recording_arg(args.test, robot)
-    cmp = run_comparison(fitter, test, methods)
+    cmp = run_comparison(fitter, test, methods, files=files)
     warning = cmp.analysis["observability"]["warning"]
     if warning:
         print(f"warning: {warning}", file=sys.stderr)
@@ -135,6 +140,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_fit_inputs(p)
     p.add_argument("--test", required=True)
     p.add_argument("--methods", default="all", help="all, or a comma-separated list")
+    p.add_argument("--model", action="append", default=[], metavar="FILE",
+                   help="a saved model (a diagnose result, ...) to add as a row of its own; repeatable")
     p.add_argument("--json", help="write the comparison as JSON")
     p.add_argument("--report", help="write Markdown tables and PNG plots into this folder")
     p = add("diagnose", cmd_diagnose, "find the physics the model in use left out, model it, show the fit improve")

@@ -23,7 +23,7 @@ class Comparison:
 
     robot: str
     models: dict[str, KinematicModel] = field(default_factory=dict)
-    fit_seconds: dict[str, float] = field(default_factory=dict)
+    fit_seconds: dict[str, float | None] = field(default_factory=dict)
     train_errors: dict[str, Errors] = field(default_factory=dict)
     test_errors: dict[str, Errors] = field(default_factory=dict)
     skipped: dict[str, str] = field(default_factory=dict)
@@ -50,11 +50,21 @@ def parse_methods(text: str) -> list[str]:
 
 
 def run_comparison(fitter: Fitter, test: Recording, methods: list[str] | tuple[str, ...],
-                   progress: bool = False) -> Comparison:
-    """Fit each method and evaluate it; a method whose data is missing (CPA sweeps) is skipped with a reason."""
+                   progress: bool = False, files: dict[str, KinematicModel] | None = None) -> Comparison:
+    """Fit each method and evaluate it; a method whose data is missing (CPA sweeps) is skipped with a reason.
+
+    ``files`` adds saved models (a diagnose result, a model fitted elsewhere) as rows of their own, evaluated
+    on the same data; their fit time is the one recorded in the file, if any.
+
+    Raises:
+        ModelError: a saved model is for another robot.
+    """
     from tqdm import tqdm
 
     out = Comparison(fitter.robot)
+    for name, model in (files or {}).items():
+        if model.robot != fitter.robot:
+            raise ModelError(f"model {name} is for robot {model.robot!r}, not {fitter.robot!r}")
     bar = tqdm(methods, desc=f"{fitter.robot} fit", unit="method", disable=not progress)
     for method in bar:
         bar.set_postfix_str(method)
@@ -67,6 +77,11 @@ def run_comparison(fitter: Fitter, test: Recording, methods: list[str] | tuple[s
         out.fit_seconds[method] = seconds
         out.train_errors[method] = errors(model, fitter.train)
         out.test_errors[method] = errors(model, test)
+    for name, model in (files or {}).items():
+        out.models[name] = model
+        out.fit_seconds[name] = model.info.get("fit_seconds")
+        out.train_errors[name] = errors(model, fitter.train)
+        out.test_errors[name] = errors(model, test)
     out.analysis = _analysis(fitter, test, out)
     return out
 

@@ -27,7 +27,8 @@ def comparison_table(cmp: Comparison, with_paper: bool = False) -> str:
     rows = [head, sep]
     for m, model in cmp.models.items():
         te, tr = cmp.test_errors[m], cmp.train_errors[m]
-        row = (f"| {m} | {model.n_parameters} | {cmp.fit_seconds[m]:.3f} | "
+        seconds = cmp.fit_seconds[m]
+        row = (f"| {m} | {model.n_parameters} | {'–' if seconds is None else f'{seconds:.3f}'} | "
                f"{te.position_mm.mean():.3f} / {te.position_mm.std():.3f} / {te.position_mm.max():.3f} | "
                f"{te.orientation_deg.mean():.3f} / {te.orientation_deg.max():.3f} | "
                f"{tr.position_mm.mean():.3f} / {tr.position_mm.max():.3f} |")

@@ -102,3 +102,23 @@ def test_paired_tests_between_methods(tmp_path, data):
     assert vs_nominal["mean_difference"] < 0 and vs_nominal["t_pvalue"] < 1e-6 and vs_nominal["wilcoxon_pvalue"] < 1e-6
     assert set(analysis["paired_tests_vs_fbf13"]) == {"nominal", "nls1"}
     assert len(analysis["nominal_error_joint_correlation_test"]) == 6
+
+
+def test_compare_adds_saved_models_as_rows(tmp_path, data, capsys):
+    """A saved model (a diagnose result, a model fitted elsewhere) is a row of compare like any method."""
+    model = tmp_path / "mine.yaml"
+    assert main(["fit", "--robot", "R1", "--train", str(data / "train.csv"), "--method", "nls1",
+                 "--out", str(model)]) == 0
+    out = tmp_path / "cmp.json"
+    assert main(["compare", "--robot", "R1", "--train", str(data / "train.csv"), "--test", str(data / "test.csv"),
+                 "--methods", "nominal,nls1", "--model", str(model), "--json", str(out)]) == 0
+    assert "| mine (file) |" in capsys.readouterr().out
+    methods = json.loads(out.read_text())["methods"]
+    assert methods["mine (file)"]["test"] == methods["nls1"]["test"]  # the same fit, evaluated the same way
+    other = tmp_path / "r2.yaml"
+    other.write_text(model.read_text().replace("robot: R1", "robot: R2"))
+    assert "robot: R2" in other.read_text()
+    assert_bad_input(capsys, ["compare", "--robot", "R1", "--train", str(data / "train.csv"), "--test",
+                              str(data / "test.csv"), "--methods", "nominal", "--model", str(other), "--json",
+                              str(tmp_path / "c2.json")], "r2", "robot 'R2'")
+    assert not (tmp_path / "c2.json").exists()
