@@ -77,6 +77,10 @@ class DiagnoseOptions:
     seed: int = 0
 
 
+#: Kinds acting on one joint's angle: each is tested beyond what a zero offset of that joint explains.
+ONE_JOINT_KINDS = ("joint_compliance", "payload_compliance", "gear_transmission", "backlash")
+
+
 def _groups(rec: Recording, size: int) -> np.ndarray:
     try:
         return rec.clusters(size)
@@ -205,13 +209,16 @@ def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording 
     pool, hidden, bases = [], [], {}
     for c in cands:
         S = signature(c.effect, fit.q, ctx)
-        # A gear error is identifiable only beyond its mean over the data (a joint offset), but once identified it
-        # carries that mean itself, so a transmission error is not reported as a gear error plus an offset.
-        Qc = Q
-        if c.kind == "gear_transmission":
+        # An effect on one joint's angle is identifiable only beyond its mean over the data, which is a joint
+        # offset (a compliance whose torque barely varies is an offset, not a compliance). Once identified a gear
+        # error carries that mean itself, so it is not reported as a gear error plus an offset.
+        # Its variation on the data is measured against its variation over the reference workspace.
+        Qc, S_ref = Q, signature(c.effect, q_ref, ctx_ref)
+        if c.kind in ONE_JOINT_KINDS and len(c.joints) == 1:
             Qc = np.linalg.qr(np.concatenate([A, sig_offset(c.joints[0])], axis=1))[0]
-        vis, exc, B = visibility(S, Qc, signature(c.effect, q_ref, ctx_ref), len(fit), q_ref.shape[0],
-                                 opts.selection.visible_min)
+            off = signature(JointOffset(c.joints, np.zeros(1)), q_ref, ctx_ref)
+            S_ref = S_ref - off @ np.linalg.lstsq(off, S_ref, rcond=None)[0]
+        vis, exc, B = visibility(S, Qc, S_ref, len(fit), q_ref.shape[0], opts.selection.visible_min)
         if vis < opts.selection.visible_min:
             hidden.append(explain.not_identifiable(c, vis, exc, fit.q, q_ref))
         else:
