@@ -3,7 +3,8 @@
 For each target: safety check of the move (limits, floor, other arms), move, wait until settled, read the
 joints, collect mocap frames for a dwell window, read the joints again (the arm must not have moved), reject
 frames that are not tracking-valid or whose marker error is too large, and average the rest (mean position,
-eigenvector quaternion average). The sample is committed to the session's SQLite file at once.
+eigenvector quaternion average; :mod:`app.mocap_window`). The sample is committed to the session's SQLite file
+at once.
 
 Mocap dropouts and driver faults are retried a bounded number of times; then the target is recorded as
 skipped with the reason. Too many consecutive skips abort the session (:class:`SessionAborted`); a resumed
@@ -22,12 +23,13 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from app.mocap_window import WindowFailed, average_frames, collect_window
 from app.planning import Plan
 from app.safety import CellSafety
 from app.session_store import Sample, SessionStore
 from calibration.errors import CellCalError, ConfigError, DataError
 from calibration.recording import Recording, write_recording
-from drivers.base import MocapSource, RigidBodyFrame, RobotDriver
+from drivers.base import MocapSource, RobotDriver
 from drivers.errors import DriverDisconnected, DriverError, DriverTimeout
 
 log = logging.getLogger("cellcal.app")
@@ -103,70 +105,6 @@ class _MeasureFailed(Exception):
     """A measurement attempt failed for a reason worth retrying."""
 
 
-def quat_average(quat: np.ndarray) -> np.ndarray:
-    """Average of unit quaternions (w, x, y, z), shape (N, 4) -> (4,): the principal eigenvector of sum q q^T."""
-    quat = np.asarray(quat, dtype=float)
-    _, vecs = np.linalg.eigh(quat.T @ quat)
-    q = vecs[:, -1]
-    return q if q[0] >= 0 else -q
-
-
-def average_frames(frames: Sequence[RigidBodyFrame]) -> tuple[np.ndarray, np.ndarray, float, float, float]:
-    """Mean pose of static frames.
-
-    Returns:
-        ``(p (3,) mm, quat (4,), position RMS spread [mm], orientation RMS spread [deg], mean marker error [mm])``.
-    """
-    p = np.array([f.position_mm for f in frames], dtype=float)
-    qs = np.array([f.quat_wxyz for f in frames], dtype=float)
-    qs /= np.linalg.norm(qs, axis=1, keepdims=True)
-    p_mean = p.mean(axis=0)
-    q_mean = quat_average(qs)
-    std_pos = float(np.sqrt(np.mean(np.sum((p - p_mean) ** 2, axis=1))))
-    angles = 2.0 * np.arccos(np.clip(np.abs(qs @ q_mean), 0.0, 1.0))
-    std_rot = float(np.degrees(np.sqrt(np.mean(angles**2))))
-    return p_mean, q_mean, std_pos, std_rot, float(np.mean([f.marker_error_mm for f in frames]))
-
-
-def _usable(f: RigidBodyFrame, max_marker_error_mm: float) -> bool:
-    p = np.asarray(f.position_mm, dtype=float)
-    q = np.asarray(f.quat_wxyz, dtype=float)
-    return (f.tracking_valid and f.marker_error_mm <= max_marker_error_mm and p.shape == (3,) and q.shape == (4,)
-            and bool(np.all(np.isfinite(p)) and np.all(np.isfinite(q))) and abs(np.linalg.norm(q) - 1.0) < 1e-3)
-
-
-def collect_window(mocap: MocapSource, body_id: int, config: CollectConfig) -> list[RigidBodyFrame]:
-    """Frames of ``body_id`` captured during one dwell window after now, usable ones only.
-
-    Raises:
-        _MeasureFailed: no frames for ``frame_timeout_s``, or too few usable frames.
-    """
-    mocap.read(0.0)  # drop frames captured before the arm settled
-    frames: list[RigidBodyFrame] = []
-    numbers: list[int] = []
-    t0: float | None = None
-    while True:
-        got = mocap.read(config.frame_timeout_s)
-        if not got:
-            raise _MeasureFailed(f"mocap: no frames for {config.frame_timeout_s:g} s")
-        if t0 is None:
-            t0 = got[0].capture_time + config.discard_s
-        window = [f for f in got if t0 <= f.capture_time <= t0 + config.dwell_s]
-        numbers += [f.frame_number for f in window]
-        frames += [f for f in window if f.body_id == body_id]
-        if got[-1].capture_time >= t0 + config.dwell_s:
-            break
-    expected = max(numbers) - min(numbers) + 1 if numbers else 0
-    good = [f for f in frames if _usable(f, config.max_marker_error_mm)]
-    lost = sum(not f.tracking_valid for f in frames)
-    if len(good) < config.min_frames or len(good) < config.min_valid_fraction * expected:
-        raise _MeasureFailed(f"mocap: {len(good)} usable of ~{expected} frames of body {body_id} "
-                             f"({lost} not tracking, {len(frames) - len(good) - lost} with marker error above "
-                             f"{config.max_marker_error_mm:g} mm or bad values, {max(0, expected - len(frames))} "
-                             "missing)")
-    return good
-
-
 def _check_readback(q: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> None:
     if q.shape != (6,) or not np.all(np.isfinite(q)):
         raise _MeasureFailed(f"joint readback not 6 finite numbers: {q!r}")
@@ -214,6 +152,8 @@ class _Session:
         _check_readback(q_before, self.lower, self.upper)
         try:
             frames = collect_window(self.mocap, self.body_id, c)
+        except WindowFailed as e:
+            raise _MeasureFailed(str(e)) from e
         except DriverError as e:
             raise _MeasureFailed(f"mocap: {e}") from e
         q_after = np.asarray(self.driver.read_joints().q, dtype=float)

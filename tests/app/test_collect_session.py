@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.collect import SessionAborted, export, quat_average, run_session
+from app.collect import SessionAborted, export, run_session
+from app.mocap_window import quat_average
 from app.planning import build_plan
 from app.session_store import Sample, SessionStore
 from calibration import so3
