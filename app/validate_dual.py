@@ -127,7 +127,7 @@ class SimContactSensor:
     """The simulated probe's physics: touches while the true gun tip is within ``tolerance_mm`` of the point.
 
     Polls both simulated arms' true poses in a thread and sends touch / release frames through a
-    :class:`~drivers.can_probe.SimulatedProbe` on its bus, as a real probe would.
+    :class:`~drivers.sim.can_probe.SimulatedProbe` on its bus, as a real probe would.
     """
 
     def __init__(self, cell: CellSpec, drivers: dict[str, Any], probe: Any, p_wp_contact: np.ndarray,
@@ -233,7 +233,8 @@ def run_sim_validation(cell: CellSpec, n: int = 20, model_sets: dict[str, dict[s
         channel: python-can virtual channel shared by the simulated and the reading probe.
     """
     from app.sim_dual import SIM_METHODS, SimCellOptions, fit_model_sets, make_twins
-    from drivers.can_probe import CanContactProbe, SimulatedProbe
+    from drivers.can_probe import CanContactProbe
+    from drivers.sim.can_probe import SimulatedProbe
     from drivers.sim import SimClock, SimRobotConfig, SimRobotDriver
 
     if n < 2:

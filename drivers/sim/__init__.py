@@ -1,5 +1,6 @@
-"""Simulated devices that ship in the package: an arm backed by a twin and a motion-capture system."""
+"""Simulated devices that ship in the package: an arm backed by a twin, a motion-capture system, a CAN probe."""
 
+from drivers.sim.can_probe import SimulatedProbe
 from drivers.sim.clock import SimClock
 from drivers.sim.mocap import SimMocapConfig, SimMocapSource
 from drivers.sim.robot import SimFault, SimRobotConfig, SimRobotDriver
@@ -13,6 +14,7 @@ __all__ = [
     "SimMocapSource",
     "SimRobotConfig",
     "SimRobotDriver",
+    "SimulatedProbe",
     "Truth",
     "TwinTruth",
     "physics_truth",
