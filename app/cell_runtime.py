@@ -86,7 +86,6 @@ class SettledFrames(MocapSource):
         self.clock = clock
         self.latency_s = latency_s
         self._not_before = -math.inf
-        self.dropped_stale = 0
 
     @property
     def stats(self) -> Any:
@@ -105,7 +104,6 @@ class SettledFrames(MocapSource):
             remaining = max(0.0, deadline - self.clock.now())
             got = self.inner.read(remaining / self.clock.time_scale)
             frames = [f for f in got if f.capture_time >= self._not_before]
-            self.dropped_stale += len(got) - len(frames)
             if frames or remaining <= 0.0:
                 return frames
 

@@ -178,13 +178,6 @@ class CellSafety:
                     raise UnsafeTarget(robot, None, float(gap[i, k, m]), self.config.clearance_mm,
                                        f"{robot} {names[k]} too close to {name} {names[m]}{where(i)}")
 
-    def min_clearance(self, robot: str, q: np.ndarray, other: str, other_q: np.ndarray) -> float:
-        """Smallest surface distance [mm] between ``robot`` at ``q`` (6,) and ``other`` at ``other_q`` (6,)."""
-        a = self.capsules(robot, q)[0]
-        b = self.capsules(other, other_q)[0]
-        d = segment_distance(a[:, None, 0], a[:, None, 1], b[None, :, 0], b[None, :, 1])
-        return float((d - self._radii[robot][:, None] - self._radii[other][None, :]).min())
-
     def path(self, q_from: np.ndarray, q_to: np.ndarray) -> np.ndarray:
         """Joint-space samples of the move from ``q_from`` to ``q_to`` (both included), shape (K, 6)."""
         q_from, q_to = np.asarray(q_from, dtype=float), np.asarray(q_to, dtype=float)

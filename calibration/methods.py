@@ -211,9 +211,3 @@ class Fitter:
         if method in ("nn", "ae"):
             options["random_state"] = self.options.seed
         return build_cdc(self.robot, method, self.physics_informed().kinematics, self.local_fits(), **options)
-
-
-def with_options(fitter: Fitter, **changes: Any) -> Fitter:
-    """A new fitter with changed options (nothing cached)."""
-    return Fitter(fitter.robot, fitter.nominal, fitter.train, replace(fitter.options, **changes), fitter.cpa_data,
-                  fitter.gravity, fitter.joint_limits)

@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from calibration.diagnosis.selection import blocked_folds  # noqa: E402
 from calibration.identification import GeometricProblem, rotation_residual_scale, weighted_residuals  # noqa: E402
 from calibration.metrics import errors  # noqa: E402
-from calibration.observability import analyse  # noqa: E402
+from calibration.observability import analyse, filter_weights  # noqa: E402
 from calibration.parameterisation import MinimalParameterisation  # noqa: E402
 from calibration.physics_informed import ExtendedKinematics, PhysicsInformedModel  # noqa: E402
 from calibration.recording import Recording, read_recording  # noqa: E402
@@ -40,10 +40,9 @@ A = 1641.0
 
 
 def fit(kin: ExtendedKinematics, rec: Recording, ratio: float) -> np.ndarray:
-    """The pi fit with prior weights ``ratio x s_max / scale`` (ratio = the filter's tolerance)."""
-    obs = analyse(kin, rec.q, a=A)
-    return GeometricProblem(kin, rec.q, rec.R, rec.p, a=A, prior_weight=ratio * obs.singular_values[0] / obs.scale
-                            ).solve().x[0]
+    """The pi fit with the filter at tolerance ``ratio`` (prior weights ``ratio x s_max / scale``)."""
+    obs = analyse(kin, rec.q, a=A, tolerance=ratio)
+    return GeometricProblem(kin, rec.q, rec.R, rec.p, a=A, prior_weight=filter_weights(obs)).solve().x[0]
 
 
 def test_error(kin: ExtendedKinematics, theta: np.ndarray, test: Recording) -> dict[str, float]:

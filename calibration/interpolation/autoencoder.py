@@ -57,10 +57,6 @@ class AutoencoderInterpolator(Interpolator):
         self._w: list[np.ndarray] = []
         self._b: list[np.ndarray] = []
 
-    def latent_codes(self, x: np.ndarray) -> np.ndarray:
-        """Interpolated latent codes (bottleneck pre-activations), shape (N, latent), at x (N, d)."""
-        return self._latent().predict(x)
-
     def decode(self, z: np.ndarray) -> np.ndarray:
         """Values, shape (N, m), decoded from latent codes z, shape (N, latent)."""
         self._require_fitted()

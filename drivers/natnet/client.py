@@ -108,13 +108,6 @@ class NatNetSource(MocapSource):
         return self._data.getsockname()[1]
 
     @property
-    def command_address(self) -> tuple[str, int]:
-        """Local (ip, port) of the command socket; unicast frames arrive here."""
-        if self._cmd is None:
-            raise DriverError(self.device, "not connected")
-        return self._cmd.getsockname()
-
-    @property
     def stats(self) -> NatNetStats:
         """A snapshot of the receive counters."""
         with self._cond:

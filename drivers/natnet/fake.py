@@ -130,7 +130,6 @@ class FakeNatNetServer:
         self._sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, socket.inet_aton("127.0.0.1"))
         self._sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)
         self._lock = threading.Lock()
-        self._connected = threading.Event()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._serve, name="fake-natnet", daemon=True)
         self._thread.start()
@@ -139,10 +138,6 @@ class FakeNatNetServer:
     def command_port(self) -> int:
         """The UDP port the server answers commands on."""
         return self._sock.getsockname()[1]
-
-    def wait_client(self, timeout_s: float) -> bool:
-        """Block until a client sent ``NAT_CONNECT``; False on timeout."""
-        return self._connected.wait(timeout_s)
 
     def _serve(self) -> None:
         while not self._stop.is_set():
@@ -160,7 +155,6 @@ class FakeNatNetServer:
                     if addr not in self.clients:
                         self.clients.append(addr)
                 self._sock.sendto(encode_server_info(self.version, multicast_group=self.multicast_group), addr)
-                self._connected.set()
 
     def send_frame(self, frame: FakeFrame, to: tuple[str, int] | None = None) -> None:
         """Send one frame to ``to``, or to every connected client when None."""
