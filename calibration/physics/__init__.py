@@ -1,6 +1,6 @@
 """Non-geometric physics of the arms: effect models, gravity torques, the digital twin and the fitted model.
 
-Pinocchio is imported only when a pinocchio gravity model is built (:meth:`GravityModel.torque_pinocchio`).
+Pinocchio is imported only when gravity torques are computed (:meth:`GravityModel.torque`).
 """
 
 from calibration.physics.base import (EFFECT_KINDS, Context, Effect, apply_effects, context_array,

@@ -1,4 +1,4 @@
-"""Gravity torques of a POE arm: pinocchio, an independent numpy sum, and the linear (lumped) regressor.
+"""Gravity torques of a POE arm: pinocchio's generalized gravity, and the linear (lumped) regressor.
 
 Sign convention: ``tau_g`` is the torque gravity *exerts* on each joint [N m],
 ``tau_g = sum_k J_com,k^T m_k g`` with ``g = (0, 0, -9.80665) m/s^2`` along -z of the base frame. It is the
@@ -147,23 +147,6 @@ class GravityModel:
         self._check(model)
         return gravity_regressor(model, q, self.g)
 
-    def torque(self, model: PoeModel, q: np.ndarray) -> np.ndarray:
-        """Gravity torque on each joint [N m], shape (N, n), as ``sum_k J_com,k^T m_k g`` in numpy."""
-        self._check(model)
-        q = np.atleast_2d(np.asarray(q, dtype=float))
-        c = model.chain(q)
-        n = model.n_joints
-        m, com0 = self.masses_coms(model)
-        o0 = joint_origins(model)
-        g_vec = np.array([0.0, 0.0, -self.g])
-        tau = np.zeros((q.shape[0], n))
-        for k in range(n):
-            com = c.p_base_origin[k] + c.R_base_link[k + 1] @ (com0[k] - o0[k])  # (N, 3) [mm]
-            for i in range(k + 1):
-                J_col = np.cross(c.axes_base[i], com - c.p_base_origin[i]) / 1000.0  # [m/rad]
-                tau[:, i] += m[k] * J_col @ g_vec
-        return tau
-
     def pinocchio_model(self, model: PoeModel) -> Any:
         """A pinocchio model of the arm: unaligned revolute joints placed at the POE origins, point-mass links."""
         import pinocchio as pin
@@ -184,8 +167,9 @@ class GravityModel:
         pm.gravity = pin.Motion(np.array([0.0, 0.0, -self.g]), np.zeros(3))
         return pm
 
-    def torque_pinocchio(self, model: PoeModel, q: np.ndarray) -> np.ndarray:
-        """Gravity torque [N m] (N, n) from ``pin.computeGeneralizedGravity`` (sign flipped, see module doc)."""
+    def torque(self, model: PoeModel, q: np.ndarray) -> np.ndarray:
+        """Gravity torque on each joint [N m], shape (N, n), from ``pin.computeGeneralizedGravity`` (sign flipped,
+        see the module docstring)."""
         import pinocchio as pin
 
         q = np.atleast_2d(np.asarray(q, dtype=float))
