@@ -213,18 +213,18 @@ def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording 
         # offset (a compliance whose torque barely varies is an offset, not a compliance). Once identified a gear
         # error carries that mean itself, so it is not reported as a gear error plus an offset.
         # Its variation on the data is measured against its variation over the reference workspace.
-        Qc, S_ref = Q, signature(c.effect, q_ref, ctx_ref)
+        S_ref = signature(c.effect, q_ref, ctx_ref)
+        Qc, S_ref_varying = Q, S_ref
         if c.kind in ONE_JOINT_KINDS and len(c.joints) == 1:
             Qc = np.linalg.qr(np.concatenate([A, sig_offset(c.joints[0])], axis=1))[0]
             off = signature(JointOffset(c.joints, np.zeros(1)), q_ref, ctx_ref)
-            S_ref = S_ref - off @ np.linalg.lstsq(off, S_ref, rcond=None)[0]
-        vis, exc, B = visibility(S, Qc, S_ref, len(fit), q_ref.shape[0], opts.selection.visible_min)
+            S_ref_varying = S_ref - off @ np.linalg.lstsq(off, S_ref, rcond=None)[0]
+        vis, exc, B = visibility(S, Qc, S_ref_varying, len(fit), q_ref.shape[0], opts.selection.visible_min)
         if vis < opts.selection.visible_min:
             hidden.append(explain.not_identifiable(c, vis, exc, fit.q, q_ref))
         else:
             if c.kind == "gear_transmission":
-                B = visibility(S, Q, signature(c.effect, q_ref, ctx_ref), len(fit), q_ref.shape[0],
-                               opts.selection.visible_min)[2]
+                B = visibility(S, Q, S_ref, len(fit), q_ref.shape[0], opts.selection.visible_min)[2]
             bases[c.key()] = B
             pool.append((c, S @ B))
     problem = LinearSelection(A, r0, groups, opts.selection)
@@ -270,17 +270,15 @@ def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording 
     kinds_in_order = list(dict.fromkeys(s.candidate.kind for s in steps))
     merged = [merge(k, [s.candidate for s in steps if s.candidate.kind == k], bases) for k in kinds_in_order]
     n_base = sum(e.size for e in base_effects)
+    refit_basis = np.eye(par.size) if prior else basis  # with the filter every geometric direction moves, damped
 
     def joint_fit(chosen: list[tuple[Effect, np.ndarray]], rec: Recording = fit) -> JointFit:
         B = block_diag(np.eye(n_base), *[b for _, b in chosen])
         effects = base_effects + tuple(e for e, _ in chosen)
         c = rec.context()
-        if not prior:
-            return JointProblem(par, rec.q, rec.R, rec.p, c, x_base, basis, effects, w_rot, B if B.size else None,
-                                inuse=inuse).solve()
-        return JointProblem(par, rec.q, rec.R, rec.p, c, x_base, np.eye(par.size), effects, w_rot,
-                            B if B.size else None, inuse=inuse,
-                            prior_weight=filter_prior(inuse, rec.q, c, effects, opts.a, opts.tolerance)).solve()
+        weights = filter_prior(inuse, rec.q, c, effects, opts.a, opts.tolerance) if prior else None
+        return JointProblem(par, rec.q, rec.R, rec.p, c, x_base, refit_basis, effects, w_rot, B if B.size else None,
+                            inuse=inuse, prior_weight=weights).solve()
 
     kept: list[tuple[Effect, np.ndarray]] = []
     kept_kinds: list[str] = []
@@ -319,8 +317,7 @@ def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording 
         saved, saved_on = joint_fit(kept, everything), everything
         all_note = (f"The saved model is refitted on all {len(everything)} samples (the {len(fit)} fit samples and "
                     f"the {len(heldout)} set-aside ones); the held-out figures are those of the fit on {len(fit)}.")
-    physics, refit_note = result_model(robot, inuse, model, theta_at(saved.x), saved.effects,
-                                       par.size if prior else basis.shape[1],
+    physics, refit_note = result_model(robot, inuse, model, theta_at(saved.x), saved.effects, refit_basis.shape[1],
                                        {"baseline": base_name, "fit_samples": len(saved_on), "effects_found": kept_kinds})
     notes = tuple(n for n in [obs.summary(damped=prior) if obs is not None else "", refit_note, all_note] if n)
     verdict = explain.verdict(effects_out, baseline, cur_acc, noise.floor_mm, hidden, untested, rejected)

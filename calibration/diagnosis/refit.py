@@ -2,12 +2,12 @@
 
 The geometric parameters move only along ``basis`` (directions outside it stay at their start),
 ``x = x0 + basis @ z``; every effect keeps its settings and refits its ``values``. An optional Gaussian prior
-(the Tikhonov filter of :func:`calibration.observability.filter_weights`) pulls the geometry toward
-``x_prior`` and the effect values toward zero, so what the data barely see stays near nominal. The residual is exact
+(the Tikhonov filter of :func:`calibration.observability.filter_weights`) pulls the geometry and the effect
+values toward nominal (zero), so what the data barely see stays near nominal. The residual is exact
 (POE forward kinematics with the effects applied); the Jacobian uses the analytic geometric Jacobian at the
 perturbed joint angles and each effect's analytic pose Jacobian (first order in the small effects). The
 parameter covariance is the Gauss-Newton one scaled by the residual variance,
-``cov = s^2 (J^T J)^-1`` with ``s^2 = RSS / (6N - p)``.
+``cov = s^2 (J^T J + J_prior^T J_prior)^-1`` with ``s^2 = RSS / (6N - p)``.
 """
 
 from __future__ import annotations
@@ -110,14 +110,13 @@ class JointProblem:
             start (directions the geometry absorbs stay put).
         inuse: the model in use (pi, cdc, ...) the effects are added to; None: the POE geometry of ``par``
             (``x`` is then its geometric block; for cdc a shift of the interpolated geometry).
-        prior_weight: optional (m + p_e,) weights of a prior ``|w * ([x; effect values] - [x_prior; 0])|^2``.
-        x_prior: the geometry the prior pulls toward (default nominal, zeros).
+        prior_weight: optional (m + p_e,) weights of a prior ``|w * [x; effect values]|^2`` (toward nominal).
     """
 
     def __init__(self, par: MinimalParameterisation, q: np.ndarray, R_meas: np.ndarray, p_meas: np.ndarray,
                  context: Context | None, x0: np.ndarray, basis: np.ndarray, effects: tuple[Effect, ...],
                  w_rot: float, effect_basis: np.ndarray | None = None, inuse: InUse | None = None,
-                 prior_weight: np.ndarray | None = None, x_prior: np.ndarray | None = None) -> None:
+                 prior_weight: np.ndarray | None = None) -> None:
         self.par, self.q, self.R_meas, self.p_meas, self.context = par, np.atleast_2d(q), R_meas, p_meas, context
         N = self.q.shape[0]
         if R_meas.shape != (N, 3, 3) or p_meas.shape != (N, 3):
@@ -139,7 +138,6 @@ class JointProblem:
         self.prior_weight = None if prior_weight is None else np.asarray(prior_weight, dtype=float)
         if self.prior_weight is not None and self.prior_weight.shape != (par.size + self.theta0.size,):
             raise ModelError(f"prior_weight must be ({par.size + self.theta0.size},), got {self.prior_weight.shape}")
-        self.x_prior = np.zeros(par.size) if x_prior is None else np.asarray(x_prior, dtype=float)
 
     def unpack(self, u: np.ndarray) -> tuple[np.ndarray, tuple[Effect, ...]]:
         """Geometric parameters (m,) and effects for a stacked vector ``[z; theta]``."""
@@ -151,7 +149,7 @@ class JointProblem:
             return np.zeros(0), np.zeros((0, u.size))
         x = self.x0 + self.basis @ u[: self.k]
         values = self.theta0 + self.B @ u[self.k:]
-        r = self.prior_weight * np.concatenate([x - self.x_prior, values])
+        r = self.prior_weight * np.concatenate([x, values])
         J = np.zeros((r.size, u.size))
         J[: self.par.size, : self.k] = self.basis
         J[self.par.size:, self.k:] = self.B

@@ -236,6 +236,7 @@ def forward_select(problem: LinearSelection, pool: list[tuple[Candidate, np.ndar
     steps: list[Step] = []
     while pool and len(steps) < problem.options.max_steps:
         dof = sum(c.extra_dof for c in chosen)
+        found_kinds = {c.kind for c in chosen}
         cv_base = problem.cv(chosen_S)
         best = None
         for tier in (False, True):
@@ -243,8 +244,7 @@ def forward_select(problem: LinearSelection, pool: list[tuple[Candidate, np.ndar
                 if (cand.kind in problem.options.fallback_kinds) != tier:
                     continue
                 ev = problem.compare(chosen_S, dof, [S], cand.extra_dof, cv_base)
-                extends = any(c.kind == cand.kind for c in chosen)
-                if problem.accepts(ev, extends) and (best is None or ev["delta_bic"] < best[2]["delta_bic"]):
+                if problem.accepts(ev, cand.kind in found_kinds) and (best is None or ev["delta_bic"] < best[2]["delta_bic"]):
                     best = (cand, S, ev)
             if best is not None:
                 break
@@ -252,7 +252,7 @@ def forward_select(problem: LinearSelection, pool: list[tuple[Candidate, np.ndar
             break
         cand, S = refine(best[0], best[1], chosen_S)
         ev = problem.compare(chosen_S, dof, [S], cand.extra_dof, cv_base)
-        if not problem.accepts(ev, any(c.kind == cand.kind for c in chosen)):
+        if not problem.accepts(ev, cand.kind in found_kinds):
             cand, S, ev = best
         chosen.append(cand)
         chosen_S.append(S)
