@@ -200,9 +200,7 @@ class Fitter:
         opts = DiagnoseOptions(a=self.options.a, tolerance=self.options.tolerance, cluster_size=self.options.cluster_size)
         found = diagnose(self.robot, self.nominal, self.train, gravity=self.gravity, joint_limits=self.joint_limits,
                          options=opts)
-        model = replace(found.model, method="diagnosed")
-        model.info.update(verdict=found.verdict, effects=[e.kind for e in found.effects])
-        return model
+        return replace(found.model, method="diagnosed", info={**found.model.info, "verdict": found.verdict})
 
     def _fit_cdc(self, method: str) -> KinematicModel:
         options: dict[str, Any] = {}

@@ -284,7 +284,7 @@ def test_method_diagnosed_finds_and_models_the_concealed_effect(arm):
 
     fitter = Fitter("R1", nominal, fit, gravity=gravity, joint_limits=(cr.robot.lower_rad, cr.robot.upper_rad))
     model, _ = fitter.fit("diagnosed")
-    assert model.method == "diagnosed" and model.info["effects"] == ["joint_compliance"]
+    assert model.method == "diagnosed" and model.info["effects_found"] == ["joint_compliance"]
     assert model.info["fit_samples"] == len(fit)  # refitted on every training sample
     after = errors(model, ho).position_mm
     before = errors(fitter.fit("nls1")[0], ho).position_mm
