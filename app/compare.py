@@ -29,6 +29,13 @@ class Comparison:
     skipped: dict[str, str] = field(default_factory=dict)
     analysis: dict[str, Any] = field(default_factory=dict)
 
+    def add(self, name: str, model: KinematicModel, seconds: float | None, train: Recording, test: Recording) -> None:
+        """A row: the model, its fit time (None: unknown) and its errors on the training and test data."""
+        self.models[name] = model
+        self.fit_seconds[name] = seconds
+        self.train_errors[name] = errors(model, train)
+        self.test_errors[name] = errors(model, test)
+
     def to_json(self) -> dict[str, Any]:
         """The documented ``compare --json`` shape (plus ``skipped`` and ``analysis``)."""
         methods = {}
@@ -73,15 +80,9 @@ def run_comparison(fitter: Fitter, test: Recording, methods: list[str] | tuple[s
             continue
         model, seconds = fitter.fit(method)
         log.info("%s fitted in %.3f s", method, seconds)
-        out.models[method] = model
-        out.fit_seconds[method] = seconds
-        out.train_errors[method] = errors(model, fitter.train)
-        out.test_errors[method] = errors(model, test)
+        out.add(method, model, seconds, fitter.train, test)
     for name, model in (files or {}).items():
-        out.models[name] = model
-        out.fit_seconds[name] = model.info.get("fit_seconds")
-        out.train_errors[name] = errors(model, fitter.train)
-        out.test_errors[name] = errors(model, test)
+        out.add(name, model, model.info.get("fit_seconds"), fitter.train, test)
     out.analysis = _analysis(fitter, test, out)
     return out
 
