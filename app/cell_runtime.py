@@ -52,6 +52,8 @@ class SimCellConfig:
         compliance_mm: RMS tool displacement of the planted gravity compliance [mm] (0: purely geometric).
         settle_time_s: simulated settling time after each move [s].
         seed: seed of everything planted or random; each robot gets its own derived seed.
+        mocap_world: report the markers in a hidden mocap world frame derived from ``seed`` (as a real Motive
+            does; what ``cellcal register --sim`` registers) instead of each arm's base frame.
     """
 
     time_scale: float = 20.0
@@ -63,6 +65,7 @@ class SimCellConfig:
     compliance_mm: float = 1.0
     settle_time_s: float = 0.15
     seed: int = 0
+    mocap_world: bool = False
 
 
 class SettledFrames(MocapSource):
@@ -200,10 +203,17 @@ class SimCell:
                                         config=SimRobotConfig(settle_time_s=c.settle_time_s))
                 driver.connect()
                 self.drivers[name], self.truths[name] = driver, truth
+            world = None
+            if c.mocap_world:
+                from drivers.sim.rehearsal import hidden_frames
+
+                hidden = hidden_frames(self.cell, c.seed)
+                world = {self.body_ids[n]: hidden[n].T_world_base for n in self.robots}
             self._sim_mocap = SimMocapSource(
                 {self.body_ids[n]: self.drivers[n] for n in self.robots},
                 SimMocapConfig(rate_hz=c.mocap_rate_hz, noise_pos_mm=c.noise_pos_mm, noise_rot_deg=c.noise_rot_deg,
-                               buffer_frames=int(30 * c.mocap_rate_hz), seed=c.seed))  # 30 s: a slow bridge catches up
+                               buffer_frames=int(30 * c.mocap_rate_hz), seed=c.seed),  # 30 s: a slow bridge catches up
+                T_ref_base=world)
             self._sim_mocap.connect()
             bridge_cfg, collector_cfg = loopback_pair(self.cell.zenoh)
             bridge_session = open_session(bridge_cfg)
@@ -238,6 +248,17 @@ class SimCell:
     def others(self, robot: str) -> dict[str, RobotDriver]:
         """Drivers of every arm but ``robot`` (their live poses feed the safety checks)."""
         return {n: d for n, d in self.drivers.items() if n != robot}
+
+    def mocap_for(self, robot: str) -> MocapSource:
+        """The collector's mocap source for ``robot`` (one source carries every body; frames carry body ids)."""
+        if self.mocap is None:
+            raise ConfigError("SimCell", "mocap", "the simulated cell is not open")
+        return self.mocap
+
+    def stop_all(self) -> None:
+        """Stop every simulated arm now."""
+        for d in self.drivers.values():
+            d.stop()
 
     def close(self) -> None:
         """Stop the bridge, close the sessions and the devices; safe to call twice."""

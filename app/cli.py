@@ -13,6 +13,7 @@ from typing import Callable
 from app.cli_cell import add_cell_parsers
 from app.cli_common import fitter_from_args, read_recording_arg, write_json
 from app.cli_dual import add_dual_parsers
+from app.cli_real import add_real_parsers
 from calibration.errors import CellCalError
 
 log = logging.getLogger("cellcal.app")
@@ -157,6 +158,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "(auto: masses when the YAML has them)")
     add_dual_parsers(add)
     add_cell_parsers(add)
+    add_real_parsers(add)
     return parser
 
 

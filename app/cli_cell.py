@@ -9,14 +9,6 @@ from typing import Any, Callable
 from app.cli_common import cell_spec, fitter_for, write_json
 from calibration.errors import CellCalError
 
-_NO_HARDWARE = ("no real robot controller or mocap is configured for {robot} in {cell} (only the simulated devices "
-                "exist so far); run with --sim to use the simulated arm and mocap over Zenoh")
-
-
-def _require_sim(args: argparse.Namespace, cell: Any) -> None:
-    if not args.sim:
-        raise CellCalError(_NO_HARDWARE.format(robot=args.robot, cell=cell.path.name))
-
 
 def _load_plan(path: str, robot: str) -> Any:
     from app.planning import Plan
@@ -33,12 +25,6 @@ def _require_session(path: str) -> None:
     from app.session_store import SessionStore
 
     SessionStore(path).close()  # raises DataError when there is no session
-
-
-def _sim_config(args: argparse.Namespace) -> Any:
-    from app.cell_runtime import SimCellConfig
-
-    return SimCellConfig(time_scale=args.time_scale, seed=args.seed)
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
@@ -62,13 +48,11 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
 
 def cmd_collect(args: argparse.Namespace) -> int:
-    from app.cell_runtime import SimCell
-    from app.demo import DEMO_COLLECT, collect_arm
-    from app.safety import CellSafety
+    from app.cell_options import confirm_motion, motion_config, open_runtime, safety_for
+    from app.demo import collect_arm
 
     cell = cell_spec(args)
     cell.robot(args.robot)
-    _require_sim(args, cell)
     if args.resume:
         _require_session(args.session)
     elif not args.plan:
@@ -76,10 +60,15 @@ def cmd_collect(args: argparse.Namespace) -> int:
     elif (Path(args.session) / "session.sqlite").exists():
         raise CellCalError(f"{args.session} already holds a session; pass --resume or choose a new folder")
     plan = _load_plan(args.plan, args.robot) if args.plan else None
-    with SimCell(cell, _sim_config(args)) as sim:
-        result = collect_arm(sim, CellSafety(cell), args.robot, plan, Path(args.session), DEMO_COLLECT,
+    config, safety = motion_config(cell, args), safety_for(cell, args)
+    with open_runtime(cell, args, robots=(args.robot,)) as rt:
+        if args.dry_run:
+            return _dry_run(args, rt, safety, plan, config)
+        confirm_motion(args, f"{args.robot} will visit the targets of {args.plan or args.session} at "
+                             f"{config.speed_fraction:g} of full speed")
+        result = collect_arm(rt, safety, args.robot, plan, Path(args.session), config,
                              resume=args.resume, progress=not args.no_progress)
-        frames = sim.frames_received
+        frames = rt.frames_received
     print(f"{args.robot}: {result.n_ok} of {result.n_targets} targets measured, {result.n_skipped} skipped, "
           f"{result.n_new} new this run in {result.elapsed_s:.1f} s ({frames} mocap frames over zenoh) -> "
           f"{args.session}")
@@ -88,7 +77,25 @@ def cmd_collect(args: argparse.Namespace) -> int:
     write_json(args.json, {"robot": args.robot, "session": str(args.session), "targets": result.n_targets,
                             "measured": result.n_ok, "skipped": [list(s) for s in result.skipped],
                             "new": result.n_new, "complete": result.complete, "seconds": result.elapsed_s,
-                            "mocap_frames_received": frames})
+                            "mocap_frames_received": frames, "sim": bool(args.sim)})
+    return 0
+
+
+def _dry_run(args: argparse.Namespace, rt: Any, safety: Any, plan: Any, config: Any) -> int:
+    """Check the whole plan from where the arm stands against the other arms' live poses; print it; no motion."""
+    from app.dry_run import summarize_plan
+    from app.planning import Plan
+    from app.session_store import SessionStore
+
+    if plan is None:
+        with SessionStore(args.session) as store:
+            plan, done = store.plan(), store.done()
+        plan = Plan(tuple(t for i, t in enumerate(plan.targets) if i not in done), plan.params)
+    driver = rt.drivers[args.robot]
+    others = {n: d.read_joints().q for n, d in rt.others(args.robot).items()}
+    summary = summarize_plan(plan, safety, others, driver.read_joints().q, config.speed_fraction)
+    print(f"dry run, no motion: {summary.text()}")
+    write_json(args.json, {"robot": args.robot, "dry_run": True, **summary.to_json()})
     return 0
 
 
@@ -110,11 +117,10 @@ def cmd_export(args: argparse.Namespace) -> int:
 def cmd_recalibrate(args: argparse.Namespace) -> int:
     import time as _time
 
-    from app.cell_runtime import SimCell
+    from app.cell_options import confirm_motion, motion_config, open_runtime, safety_for
     from app.collect import export
-    from app.demo import DEMO_COLLECT, collect_arm
+    from app.demo import collect_arm
     from app.recalibrate import check_model_dir, current_model, decide_and_install
-    from app.safety import CellSafety
     from app.session_plan import validation_plan
     from calibration.recording import read_recording
 
@@ -127,19 +133,24 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     if args.session:
         _require_session(args.session)
     current_model(model_dir, args.robot)  # unreadable or foreign model in service: stop before any motion
-    _require_sim(args, cell)
     stamp = _time.strftime("%Y%m%dT%H%M%S")
     work = model_dir / "sessions" / stamp
     seed = args.validation_seed if args.validation_seed is not None else int(_time.time()) % 100_000
-    safety = CellSafety(cell)
-    with SimCell(cell, _sim_config(args)) as sim:
+    config, safety = motion_config(cell, args), safety_for(cell, args)
+    with open_runtime(cell, args, robots=(args.robot,)) as rt:
         session = Path(args.session) if args.session else work / "train"
-        if plan is not None:
-            collect_arm(sim, safety, args.robot, plan, session, DEMO_COLLECT, progress=not args.no_progress)
-        parked = {n: d.read_joints().q for n, d in sim.others(args.robot).items()}
+        parked = {n: d.read_joints().q for n, d in rt.others(args.robot).items()}
         val_plan = validation_plan(args.robot, safety, parked, args.validation, seed=seed)
-        collect_arm(sim, safety, args.robot, val_plan, work / "validation", DEMO_COLLECT,
-                    progress=not args.no_progress)
+        if args.dry_run:
+            from app.planning import Plan
+
+            both = Plan((plan.targets if plan is not None else ()) + val_plan.targets, val_plan.params)
+            return _dry_run(args, rt, safety, both, config)
+        confirm_motion(args, f"{args.robot} will visit {len(plan) if plan is not None else 0} training and "
+                             f"{len(val_plan)} validation targets at {config.speed_fraction:g} of full speed")
+        if plan is not None:
+            collect_arm(rt, safety, args.robot, plan, session, config, progress=not args.no_progress)
+        collect_arm(rt, safety, args.robot, val_plan, work / "validation", config, progress=not args.no_progress)
     read = lambda p: read_recording(p, robot.robot.lower_rad, robot.robot.upper_rad)  # noqa: E731
     export(session, work / "train.csv", kinds=("anchor", "perturb"))
     cpa = None
@@ -172,6 +183,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     """Register the cell-workflow subcommands."""
+    from app.cell_options import add_motion_options
     from calibration.methods import METHODS
 
     p = add("plan", cmd_plan, "make a collection plan for one arm (anchor grid, CPA sweeps, validation poses)")
@@ -183,21 +195,13 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--validation", type=int, default=0, help="random validation poses to add (the test set)")
     p.add_argument("--seed", type=int, default=0, help="seed of the validation poses")
 
-    def add_sim(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--sim", action="store_true",
-                       help="use the simulated arm and mocap (over Zenoh on loopback); required for now: no real "
-                            "controller or mocap is configured in cell.yaml")
-        p.add_argument("--seed", type=int, default=0, help="seed of the simulated cell (its planted errors)")
-        p.add_argument("--time-scale", type=float, default=20.0, help="simulated seconds per real second")
-        p.add_argument("--no-progress", action="store_true", help="no progress bars")
-
     p = add("collect", cmd_collect, "guided collection session of one arm (durable, resumable)")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
     p.add_argument("--plan", help="plan file (cellcal plan); optional with --resume")
     p.add_argument("--session", required=True, help="session folder (created; holds session.sqlite)")
     p.add_argument("--resume", action="store_true", help="continue the session at the first target not recorded")
     p.add_argument("--json", help="write the session outcome as JSON")
-    add_sim(p)
+    add_motion_options(p)
     p = add("export", cmd_export, "write a session's measured samples as a recording CSV")
     p.add_argument("--session", required=True, help="session folder")
     p.add_argument("--out", required=True, help="recording CSV")
@@ -214,7 +218,7 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--validation", type=int, default=30, help="fresh validation poses to measure")
     p.add_argument("--validation-seed", type=int, help="seed of the validation poses (default: from the clock)")
     p.add_argument("--json", help="write the decision with both figures as JSON")
-    add_sim(p)
+    add_motion_options(p)
     p = add("demo", cmd_demo, "the main job on the simulated cell: collect both arms over zenoh, fit, evaluate, "
                               "report")
     p.add_argument("--out", default="demo_out", help="output folder (an earlier demo there is replaced)")

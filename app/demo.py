@@ -118,7 +118,7 @@ def collect_arm(sim: SimCell, safety: CellSafety, robot: str, plan: Plan | None,
     """
     driver = sim.drivers[robot]
     others = sim.others(robot)
-    result = run_session(session_dir, driver, sim.mocap, safety, body_id=sim.body_ids[robot], plan=plan,
+    result = run_session(session_dir, driver, sim.mocap_for(robot), safety, body_id=sim.body_ids[robot], plan=plan,
                          other_drivers=others, config=config, resume=resume, progress=progress)
     move_safely(driver, sim.park_q(robot), safety, others, config.speed_fraction, config.settle_timeout_s)
     return result
