@@ -1,24 +1,35 @@
-"""Typed loader for the cell described as YAML: robots, tools and the cell layout.
+"""Typed loader for the cell described as YAML: robots, tools, the cell layout, its devices and network.
 
-Every malformed file raises :class:`~calibration.errors.ConfigError` naming the file, the key and what
-was expected; nothing is returned half-built.
+Every malformed file raises :class:`~calibration.errors.ConfigError` naming the file, the dotted key and what
+was expected; nothing is returned half-built. The optional device blocks of ``cell.yaml`` (``controller``,
+``mocap``, ``probe``), the ``zenoh`` block and its per-role overrides refuse unknown keys (the message lists
+the valid ones) and values of the wrong YAML type (the string ``"false"`` is not a boolean).
 """
 
 from __future__ import annotations
 
+import ipaddress
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Literal
 
 import numpy as np
-import yaml
 
 from calibration import so3
 from calibration.errors import ConfigError
 from calibration.poe import PoeModel
+from cell_config._yaml import Node
+from cell_config.registration import RobotRegistration, load_registration, registrations_for, save_registration
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 DEFAULT_CELL = PACKAGE_DIR / "cell.yaml"
+REHEARSAL_CELL = PACKAGE_DIR / "rehearsal.yaml"
+
+ZenohRole = Literal["bridge", "collector", "router"]
+ZENOH_ROLES: tuple[str, ...] = ("bridge", "collector", "router")
+ZENOH_MODES: tuple[str, ...] = ("peer", "client", "router")
+MAX_MOTOROS_GROUPS = 4  # MotoROS control groups 0..3
 
 
 @dataclass(frozen=True)
@@ -76,6 +87,8 @@ class CellRobot:
 
 @dataclass(frozen=True)
 class ZenohConfig:
+    """One Zenoh session's settings: mode, endpoints to listen on / connect to, multicast scouting."""
+
     mode: str = "peer"
     listen: tuple[str, ...] = ()
     connect: tuple[str, ...] = ()
@@ -83,93 +96,135 @@ class ZenohConfig:
 
 
 @dataclass(frozen=True)
+class ControllerConfig:
+    """The MotoROS controller carrying the cell's arms.
+
+    Attributes:
+        host: controller address.
+        motion_port: MotoROS motion server port (TCP).
+        state_port: MotoROS state server port (TCP).
+        groups: robot name -> MotoROS control group (0..3), distinct.
+        connect_timeout_s: TCP connect timeout [s].
+        reply_timeout_s: timeout of one motion-server reply [s].
+        start_traj_timeout_s: timeout of START_TRAJ_MODE (alarm reset + servo on, ~10 s on a real controller) [s].
+        max_speed_fraction: cap of ``--speed`` as a fraction of each joint's maximum speed, in (0, 1].
+        joint_margin_deg: distance kept from every joint limit on this cell [deg].
+    """
+
+    host: str
+    motion_port: int = 50240
+    state_port: int = 50241
+    connect_timeout_s: float = 5.0
+    reply_timeout_s: float = 2.0
+    start_traj_timeout_s: float = 15.0
+    max_speed_fraction: float = 0.25
+    joint_margin_deg: float = 2.0
+    groups: Mapping[str, int] = field(kw_only=True)
+
+
+@dataclass(frozen=True)
+class MocapConfig:
+    """The Motive (NatNet) server and how the bridge PC reaches it.
+
+    Attributes:
+        server_address: the Motive PC.
+        local_address: the bridge PC's interface facing it.
+        multicast: data stream by multicast (True) or unicast (False).
+        rigid_bodies: robot name -> Motive rigid-body NAME of its marker (ids come from the model definitions).
+        multicast_group: the NatNet multicast group.
+        command_port: NatNet command port (UDP).
+        data_port: NatNet data port (UDP).
+    """
+
+    server_address: str
+    local_address: str
+    multicast: bool
+    rigid_bodies: Mapping[str, str]
+    multicast_group: str = "239.255.42.99"
+    command_port: int = 1510
+    data_port: int = 1511
+
+
+@dataclass(frozen=True)
+class ProbeConfig:
+    """The CAN touch probe: python-can interface and channel, bitrate, heartbeat id (event = base_id + 1)."""
+
+    interface: str
+    channel: str
+    bitrate: int
+    base_id: int
+
+
+@dataclass(frozen=True)
 class CellSpec:
-    """The whole cell: named arms and the network layout."""
+    """The whole cell: named arms, its devices, the network layout and the registration.
+
+    Attributes:
+        name: cell name.
+        path: the cell file.
+        robots: robot name -> arm placed in the cell.
+        zenoh: the default Zenoh session settings (the ``zenoh`` block's own keys).
+        controller: the MotoROS controller, None on a simulated-only cell.
+        mocap: the Motive server, None on a simulated-only cell.
+        probe: the CAN probe, None on a simulated-only cell.
+        zenoh_roles: per-role Zenoh overrides (bridge, collector, router); see :meth:`zenoh_for`.
+        registration_path: the registration file (absolute), None when the cell names none.
+        registration: robot name -> registration; empty when the file does not exist yet.
+    """
 
     name: str
     path: Path
     robots: dict[str, CellRobot]
     zenoh: ZenohConfig = field(default_factory=ZenohConfig)
+    controller: ControllerConfig | None = None
+    mocap: MocapConfig | None = None
+    probe: ProbeConfig | None = None
+    zenoh_roles: Mapping[str, ZenohConfig] = field(default_factory=dict)
+    registration_path: Path | None = None
+    registration: Mapping[str, RobotRegistration] = field(default_factory=dict)
 
     def robot(self, name: str) -> CellRobot:
         if name not in self.robots:
             raise ConfigError(self.path, "robots", f"unknown robot {name!r}; valid: {', '.join(self.robots)}")
         return self.robots[name]
 
-
-class _Reader:
-    """Typed access to a parsed YAML mapping that reports errors with file and dotted key."""
-
-    def __init__(self, path: Path) -> None:
-        self.path = path
-        try:
-            with open(path, encoding="utf-8") as f:
-                self.data = yaml.safe_load(f)
-        except FileNotFoundError as e:
-            raise ConfigError(path, "", "file not found") from e
-        except yaml.YAMLError as e:
-            raise ConfigError(path, "", f"not valid YAML ({e.__class__.__name__}: {e})") from e
-        if not isinstance(self.data, dict):
-            raise ConfigError(path, "", "expected a mapping at the top level")
-
-    def get(self, key: str, default: Any = ..., node: dict | None = None, prefix: str = "") -> Any:
-        node = self.data if node is None else node
-        if key not in node:
-            if default is ...:
-                raise ConfigError(self.path, prefix + key, "required key is missing")
-            return default
-        return node[key]
-
-    def array(self, key: str, shape: tuple[int, ...], node: dict | None = None, prefix: str = "",
-              default: Any = ...) -> np.ndarray:
-        value = self.get(key, default, node, prefix)
-        try:
-            arr = np.asarray(value, dtype=float)
-        except (TypeError, ValueError) as e:
-            raise ConfigError(self.path, prefix + key, f"expected numbers of shape {shape}") from e
-        if arr.shape != shape:
-            raise ConfigError(self.path, prefix + key, f"expected shape {shape}, got {arr.shape}")
-        if not np.all(np.isfinite(arr)):
-            raise ConfigError(self.path, prefix + key, "expected finite numbers")
-        return arr
-
-    def string(self, key: str, node: dict | None = None, prefix: str = "") -> str:
-        value = self.get(key, ..., node, prefix)
-        if not isinstance(value, str) or not value:
-            raise ConfigError(self.path, prefix + key, f"expected a non-empty string, got {value!r}")
-        return value
+    def zenoh_for(self, role: ZenohRole) -> ZenohConfig:
+        """The Zenoh settings of ``role``: its override under ``zenoh.roles`` if given, else the default block."""
+        if role not in ZENOH_ROLES:
+            raise ConfigError(self.path, "zenoh.roles", f"unknown role {role!r}; valid: {', '.join(ZENOH_ROLES)}")
+        return self.zenoh_roles.get(role, self.zenoh)
 
 
 def load_robot(path: str | Path) -> RobotSpec:
     """Load a robot YAML (``robots/MA2010.yaml``)."""
-    r = _Reader(Path(path))
+    r = Node.load(path)
     H = r.array("H", (6, 3)).T
     norms = np.linalg.norm(H, axis=0)
     if np.any(np.abs(norms - 1.0) > 1e-9):
-        raise ConfigError(r.path, "H", f"expected unit axes, norms are {norms.tolist()}")
+        raise r.error("H", f"expected unit axes, norms are {norms.tolist()}")
     R_flange = r.array("R_flange", (3, 3))
     if not np.allclose(R_flange @ R_flange.T, np.eye(3), atol=1e-6) or np.linalg.det(R_flange) < 0:
-        raise ConfigError(r.path, "R_flange", "expected a rotation matrix")
-    limits = r.get("joint_limits_deg")
-    if not isinstance(limits, dict):
-        raise ConfigError(r.path, "joint_limits_deg", "expected a mapping with 'lower' and 'upper'")
-    lower = r.array("lower", (6,), limits, "joint_limits_deg.")
-    upper = r.array("upper", (6,), limits, "joint_limits_deg.")
+        raise r.error("R_flange", "expected a rotation matrix")
+    if not isinstance(r.get("joint_limits_deg"), dict):
+        raise r.error("joint_limits_deg", "expected a mapping with 'lower' and 'upper'")
+    limits = r.child("joint_limits_deg")
+    lower = limits.array("lower", (6,))
+    upper = limits.array("upper", (6,))
     if np.any(lower >= upper):
-        raise ConfigError(r.path, "joint_limits_deg", "expected lower < upper for every joint")
+        raise r.error("joint_limits_deg", "expected lower < upper for every joint")
     speeds = r.array("max_speed_deg_s", (6,))
     pulses = r.array("pulses_per_deg", (6,))
     if np.any(speeds <= 0) or np.any(pulses <= 0):
-        raise ConfigError(r.path, "max_speed_deg_s/pulses_per_deg", "expected positive values")
+        raise r.error("max_speed_deg_s/pulses_per_deg", "expected positive values")
     links = []
     raw_links = r.get("links", [])
     if not isinstance(raw_links, list) or (raw_links and len(raw_links) != 6):
-        raise ConfigError(r.path, "links", "expected a list of 6 {mass_kg, com_mm} entries")
+        raise r.error("links", "expected a list of 6 {mass_kg, com_mm} entries")
     for i, link in enumerate(raw_links):
         if not isinstance(link, dict):
-            raise ConfigError(r.path, f"links[{i}]", "expected a mapping with mass_kg and com_mm")
-        mass = r.array("mass_kg", (), link, f"links[{i}].")
-        links.append(LinkInertia(float(mass), r.array("com_mm", (3,), link, f"links[{i}].")))
+            raise r.error(f"links[{i}]", "expected a mapping with mass_kg and com_mm")
+        entry = Node(r.path, link, f"links[{i}]")
+        links.append(LinkInertia(float(entry.array("mass_kg", ())), entry.array("com_mm", (3,))))
     payload = r.get("payload_kg", None)
     return RobotSpec(
         name=r.string("name"), H=H, P=r.array("P", (7, 3)).T, R_flange=R_flange,
@@ -181,40 +236,152 @@ def load_robot(path: str | Path) -> RobotSpec:
 
 def load_tool(path: str | Path) -> ToolSpec:
     """Load a tool YAML (``tools/weldgun_marker.yaml``)."""
-    r = _Reader(Path(path))
+    r = Node.load(path)
     quat = r.array("quaternion_wxyz", (4,))
     if abs(np.linalg.norm(quat) - 1.0) > 1e-3:
-        raise ConfigError(r.path, "quaternion_wxyz", f"expected a unit quaternion, norm is {np.linalg.norm(quat):.6f}")
+        raise r.error("quaternion_wxyz", f"expected a unit quaternion, norm is {np.linalg.norm(quat):.6f}")
     return ToolSpec(r.string("name"), r.string("rigid_body"), so3.quat_to_R(quat), r.array("position_mm", (3,)))
 
 
 def load_cell(path: str | Path = DEFAULT_CELL) -> CellSpec:
-    """Load ``cell.yaml``; robot and tool paths inside it are relative to the cell file."""
-    r = _Reader(Path(path))
+    """Load ``cell.yaml``; robot, tool and registration paths inside it are relative to the cell file."""
+    r = Node.load(path)
+    robots = _robots(r)
+    zenoh, roles = _zenoh(r.child("zenoh", None))
+    registration_path = None
+    registration: dict[str, RobotRegistration] = {}
+    if "registration" in r:
+        registration_path = (r.path.parent / r.string("registration")).absolute()
+        registration = registrations_for(registration_path, robots)
+    return CellSpec(
+        name=r.string("name"), path=r.path, robots=robots, zenoh=zenoh,
+        controller=_controller(r.child("controller", None), robots),
+        mocap=_mocap(r.child("mocap", None), robots),
+        probe=_probe(r.child("probe", None)),
+        zenoh_roles=roles, registration_path=registration_path, registration=registration,
+    )
+
+
+def _robots(r: Node) -> dict[str, CellRobot]:
     robots_node = r.get("robots")
     if not isinstance(robots_node, dict) or not robots_node:
-        raise ConfigError(r.path, "robots", "expected a mapping of robot names (R1, R2) to entries")
+        raise r.error("robots", "expected a mapping of robot names (R1, R2) to entries")
     robots = {}
-    for name, entry in robots_node.items():
-        prefix = f"robots.{name}."
-        if not isinstance(entry, dict):
-            raise ConfigError(r.path, f"robots.{name}", "expected a mapping with robot, tool, T_cell_base")
-        T = r.array("T_cell_base", (4, 4), entry, prefix)
+    for name in robots_node:
+        if not isinstance(robots_node[name], dict):
+            raise r.error(f"robots.{name}", "expected a mapping with robot, tool, T_cell_base")
+        entry = Node(r.path, robots_node[name], f"robots.{name}")
+        T = entry.array("T_cell_base", (4, 4))
         Rb = T[:3, :3]
         if not np.allclose(Rb @ Rb.T, np.eye(3), atol=1e-5) or not np.allclose(T[3], [0, 0, 0, 1]):
-            raise ConfigError(r.path, prefix + "T_cell_base", "expected a homogeneous rigid transform")
-        robot = load_robot(r.path.parent / r.string("robot", entry, prefix))
-        tool = load_tool(r.path.parent / r.string("tool", entry, prefix))
+            raise entry.error("T_cell_base", "expected a homogeneous rigid transform")
+        robot = load_robot(r.path.parent / entry.string("robot"))
+        tool = load_tool(r.path.parent / entry.string("tool"))
         robots[str(name)] = CellRobot(str(name), robot, tool, T)
-    z = r.get("zenoh", {})
-    if not isinstance(z, dict):
-        raise ConfigError(r.path, "zenoh", "expected a mapping")
-    mode = z.get("mode", "peer")
-    if mode not in ("peer", "client", "router"):
-        raise ConfigError(r.path, "zenoh.mode", f"expected one of peer, client, router, got {mode!r}")
-    for key in ("listen", "connect"):
-        if not isinstance(z.get(key, []), list) or not all(isinstance(e, str) for e in z.get(key, [])):
-            raise ConfigError(r.path, f"zenoh.{key}", "expected a list of endpoint strings like tcp/127.0.0.1:7447")
-    zenoh = ZenohConfig(mode, tuple(z.get("listen", [])), tuple(z.get("connect", [])),
-                        bool(z.get("multicast_scouting", False)))
-    return CellSpec(r.string("name"), r.path, robots, zenoh)
+    return robots
+
+
+def _robot_names(node: Node, key: str, robots: Mapping[str, CellRobot]) -> Node:
+    """The mapping under ``key`` whose keys must be robots of the cell (non-empty)."""
+    if not isinstance(node.get(key), dict) or not node.get(key):
+        raise node.error(key, f"expected a non-empty mapping of robot names ({', '.join(robots)}) to values")
+    m = node.child(key)
+    for name in m.data:
+        if name not in robots:
+            raise m.error(str(name), f"unknown robot {name!r}; valid: {', '.join(robots)}")
+    return m
+
+
+def _host(node: Node, key: str, default: object = ...) -> str:
+    value = node.string(key, default)
+    if value != value.strip() or any(c.isspace() for c in value):
+        raise node.error(key, f"expected a host name or address without spaces, got {value!r}")
+    return value
+
+
+def _controller(node: Node | None, robots: Mapping[str, CellRobot]) -> ControllerConfig | None:
+    if node is None:
+        return None
+    d = ControllerConfig("", groups={})
+    node.only(("host", "motion_port", "state_port", "groups", "connect_timeout_s", "reply_timeout_s",
+               "start_traj_timeout_s", "max_speed_fraction", "joint_margin_deg"))
+    g = _robot_names(node, "groups", robots)
+    groups = {str(name): g.integer(name, lo=0, hi=MAX_MOTOROS_GROUPS - 1) for name in g.data}
+    if len(set(groups.values())) != len(groups):
+        raise node.error("groups", f"expected a distinct control group per robot, got {groups}")
+    motion_port, state_port = node.port("motion_port", d.motion_port), node.port("state_port", d.state_port)
+    if motion_port == state_port:
+        raise node.error("state_port", f"expected a port other than motion_port ({motion_port})")
+    return ControllerConfig(
+        host=_host(node, "host"), motion_port=motion_port, state_port=state_port, groups=groups,
+        connect_timeout_s=node.number("connect_timeout_s", d.connect_timeout_s, lo=0.0, lo_open=True),
+        reply_timeout_s=node.number("reply_timeout_s", d.reply_timeout_s, lo=0.0, lo_open=True),
+        start_traj_timeout_s=node.number("start_traj_timeout_s", d.start_traj_timeout_s, lo=0.0, lo_open=True),
+        max_speed_fraction=node.number("max_speed_fraction", d.max_speed_fraction, lo=0.0, hi=1.0, lo_open=True),
+        joint_margin_deg=node.number("joint_margin_deg", d.joint_margin_deg, lo=0.0, hi=45.0),
+    )
+
+
+def _mocap(node: Node | None, robots: Mapping[str, CellRobot]) -> MocapConfig | None:
+    if node is None:
+        return None
+    d = MocapConfig("", "", False, {})
+    node.only(("server_address", "local_address", "multicast", "multicast_group", "command_port", "data_port",
+               "rigid_bodies"))
+    b = _robot_names(node, "rigid_bodies", robots)
+    bodies = {str(name): b.string(name) for name in b.data}
+    if len(set(bodies.values())) != len(bodies):
+        raise node.error("rigid_bodies", f"expected a distinct rigid body per robot, got {bodies}")
+    group = _host(node, "multicast_group", d.multicast_group)
+    try:
+        is_multicast = ipaddress.ip_address(group).is_multicast
+    except ValueError:
+        is_multicast = False
+    if not is_multicast:
+        raise node.error("multicast_group", f"expected a multicast IP address like 239.255.42.99, got {group!r}")
+    command_port, data_port = node.port("command_port", d.command_port), node.port("data_port", d.data_port)
+    if command_port == data_port:
+        raise node.error("data_port", f"expected a port other than command_port ({command_port})")
+    return MocapConfig(
+        server_address=_host(node, "server_address"), local_address=_host(node, "local_address"),
+        multicast=node.boolean("multicast"), rigid_bodies=bodies, multicast_group=group,
+        command_port=command_port, data_port=data_port,
+    )
+
+
+def _probe(node: Node | None) -> ProbeConfig | None:
+    if node is None:
+        return None
+    node.only(("interface", "channel", "bitrate", "base_id"))
+    return ProbeConfig(
+        interface=node.string("interface"), channel=node.string("channel"),
+        bitrate=node.integer("bitrate", lo=1),
+        base_id=node.integer("base_id", lo=0, hi=0x7FE),  # 11-bit ids; the event frame uses base_id + 1
+    )
+
+
+_ZENOH_KEYS = ("mode", "listen", "connect", "multicast_scouting")
+
+
+def _zenoh_session(node: Node, extra: tuple[str, ...] = ()) -> ZenohConfig:
+    node.only(_ZENOH_KEYS + extra)
+    d = ZenohConfig()
+    mode = node.get("mode", d.mode)
+    if mode not in ZENOH_MODES:
+        raise node.error("mode", f"expected one of {', '.join(ZENOH_MODES)}, got {mode!r}")
+    what = "endpoint strings like tcp/127.0.0.1:7447"
+    return ZenohConfig(mode, node.strings("listen", d.listen, what), node.strings("connect", d.connect, what),
+                       node.boolean("multicast_scouting", d.multicast_scouting))
+
+
+def _zenoh(node: Node | None) -> tuple[ZenohConfig, dict[str, ZenohConfig]]:
+    """The default session settings and the per-role overrides (each complete: unset keys take the defaults
+    of :class:`ZenohConfig`, not the default block's values)."""
+    if node is None:
+        return ZenohConfig(), {}
+    default = _zenoh_session(node, ("roles",))
+    roles_node = node.child("roles", None)
+    if roles_node is None:
+        return default, {}
+    roles_node.only(ZENOH_ROLES)
+    return default, {str(role): _zenoh_session(roles_node.child(role)) for role in roles_node.data}
