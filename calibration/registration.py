@@ -87,12 +87,6 @@ def make_T(R: np.ndarray, p: np.ndarray) -> np.ndarray:
     return T
 
 
-def inverse(T: np.ndarray) -> np.ndarray:
-    """Inverse of a rigid transform (4, 4)."""
-    R, p = T[:3, :3], T[:3, 3]
-    return make_T(R.T, -R.T @ p)
-
-
 def _project_rotation(M: np.ndarray) -> np.ndarray:
     """Nearest rotation matrix (Frobenius) to a 3x3 matrix."""
     U, _, Vt = np.linalg.svd(M)
@@ -107,7 +101,9 @@ def transform_difference(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float
 
 def relative_base(reg_R1: HasWorldBase, reg_R2: HasWorldBase) -> np.ndarray:
     """R2's base in R1's base frame, ``T_R1base_R2base`` (4, 4) [mm], from two registrations in one mocap world."""
-    return inverse(np.asarray(reg_R1.T_world_base, dtype=float)) @ np.asarray(reg_R2.T_world_base, dtype=float)
+    T_w1, T_w2 = np.asarray(reg_R1.T_world_base, dtype=float), np.asarray(reg_R2.T_world_base, dtype=float)
+    R1_T = T_w1[:3, :3].T
+    return make_T(R1_T @ T_w2[:3, :3], R1_T @ (T_w2[:3, 3] - T_w1[:3, 3]))
 
 
 class RegistrationProblem:
@@ -130,7 +126,7 @@ class RegistrationProblem:
     def __init__(self, model: PoeModel, q: np.ndarray, R_world_marker: np.ndarray, p_world_marker: np.ndarray,
                  T_flange_marker_guess: np.ndarray | None = None, a: float = DEFAULT_ORIENTATION_WEIGHT) -> None:
         self.q = np.atleast_2d(np.asarray(q, dtype=float))
-        N = self.q.shape[0]
+        self.n_samples = N = self.q.shape[0]
         self.R_meas = np.asarray(R_world_marker, dtype=float)
         self.p_meas = np.asarray(p_world_marker, dtype=float)
         if self.R_meas.shape != (N, 3, 3) or self.p_meas.shape != (N, 3):
@@ -148,33 +144,28 @@ class RegistrationProblem:
         self.w_a = rotation_residual_scale(a)
         self._check_motion()
 
-    @property
-    def n_samples(self) -> int:
-        return self.q.shape[0]
-
     def _check_motion(self) -> None:
-        """Raise unless the flange orientations rotate about at least two non-parallel axes.
+        """Raise unless there are 3 poses whose flange orientations rotate about two non-parallel axes.
 
         Two axes are the minimum of AX = YB (each rotation fixes the lever arms normal to its axis); three
         (the wrist joints 4, 5, 6) condition the translations better.
         """
         N = self.n_samples
-        rel = so3.log(self.R_bf @ self.R_bf[0].T)  # (N, 3) rotation vectors [rad]
-        spread = np.degrees(np.linalg.svd(rel, compute_uv=False)) / math.sqrt(N) if N else np.zeros(3)
-        spread = np.pad(spread, (0, 3 - spread.size))
         how = ("rotate the tool about at least two non-parallel axes (better three: move each wrist joint 4, 5 "
                f"and 6 by {5 * MIN_ROTATION_SPREAD_DEG:.0f} deg or more, see registration_plan)")
         if N < 3:
-            raise DegenerateRegistration(f"got {N} poses, at least 3 are needed; {how}", N, spread)
+            raise DegenerateRegistration(f"got {N} poses, at least 3 are needed; {how}", N, np.zeros(3))
+        rel = so3.log(self.R_bf @ self.R_bf[0].T)  # (N, 3) rotation vectors [rad]
+        spread = np.degrees(np.linalg.svd(rel, compute_uv=False)) / math.sqrt(N)
         if spread[0] < MIN_ROTATION_SPREAD_DEG:
-            raise DegenerateRegistration(
-                f"all {N} poses have the same tool orientation (rotation spread {spread[0]:.3g} deg, at least "
-                f"{MIN_ROTATION_SPREAD_DEG} deg needed): the marker offset is unobservable; {how}", N, spread)
-        if spread[1] < MIN_ROTATION_SPREAD_DEG:
-            raise DegenerateRegistration(
-                f"the {N} poses rotate the tool about one axis only (spread about the principal axes "
-                f"{np.round(spread, 3).tolist()} deg, the second must be at least {MIN_ROTATION_SPREAD_DEG} deg); "
-                f"{how}", N, spread)
+            reason = f"all {N} poses have the same tool orientation (rotation spread {spread[0]:.3g} deg)"
+        elif spread[1] < MIN_ROTATION_SPREAD_DEG:
+            reason = (f"the {N} poses rotate the tool about one axis only (spread about the principal axes "
+                      f"{np.round(spread, 3).tolist()} deg)")
+        else:
+            return
+        raise DegenerateRegistration(f"{reason}, below {MIN_ROTATION_SPREAD_DEG} deg: the marker offset and base "
+                                     f"rotation are not determined; {how}", N, spread)
 
     def predict(self, T_world_base: np.ndarray, T_flange_marker: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Predicted marker poses in the world: ``(R (N, 3, 3), p (N, 3) [mm])``."""
@@ -264,30 +255,21 @@ class RegistrationProblem:
         return T_wb, T_fm, cost, max_iterations, False
 
     def solve(self, max_iterations: int = 100) -> RegistrationResult:
-        """Closed form, then two LM passes; the second weights each channel by its estimated noise.
+        """Closed form, then two LM passes; the second weights each channel by its own estimated noise.
 
-        Pass 1 weights rotations by ``sqrt(2a)`` and starts from both the closed form and the flange-marker
-        guess, keeping the lower cost. Its residuals give the position noise ``s_p^2 = sum|dp|^2 / (3N - 6)``
-        [mm] and the orientation noise ``s_r^2 = sum|e|^2 / (3N - 6)`` [rad] (the 12 parameters' degrees of
-        freedom split evenly between the channels). Pass 2 weights rotations by ``s_p / s_r`` (kept within a
-        factor 100 of ``sqrt(2a)`` so noiseless data stay well posed); the covariance is the sandwich
-        ``H^-1 J^T diag(W S) J H^-1`` with the per-channel noises re-estimated from pass 2, which is the usual
-        ``s_p^2 H^-1`` when the weight equals ``s_p / s_r``.
+        Pass 1 weights rotations by ``sqrt(2a)`` from both the closed form and the flange-marker guess, keeping
+        the lower cost. Its residuals give the position and orientation noises ``s_p`` [mm] and ``s_r`` [rad]
+        (:meth:`_channel_noise`); pass 2 weights rotations by ``s_p / s_r`` (within a factor 100 of ``sqrt(2a)``,
+        so noiseless data stay well posed). Sigmas assume white residuals: unmodelled kinematic errors count as
+        noise.
         """
-        starts = [self.initial_guess(), self._from_guess()]
-        runs = [self._lm(T_wb, T_fm, self.w_a, max_iterations) for T_wb, T_fm in starts]
+        runs = [self._lm(T_wb, T_fm, self.w_a, max_iterations) for T_wb, T_fm in (self.initial_guess(),
+                                                                                  self._from_guess())]
         T_wb, T_fm, _, it1, ok1 = min(runs, key=lambda run: run[2])
         s_p, s_r = self._channel_noise(T_wb, T_fm)
         w = float(np.clip(s_p / s_r, self.w_a / 100.0, self.w_a * 100.0))
         T_wb, T_fm, _, it2, ok2 = self._lm(T_wb, T_fm, w, max_iterations)
-        s_p, s_r = self._channel_noise(T_wb, T_fm)
-        J = self.jacobian(T_wb, T_fm, w).reshape(-1, 12)
-        H_inv = np.linalg.pinv(J.T @ J)
-        ws = np.tile([s_p**2] * 3 + [(w * s_r) ** 2] * 3, self.n_samples)
-        sigma = np.sqrt(np.diag(H_inv @ (J.T * ws) @ J @ H_inv))
-        sigma[[3, 4, 5, 9, 10, 11]] = np.degrees(sigma[[3, 4, 5, 9, 10, 11]])
-        J_a = self.jacobian(T_wb, T_fm).reshape(-1, 12) * np.tile([1.0] * 3 + [1.0 / DEFAULT_REACH_MM] * 3, 2)
-        s = np.linalg.svd(J_a, compute_uv=False)
+        sigma = self._sigmas(T_wb, T_fm, w)
         R, p = self.predict(T_wb, T_fm)
         res_mm = np.linalg.norm(self.p_meas - p, axis=1)
         res_deg = np.degrees(np.linalg.norm(so3.log(self.R_meas @ np.swapaxes(R, 1, 2)), axis=1))
@@ -295,15 +277,38 @@ class RegistrationProblem:
             T_world_base=T_wb, T_flange_marker=T_fm, rms_mm=float(np.sqrt(np.mean(res_mm**2))),
             rms_deg=float(np.sqrt(np.mean(res_deg**2))), max_mm=float(res_mm.max()), max_deg=float(res_deg.max()),
             residual_mm=res_mm, residual_deg=res_deg, sigma_world_base=sigma[:6], sigma_flange_marker=sigma[6:],
-            cond=float(s[0] / s[-1]) if s[-1] > 0 else math.inf, converged=bool(ok1 and ok2),
-            iterations=it1 + it2, n_samples=self.n_samples)
+            cond=self.condition_number(T_wb, T_fm), converged=bool(ok1 and ok2), iterations=it1 + it2,
+            n_samples=self.n_samples)
 
     def _channel_noise(self, T_wb: np.ndarray, T_fm: np.ndarray) -> tuple[float, float]:
-        """Per-channel noise estimates ``(s_p [mm], s_r [rad])`` from the residuals, floored at 1e-12."""
+        """``(s_p [mm], s_r [rad])``: ``s^2 = sum |residual|^2 / (3N - 6)`` per channel, floored at 1e-12.
+
+        The 12 parameters' degrees of freedom are split evenly between the two channels.
+        """
         r = self.residuals(T_wb, T_fm, 1.0)
         dof = 3 * self.n_samples - 6
         return (max(math.sqrt(np.sum(r[:, :3] ** 2) / dof), 1e-12),
                 max(math.sqrt(np.sum(r[:, 3:] ** 2) / dof), 1e-12))
+
+    def _sigmas(self, T_wb: np.ndarray, T_fm: np.ndarray, w_rot: float) -> np.ndarray:
+        """1-sigma of ``delta`` (12,) [mm, deg] by the sandwich ``H^-1 J^T diag(W S) J H^-1``.
+
+        ``J`` is weighted by ``w_rot``, ``S`` holds the per-channel noises re-estimated here; this is the usual
+        ``s_p^2 H^-1`` when ``w_rot = s_p / s_r``.
+        """
+        s_p, s_r = self._channel_noise(T_wb, T_fm)
+        J = self.jacobian(T_wb, T_fm, w_rot).reshape(-1, 12)
+        H_inv = np.linalg.pinv(J.T @ J)
+        noise = np.tile([s_p**2] * 3 + [(w_rot * s_r) ** 2] * 3, self.n_samples)
+        sigma = np.sqrt(np.diag(H_inv @ (J.T * noise) @ J @ H_inv))
+        return sigma * np.tile([1.0] * 3 + [math.degrees(1.0)] * 3, 2)
+
+    def condition_number(self, T_world_base: np.ndarray, T_flange_marker: np.ndarray,
+                         reach_mm: float = DEFAULT_REACH_MM) -> float:
+        """Condition number of the ``sqrt(2a)``-weighted Jacobian, rotation columns in mm at ``reach_mm``."""
+        J = self.jacobian(T_world_base, T_flange_marker).reshape(-1, 12)
+        s = np.linalg.svd(J * np.tile([1.0] * 3 + [1.0 / reach_mm] * 3, 2), compute_uv=False)
+        return float(s[0] / s[-1]) if s[-1] > 0 else math.inf
 
 
 def retract(T_world_base: np.ndarray, T_flange_marker: np.ndarray, delta: np.ndarray
@@ -334,11 +339,9 @@ def registration_plan(lower_rad: np.ndarray, upper_rad: np.ndarray, q_center: np
         raise ModelError(f"sweep_deg, margin_deg and n_spread must be >= 0, got {sweep_deg}, {margin_deg}, {n_spread}")
     margin = math.radians(margin_deg)
     lo_m, hi_m = lo + margin, hi - margin
-    for j in range(qc.size):
-        if not lo_m[j] <= qc[j] <= hi_m[j]:
-            limit = lo_m[j] if qc[j] < lo_m[j] else hi_m[j]
-            raise UnsafeTarget("registration plan", j + 1, float(qc[j]), float(limit),
-                               f"q_center must keep {margin_deg} deg from the joint limits")
+    for j in np.flatnonzero((qc < lo_m) | (qc > hi_m)):
+        raise UnsafeTarget("registration plan", int(j) + 1, float(qc[j]), float(np.clip(qc[j], lo_m[j], hi_m[j])),
+                           f"q_center must keep {margin_deg} deg from the joint limits")
     band_lo = np.maximum(qc - math.radians(sweep_deg), lo_m)
     band_hi = np.minimum(qc + math.radians(sweep_deg), hi_m)
     n = qc.size
