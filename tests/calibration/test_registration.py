@@ -78,6 +78,15 @@ def test_noiseless_planted_registration_is_recovered(cell, robot, seed):
     assert res.residual_mm.shape == res.residual_deg.shape == (len(q),)
 
 
+@pytest.mark.parametrize("noise_mm, noise_deg, tol_mm, tol_deg", [(0.0, 0.0, 1e-6, 1e-6), (NOISE_MM, NOISE_DEG, 0.5, 0.05)])
+def test_closed_form_guess_needs_no_prior(cell, noise_mm, noise_deg, tol_mm, tol_deg):
+    model, q, R, p, T_wb, T_fm = simulate(cell, "R2", 11, noise_mm, noise_deg)
+    T_wb_0, T_fm_0 = RegistrationProblem(model, q, R, p, T_flange_marker_guess=np.eye(4)).initial_guess()
+    for T_est, T_true in ((T_wb_0, T_wb), (T_fm_0, T_fm)):
+        d_mm, d_deg = transform_difference(T_est, T_true)
+        assert d_mm < tol_mm and d_deg < tol_deg, (d_mm, d_deg)
+
+
 def test_recovery_from_identity_guess_with_noise(cell):
     model, q, R, p, T_wb, T_fm = simulate(cell, "R1", 3, NOISE_MM, NOISE_DEG)
     res = RegistrationProblem(model, q, R, p, T_flange_marker_guess=np.eye(4)).solve()
@@ -87,10 +96,12 @@ def test_recovery_from_identity_guess_with_noise(cell):
     assert res.rms_deg == pytest.approx(NOISE_DEG * math.sqrt(3), rel=0.5)
 
 
-def test_noisy_recovery_is_within_three_sigma_and_sigmas_are_honest(cell):
+@pytest.mark.parametrize("noise_mm, noise_deg", [(NOISE_MM, NOISE_DEG), (0.02, 0.1), (0.5, 0.005)])
+def test_noisy_recovery_is_within_three_sigma_and_sigmas_are_honest(cell, noise_mm, noise_deg):
+    """Balanced and unbalanced channels: each channel's noise is estimated from its own residuals."""
     z = []
     for seed in range(30):
-        model, q, R, p, T_wb, T_fm = simulate(cell, "R1", seed, NOISE_MM, NOISE_DEG)
+        model, q, R, p, T_wb, T_fm = simulate(cell, "R1", seed, noise_mm, noise_deg)
         res = RegistrationProblem(model, q, R, p).solve()
         assert res.converged
         z.append(errors_12(res, T_wb, T_fm) / np.concatenate([res.sigma_world_base, res.sigma_flange_marker]))
