@@ -78,7 +78,8 @@ def test_noiseless_planted_registration_is_recovered(cell, robot, seed):
     assert res.residual_mm.shape == res.residual_deg.shape == (len(q),)
 
 
-@pytest.mark.parametrize("noise_mm, noise_deg, tol_mm, tol_deg", [(0.0, 0.0, 1e-6, 1e-6), (NOISE_MM, NOISE_DEG, 0.5, 0.05)])
+@pytest.mark.parametrize("noise_mm, noise_deg, tol_mm, tol_deg",
+                         [(0.0, 0.0, 1e-6, 1e-6), (NOISE_MM, NOISE_DEG, 0.5, 0.05)])
 def test_closed_form_guess_needs_no_prior(cell, noise_mm, noise_deg, tol_mm, tol_deg):
     model, q, R, p, T_wb, T_fm = simulate(cell, "R2", 11, noise_mm, noise_deg)
     T_wb_0, T_fm_0 = RegistrationProblem(model, q, R, p, T_flange_marker_guess=np.eye(4)).initial_guess()
@@ -240,7 +241,8 @@ def test_planted_kinematic_error_leak_into_world_base(cell, robot):
         leaks = np.array(leaks)
         print(f"\n{robot}, 0.5 mm joint-origin + {tilt_std_deg} deg tilt errors, 20 seeds: T_world_base leak "
               f"median {np.median(leaks[:, 0]):.3f} mm / {np.median(leaks[:, 1]):.4f} deg, max "
-              f"{leaks[:, 0].max():.3f} mm / {leaks[:, 1].max():.4f} deg; fit rms median {np.median(leaks[:, 2]):.3f} mm")
+              f"{leaks[:, 0].max():.3f} mm / {leaks[:, 1].max():.4f} deg; "
+              f"fit rms median {np.median(leaks[:, 2]):.3f} mm")
         if tilt_std_deg == 0.0:
             # Loose bound: a rigid registration moves the base at most by the sum of the planted origin offsets
             # (all of them aligned into one constant shift) and tilts it at most by that sum over a 1 m lever
