@@ -123,11 +123,7 @@ def measure_registration(rt: Any, safety: Any, robot: str, q_plan: np.ndarray, c
         raise RegistrationFailed(f"{robot}: only {len(qs)} of {len(q_plan)} registration poses measured "
                                  f"({'; '.join(r for _, r in skipped[:3])})")
     q, R, p = np.array(qs), np.array(Rs), np.array(ps)
-    tool = rt.cell.robot(robot).tool
-    guess = np.eye(4)
-    guess[:3, :3], guess[:3, 3] = tool.R_flange_tool, tool.p_flange_tool
-    flange_model = rt.cell.robot(robot).robot.model()
-    result = RegistrationProblem(flange_model, q, R, p, T_flange_marker_guess=guess).solve()
+    result = RegistrationProblem(rt.cell.robot(robot).model(), q, R, p).solve()  # the tool YAML: a second start
     if not result.converged:
         raise RegistrationFailed(f"{robot}: the registration did not converge (rms {result.rms_mm:.3f} mm after "
                                  f"{result.iterations} iterations); nothing written")

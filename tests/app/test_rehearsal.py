@@ -1,0 +1,130 @@
+"""The real-cell workflow end to end with separate OS processes: fake controller, fake Motive, bridge, collector.
+
+Nothing here uses ``--sim``: the collector builds the real MotoROS driver, the Zenoh subscriber and the
+registration from the cell file, exactly as on the real cell. The fake Motive reports the arms in a hidden
+world frame derived from its seed; only this test (playing the part of the truth) reads it, to check what the
+registration and the recordings recovered.
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import time
+from pathlib import Path
+
+import numpy as np
+
+from app.planning import Plan
+from calibration.recording import read_recording
+from calibration.registration import transform_difference
+from cell_config import load_cell
+from drivers.sim.rehearsal import hidden_frames, rehearsal_truths
+from tests.app.rehearsal import Process, run_cellcal, write_rehearsal_cell
+
+SEED = 5
+PURE = ("--origin-std-mm", "0", "--tilt-std-deg", "0", "--compliance-mm", "0")  # a twin with no kinematic error
+
+
+def small_plan(cell: Path, robot: str, out: Path, n: int = 14) -> Path:
+    """The first ``n`` targets (two clusters) of the coarsest anchor grid."""
+    full = out.with_suffix(".full.json")
+    done = run_cellcal(cell, "plan", "--robot", robot, "--q2-step", "50", "--q3-step", "50", "--out", str(full))
+    assert done.returncode == 0, done.stderr
+    plan = Plan.load(full)
+    Plan(plan.targets[:n], plan.params).save(out)
+    return out
+
+
+class Rehearsal:
+    """The three device processes of the rehearsal, started in the order an operator would."""
+
+    def __init__(self, cell: Path, *motive_args: str) -> None:
+        self.cell = cell
+        self.controller = Process(cell, "fake-controller")
+        self.motive = Process(cell, "fake-motive", "--seed", str(SEED), *motive_args)
+        self.bridge = Process(cell, "mocap-bridge")
+
+    def __enter__(self) -> "Rehearsal":
+        self.controller.start()
+        self.motive.start()
+        self.bridge.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for p in (self.bridge, self.motive, self.controller):
+            p.stop()
+
+
+def sample_count(session: Path) -> int:
+    db = session / "session.sqlite"
+    if not db.exists():
+        return 0
+    with sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=5) as con:
+        try:
+            return int(con.execute("SELECT COUNT(*) FROM samples WHERE status = 'ok'").fetchone()[0])
+        except sqlite3.OperationalError:
+            return 0
+
+
+def wait_for_samples(session: Path, n: int, timeout_s: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while sample_count(session) < n:
+        assert time.monotonic() < deadline, f"fewer than {n} samples in {session} after {timeout_s} s"
+        time.sleep(0.2)
+
+
+def check_recording(cell_path: Path, session: Path, out_csv: Path, n_targets: int, robot: str,
+                    truths: dict) -> float:
+    """Export the session; every target once; returns the largest distance from the truth in the base frame [mm]."""
+    done = run_cellcal(cell_path, "export", "--session", str(session), "--out", str(out_csv))
+    assert done.returncode == 0, done.stderr
+    cell = load_cell(cell_path)
+    spec = cell.robot(robot).robot
+    rec = read_recording(out_csv, spec.lower_rad, spec.upper_rad)
+    assert len(rec) == n_targets
+    with sqlite3.connect(session / "session.sqlite") as con:
+        indices = [r[0] for r in con.execute("SELECT target_index FROM samples WHERE status = 'ok'")]
+    assert sorted(indices) == list(range(n_targets))  # each target exactly once
+    R, p = truths[robot].pose(rec.q)
+    T_marker = hidden_frames(cell, SEED)[robot].T_tool_marker
+    p_true = p + np.einsum("nij,j->ni", R, T_marker[:3, 3])
+    return float(np.max(np.linalg.norm(rec.p - p_true, axis=1)))
+
+
+def test_register_then_collect_both_arms_in_separate_processes(tmp_path: Path) -> None:
+    cell_path = write_rehearsal_cell(tmp_path)
+    truths = rehearsal_truths(load_cell(cell_path), SEED, origin_std_mm=0, tilt_std_deg=0, compliance_mm=0)
+    with Rehearsal(cell_path, *PURE):
+        for robot in ("R1", "R2"):
+            done = run_cellcal(cell_path, "register", "--robot", robot, "--yes", "--speed", "1", "--no-progress",
+                               "--json", str(tmp_path / f"reg_{robot}.json"))
+            assert done.returncode == 0, done.stdout + done.stderr
+        cell = load_cell(cell_path)
+        hidden = hidden_frames(cell, SEED)
+        for robot in ("R1", "R2"):
+            d_mm, d_deg = transform_difference(cell.registration[robot].T_world_base, hidden[robot].T_world_base)
+            assert d_mm < 0.05 and d_deg < 0.005, (robot, d_mm, d_deg)
+        report = json.loads((tmp_path / "reg_R2.json").read_text())
+        T_true = np.linalg.inv(hidden["R1"].T_world_base) @ hidden["R2"].T_world_base
+        d_true_mm, _ = transform_difference(T_true, cell.robot("R2").T_cell_base)
+        found_mm = report["relative_bases"]["R2"]["cell_yaml_diff_mm"]
+        assert d_true_mm > 0.5 and abs(found_mm - d_true_mm) < 0.1, (found_mm, d_true_mm)  # hidden survey error
+        for robot in ("R1", "R2"):
+            plan = small_plan(cell_path, robot, tmp_path / f"{robot}_plan.json")
+            session = tmp_path / f"s_{robot}"
+            done = run_cellcal(cell_path, "collect", "--robot", robot, "--plan", str(plan), "--session",
+                               str(session), "--yes", "--speed", "1", "--no-progress")
+            assert done.returncode == 0, done.stdout + done.stderr
+            worst = check_recording(cell_path, session, tmp_path / f"{robot}.csv", 14, robot, truths)
+            assert worst < 0.1, (robot, worst)  # 0.02 mm frame noise averaged over the window, plus the frame error
+
+
+def test_collection_without_registration_is_refused_before_motion(tmp_path: Path) -> None:
+    cell_path = write_rehearsal_cell(tmp_path)
+    plan = small_plan(cell_path, "R1", tmp_path / "plan.json")
+    done = run_cellcal(cell_path, "collect", "--robot", "R1", "--plan", str(plan), "--session",
+                       str(tmp_path / "s"), "--yes")
+    assert done.returncode == 2
+    assert "R1 has no registration" in done.stderr and "cellcal register" in done.stderr
+    assert not (tmp_path / "s").exists()
