@@ -18,7 +18,8 @@ JointTrajPtFullEx   2016   i n_groups, sequence; then n_groups x (i group, valid
 JointFeedbackEx     2017   i n_groups; then 4 slots shaped like JointFeedback (unused zeroed)    532 B
 ==================  =====  ============================================================================
 
-Type 11 (industrial_core's JointTrajPt) is not accepted by MotoROS, so it is not implemented here.
+Type 11 (industrial_core's JointTrajPt) is not accepted by MotoROS, so it is not implemented here. The
+numbers (types, commands, results, subcodes) live in ``codes.py`` and are re-exported here.
 """
 
 from __future__ import annotations
@@ -31,6 +32,8 @@ from typing import ClassVar, Union
 import numpy as np
 
 from drivers.errors import ProtocolError
+from drivers.motoros.codes import (SUBCODE_NAMES, Command, CommType, InvalidSubcode, MsgType, NotReadySubcode,
+                                   ReplyType, Result, describe)
 
 MAX_JOINTS = 10
 MAX_GROUPS = 4
@@ -43,72 +46,14 @@ _FEEDBACK_HEAD = struct.Struct("<iif")
 _FEEDBACK_SIZE = _FEEDBACK_HEAD.size + _JOINTS.size
 
 
-class MsgType(enum.IntEnum):
-    """Message types MotoROS uses."""
-
-    ROBOT_STATUS = 13
-    JOINT_TRAJ_PT_FULL = 14
-    JOINT_FEEDBACK = 15
-    MOTO_MOTION_CTRL = 2001
-    MOTO_MOTION_REPLY = 2002
-    JOINT_TRAJ_PT_FULL_EX = 2016
-    JOINT_FEEDBACK_EX = 2017
-
-
-class CommType(enum.IntEnum):
-    """How a packet travels: a topic (no answer) or a service request / reply."""
-
-    INVALID = 0
-    TOPIC = 1
-    SERVICE_REQUEST = 2
-    SERVICE_REPLY = 3
-
-
-class ReplyType(enum.IntEnum):
-    """Header-level reply code (MotoROS always says SUCCESS and puts the real answer in the body)."""
-
-    INVALID = 0
-    SUCCESS = 1
-    FAILURE = 2
-
-
-class Command(enum.IntEnum):
-    """Commands of a MotoMotionCtrl request."""
-
-    CHECK_MOTION_READY = 200101
-    CHECK_QUEUE_CNT = 200102
-    STOP_MOTION = 200111
-    START_TRAJ_MODE = 200121
-    STOP_TRAJ_MODE = 200122
-
-
-class Result(enum.IntEnum):
-    """Body-level result of a MotoMotionReply (SUCCESS doubles as TRUE, FAILURE as FALSE)."""
-
-    SUCCESS = 0
-    BUSY = 1
-    FAILURE = 2
-    INVALID = 3
-    ALARM = 4
-    NOT_READY = 5
-    MP_FAILURE = 6
-
-
-SUBCODE_NAMES: dict[int, str] = {
-    3000: "invalid (unspecified)", 3001: "invalid message size", 3002: "invalid message header",
-    3003: "invalid message type", 3004: "invalid group number", 3005: "invalid sequence",
-    3006: "invalid command", 3010: "invalid data", 3011: "start position does not match the robot",
-    3012: "invalid position", 3013: "invalid speed", 3014: "invalid acceleration",
-    3015: "insufficient data", 3016: "invalid time",
-    5000: "not ready (unspecified)", 5001: "alarm active", 5002: "error active", 5003: "e-stop",
-    5004: "not in play mode", 5005: "not in remote mode", 5006: "servo off", 5007: "hold",
-    5008: "trajectory mode not started", 5009: "waiting for ROS", 5010: "skill send",
-    5011: "PFL active",
-}
+__all__ = ["CODEC_DEVICE", "Command", "CommType", "InvalidSubcode", "JointFeedback", "JointFeedbackEx",
+           "JointTrajPtFull", "JointTrajPtFullEx", "MAX_GROUPS", "MAX_JOINTS", "Message", "MotionCtrl",
+           "MotionReply", "MsgType", "NotReadySubcode", "Packet", "ReplyType", "Result", "RobotStatusMsg",
+           "SUBCODE_NAMES", "ValidFields", "decode"]
 
 
 class ValidFields(enum.IntFlag):
-    """Which optional fields of a joint packet carry data."""
+    """Which optional fields of a joint packet carry data (``FlagsValidFields``)."""
 
     TIME = 1
     POSITION = 2
@@ -284,7 +229,8 @@ class JointTrajPtFullEx:
         n, seq = struct.unpack_from("<ii", body)
         if not 1 <= n <= MAX_GROUPS:
             raise ProtocolError(CODEC_DEVICE, f"JointTrajPtFullEx claims {n} groups, expected 1..{MAX_GROUPS}")
-        _check_size(body, 8 + n * _FEEDBACK_SIZE, "JointTrajPtFullEx")
+        if len(body) != 8 + MAX_GROUPS * _FEEDBACK_SIZE:  # MotoROS accepts all 4 slots or just n of them
+            _check_size(body, 8 + n * _FEEDBACK_SIZE, "JointTrajPtFullEx")
         return cls(seq, tuple(JointFeedback.decode(body[8 + i * _FEEDBACK_SIZE: 8 + (i + 1) * _FEEDBACK_SIZE])
                               for i in range(n)))
 
@@ -323,7 +269,7 @@ class MotionReply:
     command: int
     result: int
     subcode: int = 0
-    data: tuple[float, ...] = ()  # e.g. the queue count of CHECK_QUEUE_CNT in data[0]
+    data: tuple[float, ...] = ()  # unused by MotoROS ("for future use"); CHECK_QUEUE_CNT answers in subcode
 
     def encode(self) -> bytes:
         body = (self._HEAD.pack(self.group, self.sequence, self.command, self.result, self.subcode)
@@ -338,9 +284,7 @@ class MotionReply:
 
     def describe(self) -> str:
         """Human-readable result, e.g. ``NOT_READY (5003: e-stop)``."""
-        name = Result(self.result).name if self.result in Result._value2member_map_ else str(self.result)
-        sub = SUBCODE_NAMES.get(self.subcode, "")
-        return f"{name} ({self.subcode}: {sub})" if self.subcode else name
+        return describe(self.result, self.subcode)
 
 
 Message = Union[RobotStatusMsg, JointFeedback, JointFeedbackEx, JointTrajPtFull, JointTrajPtFullEx,

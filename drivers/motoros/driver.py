@@ -1,12 +1,22 @@
 """``RobotDriver`` for one motion group of a MotoROS controller.
 
-A joint move is a two-point trajectory: point 0 is the current position at t = 0 (MotoROS rejects a start
-that differs from where the arm is), point 1 is the target at t = T. Both points have zero velocity.
-MotoROS joins points with a cubic Hermite, whose peak speed with zero end velocities is 1.5 times the mean
-speed, so T = 1.5 * max_j |dq_j| / (speed_fraction * max_speed_j) keeps every joint at or below
-``speed_fraction`` of its maximum speed. Points go out as JointTrajPtFull
-(14) or, if asked, JointTrajPtFullEx (2016) with one group; a BUSY reply (queue full) is retried until the
-reply timeout.
+A joint move is a two-point trajectory: point 0 is the current feedback at t = 0 (MotoROS rejects a start
+more than 30 encoder pulses from the commanded position: MotionServer.c, Ros_MotionServer_InitTrajPointFull,
+START_MAX_PULSE_DEVIATION), point 1 is the target at t = T. Both points have zero velocity. MotoROS joins
+points with a cubic Hermite, whose peak speed with zero end velocities is 1.5 times the mean speed, so
+T = 1.5 * max_j |dq_j| / (speed_fraction * max_speed_j) keeps every joint at or below ``speed_fraction`` of
+its maximum speed. Points go out as JointTrajPtFull (14) or, if asked, JointTrajPtFullEx (2016) with one
+group; a BUSY reply (the group's point buffer still being interpolated) is retried until the reply timeout.
+
+Before a move, as motoman_driver does it:
+
+1. Refuse at once, sending nothing, on e-stop or teach mode (RobotStatus ``e_stopped``, ``mode``) or on an
+   alarm (unless ``reset_alarms``): START_TRAJ_MODE cannot clear the first two and would silently reset
+   the third. Servo off is *not* refused: START_TRAJ_MODE turns the servos on.
+2. Refuse, sending nothing, when the joint feedback is NaN or infinite.
+3. If RobotStatus says motion is not possible, send START_TRAJ_MODE (resets alarms, servo on, starts the
+   INIT_ROS job; may take ~10 s, hence the link's ``start_traj_timeout_s``).
+4. CHECK_MOTION_READY; FALSE carries the cause as a NOT_READY subcode (not remote, hold, ...).
 
 MotoROS's STOP_MOTION stops every group on the controller, not only this one.
 """
@@ -22,14 +32,18 @@ import numpy as np
 from drivers.base import JointState, RobotDriver, RobotStatus
 from drivers.errors import DriverError, DriverTimeout, RobotFault
 from drivers.motoros.codec import (Command, JointFeedback, JointTrajPtFull, JointTrajPtFullEx, MotionCtrl,
-                                   MotionReply, MsgType, Result, RobotStatusMsg)
+                                   MotionReply, MsgType, Result, RobotStatusMsg, ValidFields)
+from drivers.motoros.errors import ControllerNotReady, InvalidArgument, NonFiniteFeedback
 from drivers.motoros.link import MotorosLink
 
 log = logging.getLogger("cellcal.drivers")
 
 _SETTLE_SAMPLES = 3
 CUBIC_PEAK_RATIO = 1.5  # peak / mean speed of a cubic Hermite segment with zero end velocities
+MAX_TRAJECTORY_TIME_S = 14400.0  # MotionServer.h MAX_TRAJECTORY_TIME_LENGTH: later points are INVALID (3016)
+MODE_TEACH = 1  # RobotStatus.mode: 1 manual (TEACH), 2 auto (PLAY)
 _BUSY_RETRY_S = 0.01
+_POINT_FIELDS = ValidFields.TIME | ValidFields.POSITION | ValidFields.VELOCITY  # the minimum MotoROS accepts
 
 
 def to_robot_status(msg: RobotStatusMsg) -> RobotStatus:
@@ -47,23 +61,29 @@ class MotorosDriver(RobotDriver):
         max_speed_rad_s: maximum joint speeds [rad/s], shape (n_joints,).
         name: robot name used in messages; defaults to ``R{group + 1}``.
         trajectory_message: ``"full"`` sends JointTrajPtFull (14), ``"full_ex"`` JointTrajPtFullEx (2016).
+        reset_alarms: let START_TRAJ_MODE reset an active alarm (MotoROS does so); off by default, so an
+            alarm refuses motion until someone has looked at it.
+
+    Raises:
+        InvalidArgument: a non-positive speed, a negative group or an unknown ``trajectory_message``.
     """
 
     def __init__(self, link: MotorosLink, group: int, max_speed_rad_s: np.ndarray, name: str | None = None,
-                 trajectory_message: Literal["full", "full_ex"] = "full") -> None:
+                 trajectory_message: Literal["full", "full_ex"] = "full", *, reset_alarms: bool = False) -> None:
+        self.name = name or f"R{group + 1}"
+        self.device = f"{link.motion_device}/{self.name}"
         self.max_speed_rad_s = np.asarray(max_speed_rad_s, dtype=float).ravel()
         if self.max_speed_rad_s.size == 0 or not np.all(self.max_speed_rad_s > 0):
-            raise ValueError(f"max_speed_rad_s must be positive, got {self.max_speed_rad_s}")
+            raise InvalidArgument(self.device, "max_speed_rad_s", self.max_speed_rad_s, "positive [rad/s]")
         if trajectory_message not in ("full", "full_ex"):
-            raise ValueError(f"trajectory_message must be 'full' or 'full_ex', got {trajectory_message!r}")
+            raise InvalidArgument(self.device, "trajectory_message", trajectory_message, "'full' or 'full_ex'")
         if group < 0:
-            raise ValueError(f"group must be >= 0, got {group}")
+            raise InvalidArgument(self.device, "group", group, ">= 0")
         self.link = link
         self.group = group
-        self.name = name or f"R{group + 1}"
         self.n_joints = self.max_speed_rad_s.size
         self.trajectory_message = trajectory_message
-        self.device = f"{link.motion_device}/{self.name}"
+        self.reset_alarms = reset_alarms
         self._connected = False
         self._sequence = 0
         self._target: np.ndarray | None = None
@@ -92,33 +112,50 @@ class MotorosDriver(RobotDriver):
         self._connected = True
 
     def close(self) -> None:
+        """Release the link; the last driver on it ends trajectory mode (STOP_TRAJ_MODE)."""
         if self._connected:
             self._connected = False
             self.link.close()
 
     def read_joints(self) -> JointState:
+        """Latest joint angles [rad]; raises NonFiniteFeedback when the controller reports NaN or inf."""
         feedback, stamp = self.link.feedback(self.group)
-        return JointState(q=feedback.pos[: self.n_joints].copy(), stamp=stamp)
+        q = feedback.pos[: self.n_joints].copy()
+        if not np.all(np.isfinite(q)):
+            raise NonFiniteFeedback(self.device, self.group, q)
+        return JointState(q=q, stamp=stamp)
 
     def status(self) -> RobotStatus:
         return to_robot_status(self.link.status()[0])
 
-    def _check_ready(self) -> None:
-        st = self.status()
-        if not st.ready:
-            why = [w for w, bad in (("servo off", not st.servo_on), (f"alarm {st.error_code}", st.alarm),
-                                    ("e-stop", st.e_stopped)) if bad]
-            raise RobotFault(self.device, f"motion refused: {', '.join(why)}")
+    def queue_count(self) -> int:
+        """Interpolation increments queued on the controller for this group (CHECK_QUEUE_CNT).
+
+        MotoROS answers in the reply's subcode: TRUE with the count, or FAILURE with a negative count
+        (invalid group, queue locked).
+        """
+        reply = self._command(Command.CHECK_QUEUE_CNT, check=False)
+        if reply.result != Result.TRUE or reply.subcode < 0:
+            raise DriverError(self.device, f"CHECK_QUEUE_CNT failed: {reply.describe()}")
+        return reply.subcode
+
+    def _refuse_early(self, msg: RobotStatusMsg) -> None:
+        """Raise ControllerNotReady, before anything is sent, for what START_TRAJ_MODE must not (or cannot) fix."""
+        st = to_robot_status(msg)
+        why = [w for w, bad in (("e-stop", st.e_stopped), ("pendant in TEACH mode", msg.mode == MODE_TEACH),
+                                (f"alarm {st.error_code}", st.alarm and not self.reset_alarms)) if bad]
+        if why:
+            raise ControllerNotReady(self.device, "motion refused", cause=", ".join(why))
 
     def _next_sequence(self) -> int:
         self._sequence += 1
         return self._sequence
 
-    def _command(self, command: Command) -> MotionReply:
+    def _command(self, command: Command, check: bool = True) -> MotionReply:
         seq = self._next_sequence()
-        payload = MotionCtrl(self.group, seq, command).encode()
-        reply = self.link.request(payload, self.group, seq, command)
-        self._raise_for(reply, command.name)
+        reply = self.link.request(MotionCtrl(self.group, seq, command).encode(), self.group, seq, command)
+        if check:
+            self._raise_for(reply, command.name)
         return reply
 
     def _raise_for(self, reply: MotionReply, what: str) -> None:
@@ -128,12 +165,20 @@ class MotorosDriver(RobotDriver):
             raise RobotFault(self.device, f"{what} refused: {reply.describe()}")
         raise DriverError(self.device, f"{what} rejected: {reply.describe()}")
 
+    def _enter_trajectory_mode(self, msg: RobotStatusMsg) -> None:
+        """START_TRAJ_MODE unless motion is already possible, then CHECK_MOTION_READY (motoman_driver's order)."""
+        if msg.motion_possible != 1:
+            self._command(Command.START_TRAJ_MODE)
+        ready = self._command(Command.CHECK_MOTION_READY, check=False)
+        if ready.result != Result.TRUE:
+            raise ControllerNotReady(self.device, "CHECK_MOTION_READY is FALSE", ready.subcode)
+
     def _send_point(self, sequence: int, time_s: float, q: np.ndarray) -> None:
         if self.trajectory_message == "full":
-            payload = JointTrajPtFull(self.group, sequence, time_s, q).encode()
+            payload = JointTrajPtFull(self.group, sequence, time_s, q, valid_fields=_POINT_FIELDS).encode()
             msg_type = MsgType.JOINT_TRAJ_PT_FULL
         else:
-            point = JointFeedback(self.group, q, time=time_s, valid_fields=7)
+            point = JointFeedback(self.group, q, time=time_s, valid_fields=_POINT_FIELDS)
             payload = JointTrajPtFullEx(sequence, (point,)).encode()
             msg_type = MsgType.JOINT_TRAJ_PT_FULL_EX
         deadline = time.monotonic() + self.link.reply_timeout_s
@@ -147,27 +192,38 @@ class MotorosDriver(RobotDriver):
                                     self.link.reply_timeout_s)
             time.sleep(_BUSY_RETRY_S)
 
+    def _duration_s(self, q_from: np.ndarray, q_to: np.ndarray, speed_fraction: float) -> float:
+        duration = CUBIC_PEAK_RATIO * float(np.max(np.abs(q_to - q_from) / (self.max_speed_rad_s * speed_fraction)))
+        if duration >= MAX_TRAJECTORY_TIME_S:
+            raise InvalidArgument(self.device, "speed_fraction", speed_fraction,
+                                  f"large enough for a move shorter than {MAX_TRAJECTORY_TIME_S:g} s "
+                                  f"(MotoROS limit; this one takes {duration:.0f} s)")
+        return max(duration, 1e-3)
+
     def move_to(self, q: np.ndarray, speed_fraction: float) -> None:
         """Start a joint move to ``q`` [rad] at ``speed_fraction`` of the maximum joint speeds.
 
         Raises:
-            ValueError: ``q`` has the wrong shape or is not finite, or ``speed_fraction`` is outside (0, 1].
-            RobotFault: servo off, alarm or e-stop (checked before anything is sent), or the controller
-                refused trajectory mode.
+            InvalidArgument: ``q`` has the wrong shape or is not finite, or ``speed_fraction`` is outside (0, 1].
+            NonFiniteFeedback: the joint feedback is NaN or inf (nothing is sent).
+            ControllerNotReady: e-stop, teach mode or alarm (nothing sent), or CHECK_MOTION_READY is FALSE.
+            RobotFault: the controller refused START_TRAJ_MODE or a point (NOT_READY, with its subcode).
             DriverError: the controller rejected a trajectory point (its subcode says why).
         """
         q = np.asarray(q, dtype=float)
         if q.shape != (self.n_joints,) or not np.all(np.isfinite(q)):
-            raise ValueError(f"{self.name}: q must be {self.n_joints} finite joint angles [rad], got {q!r}")
+            raise InvalidArgument(self.device, "q", q, f"{self.n_joints} finite joint angles [rad]")
         if not 0.0 < speed_fraction <= 1.0:
-            raise ValueError(f"{self.name}: speed_fraction must be in (0, 1], got {speed_fraction}")
-        self._check_ready()
-        q_now = self.read_joints().q
-        duration = CUBIC_PEAK_RATIO * float(np.max(np.abs(q - q_now) / (self.max_speed_rad_s * speed_fraction)))
-        self._command(Command.START_TRAJ_MODE)
+            raise InvalidArgument(self.device, "speed_fraction", speed_fraction, "in (0, 1]")
+        msg, _ = self.link.status()
+        self._refuse_early(msg)
+        self._duration_s(self.read_joints().q, q, speed_fraction)  # NaN feedback / too long: before sending
+        self._enter_trajectory_mode(msg)
+        q_now = self.read_joints().q  # after a servo-on the arm may have settled on its brakes
+        duration = self._duration_s(q_now, q, speed_fraction)
         self._sequence = 0
         self._send_point(0, 0.0, q_now)
-        self._send_point(1, max(duration, 1e-3), q)
+        self._send_point(1, duration, q)
         self._target = q
         log.info("%s: moving to %s in %.3f s", self.name, np.round(q, 4), duration)
 
@@ -179,6 +235,7 @@ class MotorosDriver(RobotDriver):
         Raises:
             DriverTimeout: not settled within ``timeout_s`` [s].
             RobotFault: an alarm or e-stop appeared while waiting.
+            NonFiniteFeedback: the feedback became NaN or inf.
         """
         deadline = time.monotonic() + timeout_s
         previous: JointState | None = None

@@ -1,12 +1,17 @@
 """A fake MotoROS controller on loopback: the real wire protocol, simulated arms, injectable faults.
 
 It binds a motion port and a state port (0 = ephemeral; read ``motion_port`` / ``state_port`` after
-``start``), simulates several motion groups that follow queued trajectory points at a finite joint speed,
-publishes JointFeedback (15) per group, JointFeedbackEx (2017) and RobotStatus (13) at ``publish_hz``, and
-answers motion requests the way MotoROS does: one motion connection at a time, trajectory mode needed
-before points, point 0 must match the current position, BUSY when the queue is full, NOT_READY with a
-subcode on alarm / e-stop / servo off. Faults for tests: ``set_alarm``, ``set_estop``, ``set_servo``,
-``drop_connections``, ``stall_replies``, ``split_messages`` and ``inject_state_bytes``.
+``start``; SO_REUSEADDR, so a restarted fake can take the ports of one that was killed), simulates several
+motion groups (fake_arm), answers motion requests as MotoROS does (fake_logic) and publishes, per state
+connection, JointFeedback (15) per group, JointFeedbackEx (2017) when there are two groups or more, then
+RobotStatus (13) at ``publish_hz`` (StateServer.c, Ros_StateServer_SendState). Feedback carries position and
+velocity, no time, as MotoROS's does.
+
+Motion connections follow MotionServer.c (Ros_MotionServer_StartNewConnection, MAX_MOTION_CONNECTIONS = 1): a
+new connection replaces an idle one, and is closed at once while a queue still holds motion.
+
+Faults for tests: ``set_alarm``, ``set_estop``, ``set_servo``, ``set_mode``, ``set_remote``, ``set_hold``,
+``set_nonfinite_feedback``, ``drop_connections``, ``stall_replies``, ``split_messages``, ``inject_state_bytes``.
 """
 
 from __future__ import annotations
@@ -15,19 +20,24 @@ import logging
 import socket
 import threading
 import time
+from typing import Callable
 
 import numpy as np
 
 from drivers.errors import DriverError, ProtocolError
-from drivers.motoros.codec import (Command, JointFeedback, JointFeedbackEx, JointTrajPtFull, JointTrajPtFullEx,
-                                   Message, MotionCtrl, MotionReply, Result, RobotStatusMsg, ValidFields,
+from drivers.motoros.codec import (JointFeedback, JointFeedbackEx, Message, MotionReply, Result, ValidFields,
                                    decode)
-from drivers.motoros.fake_arm import SimulatedGroup
+from drivers.motoros.codes import InvalidSubcode
+from drivers.motoros.errors import InvalidArgument
+from drivers.motoros.fake_arm import INTERPOLATION_PERIOD_S, SimulatedGroup
+from drivers.motoros.fake_logic import SimulatedController
 from drivers.motoros.framing import Framer, recv_into_framer
 
 log = logging.getLogger("cellcal.drivers")
 
 _POLL_S = 0.05
+DEFAULT_PULSES_PER_RAD = 1.0e5  # a generic encoder (30 pulses = 0.3 mrad); fake_cell uses the robot YAML's
+_DEVICE = "fake-motoros"
 
 
 def _hang_up(sock: socket.socket) -> None:
@@ -39,45 +49,57 @@ def _hang_up(sock: socket.socket) -> None:
     sock.close()
 
 
+def _per_group(value: float | np.ndarray, n_groups: int, n_joints: int, name: str) -> np.ndarray:
+    """Broadcast a scalar, a (n_joints,) or a (n_groups, n_joints) array to (n_groups, n_joints)."""
+    arr = np.asarray(value, dtype=float)
+    try:
+        return np.broadcast_to(arr, (n_groups, n_joints)).copy()
+    except ValueError:
+        raise InvalidArgument(_DEVICE, name, arr.shape, f"a scalar, ({n_joints},) or ({n_groups}, {n_joints})") from None
+
+
 class FakeMotorosController:
     """Simulated MotoROS controller. Use as a context manager, or call ``start`` and ``close``.
 
     Args:
         n_groups: number of motion groups (0 = R1, 1 = R2, ...).
         n_joints: joints per group.
-        max_speed_rad_s: joint speed limit of the simulation [rad/s], scalar or shape (n_joints,).
+        max_speed_rad_s: joint speed limits [rad/s]: scalar, (n_joints,) or (n_groups, n_joints).
         publish_hz: state publication and simulation rate [Hz].
         host: address to bind.
         motion_port: motion port to bind; 0 picks a free one.
         state_port: state port to bind; 0 picks a free one.
         initial_q: starting joint angles [rad], shape (n_groups, n_joints); zeros by default.
+        pulses_per_rad: encoder pulses per radian [1/rad]: scalar, (n_joints,) or (n_groups, n_joints); sets
+            the 30-pulse tolerance of point 0.
+        servo_on_delay_s: time START_TRAJ_MODE takes to turn the servos on [s] (seconds on a real one).
+        interpolation_period_s: the controller's interpolation clock [s] (CHECK_QUEUE_CNT counts in it).
     """
 
     def __init__(self, n_groups: int = 2, n_joints: int = 6, max_speed_rad_s: float | np.ndarray = 2.0,
                  publish_hz: float = 100.0, host: str = "127.0.0.1", motion_port: int = 0,
-                 state_port: int = 0, initial_q: np.ndarray | None = None) -> None:
+                 state_port: int = 0, initial_q: np.ndarray | None = None, *,
+                 pulses_per_rad: float | np.ndarray = DEFAULT_PULSES_PER_RAD, servo_on_delay_s: float = 0.1,
+                 interpolation_period_s: float = INTERPOLATION_PERIOD_S) -> None:
         if not 1 <= n_groups <= 4:
-            raise ValueError(f"n_groups must be 1..4, got {n_groups}")
+            raise InvalidArgument(_DEVICE, "n_groups", n_groups, "1..4")
+        speeds = _per_group(max_speed_rad_s, n_groups, n_joints, "max_speed_rad_s")
+        pulses = _per_group(pulses_per_rad, n_groups, n_joints, "pulses_per_rad")
+        q0 = np.zeros((n_groups, n_joints)) if initial_q is None else np.asarray(initial_q, dtype=float)
+        if q0.shape != (n_groups, n_joints) or not np.all(np.isfinite(q0)):
+            raise InvalidArgument(_DEVICE, "initial_q", q0, f"finite angles [rad] of shape ({n_groups}, {n_joints})")
         self.host = host
         self.motion_port = motion_port
         self.state_port = state_port
         self.period_s = 1.0 / publish_hz
-        self.groups = [SimulatedGroup(n_joints, max_speed_rad_s) for _ in range(n_groups)]
-        if initial_q is not None:
-            q0 = np.asarray(initial_q, dtype=float)
-            if q0.shape != (n_groups, n_joints):
-                raise ValueError(f"initial_q must have shape ({n_groups}, {n_joints}), got {q0.shape}")
-            for group, q in zip(self.groups, q0):
-                group.q = q.copy()
-        self.received: list[Message] = []  # every decoded request, for tests to inspect
-        self._lock = threading.Lock()
-        self._servo_on = True
-        self._e_stopped = False
-        self._alarm_code = 0
-        self._traj_mode = False
-        self._stall = False
-        self._chunk: tuple[int, float] | None = None
         self._stop = threading.Event()
+        self.groups = [SimulatedGroup(n_joints, s, p, q, interpolation_period_s) for s, p, q in zip(speeds, pulses, q0)]
+        self.controller = SimulatedController(self.groups, servo_on_delay_s, self._stop.wait)
+        self._lock = self.controller.lock
+        self.received: list[Message] = []  # every decoded request, for tests to inspect
+        self._stall = False
+        self._nonfinite = False
+        self._chunk: tuple[int, float] | None = None
         self._threads: list[threading.Thread] = []
         self._listeners: list[socket.socket] = []
         self._motion_client: socket.socket | None = None
@@ -85,9 +107,9 @@ class FakeMotorosController:
 
     # -- lifecycle -------------------------------------------------------------------------------
     def start(self) -> "FakeMotorosController":
-        """Bind both ports and start the threads; returns self."""
-        motion = socket.create_server((self.host, self.motion_port))
-        state = socket.create_server((self.host, self.state_port))
+        """Bind both ports (SO_REUSEADDR) and start the threads; returns self."""
+        motion = socket.create_server((self.host, self.motion_port), reuse_port=False)
+        state = socket.create_server((self.host, self.state_port), reuse_port=False)
         self._listeners = [motion, state]
         self.motion_port = motion.getsockname()[1]
         self.state_port = state.getsockname()[1]
@@ -111,30 +133,51 @@ class FakeMotorosController:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def _spawn(self, target, args: tuple) -> None:  # noqa: ANN001 (any callable)
+    def _spawn(self, target: Callable[..., None], args: tuple) -> None:
         thread = threading.Thread(target=target, args=args, name="fake-motoros", daemon=True)
         self._threads.append(thread)
         thread.start()
 
     # -- faults and inspection -------------------------------------------------------------------
-    def set_alarm(self, code: int = 4107) -> None:
-        """Raise an alarm (``code`` > 0) or clear it (0); an alarm stops all motion."""
+    def _set(self, **flags: object) -> None:
         with self._lock:
-            self._alarm_code = code
-            self._halt_if_faulted()
+            for name, value in flags.items():
+                setattr(self.controller, name, value)
+            self.controller.halt_if_faulted()
+
+    def set_alarm(self, code: int = 4107, resettable: bool = True) -> None:
+        """Raise an alarm (``code`` > 0) or clear it (0); an alarm stops all motion. START_TRAJ_MODE resets a
+        ``resettable`` one, as MotoROS does."""
+        self._set(alarm_code=code, alarm_resettable=resettable)
 
     def set_estop(self, pressed: bool) -> None:
         """Press or release the e-stop; pressing it stops all motion and turns the servos off."""
         with self._lock:
-            self._e_stopped = pressed
-            self._servo_on = self._servo_on and not pressed
-            self._halt_if_faulted()
+            self._set(e_stopped=pressed, servo_on=self.controller.servo_on and not pressed)
 
     def set_servo(self, on: bool) -> None:
         """Switch the servo power."""
-        with self._lock:
-            self._servo_on = on
-            self._halt_if_faulted()
+        self._set(servo_on=on)
+
+    def set_mode(self, play: bool) -> None:
+        """Pendant mode: PLAY (True) or TEACH (False); teach stops motion."""
+        self._set(play=play)
+
+    def set_remote(self, remote: bool) -> None:
+        """Remote mode (the pendant's REMOTE key); leaving it stops motion."""
+        self._set(remote=remote)
+
+    def set_hold(self, hold: bool) -> None:
+        """The HOLD button; holding stops motion."""
+        self._set(hold=hold)
+
+    def set_nonfinite_feedback(self, on: bool) -> None:
+        """Publish NaN joint positions (True) or the simulated ones (False)."""
+        self._nonfinite = on
+
+    @property
+    def nonfinite_feedback(self) -> bool:
+        return self._nonfinite
 
     def stall_replies(self, stalled: bool) -> None:
         """While stalled, motion requests are read and never answered."""
@@ -165,7 +208,7 @@ class FakeMotorosController:
             return self.groups[group].q.copy()
 
     # -- connections -----------------------------------------------------------------------------
-    def _accept(self, listener: socket.socket, on_client) -> None:  # noqa: ANN001
+    def _accept(self, listener: socket.socket, on_client: Callable[[socket.socket], None]) -> None:
         listener.settimeout(_POLL_S)
         while not self._stop.is_set():
             try:
@@ -184,13 +227,17 @@ class FakeMotorosController:
 
     def _on_motion_client(self, sock: socket.socket) -> None:
         with self._lock:
-            busy = self._motion_client is not None
+            old = self._motion_client
+            busy = old is not None and any(g.moving for g in self.groups)
             if not busy:
                 self._motion_client = sock
-        if busy:  # MotoROS serves a single motion connection
-            log.info("fake motoros: refusing a second motion connection")
+        if busy:  # "Motion server already connected... not accepting last attempt."
+            log.info("fake motoros: refusing a second motion connection while moving")
             sock.close()
             return
+        if old is not None:  # "Motion server already connected... closing old connection."
+            log.info("fake motoros: a new motion connection replaces the idle one")
+            _hang_up(old)
         self._spawn(self._serve_motion, (sock,))
 
     def _send(self, sock: socket.socket, data: bytes) -> bool:
@@ -217,10 +264,17 @@ class FakeMotorosController:
                     continue
                 for packet in packets:
                     try:
-                        reply = self._answer(decode(packet))
-                    except ProtocolError:  # MotoROS answers an unknown or mis-sized message, it does not hang up
-                        reply = MotionReply(-1, -1, packet.msg_type, Result.INVALID, 3001)
+                        msg = decode(packet)
+                    except ProtocolError:  # MotoROS answers a mis-sized or unknown message, it does not hang up
+                        reply, hang_up = MotionReply(-1, -1, packet.msg_type, Result.INVALID,
+                                                     InvalidSubcode.MSGSIZE), False
+                    else:
+                        with self._lock:
+                            self.received.append(msg)
+                        reply, hang_up = self.controller.answer(msg)
                     if not self._stall and not self._send(sock, reply.encode()):
+                        return
+                    if hang_up:
                         return
         except DriverError as e:
             log.info("fake motoros: motion client gone: %s", e)
@@ -228,89 +282,27 @@ class FakeMotorosController:
             with self._lock:
                 if self._motion_client is sock:
                     self._motion_client = None
-                    self._traj_mode = False
             sock.close()
 
-    # -- protocol --------------------------------------------------------------------------------
-    def _not_ready_subcode(self) -> int:
-        """MotoROS NOT_READY subcode for the present faults, 0 when ready (caller holds the lock)."""
-        if self._e_stopped:
-            return 5003
-        if self._alarm_code:
-            return 5001
-        if not self._servo_on:
-            return 5006
-        return 0
-
-    def _answer(self, msg: Message) -> MotionReply:
-        with self._lock:
-            self.received.append(msg)
-            if isinstance(msg, MotionCtrl):
-                return self._answer_ctrl(msg)
-            if isinstance(msg, JointTrajPtFull):
-                result, sub = self._accept_point(msg.group, msg.sequence, msg.time, msg.pos)
-                return MotionReply(msg.group, msg.sequence, msg.TYPE, result, sub)
-            if isinstance(msg, JointTrajPtFullEx):
-                for point in msg.groups:
-                    result, sub = self._accept_point(point.group, msg.sequence, point.time, point.pos)
-                    if result != Result.SUCCESS:
-                        break
-                return MotionReply(msg.groups[0].group, msg.sequence, msg.TYPE, result, sub)
-            return MotionReply(-1, -1, msg.TYPE, Result.INVALID, 3003)
-
-    def _answer_ctrl(self, msg: MotionCtrl) -> MotionReply:
-        sub = self._not_ready_subcode()
-        result, data = Result.SUCCESS, ()
-        if msg.command == Command.CHECK_MOTION_READY:
-            sub = sub or (0 if self._traj_mode else 5008)
-            result = Result.NOT_READY if sub else Result.SUCCESS
-        elif msg.command == Command.CHECK_QUEUE_CNT:
-            sub, data = 0, (float(len(self.groups[msg.group].queue)) if msg.group < len(self.groups) else -1.0,)
-        elif msg.command == Command.START_TRAJ_MODE:
-            result = Result.NOT_READY if sub else Result.SUCCESS
-            self._traj_mode = not sub
-        elif msg.command in (Command.STOP_MOTION, Command.STOP_TRAJ_MODE):
-            sub = 0
-            for group in self.groups:
-                group.halt()
-            self._traj_mode = self._traj_mode and msg.command == Command.STOP_MOTION
-        else:
-            result, sub = Result.INVALID, 3006
-        return MotionReply(msg.group, msg.sequence, msg.command, result, sub, data)
-
-    def _accept_point(self, group: int, sequence: int, time_s: float, pos: np.ndarray) -> tuple[Result, int]:
-        if not 0 <= group < len(self.groups):
-            return Result.INVALID, 3004
-        sub = self._not_ready_subcode() or (0 if self._traj_mode else 5008)
-        if sub:
-            return Result.NOT_READY, sub
-        return self.groups[group].accept_point(sequence, time_s, pos)
-
-    def _halt_if_faulted(self) -> None:
-        if self._not_ready_subcode():
-            self._traj_mode = False
-            for group in self.groups:
-                group.halt()
-
     # -- simulation and publication --------------------------------------------------------------
+    def _feedback(self) -> list[JointFeedback]:
+        fields = ValidFields.POSITION | ValidFields.VELOCITY
+        nan = np.full(self.groups[0].n_joints, np.nan) if self._nonfinite else None
+        return [JointFeedback(i, g.q if nan is None else nan, g.qd, valid_fields=fields)
+                for i, g in enumerate(self.groups)]
+
     def _simulate(self) -> None:
-        start = time.monotonic()
         while not self._stop.wait(self.period_s):
             now = time.monotonic()
             with self._lock:
-                feedback = []
-                for i, group in enumerate(self.groups):
+                for group in self.groups:
                     group.step(now)
-                    feedback.append(JointFeedback(i, group.q, group.qd, time=now - start,
-                                                  valid_fields=ValidFields.TIME | ValidFields.POSITION
-                                                  | ValidFields.VELOCITY))
-                status = RobotStatusMsg(
-                    drives_powered=int(self._servo_on), e_stopped=int(self._e_stopped),
-                    error_code=self._alarm_code, in_error=int(self._alarm_code != 0),
-                    in_motion=int(any(g.moving for g in self.groups)), mode=2,
-                    motion_possible=int(self._traj_mode and not self._not_ready_subcode()))
+                feedback = self._feedback()
+                status = self.controller.status()
                 clients = list(self._state_clients)
-            data = b"".join(fb.encode() for fb in feedback) + JointFeedbackEx(tuple(feedback)).encode()
+            data = b"".join(fb.encode() for fb in feedback)
+            if len(feedback) >= 2:
+                data += JointFeedbackEx(tuple(feedback)).encode()
             data += status.encode()
             for sock in clients:
                 if not self._send(sock, data):

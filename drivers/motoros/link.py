@@ -9,6 +9,12 @@ controller, so R1 and R2 on one controller cannot each open their own: they shar
 * Motion (50240): one request at a time (a lock), answered by a MotoMotionReply matched on
   (group, sequence, command). No reply in time raises DriverTimeout and drops the connection, so a late
   reply can never be taken for the answer to a later request; the next request reconnects (bounded tries).
+  START_TRAJ_MODE gets its own, longer timeout: MotoROS answers it only after resetting alarms, turning the
+  servos on and starting its INIT_ROS job, each waited for up to 5 s (MotionServer.c,
+  Ros_MotionServer_StartTrajMode, MOTION_START_TIMEOUT), so ~10 s is normal on a real controller.
+* Trajectory mode is a controller-wide state: the link remembers that a START_TRAJ_MODE succeeded and sends
+  STOP_TRAJ_MODE when its last user closes it (as motoman_driver does on shutdown), so the controller's
+  INIT_ROS job ends and INFORM jobs can run again.
 """
 
 from __future__ import annotations
@@ -21,8 +27,9 @@ import time
 from typing import TypeVar
 
 from drivers.errors import DriverDisconnected, DriverError, DriverTimeout, ProtocolError
-from drivers.motoros.codec import (JointFeedback, JointFeedbackEx, MotionReply, Packet, RobotStatusMsg,
-                                   decode)
+from drivers.motoros.codec import (Command, JointFeedback, JointFeedbackEx, MotionCtrl, MotionReply, Packet,
+                                   Result, RobotStatusMsg, decode)
+from drivers.motoros.errors import InvalidArgument
 from drivers.motoros.framing import Framer, recv_into_framer
 
 log = logging.getLogger("cellcal.drivers")
@@ -53,6 +60,7 @@ class MotorosLink:
         motion_port: MotoROS motion server port.
         state_port: MotoROS state server port.
         reply_timeout_s: longest wait for a motion reply [s].
+        start_traj_timeout_s: longest wait for the reply to START_TRAJ_MODE [s] (alarm reset + servo on).
         connect_timeout_s: longest wait for a TCP connect and for the first state packet [s].
         reconnect_attempts: motion connection tries before DriverDisconnected.
         backoff_s: first delay between connection tries [s]; doubles up to ``max_backoff_s``.
@@ -61,21 +69,28 @@ class MotorosLink:
     """
 
     def __init__(self, host: str, motion_port: int = MOTION_PORT, state_port: int = STATE_PORT, *,
-                 reply_timeout_s: float = 1.0, connect_timeout_s: float = 2.0, reconnect_attempts: int = 3,
-                 backoff_s: float = 0.05, max_backoff_s: float = 1.0, stale_after_s: float = 0.5) -> None:
+                 reply_timeout_s: float = 1.0, connect_timeout_s: float = 2.0, start_traj_timeout_s: float = 15.0,
+                 reconnect_attempts: int = 3, backoff_s: float = 0.05, max_backoff_s: float = 1.0,
+                 stale_after_s: float = 0.5) -> None:
+        self.motion_device = f"motoros@{host}:{motion_port}"
+        self.state_device = f"motoros@{host}:{state_port}"
         if reconnect_attempts < 1:
-            raise ValueError(f"reconnect_attempts must be >= 1, got {reconnect_attempts}")
+            raise InvalidArgument(self.motion_device, "reconnect_attempts", reconnect_attempts, ">= 1")
+        for name, value in (("reply_timeout_s", reply_timeout_s), ("connect_timeout_s", connect_timeout_s),
+                            ("start_traj_timeout_s", start_traj_timeout_s), ("stale_after_s", stale_after_s)):
+            if not value > 0:
+                raise InvalidArgument(self.motion_device, name, value, "a positive number of seconds")
         self.host = host
         self.motion_port = motion_port
         self.state_port = state_port
         self.reply_timeout_s = reply_timeout_s
+        self.start_traj_timeout_s = start_traj_timeout_s
         self.connect_timeout_s = connect_timeout_s
         self.reconnect_attempts = reconnect_attempts
         self.backoff_s = backoff_s
         self.max_backoff_s = max_backoff_s
         self.stale_after_s = stale_after_s
-        self.motion_device = f"motoros@{host}:{motion_port}"
-        self.state_device = f"motoros@{host}:{state_port}"
+        self._traj_mode_group: int | None = None  # group whose START_TRAJ_MODE succeeded, until STOP_TRAJ_MODE
         self._users = 0
         self._users_lock = threading.Lock()
         self._motion_lock = threading.Lock()
@@ -110,13 +125,35 @@ class MotorosLink:
                 raise
 
     def close(self) -> None:
-        """Release one user; the last one closes the sockets and joins the reader thread."""
+        """Release one user; the last one ends trajectory mode (if started), closes the sockets, joins the reader."""
         with self._users_lock:
             if self._users == 0:
                 return
+            if self._users == 1:
+                self._stop_trajectory_mode()
             self._users -= 1
             if self._users == 0:
                 self._shutdown()
+
+    @property
+    def trajectory_mode(self) -> bool:
+        """True after a successful START_TRAJ_MODE through this link and until STOP_TRAJ_MODE."""
+        return self._traj_mode_group is not None
+
+    def _stop_trajectory_mode(self) -> None:
+        """Send STOP_TRAJ_MODE if this link started trajectory mode; failures are logged, not raised."""
+        group = self._traj_mode_group
+        if group is None:
+            return
+        try:
+            reply = self.request(MotionCtrl(group, 0, Command.STOP_TRAJ_MODE).encode(), group, 0,
+                                 Command.STOP_TRAJ_MODE)
+        except DriverError as e:
+            log.warning("%s: STOP_TRAJ_MODE on close failed: %s", self.motion_device, e)
+            return
+        if reply.result != Result.SUCCESS:  # MotoROS refuses while a queue still holds motion
+            log.warning("%s: STOP_TRAJ_MODE on close refused: %s (trajectory mode left on)", self.motion_device,
+                        reply.describe())
 
     def _shutdown(self) -> None:
         self._stop.set()
@@ -252,8 +289,12 @@ class MotorosLink:
             self._motion[0].close()
             self._motion = None
 
-    def request(self, payload: bytes, group: int, sequence: int, command: int) -> MotionReply:
+    def request(self, payload: bytes, group: int, sequence: int, command: int, *,
+                timeout_s: float | None = None) -> MotionReply:
         """Send one encoded request and return the reply matching (group, sequence, command).
+
+        ``timeout_s`` [s] overrides the reply timeout; by default START_TRAJ_MODE waits
+        ``start_traj_timeout_s`` and everything else ``reply_timeout_s``.
 
         A connection opened for this request and closed by the controller before any reply means the
         controller refused it (its single motion slot is still held, e.g. by a connection it has not yet
@@ -262,18 +303,28 @@ class MotorosLink:
 
         Raises:
             DriverDisconnected: no connection, or it broke (the request may or may not have arrived).
-            DriverTimeout: no matching reply within ``reply_timeout_s``.
+            DriverTimeout: no matching reply within the timeout.
             ProtocolError: the controller sent bytes that do not decode.
         """
         if self._users == 0:
             raise DriverDisconnected(self.motion_device, "link is not connected; call connect() first")
+        if timeout_s is None:
+            timeout_s = self.start_traj_timeout_s if command == Command.START_TRAJ_MODE else self.reply_timeout_s
+        reply = self._request(payload, (group, sequence, command), timeout_s)
+        if reply.result == Result.SUCCESS and command == Command.START_TRAJ_MODE:
+            self._traj_mode_group = group
+        elif reply.result == Result.SUCCESS and command in (Command.STOP_TRAJ_MODE, Command.DISCONNECT):
+            self._traj_mode_group = None
+        return reply
+
+    def _request(self, payload: bytes, match: tuple[int, int, int], timeout_s: float) -> MotionReply:
         with self._motion_lock:
             delay = self.backoff_s
             for attempt in range(1, self.reconnect_attempts + 1):
                 fresh = self._motion is None
                 sock, framer = self._motion_socket()
                 try:
-                    return self._exchange(sock, framer, payload, (group, sequence, command))
+                    return self._exchange(sock, framer, payload, match, timeout_s)
                 except DriverDisconnected as e:
                     self._drop_motion()
                     if not fresh or attempt == self.reconnect_attempts:
@@ -288,13 +339,13 @@ class MotorosLink:
                 delay = min(2 * delay, self.max_backoff_s)
             raise DriverDisconnected(self.motion_device, "link closed while retrying")
 
-    def _exchange(self, sock: socket.socket, framer: Framer, payload: bytes,
-                  match: tuple[int, int, int]) -> MotionReply:
+    def _exchange(self, sock: socket.socket, framer: Framer, payload: bytes, match: tuple[int, int, int],
+                  timeout_s: float) -> MotionReply:
         try:
             sock.sendall(payload)
         except OSError as e:
             raise DriverDisconnected(self.motion_device, f"send failed: {e}") from e
-        deadline = time.monotonic() + self.reply_timeout_s
+        deadline = time.monotonic() + timeout_s
         while (remaining := deadline - time.monotonic()) > 0:
             sock.settimeout(remaining)
             try:
@@ -307,5 +358,4 @@ class MotorosLink:
                     return msg
                 log.warning("%s: discarding unexpected %s", self.motion_device, type(msg).__name__)
         self._drop_motion()  # a late reply must never be read as the answer to a later request
-        raise DriverTimeout(self.motion_device, f"reply to command {match[2]} (sequence {match[1]})",
-                            self.reply_timeout_s)
+        raise DriverTimeout(self.motion_device, f"reply to command {match[2]} (sequence {match[1]})", timeout_s)
