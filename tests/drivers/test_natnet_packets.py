@@ -66,10 +66,12 @@ def test_hand_built_4_1_packet():
     empty = struct.pack("<ii", 0, 0)
     payload = (struct.pack("<i", 77) + empty + empty + struct.pack("<ii", 1, len(body)) + body
                + empty + empty + empty + empty + empty
-               + struct.pack("<IIdQQQIIh", 0, 0, 9.5, 1, 2, 3, 9, 0, 0))
+               + struct.pack("<IIdQQQIIh", 0, 0, 9.5, 1, 2, 3, 1_700_000_000, 3 << 30, 0))
     f = parse_frame(payload, (4, 1))
     (b,) = f.rigid_bodies
-    assert (f.frame_number, b.body_id, b.tracking_valid, b.capture_time) == (77, 9, True, 9.5)
+    assert (f.frame_number, b.body_id, b.tracking_valid, f.timestamp) == (77, 9, True, 9.5)
+    assert (f.precision_timestamp_sec, f.precision_timestamp_frac) == (1_700_000_000, 3 << 30)
+    assert b.capture_time == f.capture_time == 1_700_000_000.75  # the precision timestamp wins
     np.testing.assert_allclose(b.position_mm, [1000, 2000, 3000])
     np.testing.assert_allclose(b.quat_wxyz, [0.9, 0.1, 0.2, 0.3], atol=1e-7)
     np.testing.assert_allclose(b.marker_error_mm, 0.5, atol=1e-6)
