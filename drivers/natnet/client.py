@@ -3,32 +3,44 @@
 Motive answers commands on its command port (1510) and streams frames of data either to a multicast
 group on the data port (1511, group 239.255.42.99 by default) or, in unicast mode, to the socket the
 client sent ``NAT_CONNECT`` from. The client therefore listens on both its command socket and its data
-socket. ``NAT_CONNECT`` is answered with ``NAT_SERVERINFO``, which gives the stream version; a configured
-version skips the wait (for servers that do not answer, or recorded streams).
+socket. ``NAT_CONNECT`` (laid out as the SDK's ``NatNetClient.py`` sends it) is answered with
+``NAT_SERVERINFO``, which gives the stream version; a configured version skips the wait (for servers that
+do not answer, or recorded streams). ``NAT_REQUEST_MODELDEF`` is answered with ``NAT_MODELDEF``, which maps
+rigid-body names to the ids frames carry (:meth:`NatNetSource.rigid_body_ids`).
 
 One receive thread parses every datagram; a malformed one is counted in :attr:`NatNetSource.stats`
 and dropped, never raised into the thread. :meth:`NatNetSource.read` hands out the buffered rigid-body
 frames.
+
+Motive restarting: a restarted Motive does not know its unicast clients, and may stream another version.
+When nothing arrives for ``reconnect_s`` the receive thread re-sends ``NAT_CONNECT`` (every ``reconnect_s``
+until the server answers); the new ``NAT_SERVERINFO`` re-learns the version and the stream resumes with no
+call from the caller (counted in :attr:`NatNetStats.handshakes`). ``close()`` then ``connect()`` also works
+any number of times on the same object.
 """
 
 from __future__ import annotations
 
 import collections
+import dataclasses
 import logging
 import selectors
 import socket
 import threading
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 from drivers.base import MocapSource, RigidBodyFrame
 from drivers.errors import DriverDisconnected, DriverError, DriverTimeout, ProtocolError
+from drivers.natnet.modeldef import ModelDefinitions, parse_model_definitions
 from drivers.natnet.packets import (MessageId, ServerInfo, build_connect, build_request, check_version,
                                     parse_frame, parse_server_info, split_packet)
 
 log = logging.getLogger("cellcal.drivers")
 _RECV_SIZE = 65536
 _POLL_S = 0.05
+_MODELDEF_RETRY_S = 0.5
 
 
 @dataclass(frozen=True)
@@ -41,6 +53,7 @@ class NatNetStats:
         packets_rejected: malformed datagrams dropped (truncated, inconsistent counts).
         frames_dropped: rigid-body frames discarded because the buffer was full (read() too slow).
         last_error: message of the last rejected datagram, ``""`` if none.
+        handshakes: ``NAT_SERVERINFO`` replies received (1 after connect, +1 per server restart seen).
     """
 
     packets_received: int = 0
@@ -48,6 +61,7 @@ class NatNetStats:
     packets_rejected: int = 0
     frames_dropped: int = 0
     last_error: str = ""
+    handshakes: int = 0
 
 
 class NatNetSource(MocapSource):
@@ -63,12 +77,13 @@ class NatNetSource(MocapSource):
         connect_timeout_s: how long connect() waits for ``NAT_SERVERINFO`` [s].
         max_buffered_frames: rigid-body frames kept between read() calls; older ones are dropped.
         keepalive_s: period of ``NAT_KEEPALIVE`` in unicast mode [s].
+        reconnect_s: silence after which ``NAT_CONNECT`` is re-sent, and its retry period [s].
     """
 
     def __init__(self, server_address: str = "127.0.0.1", *, local_address: str = "0.0.0.0",
                  command_port: int = 1510, data_port: int = 1511, multicast_group: str | None = "239.255.42.99",
                  version: tuple[int, int] | None = None, connect_timeout_s: float = 2.0,
-                 max_buffered_frames: int = 10_000, keepalive_s: float = 1.0) -> None:
+                 max_buffered_frames: int = 10_000, keepalive_s: float = 1.0, reconnect_s: float = 1.0) -> None:
         self.device = f"natnet@{server_address}:{command_port}"
         if max_buffered_frames < 1:
             raise DriverError(self.device, f"max_buffered_frames must be >= 1, got {max_buffered_frames}")
@@ -78,8 +93,12 @@ class NatNetSource(MocapSource):
         self.multicast_group = multicast_group
         self.connect_timeout_s = connect_timeout_s
         self.keepalive_s = keepalive_s
+        self.reconnect_s = reconnect_s
         self._requested_data_port = data_port
-        self._version = None if version is None else check_version(version)
+        self._configured_version = None if version is None else check_version(version)
+        self._version = self._configured_version
+        self._model_definitions: ModelDefinitions | None = None
+        self._model_definitions_seq = 0
         self._server_info: ServerInfo | None = None
         self._buffer: collections.deque[RigidBodyFrame] = collections.deque(maxlen=max_buffered_frames)
         self._cond = threading.Condition()
@@ -122,9 +141,11 @@ class NatNetSource(MocapSource):
         """
         if self._thread is not None:
             return
+        self._version, self._failure = self._configured_version, None
+        self._buffer.clear()
         try:
             self._open_sockets()
-            self._cmd.sendto(build_connect(self._version or (4, 1)), (self.server_address, self.command_port))
+            self._cmd.sendto(build_connect(self._configured_version or (4, 1)), self._server)
             if self._version is None:
                 self._await_server_info()
         except DriverError:  # before OSError: DriverTimeout is a TimeoutError, hence an OSError
@@ -137,6 +158,10 @@ class NatNetSource(MocapSource):
         self._thread = threading.Thread(target=self._receive_loop, name="natnet-receive", daemon=True)
         self._thread.start()
         log.info("%s: connected, NatNet %d.%d, data port %d", self.device, *self._version, self.data_port)
+
+    @property
+    def _server(self) -> tuple[str, int]:
+        return (self.server_address, self.command_port)
 
     def _open_sockets(self) -> None:
         self._cmd = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -161,27 +186,54 @@ class NatNetSource(MocapSource):
             try:
                 message_id, payload = split_packet(packet)
                 if message_id == MessageId.SERVER_INFO:
-                    self._server_info = parse_server_info(payload)
-                    self._version = check_version(self._server_info.natnet_version[:2])
+                    self._accept_server_info(parse_server_info(payload))
                     return
             except ProtocolError as e:
                 self._count_rejected(e)
         raise DriverTimeout(self.device, "NAT_SERVERINFO (is Motive streaming? or configure version=)",
                             self.connect_timeout_s)
 
+    def _accept_server_info(self, info: ServerInfo) -> None:
+        version = check_version(info.natnet_version[:2])
+        with self._cond:
+            self._server_info = info
+            if self._configured_version is None:
+                self._version = version
+            self._stats = dataclasses.replace(self._stats, handshakes=self._stats.handshakes + 1)
+
+    def _send(self, packet: bytes) -> None:
+        """Send on the command socket; a refused or unreachable server is logged, the loop carries on."""
+        try:
+            self._cmd.sendto(packet, self._server)
+        except (ConnectionError, OSError) as e:
+            if self._stop.is_set():
+                raise
+            log.debug("%s: send failed: %s", self.device, e)
+
     def _receive_loop(self) -> None:
         sel = selectors.DefaultSelector()
         for sock in (self._cmd, self._data):
             sock.setblocking(False)
             sel.register(sock, selectors.EVENT_READ)
-        next_keepalive = time.monotonic() + self.keepalive_s
+        now = time.monotonic()
+        next_keepalive, last_packet, next_connect = now + self.keepalive_s, now, now + self.reconnect_s
         try:
             while not self._stop.is_set():
                 for key, _ in sel.select(_POLL_S):
-                    self._handle(key.fileobj.recv(_RECV_SIZE))
-                if self.multicast_group is None and time.monotonic() >= next_keepalive:
-                    self._cmd.sendto(build_request(MessageId.KEEP_ALIVE), (self.server_address, self.command_port))
-                    next_keepalive += self.keepalive_s
+                    try:
+                        packet = key.fileobj.recv(_RECV_SIZE)
+                    except ConnectionRefusedError:  # ICMP port unreachable: Motive is down, keep waiting
+                        continue
+                    last_packet = time.monotonic()
+                    self._handle(packet)
+                now = time.monotonic()
+                if now - last_packet >= self.reconnect_s and now >= next_connect:
+                    log.info("%s: nothing received for %.1f s; re-sending NAT_CONNECT", self.device, now - last_packet)
+                    self._send(build_connect(self._configured_version or (4, 1)))
+                    next_connect = now + self.reconnect_s
+                if self.multicast_group is None and now >= next_keepalive:
+                    self._send(build_request(MessageId.KEEP_ALIVE))
+                    next_keepalive = now + self.keepalive_s
         except (OSError, ValueError) as e:
             if not self._stop.is_set():
                 log.error("%s: receive thread stopped: %s", self.device, e)
@@ -194,6 +246,14 @@ class NatNetSource(MocapSource):
     def _handle(self, packet: bytes) -> None:
         try:
             message_id, payload = split_packet(packet)
+            if message_id == MessageId.SERVER_INFO:
+                self._accept_server_info(parse_server_info(payload))
+            elif message_id == MessageId.MODEL_DEF:
+                definitions = parse_model_definitions(payload, self._version)
+                with self._cond:
+                    self._model_definitions = definitions
+                    self._model_definitions_seq += 1
+                    self._cond.notify_all()
             frame = parse_frame(payload, self._version) if message_id == MessageId.FRAME_OF_DATA else None
         except ProtocolError as e:
             self._count_rejected(e, received=True)
@@ -201,13 +261,13 @@ class NatNetSource(MocapSource):
         with self._cond:
             s = self._stats
             if frame is None:
-                self._stats = NatNetStats(s.packets_received + 1, s.frames_parsed, s.packets_rejected,
-                                          s.frames_dropped, s.last_error)
+                self._stats = dataclasses.replace(s, packets_received=s.packets_received + 1)
                 return
             overflow = max(0, len(self._buffer) + len(frame.rigid_bodies) - self._buffer.maxlen)
             self._buffer.extend(frame.rigid_bodies)
-            self._stats = NatNetStats(s.packets_received + 1, s.frames_parsed + 1, s.packets_rejected,
-                                      s.frames_dropped + overflow, s.last_error)
+            self._stats = dataclasses.replace(s, packets_received=s.packets_received + 1,
+                                              frames_parsed=s.frames_parsed + 1,
+                                              frames_dropped=s.frames_dropped + overflow)
             self._cond.notify_all()
 
     def _count_rejected(self, error: ProtocolError, received: bool = False) -> None:
@@ -215,8 +275,8 @@ class NatNetSource(MocapSource):
             s = self._stats
             if s.packets_rejected == 0:
                 log.warning("%s: dropping malformed packet: %s", self.device, error.reason)
-            self._stats = NatNetStats(s.packets_received + int(received), s.frames_parsed, s.packets_rejected + 1,
-                                      s.frames_dropped, error.reason)
+            self._stats = dataclasses.replace(s, packets_received=s.packets_received + int(received),
+                                              packets_rejected=s.packets_rejected + 1, last_error=error.reason)
 
     def read(self, timeout_s: float) -> list[RigidBodyFrame]:
         """Rigid-body frames received since the last call, oldest first.
@@ -236,6 +296,56 @@ class NatNetSource(MocapSource):
             frames = list(self._buffer)
             self._buffer.clear()
         return frames
+
+    def request_model_definitions(self, timeout_s: float = 2.0) -> ModelDefinitions:
+        """Ask the server for its model definitions (``NAT_REQUEST_MODELDEF``) and wait for ``NAT_MODELDEF``.
+
+        The request is re-sent every 0.5 s (UDP may lose either datagram) until the reply or ``timeout_s`` [s].
+
+        Raises:
+            DriverError: not connected, or the stream version is still unknown.
+            DriverTimeout: no ``NAT_MODELDEF`` within ``timeout_s``.
+            DriverDisconnected: the receive thread lost its socket.
+        """
+        if self._thread is None or self._version is None:
+            raise DriverError(self.device, "not connected; call connect() first")
+        deadline = time.monotonic() + timeout_s
+        with self._cond:
+            seq = self._model_definitions_seq
+        while (remaining := deadline - time.monotonic()) > 0:
+            self._send(build_request(MessageId.REQUEST_MODEL_DEF))
+            with self._cond:
+                self._cond.wait_for(lambda: self._model_definitions_seq != seq or self._failure is not None,
+                                    timeout=min(_MODELDEF_RETRY_S, remaining))
+                if self._failure is not None:
+                    raise self._failure
+                if self._model_definitions_seq != seq:
+                    return self._model_definitions
+        raise DriverTimeout(self.device, "NAT_MODELDEF (reply to NAT_REQUEST_MODELDEF)", timeout_s)
+
+    def rigid_body_ids(self, timeout_s: float = 2.0, names: Iterable[str] | None = None) -> dict[str, int]:
+        """Rigid-body name -> id from the server's model definitions.
+
+        Args:
+            timeout_s: how long to wait for ``NAT_MODELDEF`` [s].
+            names: the names needed; None returns every rigid body the server defines.
+
+        Raises:
+            DriverError: a name in ``names`` is not defined by the server (the message lists the defined ones).
+            DriverTimeout: no ``NAT_MODELDEF`` within ``timeout_s``.
+        """
+        definitions = self.request_model_definitions(timeout_s)
+        ids = definitions.rigid_body_ids()
+        if names is None:
+            return ids
+        names = list(names)
+        missing = definitions.missing_rigid_bodies(names)
+        if missing:
+            defined = ", ".join(sorted(ids)) or "none"
+            raise DriverError(self.device, f"rigid bod{'y' if len(missing) == 1 else 'ies'} "
+                                           f"{', '.join(map(repr, missing))} not defined in the server's model "
+                                           f"definitions; defined: {defined}")
+        return {name: ids[name] for name in names}
 
     def close(self) -> None:
         """Stop the receive thread and release both sockets; safe to call twice."""

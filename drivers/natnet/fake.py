@@ -1,8 +1,11 @@
 """A fake NatNet server (Motive stand-in) that speaks the wire protocol on loopback.
 
-It builds frame packets field by field for NatNet 3.x and 4.x, answers ``NAT_CONNECT`` with a
-``NAT_SERVERINFO`` packet and streams frames to the clients that connected (unicast, to their command
-socket) or to any address given. It can also send truncated or garbage datagrams to exercise error paths.
+It builds frame and model-definition packets field by field for NatNet 3.x and 4.x, answers
+``NAT_CONNECT`` with ``NAT_SERVERINFO`` and ``NAT_REQUEST_MODELDEF`` with ``NAT_MODELDEF``, records
+``NAT_KEEPALIVE``, and streams frames to the clients that connected (unicast, to the socket their
+``NAT_CONNECT`` came from, as Motive does), to its multicast group, or to any address given. It can also send
+truncated or garbage datagrams to exercise error paths. :class:`drivers.natnet.fake_motive.FakeMotive`
+streams moving bodies through it at a fixed rate.
 The encoders here are written independently of :mod:`drivers.natnet.packets` so tests compare two
 implementations of the layout rather than one with itself.
 """
@@ -13,6 +16,7 @@ import logging
 import socket
 import struct
 import threading
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 from drivers.natnet.packets import MessageId
@@ -54,6 +58,7 @@ class FakeFrame:
     timecode: tuple[int, int] = (0, 0)
     params: int = 0
     force_plates: tuple[tuple[int, tuple[tuple[float, ...], ...]], ...] = ()
+    precision_timestamp: tuple[int, int] = (0, 0)  # seconds, fraction [2**-32 s]; sent from 4.1 on
 
 
 def _body(b: FakeBody) -> bytes:
@@ -92,8 +97,8 @@ def encode_frame(frame: FakeFrame, version: tuple[int, int]) -> bytes:
     out += _section(0, b"", version)  # devices
     out += struct.pack("<II", *frame.timecode) + struct.pack("<d", frame.timestamp)
     out += struct.pack("<QQQ", *frame.stamps)
-    if version[0] >= 4:
-        out += struct.pack("<II", int(frame.timestamp), 0)  # precision timestamp, seconds and fraction
+    if version >= (4, 1):
+        out += struct.pack("<II", *frame.precision_timestamp)
     out += struct.pack("<h", frame.params) + struct.pack("<i", 0)  # params, end-of-data tag
     return struct.pack("<HH", MessageId.FRAME_OF_DATA, len(out)) + out
 
@@ -108,24 +113,78 @@ def encode_server_info(version: tuple[int, int], app_name: str = "FakeMotive", d
     return struct.pack("<HH", MessageId.SERVER_INFO, len(body)) + body
 
 
+def _desc(kind: int, body: bytes, version: tuple[int, int]) -> bytes:
+    size = struct.pack("<i", len(body)) if version >= (4, 1) else b""
+    return struct.pack("<i", kind) + size + body
+
+
+def _rigid_body_desc(name: str, body_id: int, version: tuple[int, int], parent_id: int = -1) -> bytes:
+    """A rigid-body description with three markers 50 mm apart on x, y, z (active labels 1..3)."""
+    out = name.encode() + b"\0" + struct.pack("<ii3f", body_id, parent_id, 0.0, 0.0, 0.0)
+    if version >= (4, 2):
+        out += struct.pack("<4f", 0.0, 0.0, 0.0, 1.0)
+    markers = ((0.05, 0.0, 0.0), (0.0, 0.05, 0.0), (0.0, 0.0, 0.05))
+    out += struct.pack("<i", len(markers)) + b"".join(struct.pack("<3f", *m) for m in markers)
+    out += b"".join(struct.pack("<i", k + 1) for k in range(len(markers)))
+    if version >= (4, 0):
+        out += b"".join(f"{name}_{k + 1}".encode() + b"\0" for k in range(len(markers)))
+    return out
+
+
+def _strings(names: tuple[str, ...]) -> bytes:
+    return struct.pack("<i", len(names)) + b"".join(n.encode() + b"\0" for n in names)
+
+
+def _others(version: tuple[int, int]) -> bytes:
+    """One skeleton, force plate, device, camera and (4.1+) asset, so parsers must skip them."""
+    out = _desc(2, b"skel\0" + struct.pack("<ii", 40, 1) + _rigid_body_desc("bone", 41, version), version)
+    plate = (struct.pack("<i", 3) + b"FP-001\0" + struct.pack("<2f3f", 0.6, 0.4, 0.0, 0.0, 0.0)
+             + struct.pack("<144f", *range(144)) + struct.pack("<12f", *range(12)) + struct.pack("<ii", 1, 0)
+             + _strings(("Fx", "Fy", "Fz")))
+    out += _desc(3, plate, version)
+    out += _desc(4, struct.pack("<i", 5) + b"daq\0SN-5\0" + struct.pack("<ii", 1, 0) + _strings(("ai0",)), version)
+    out += _desc(5, b"cam1\0" + struct.pack("<3f4f", 1.0, 2.0, 3.0, 0.0, 0.0, 0.0, 1.0), version)
+    if version >= (4, 1):
+        asset = (b"asset\0" + struct.pack("<iii", 1, 60, 1) + _rigid_body_desc("asset_rb", 61, version)
+                 + struct.pack("<i", 1) + b"asset_m\0" + struct.pack("<i3ffh", 62, 0.1, 0.2, 0.3, 0.014, 0))
+        out += _desc(6, asset, version)
+    return out
+
+
+def encode_model_definitions(bodies: Mapping[str, int], version: tuple[int, int], others: bool = True) -> bytes:
+    """A complete ``NAT_MODELDEF`` datagram: per body a marker set and a rigid body, then ``others``."""
+    descs = [_desc(0, name.encode() + b"\0" + _strings(tuple(f"{name}_{k}" for k in (1, 2, 3))), version)
+             for name in bodies]
+    descs += [_desc(1, _rigid_body_desc(name, body_id, version), version) for name, body_id in bodies.items()]
+    count = len(descs) + (4 + (version >= (4, 1)) if others else 0)
+    out = struct.pack("<i", count) + b"".join(descs) + (_others(version) if others else b"")
+    return struct.pack("<HH", MessageId.MODEL_DEF, len(out)) + out
+
+
 class FakeNatNetServer:
-    """A NatNet server on 127.0.0.1 with an ephemeral command port. Use as a context manager.
+    """A NatNet server on 127.0.0.1. Use as a context manager.
 
     Args:
         version: NatNet stream version announced and used to encode frames.
         answer_connect: when False the server ignores ``NAT_CONNECT`` (to test connect timeouts).
-        multicast_group: announced in server info; frames go there when ``send_frame(to=...)`` says so.
+        multicast_group: announced in server info; :meth:`stream` sends there when set.
+        bodies: rigid-body name -> id, answered to ``NAT_REQUEST_MODELDEF``.
+        command_port: UDP port to answer commands on; 0 picks a free one.
+        data_port: data port announced in server info and used by :meth:`stream` in multicast mode.
     """
 
     def __init__(self, version: tuple[int, int] = (4, 1), answer_connect: bool = True,
-                 multicast_group: str | None = None) -> None:
+                 multicast_group: str | None = None, *, bodies: Mapping[str, int] | None = None,
+                 command_port: int = 0, data_port: int = 1511) -> None:
         self.version = version
         self.answer_connect = answer_connect
         self.multicast_group = multicast_group
+        self.bodies = dict(bodies or {})
+        self.data_port = data_port
         self.clients: list[tuple[str, int]] = []
         self.requests: list[int] = []
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self._sock.bind(("127.0.0.1", 0))
+        self._sock.bind(("127.0.0.1", command_port))
         self._sock.settimeout(0.05)
         self._sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, socket.inet_aton("127.0.0.1"))
         self._sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)
@@ -154,18 +213,29 @@ class FakeNatNetServer:
                 with self._lock:
                     if addr not in self.clients:
                         self.clients.append(addr)
-                self._sock.sendto(encode_server_info(self.version, multicast_group=self.multicast_group), addr)
+                reply = encode_server_info(self.version, data_port=self.data_port, multicast_group=self.multicast_group)
+                self._sock.sendto(reply, addr)
+            elif message_id == MessageId.REQUEST_MODEL_DEF:
+                self._sock.sendto(encode_model_definitions(self.bodies, self.version), addr)
 
     def send_frame(self, frame: FakeFrame, to: tuple[str, int] | None = None) -> None:
         """Send one frame to ``to``, or to every connected client when None."""
         self.send_raw(encode_frame(frame, self.version), to)
+
+    def stream(self, frame: FakeFrame) -> None:
+        """Send one frame as Motive streams it: to the multicast group's data port, else to every client."""
+        to = (self.multicast_group, self.data_port) if self.multicast_group is not None else None
+        self.send_frame(frame, to)
 
     def send_raw(self, packet: bytes, to: tuple[str, int] | None = None) -> None:
         """Send arbitrary bytes (truncated or garbage packets) like ``send_frame``."""
         with self._lock:
             targets = [to] if to is not None else list(self.clients)
         for addr in targets:
-            self._sock.sendto(packet, addr)
+            try:
+                self._sock.sendto(packet, addr)
+            except OSError as e:  # a client that went away; Motive keeps streaming to the others
+                log.debug("fake natnet: send to %s failed: %s", addr, e)
 
     def close(self) -> None:
         """Stop the server thread and release the socket; safe to call twice."""
