@@ -69,7 +69,7 @@ CREATE TABLE IF NOT EXISTS events (
 #: sets it to hold creation open and be killed there.
 creation_hook: Callable[[str], None] | None = None
 
-EventKind = Literal["alarm", "e-stop", "robot-fault", "connection-lost", "bad-feedback", "aborted"]
+EventKind = Literal["alarm", "e-stop", "robot-fault", "driver-fault", "connection-lost", "bad-feedback", "aborted"]
 
 
 class SessionLocked(DataError):
