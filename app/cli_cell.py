@@ -61,34 +61,56 @@ def cmd_plan(args: argparse.Namespace) -> int:
     return 0
 
 
+def _print_events(session: str) -> list[dict[str, Any]]:
+    """Print why the arms were stopped in this session (every recorded event); returns them for --json."""
+    from dataclasses import asdict
+
+    from app.session_store import SessionStore
+
+    with SessionStore(session, lock=False) as store:
+        events = store.events()
+    if events:
+        print(f"{len(events)} stop(s) recorded in {session}:")
+    for e in events:
+        print(f"  {e.line()}")
+    return [asdict(e) for e in events]
+
+
 def cmd_collect(args: argparse.Namespace) -> int:
     from app.cell_runtime import SimCell
+    from app.collect import SessionAborted
     from app.demo import DEMO_COLLECT, collect_arm
     from app.safety import CellSafety
+    from app.session_store import SessionStore
 
     cell = cell_spec(args)
     cell.robot(args.robot)
     _require_sim(args, cell)
     if args.resume:
-        _require_session(args.session)
+        _require_session(args.session)  # refused at once when there is none or another process holds it
     elif not args.plan:
         raise CellCalError("a new session needs --plan PLAN (or --resume an existing one)")
-    elif (Path(args.session) / "session.sqlite").exists():
+    elif SessionStore.exists(args.session):
         raise CellCalError(f"{args.session} already holds a session; pass --resume or choose a new folder")
     plan = _load_plan(args.plan, args.robot) if args.plan else None
     with SimCell(cell, _sim_config(args)) as sim:
-        result = collect_arm(sim, CellSafety(cell), args.robot, plan, Path(args.session), DEMO_COLLECT,
-                             resume=args.resume, progress=not args.no_progress)
+        try:
+            result = collect_arm(sim, CellSafety(cell), args.robot, plan, Path(args.session), DEMO_COLLECT,
+                                 resume=args.resume, progress=not args.no_progress)
+        except SessionAborted:
+            _print_events(args.session)
+            raise
         frames = sim.frames_received
     print(f"{args.robot}: {result.n_ok} of {result.n_targets} targets measured, {result.n_skipped} skipped, "
           f"{result.n_new} new this run in {result.elapsed_s:.1f} s ({frames} mocap frames over zenoh) -> "
           f"{args.session}")
     for index, reason in result.skipped:
         print(f"  skipped target {index}: {reason}")
+    events = _print_events(args.session)
     write_json(args.json, {"robot": args.robot, "session": str(args.session), "targets": result.n_targets,
                             "measured": result.n_ok, "skipped": [list(s) for s in result.skipped],
                             "new": result.n_new, "complete": result.complete, "seconds": result.elapsed_s,
-                            "mocap_frames_received": frames})
+                            "mocap_frames_received": frames, "events": events})
     return 0
 
 

@@ -440,7 +440,7 @@ def export(session_dir: str | Path, out_csv: str | Path, kinds: Sequence[str] | 
     Raises:
         DataError: no session, or no measured sample of the requested kinds (nothing is written).
     """
-    with SessionStore(session_dir) as store:
+    with SessionStore(session_dir, lock=False) as store:  # reading: allowed while a collector runs
         rows = [r for r in store.rows("ok") if kinds is None or r["kind"] in kinds]
     if not rows:
         raise DataError(Path(session_dir), None, None,

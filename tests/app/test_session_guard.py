@@ -280,3 +280,36 @@ def test_nan_joint_feedback_is_a_driver_error_and_never_reaches_move_to(tmp_path
         res = run_session(tmp_path / "s", driver, mocap, safety, body_id=1, others=OTHERS, config=FAST, resume=True,
                           progress=False)
     assert res.complete and res.n_ok == 4
+
+
+# ---- the CLI ------------------------------------------------------------------------------------------------
+
+def test_cli_collect_prints_the_recorded_stops_and_refuses_a_locked_session(tmp_path, capsys):
+    import json
+
+    from app.cli import main
+    from tests.conftest import assert_bad_input
+
+    session = tmp_path / "s"
+    _, driver, mocap, _, safety = make_cell()
+    driver.schedule_fault(SimFault.ALARM, at_call=2)
+    with driver, mocap:
+        with pytest.raises(SessionAborted):
+            run_session(session, driver, mocap, safety, body_id=1, plan=first(2), others=OTHERS, config=FAST,
+                        progress=False)
+        driver.clear_faults()
+        run_session(session, driver, mocap, safety, body_id=1, others=OTHERS, config=FAST, resume=True,
+                    progress=False)
+    argv = ["collect", "--robot", "R1", "--session", str(session), "--resume", "--sim", "--no-progress"]
+    holder = child(HOLD, str(session), "open")
+    try:
+        wait_line(holder, "locked")
+        assert_bad_input(capsys, argv, f"in use by process {holder.pid}", str(session))
+    finally:
+        kill(holder)
+    assert main(argv + ["--json", str(tmp_path / "out.json")]) == 0
+    out = capsys.readouterr().out
+    assert "2 of 2 targets measured" in out and "1 stop(s) recorded" in out
+    assert "R1 alarm at target 1: sim:R1: alarm (injected)" in out
+    (event,) = json.loads((tmp_path / "out.json").read_text())["events"]
+    assert (event["robot"], event["kind"], event["target_index"]) == ("R1", "alarm", 1)
