@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from app.motion import move_safely  # noqa: F401  (re-exported: the cell's guarded move)
 from calibration.errors import ConfigError
 from cell_config.loader import CellSpec, ZenohConfig
 from drivers.base import MocapSource, RobotDriver
@@ -286,16 +287,3 @@ class SimCell:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
-
-
-def move_safely(driver: RobotDriver, q: np.ndarray, safety: Any, others: dict[str, RobotDriver],
-                speed_fraction: float = 0.5, timeout_s: float = 60.0) -> None:
-    """Check the joint-space path to ``q`` against limits, floor and the other arms' live poses, then move.
-
-    Raises:
-        UnsafeTarget: the move is refused before any motion.
-    """
-    q_now = driver.read_joints().q
-    safety.check_motion(driver.name, q_now, q, {n: d.read_joints().q for n, d in others.items()})
-    driver.move_to(np.asarray(q, dtype=float), speed_fraction)
-    driver.wait_settled(timeout_s)

@@ -47,17 +47,34 @@ def cmd_plan(args: argparse.Namespace) -> int:
     return 0
 
 
+def _print_events(session: str) -> list[dict[str, Any]]:
+    """Print why the arms were stopped in this session (every recorded event); returns them for --json."""
+    from dataclasses import asdict
+
+    from app.session_store import SessionStore
+
+    with SessionStore(session, lock=False) as store:
+        events = store.events()
+    if events:
+        print(f"{len(events)} stop(s) recorded in {session}:")
+    for e in events:
+        print(f"  {e.line()}")
+    return [asdict(e) for e in events]
+
+
 def cmd_collect(args: argparse.Namespace) -> int:
     from app.cell_options import confirm_motion, motion_config, open_runtime, safety_for
+    from app.collect import SessionAborted
     from app.demo import collect_arm
+    from app.session_store import SessionStore
 
     cell = cell_spec(args)
     cell.robot(args.robot)
     if args.resume:
-        _require_session(args.session)
+        _require_session(args.session)  # refused at once when there is none or another process holds it
     elif not args.plan:
         raise CellCalError("a new session needs --plan PLAN (or --resume an existing one)")
-    elif (Path(args.session) / "session.sqlite").exists():
+    elif SessionStore.exists(args.session):
         raise CellCalError(f"{args.session} already holds a session; pass --resume or choose a new folder")
     plan = _load_plan(args.plan, args.robot) if args.plan else None
     config, safety = motion_config(cell, args), safety_for(cell, args)
@@ -66,18 +83,23 @@ def cmd_collect(args: argparse.Namespace) -> int:
             return _dry_run(args, rt, safety, plan, config)
         confirm_motion(args, f"{args.robot} will visit the targets of {args.plan or args.session} at "
                              f"{config.speed_fraction:g} of full speed")
-        result = collect_arm(rt, safety, args.robot, plan, Path(args.session), config,
-                             resume=args.resume, progress=not args.no_progress)
+        try:
+            result = collect_arm(rt, safety, args.robot, plan, Path(args.session), config,
+                                 resume=args.resume, progress=not args.no_progress)
+        except SessionAborted:
+            _print_events(args.session)
+            raise
         frames = rt.frames_received
     print(f"{args.robot}: {result.n_ok} of {result.n_targets} targets measured, {result.n_skipped} skipped, "
           f"{result.n_new} new this run in {result.elapsed_s:.1f} s ({frames} mocap frames over zenoh) -> "
           f"{args.session}")
     for index, reason in result.skipped:
         print(f"  skipped target {index}: {reason}")
+    events = _print_events(args.session)
     write_json(args.json, {"robot": args.robot, "session": str(args.session), "targets": result.n_targets,
                             "measured": result.n_ok, "skipped": [list(s) for s in result.skipped],
                             "new": result.n_new, "complete": result.complete, "seconds": result.elapsed_s,
-                            "mocap_frames_received": frames, "sim": bool(args.sim)})
+                            "mocap_frames_received": frames, "events": events, "sim": bool(args.sim)})
     return 0
 
 

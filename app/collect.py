@@ -6,9 +6,12 @@ frames that are not tracking-valid or whose marker error is too large, and avera
 eigenvector quaternion average; :mod:`app.mocap_window`). The sample is committed to the session's SQLite file
 at once.
 
-Mocap dropouts and driver faults are retried a bounded number of times; then the target is recorded as
-skipped with the reason. Too many consecutive skips abort the session (:class:`SessionAborted`); a resumed
-session continues at the first target not yet recorded. Unsafe targets always abort before any motion.
+Mocap dropouts, timeouts and dropped connections are retried a bounded number of times (a dropped connection
+stops every arm, is recorded and re-established first); then the target is recorded as skipped with the
+reason. An alarm or an e-stop on any arm, non-finite joint feedback, a connection that cannot be restored, or
+too many consecutive skips end the run (:class:`SessionAborted`): every arm the session knows is stopped, the
+reason is recorded in the session's events, and a resumed session continues at the first target not yet
+recorded. Unsafe targets always abort before any motion. Only one process may use a session folder at a time.
 """
 
 from __future__ import annotations
@@ -17,20 +20,23 @@ import logging
 import math
 import time
 from collections.abc import Mapping, Sequence
+import sqlite3
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm
 
 from app.mocap_window import WindowFailed, average_frames, collect_window
+from app.motion import NonFiniteFeedback, device_name, read_q, stop_all
 from app.planning import Plan
 from app.safety import CellSafety
-from app.session_store import Sample, SessionStore
+from app.session_store import EventKind, Sample, SessionStore
 from calibration.errors import CellCalError, ConfigError, DataError
 from calibration.recording import Recording, write_recording
 from drivers.base import MocapSource, RobotDriver
-from drivers.errors import DriverDisconnected, DriverError, DriverTimeout
+from drivers.errors import DriverDisconnected, DriverError, DriverTimeout, RobotFault
 
 log = logging.getLogger("cellcal.app")
 
@@ -98,16 +104,35 @@ class SessionResult:
 
 
 class SessionAborted(CellCalError):
-    """The session stopped early (too many consecutive skips); everything recorded so far is kept."""
+    """The session stopped early; every arm was stopped, everything recorded so far is kept, and the session can
+    be resumed (it continues at the first target not recorded).
+
+    Attributes:
+        robot: the robot whose fault ended the run (None when the session itself gave up, e.g. too many skips).
+        kind: the recorded event kind (``alarm``, ``e-stop``, ``connection-lost``, ``bad-feedback``, ``aborted``...).
+        reason: why, as recorded in the session's events.
+    """
+
+    def __init__(self, message: str, *, robot: str | None = None, kind: str = "aborted", reason: str = "") -> None:
+        self.robot = robot
+        self.kind = kind
+        self.reason = reason or message
+        super().__init__(message)
 
 
 class _MeasureFailed(Exception):
     """A measurement attempt failed for a reason worth retrying."""
 
 
+class _Halt(Exception):
+    """A fault that ends the run: every arm is stopped and the reason recorded (never escapes run_session)."""
+
+    def __init__(self, robot: str, error: BaseException, index: int | None, kind: str | None = None) -> None:
+        self.robot, self.error, self.index, self.kind = robot, error, index, kind
+        super().__init__(f"{robot}: {error}")
+
+
 def _check_readback(q: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> None:
-    if q.shape != (6,) or not np.all(np.isfinite(q)):
-        raise _MeasureFailed(f"joint readback not 6 finite numbers: {q!r}")
     bad = np.flatnonzero((q < lower) | (q > upper))
     if bad.size:
         j = int(bad[0])
@@ -127,18 +152,49 @@ class _Session:
         spec = safety.cell.robot(driver.name).robot
         self.lower, self.upper = spec.lower_rad, spec.upper_rad
         self.dirs = np.zeros(6, dtype=int)
+        self.index: int | None = None  # the target being visited
         self.t_offset = time.time() - store.created_wall()
         self.t_start = time.monotonic()
 
+    def all_drivers(self) -> dict[str, RobotDriver]:
+        """Every arm this session knows: its own and the others."""
+        return {self.driver.name: self.driver, **self.other_drivers}
+
+    def own_q(self) -> np.ndarray:
+        """The arm's joint angles; non-finite feedback ends the run."""
+        try:
+            return read_q(self.driver)
+        except NonFiniteFeedback as e:
+            raise _Halt(self.driver.name, e, self.index, "bad-feedback") from e
+
     def others(self) -> dict[str, np.ndarray]:
+        """The other arms' poses [rad]; any fault reading one ends the run (its pose is unknown)."""
         out = dict(self.static_others)
-        out.update({name: d.read_joints().q for name, d in self.other_drivers.items()})
+        for name, d in self.other_drivers.items():
+            try:
+                out[name] = read_q(d)
+            except DriverError as e:
+                raise _Halt(name, e, self.index) from e
         return out
+
+    def check_ready(self) -> None:
+        """No arm reports an alarm or an e-stop (each would end the run)."""
+        for name, d in self.all_drivers().items():
+            try:
+                st = d.status()
+            except DriverError as e:
+                if d is self.driver:
+                    raise  # the arm's own connection faults are retried
+                raise _Halt(name, e, self.index) from e
+            if st.alarm or st.e_stopped:
+                what = "e-stop pressed" if st.e_stopped else f"alarm active (code {st.error_code})"
+                raise _Halt(name, RobotFault(device_name(d), what), self.index)
 
     def measure(self, index: int, attempts: int) -> Sample:
         target = self.plan.targets[index]
         c = self.config
-        q_now = self.driver.read_joints().q
+        self.check_ready()
+        q_now = self.own_q()
         self.safety.check_motion(self.driver.name, q_now, target.q, self.others(), index)
         self.driver.move_to(target.q, c.speed_fraction)
         self.driver.wait_settled(c.settle_timeout_s, c.settle_tolerance_rad)
@@ -148,7 +204,7 @@ class _Session:
 
     def measure_here(self, index: int, attempts: int) -> Sample:
         c = self.config
-        q_before = np.asarray(self.driver.read_joints().q, dtype=float)
+        q_before = self.own_q()
         _check_readback(q_before, self.lower, self.upper)
         try:
             frames = collect_window(self.mocap, self.body_id, c)
@@ -156,7 +212,7 @@ class _Session:
             raise _MeasureFailed(str(e)) from e
         except DriverError as e:
             raise _MeasureFailed(f"mocap: {e}") from e
-        q_after = np.asarray(self.driver.read_joints().q, dtype=float)
+        q_after = self.own_q()
         _check_readback(q_after, self.lower, self.upper)
         drift = float(np.max(np.abs(q_after - q_before)))
         if drift > math.radians(c.still_tolerance_deg):
@@ -166,8 +222,13 @@ class _Session:
                       self.t_offset + time.monotonic() - self.t_start, self.dirs.copy(), attempts)
 
     def visit(self, index: int) -> str | None:
-        """Measure and store one target; returns the skip reason, or None when measured."""
+        """Measure and store one target; returns the skip reason, or None when measured.
+
+        Raises:
+            _Halt: an alarm, an e-stop, non-finite feedback or a connection that cannot be restored.
+        """
         c = self.config
+        self.index = index
         target = self.plan.targets[index]
         driver_faults = measure_faults = 0
         at_target = False
@@ -188,6 +249,8 @@ class _Session:
             except DataError as e:
                 reason = f"sample rejected: {e.reason}"
                 break
+            except RobotFault as e:  # alarm / e-stop: not the target's fault, never retried
+                raise _Halt(self.driver.name, e, index) from e
             except DriverError as e:
                 driver_faults += 1
                 reason = str(e)
@@ -201,13 +264,19 @@ class _Session:
         return reason
 
     def _recover(self, e: DriverError) -> None:
-        try:
-            if isinstance(e, DriverDisconnected):
+        """After a driver fault: a lost connection stops every arm, is recorded, and is re-established."""
+        if isinstance(e, DriverDisconnected):
+            stop_all(self.all_drivers())
+            self.record(self.driver.name, "connection-lost", f"{e}; every arm stopped, reconnecting", self.index)
+            try:
                 self.driver.connect()
-            elif isinstance(e, DriverTimeout):
+            except DriverError as again:
+                raise _Halt(self.driver.name, again, self.index, "connection-lost") from again
+        elif isinstance(e, DriverTimeout):
+            try:
                 self.driver.stop()
-        except DriverError as again:
-            log.warning("recovery failed: %s", again)
+            except DriverError as again:
+                log.warning("recovery failed: %s", again)
 
     def _reconnect_mocap(self) -> None:
         try:
@@ -218,34 +287,69 @@ class _Session:
             except DriverError as again:
                 log.warning("mocap reconnection failed: %s", again)
 
+    def record(self, robot: str, kind: EventKind, reason: str, index: int | None) -> None:
+        """Commit an event; a failing store is logged, never masks the fault being recorded."""
+        try:
+            self.store.add_event(robot, kind, reason, index)
+        except (sqlite3.Error, CellCalError) as e:
+            log.error("could not record %s of %s in the session: %s", kind, robot, e)
 
-def run_session(session_dir: str | Path, driver: RobotDriver, mocap: MocapSource, safety: CellSafety, *,
-                body_id: int, plan: Plan | None = None, others: Mapping[str, np.ndarray] | None = None,
-                other_drivers: Mapping[str, RobotDriver] | None = None, config: CollectConfig = CollectConfig(),
-                resume: bool = False, retry_skipped: bool = False, progress: bool = True) -> SessionResult:
-    """Run (or resume) a guided collection session. Devices must be connected.
+    def run(self, pending: list[int], n_done: int, progress: bool) -> int:
+        """Visit the pending targets in order (the whole remaining plan checked first); returns rows written."""
+        c = self.config
+        name = self.driver.name
+        if pending:
+            self.safety.check_plan(name, self.plan.q[pending], self.others(), self.own_q())
+        n_new = consecutive = 0
+        with tqdm(total=len(self.plan), initial=n_done, unit="target", desc=f"{name} collect",
+                  disable=not progress) as bar:
+            for index in pending:
+                reason = self.visit(index)
+                n_new += 1
+                bar.update(1)
+                consecutive = consecutive + 1 if reason else 0
+                if consecutive >= c.max_consecutive_skips:
+                    raise SessionAborted(f"{consecutive} targets in a row skipped (last: {reason}); fix the cause "
+                                         f"and resume the session in {self.store.dir}", reason=str(reason))
+        return n_new
 
-    Args:
-        session_dir: the session folder; a new session needs a fresh folder.
-        driver: the arm being calibrated; ``driver.name`` must match the plan's robot.
-        mocap: any mocap source (simulated, NatNet, Zenoh subscriber).
-        safety: the cell's safety checker; every target is checked before any motion.
-        body_id: rigid-body id of the arm's tool marker in ``mocap``.
-        plan: the targets; required for a new session, optional on resume (must equal the stored plan).
-        others: joint angles [rad] (6,) of the other arms, held still during the session.
-        other_drivers: drivers of the other arms, read before every move (takes precedence over ``others``).
-        config: motion, measurement and retry options.
-        resume: continue an existing session at the first target not yet recorded.
-        retry_skipped: on resume, also try the targets recorded as skipped again.
-        progress: show a progress bar with an ETA.
+    def halt(self, h: _Halt) -> SessionAborted:
+        """Stop every arm, record why, and build the error that ends the run."""
+        failed = stop_all(self.all_drivers())
+        kind = h.kind or _fault_kind(self.all_drivers().get(h.robot), h.error)
+        self.record(h.robot, kind, str(h.error), h.index)
+        stopped = "every arm stopped" if not failed else f"could NOT stop {', '.join(failed)}"
+        at = f" at target {h.index}" if h.index is not None else ""
+        return SessionAborted(f"{h.robot} {kind}{at}: {h.error}; {stopped}; clear the cause and resume the session "
+                              f"in {self.store.dir}", robot=h.robot, kind=kind, reason=str(h.error))
 
-    Raises:
-        UnsafeTarget: a target or a path is unsafe (checked for the whole plan before the first motion).
-        SessionAborted: ``max_consecutive_skips`` targets in a row were skipped.
-        DataError: the folder already holds a session (without resume) or holds none (with resume).
-    """
-    t_run = time.monotonic()
-    session_dir = Path(session_dir)
+    def abandon(self, e: BaseException) -> None:
+        """Any other end of the run (too many skips, unsafe target, interrupt): stop every arm, record it."""
+        stop_all(self.all_drivers())
+        self.record(self.driver.name, "aborted", f"{type(e).__name__}: {e}", self.index)
+
+
+def _fault_kind(driver: RobotDriver | None, e: BaseException) -> EventKind:
+    if isinstance(e, NonFiniteFeedback):
+        return "bad-feedback"
+    if isinstance(e, DriverDisconnected):
+        return "connection-lost"
+    if not isinstance(e, RobotFault):
+        return "driver-fault"
+    try:
+        st = driver.status() if driver is not None else None
+    except DriverError:
+        st = None
+    if st is not None and st.e_stopped:
+        return "e-stop"
+    if st is not None and st.alarm:
+        return "alarm"
+    return "robot-fault"
+
+
+def _open_store(session_dir: Path, driver: RobotDriver, plan: Plan | None, info: dict[str, Any],
+                resume: bool) -> tuple[SessionStore, Plan]:
+    """Lock and open (resume) or create the session; refused at once when another process holds the folder."""
     if resume:
         store = SessionStore(session_dir)
         stored = store.plan()
@@ -257,39 +361,64 @@ def run_session(session_dir: str | Path, driver: RobotDriver, mocap: MocapSource
         if plan is None:
             raise ConfigError("run_session", "plan", "a new session needs a plan")
         store = SessionStore(session_dir, create=True)
-        store.init(plan, {"robot": driver.name, "body_id": body_id, "config": asdict(config)})
+        try:
+            store.init(plan, info)
+        except BaseException:
+            store.close()
+            raise
+    if plan.robots != (driver.name,):
+        store.close()
+        raise ConfigError("run_session", "plan", f"the plan moves {', '.join(plan.robots)} but the driver is "
+                                                 f"{driver.name}; one robot per session")
+    return store, plan
+
+
+def run_session(session_dir: str | Path, driver: RobotDriver, mocap: MocapSource, safety: CellSafety, *,
+                body_id: int, plan: Plan | None = None, others: Mapping[str, np.ndarray] | None = None,
+                other_drivers: Mapping[str, RobotDriver] | None = None, config: CollectConfig = CollectConfig(),
+                resume: bool = False, retry_skipped: bool = False, progress: bool = True) -> SessionResult:
+    """Run (or resume) a guided collection session. Devices must be connected.
+
+    Args:
+        session_dir: the session folder; a new session needs a fresh folder (or one whose creation was killed).
+        driver: the arm being calibrated; ``driver.name`` must match the plan's robot.
+        mocap: any mocap source (simulated, NatNet, Zenoh subscriber).
+        safety: the cell's safety checker; every target is checked before any motion.
+        body_id: rigid-body id of the arm's tool marker in ``mocap``.
+        plan: the targets; required for a new session, optional on resume (must equal the stored plan).
+        others: joint angles [rad] (6,) of the other arms, held still during the session.
+        other_drivers: drivers of the other arms, read before every move (takes precedence over ``others``);
+            they are stopped too when the run ends on a fault.
+        config: motion, measurement and retry options.
+        resume: continue an existing session at the first target not yet recorded.
+        retry_skipped: on resume, also try the targets recorded as skipped again.
+        progress: show a progress bar with an ETA.
+
+    Raises:
+        SessionLocked: another process uses the folder (refused before anything is read or moved).
+        UnsafeTarget: a target or a path is unsafe (checked for the whole plan before the first motion).
+        SessionAborted: an alarm, an e-stop, non-finite joint feedback or a connection that could not be restored
+            on any arm, or ``max_consecutive_skips`` targets in a row skipped. Every arm is stopped, the reason is
+            recorded in the session (:meth:`SessionStore.events`) and the session stays resumable.
+        DataError: the folder already holds a session (without resume) or holds none (with resume).
+    """
+    t_run = time.monotonic()
+    session_dir = Path(session_dir)
+    info = {"robot": driver.name, "body_id": body_id, "config": asdict(config)}
+    store, plan = _open_store(session_dir, driver, plan, info, resume)
     with store:
-        if plan.robots != (driver.name,):
-            raise ConfigError("run_session", "plan", f"the plan moves {', '.join(plan.robots)} but the driver is "
-                                                     f"{driver.name}; one robot per session")
         if resume and retry_skipped:
             store.forget_skipped()
         done = store.done()
         pending = [i for i in range(len(plan)) if i not in done]
         session = _Session(store, plan, driver, mocap, body_id, safety, others or {}, other_drivers or {}, config)
-        if pending:
-            safety.check_plan(driver.name, plan.q[pending], session.others(), driver.read_joints().q)
-        n_new = 0
-        consecutive = 0
-        bar = tqdm(total=len(plan), initial=len(done), unit="target", desc=f"{driver.name} collect",
-                   disable=not progress)
         try:
-            for index in pending:
-                reason = session.visit(index)
-                n_new += 1
-                bar.update(1)
-                consecutive = consecutive + 1 if reason else 0
-                if consecutive >= config.max_consecutive_skips:
-                    raise SessionAborted(f"{consecutive} targets in a row skipped (last: {reason}); fix the cause "
-                                         f"and resume the session in {session_dir}")
-        except BaseException:
-            try:
-                driver.stop()
-            except DriverError as e:
-                log.warning("could not stop %s after the session failed: %s", driver.name, e)
+            n_new = session.run(pending, len(done), progress)
+        except _Halt as h:
+            raise session.halt(h) from h.error
+        except BaseException as e:
+            session.abandon(e)
             raise
-        finally:
-            bar.close()
         skipped = tuple((r["target_index"], r["reason"]) for r in store.rows("skipped"))
         n_ok = len(store.rows("ok"))
     return SessionResult(session_dir, len(plan), n_ok, len(skipped), n_new, skipped,
@@ -311,7 +440,7 @@ def export(session_dir: str | Path, out_csv: str | Path, kinds: Sequence[str] | 
     Raises:
         DataError: no session, or no measured sample of the requested kinds (nothing is written).
     """
-    with SessionStore(session_dir) as store:
+    with SessionStore(session_dir, lock=False) as store:  # reading: allowed while a collector runs
         rows = [r for r in store.rows("ok") if kinds is None or r["kind"] in kinds]
     if not rows:
         raise DataError(Path(session_dir), None, None,

@@ -3,14 +3,30 @@
 WAL journal with ``synchronous=FULL``: every sample is committed (and on disk) as soon as it exists, so a
 killed collector loses at most the sample it was measuring. The plan is stored in the same file. The target
 index is the primary key of the samples table: a target is recorded at most once (measured or skipped).
+
+One collector per folder: a :class:`SessionStore` holds an exclusive ``flock`` on ``session.lock`` (with the
+holder's pid written in it) for its whole lifetime; the kernel releases it when the process dies, so a killed
+collector never leaves a stale lock. A second store on the same folder is refused at once
+(:class:`SessionLocked`).
+
+Creation is atomic: the plan, the information and the schema tag are committed in one transaction. A folder
+whose ``session.sqlite`` holds no committed plan (a collector killed while creating it) counts as "not yet
+created": a new session takes it over and a resume is refused with a clear message.
+
+Why the arms were stopped (alarm, e-stop, lost connection, abort) is kept in an ``events`` table
+(:meth:`SessionStore.add_event`, :meth:`SessionStore.events`).
 """
 
 from __future__ import annotations
 
+import fcntl
 import json
 import math
+import os
 import sqlite3
 import time
+from collections.abc import Callable
+from contextlib import closing
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -21,6 +37,7 @@ from app.planning import Plan
 from calibration.errors import DataError
 
 DB_NAME = "session.sqlite"
+LOCK_NAME = "session.lock"
 SCHEMA = "cellcal.session/1"
 QUAT_NORM_TOL = 1e-3
 
@@ -41,7 +58,86 @@ CREATE TABLE IF NOT EXISTS samples (
     {", ".join(f"dir{i} INTEGER" for i in range(1, 7))},
     attempts INTEGER NOT NULL, reason TEXT, recorded_at REAL NOT NULL
 );
+CREATE TABLE IF NOT EXISTS events (
+    id INTEGER PRIMARY KEY AUTOINCREMENT, t_wall REAL NOT NULL, robot TEXT NOT NULL, kind TEXT NOT NULL,
+    reason TEXT NOT NULL, target_index INTEGER
+);
 """
+
+#: Called with a stage name (``"schema"``: the file exists, nothing committed; ``"init"``: inside the creation
+#: transaction, before its commit) while a session is created. None in production; a test's child process
+#: sets it to hold creation open and be killed there.
+creation_hook: Callable[[str], None] | None = None
+
+EventKind = Literal["alarm", "e-stop", "robot-fault", "driver-fault", "connection-lost", "bad-feedback", "aborted"]
+
+
+class SessionLocked(DataError):
+    """Another process holds the session folder (a collector or a resume is running on it).
+
+    Attributes:
+        folder: the session folder.
+        pid: the process holding it, as written in the lock file (None if unreadable).
+    """
+
+    def __init__(self, folder: Path, pid: int | None) -> None:
+        self.folder = folder
+        self.pid = pid
+        holder = f"process {pid}" if pid is not None else "another process (pid unknown)"
+        super().__init__(folder, None, None, f"session folder is in use by {holder}; only one collector may use a "
+                                             f"session at a time: wait for it to end or stop it, then retry")
+
+
+@dataclass(frozen=True)
+class SessionEvent:
+    """Why the session stopped the arms, as recorded.
+
+    Attributes:
+        t_wall: wall-clock time [s since the epoch].
+        robot: the robot whose driver reported it.
+        kind: what happened (alarm, e-stop, robot-fault, connection-lost, bad-feedback, aborted).
+        reason: the driver's or the session's message.
+        target_index: the target being visited, or None.
+    """
+
+    t_wall: float
+    robot: str
+    kind: str
+    reason: str
+    target_index: int | None = None
+
+    def line(self) -> str:
+        """One human-readable line (what ``cellcal collect`` prints)."""
+        when = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(self.t_wall))
+        at = f" at target {self.target_index}" if self.target_index is not None else ""
+        return f"{when} {self.robot} {self.kind}{at}: {self.reason}"
+
+
+class _FolderLock:
+    """An exclusive flock on ``<folder>/session.lock`` holding the owner's pid; released on close or death."""
+
+    def __init__(self, folder: Path) -> None:
+        self.path = folder / LOCK_NAME
+        self.fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(self.fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            pid = self._holder()
+            os.close(self.fd)
+            raise SessionLocked(folder, pid) from None
+        os.ftruncate(self.fd, 0)
+        os.pwrite(self.fd, f"{os.getpid()}\n".encode(), 0)
+
+    def _holder(self) -> int | None:
+        try:
+            return int(os.pread(self.fd, 64, 0).decode().strip())
+        except ValueError:
+            return None
+
+    def release(self) -> None:
+        if self.fd >= 0:
+            os.close(self.fd)  # closing the descriptor drops the flock
+            self.fd = -1
 
 
 @dataclass(frozen=True)
@@ -83,22 +179,55 @@ class SessionStore:
         create: start a new session; False opens an existing one.
     """
 
-    def __init__(self, session_dir: str | Path, create: bool = False) -> None:
+    def __init__(self, session_dir: str | Path, create: bool = False, *, lock: bool = True) -> None:
         self.dir = Path(session_dir)
         self.path = self.dir / DB_NAME
         if create:
-            if self.path.exists():
-                raise DataError(self.path, None, None, "a session already exists here; resume it or pick a new folder")
             self.dir.mkdir(parents=True, exist_ok=True)
         elif not self.path.exists():
-            raise DataError(self.path, None, None, "no session here (session.sqlite not found)")
+            raise DataError(self.path, None, None, "no session here (session.sqlite not found): nothing to resume; "
+                                                   "start a new collect with a plan")
+        self._lock = _FolderLock(self.dir) if lock else None
         try:
-            self.conn = sqlite3.connect(self.path, timeout=10.0, isolation_level=None)
-            self.conn.execute("PRAGMA journal_mode=WAL")
-            self.conn.execute("PRAGMA synchronous=FULL")
-            self.conn.executescript(_DDL)
+            self.conn = self._connect()
+            if create and self.is_created():
+                raise DataError(self.path, None, None, "a session already exists here; resume it or pick a new folder")
+            if not create and not self.is_created():
+                raise DataError(self.path, None, None, "no session here: its creation was interrupted before the plan "
+                                                       "was stored, so there is nothing to resume; start a new "
+                                                       "collect with a plan in this folder (it takes it over)")
+        except BaseException:
+            self.close()
+            raise
+
+    def _connect(self) -> sqlite3.Connection:
+        conn = None
+        try:
+            conn = sqlite3.connect(self.path, timeout=10.0, isolation_level=None)
+            conn.execute("PRAGMA journal_mode=WAL")
+            conn.execute("PRAGMA synchronous=FULL")
+            conn.executescript(_DDL)
+            return conn
         except sqlite3.DatabaseError as e:
+            if conn is not None:
+                conn.close()
             raise DataError(self.path, None, None, f"not a usable session database ({e})") from e
+
+    def is_created(self) -> bool:
+        """True once the plan is committed (a killed creation leaves a file without one)."""
+        return self.conn.execute("SELECT 1 FROM meta WHERE key = 'plan'").fetchone() is not None
+
+    @staticmethod
+    def exists(session_dir: str | Path) -> bool:
+        """True when ``session_dir`` holds a fully created session (read-only look, no lock taken)."""
+        path = Path(session_dir) / DB_NAME
+        if not path.exists():
+            return False
+        try:
+            with closing(sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=10.0)) as conn:
+                return conn.execute("SELECT 1 FROM meta WHERE key = 'plan'").fetchone() is not None
+        except sqlite3.DatabaseError:  # no meta table yet, or not a database: no created session
+            return False
 
     def __enter__(self) -> "SessionStore":
         return self
@@ -107,17 +236,34 @@ class SessionStore:
         self.close()
 
     def close(self) -> None:
-        self.conn.close()
+        """Close the database and release the folder lock; safe to call twice."""
+        conn = getattr(self, "conn", None)
+        if conn is not None:
+            conn.close()
+            self.conn = None  # type: ignore[assignment]
+        if self._lock is not None:
+            self._lock.release()
 
     # ---- metadata and plan -------------------------------------------------------------------------------
 
     def init(self, plan: Plan, info: dict[str, Any]) -> None:
-        """Store the plan and the session information (once, when the session is created)."""
+        """Store the plan and the session information in one transaction (once, when the session is created).
+
+        Until it commits the folder holds no session: a kill before leaves a folder a new session takes over.
+
+        Raises:
+            DataError: the folder already holds a created session or recorded rows.
+        """
+        _hook("schema")
+        rows = {"schema": SCHEMA, "plan": json.dumps(plan.to_dict()), "info": json.dumps(info),
+                "created_wall": repr(time.time())}
         with self.conn:
             self.conn.execute("BEGIN IMMEDIATE")
-            rows = {"schema": SCHEMA, "plan": json.dumps(plan.to_dict()), "info": json.dumps(info),
-                    "created_wall": repr(time.time())}
+            if self.is_created() or self.conn.execute("SELECT 1 FROM samples").fetchone() is not None:
+                raise DataError(self.path, None, None, "a session already exists here; resume it or pick a new folder")
+            self.conn.execute("DELETE FROM meta")  # leftovers of an interrupted creation (never committed: empty)
             self.conn.executemany("INSERT INTO meta (key, value) VALUES (?, ?)", rows.items())
+            _hook("init")
 
     def _meta(self, key: str) -> str:
         row = self.conn.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()
@@ -191,6 +337,21 @@ class SessionStore:
         except sqlite3.IntegrityError as e:
             raise DataError(self.path, None, f"target {row[0]}", f"already recorded ({e})") from e
 
+    # ---- events --------------------------------------------------------------------------------------------
+
+    def add_event(self, robot: str, kind: EventKind, reason: str, target_index: int | None = None) -> SessionEvent:
+        """Commit why the arms were stopped (at once, like a sample) and return the recorded event."""
+        event = SessionEvent(time.time(), robot, kind, reason, target_index)
+        with self.conn:
+            self.conn.execute("INSERT INTO events (t_wall, robot, kind, reason, target_index) VALUES (?, ?, ?, ?, ?)",
+                              (event.t_wall, robot, kind, reason, target_index))
+        return event
+
+    def events(self) -> list[SessionEvent]:
+        """Every recorded event, oldest first."""
+        cur = self.conn.execute("SELECT t_wall, robot, kind, reason, target_index FROM events ORDER BY id")
+        return [SessionEvent(*r) for r in cur]
+
     def rows(self, status: Literal["ok", "skipped"] | None = None) -> list[dict[str, Any]]:
         """Recorded rows as dicts ordered by target index, optionally filtered by status."""
         sql = f"SELECT {', '.join(_SAMPLE_COLUMNS)} FROM samples"
@@ -200,3 +361,8 @@ class SessionStore:
             args = (status,)
         cur = self.conn.execute(sql + " ORDER BY target_index", args)
         return [dict(zip(_SAMPLE_COLUMNS, r)) for r in cur]
+
+
+def _hook(stage: str) -> None:
+    if creation_hook is not None:
+        creation_hook(stage)

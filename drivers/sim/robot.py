@@ -35,6 +35,7 @@ class SimFault(enum.Enum):
     ALARM = "alarm"  # controller alarm: motion stops, moves are refused until clear_faults()
     ESTOP = "estop"  # e-stop pressed: motion stops, moves are refused until clear_faults()
     STALL = "stall"  # the next move never arrives: wait_settled times out
+    NAN_FEEDBACK = "nan_feedback"  # read_joints reports NaN angles until clear_faults(); motion is unaffected
 
 
 @dataclass(frozen=True)
@@ -90,6 +91,7 @@ class SimRobotDriver(RobotDriver):
         self._connected = False
         self._alarm = False
         self._estop = False
+        self._nan_feedback = False
         self._stall_next = 0
         self._stalled = False
         self._scheduled: dict[int, tuple[SimFault, int]] = {}
@@ -104,10 +106,14 @@ class SimRobotDriver(RobotDriver):
     # ---- fault injection -------------------------------------------------------------------------------
 
     def inject_fault(self, fault: SimFault) -> None:
-        """Raise ``fault`` now (DISCONNECT, ALARM, ESTOP stop the arm where it is; STALL hits the next move)."""
+        """Raise ``fault`` now (DISCONNECT, ALARM, ESTOP stop the arm where it is; STALL hits the next move;
+        NAN_FEEDBACK corrupts the joint readings)."""
         with self._lock:
             if fault is SimFault.STALL:
                 self._stall_next += 1
+                return
+            if fault is SimFault.NAN_FEEDBACK:
+                self._nan_feedback = True
                 return
             self._halt()
             if fault is SimFault.DISCONNECT:
@@ -122,7 +128,8 @@ class SimRobotDriver(RobotDriver):
         """Inject ``fault`` on the ``at_call``-th call of :meth:`move_to` (1-based) and the ``repeat - 1`` after it.
 
         The faulting call raises (DISCONNECT: DriverDisconnected, ALARM/ESTOP: RobotFault) without moving;
-        STALL lets the arm start and stop part way, so wait_settled times out.
+        STALL lets the arm start and stop part way, so wait_settled times out; NAN_FEEDBACK lets the call move
+        the arm and every joint reading after it is NaN.
         """
         if at_call < 1 or repeat < 1:
             raise ConfigError("SimRobotDriver", "schedule_fault", "expected at_call >= 1 and repeat >= 1")
@@ -130,10 +137,11 @@ class SimRobotDriver(RobotDriver):
             self._scheduled[at_call] = (fault, repeat)
 
     def clear_faults(self) -> None:
-        """Reset alarms and the e-stop (what an operator does at the pendant)."""
+        """Reset alarms, the e-stop and corrupted feedback (what an operator does at the pendant)."""
         with self._lock:
             self._alarm = False
             self._estop = False
+            self._nan_feedback = False
 
     # ---- RobotDriver -----------------------------------------------------------------------------------
 
@@ -155,6 +163,8 @@ class SimRobotDriver(RobotDriver):
             self._require_connection()
             t = self.clock.now()
             q = self.true_joints(np.array([t]))[0]
+            if self._nan_feedback:
+                return JointState(np.full(6, np.nan), t)
         if self.config.quantise:
             q = np.round(q * self.spec.pulses_per_rad) / self.spec.pulses_per_rad
         return JointState(q, t)
@@ -205,8 +215,8 @@ class SimRobotDriver(RobotDriver):
             return
         fault, left = self._fault_left
         self._fault_left = (fault, left - 1) if left > 1 else None
-        if fault is SimFault.STALL:
-            self._stall_next += 1
+        if fault in (SimFault.STALL, SimFault.NAN_FEEDBACK):
+            self.inject_fault(fault)
             return
         self.inject_fault(fault)
         if fault is SimFault.DISCONNECT:

@@ -139,19 +139,18 @@ def test_stalled_move_times_out_and_is_retried(tmp_path):
     assert res.n_ok == 7
 
 
-def test_alarm_aborts_after_consecutive_skips_and_resume_finishes(tmp_path):
+def test_consecutive_skips_abort_and_resume_finishes(tmp_path):
     _, driver, mocap, _, safety = make_cell()
     config = dataclasses.replace(FAST, max_consecutive_skips=2, driver_retries=1)
     plan = first(7)
-    driver.schedule_fault(SimFault.ALARM, at_call=4)
+    driver.schedule_fault(SimFault.DISCONNECT, at_call=4, repeat=4)  # targets 3 and 4: two drops each -> skipped
     with driver, mocap:
-        with pytest.raises(SessionAborted, match="2 targets in a row skipped .*alarm"):
+        with pytest.raises(SessionAborted, match="2 targets in a row skipped .*connection lost"):
             run_session(tmp_path / "s", driver, mocap, safety, body_id=1, plan=plan, others=OTHERS, config=config,
                         progress=False)
         with pytest.raises(DataError, match="a session already exists"):
             run_session(tmp_path / "s", driver, mocap, safety, body_id=1, plan=plan, others=OTHERS, config=config,
                         progress=False)
-        driver.clear_faults()
         res = run_session(tmp_path / "s", driver, mocap, safety, body_id=1, others=OTHERS, config=config,
                           resume=True, retry_skipped=True, progress=False)
     assert res.complete and res.n_ok == 7 and res.n_skipped == 0
