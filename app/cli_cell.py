@@ -70,6 +70,7 @@ def cmd_collect(args: argparse.Namespace) -> int:
 
     cell = cell_spec(args)
     cell.robot(args.robot)
+    runtime = open_runtime(cell, args, robots=(args.robot,))  # a real cell's devices and registration: checked now
     if args.resume:
         _require_session(args.session)  # refused at once when there is none or another process holds it
     elif not args.plan:
@@ -78,7 +79,7 @@ def cmd_collect(args: argparse.Namespace) -> int:
         raise CellCalError(f"{args.session} already holds a session; pass --resume or choose a new folder")
     plan = _load_plan(args.plan, args.robot) if args.plan else None
     config, safety = motion_config(cell, args), safety_for(cell, args)
-    with open_runtime(cell, args, robots=(args.robot,)) as rt:
+    with runtime as rt:
         if args.dry_run:
             return _dry_run(args, rt, safety, plan, config)
         confirm_motion(args, f"{args.robot} will visit the targets of {args.plan or args.session} at "
@@ -148,6 +149,7 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
 
     cell = cell_spec(args)
     robot = cell.robot(args.robot)
+    runtime = open_runtime(cell, args, robots=(args.robot,))  # a real cell's devices and registration: checked now
     model_dir = check_model_dir(args.model_dir)
     if args.validation < 1:
         raise CellCalError(f"--validation must be at least 1, got {args.validation}")
@@ -159,7 +161,7 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     work = model_dir / "sessions" / stamp
     seed = args.validation_seed if args.validation_seed is not None else int(_time.time()) % 100_000
     config, safety = motion_config(cell, args), safety_for(cell, args)
-    with open_runtime(cell, args, robots=(args.robot,)) as rt:
+    with runtime as rt:
         session = Path(args.session) if args.session else work / "train"
         parked = {n: d.read_joints().q for n, d in rt.others(args.robot).items()}
         val_plan = validation_plan(args.robot, safety, parked, args.validation, seed=seed)

@@ -180,7 +180,8 @@ class RealCell:
         try:
             self._link = MotorosLink(c.host, c.motion_port, c.state_port, reply_timeout_s=c.reply_timeout_s,
                                      connect_timeout_s=c.connect_timeout_s,
-                                     start_traj_timeout_s=c.start_traj_timeout_s)
+                                     start_traj_timeout_s=c.start_traj_timeout_s, reconnect_attempts=8,
+                                     max_backoff_s=1.0)  # rides out a controller restart of a few seconds
             for name in self.cell.robots:
                 spec = self.cell.robot(name).robot
                 driver = MotorosDriver(self._link, c.groups[name], spec.max_speed_rad_s, name=name)

@@ -93,7 +93,7 @@ def measure_registration(rt: Any, safety: Any, robot: str, q_plan: np.ndarray, c
     Raises:
         RegistrationFailed: fewer than 6 poses measured, or the solver did not converge.
     """
-    from app.cell_runtime import move_safely
+    from app.motion import move_safely
     from calibration.registration import RegistrationProblem
 
     driver, others = rt.drivers[robot], rt.others(robot)

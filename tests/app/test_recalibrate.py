@@ -94,7 +94,7 @@ def test_bad_inputs_exit_2_and_write_nothing(tmp_path, capsys):
     session, out, models = tmp_path / "s", tmp_path / "rec.csv", tmp_path / "models"
 
     assert_bad_input(capsys, ["collect", "--robot", "R1", "--plan", str(bad_plan), "--session", str(session)],
-         "no real robot controller or mocap is configured", "--sim")
+         "no controller block", "--sim")
     assert_bad_input(capsys, ["collect", "--robot", "R1", "--plan", str(bad_plan), "--session", str(session), "--sim"],
          "targets[0].q_rad", "expected 6 finite numbers")
     assert_bad_input(capsys, ["collect", "--robot", "R1", "--plan", str(not_json), "--session", str(session), "--sim"],
@@ -112,8 +112,10 @@ def test_bad_inputs_exit_2_and_write_nothing(tmp_path, capsys):
          "no session here")
     assert_bad_input(capsys, ["recalibrate", "--robot", "R1", "--plan", str(bad_plan), "--model-dir", str(models), "--sim"],
          "expected 6 finite numbers")
+    assert_bad_input(capsys, ["recalibrate", "--robot", "R1", "--plan", str(r2_plan), "--model-dir", str(models),
+                              "--sim"], "the plan moves R2")
     assert_bad_input(capsys, ["recalibrate", "--robot", "R1", "--plan", str(r2_plan), "--model-dir", str(models)],
-         "the plan moves R2")
+         "no controller block", "--sim")
     assert_bad_input(capsys, ["recalibrate", "--robot", "R9", "--plan", str(r2_plan), "--model-dir", str(models), "--sim"],
          "unknown robot 'R9'")
     assert_bad_input(capsys, ["recalibrate", "--robot", "R1", "--plan", str(bad_plan), "--model-dir", str(bad_plan), "--sim"],
