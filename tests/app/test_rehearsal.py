@@ -9,6 +9,7 @@ registration and the recordings recovered.
 from __future__ import annotations
 
 import json
+import signal
 import sqlite3
 import time
 from pathlib import Path
@@ -128,3 +129,100 @@ def test_collection_without_registration_is_refused_before_motion(tmp_path: Path
     assert done.returncode == 2
     assert "R1 has no registration" in done.stderr and "cellcal register" in done.stderr
     assert not (tmp_path / "s").exists()
+
+
+# -- faults, each with real processes ---------------------------------------------------------------------------
+
+
+def registered_cell(tmp_path: Path, robot: str = "R1") -> Path:
+    """A rehearsal cell whose registration is the hidden truth (the fault tests are about collection, not
+    registration: writing it directly saves the registration's motion)."""
+    from cell_config.loader import RobotRegistration, save_registration
+
+    cell_path = write_rehearsal_cell(tmp_path)
+    cell = load_cell(cell_path)
+    hf = hidden_frames(cell, SEED)[robot]
+    tool = cell.robot(robot).tool
+    T_fm = np.eye(4)
+    T_fm[:3, :3], T_fm[:3, 3] = tool.R_flange_tool, tool.p_flange_tool
+    save_registration(cell.registration_path, robot, RobotRegistration(
+        T_world_base=hf.T_world_base, T_flange_marker=T_fm @ hf.T_tool_marker, date="2026-12-01T00:00:00+00:00",
+        rms_mm=0.0, rms_deg=0.0, n_samples=0, sigma_world_base=np.zeros(6), sigma_flange_marker=np.zeros(6)))
+    return cell_path
+
+
+def collector(cell_path: Path, plan: Path, session: Path, *extra: str) -> Process:
+    return Process(cell_path, "collect", "--robot", "R1", "--plan", str(plan), "--session", str(session), "--yes",
+                   "--speed", "1", "--no-progress", *extra)
+
+
+def test_bridge_killed_mid_collection_is_waited_for(tmp_path: Path) -> None:
+    cell_path = registered_cell(tmp_path)
+    truths = rehearsal_truths(load_cell(cell_path), SEED, origin_std_mm=0, tilt_std_deg=0, compliance_mm=0)
+    plan, session = small_plan(cell_path, "R1", tmp_path / "plan.json"), tmp_path / "s"
+    with Rehearsal(cell_path, *PURE) as r:
+        c = collector(cell_path, plan, session).start(ready=False)
+        try:
+            wait_for_samples(session, 3)
+            r.bridge.kill()
+            time.sleep(2.0)
+            r.bridge.start()
+            assert c.wait(120) == 0, c.output
+        finally:
+            c.kill()
+    assert "mocap stream silent" in c.output and "mocap stream is back" in c.output
+    assert check_recording(cell_path, session, tmp_path / "r1.csv", 14, "R1", truths) < 0.1
+
+
+def test_controller_killed_and_restarted_is_reconnected(tmp_path: Path) -> None:
+    cell_path = registered_cell(tmp_path)
+    truths = rehearsal_truths(load_cell(cell_path), SEED, origin_std_mm=0, tilt_std_deg=0, compliance_mm=0)
+    plan, session = small_plan(cell_path, "R1", tmp_path / "plan.json"), tmp_path / "s"
+    with Rehearsal(cell_path, *PURE) as r:
+        c = collector(cell_path, plan, session).start(ready=False)
+        try:
+            wait_for_samples(session, 3)
+            r.controller.kill()
+            time.sleep(0.5)
+            r.controller.start()
+            assert c.wait(120) == 0, c.output
+        finally:
+            c.kill()
+    assert "connection-lost" in c.output  # recorded and printed
+    assert check_recording(cell_path, session, tmp_path / "r1.csv", 14, "R1", truths) < 0.1
+
+
+def test_alarm_during_a_move_stops_both_arms_and_the_session_resumes(tmp_path: Path) -> None:
+    cell_path = registered_cell(tmp_path)
+    truths = rehearsal_truths(load_cell(cell_path), SEED, origin_std_mm=0, tilt_std_deg=0, compliance_mm=0)
+    plan, session = small_plan(cell_path, "R1", tmp_path / "plan.json"), tmp_path / "s"
+    with Rehearsal(cell_path, *PURE) as r:
+        c = collector(cell_path, plan, session).start(ready=False)
+        try:
+            wait_for_samples(session, 3)
+            r.controller.signal(signal.SIGUSR1)  # the fake raises alarm 4107
+            assert c.wait(60) == 2, c.output
+        finally:
+            c.kill()
+        assert "alarm" in c.output and "every arm stopped" in c.output and "resume" in c.output
+        done_before = sample_count(session)
+        assert 3 <= done_before < 14
+        again = run_cellcal(cell_path, "collect", "--robot", "R1", "--session", str(session), "--resume", "--yes",
+                            "--speed", "1", "--no-progress")  # START_TRAJ_MODE resets the alarm, as MotoROS does
+        assert again.returncode == 0, again.stdout + again.stderr
+    assert check_recording(cell_path, session, tmp_path / "r1.csv", 14, "R1", truths) < 0.1
+
+
+def test_non_finite_joint_feedback_is_refused_before_any_point(tmp_path: Path) -> None:
+    cell_path = registered_cell(tmp_path)
+    plan, session = small_plan(cell_path, "R1", tmp_path / "plan.json"), tmp_path / "s"
+    with Rehearsal(cell_path, *PURE) as r:
+        r.controller.signal(signal.SIGUSR2)  # the fake now reports NaN joint angles
+        time.sleep(0.5)
+        done = run_cellcal(cell_path, "collect", "--robot", "R1", "--plan", str(plan), "--session", str(session),
+                           "--yes", "--speed", "1", "--no-progress")
+        assert done.returncode == 2, done.stdout + done.stderr
+        assert "finite" in done.stderr
+        assert r.controller.stop() == 0
+    assert sample_count(session) == 0
+    assert "trajectory points received: 0" in r.controller.output
