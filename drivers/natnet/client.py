@@ -24,8 +24,6 @@ from __future__ import annotations
 import collections
 import dataclasses
 import logging
-import selectors
-import socket
 import threading
 import time
 from collections.abc import Iterable
@@ -33,13 +31,12 @@ from dataclasses import dataclass
 
 from drivers.base import MocapSource, RigidBodyFrame
 from drivers.errors import DriverDisconnected, DriverError, DriverTimeout, ProtocolError
+from drivers.natnet.link import NatNetLink
 from drivers.natnet.modeldef import ModelDefinitions, parse_model_definitions
 from drivers.natnet.packets import (MessageId, ServerInfo, build_connect, build_request, check_version,
                                     parse_frame, parse_server_info, split_packet)
 
 log = logging.getLogger("cellcal.drivers")
-_RECV_SIZE = 65536
-_POLL_S = 0.05
 _MODELDEF_RETRY_S = 0.5
 
 
@@ -92,10 +89,11 @@ class NatNetSource(MocapSource):
         self.command_port = command_port
         self.multicast_group = multicast_group
         self.connect_timeout_s = connect_timeout_s
-        self.keepalive_s = keepalive_s
-        self.reconnect_s = reconnect_s
-        self._requested_data_port = data_port
         self._configured_version = None if version is None else check_version(version)
+        self._link = NatNetLink(self.device, (server_address, command_port), local_address=local_address,
+                                data_port=data_port, multicast_group=multicast_group,
+                                connect_packet=build_connect(self._configured_version or (4, 1)),
+                                keepalive_s=keepalive_s, reconnect_s=reconnect_s)
         self._version = self._configured_version
         self._model_definitions: ModelDefinitions | None = None
         self._model_definitions_seq = 0
@@ -106,8 +104,6 @@ class NatNetSource(MocapSource):
         self._failure: DriverError | None = None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._cmd: socket.socket | None = None
-        self._data: socket.socket | None = None
 
     @property
     def version(self) -> tuple[int, int] | None:
@@ -122,9 +118,10 @@ class NatNetSource(MocapSource):
     @property
     def data_port(self) -> int:
         """The local data port actually bound (differs from the argument when that was 0)."""
-        if self._data is None:
+        port = self._link.data_port
+        if port is None:
             raise DriverError(self.device, "not connected")
-        return self._data.getsockname()[1]
+        return port
 
     @property
     def stats(self) -> NatNetStats:
@@ -141,48 +138,30 @@ class NatNetSource(MocapSource):
         """
         if self._thread is not None:
             return
-        self._version, self._failure = self._configured_version, None
+        self._version, self._server_info, self._failure = self._configured_version, None, None
         self._buffer.clear()
         try:
-            self._open_sockets()
-            self._cmd.sendto(build_connect(self._configured_version or (4, 1)), self._server)
+            self._link.open()
+            self._link.send(self._link.connect_packet)
             if self._version is None:
                 self._await_server_info()
         except DriverError:  # before OSError: DriverTimeout is a TimeoutError, hence an OSError
-            self._close_sockets()
+            self._link.close()
             raise
         except OSError as e:
-            self._close_sockets()
+            self._link.close()
             raise DriverError(self.device, f"cannot open the NatNet sockets ({e})") from e
         self._stop.clear()
         self._thread = threading.Thread(target=self._receive_loop, name="natnet-receive", daemon=True)
         self._thread.start()
         log.info("%s: connected, NatNet %d.%d, data port %d", self.device, *self._version, self.data_port)
 
-    @property
-    def _server(self) -> tuple[str, int]:
-        return (self.server_address, self.command_port)
-
-    def _open_sockets(self) -> None:
-        self._cmd = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self._cmd.bind((self.local_address, 0))
-        self._data = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self._data.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        if self.multicast_group is None:
-            self._data.bind((self.local_address, self._requested_data_port))
-            return
-        self._data.bind(("", self._requested_data_port))
-        membership = socket.inet_aton(self.multicast_group) + socket.inet_aton(self.local_address)
-        self._data.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP, membership)
-
     def _await_server_info(self) -> None:
         deadline = time.monotonic() + self.connect_timeout_s
         while (remaining := deadline - time.monotonic()) > 0:
-            self._cmd.settimeout(remaining)
-            try:
-                packet = self._cmd.recv(_RECV_SIZE)
-            except socket.timeout:
-                break
+            packet = self._link.recv_command(remaining)
+            if packet is None:
+                continue
             try:
                 message_id, payload = split_packet(packet)
                 if message_id == MessageId.SERVER_INFO:
@@ -201,47 +180,15 @@ class NatNetSource(MocapSource):
                 self._version = version
             self._stats = dataclasses.replace(self._stats, handshakes=self._stats.handshakes + 1)
 
-    def _send(self, packet: bytes) -> None:
-        """Send on the command socket; a refused or unreachable server is logged, the loop carries on."""
-        try:
-            self._cmd.sendto(packet, self._server)
-        except (ConnectionError, OSError) as e:
-            if self._stop.is_set():
-                raise
-            log.debug("%s: send failed: %s", self.device, e)
-
     def _receive_loop(self) -> None:
-        sel = selectors.DefaultSelector()
-        for sock in (self._cmd, self._data):
-            sock.setblocking(False)
-            sel.register(sock, selectors.EVENT_READ)
-        now = time.monotonic()
-        next_keepalive, last_packet, next_connect = now + self.keepalive_s, now, now + self.reconnect_s
         try:
-            while not self._stop.is_set():
-                for key, _ in sel.select(_POLL_S):
-                    try:
-                        packet = key.fileobj.recv(_RECV_SIZE)
-                    except ConnectionRefusedError:  # ICMP port unreachable: Motive is down, keep waiting
-                        continue
-                    last_packet = time.monotonic()
-                    self._handle(packet)
-                now = time.monotonic()
-                if now - last_packet >= self.reconnect_s and now >= next_connect:
-                    log.info("%s: nothing received for %.1f s; re-sending NAT_CONNECT", self.device, now - last_packet)
-                    self._send(build_connect(self._configured_version or (4, 1)))
-                    next_connect = now + self.reconnect_s
-                if self.multicast_group is None and now >= next_keepalive:
-                    self._send(build_request(MessageId.KEEP_ALIVE))
-                    next_keepalive = now + self.keepalive_s
+            self._link.run(self._handle, self._stop)
         except (OSError, ValueError) as e:
             if not self._stop.is_set():
                 log.error("%s: receive thread stopped: %s", self.device, e)
                 with self._cond:
                     self._failure = DriverDisconnected(self.device, f"socket error ({e})")
                     self._cond.notify_all()
-        finally:
-            sel.close()
 
     def _handle(self, packet: bytes) -> None:
         try:
@@ -313,7 +260,10 @@ class NatNetSource(MocapSource):
         with self._cond:
             seq = self._model_definitions_seq
         while (remaining := deadline - time.monotonic()) > 0:
-            self._send(build_request(MessageId.REQUEST_MODEL_DEF))
+            try:
+                self._link.send(build_request(MessageId.REQUEST_MODEL_DEF))
+            except OSError as e:
+                raise DriverError(self.device, f"cannot send NAT_REQUEST_MODELDEF ({e})") from e
             with self._cond:
                 self._cond.wait_for(lambda: self._model_definitions_seq != seq or self._failure is not None,
                                     timeout=min(_MODELDEF_RETRY_S, remaining))
@@ -353,10 +303,4 @@ class NatNetSource(MocapSource):
         if self._thread is not None:
             self._thread.join(timeout=1.0)
             self._thread = None
-        self._close_sockets()
-
-    def _close_sockets(self) -> None:
-        for sock in (self._cmd, self._data):
-            if sock is not None:
-                sock.close()
-        self._cmd = self._data = None
+        self._link.close()

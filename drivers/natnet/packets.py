@@ -34,7 +34,7 @@ _LABELED_MARKER_SIZE = 4 + 12 + 4 + 2 + 4  # id, position, size, params, residua
 _SUFFIX = struct.Struct("<IId")  # timecode, timecode sub-frame, timestamp [s]
 _STAMPS = struct.Struct("<3Q")  # mid-exposure, data received, transmit [clock ticks]
 _PRECISION = struct.Struct("<II")  # precision timestamp: seconds, fraction of a second (4.1+)
-PRECISION_FRACTION_PER_S = 2 ** 32
+PRECISION_FRACTION_PER_S = 2 ** 32  # ASSUMED unit of the fraction word (NTP-style); unverified on Motive
 _PARAMS = struct.Struct("<h")
 
 
@@ -57,7 +57,9 @@ class MocapFrame:
         stamp_transmit: time the server sent the packet [clock ticks].
         params: frame flags (0x01 recording, 0x02 tracked models changed).
         precision_timestamp_sec: whole seconds of the precision timestamp (NatNet 4.1+), 0 when absent.
-        precision_timestamp_frac: fraction of a second of the precision timestamp, in units of 2**-32 s.
+        precision_timestamp_frac: fraction of a second of the precision timestamp, taken as units of
+            2**-32 s (the SDK names it "fractional seconds" without a unit; check against a real Motive
+            before relying on sub-second precision time, see :data:`PRECISION_FRACTION_PER_S`).
     """
 
     frame_number: int

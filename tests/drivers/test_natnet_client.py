@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import socket
+import struct
+import threading
 import time
 
 import numpy as np
 import pytest
 
+from calibration import so3
 from drivers.errors import DriverError, DriverTimeout, ProtocolError
-from drivers.natnet import FakeBody, FakeFrame, FakeNatNetServer, NatNetSource, encode_frame
+from drivers.natnet import FakeBody, FakeFrame, FakeMotive, FakeNatNetServer, MessageId, NatNetSource, encode_frame
 
 GROUP = "239.255.42.99"
 
@@ -142,3 +145,180 @@ def test_multicast_stream():
             for n in range(1, 11):
                 server.send_frame(_frame(n), to=(GROUP, src.data_port))
             assert [f.frame_number for f in _read_until(src, 20)[::2]] == list(range(1, 11))
+
+
+SDK_CONNECT_4_1 = b"\x00\x00\x0f\x01" + b"Ping" + bytes(261) + bytes([4, 1, 0, 0]) + b"\0\0"
+
+
+def _server_info(version: tuple[int, int]) -> bytes:
+    body = (b"Motive".ljust(256, b"\0") + bytes([3, 1, 0, 0]) + bytes([*version, 0, 0])
+            + struct.pack("<QHB4B", 3_515_625, 1511, 0, 0, 0, 0, 0))
+    return struct.pack("<HH", 1, len(body)) + body
+
+
+def test_connect_sends_the_sdk_request_and_reads_the_reply():
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as motive:
+        motive.bind(("127.0.0.1", 0))
+        motive.settimeout(2.0)
+        src = NatNetSource("127.0.0.1", local_address="127.0.0.1", command_port=motive.getsockname()[1],
+                           data_port=0, multicast_group=None, connect_timeout_s=2.0)
+        result: list = []
+        thread = threading.Thread(target=lambda: result.append(src.connect()))
+        thread.start()
+        request, client = motive.recvfrom(1024)
+        motive.sendto(_server_info((4, 1)), client)
+        thread.join(2.0)
+        try:
+            assert request == SDK_CONNECT_4_1 and result == [None]
+            info = src.server_info
+            assert (info.app_name, info.natnet_version, info.clock_frequency_hz) == ("Motive", (4, 1, 0, 0), 3_515_625)
+            assert (info.data_port, info.multicast, src.version, src.stats.handshakes) == (1511, False, (4, 1), 1)
+        finally:
+            src.close()
+
+
+def test_model_definitions_and_rigid_body_ids_over_udp():
+    with FakeNatNetServer((4, 1), bodies={"weldgun": 3, "mti": 7}) as server, _unicast(server) as src:
+        defs = src.request_model_definitions(1.0)
+        assert [(b.name, b.body_id, b.marker_names) for b in defs.rigid_bodies] == [
+            ("weldgun", 3, ("weldgun_1", "weldgun_2", "weldgun_3")), ("mti", 7, ("mti_1", "mti_2", "mti_3"))]
+        assert src.rigid_body_ids(1.0) == {"weldgun": 3, "mti": 7}
+        assert src.rigid_body_ids(1.0, names=["mti"]) == {"mti": 7}
+        with pytest.raises(DriverError, match=r"rigid body 'probe' not defined .*; defined: mti, weldgun"):
+            src.rigid_body_ids(1.0, names=["weldgun", "probe"])
+        assert server.requests.count(MessageId.REQUEST_MODEL_DEF) >= 4
+        assert src.stats.packets_rejected == 0
+
+
+def test_model_definitions_time_out_and_need_a_connection():
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as silent:
+        silent.bind(("127.0.0.1", 0))
+        src = NatNetSource("127.0.0.1", local_address="127.0.0.1", command_port=silent.getsockname()[1],
+                           data_port=0, multicast_group=None, version=(4, 1))
+        with pytest.raises(DriverError, match="not connected"):
+            src.request_model_definitions(0.1)
+        with src, pytest.raises(DriverTimeout, match="NAT_MODELDEF"):
+            src.request_model_definitions(0.3)
+
+
+def test_unicast_client_sends_keepalives():
+    with FakeNatNetServer((4, 1)) as server, _unicast(server, keepalive_s=0.05):
+        time.sleep(0.4)
+        assert server.requests.count(MessageId.KEEP_ALIVE) >= 3
+
+
+def test_close_then_connect_works_repeatedly_on_one_object():
+    with FakeNatNetServer((4, 1)) as server:
+        src = _unicast(server)
+        for n in range(1, 4):
+            src.connect()
+            server.send_frame(_frame(n), to=("127.0.0.1", src.data_port))
+            assert [f.frame_number for f in _read_until(src, 2)] == [n, n]
+            src.close()
+        assert server.requests.count(MessageId.CONNECT) == 3
+
+
+def _poses(t_s: float) -> dict:
+    c, s = np.cos(t_s), np.sin(t_s)
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return {"weldgun": (R, np.array([100.0 + 10.0 * t_s, -50.0, 500.0])), "mti": None}
+
+
+BODIES = {"weldgun": 3, "mti": 7}
+
+
+def test_fake_motive_streams_the_callback_poses():
+    bodies = BODIES
+    with FakeMotive(bodies, _poses, rate_hz=240.0) as motive, _unicast(motive.server) as src:
+        assert src.rigid_body_ids(1.0, names=["weldgun", "mti"]) == bodies
+        frames = _read_until(src, 2 * 120, timeout_s=5.0)
+    gun = [f for f in frames if f.body_id == 3]
+    numbers = [f.frame_number for f in gun]
+    assert numbers == list(range(numbers[0], numbers[0] + len(numbers)))  # consecutive, none lost on loopback
+    for f in gun[::10]:
+        R, p = _poses((f.frame_number - 1) / 240.0)["weldgun"]
+        np.testing.assert_allclose(f.position_mm, p, atol=1e-3)
+        np.testing.assert_allclose(so3.quat_to_R(f.quat_wxyz), R, atol=1e-6)
+        assert f.tracking_valid and f.marker_error_mm == pytest.approx(0.2, abs=1e-6)
+    assert all(not f.tracking_valid for f in frames if f.body_id == 7)
+    stamps = np.array([f.capture_time for f in gun])  # the precision timestamp: wall clock
+    np.testing.assert_allclose(np.diff(stamps), 1 / 240.0, atol=1e-5)
+    assert abs(stamps[-1] - time.time()) < 5.0
+
+
+def test_fake_motive_noise():
+    period_s = 1 / 240.0
+    with FakeMotive(BODIES, _poses, noise_pos_mm=1.0, noise_rot_deg=0.5, seed=4) as motive, \
+            _unicast(motive.server) as src:
+        frames = [f for f in _read_until(src, 2 * 240, timeout_s=5.0) if f.body_id == 3]
+    truth = [_poses((f.frame_number - 1) * period_s)["weldgun"] for f in frames]
+    err_p = np.array([f.position_mm - p for f, (_, p) in zip(frames, truth)])
+    err_r = so3.log(np.array([R.T @ so3.quat_to_R(f.quat_wxyz) for f, (R, _) in zip(frames, truth)]))
+    assert len(frames) >= 200
+    assert 0.85 < err_p.std() < 1.15 and 0.85 < np.degrees(err_r).std() / 0.5 < 1.15
+    assert np.abs(err_p.mean(axis=0)).max() < 0.3  # zero-mean
+
+
+def test_fake_motive_schedules_by_absolute_time():
+    """A callback taking half a period would make a sleep-one-period loop fall ~120 frames behind in 1 s."""
+    def slow_poses(t_s: float) -> dict:
+        time.sleep(0.002)
+        return _poses(t_s)
+
+    motive = FakeMotive(BODIES, slow_poses, rate_hz=240.0)
+    t0 = time.monotonic()
+    motive.start()
+    time.sleep(1.0)
+    sent, elapsed_s = motive.frames_sent, time.monotonic() - t0
+    motive.close()
+    print(f"{sent} frames in {elapsed_s:.3f} s (due {elapsed_s * 240:.0f})")
+    assert motive.frames_skipped == 0
+    assert abs(sent - elapsed_s * 240) < 24
+
+
+def test_fake_motive_rejects_bad_arguments_and_reports_callback_errors():
+    with pytest.raises(DriverError, match="rate_hz must be a positive number, got 0"):
+        FakeMotive({"a": 1}, _poses, rate_hz=0)
+    with pytest.raises(DriverError, match="ids must be unique"):
+        FakeMotive({"a": 1, "b": 1}, _poses)
+    motive = FakeMotive({"a": 1}, lambda t: {"b": (np.eye(3), np.zeros(3))})
+    motive.start()
+    time.sleep(0.1)
+    with pytest.raises(DriverError, match=r"unknown bodies \['b'\]; known: \['a'\]"):
+        motive.close()
+    assert motive.frames_sent == 0
+
+
+def test_client_re_handshakes_when_motive_restarts_on_the_same_port():
+    bodies = BODIES
+    first = FakeMotive(bodies, _poses, rate_hz=100.0, version=(4, 1))
+    first.start()
+    src = _unicast(first.server, reconnect_s=0.2)
+    try:
+        src.connect()
+        assert len(_read_until(src, 5)) >= 5 and src.version == (4, 1)
+        port = first.command_port
+        first.close()
+        time.sleep(0.3)
+        src.read(0.05)  # drain what was in flight
+        with FakeMotive(bodies, _poses, rate_hz=100.0, version=(4, 2), command_port=port) as second:
+            frames = _read_until(src, 5, timeout_s=5.0)
+            assert len(frames) >= 5 and frames[0].frame_number < 100  # the new server's counter
+            assert second.server.requests.count(MessageId.CONNECT) >= 1
+            assert src.version == (4, 2) and src.stats.handshakes >= 2
+            assert src.stats.packets_rejected == 0
+            assert src.rigid_body_ids(1.0) == bodies
+    finally:
+        src.close()
+
+
+@pytest.mark.skipif(not _multicast_loopback_works(), reason="multicast is not delivered on loopback here")
+def test_fake_motive_multicast():
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        data_port = probe.getsockname()[1]
+    with FakeMotive(BODIES, _poses, multicast_group=GROUP, data_port=data_port) as motive, \
+            NatNetSource("127.0.0.1", local_address="127.0.0.1", command_port=motive.command_port,
+                         data_port=data_port, multicast_group=GROUP) as src:
+        assert src.server_info.multicast and src.server_info.data_port == data_port
+        assert len(_read_until(src, 40)) >= 40
