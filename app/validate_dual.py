@@ -8,6 +8,9 @@ the cell's base-to-base transform — is computed from the readings, and its dis
 point is reported as mean / std / max [mm]. A model set is not used to move the arms; it only predicts, so
 every set is judged on the same physical configurations.
 
+Every move goes through the cell-safety check (limits, floor, both arms' capsules), the whole sequence before
+the first motion and each move again against the other arm's live pose (:func:`collect_contacts`).
+
 On the simulated cell (:func:`run_sim_validation`) the contact configurations are planned with the true
 twins (so contact truly holds), the simulated arms are driven there, and a simulated probe on python-can's
 virtual bus touches when the true tip is within ``tolerance_mm`` of the point; a :class:`CanContactProbe` on
@@ -160,27 +163,65 @@ class SimContactSensor:
         self._thread.join(timeout=2.0)
 
 
-def collect_contacts(drivers: dict[str, Any], probe: Any, q_plan: np.ndarray, speed_fraction: float = 0.2,
-                     settle_timeout_s: float = 60.0, contact_timeout_s: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+#: The order in which collect_contacts moves the arms to each configuration (one at a time, each checked).
+CONTACT_ORDER = ("R1", "R2")
+
+
+def check_contact_sequence(safety: Any, q_plan: np.ndarray, q_start: np.ndarray) -> None:
+    """Check every move :func:`collect_contacts` makes, before any motion.
+
+    For each configuration R1 moves first (R2 still at its previous pose), then R2 (R1 at its new pose); each
+    joint-space path is checked against limits, floor and the other arm's capsules.
+
+    Args:
+        safety: the cell's :class:`~app.safety.CellSafety`.
+        q_plan: configurations [rad], shape (N, 12) (R1 then R2).
+        q_start: both arms' joint angles now [rad], shape (12,).
+
+    Raises:
+        UnsafeTarget: the first unsafe move (its configuration number in the message).
+    """
+    prev = np.asarray(q_start, dtype=float)
+    for i, q in enumerate(np.atleast_2d(np.asarray(q_plan, dtype=float))):
+        safety.check_motion("R1", prev[:6], q[:6], {"R2": prev[6:]}, i)
+        safety.check_motion("R2", prev[6:], q[6:], {"R1": q[:6]}, i)
+        prev = q
+
+
+def collect_contacts(drivers: dict[str, Any], probe: Any, q_plan: np.ndarray, safety: Any,
+                     speed_fraction: float = 0.2, settle_timeout_s: float = 60.0,
+                     contact_timeout_s: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
     """Drive both arms through the configurations and record the joint readings where contact is confirmed.
+
+    The whole sequence is checked first (:func:`check_contact_sequence`); then each arm moves in turn through
+    :func:`~app.motion.move_safely` (checked again against the other arm's live pose).
 
     Args:
         drivers: ``{"R1": RobotDriver, "R2": RobotDriver}``, connected.
         probe: a connected contact probe with ``latest`` and ``wait_for_contact`` (:class:`CanContactProbe`).
         q_plan: configurations [rad], shape (N, 12) (R1 then R2).
+        safety: the cell's :class:`~app.safety.CellSafety`.
         speed_fraction: fraction of the maximum joint speeds.
         settle_timeout_s: per move [s]. contact_timeout_s: how long to wait for a touch after settling [s].
 
     Returns:
         ``(readings (N, 12) [rad], confirmed (N,) bool)``.
+
+    Raises:
+        UnsafeTarget: a move is unsafe (refused before the first motion when the plan is, else before that move).
+        NonFiniteFeedback: an arm's joint feedback is not finite (nothing more moves).
     """
+    from app.motion import move_safely, read_q
     from drivers.errors import DriverTimeout
 
+    q_plan = np.atleast_2d(np.asarray(q_plan, dtype=float))
+    check_contact_sequence(safety, q_plan, np.concatenate([read_q(drivers[n]) for n in CONTACT_ORDER]))
     readings, confirmed = [], []
-    for i, q in enumerate(np.asarray(q_plan, dtype=float)):
-        for k, name in enumerate(("R1", "R2")):
-            drivers[name].move_to(q[6 * k:6 * k + 6], speed_fraction)
-        reading = np.concatenate([drivers[n].wait_settled(settle_timeout_s).q for n in ("R1", "R2")])
+    for i, q in enumerate(q_plan):
+        for k, name in enumerate(CONTACT_ORDER):
+            others = {n: d for n, d in drivers.items() if n != name}
+            move_safely(drivers[name], q[6 * k:6 * k + 6], safety, others, speed_fraction, settle_timeout_s, index=i)
+        reading = np.concatenate([read_q(drivers[n]) for n in CONTACT_ORDER])
         latest = probe.latest
         ok = latest is not None and latest.touched
         if not ok:
@@ -232,6 +273,7 @@ def run_sim_validation(cell: CellSpec, n: int = 20, model_sets: dict[str, dict[s
         tolerance_mm: the simulated probe touches within this distance [mm].
         channel: python-can virtual channel shared by the simulated and the reading probe.
     """
+    from app.safety import CellSafety
     from app.sim_dual import SIM_METHODS, SimCellOptions, fit_model_sets, make_twins
     from drivers.can_probe import CanContactProbe
     from drivers.sim.can_probe import SimulatedProbe
@@ -253,7 +295,7 @@ def run_sim_validation(cell: CellSpec, n: int = 20, model_sets: dict[str, dict[s
             for d in drivers.values():
                 d.connect()
             with SimContactSensor(cell, drivers, sim_probe, p_contact, tolerance_mm):
-                readings, confirmed = collect_contacts(drivers, probe, q_plan)
+                readings, confirmed = collect_contacts(drivers, probe, q_plan, CellSafety(cell))
     finally:
         for d in drivers.values():
             d.close()
