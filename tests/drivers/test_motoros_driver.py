@@ -9,9 +9,10 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from drivers.errors import DriverDisconnected, DriverTimeout, RobotFault
+from drivers.errors import DriverDisconnected, DriverError, DriverTimeout, RobotFault
 from drivers.motoros import FakeMotorosController, MotorosDriver, MotorosLink
-from drivers.motoros.codec import JointTrajPtFull, JointTrajPtFullEx
+from drivers.motoros.codec import Command, JointTrajPtFull, JointTrajPtFullEx, MotionCtrl, MotionReply, Result
+from drivers.motoros.errors import ControllerNotReady, InvalidArgument, NonFiniteFeedback
 
 SPEED = np.full(6, 4.0)  # rad/s, fake and driver agree
 Q0 = np.array([[0.1, -0.2, 0.3, 0.0, 0.5, -0.6], [-1.0, 0.25, 0.0, 0.5, 0.0, 1.5]])
@@ -41,6 +42,16 @@ def arms(fake: FakeMotorosController) -> Iterator[tuple[MotorosDriver, MotorosDr
 
 def _traj_points(fake: FakeMotorosController) -> list:
     return [m for m in fake.received if isinstance(m, (JointTrajPtFull, JointTrajPtFullEx))]
+
+
+def _commands(fake: FakeMotorosController) -> list[int]:
+    return [m.command for m in fake.received if isinstance(m, MotionCtrl)]
+
+
+def _ask(link: MotorosLink, msg: MotionCtrl | JointTrajPtFull) -> MotionReply:
+    """One raw request through the link, matched like the driver matches its own."""
+    command = msg.command if isinstance(msg, MotionCtrl) else msg.TYPE
+    return link.request(msg.encode(), msg.group, msg.sequence, command)
 
 
 def test_reads_both_groups_of_one_controller(arms) -> None:
@@ -122,15 +133,16 @@ def test_stop_halts_short_of_the_target(fake, arms) -> None:
 @pytest.mark.parametrize("fault, message", [
     (lambda f: f.set_alarm(4107), "alarm 4107"),
     (lambda f: f.set_estop(True), "e-stop"),
-    (lambda f: f.set_servo(False), "servo off"),
+    (lambda f: f.set_mode(play=False), "pendant in TEACH mode"),
 ])
 def test_faults_refuse_motion_before_anything_is_sent(fake, arms, fault, message) -> None:
     r1, _ = arms
     fault(fake)
     time.sleep(0.05)  # one status publication
     received = len(fake.received)
-    with pytest.raises(RobotFault, match=f"motion refused: .*{message}"):
+    with pytest.raises(ControllerNotReady, match=f"motion refused: .*{message}") as err:
         r1.move_to(Q0[0] + 0.1, 0.5)
+    assert isinstance(err.value, RobotFault) and message in err.value.cause
     assert len(fake.received) == received
     np.testing.assert_allclose(fake.q(0), Q0[0], atol=1e-6)
 
@@ -166,12 +178,20 @@ def test_missing_group_fails_at_connect(fake) -> None:
 
 def test_bad_arguments_are_refused_with_nothing_sent(fake, arms) -> None:
     r1, _ = arms
-    with pytest.raises(ValueError, match="R1: q must be 6 finite joint angles"):
+    with pytest.raises(InvalidArgument, match="R1: q must be 6 finite joint angles") as err:
         r1.move_to(np.zeros(5), 0.5)
-    with pytest.raises(ValueError, match="R1: q must be 6 finite"):
+    assert err.value.argument == "q" and not isinstance(err.value, ValueError)
+    with pytest.raises(InvalidArgument, match="R1: q must be 6 finite"):
         r1.move_to(np.array([0, 0, np.nan, 0, 0, 0]), 0.5)
-    with pytest.raises(ValueError, match=r"speed_fraction must be in \(0, 1\], got 1.5"):
+    with pytest.raises(InvalidArgument, match=r"speed_fraction must be in \(0, 1\], got 1.5") as err:
         r1.move_to(Q0[0], 1.5)
+    assert (err.value.argument, err.value.value) == ("speed_fraction", 1.5)
+    with pytest.raises(InvalidArgument, match="shorter than 14400 s"):
+        r1.move_to(Q0[0] + 1.0, 1e-5)
+    with pytest.raises(InvalidArgument, match="max_speed_rad_s must be positive"):
+        MotorosDriver(r1.link, 0, -SPEED)
+    with pytest.raises(InvalidArgument, match="reconnect_attempts must be >= 1, got 0"):
+        MotorosLink("127.0.0.1", reconnect_attempts=0)
     assert fake.received == []
 
 
@@ -244,7 +264,21 @@ def test_garbage_on_the_state_stream_is_survived(fake, arms, caplog) -> None:
     np.testing.assert_allclose(r1.read_joints().q, Q0[0], atol=1e-6)
 
 
-def test_a_second_link_gets_no_motion_connection(fake, arms) -> None:
+def test_a_second_link_gets_no_motion_connection_while_moving(fake, arms) -> None:
+    """MotionServer.c: a new motion connection is closed at once while a queue holds motion."""
+    r1, _ = arms
+    r1.move_to(Q0[0] + 1.0, 0.5)
     with MotorosDriver(_link(fake), 0, SPEED, name="R1b") as other:
         with pytest.raises(DriverDisconnected, match="peer closed|reset|send failed"):
             other.stop()
+    r1.stop()
+
+
+def test_a_second_link_replaces_an_idle_motion_connection(fake, arms) -> None:
+    """MotionServer.c: an idle motion connection is closed for the new one; the old link reconnects later."""
+    r1, _ = arms
+    with MotorosDriver(_link(fake), 0, SPEED, name="R1b") as other:
+        other.move_to(Q0[0] + 0.1, 1.0)
+        other.wait_settled(2.0)
+    r1.move_to(Q0[0], 1.0)  # its connection was closed by the controller: replaced before sending
+    np.testing.assert_allclose(r1.wait_settled(2.0).q, Q0[0], atol=1e-4)
