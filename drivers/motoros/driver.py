@@ -87,6 +87,7 @@ class MotorosDriver(RobotDriver):
         self._connected = False
         self._sequence = 0
         self._target: np.ndarray | None = None
+        self._fresh_after = 0.0  # [s, monotonic] statuses older than this predate the last START_TRAJ_MODE
 
     def connect(self) -> None:
         """Connect the shared link and wait for this group's first feedback.
@@ -169,6 +170,7 @@ class MotorosDriver(RobotDriver):
         """START_TRAJ_MODE unless motion is already possible, then CHECK_MOTION_READY (motoman_driver's order)."""
         if msg.motion_possible != 1:
             self._command(Command.START_TRAJ_MODE)
+            self._fresh_after = time.monotonic()  # an alarm it reset may still be in the last status
         ready = self._command(Command.CHECK_MOTION_READY, check=False)
         if ready.result != Result.TRUE:
             raise ControllerNotReady(self.device, "CHECK_MOTION_READY is FALSE", ready.subcode)
@@ -245,8 +247,9 @@ class MotorosDriver(RobotDriver):
             if previous is not None and state.stamp == previous.stamp:
                 self.link.wait_state(min(0.05, max(deadline - time.monotonic(), 0.0)))
                 continue
-            st = self.status()
-            if st.alarm or st.e_stopped:
+            msg, stamp = self.link.status()
+            st = to_robot_status(msg)
+            if (st.alarm or st.e_stopped) and stamp >= self._fresh_after:
                 raise RobotFault(self.device, f"fault while moving (alarm={st.alarm}, "
                                               f"e_stopped={st.e_stopped}, code {st.error_code})")
             moved = previous is None or np.max(np.abs(state.q - previous.q)) > tolerance_rad

@@ -99,6 +99,7 @@ class FakeMotorosController:
         self.received: list[Message] = []  # every decoded request, for tests to inspect
         self._stall = False
         self._nonfinite = False
+        self._nonfinite_value = float("nan")
         self._chunk: tuple[int, float] | None = None
         self._threads: list[threading.Thread] = []
         self._listeners: list[socket.socket] = []
@@ -171,9 +172,10 @@ class FakeMotorosController:
         """The HOLD button; holding stops motion."""
         self._set(hold=hold)
 
-    def set_nonfinite_feedback(self, on: bool) -> None:
-        """Publish NaN joint positions (True) or the simulated ones (False)."""
+    def set_nonfinite_feedback(self, on: bool, value: float = float("nan")) -> None:
+        """Publish ``value`` (NaN or inf) as every joint position (True) or the simulated ones (False)."""
         self._nonfinite = on
+        self._nonfinite_value = value
 
     @property
     def nonfinite_feedback(self) -> bool:
@@ -287,7 +289,7 @@ class FakeMotorosController:
     # -- simulation and publication --------------------------------------------------------------
     def _feedback(self) -> list[JointFeedback]:
         fields = ValidFields.POSITION | ValidFields.VELOCITY
-        nan = np.full(self.groups[0].n_joints, np.nan) if self._nonfinite else None
+        nan = np.full(self.groups[0].n_joints, self._nonfinite_value) if self._nonfinite else None
         return [JointFeedback(i, g.q if nan is None else nan, g.qd, valid_fields=fields)
                 for i, g in enumerate(self.groups)]
 

@@ -3,9 +3,10 @@
 MotoROS accepts a single motion connection (port 50240) and a few state connections (port 50241) per
 controller, so R1 and R2 on one controller cannot each open their own: they share one ``MotorosLink``.
 
-* State (50241): a background thread reads JointFeedback (15), JointFeedbackEx (2017) and RobotStatus (13)
-  and keeps the latest sample per group. When the connection drops it reconnects with a doubling,
-  capped back-off for as long as the link is open; readers get DriverDisconnected meanwhile.
+* State (50241): a background reader (``state.StateStream``) keeps the latest JointFeedback per group and
+  RobotStatus, and reconnects with a capped back-off for as long as the link is open.
+* Motion connections are replaced before a request when the controller has closed them (MotoROS closes an
+  idle motion connection when another client connects, and a restarted controller starts with none).
 * Motion (50240): one request at a time (a lock), answered by a MotoMotionReply matched on
   (group, sequence, command). No reply in time raises DriverTimeout and drops the connection, so a late
   reply can never be taken for the answer to a later request; the next request reconnects (bounded tries).
@@ -24,21 +25,17 @@ import select
 import socket
 import threading
 import time
-from typing import TypeVar
 
-from drivers.errors import DriverDisconnected, DriverError, DriverTimeout, ProtocolError
-from drivers.motoros.codec import (Command, JointFeedback, JointFeedbackEx, MotionCtrl, MotionReply, Packet,
-                                   Result, RobotStatusMsg, decode)
+from drivers.errors import DriverDisconnected, DriverError, DriverTimeout
+from drivers.motoros.codec import Command, JointFeedback, MotionCtrl, MotionReply, Result, RobotStatusMsg, decode
 from drivers.motoros.errors import InvalidArgument
 from drivers.motoros.framing import Framer, recv_into_framer
+from drivers.motoros.state import StateStream
 
 log = logging.getLogger("cellcal.drivers")
 
 MOTION_PORT = 50240
 STATE_PORT = 50241
-
-
-_M = TypeVar("_M", JointFeedback, RobotStatusMsg)
 
 
 def _peer_closed(sock: socket.socket) -> bool:
@@ -95,15 +92,9 @@ class MotorosLink:
         self._users_lock = threading.Lock()
         self._motion_lock = threading.Lock()
         self._motion: tuple[socket.socket, Framer] | None = None
-        self._state_cond = threading.Condition()
-        # latest sample and the local time.monotonic() [s] at which it arrived
-        self._feedback: dict[int, tuple[JointFeedback, float]] = {}
-        self._status: tuple[RobotStatusMsg, float] | None = None
-        self._state_up = False
-        self.state_connections = 0  # state connections opened so far (reconnects included)
-        self._state_error = "not connected yet"
         self._stop = threading.Event()
-        self._reader: threading.Thread | None = None
+        self._state = StateStream(host, state_port, self.state_device, self._stop, connect_timeout_s=connect_timeout_s,
+                                  backoff_s=backoff_s, max_backoff_s=max_backoff_s, stale_after_s=stale_after_s)
 
     # -- lifecycle -------------------------------------------------------------------------------
     def connect(self) -> None:
@@ -113,12 +104,11 @@ class MotorosLink:
             if self._users > 1:
                 return
             self._stop.clear()
-            self._reader = threading.Thread(target=self._read_state, name="motoros-state", daemon=True)
-            self._reader.start()
+            self._state.start()
             try:
                 with self._motion_lock:
                     self._motion_socket()
-                self._wait_first_status()
+                self._state.wait_first_status()
             except DriverError:
                 self._users = 0
                 self._shutdown()
@@ -159,80 +149,13 @@ class MotorosLink:
         self._stop.set()
         with self._motion_lock:
             self._drop_motion()
-        if self._reader is not None:
-            self._reader.join(timeout=2.0)
-            self._reader = None
-
-    def _wait_first_status(self) -> None:
-        deadline = time.monotonic() + self.connect_timeout_s
-        with self._state_cond:
-            while self._status is None:
-                remaining = deadline - time.monotonic()
-                if remaining <= 0:
-                    raise DriverTimeout(self.state_device, "the first robot status", self.connect_timeout_s)
-                self._state_cond.wait(remaining)
+        self._state.join()
 
     # -- state -----------------------------------------------------------------------------------
-    def _read_state(self) -> None:
-        delay = self.backoff_s
-        while not self._stop.is_set():
-            try:
-                sock = socket.create_connection((self.host, self.state_port), timeout=self.connect_timeout_s)
-            except OSError as e:
-                self._state_error = f"connect failed: {e}"
-            else:
-                delay = self.backoff_s
-                self._pump_state(sock)
-            if self._stop.wait(delay):
-                break
-            delay = min(2 * delay, self.max_backoff_s)
-
-    def _pump_state(self, sock: socket.socket) -> None:
-        framer = Framer(self.state_device)
-        sock.settimeout(0.1)
-        with self._state_cond:
-            self._state_up = True
-            self.state_connections += 1
-        try:
-            while not self._stop.is_set():
-                try:
-                    packets = recv_into_framer(sock, framer)
-                except TimeoutError:
-                    continue
-                for packet in packets:
-                    self._store(packet)
-        except DriverError as e:
-            log.warning("%s; reconnecting", e)
-            self._state_error = e.reason
-        finally:
-            sock.close()
-            with self._state_cond:
-                self._state_up = False
-                self._state_cond.notify_all()
-
-    def _store(self, packet: Packet) -> None:
-        try:
-            msg = decode(packet)
-        except ProtocolError as e:
-            log.debug("skipping state packet: %s", e)
-            return
-        now = time.monotonic()
-        with self._state_cond:
-            if isinstance(msg, RobotStatusMsg):
-                self._status = (msg, now)
-            elif isinstance(msg, JointFeedback):
-                self._feedback[msg.group] = (msg, now)
-            elif isinstance(msg, JointFeedbackEx):
-                for fb in msg.groups:
-                    self._feedback[fb.group] = (fb, now)
-            self._state_cond.notify_all()
-
-    def _fresh(self, sample: tuple[_M, float] | None, what: str) -> tuple[_M, float]:
-        if not self._state_up:
-            raise DriverDisconnected(self.state_device, f"state connection down ({self._state_error})")
-        if sample is None or time.monotonic() - sample[1] > self.stale_after_s:
-            raise DriverTimeout(self.state_device, f"fresh {what}", self.stale_after_s)
-        return sample
+    @property
+    def state_connections(self) -> int:
+        """State connections opened so far (reconnects included)."""
+        return self._state.connections
 
     def feedback(self, group: int) -> tuple[JointFeedback, float]:
         """Latest joint feedback of ``group`` and its arrival time [s, monotonic].
@@ -240,18 +163,15 @@ class MotorosLink:
         Raises DriverDisconnected (state connection down) or DriverTimeout (no sample newer than
         ``stale_after_s``).
         """
-        with self._state_cond:
-            return self._fresh(self._feedback.get(group), f"joint feedback of group {group}")
+        return self._state.feedback(group)
 
     def status(self) -> tuple[RobotStatusMsg, float]:
         """Latest controller status and its arrival time [s]; raises like ``feedback``."""
-        with self._state_cond:
-            return self._fresh(self._status, "robot status")
+        return self._state.status()
 
     def wait_state(self, timeout_s: float) -> None:
         """Sleep until the next state packet arrives or ``timeout_s`` [s] passes."""
-        with self._state_cond:
-            self._state_cond.wait(timeout_s)
+        self._state.wait(timeout_s)
 
     # -- motion ----------------------------------------------------------------------------------
     def _motion_socket(self) -> tuple[socket.socket, Framer]:

@@ -9,9 +9,10 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from drivers.errors import DriverDisconnected, DriverTimeout, RobotFault
+from drivers.errors import DriverDisconnected, DriverError, DriverTimeout, RobotFault
 from drivers.motoros import FakeMotorosController, MotorosDriver, MotorosLink
-from drivers.motoros.codec import JointTrajPtFull, JointTrajPtFullEx
+from drivers.motoros.codec import Command, JointTrajPtFull, JointTrajPtFullEx, MotionCtrl, MotionReply, Result
+from drivers.motoros.errors import ControllerNotReady, InvalidArgument, NonFiniteFeedback
 
 SPEED = np.full(6, 4.0)  # rad/s, fake and driver agree
 Q0 = np.array([[0.1, -0.2, 0.3, 0.0, 0.5, -0.6], [-1.0, 0.25, 0.0, 0.5, 0.0, 1.5]])
@@ -41,6 +42,16 @@ def arms(fake: FakeMotorosController) -> Iterator[tuple[MotorosDriver, MotorosDr
 
 def _traj_points(fake: FakeMotorosController) -> list:
     return [m for m in fake.received if isinstance(m, (JointTrajPtFull, JointTrajPtFullEx))]
+
+
+def _commands(fake: FakeMotorosController) -> list[int]:
+    return [m.command for m in fake.received if isinstance(m, MotionCtrl)]
+
+
+def _ask(link: MotorosLink, msg: MotionCtrl | JointTrajPtFull) -> MotionReply:
+    """One raw request through the link, matched like the driver matches its own."""
+    command = msg.command if isinstance(msg, MotionCtrl) else msg.TYPE
+    return link.request(msg.encode(), msg.group, msg.sequence, command)
 
 
 def test_reads_both_groups_of_one_controller(arms) -> None:
@@ -122,15 +133,16 @@ def test_stop_halts_short_of_the_target(fake, arms) -> None:
 @pytest.mark.parametrize("fault, message", [
     (lambda f: f.set_alarm(4107), "alarm 4107"),
     (lambda f: f.set_estop(True), "e-stop"),
-    (lambda f: f.set_servo(False), "servo off"),
+    (lambda f: f.set_mode(play=False), "pendant in TEACH mode"),
 ])
 def test_faults_refuse_motion_before_anything_is_sent(fake, arms, fault, message) -> None:
     r1, _ = arms
     fault(fake)
     time.sleep(0.05)  # one status publication
     received = len(fake.received)
-    with pytest.raises(RobotFault, match=f"motion refused: .*{message}"):
+    with pytest.raises(ControllerNotReady, match=f"motion refused: .*{message}") as err:
         r1.move_to(Q0[0] + 0.1, 0.5)
+    assert isinstance(err.value, RobotFault) and message in err.value.cause
     assert len(fake.received) == received
     np.testing.assert_allclose(fake.q(0), Q0[0], atol=1e-6)
 
@@ -166,12 +178,20 @@ def test_missing_group_fails_at_connect(fake) -> None:
 
 def test_bad_arguments_are_refused_with_nothing_sent(fake, arms) -> None:
     r1, _ = arms
-    with pytest.raises(ValueError, match="R1: q must be 6 finite joint angles"):
+    with pytest.raises(InvalidArgument, match="R1: q must be 6 finite joint angles") as err:
         r1.move_to(np.zeros(5), 0.5)
-    with pytest.raises(ValueError, match="R1: q must be 6 finite"):
+    assert err.value.argument == "q" and not isinstance(err.value, ValueError)
+    with pytest.raises(InvalidArgument, match="R1: q must be 6 finite"):
         r1.move_to(np.array([0, 0, np.nan, 0, 0, 0]), 0.5)
-    with pytest.raises(ValueError, match=r"speed_fraction must be in \(0, 1\], got 1.5"):
+    with pytest.raises(InvalidArgument, match=r"speed_fraction must be in \(0, 1\], got 1.5") as err:
         r1.move_to(Q0[0], 1.5)
+    assert (err.value.argument, err.value.value) == ("speed_fraction", 1.5)
+    with pytest.raises(InvalidArgument, match="shorter than 14400 s"):
+        r1.move_to(Q0[0] + 1.0, 1e-5)
+    with pytest.raises(InvalidArgument, match="max_speed_rad_s must be positive"):
+        MotorosDriver(r1.link, 0, -SPEED)
+    with pytest.raises(InvalidArgument, match="reconnect_attempts must be >= 1, got 0"):
+        MotorosLink("127.0.0.1", reconnect_attempts=0)
     assert fake.received == []
 
 
@@ -244,7 +264,213 @@ def test_garbage_on_the_state_stream_is_survived(fake, arms, caplog) -> None:
     np.testing.assert_allclose(r1.read_joints().q, Q0[0], atol=1e-6)
 
 
-def test_a_second_link_gets_no_motion_connection(fake, arms) -> None:
+def test_a_second_link_gets_no_motion_connection_while_moving(fake, arms) -> None:
+    """MotionServer.c: a new motion connection is closed at once while a queue holds motion."""
+    r1, _ = arms
+    r1.move_to(Q0[0] + 1.0, 0.5)
     with MotorosDriver(_link(fake), 0, SPEED, name="R1b") as other:
         with pytest.raises(DriverDisconnected, match="peer closed|reset|send failed"):
             other.stop()
+    r1.stop()
+
+
+def test_a_second_link_replaces_an_idle_motion_connection(fake, arms) -> None:
+    """MotionServer.c: an idle motion connection is closed for the new one; the old link reconnects later."""
+    r1, _ = arms
+    with MotorosDriver(_link(fake), 0, SPEED, name="R1b") as other:
+        other.move_to(Q0[0] + 0.1, 1.0)
+        other.wait_settled(2.0)
+    r1.move_to(Q0[0], 1.0)  # its connection was closed by the controller: replaced before sending
+    np.testing.assert_allclose(r1.wait_settled(2.0).q, Q0[0], atol=1e-4)
+
+
+# -- behaviour taken from MotoPlus/MotionServer.c and Controller.c ------------------------------------------
+
+PPR = 1.0e5  # pulses per rad of the fake's encoders in these tests
+
+
+def test_servo_off_is_switched_on_by_start_traj_mode() -> None:
+    with FakeMotorosController(max_speed_rad_s=SPEED, initial_q=Q0, servo_on_delay_s=0.3) as fake:
+        fake.set_servo(False)
+        with MotorosDriver(_link(fake), 0, SPEED) as r1:
+            r1.link.wait_state(0.1)
+            assert not r1.status().servo_on
+            t0 = time.monotonic()
+            r1.move_to(Q0[0] + 0.1, 1.0)
+            assert time.monotonic() - t0 >= 0.3  # the reply waited for the servos
+            np.testing.assert_allclose(r1.wait_settled(2.0).q, Q0[0] + 0.1, atol=1e-4)
+            assert r1.status().servo_on
+        assert _commands(fake)[:2] == [Command.START_TRAJ_MODE, Command.CHECK_MOTION_READY]
+
+
+def test_start_traj_mode_has_its_own_longer_timeout() -> None:
+    assert MotorosLink("127.0.0.1").start_traj_timeout_s == 15.0
+    with FakeMotorosController(max_speed_rad_s=SPEED, initial_q=Q0, servo_on_delay_s=0.8) as fake:
+        fake.set_servo(False)
+        with MotorosDriver(_link(fake, reply_timeout_s=0.3, start_traj_timeout_s=0.4), 0, SPEED) as r1:
+            with pytest.raises(DriverTimeout, match="timed out after 0.4 s waiting for reply to command 200121"):
+                r1.move_to(Q0[0] + 0.1, 1.0)
+        assert _traj_points(fake) == []
+        fake.set_servo(False)
+        with MotorosDriver(_link(fake, reply_timeout_s=0.3, start_traj_timeout_s=2.0), 0, SPEED) as r1:
+            r1.move_to(Q0[0] + 0.1, 1.0)  # 0.8 s to servo on: longer than the reply timeout, within its own
+            np.testing.assert_allclose(r1.wait_settled(2.0).q, Q0[0] + 0.1, atol=1e-4)
+
+
+def test_start_traj_mode_resets_an_alarm_only_when_allowed(fake) -> None:
+    fake.set_alarm(4107)
+    time.sleep(0.05)
+    with MotorosDriver(_link(fake), 0, SPEED, reset_alarms=True) as r1:
+        r1.move_to(Q0[0] + 0.1, 1.0)
+        np.testing.assert_allclose(r1.wait_settled(2.0).q, Q0[0] + 0.1, atol=1e-4)
+        assert not r1.status().alarm
+
+
+@pytest.mark.parametrize("fault, subcode, words", [
+    (lambda f: f.set_remote(False), 5005, "not in remote mode"),
+    (lambda f: f.set_hold(True), 5007, "hold"),
+    (lambda f: f.set_alarm(4107, resettable=False), 5001, "alarm active"),
+])
+def test_start_traj_mode_refusal_names_the_cause(fake, fault, subcode, words) -> None:
+    fault(fake)
+    time.sleep(0.05)
+    with MotorosDriver(_link(fake), 0, SPEED, reset_alarms=True) as r1:
+        with pytest.raises(RobotFault, match=rf"START_TRAJ_MODE refused: NOT_READY \({subcode}: {words}\)"):
+            r1.move_to(Q0[0] + 0.1, 1.0)
+    assert _traj_points(fake) == []
+
+
+def test_check_motion_ready_false_is_refused_with_its_subcode() -> None:
+    """The status can say 'motion possible' while the controller has just left remote mode."""
+    with FakeMotorosController(max_speed_rad_s=SPEED, initial_q=Q0, publish_hz=4.0) as fake:
+        with MotorosDriver(_link(fake, stale_after_s=2.0), 0, SPEED) as r1:
+            r1.move_to(Q0[0] + 0.05, 1.0)
+            r1.wait_settled(3.0)
+            r1.link.wait_state(1.0)
+            assert r1.link.status()[0].motion_possible == 1
+            fake.set_remote(False)
+            points = len(_traj_points(fake))
+            with pytest.raises(ControllerNotReady, match=r"CHECK_MOTION_READY is FALSE: not in remote mode "
+                                                         r"\(subcode 5005\)") as err:
+                r1.move_to(Q0[0], 1.0)
+            assert err.value.subcode == 5005
+            assert len(_traj_points(fake)) == points
+
+
+def test_check_motion_ready_answers_true_or_false_with_a_subcode(fake, arms) -> None:
+    r1, _ = arms
+    ask = lambda command: _ask(r1.link, MotionCtrl(0, 7, command))  # noqa: E731
+    assert (ask(Command.CHECK_MOTION_READY).result, ask(Command.CHECK_MOTION_READY).subcode) == (Result.FALSE, 5008)
+    assert ask(Command.START_TRAJ_MODE).result == Result.SUCCESS
+    assert (ask(Command.CHECK_MOTION_READY).result, ask(Command.CHECK_MOTION_READY).subcode) == (Result.TRUE, 0)
+    fake.set_estop(True)
+    assert (ask(Command.CHECK_MOTION_READY).result, ask(Command.CHECK_MOTION_READY).subcode) == (Result.FALSE, 5003)
+
+
+def test_stop_traj_mode_is_sent_when_the_last_driver_closes(fake) -> None:
+    link = _link(fake)
+    r1, r2 = MotorosDriver(link, 0, SPEED), MotorosDriver(link, 1, SPEED)
+    r1.connect()
+    r2.connect()
+    r1.move_to(Q0[0] + 0.1, 1.0)
+    r1.wait_settled(2.0)
+    assert link.trajectory_mode
+    r1.close()
+    assert Command.STOP_TRAJ_MODE not in _commands(fake)  # R2 still uses the controller
+    r2.close()
+    assert _commands(fake)[-1] == Command.STOP_TRAJ_MODE and not link.trajectory_mode
+    with MotorosDriver(_link(fake), 0, SPEED):  # no trajectory mode started: nothing to stop
+        pass
+    assert _commands(fake).count(Command.STOP_TRAJ_MODE) == 1
+
+
+def test_queue_count_comes_back_in_the_subcode(fake, arms) -> None:
+    r1, _ = arms
+    assert r1.queue_count() == 0
+    r1.move_to(Q0[0] + 2.0, 0.5)  # 1.5 s: more than the 200 increments of 4 ms the queue holds
+    time.sleep(0.1)
+    assert r1.queue_count() == 200
+    reply = _ask(r1.link, MotionCtrl(3, 1, Command.CHECK_QUEUE_CNT))
+    assert (reply.result, reply.subcode) == (Result.FAILURE, -1)
+    r1.wait_settled(3.0)
+    assert r1.queue_count() == 0
+
+
+def test_point_zero_must_be_within_30_pulses_of_the_arm(fake, arms) -> None:
+    r1, _ = arms
+    assert _ask(r1.link, MotionCtrl(0, 1, Command.START_TRAJ_MODE)).result == Result.SUCCESS
+    q = fake.q(0)
+    near = _ask(r1.link, JointTrajPtFull(0, 0, 0.0, q + 25 / PPR))
+    far = _ask(r1.link, JointTrajPtFull(0, 0, 0.0, q + np.array([0, 0, 35 / PPR, 0, 0, 0])))
+    assert (near.result, near.subcode) == (Result.SUCCESS, 0)
+    assert (far.result, far.subcode) == (Result.INVALID, 3011)
+
+
+def test_driver_sends_its_feedback_as_point_zero(fake, arms) -> None:
+    r1, _ = arms
+    r1.move_to(Q0[0] + 0.3, 1.0)
+    first = _traj_points(fake)[0]
+    assert (first.sequence, first.time) == (0, 0.0)
+    np.testing.assert_allclose(first.pos[:6], Q0[0], atol=1e-6)  # float32 on the wire
+    np.testing.assert_array_equal(first.vel, 0.0)
+
+
+def test_sequences_and_times_are_checked_like_motoros(fake, arms) -> None:
+    """No consecutive-sequence check; a non-increasing time adds no motion; sequence < 0, time >= 4 h and a
+    point without velocity are INVALID."""
+    r1, _ = arms
+    link = r1.link
+    assert _ask(link, MotionCtrl(0, 1, Command.START_TRAJ_MODE)).result == Result.SUCCESS
+    q = fake.q(0)
+    answers = [_ask(link, p) for p in (
+        JointTrajPtFull(0, 0, 0.0, q),
+        JointTrajPtFull(0, 5, 0.2, q + 0.1),  # sequence jumps from 0 to 5: accepted
+        JointTrajPtFull(0, 6, 0.2, q + 0.5),  # same time: accepted, adds no motion
+        JointTrajPtFull(0, -1, 0.3, q),
+        JointTrajPtFull(0, 7, 14400.0, q),
+        JointTrajPtFull(0, 8, 0.5, q, valid_fields=3),
+    )]
+    assert [(a.result, a.subcode) for a in answers] == [(0, 0), (0, 0), (0, 0), (3, 3005), (3, 3016), (3, 3015)]
+    np.testing.assert_allclose(r1.wait_settled(2.0).q, q + 0.1, atol=1e-5)
+
+
+@pytest.mark.parametrize("value", [np.nan, np.inf])
+def test_non_finite_feedback_never_reaches_a_trajectory(fake, arms, value) -> None:
+    r1, _ = arms
+    fake.set_nonfinite_feedback(True, value)
+    time.sleep(0.05)
+    received = len(fake.received)
+    with pytest.raises(NonFiniteFeedback, match="joint feedback of group 0 is not finite") as err:
+        r1.move_to(Q0[0] + 0.1, 0.5)
+    assert isinstance(err.value, DriverError) and not isinstance(err.value, ValueError)
+    assert len(fake.received) == received and _traj_points(fake) == []
+    with pytest.raises(NonFiniteFeedback):
+        r1.read_joints()
+    fake.set_nonfinite_feedback(False)
+    time.sleep(0.05)
+    np.testing.assert_allclose(r1.read_joints().q, Q0[0], atol=1e-6)
+
+
+def test_a_restarted_controller_on_the_same_ports_is_reconnected() -> None:
+    first = FakeMotorosController(max_speed_rad_s=SPEED, initial_q=Q0).start()
+    ports = (first.motion_port, first.state_port)
+    link = MotorosLink("127.0.0.1", *ports, reply_timeout_s=0.5, connect_timeout_s=1.0, backoff_s=0.02,
+                       max_backoff_s=0.1)
+    try:
+        with MotorosDriver(link, 0, SPEED) as r1:
+            r1.move_to(Q0[0] + 0.1, 1.0)
+            r1.wait_settled(2.0)
+            q_killed = np.stack([first.q(0), first.q(1)])
+            first.close()  # the process was killed
+            with FakeMotorosController(max_speed_rad_s=SPEED, initial_q=q_killed, motion_port=ports[0],
+                                       state_port=ports[1]) as second:
+                deadline = time.monotonic() + 2.0
+                while link.state_connections < 2:
+                    assert time.monotonic() < deadline, "state connection did not come back"
+                    time.sleep(0.01)
+                r1.link.wait_state(0.1)
+                r1.move_to(Q0[0] + 0.2, 1.0)  # the new controller is not in trajectory mode: START again
+                np.testing.assert_allclose(r1.wait_settled(2.0).q, Q0[0] + 0.2, atol=1e-4)
+                assert Command.START_TRAJ_MODE in _commands(second)
+    finally:
+        first.close()
