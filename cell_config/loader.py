@@ -30,6 +30,8 @@ ZenohRole = Literal["bridge", "collector", "router"]
 ZENOH_ROLES: tuple[str, ...] = ("bridge", "collector", "router")
 ZENOH_MODES: tuple[str, ...] = ("peer", "client", "router")
 MAX_MOTOROS_GROUPS = 4  # MotoROS control groups 0..3
+#: The collision capsules of an arm (``capsules_mm`` in the robot YAML); app/capsules.py says what each spans.
+CAPSULE_SEGMENTS: tuple[str, ...] = ("base", "shoulder", "upper_arm", "forearm", "wrist", "tool")
 
 
 @dataclass(frozen=True)
@@ -54,6 +56,7 @@ class RobotSpec:
     pulses_per_rad: np.ndarray  # (6,)
     links: tuple[LinkInertia, ...] = ()
     payload_kg: float | None = None
+    capsules_mm: Mapping[str, float] = field(default_factory=dict)  # collision capsule radius per segment [mm]
 
     def model(self, tool: "ToolSpec | None" = None) -> PoeModel:
         """The nominal POE model of this arm carrying ``tool`` (flange frame when None)."""
@@ -226,11 +229,14 @@ def load_robot(path: str | Path) -> RobotSpec:
         entry = Node(r.path, link, f"links[{i}]")
         links.append(LinkInertia(float(entry.array("mass_kg", ())), entry.array("com_mm", (3,))))
     payload = r.get("payload_kg", None)
+    caps = r.child("capsules_mm")
+    caps.only(CAPSULE_SEGMENTS)
+    capsules = {s: caps.number(s, lo=0.0, lo_open=True) for s in CAPSULE_SEGMENTS}
     return RobotSpec(
         name=r.string("name"), H=H, P=r.array("P", (7, 3)).T, R_flange=R_flange,
         lower_rad=np.radians(lower), upper_rad=np.radians(upper), max_speed_rad_s=np.radians(speeds),
         pulses_per_rad=pulses * 180.0 / np.pi, links=tuple(links),
-        payload_kg=None if payload is None else float(payload),
+        payload_kg=None if payload is None else float(payload), capsules_mm=capsules,
     )
 
 
