@@ -1,9 +1,13 @@
+import os
+import stat
+
 import numpy as np
 import pytest
 import yaml
 
 from calibration.errors import ConfigError
-from cell_config import DEFAULT_CELL, load_cell, load_robot
+from cell_config import (DEFAULT_CELL, REHEARSAL_CELL, ControllerConfig, MocapConfig, ProbeConfig, RobotRegistration,
+                         ZenohConfig, load_cell, load_registration, load_robot, save_registration)
 
 
 def test_default_cell_loads_both_arms():
@@ -58,21 +62,6 @@ def test_malformed_robot_yaml(tmp_path):
 
 
 # --- the real cell's devices, network roles and registration -------------------------------------------------
-
-import os
-import stat
-
-from cell_config import (
-    REHEARSAL_CELL,
-    ControllerConfig,
-    MocapConfig,
-    ProbeConfig,
-    RobotRegistration,
-    ZenohConfig,
-    load_registration,
-    save_registration,
-)
-
 
 def test_rehearsal_cell_puts_every_device_on_loopback():
     cell = load_cell(REHEARSAL_CELL)
