@@ -21,11 +21,12 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from app.capsules import PROCESS_ZONE, SEGMENTS, CellCapsules, pairs_outside
 from app.casadi_kinematics import buffer_evaluator, casadi_fk, compile_function
 from app.plan_result import PlanResult, WaypointResult
 from calibration import so3
@@ -34,8 +35,7 @@ from calibration.models import ConstantModel
 from cell_config.loader import CellSpec
 
 logger = logging.getLogger("cellcal.app")
-CAPSULES = ("base", "upper", "forearm", "wrist")
-__all__ = ["CAPSULES", "DualPlanner", "PlanResult", "PlannerOptions", "WaypointResult"]
+__all__ = ["DualPlanner", "PlanResult", "PlannerOptions", "WaypointResult"]
 
 
 @dataclass(frozen=True)
@@ -47,8 +47,9 @@ class PlannerOptions:
         limit_zone_deg: a penalty starts this far inside the margin [deg].
         clearance_mm: hard minimum surface distance between the arms' capsules [mm].
         clearance_zone_mm: a penalty starts this far above ``clearance_mm`` [mm].
-        radii_mm: capsule radius per (robot, capsule) [mm]; capsules: base column, upper arm, forearm, wrist+tool.
-        pairs: checked capsule pairs (R1 capsule, R2 capsule); wrist-wrist is the process zone and left out.
+        pairs: checked capsule pairs (R1 capsule, R2 capsule) of :mod:`app.capsules` (the cell's one capsule
+            model; radii from the robot YAMLs): every pair but the process zone's (wrist and tool of both arms,
+            which the relative pose brings together on purpose).
         singular_min: hard minimum of each singularity measure (0..1).
         singular_zone: a penalty starts below this value of a measure.
         sigma_q_rad: smoothness scale (distance to the previous solution) [rad].
@@ -64,13 +65,7 @@ class PlannerOptions:
     limit_zone_deg: float = 8.0
     clearance_mm: float = 50.0
     clearance_zone_mm: float = 100.0
-    radii_mm: dict[str, dict[str, float]] = field(default_factory=lambda: {
-        "R1": {"base": 250.0, "upper": 130.0, "forearm": 110.0, "wrist": 90.0},
-        "R2": {"base": 200.0, "upper": 100.0, "forearm": 80.0, "wrist": 70.0}})
-    pairs: tuple[tuple[str, str], ...] = (
-        ("upper", "upper"), ("upper", "forearm"), ("upper", "wrist"), ("forearm", "upper"),
-        ("forearm", "forearm"), ("forearm", "wrist"), ("wrist", "upper"), ("wrist", "forearm"),
-        ("base", "wrist"), ("base", "forearm"), ("wrist", "base"), ("forearm", "base"))
+    pairs: tuple[tuple[str, str], ...] = pairs_outside(PROCESS_ZONE)
     singular_min: float = 0.02
     singular_zone: float = 0.15
     sigma_q_rad: float = 0.05
@@ -90,20 +85,6 @@ def _pose(T: np.ndarray, name: str) -> np.ndarray:
     if T.shape != (4, 4) or not np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-6):
         raise ModelError(f"{name} must be a homogeneous rigid transform of shape (4, 4), got shape {T.shape}")
     return T
-
-
-def _capsule_distance(ca: Any, a0: Any, a1: Any, b0: Any, b1: Any) -> Any:
-    """Distance between segments [a0, a1] and [b0, b1] (Ericson's closest points, clamped)."""
-    d1, d2, r = a1 - a0, b1 - b0, a0 - b0
-    a, e, f = ca.dot(d1, d1), ca.dot(d2, d2), ca.dot(d2, r)
-    c, b = ca.dot(d1, r), ca.dot(d1, d2)
-    clamp = lambda v: ca.fmin(ca.fmax(v, 0), 1)  # noqa: E731
-    s = clamp((b * f - c * e) / ca.fmax(a * e - b * b, 1e-9))
-    t_raw = (b * s + f) / e
-    s = ca.if_else(t_raw < 0, clamp(-c / a), ca.if_else(t_raw > 1, clamp((b - c) / a), s))
-    t = clamp(t_raw)
-    w = a0 + s * d1 - b0 - t * d2
-    return ca.sqrt(ca.dot(w, w) + 1e-12)
 
 
 _LIMIT_J = np.vstack([-np.eye(12), np.eye(12)])
@@ -137,10 +118,15 @@ class DualPlanner:
         import casadi as ca
 
         self.cell, self.options = cell, options
+        bad = [p for p in options.pairs if len(p) != 2 or not set(p) <= set(SEGMENTS)]
+        if bad or not options.pairs:
+            raise ModelError(f"PlannerOptions.pairs must be (R1 capsule, R2 capsule) pairs of {', '.join(SEGMENTS)}; "
+                             f"got {bad or 'none'}")
         self.models = {n: m if m is not None else ConstantModel(n, "nominal", cell.robot(n).model())
                        for n, m in (("R1", model_R1), ("R2", model_R2))}
         self.fks = {n: casadi_fk(m) for n, m in self.models.items()}
         self.T_cell_base = {n: cell.robot(n).T_cell_base for n in ("R1", "R2")}
+        self.capsule_model = CellCapsules(cell)
         margin = np.radians(options.limit_margin_deg)
         self.lower = np.concatenate([cell.robot(n).robot.lower_rad for n in ("R1", "R2")]) + margin
         self.upper = np.concatenate([cell.robot(n).robot.upper_rad for n in ("R1", "R2")]) - margin
@@ -151,9 +137,7 @@ class DualPlanner:
         T = self.T_cell_base[name]
         Rb, pb = ca.DM(T[:3, :3]), ca.DM(T[:3, 3])
         R, p, O, A = Rb @ R, Rb @ p + pb, Rb @ O + ca.repmat(pb, 1, O.shape[1]), Rb @ A
-        foot = O[:, 0] - 700.0 * A[:, 0]
-        caps = {"base": (foot, O[:, 0]), "upper": (O[:, 1], O[:, 2]), "forearm": (O[:, 2], O[:, 3]),
-                "wrist": (O[:, 3], p)}
+        caps = self.capsule_model.casadi_segments(ca, name, O, p)
         wc, up, fore = O[:, 3], O[:, 2] - O[:, 1], O[:, 3] - O[:, 2]
         reach = float(np.linalg.norm(self.cell.robot(name).robot.P[:, 1:4].sum(axis=1)))
         sing = ca.vertcat(ca.dot(A[:, 3], ca.cross(A[:, 4], A[:, 5])),
@@ -171,9 +155,7 @@ class DualPlanner:
         R_des, p_des = R2 @ T_rel[:, :3], p2 + R2 @ T_rel[:, 3]
         e = ca.vertcat(p1 - p_des, 0.5 * ca.inv_skew(R_des.T @ R1 - R1.T @ R_des))
         t = ca.vertcat(p2 - T_tgt[:, 3], 0.5 * ca.inv_skew(T_tgt[:, :3].T @ R2 - R2.T @ T_tgt[:, :3]))
-        rad = o.radii_mm
-        c = ca.vertcat(*[_capsule_distance(ca, *caps1[a], *caps2[b]) - rad["R1"][a] - rad["R2"][b]
-                         for a, b in o.pairs])
+        c = self.capsule_model.casadi_gaps(ca, {"R1": caps1, "R2": caps2}, o.pairs)
         s = ca.vertcat(s1, s2)
         outs, self._layout, k = [], {}, 0
         for name, v in (("e", e), ("t", t), ("c", c), ("s", s)):

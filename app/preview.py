@@ -9,7 +9,9 @@ a live view in the browser).
 Plans: a dual plan (``{"schema": "cellcal.plan/1", "waypoints": [{"R1": [6 rad], "R2": [6 rad]}, ...]}``) or
 a single-robot collection plan with ``targets: [{"robot": "R1", "q": [6 rad]}, ...]``; a robot a frame does
 not mention keeps its previous configuration (the home configuration q = 0 at the start).
-Arms are cylinders between the joint origins of the chain (no meshes); viewer units are metres.
+Arms are drawn as the cell's collision capsules (:mod:`app.capsules`, the model the safety checks and the
+dual planner use, radii from the robot YAMLs): a cylinder and two end spheres per capsule, no meshes. Viewer
+units are metres.
 """
 
 from __future__ import annotations
@@ -25,13 +27,12 @@ from typing import Any
 
 import numpy as np
 
+from app.capsules import SEGMENTS, CellCapsules
 from calibration.errors import DataError
 from cell_config.loader import CellSpec
 
 logger = logging.getLogger("cellcal.app")
 COLORS = {"R1": 0xFF7F0E, "R2": 0x1F77B4}  # R1 orange (gun), R2 blue (workpiece)
-RADII_M = {"R1": 0.09, "R2": 0.07}
-FLOOR_Z_MM = -505.0  # R1's joint-2 height above the floor (the cell frame sits at that height)
 
 
 @dataclass(frozen=True)
@@ -137,7 +138,8 @@ class RecordingWindow:
 def _segment_transform(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Pose of a meshcat cylinder (axis y, centred) spanning a -> b [m]."""
     d = b - a
-    y = d / np.linalg.norm(d)
+    n = np.linalg.norm(d)
+    y = d / n if n > 1e-12 else np.array([0.0, 1.0, 0.0])
     helper = np.array([1.0, 0, 0]) if abs(y[0]) < 0.9 else np.array([0, 0, 1.0])
     x = np.cross(y, helper)
     x /= np.linalg.norm(x)
@@ -147,26 +149,22 @@ def _segment_transform(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return T
 
 
-def _skeleton(cell: CellSpec, models: dict[str, Any], name: str, q: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
-    """Joint origins + tool point in the cell frame [m], and the tool pose (4, 4) [m]."""
-    c = models[name].chain(q[None])
+def _tool_poses(cell: CellSpec, model: Any, name: str, q: np.ndarray) -> np.ndarray:
+    """Tool poses in the cell frame for joint angles q (F, 6) [rad], shape (F, 4, 4) [m]."""
+    c = model.chain(q)
     T = cell.robot(name).T_cell_base
-    pts = [T[:3, :3] @ p[0] + T[:3, 3] for p in c.p_base_origin] + [T[:3, :3] @ c.p_base_tool[0] + T[:3, 3]]
-    pts = [p * 1e-3 for p in pts]
-    tool = np.eye(4)
-    tool[:3, :3] = T[:3, :3] @ c.R_base_tool[0]
-    tool[:3, 3] = pts[-1]
-    return pts, tool
-
-
-def _links(pts: list[np.ndarray]) -> list[tuple[int, int]]:
-    """Index pairs of consecutive distinct skeleton points (zero-length wrist offsets skipped)."""
-    out, last = [], 0
-    for i in range(1, len(pts)):
-        if np.linalg.norm(pts[i] - pts[last]) > 1e-4:
-            out.append((last, i))
-            last = i
+    out = np.tile(np.eye(4), (len(q), 1, 1))
+    out[:, :3, :3] = T[:3, :3] @ c.R_base_tool
+    out[:, :3, 3] = (c.p_base_tool @ T[:3, :3].T + T[:3, 3]) * 1e-3
     return out
+
+
+def _capsule_transforms(seg_m: np.ndarray) -> dict[str, np.ndarray]:
+    """meshcat transforms of one capsule (cylinder + two end spheres) spanning seg_m (2, 3) [m]."""
+    import meshcat.transformations as tf
+
+    return {"": _segment_transform(seg_m[0], seg_m[1]), "_end0": tf.translation_matrix(seg_m[0]),
+            "_end1": tf.translation_matrix(seg_m[1])}
 
 
 def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve: bool = False,
@@ -199,6 +197,7 @@ def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve
         raise ModelError("preview needs html_out (a static page) or serve=True (a live viewer)")
     frames = load_plan(plan.to_dict() if hasattr(plan, "to_dict") else plan)
     models = models or {n: cell.robot(n).model() for n in ("R1", "R2")}
+    capsules = CellCapsules(cell)
     windows = [RecordingWindow()] if html_out is not None else []
     url = None
     if serve:
@@ -217,36 +216,33 @@ def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve
         vis = top["cellcal"]  # the viewer orbits the origin: centre the cell on it
         vis.set_transform(tf.translation_matrix([-1.35, 0.2, -0.1]))
         vis["cell/floor"].set_object(g.Box([4.2, 2.4, 0.02]), g.MeshLambertMaterial(color=0x9E9E8E))
-        vis["cell/floor"].set_transform(tf.translation_matrix([1.35, -0.2, FLOOR_Z_MM * 1e-3 - 0.01]))
+        vis["cell/floor"].set_transform(tf.translation_matrix([1.35, -0.2, capsules.floor_z_mm * 1e-3 - 0.01]))
         anim = Animation(default_framerate=fps)
         for name in ("R1", "R2"):
-            pts, tool = _skeleton(cell, models, name, frames[0][name])
+            q = np.array([frame[name] for frame in frames])
+            segs = capsules.segments(name, q, models[name]) * 1e-3  # (F, 6, 2, 3) [m]
+            tools = _tool_poses(cell, models[name], name, q)
             mat = g.MeshPhongMaterial(color=COLORS[name])
-            base = cell.robot(name).T_cell_base[:3, 3] * 1e-3
-            foot = base.copy()
-            foot[2] = FLOOR_Z_MM * 1e-3
-            vis[f"{name}/base"].set_object(g.Cylinder(float(base[2] - foot[2]), 0.22), mat)
-            vis[f"{name}/base"].set_transform(_segment_transform(foot, base))
-            for k, (i, j) in enumerate(_links(pts)):
-                r = RADII_M[name] * (0.6 if i >= 4 else 1.0)
-                vis[f"{name}/link{k}"].set_object(g.Cylinder(float(np.linalg.norm(pts[j] - pts[i])), r), mat)
-                vis[f"{name}/joint{k}"].set_object(g.Sphere(r * 1.15), g.MeshPhongMaterial(color=0x404040))
+            for k, seg in enumerate(SEGMENTS):
+                r = float(capsules.radii(name)[k]) * 1e-3
+                length = float(np.linalg.norm(segs[0, k, 1] - segs[0, k, 0]))
+                vis[f"{name}/capsules/{seg}"].set_object(g.Cylinder(length, r), mat)
+                vis[f"{name}/capsules/{seg}_end0"].set_object(g.Sphere(r), mat)
+                vis[f"{name}/capsules/{seg}_end1"].set_object(g.Sphere(r), mat)
             vis[f"{name}/tool"].set_object(g.triad(0.25))
             if name == "R2":
                 vis["R2/tool/workpiece"].set_object(g.Box([0.12, 0.12, 0.01]), g.MeshLambertMaterial(color=0xD0D0D0))
-            for f, frame in enumerate(frames):
-                pts, tool = _skeleton(cell, models, name, frame[name])
+            for f in range(len(frames)):
                 with anim.at_frame(vis, f) as af:
-                    for k, (i, j) in enumerate(_links(pts)):
-                        af[f"{name}/link{k}"].set_transform(_segment_transform(pts[i], pts[j]))
-                        af[f"{name}/joint{k}"].set_transform(tf.translation_matrix(pts[i]))
-                    af[f"{name}/tool"].set_transform(tool)
+                    for k, seg in enumerate(SEGMENTS):
+                        for suffix, T in _capsule_transforms(segs[f, k]).items():
+                            af[f"{name}/capsules/{seg}{suffix}"].set_transform(T)
+                    af[f"{name}/tool"].set_transform(tools[f])
             # the first frame as static transforms too, so the page shows the arms before the clip starts
-            pts, tool = _skeleton(cell, models, name, frames[0][name])
-            for k, (i, j) in enumerate(_links(pts)):
-                vis[f"{name}/link{k}"].set_transform(_segment_transform(pts[i], pts[j]))
-                vis[f"{name}/joint{k}"].set_transform(tf.translation_matrix(pts[i]))
-            vis[f"{name}/tool"].set_transform(tool)
+            for k, seg in enumerate(SEGMENTS):
+                for suffix, T in _capsule_transforms(segs[0, k]).items():
+                    vis[f"{name}/capsules/{seg}{suffix}"].set_transform(T)
+            vis[f"{name}/tool"].set_transform(tools[0])
         top.set_animation(anim, play=True, repetitions=1)
     path = None
     if html_out is not None:

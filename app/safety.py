@@ -1,7 +1,7 @@
-"""Safety checks run before any motion: joint limits and a capsule collision model of the cell.
+"""Safety checks run before any motion: joint limits and the cell's capsule collision model.
 
-Each arm is a chain of capsules along the segments between its POE joint origins (nominal model), plus a
-tool capsule from the flange point to the tool marker. A target is refused (:class:`UnsafeTarget`) when a
+The arms' capsules (their spans and radii) are :mod:`app.capsules`'s, the one model the dual planner and the
+preview use too; the radii come from the robot YAMLs. A target is refused (:class:`UnsafeTarget`) when a
 joint is outside its limits (minus an optional margin), when a moving capsule comes closer than
 ``floor_clearance_mm`` to the floor plane, or closer than ``clearance_mm`` to any capsule of another arm at
 its current pose. Motions are checked along the joint-space path (the sim and MotoROS joint moves are
@@ -14,23 +14,15 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
+from app.capsules import DEFAULT_FLOOR_Z_MM, FLOOR_CHECKED, SEGMENTS, CellCapsules, segment_distance
 from calibration.errors import ConfigError, UnsafeTarget
 from cell_config.loader import CellSpec
 
-# (name, start origin index, end origin index); index 7 = tool point, -1 = base column foot.
-_SEGMENTS: tuple[tuple[str, int, int], ...] = (
-    ("base", -1, 0), ("shoulder", 0, 1), ("upper_arm", 1, 2), ("forearm", 2, 3), ("wrist", 3, 6), ("tool", 6, 7),
-)
-_FLOOR_CHECKED = ("upper_arm", "forearm", "wrist", "tool")
-DEFAULT_RADII_MM: dict[str, dict[str, float]] = {
-    "MA2010": {"base": 220, "shoulder": 180, "upper_arm": 140, "forearm": 110, "wrist": 90, "tool": 50},
-    "MA1440": {"base": 180, "shoulder": 150, "upper_arm": 110, "forearm": 90, "wrist": 70, "tool": 50},
-}
-_FALLBACK_RADII_MM = {"base": 220, "shoulder": 180, "upper_arm": 140, "forearm": 110, "wrist": 90, "tool": 50}
+__all__ = ["CellSafety", "SafetyConfig", "segment_distance"]  # segment_distance: app.capsules's
 
 
 @dataclass(frozen=True)
@@ -46,7 +38,6 @@ class SafetyConfig:
             below its joint-2 axis; an assumption, set it from the cell survey).
         floor_clearance_mm: minimum surface distance of a moving capsule above the floor [mm].
         path_step_deg: joint-space sampling of a motion path [deg].
-        radii_mm: capsule radii [mm] per robot model name and segment; defaults for MA2010/MA1440.
         allow_unknown_others: proceed when another arm's pose is unknown (its capsules are then ignored).
     """
 
@@ -54,35 +45,10 @@ class SafetyConfig:
     check_collisions: bool = True
     check_floor: bool = True
     clearance_mm: float = 50.0
-    floor_z_mm: float = -505.0
+    floor_z_mm: float = DEFAULT_FLOOR_Z_MM
     floor_clearance_mm: float = 20.0
     path_step_deg: float = 2.0
-    radii_mm: Mapping[str, Mapping[str, float]] = field(default_factory=lambda: DEFAULT_RADII_MM)
     allow_unknown_others: bool = False
-
-
-def segment_distance(a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: np.ndarray) -> np.ndarray:
-    """Shortest distance between segments [a0, a1] and [b0, b1], broadcast over leading axes (..., 3) -> (...)."""
-    d1, d2, r = a1 - a0, b1 - b0, a0 - b0
-    a = np.einsum("...i,...i", d1, d1)
-    e = np.einsum("...i,...i", d2, d2)
-    b = np.einsum("...i,...i", d1, d2)
-    c = np.einsum("...i,...i", d1, r)
-    f = np.einsum("...i,...i", d2, r)
-    eps = 1e-12
-    a_s = np.where(a > eps, a, 1.0)
-    e_s = np.where(e > eps, e, 1.0)
-    denom = a * e - b * b
-    ok = denom > eps * np.maximum(a * e, eps)
-    s = np.where(ok, np.clip((b * f - c * e) / np.where(ok, denom, 1.0), 0.0, 1.0), 0.0)
-    t = (b * s + f) / e_s
-    s = np.where(t < 0, np.clip(-c / a_s, 0.0, 1.0), np.where(t > 1, np.clip((b - c) / a_s, 0.0, 1.0), s))
-    t = np.clip(t, 0.0, 1.0)
-    point_a, point_b = a <= eps, e <= eps
-    s = np.where(point_a, 0.0, np.where(point_b, np.clip(-c / a_s, 0.0, 1.0), s))
-    t = np.where(point_b, 0.0, np.where(point_a, np.clip(f / e_s, 0.0, 1.0), t))
-    gap = a0 + d1 * s[..., None] - (b0 + d2 * t[..., None])
-    return np.linalg.norm(gap, axis=-1)
 
 
 class CellSafety:
@@ -96,10 +62,7 @@ class CellSafety:
     def __init__(self, cell: CellSpec, config: SafetyConfig = SafetyConfig()) -> None:
         self.cell = cell
         self.config = config
-        self._radii = {}
-        for name, r in cell.robots.items():
-            radii = config.radii_mm.get(r.robot.name, _FALLBACK_RADII_MM)
-            self._radii[name] = np.array([float(radii[s]) for s, _, _ in _SEGMENTS])
+        self.capsule_model = CellCapsules(cell, config.floor_z_mm)
 
     def limits(self, robot: str) -> tuple[np.ndarray, np.ndarray]:
         """Joint limits with the margin applied [rad]: ``(lower (6,), upper (6,))``."""
@@ -130,13 +93,7 @@ class CellSafety:
 
     def capsules(self, robot: str, q: np.ndarray) -> np.ndarray:
         """Capsule segments of ``robot`` in the cell frame [mm], shape (N, n_segments, 2, 3)."""
-        r = self.cell.robot(robot)
-        chain = r.model().chain(np.atleast_2d(q))
-        pts = np.concatenate([np.moveaxis(chain.p_base_origin, 0, 1), chain.p_base_tool[:, None]], axis=1)
-        foot = pts[:, 0] - np.array([0.0, 0.0, -self.config.floor_z_mm + r.T_cell_base[2, 3]])
-        pts = np.concatenate([pts, foot[:, None]], axis=1)  # index -1 = base column foot
-        seg = np.stack([np.stack([pts[:, i], pts[:, k]], axis=1) for _, i, k in _SEGMENTS], axis=1)
-        return seg @ r.T_cell_base[:3, :3].T + r.T_cell_base[:3, 3]
+        return self.capsule_model.segments(robot, q)
 
     def _others(self, robot: str, others: Mapping[str, np.ndarray] | None) -> dict[str, np.ndarray]:
         others = dict(others or {})
@@ -155,28 +112,22 @@ class CellSafety:
         for name, oq in other_q.items():
             self.check_limits(name, oq)
         segs = self.capsules(robot, q)
-        radii = self._radii[robot]
-        names = [s for s, _, _ in _SEGMENTS]
         where = (lambda i: f" at target {index[i]}") if index is not None else (lambda i: "")
         if self.config.check_floor:
-            cols = [names.index(s) for s in _FLOOR_CHECKED]
-            gap = segs[:, cols][..., 2].min(axis=2) - radii[cols] - self.config.floor_z_mm
+            gap = self.capsule_model.floor_gaps(robot, segs, FLOOR_CHECKED)
             bad = gap < self.config.floor_clearance_mm
             if bad.any():
                 i, k = (int(v) for v in np.argwhere(bad)[0])
                 raise UnsafeTarget(robot, None, float(gap[i, k]), self.config.floor_clearance_mm,
-                                   f"{robot} {names[cols[k]]} too close to the floor{where(i)}")
+                                   f"{robot} {FLOOR_CHECKED[k]} too close to the floor{where(i)}")
         if self.config.check_collisions:
             for name, oq in other_q.items():
-                o_segs = self.capsules(name, oq)[0]  # (M, 2, 3)
-                d = segment_distance(segs[:, :, None, 0], segs[:, :, None, 1], o_segs[None, None, :, 0],
-                                     o_segs[None, None, :, 1])
-                gap = d - radii[None, :, None] - self._radii[name][None, None, :]
+                gap = self.capsule_model.gaps(robot, segs, name, self.capsules(name, oq)[0])
                 bad = gap < self.config.clearance_mm
                 if bad.any():
                     i, k, m = (int(v) for v in np.argwhere(bad)[0])
                     raise UnsafeTarget(robot, None, float(gap[i, k, m]), self.config.clearance_mm,
-                                       f"{robot} {names[k]} too close to {name} {names[m]}{where(i)}")
+                                       f"{robot} {SEGMENTS[k]} too close to {name} {SEGMENTS[m]}{where(i)}")
 
     def path(self, q_from: np.ndarray, q_to: np.ndarray) -> np.ndarray:
         """Joint-space samples of the move from ``q_from`` to ``q_to`` (both included), shape (K, 6)."""

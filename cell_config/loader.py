@@ -2,17 +2,16 @@
 
 Every malformed file raises :class:`~calibration.errors.ConfigError` naming the file, the dotted key and what
 was expected; nothing is returned half-built. The optional device blocks of ``cell.yaml`` (``controller``,
-``mocap``, ``probe``), the ``zenoh`` block and its per-role overrides refuse unknown keys (the message lists
-the valid ones) and values of the wrong YAML type (the string ``"false"`` is not a boolean).
+``mocap``, ``probe``), the ``zenoh`` block and its per-role overrides are parsed by
+:mod:`cell_config.devices`, the registration file by :mod:`cell_config.registration`; their types are
+re-exported here.
 """
 
 from __future__ import annotations
 
-import ipaddress
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 
@@ -20,16 +19,22 @@ from calibration import so3
 from calibration.errors import ConfigError
 from calibration.poe import PoeModel
 from cell_config._yaml import Node
+from cell_config.devices import (ZENOH_MODES, ZENOH_ROLES, ControllerConfig, MocapConfig, ProbeConfig, ZenohConfig,
+                                 ZenohRole, parse_controller, parse_mocap, parse_probe, parse_zenoh)
 from cell_config.registration import RobotRegistration, load_registration, registrations_for, save_registration
+
+__all__ = [
+    "CAPSULE_SEGMENTS", "DEFAULT_CELL", "REHEARSAL_CELL", "ZENOH_MODES", "ZENOH_ROLES", "CellRobot", "CellSpec",
+    "ControllerConfig", "LinkInertia", "MocapConfig", "ProbeConfig", "RobotRegistration", "RobotSpec", "ToolSpec",
+    "ZenohConfig", "ZenohRole", "load_cell", "load_registration", "load_robot", "load_tool", "save_registration",
+]
 
 PACKAGE_DIR = Path(__file__).resolve().parent
 DEFAULT_CELL = PACKAGE_DIR / "cell.yaml"
 REHEARSAL_CELL = PACKAGE_DIR / "rehearsal.yaml"
 
-ZenohRole = Literal["bridge", "collector", "router"]
-ZENOH_ROLES: tuple[str, ...] = ("bridge", "collector", "router")
-ZENOH_MODES: tuple[str, ...] = ("peer", "client", "router")
-MAX_MOTOROS_GROUPS = 4  # MotoROS control groups 0..3
+#: The collision capsules of an arm (``capsules_mm`` in the robot YAML); app/capsules.py says what each spans.
+CAPSULE_SEGMENTS: tuple[str, ...] = ("base", "shoulder", "upper_arm", "forearm", "wrist", "tool")
 
 
 @dataclass(frozen=True)
@@ -54,6 +59,7 @@ class RobotSpec:
     pulses_per_rad: np.ndarray  # (6,)
     links: tuple[LinkInertia, ...] = ()
     payload_kg: float | None = None
+    capsules_mm: Mapping[str, float] = field(default_factory=dict)  # collision capsule radius per segment [mm]
 
     def model(self, tool: "ToolSpec | None" = None) -> PoeModel:
         """The nominal POE model of this arm carrying ``tool`` (flange frame when None)."""
@@ -83,76 +89,6 @@ class CellRobot:
 
     def model(self) -> PoeModel:
         return self.robot.model(self.tool)
-
-
-@dataclass(frozen=True)
-class ZenohConfig:
-    """One Zenoh session's settings: mode, endpoints to listen on / connect to, multicast scouting."""
-
-    mode: str = "peer"
-    listen: tuple[str, ...] = ()
-    connect: tuple[str, ...] = ()
-    multicast_scouting: bool = False
-
-
-@dataclass(frozen=True)
-class ControllerConfig:
-    """The MotoROS controller carrying the cell's arms.
-
-    Attributes:
-        host: controller address.
-        motion_port: MotoROS motion server port (TCP).
-        state_port: MotoROS state server port (TCP).
-        groups: robot name -> MotoROS control group (0..3), distinct.
-        connect_timeout_s: TCP connect timeout [s].
-        reply_timeout_s: timeout of one motion-server reply [s].
-        start_traj_timeout_s: timeout of START_TRAJ_MODE (alarm reset + servo on, ~10 s on a real controller) [s].
-        max_speed_fraction: cap of ``--speed`` as a fraction of each joint's maximum speed, in (0, 1].
-        joint_margin_deg: distance kept from every joint limit on this cell [deg].
-    """
-
-    host: str
-    motion_port: int = 50240
-    state_port: int = 50241
-    connect_timeout_s: float = 5.0
-    reply_timeout_s: float = 2.0
-    start_traj_timeout_s: float = 15.0
-    max_speed_fraction: float = 0.25
-    joint_margin_deg: float = 2.0
-    groups: Mapping[str, int] = field(kw_only=True)
-
-
-@dataclass(frozen=True)
-class MocapConfig:
-    """The Motive (NatNet) server and how the bridge PC reaches it.
-
-    Attributes:
-        server_address: the Motive PC.
-        local_address: the bridge PC's interface facing it.
-        multicast: data stream by multicast (True) or unicast (False).
-        rigid_bodies: robot name -> Motive rigid-body NAME of its marker (ids come from the model definitions).
-        multicast_group: the NatNet multicast group.
-        command_port: NatNet command port (UDP).
-        data_port: NatNet data port (UDP).
-    """
-
-    server_address: str
-    local_address: str
-    multicast: bool
-    rigid_bodies: Mapping[str, str]
-    multicast_group: str = "239.255.42.99"
-    command_port: int = 1510
-    data_port: int = 1511
-
-
-@dataclass(frozen=True)
-class ProbeConfig:
-    """The CAN touch probe: python-can interface and channel, bitrate, heartbeat id (event = base_id + 1)."""
-
-    interface: str
-    channel: str
-    bitrate: int
-    base_id: int
 
 
 @dataclass(frozen=True)
@@ -226,11 +162,14 @@ def load_robot(path: str | Path) -> RobotSpec:
         entry = Node(r.path, link, f"links[{i}]")
         links.append(LinkInertia(float(entry.array("mass_kg", ())), entry.array("com_mm", (3,))))
     payload = r.get("payload_kg", None)
+    caps = r.child("capsules_mm")
+    caps.only(CAPSULE_SEGMENTS)
+    capsules = {s: caps.number(s, lo=0.0, lo_open=True) for s in CAPSULE_SEGMENTS}
     return RobotSpec(
         name=r.string("name"), H=H, P=r.array("P", (7, 3)).T, R_flange=R_flange,
         lower_rad=np.radians(lower), upper_rad=np.radians(upper), max_speed_rad_s=np.radians(speeds),
         pulses_per_rad=pulses * 180.0 / np.pi, links=tuple(links),
-        payload_kg=None if payload is None else float(payload),
+        payload_kg=None if payload is None else float(payload), capsules_mm=capsules,
     )
 
 
@@ -247,7 +186,7 @@ def load_cell(path: str | Path = DEFAULT_CELL) -> CellSpec:
     """Load ``cell.yaml``; robot, tool and registration paths inside it are relative to the cell file."""
     r = Node.load(path)
     robots = _robots(r)
-    zenoh, roles = _zenoh(r.child("zenoh", None))
+    zenoh, roles = parse_zenoh(r.child("zenoh", None))
     registration_path = None
     registration: dict[str, RobotRegistration] = {}
     if "registration" in r:
@@ -255,9 +194,9 @@ def load_cell(path: str | Path = DEFAULT_CELL) -> CellSpec:
         registration = registrations_for(registration_path, robots)
     return CellSpec(
         name=r.string("name"), path=r.path, robots=robots, zenoh=zenoh,
-        controller=_controller(r.child("controller", None), robots),
-        mocap=_mocap(r.child("mocap", None), robots),
-        probe=_probe(r.child("probe", None)),
+        controller=parse_controller(r.child("controller", None), robots),
+        mocap=parse_mocap(r.child("mocap", None), robots),
+        probe=parse_probe(r.child("probe", None)),
         zenoh_roles=roles, registration_path=registration_path, registration=registration,
     )
 
@@ -279,109 +218,3 @@ def _robots(r: Node) -> dict[str, CellRobot]:
         tool = load_tool(r.path.parent / entry.string("tool"))
         robots[str(name)] = CellRobot(str(name), robot, tool, T)
     return robots
-
-
-def _robot_names(node: Node, key: str, robots: Mapping[str, CellRobot]) -> Node:
-    """The mapping under ``key`` whose keys must be robots of the cell (non-empty)."""
-    if not isinstance(node.get(key), dict) or not node.get(key):
-        raise node.error(key, f"expected a non-empty mapping of robot names ({', '.join(robots)}) to values")
-    m = node.child(key)
-    for name in m.data:
-        if name not in robots:
-            raise m.error(str(name), f"unknown robot {name!r}; valid: {', '.join(robots)}")
-    return m
-
-
-def _host(node: Node, key: str, default: object = ...) -> str:
-    value = node.string(key, default)
-    if value != value.strip() or any(c.isspace() for c in value):
-        raise node.error(key, f"expected a host name or address without spaces, got {value!r}")
-    return value
-
-
-def _controller(node: Node | None, robots: Mapping[str, CellRobot]) -> ControllerConfig | None:
-    if node is None:
-        return None
-    d = ControllerConfig("", groups={})
-    node.only(("host", "motion_port", "state_port", "groups", "connect_timeout_s", "reply_timeout_s",
-               "start_traj_timeout_s", "max_speed_fraction", "joint_margin_deg"))
-    g = _robot_names(node, "groups", robots)
-    groups = {str(name): g.integer(name, lo=0, hi=MAX_MOTOROS_GROUPS - 1) for name in g.data}
-    if len(set(groups.values())) != len(groups):
-        raise node.error("groups", f"expected a distinct control group per robot, got {groups}")
-    motion_port, state_port = node.port("motion_port", d.motion_port), node.port("state_port", d.state_port)
-    if motion_port == state_port:
-        raise node.error("state_port", f"expected a port other than motion_port ({motion_port})")
-    return ControllerConfig(
-        host=_host(node, "host"), motion_port=motion_port, state_port=state_port, groups=groups,
-        connect_timeout_s=node.number("connect_timeout_s", d.connect_timeout_s, lo=0.0, lo_open=True),
-        reply_timeout_s=node.number("reply_timeout_s", d.reply_timeout_s, lo=0.0, lo_open=True),
-        start_traj_timeout_s=node.number("start_traj_timeout_s", d.start_traj_timeout_s, lo=0.0, lo_open=True),
-        max_speed_fraction=node.number("max_speed_fraction", d.max_speed_fraction, lo=0.0, hi=1.0, lo_open=True),
-        joint_margin_deg=node.number("joint_margin_deg", d.joint_margin_deg, lo=0.0, hi=45.0),
-    )
-
-
-def _mocap(node: Node | None, robots: Mapping[str, CellRobot]) -> MocapConfig | None:
-    if node is None:
-        return None
-    d = MocapConfig("", "", False, {})
-    node.only(("server_address", "local_address", "multicast", "multicast_group", "command_port", "data_port",
-               "rigid_bodies"))
-    b = _robot_names(node, "rigid_bodies", robots)
-    bodies = {str(name): b.string(name) for name in b.data}
-    if len(set(bodies.values())) != len(bodies):
-        raise node.error("rigid_bodies", f"expected a distinct rigid body per robot, got {bodies}")
-    group = _host(node, "multicast_group", d.multicast_group)
-    try:
-        is_multicast = ipaddress.ip_address(group).is_multicast
-    except ValueError:
-        is_multicast = False
-    if not is_multicast:
-        raise node.error("multicast_group", f"expected a multicast IP address like 239.255.42.99, got {group!r}")
-    command_port, data_port = node.port("command_port", d.command_port), node.port("data_port", d.data_port)
-    if command_port == data_port:
-        raise node.error("data_port", f"expected a port other than command_port ({command_port})")
-    return MocapConfig(
-        server_address=_host(node, "server_address"), local_address=_host(node, "local_address"),
-        multicast=node.boolean("multicast"), rigid_bodies=bodies, multicast_group=group,
-        command_port=command_port, data_port=data_port,
-    )
-
-
-def _probe(node: Node | None) -> ProbeConfig | None:
-    if node is None:
-        return None
-    node.only(("interface", "channel", "bitrate", "base_id"))
-    return ProbeConfig(
-        interface=node.string("interface"), channel=node.string("channel"),
-        bitrate=node.integer("bitrate", lo=1),
-        base_id=node.integer("base_id", lo=0, hi=0x7FE),  # 11-bit ids; the event frame uses base_id + 1
-    )
-
-
-_ZENOH_KEYS = ("mode", "listen", "connect", "multicast_scouting")
-
-
-def _zenoh_session(node: Node, extra: tuple[str, ...] = ()) -> ZenohConfig:
-    node.only(_ZENOH_KEYS + extra)
-    d = ZenohConfig()
-    mode = node.get("mode", d.mode)
-    if mode not in ZENOH_MODES:
-        raise node.error("mode", f"expected one of {', '.join(ZENOH_MODES)}, got {mode!r}")
-    what = "endpoint strings like tcp/127.0.0.1:7447"
-    return ZenohConfig(mode, node.strings("listen", d.listen, what), node.strings("connect", d.connect, what),
-                       node.boolean("multicast_scouting", d.multicast_scouting))
-
-
-def _zenoh(node: Node | None) -> tuple[ZenohConfig, dict[str, ZenohConfig]]:
-    """The default session settings and the per-role overrides (each complete: unset keys take the defaults
-    of :class:`ZenohConfig`, not the default block's values)."""
-    if node is None:
-        return ZenohConfig(), {}
-    default = _zenoh_session(node, ("roles",))
-    roles_node = node.child("roles", None)
-    if roles_node is None:
-        return default, {}
-    roles_node.only(ZENOH_ROLES)
-    return default, {str(role): _zenoh_session(roles_node.child(role)) for role in roles_node.data}

@@ -1,9 +1,13 @@
+import os
+import stat
+
 import numpy as np
 import pytest
 import yaml
 
 from calibration.errors import ConfigError
-from cell_config import DEFAULT_CELL, load_cell, load_robot
+from cell_config import (DEFAULT_CELL, REHEARSAL_CELL, ControllerConfig, MocapConfig, ProbeConfig, RobotRegistration,
+                         ZenohConfig, load_cell, load_registration, load_robot, save_registration)
 
 
 def test_default_cell_loads_both_arms():
@@ -58,21 +62,6 @@ def test_malformed_robot_yaml(tmp_path):
 
 
 # --- the real cell's devices, network roles and registration -------------------------------------------------
-
-import os
-import stat
-
-from cell_config import (
-    REHEARSAL_CELL,
-    ControllerConfig,
-    MocapConfig,
-    ProbeConfig,
-    RobotRegistration,
-    ZenohConfig,
-    load_registration,
-    save_registration,
-)
-
 
 def test_rehearsal_cell_puts_every_device_on_loopback():
     cell = load_cell(REHEARSAL_CELL)
@@ -449,3 +438,37 @@ def test_saved_file_mode_follows_the_umask_like_open(tmp_path):
     os.chmod(existing, 0o604)
     save_registration(existing, "R1", _registration(1))  # an existing file keeps its mode, as open("w") does
     assert stat.S_IMODE(os.stat(existing).st_mode) == 0o604
+
+
+# --- collision capsules in the robot YAML -----------------------------------------------------------------------
+
+_CAPS_LINE = "capsules_mm: {base: 220, shoulder: 180, upper_arm: 140, forearm: 110, wrist: 90, tool: 50}"
+
+
+def test_robot_yaml_carries_its_capsule_radii():
+    spec = load_robot(DEFAULT_CELL.parent / "robots" / "MA1440.yaml")
+    assert spec.capsules_mm == {"base": 180.0, "shoulder": 150.0, "upper_arm": 110.0, "forearm": 90.0,
+                                "wrist": 70.0, "tool": 50.0}
+    assert all(type(v) is float for v in spec.capsules_mm.values())
+
+
+@pytest.mark.parametrize("line, key, reason", [
+    ("", "capsules_mm", "required key is missing"),
+    ("capsules_mm: [220, 180]", "capsules_mm", "expected a mapping"),
+    (_CAPS_LINE.replace(", tool: 50", ""), "capsules_mm.tool", "required key is missing"),
+    (_CAPS_LINE.replace("tool: 50", "tool: 50, gun: 60"), "capsules_mm.gun",
+     "unknown key in capsules_mm; valid keys: base, shoulder, upper_arm, forearm, wrist, tool"),
+    (_CAPS_LINE.replace("wrist: 90", "wrist: 0"), "capsules_mm.wrist", "expected a finite number > 0"),
+    (_CAPS_LINE.replace("wrist: 90", "wrist: -90"), "capsules_mm.wrist", "expected a finite number > 0"),
+    (_CAPS_LINE.replace("wrist: 90", "wrist: '90'"), "capsules_mm.wrist", "expected a finite number > 0"),
+    (_CAPS_LINE.replace("wrist: 90", "wrist: true"), "capsules_mm.wrist", "expected a finite number > 0"),
+    (_CAPS_LINE.replace("wrist: 90", "wrist: .inf"), "capsules_mm.wrist", "expected a finite number > 0"),
+])
+def test_malformed_capsules_name_the_key(tmp_path, line, key, reason):
+    text = (DEFAULT_CELL.parent / "robots" / "MA2010.yaml").read_text()
+    assert _CAPS_LINE in text
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(text.replace(_CAPS_LINE, line))
+    with pytest.raises(ConfigError) as e:
+        load_robot(bad)
+    assert e.value.key == key and reason in e.value.reason and e.value.path == str(bad)
