@@ -107,6 +107,7 @@ def cmd_collect(args: argparse.Namespace) -> int:
 def _dry_run(args: argparse.Namespace, rt: Any, safety: Any, plan: Any, config: Any) -> int:
     """Check the whole plan from where the arm stands against the other arms' live poses; print it; no motion."""
     from app.dry_run import summarize_plan
+    from app.motion import live_poses, read_q
     from app.planning import Plan
     from app.session_store import SessionStore
 
@@ -115,10 +116,15 @@ def _dry_run(args: argparse.Namespace, rt: Any, safety: Any, plan: Any, config: 
             plan, done = store.plan(), store.done()
         plan = Plan(tuple(t for i, t in enumerate(plan.targets) if i not in done), plan.params)
     driver = rt.drivers[args.robot]
-    others = {n: d.read_joints().q for n, d in rt.others(args.robot).items()}
-    summary = summarize_plan(plan, safety, others, driver.read_joints().q, config.speed_fraction)
-    print(f"dry run, no motion: {summary.text()}")
+    others = live_poses(rt.others(args.robot))
+    summary = summarize_plan(plan, safety, others, read_q(driver), speed_fraction=config.speed_fraction,
+                             per_target_s=config.dwell_s + config.discard_s + 0.5)
+    print("dry run, no motion:")
+    for line in summary.lines():
+        print(f"  {line}")
     write_json(args.json, {"robot": args.robot, "dry_run": True, **summary.to_json()})
+    if not summary.safe:
+        raise CellCalError(f"dry run: the plan would be refused: {summary.safety_error}")
     return 0
 
 

@@ -71,17 +71,25 @@ def cmd_router(args: argparse.Namespace) -> int:
 
 def cmd_fake_controller(args: argparse.Namespace) -> int:
     from app.cell_runtime import park_q
+    from drivers.motoros.codec import JointTrajPtFull, JointTrajPtFullEx
     from drivers.motoros.fake_cell import run_fake_controller
 
     cell = cell_spec(args)
     if cell.controller is None:
         raise CellCalError(f"{cell.path}: no controller block to serve")
     stop = stop_on_signals()
-    initial = {name: park_q(name) for name in cell.controller.groups}
-    run_fake_controller(cell, stop, initial_q=initial,
-                        ready=lambda c: _ready(f"fake-controller: MotoROS on {c.host}:{c.motion_port}/"
-                                               f"{c.state_port}, groups {dict(cell.controller.groups)}; "
-                                               "SIGUSR1 = alarm, SIGUSR2 = NaN feedback"))
+    served: list[Any] = []
+
+    def ready(fake: Any) -> None:
+        served.append(fake)
+        _ready(f"fake-controller: MotoROS on {fake.host}:{fake.motion_port} (motion) / {fake.state_port} (state), "
+               f"groups {dict(cell.controller.groups)}; SIGUSR1 = alarm, SIGUSR2 = non-finite feedback")
+
+    run_fake_controller(cell, stop, initial_q={name: park_q(name) for name in cell.controller.groups},
+                        servo_on_delay_s=args.servo_on_delay, on_ready=ready)
+    if served:
+        points = sum(isinstance(m, (JointTrajPtFull, JointTrajPtFullEx)) for m in served[0].received)
+        print(f"fake-controller stopped: trajectory points received: {points}", flush=True)
     return 0
 
 
@@ -97,17 +105,20 @@ def cmd_fake_motive(args: argparse.Namespace) -> int:
     truths = rehearsal_truths(cell, args.seed, origin_std_mm=args.origin_std_mm, tilt_std_deg=args.tilt_std_deg,
                               compliance_mm=args.compliance_mm)
     m = cell.mocap
+    if not m.server_address.startswith("127."):
+        raise CellCalError(f"{cell.path}: mocap.server_address {m.server_address}: the fake Motive serves on "
+                           "loopback only (127.0.0.1)")
     reader = StateReader(cell.controller.host, cell.controller.state_port).start()
     try:
         world = RehearsalMocap(cell, reader, args.seed, truths)
         bodies = {name: 11 + k for k, name in enumerate(m.rigid_bodies.values())}  # Motive's own ids, not ours
         with FakeMotive(bodies, world.poses, rate_hz=args.rate, noise_pos_mm=args.noise_pos_mm,
-                        noise_rot_deg=args.noise_rot_deg, seed=args.seed, host=m.server_address,
-                        command_port=m.command_port, data_port=m.data_port,
-                        multicast_group=m.multicast_group if m.multicast else None):
+                        noise_rot_deg=args.noise_rot_deg, seed=args.seed, command_port=m.command_port,
+                        data_port=m.data_port, multicast_group=m.multicast_group if m.multicast else None) as motive:
             _ready(f"fake-motive: NatNet 4.1 on {m.server_address}:{m.command_port}, {args.rate:g} Hz, bodies "
                    f"{bodies}, in a hidden world frame (seed {args.seed})")
             stop.wait()
+        print(f"fake-motive stopped: {motive.frames_sent} frames sent", flush=True)
     finally:
         reader.close()
     return 0
@@ -180,8 +191,10 @@ def add_real_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--frame-timeout", type=float, default=2.0,
                    help="seconds without a frame after which Motive counts as gone and is reconnected")
     add("router", cmd_router, "a Zenoh router (eclipse-zenoh's router mode) for cells with more than two machines")
-    add("fake-controller", cmd_fake_controller,
-        "rehearsal: a fake MotoROS controller serving every motion group of the cell with simulated arms")
+    p = add("fake-controller", cmd_fake_controller,
+            "rehearsal: a fake MotoROS controller serving every motion group of the cell with simulated arms")
+    p.add_argument("--servo-on-delay", type=float, default=1.0,
+                   help="seconds START_TRAJ_MODE takes to turn the servos on (a real controller: up to ~10)")
     p = add("fake-motive", cmd_fake_motive,
             "rehearsal: a fake Motive streaming the fake controller's arms at 240 Hz in a hidden world frame")
     p.add_argument("--seed", type=int, default=0, help="seed of the hidden world frame, markers and twins")

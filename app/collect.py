@@ -155,6 +155,7 @@ class _Session:
         self.index: int | None = None  # the target being visited
         self.t_offset = time.time() - store.created_wall()
         self.t_start = time.monotonic()
+        self.moved = False  # no move commanded yet in this run
 
     def all_drivers(self) -> dict[str, RobotDriver]:
         """Every arm this session knows: its own and the others."""
@@ -178,7 +179,13 @@ class _Session:
         return out
 
     def check_ready(self) -> None:
-        """No arm reports an alarm or an e-stop (each would end the run)."""
+        """No arm reports an alarm or an e-stop (each would end the run).
+
+        Before the run's first move an alarm that was already standing is not a halt: the operator has just
+        started (or resumed) the session, and the controller's START_TRAJ_MODE resets alarms and turns the servos
+        on (MotoROS does; if it cannot, the driver's move is refused with the controller's reason). An e-stop is
+        always a halt.
+        """
         for name, d in self.all_drivers().items():
             try:
                 st = d.status()
@@ -186,6 +193,10 @@ class _Session:
                 if d is self.driver:
                     raise  # the arm's own connection faults are retried
                 raise _Halt(name, e, self.index) from e
+            if st.alarm and not st.e_stopped and not self.moved:
+                log.warning("%s: alarm %d standing at the start of the run; the controller resets it on "
+                            "START_TRAJ_MODE", name, st.error_code)
+                continue
             if st.alarm or st.e_stopped:
                 what = "e-stop pressed" if st.e_stopped else f"alarm active (code {st.error_code})"
                 raise _Halt(name, RobotFault(device_name(d), what), self.index)
@@ -197,6 +208,7 @@ class _Session:
         q_now = self.own_q()
         self.safety.check_motion(self.driver.name, q_now, target.q, self.others(), index)
         self.driver.move_to(target.q, c.speed_fraction)
+        self.moved = True
         self.driver.wait_settled(c.settle_timeout_s, c.settle_tolerance_rad)
         moved = np.abs(target.q - q_now) > _MOVE_EPS_RAD
         self.dirs = np.where(moved, np.sign(target.q - q_now).astype(int), self.dirs)

@@ -147,7 +147,7 @@ def registered_cell(tmp_path: Path, robot: str = "R1") -> Path:
     T_fm[:3, :3], T_fm[:3, 3] = tool.R_flange_tool, tool.p_flange_tool
     save_registration(cell.registration_path, robot, RobotRegistration(
         T_world_base=hf.T_world_base, T_flange_marker=T_fm @ hf.T_tool_marker, date="2026-12-01T00:00:00+00:00",
-        rms_mm=0.0, rms_deg=0.0, n_samples=0, sigma_world_base=np.zeros(6), sigma_flange_marker=np.zeros(6)))
+        rms_mm=0.0, rms_deg=0.0, n_samples=21, sigma_world_base=np.zeros(6), sigma_flange_marker=np.zeros(6)))
     return cell_path
 
 
