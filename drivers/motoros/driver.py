@@ -171,7 +171,7 @@ class MotorosDriver(RobotDriver):
         if reply.result == Result.SUCCESS:
             return
         if reply.result in (Result.NOT_READY, Result.ALARM):
-            raise RobotFault(self.device, f"{what} refused: {reply.describe()}")
+            raise ControllerNotReady(self.device, f"{what} refused", reply.subcode, cause=reply.describe())
         raise DriverError(self.device, f"{what} rejected: {reply.describe()}")
 
     def _enter_trajectory_mode(self, msg: RobotStatusMsg) -> None:
@@ -231,7 +231,8 @@ class MotorosDriver(RobotDriver):
             InvalidArgument: ``q`` has the wrong shape or is not finite, or ``speed_fraction`` is outside (0, 1].
             NonFiniteFeedback: the joint feedback is NaN or inf (nothing is sent).
             ControllerNotReady: e-stop, teach mode or alarm (nothing sent), or CHECK_MOTION_READY is FALSE.
-            RobotFault: the controller refused START_TRAJ_MODE or a point (NOT_READY, with its subcode).
+            ControllerNotReady: (a RobotFault) the controller refused START_TRAJ_MODE or a point (NOT_READY,
+                with its subcode).
             DriverError: the controller rejected a trajectory point (its subcode says why).
         """
         q = np.asarray(q, dtype=float)

@@ -338,8 +338,10 @@ def test_start_traj_mode_refusal_names_the_cause(fake, fault, subcode, words) ->
     fault(fake)
     time.sleep(0.05)
     with MotorosDriver(_link(fake), 0, SPEED, reset_alarms=True) as r1:
-        with pytest.raises(RobotFault, match=rf"START_TRAJ_MODE refused: NOT_READY \({subcode}: {words}\)"):
+        with pytest.raises(ControllerNotReady, match=rf"START_TRAJ_MODE refused: NOT_READY \({subcode}: {words}\)") \
+                as err:
             r1.move_to(Q0[0] + 0.1, 1.0)
+    assert isinstance(err.value, RobotFault) and err.value.subcode == subcode
     assert _traj_points(fake) == []
 
 
