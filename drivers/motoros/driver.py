@@ -230,9 +230,8 @@ class MotorosDriver(RobotDriver):
         Raises:
             InvalidArgument: ``q`` has the wrong shape or is not finite, or ``speed_fraction`` is outside (0, 1].
             NonFiniteFeedback: the joint feedback is NaN or inf (nothing is sent).
-            ControllerNotReady: e-stop, teach mode or alarm (nothing sent), or CHECK_MOTION_READY is FALSE.
-            ControllerNotReady: (a RobotFault) the controller refused START_TRAJ_MODE or a point (NOT_READY,
-                with its subcode).
+            ControllerNotReady: (a RobotFault) e-stop, teach mode or alarm (nothing sent), CHECK_MOTION_READY
+                FALSE, or START_TRAJ_MODE / a point answered NOT_READY; ``subcode`` holds MotoROS's reason.
             DriverError: the controller rejected a trajectory point (its subcode says why).
         """
         q = np.asarray(q, dtype=float)
