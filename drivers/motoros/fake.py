@@ -55,7 +55,8 @@ def _per_group(value: float | np.ndarray, n_groups: int, n_joints: int, name: st
     try:
         return np.broadcast_to(arr, (n_groups, n_joints)).copy()
     except ValueError:
-        raise InvalidArgument(_DEVICE, name, arr.shape, f"a scalar, ({n_joints},) or ({n_groups}, {n_joints})") from None
+        expected = f"a scalar, ({n_joints},) or ({n_groups}, {n_joints})"
+        raise InvalidArgument(_DEVICE, name, arr.shape, expected) from None
 
 
 class FakeMotorosController:
