@@ -14,8 +14,9 @@ Before a move, as motoman_driver does it:
    alarm (unless ``reset_alarms``): START_TRAJ_MODE cannot clear the first two and would silently reset
    the third. Servo off is *not* refused: START_TRAJ_MODE turns the servos on.
 2. Refuse, sending nothing, when the joint feedback is NaN or infinite.
-3. If RobotStatus says motion is not possible, send START_TRAJ_MODE (resets alarms, servo on, starts the
-   INIT_ROS job; may take ~10 s, hence the link's ``start_traj_timeout_s``).
+3. If RobotStatus says motion is not possible (or CHECK_MOTION_READY says FALSE for a cause it can fix),
+   send START_TRAJ_MODE (resets alarms, servo on, starts the INIT_ROS job; may take ~10 s, hence its own
+   ``start_traj_timeout_s``).
 4. CHECK_MOTION_READY; FALSE carries the cause as a NOT_READY subcode (not remote, hold, ...).
 
 MotoROS's STOP_MOTION stops every group on the controller, not only this one.
@@ -33,6 +34,7 @@ from drivers.base import JointState, RobotDriver, RobotStatus
 from drivers.errors import DriverError, DriverTimeout, RobotFault
 from drivers.motoros.codec import (Command, JointFeedback, JointTrajPtFull, JointTrajPtFullEx, MotionCtrl,
                                    MotionReply, MsgType, Result, RobotStatusMsg, ValidFields)
+from drivers.motoros.codes import OPERATOR_SUBCODES, NotReadySubcode
 from drivers.motoros.errors import ControllerNotReady, InvalidArgument, NonFiniteFeedback
 from drivers.motoros.link import MotorosLink
 
@@ -63,13 +65,15 @@ class MotorosDriver(RobotDriver):
         trajectory_message: ``"full"`` sends JointTrajPtFull (14), ``"full_ex"`` JointTrajPtFullEx (2016).
         reset_alarms: let START_TRAJ_MODE reset an active alarm (MotoROS does so); off by default, so an
             alarm refuses motion until someone has looked at it.
+        start_traj_timeout_s: longest wait for START_TRAJ_MODE [s]; None uses the link's.
 
     Raises:
         InvalidArgument: a non-positive speed, a negative group or an unknown ``trajectory_message``.
     """
 
     def __init__(self, link: MotorosLink, group: int, max_speed_rad_s: np.ndarray, name: str | None = None,
-                 trajectory_message: Literal["full", "full_ex"] = "full", *, reset_alarms: bool = False) -> None:
+                 trajectory_message: Literal["full", "full_ex"] = "full", *, reset_alarms: bool = False,
+                 start_traj_timeout_s: float | None = None) -> None:
         self.name = name or f"R{group + 1}"
         self.device = f"{link.motion_device}/{self.name}"
         self.max_speed_rad_s = np.asarray(max_speed_rad_s, dtype=float).ravel()
@@ -79,6 +83,9 @@ class MotorosDriver(RobotDriver):
             raise InvalidArgument(self.device, "trajectory_message", trajectory_message, "'full' or 'full_ex'")
         if group < 0:
             raise InvalidArgument(self.device, "group", group, ">= 0")
+        if start_traj_timeout_s is not None and not start_traj_timeout_s > 0:
+            raise InvalidArgument(self.device, "start_traj_timeout_s", start_traj_timeout_s, "positive [s] or None")
+        self.start_traj_timeout_s = start_traj_timeout_s
         self.link = link
         self.group = group
         self.n_joints = self.max_speed_rad_s.size
@@ -152,9 +159,10 @@ class MotorosDriver(RobotDriver):
         self._sequence += 1
         return self._sequence
 
-    def _command(self, command: Command, check: bool = True) -> MotionReply:
+    def _command(self, command: Command, check: bool = True, timeout_s: float | None = None) -> MotionReply:
         seq = self._next_sequence()
-        reply = self.link.request(MotionCtrl(self.group, seq, command).encode(), self.group, seq, command)
+        reply = self.link.request(MotionCtrl(self.group, seq, command).encode(), self.group, seq, command,
+                                  timeout_s=timeout_s)
         if check:
             self._raise_for(reply, command.name)
         return reply
@@ -163,17 +171,31 @@ class MotorosDriver(RobotDriver):
         if reply.result == Result.SUCCESS:
             return
         if reply.result in (Result.NOT_READY, Result.ALARM):
-            raise RobotFault(self.device, f"{what} refused: {reply.describe()}")
+            raise ControllerNotReady(self.device, f"{what} refused", reply.subcode, cause=reply.describe())
         raise DriverError(self.device, f"{what} rejected: {reply.describe()}")
 
     def _enter_trajectory_mode(self, msg: RobotStatusMsg) -> None:
-        """START_TRAJ_MODE unless motion is already possible, then CHECK_MOTION_READY (motoman_driver's order)."""
-        if msg.motion_possible != 1:
-            self._command(Command.START_TRAJ_MODE)
-            self._fresh_after = time.monotonic()  # an alarm it reset may still be in the last status
+        """START_TRAJ_MODE unless motion is possible, then CHECK_MOTION_READY (motoman_driver's order).
+
+        The status may lag the controller: when it says motion is possible, CHECK_MOTION_READY is asked
+        first, and a FALSE that START_TRAJ_MODE may fix (trajectory mode ended, servo off) starts it.
+        """
+        if msg.motion_possible == 1:
+            ready = self._command(Command.CHECK_MOTION_READY, check=False)
+            if ready.result == Result.TRUE:
+                return
+            self._refuse_unfixable(ready.subcode)
+        self._command(Command.START_TRAJ_MODE, timeout_s=self.start_traj_timeout_s)
+        self._fresh_after = time.monotonic()  # an alarm it reset may still be in the last status
         ready = self._command(Command.CHECK_MOTION_READY, check=False)
         if ready.result != Result.TRUE:
             raise ControllerNotReady(self.device, "CHECK_MOTION_READY is FALSE", ready.subcode)
+
+    def _refuse_unfixable(self, subcode: int) -> None:
+        """ControllerNotReady for a CHECK_MOTION_READY subcode START_TRAJ_MODE cannot or must not fix."""
+        resettable = (NotReadySubcode.ALARM, NotReadySubcode.ERROR)
+        if subcode in OPERATOR_SUBCODES or (subcode in resettable and not self.reset_alarms):
+            raise ControllerNotReady(self.device, "CHECK_MOTION_READY is FALSE", subcode)
 
     def _send_point(self, sequence: int, time_s: float, q: np.ndarray) -> None:
         if self.trajectory_message == "full":
@@ -208,8 +230,8 @@ class MotorosDriver(RobotDriver):
         Raises:
             InvalidArgument: ``q`` has the wrong shape or is not finite, or ``speed_fraction`` is outside (0, 1].
             NonFiniteFeedback: the joint feedback is NaN or inf (nothing is sent).
-            ControllerNotReady: e-stop, teach mode or alarm (nothing sent), or CHECK_MOTION_READY is FALSE.
-            RobotFault: the controller refused START_TRAJ_MODE or a point (NOT_READY, with its subcode).
+            ControllerNotReady: (a RobotFault) e-stop, teach mode or alarm (nothing sent), CHECK_MOTION_READY
+                FALSE, or START_TRAJ_MODE / a point answered NOT_READY; ``subcode`` holds MotoROS's reason.
             DriverError: the controller rejected a trajectory point (its subcode says why).
         """
         q = np.asarray(q, dtype=float)

@@ -49,11 +49,12 @@ class ControllerNotReady(RobotFault):
         device: the driver.
         what: the request or check that failed (``START_TRAJ_MODE``, ``motion refused``).
         subcode: MotoROS subcode (``5005`` = not in remote mode), 0 when the cause came from RobotStatus.
-        cause: words for the cause (defaults to the subcode's name).
+        cause: words for the cause (defaults to the subcode's name, followed by the subcode).
     """
 
     def __init__(self, device: str, what: str, subcode: int = 0, cause: str | None = None) -> None:
         self.what = what
         self.subcode = subcode
         self.cause = cause or SUBCODE_NAMES.get(subcode, f"subcode {subcode}")
-        super().__init__(device, f"{what}: {self.cause}" + (f" (subcode {subcode})" if subcode else ""))
+        suffix = f" (subcode {subcode})" if subcode and cause is None else ""
+        super().__init__(device, f"{what}: {self.cause}{suffix}")

@@ -55,7 +55,8 @@ def _per_group(value: float | np.ndarray, n_groups: int, n_joints: int, name: st
     try:
         return np.broadcast_to(arr, (n_groups, n_joints)).copy()
     except ValueError:
-        raise InvalidArgument(_DEVICE, name, arr.shape, f"a scalar, ({n_joints},) or ({n_groups}, {n_joints})") from None
+        expected = f"a scalar, ({n_joints},) or ({n_groups}, {n_joints})"
+        raise InvalidArgument(_DEVICE, name, arr.shape, expected) from None
 
 
 class FakeMotorosController:
@@ -98,7 +99,7 @@ class FakeMotorosController:
         self._lock = self.controller.lock
         self.received: list[Message] = []  # every decoded request, for tests to inspect
         self._stall = False
-        self._nonfinite = False
+        self.nonfinite_feedback = False  # publishing NaN / inf joint positions (set_nonfinite_feedback)
         self._nonfinite_value = float("nan")
         self._chunk: tuple[int, float] | None = None
         self._threads: list[threading.Thread] = []
@@ -147,8 +148,7 @@ class FakeMotorosController:
             self.controller.halt_if_faulted()
 
     def set_alarm(self, code: int = 4107, resettable: bool = True) -> None:
-        """Raise an alarm (``code`` > 0) or clear it (0); an alarm stops all motion. START_TRAJ_MODE resets a
-        ``resettable`` one, as MotoROS does."""
+        """Raise an alarm (``code`` > 0, stops motion; START_TRAJ_MODE resets it if ``resettable``) or clear it (0)."""
         self._set(alarm_code=code, alarm_resettable=resettable)
 
     def set_estop(self, pressed: bool) -> None:
@@ -157,29 +157,25 @@ class FakeMotorosController:
             self._set(e_stopped=pressed, servo_on=self.controller.servo_on and not pressed)
 
     def set_servo(self, on: bool) -> None:
-        """Switch the servo power."""
+        """Switch the servo power (off stops motion)."""
         self._set(servo_on=on)
 
     def set_mode(self, play: bool) -> None:
-        """Pendant mode: PLAY (True) or TEACH (False); teach stops motion."""
+        """Pendant mode PLAY (True) or TEACH (False, stops motion)."""
         self._set(play=play)
 
     def set_remote(self, remote: bool) -> None:
-        """Remote mode (the pendant's REMOTE key); leaving it stops motion."""
+        """The pendant's REMOTE key (off stops motion)."""
         self._set(remote=remote)
 
     def set_hold(self, hold: bool) -> None:
-        """The HOLD button; holding stops motion."""
+        """The HOLD button (on stops motion)."""
         self._set(hold=hold)
 
     def set_nonfinite_feedback(self, on: bool, value: float = float("nan")) -> None:
         """Publish ``value`` (NaN or inf) as every joint position (True) or the simulated ones (False)."""
-        self._nonfinite = on
+        self.nonfinite_feedback = on
         self._nonfinite_value = value
-
-    @property
-    def nonfinite_feedback(self) -> bool:
-        return self._nonfinite
 
     def stall_replies(self, stalled: bool) -> None:
         """While stalled, motion requests are read and never answered."""
@@ -289,7 +285,7 @@ class FakeMotorosController:
     # -- simulation and publication --------------------------------------------------------------
     def _feedback(self) -> list[JointFeedback]:
         fields = ValidFields.POSITION | ValidFields.VELOCITY
-        nan = np.full(self.groups[0].n_joints, self._nonfinite_value) if self._nonfinite else None
+        nan = np.full(self.groups[0].n_joints, self._nonfinite_value) if self.nonfinite_feedback else None
         return [JointFeedback(i, g.q if nan is None else nan, g.qd, valid_fields=fields)
                 for i, g in enumerate(self.groups)]
 

@@ -112,7 +112,8 @@ class SimulatedGroup:
 
     def _point(self, time_s: float, pos: np.ndarray, vel: np.ndarray) -> TrajPoint:
         n = self.n_joints
-        return TrajPoint(int(time_s * 1000) / 1000.0, np.asarray(pos, float)[:n].copy(), np.asarray(vel, float)[:n].copy())
+        time_ms = int(time_s * 1000)  # Ros_MotionServer_ConvertToJointMotionData
+        return TrajPoint(time_ms / 1000.0, np.asarray(pos, float)[:n].copy(), np.asarray(vel, float)[:n].copy())
 
     def start_trajectory(self, time_s: float, pos: np.ndarray, vel: np.ndarray) -> tuple[Result, int]:
         """Point 0: the start of a trajectory; returns the MotoROS (result, subcode)."""

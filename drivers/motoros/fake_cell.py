@@ -104,7 +104,8 @@ def run_fake_controller(cell: Any, stop: threading.Event, *, initial_q: dict[str
 
     def toggle_feedback(signum: int, frame: object) -> None:
         fake.set_nonfinite_feedback(not fake.nonfinite_feedback)
-        log.warning("fake controller: SIGUSR2, non-finite joint feedback %s", "on" if fake.nonfinite_feedback else "off")
+        log.warning("fake controller: SIGUSR2, non-finite joint feedback %s",
+                    "on" if fake.nonfinite_feedback else "off")
 
     previous = {signal.SIGUSR1: signal.signal(signal.SIGUSR1, alarm),
                 signal.SIGUSR2: signal.signal(signal.SIGUSR2, toggle_feedback)}

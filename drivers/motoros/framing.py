@@ -13,6 +13,7 @@ import struct
 
 from drivers.errors import DriverDisconnected, ProtocolError
 from drivers.motoros.codec import Packet
+from drivers.motoros.errors import InvalidArgument
 
 HEADER_BYTES = 12
 # The largest MotoROS packet (JointFeedbackEx) is 544 bytes after the prefix; leave room, reject the absurd.
@@ -30,7 +31,7 @@ class Framer:
 
     def __init__(self, device: str, max_length: int = DEFAULT_MAX_LENGTH) -> None:
         if max_length < HEADER_BYTES:
-            raise ValueError(f"max_length must be >= {HEADER_BYTES}, got {max_length}")
+            raise InvalidArgument(device, "max_length", max_length, f">= {HEADER_BYTES} [bytes]")
         self.device = device
         self.max_length = max_length
         self._buffer = bytearray()

@@ -134,3 +134,34 @@ def test_framer_rejects_absurd_lengths(length: int) -> None:
 def test_framer_rejects_ascii_garbage() -> None:
     with pytest.raises(ProtocolError, match="stream is corrupt"):
         Framer("test").feed(b"GET / HTTP/1.1\r\n\r\n")
+
+
+def test_queue_count_travels_in_the_reply_subcode() -> None:
+    """MotionServer.c answers CHECK_QUEUE_CNT with Ros_SimpleMsg_MotionReply(..., TRUE, count, ...)."""
+    raw = MotionReply(1, 4, Command.CHECK_QUEUE_CNT, Result.TRUE, 137).encode()
+    assert struct.unpack_from("<5i", raw, 16) == (1, 4, 200102, 0, 137)
+    back = _roundtrip(raw)
+    assert (back.result, back.subcode) == (Result.TRUE, 137) and back.data == (0.0,) * 10
+    assert back.describe() == "SUCCESS (137: unknown subcode)"
+
+
+def test_codes_follow_simple_message_h() -> None:
+    from drivers.motoros.codes import InvalidSubcode, NotReadySubcode, describe
+    assert [int(c) for c in (Command.START_SERVOS, Command.STOP_SERVOS, Command.RESET_ALARM,
+                             Command.DISCONNECT)] == [200112, 200113, 200114, 200130]
+    assert (Result.TRUE, Result.FALSE) == (Result.SUCCESS, Result.FAILURE)
+    assert (InvalidSubcode.DATA_TIME, InvalidSubcode.DATA_TOOLNO) == (3016, 3017)
+    assert (NotReadySubcode.NOT_REMOTE, NotReadySubcode.INC_MOVE_ERROR) == (5005, 5012)
+    assert describe(Result.FALSE, 5005) == "FAILURE (5005: not in remote mode)"
+    assert describe(99, 0) == "99"
+
+
+def test_joint_traj_pt_full_ex_may_carry_all_four_slots() -> None:
+    """MotoROS accepts the full 4-group body as well as just the groups it names."""
+    one = JointTrajPtFullEx(sequence=2, groups=(JointFeedback(0, Q, time=1.0, valid_fields=7),)).encode()
+    padded = one[16:] + bytes(3 * 132)
+    back = decode(Packet(MsgType.JOINT_TRAJ_PT_FULL_EX, 2, 0, padded))
+    assert back.sequence == 2 and len(back.groups) == 1
+    np.testing.assert_array_equal(back.groups[0].pos[:6], Q)
+    with pytest.raises(ProtocolError, match="JointTrajPtFullEx body is 272 bytes, expected 140"):
+        decode(Packet(MsgType.JOINT_TRAJ_PT_FULL_EX, 2, 0, padded[:272]))

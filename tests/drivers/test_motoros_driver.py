@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import socket
 import threading
 import time
 from collections.abc import Iterator
@@ -11,7 +12,9 @@ import pytest
 
 from drivers.errors import DriverDisconnected, DriverError, DriverTimeout, RobotFault
 from drivers.motoros import FakeMotorosController, MotorosDriver, MotorosLink
-from drivers.motoros.codec import Command, JointTrajPtFull, JointTrajPtFullEx, MotionCtrl, MotionReply, Result
+from drivers.motoros.codec import (Command, JointTrajPtFull, JointTrajPtFullEx, MotionCtrl, MotionReply, Result,
+                                   decode)
+from drivers.motoros.framing import Framer
 from drivers.motoros.errors import ControllerNotReady, InvalidArgument, NonFiniteFeedback
 
 SPEED = np.full(6, 4.0)  # rad/s, fake and driver agree
@@ -335,8 +338,10 @@ def test_start_traj_mode_refusal_names_the_cause(fake, fault, subcode, words) ->
     fault(fake)
     time.sleep(0.05)
     with MotorosDriver(_link(fake), 0, SPEED, reset_alarms=True) as r1:
-        with pytest.raises(RobotFault, match=rf"START_TRAJ_MODE refused: NOT_READY \({subcode}: {words}\)"):
+        with pytest.raises(ControllerNotReady, match=rf"START_TRAJ_MODE refused: NOT_READY \({subcode}: {words}\)") \
+                as err:
             r1.move_to(Q0[0] + 0.1, 1.0)
+    assert isinstance(err.value, RobotFault) and err.value.subcode == subcode
     assert _traj_points(fake) == []
 
 
@@ -474,3 +479,29 @@ def test_a_restarted_controller_on_the_same_ports_is_reconnected() -> None:
                 assert Command.START_TRAJ_MODE in _commands(second)
     finally:
         first.close()
+
+
+@pytest.mark.parametrize("n_groups, types", [(1, [15, 13]), (2, [15, 15, 2017, 13])])
+def test_state_stream_is_published_like_the_state_server(n_groups, types) -> None:
+    """StateServer.c: feedback per group, JointFeedbackEx only with two groups or more, then the status."""
+    with FakeMotorosController(n_groups=n_groups, initial_q=Q0[:n_groups]) as fake:
+        with socket.create_connection((fake.host, fake.state_port), timeout=1.0) as sock:
+            framer, packets = Framer("test"), []
+            while len(packets) < 3 * len(types):
+                packets += framer.feed(sock.recv(4096))
+    start = next(i for i, p in enumerate(packets) if p.msg_type == 15)
+    assert [p.msg_type for p in packets[start:start + len(types)]] == types
+    fb = decode(packets[start])
+    assert fb.valid_fields == 6 and fb.time == 0.0  # position + velocity, no time, as MotoROS sends it
+
+
+def test_stop_traj_mode_is_refused_while_a_queue_holds_motion(fake, arms) -> None:
+    r1, _ = arms
+    r1.move_to(Q0[0] + 1.0, 1.0)
+    busy = _ask(r1.link, MotionCtrl(0, 50, Command.STOP_TRAJ_MODE))
+    assert busy.result == Result.FAILURE and r1.link.trajectory_mode
+    r1.wait_settled(2.0)
+    assert _ask(r1.link, MotionCtrl(0, 51, Command.STOP_TRAJ_MODE)).result == Result.SUCCESS
+    assert not r1.link.trajectory_mode
+    r1.move_to(Q0[0], 1.0)  # motion_possible is 0 again: the driver restarts trajectory mode
+    np.testing.assert_allclose(r1.wait_settled(2.0).q, Q0[0], atol=1e-4)
