@@ -38,6 +38,9 @@ def add_motion_options(p: argparse.ArgumentParser) -> None:
                                                "the cell's cap if lower); refused above the cell's cap")
     p.add_argument("--dry-run", action="store_true", help="run every check and print the plan; no motion")
     p.add_argument("--yes", action="store_true", help="do not ask for confirmation before the first real motion")
+    p.add_argument("--reset-alarms", action="store_true",
+                   help="let the controller reset a standing alarm when motion starts (MotoROS's START_TRAJ_MODE "
+                        "does); without it a standing alarm refuses motion until it is cleared on the pendant")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
@@ -114,4 +117,4 @@ def open_runtime(cell: Any, args: argparse.Namespace, robots: Sequence[str] | No
         return SimCell(cell, SimCellConfig(time_scale=args.time_scale, seed=args.seed, mocap_world=not registered))
     from app.real_cell import RealCell
 
-    return RealCell(cell, robots, registered=registered)
+    return RealCell(cell, robots, registered=registered, reset_alarms=args.reset_alarms)

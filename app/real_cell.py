@@ -124,11 +124,14 @@ class RealCell:
         registered: True to require a registration of those arms and read their frames in the base frame;
             False to read mocap-world frames (for ``cellcal register``).
         stream_wait_s: how long a read waits for a stopped mocap stream [s].
+        reset_alarms: let START_TRAJ_MODE reset a standing controller alarm (MotoROS does); off by default, so a
+            standing alarm refuses motion until the operator clears it or asks for the reset (``--reset-alarms``).
     """
 
     def __init__(self, cell: Any, robots: Sequence[str] | None = None, *, registered: bool = True,
-                 stream_wait_s: float = 30.0) -> None:
+                 stream_wait_s: float = 30.0, reset_alarms: bool = False) -> None:
         self.cell = cell
+        self.reset_alarms = reset_alarms
         self.robots = tuple(robots or cell.robots)
         self.registered = registered
         self.stream_wait_s = stream_wait_s
@@ -184,7 +187,8 @@ class RealCell:
                                      max_backoff_s=1.0)  # rides out a controller restart of a few seconds
             for name in self.cell.robots:
                 spec = self.cell.robot(name).robot
-                driver = MotorosDriver(self._link, c.groups[name], spec.max_speed_rad_s, name=name)
+                driver = MotorosDriver(self._link, c.groups[name], spec.max_speed_rad_s, name=name,
+                                       reset_alarms=self.reset_alarms)
                 driver.connect()
                 self.drivers[name] = driver
             self._session = open_session(self.cell.zenoh_for("collector"))

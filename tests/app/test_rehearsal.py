@@ -207,8 +207,12 @@ def test_alarm_during_a_move_stops_both_arms_and_the_session_resumes(tmp_path: P
         assert "alarm" in c.output and "every arm stopped" in c.output and "resume" in c.output
         done_before = sample_count(session)
         assert 3 <= done_before < 14
+        refused = run_cellcal(cell_path, "collect", "--robot", "R1", "--session", str(session), "--resume", "--yes",
+                              "--speed", "1", "--no-progress")  # the alarm still stands: no motion without a reset
+        assert refused.returncode == 2 and "alarm 4107" in refused.stderr, refused.stdout + refused.stderr
+        assert sample_count(session) == done_before
         again = run_cellcal(cell_path, "collect", "--robot", "R1", "--session", str(session), "--resume", "--yes",
-                            "--speed", "1", "--no-progress")  # START_TRAJ_MODE resets the alarm, as MotoROS does
+                            "--speed", "1", "--no-progress", "--reset-alarms")  # START_TRAJ_MODE resets it
         assert again.returncode == 0, again.stdout + again.stderr
     assert check_recording(cell_path, session, tmp_path / "r1.csv", 14, "R1", truths) < 0.1
 
