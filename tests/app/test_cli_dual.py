@@ -80,7 +80,7 @@ def test_plan_dual_bad_inputs_write_nothing(tmp_path, capsys):
     assert_bad_input(capsys, ["plan-dual", "--path", "sweep:x", "--out", str(out)], "sweep:N")
     assert_bad_input(capsys, ["plan-dual", "--path", str(tmp_path / "none.csv"), "--out", str(out)], "path file not found")
     # the gun at the workpiece frame's origin puts the arms into each other: infeasible, reported, not written
-    assert_bad_input(capsys, ["plan-dual", "--relative-pose", "0,0,0,1,0,0,0", "--path", "sweep:3", "--no-compile",
+    assert_bad_input(capsys, ["plan-dual", "--relative-pose", "0,0,100,1,0,0,0", "--path", "sweep:3", "--no-compile",
                   "--out", str(out)], "3 of 3 waypoints not solved, nothing written", "waypoint 0:", "collision")
     assert not out.exists()
 
