@@ -31,7 +31,7 @@ from typing import Literal
 import numpy as np
 
 from drivers.base import JointState, RobotDriver, RobotStatus
-from drivers.errors import DriverError, DriverTimeout, RobotFault
+from drivers.errors import DriverDisconnected, DriverError, DriverTimeout, RobotFault
 from drivers.motoros.codec import (Command, JointFeedback, JointTrajPtFull, JointTrajPtFullEx, MotionCtrl,
                                    MotionReply, MsgType, Result, RobotStatusMsg, ValidFields)
 from drivers.motoros.codes import OPERATOR_SUBCODES, NotReadySubcode
@@ -99,25 +99,39 @@ class MotorosDriver(RobotDriver):
     def connect(self) -> None:
         """Connect the shared link and wait for this group's first feedback.
 
+        Called again on a connected driver (a collector recovering from a lost connection), it waits up to
+        ``connect_timeout_s`` for the link's state connection to deliver fresh feedback again: the link
+        reconnects by itself, e.g. after the controller was restarted.
+
         Raises:
-            DriverDisconnected: the controller cannot be reached.
+            DriverDisconnected: the controller cannot be reached (again, within ``connect_timeout_s``).
             DriverTimeout: no feedback for this group (the controller may not have it).
         """
         if self._connected:
+            self._await_feedback(reconnecting=True)
             return
         self.link.connect()
+        try:
+            self._await_feedback(reconnecting=False)
+        except DriverError:
+            self.link.close()
+            raise
+        self._connected = True
+
+    def _await_feedback(self, reconnecting: bool) -> None:
         deadline = time.monotonic() + self.link.connect_timeout_s
         while True:
             try:
                 self.link.feedback(self.group)
-                break
-            except DriverError:
+                return
+            except DriverError as e:
                 if time.monotonic() > deadline:
-                    self.link.close()
+                    if reconnecting:
+                        raise DriverDisconnected(self.device, f"no fresh feedback within "
+                                                              f"{self.link.connect_timeout_s:g} s ({e.reason})") from e
                     raise DriverTimeout(self.device, f"feedback of motion group {self.group}",
                                         self.link.connect_timeout_s) from None
                 self.link.wait_state(0.05)
-        self._connected = True
 
     def close(self) -> None:
         """Release the link; the last driver on it ends trajectory mode (STOP_TRAJ_MODE)."""
