@@ -29,8 +29,12 @@ def free_port(kind: int = socket.SOCK_STREAM) -> int:
         return int(s.getsockname()[1])
 
 
-def write_rehearsal_cell(folder: Path, **controller: Any) -> Path:
-    """A copy of ``cell_config/rehearsal.yaml`` in ``folder`` with free ports; ``controller`` overrides keys."""
+def write_rehearsal_cell(folder: Path, via_router: bool = False, **controller: Any) -> Path:
+    """A copy of ``cell_config/rehearsal.yaml`` in ``folder`` with free ports; ``controller`` overrides keys.
+
+    ``via_router``: the bridge and the collector both connect (as clients) to ``cellcal router`` instead of the
+    collector connecting to the bridge.
+    """
     data = yaml.safe_load((PACKAGE_DIR / "rehearsal.yaml").read_text())
     for entry in data["robots"].values():
         entry["robot"] = str(PACKAGE_DIR / entry["robot"])
@@ -41,7 +45,11 @@ def write_rehearsal_cell(folder: Path, **controller: Any) -> Path:
     bridge = free_port()
     data["zenoh"]["roles"]["bridge"]["listen"] = [f"tcp/127.0.0.1:{bridge}"]
     data["zenoh"]["roles"]["collector"]["connect"] = [f"tcp/127.0.0.1:{bridge}"]
-    data["zenoh"]["roles"]["router"]["listen"] = [f"tcp/127.0.0.1:{free_port()}"]
+    router = free_port()
+    data["zenoh"]["roles"]["router"]["listen"] = [f"tcp/127.0.0.1:{router}"]
+    if via_router:
+        for role in ("bridge", "collector"):
+            data["zenoh"]["roles"][role] = {"mode": "client", "connect": [f"tcp/127.0.0.1:{router}"]}
     path = folder / "rehearsal.yaml"
     path.write_text(yaml.safe_dump(data, sort_keys=False))
     return path

@@ -230,3 +230,65 @@ def test_non_finite_joint_feedback_is_refused_before_any_point(tmp_path: Path) -
         assert r.controller.stop() == 0
     assert sample_count(session) == 0
     assert "trajectory points received: 0" in r.controller.output
+
+
+def read_health(cell_path: Path, timeout_s: float, until) -> dict:  # noqa: ANN001 - a predicate on the message
+    """Health messages of the bridge, read as any machine on the network would, until ``until(msg)``."""
+    import queue
+
+    from app.mocap_service import health_key
+    from drivers.bus import open_session
+
+    cell = load_cell(cell_path)
+    got: queue.Queue = queue.Queue()
+    session = open_session(cell.zenoh_for("collector"))
+    sub = session.declare_subscriber(health_key(cell.name, "mocap-bridge"),
+                                     lambda s: got.put(json.loads(s.payload.to_bytes())))
+    try:
+        deadline = time.monotonic() + timeout_s
+        last = None
+        while time.monotonic() < deadline:
+            try:
+                last = got.get(timeout=0.5)
+            except queue.Empty:
+                continue
+            if until(last):
+                return last
+        raise AssertionError(f"no matching health message within {timeout_s} s; last: {last}")
+    finally:
+        sub.undeclare()
+        session.close()
+
+
+def test_bridge_reconnects_to_a_restarted_motive_and_publishes_its_health(tmp_path: Path) -> None:
+    cell_path = write_rehearsal_cell(tmp_path)
+    with Rehearsal(cell_path, *PURE) as r:
+        first = read_health(cell_path, 15, lambda h: h["state"] == "streaming" and h["frames_published"] > 100)
+        assert first["connections"] == 1 and first["handshakes"] == 1 and first["natnet_version"] == "4.1"
+        assert sorted(first["bodies"].values()) == ["mti", "weldgun"]  # resolved from Motive's model definitions
+        r.motive.kill()
+        read_health(cell_path, 15, lambda h: h["state"] == "connecting" or h["last_frame_age_s"] > 1.0)
+        r.motive.start()
+        again = read_health(cell_path, 20, lambda h: h["handshakes"] >= 2 and h["state"] == "streaming"
+                            and h["last_frame_age_s"] < 0.5)
+        assert again["frames_published"] > first["frames_published"]
+        r.bridge.signal(signal.SIGINT)
+        assert r.bridge.wait(15) == 0, r.bridge.output
+    assert "handshake(s) with Motive" in r.bridge.output
+
+
+def test_a_zenoh_router_relays_the_mocap_between_machines(tmp_path: Path) -> None:
+    from drivers.bus import ZenohMocapSource
+
+    cell_path = write_rehearsal_cell(tmp_path, via_router=True)
+    cell = load_cell(cell_path)
+    router = Process(cell_path, "router").start()
+    try:
+        with Rehearsal(cell_path, *PURE):
+            with ZenohMocapSource(cell.name, config=cell.zenoh_for("collector"), rigid_bodies=["weldgun"]) as sub:
+                frames, deadline = [], time.monotonic() + 15
+                while len(frames) < 50 and time.monotonic() < deadline:
+                    frames += sub.read(0.5)
+        assert len(frames) >= 50 and {f.body_id for f in frames} == {11}
+    finally:
+        assert router.stop() == 0, router.output
