@@ -73,7 +73,7 @@ def test_rehearsal_cell_puts_every_device_on_loopback():
         assert cell.robot(name).tool.name == default.robot(name).tool.name
     assert cell.controller == ControllerConfig("127.0.0.1", 50240, 50241, groups={"R1": 0, "R2": 1})
     assert cell.mocap == MocapConfig("127.0.0.1", "127.0.0.1", False, {"R1": "weldgun", "R2": "mti"})
-    assert cell.probe == ProbeConfig("virtual", "rehearsal", 500000, 0x180)
+    assert cell.probe == ProbeConfig("virtual", "rehearsal", 500000, 0x5A0)
     assert cell.zenoh_for("bridge") == ZenohConfig("peer", ("tcp/127.0.0.1:7447",), (), False)
     assert cell.zenoh_for("collector") == ZenohConfig("peer", (), ("tcp/127.0.0.1:7447",), False)
     assert cell.zenoh_for("router") == ZenohConfig("router", ("tcp/127.0.0.1:7446",), (), False)
