@@ -16,56 +16,14 @@ from pathlib import Path
 
 import numpy as np
 
-from app.planning import Plan
+from app.rehearsal import Process, Rehearsal, run_cellcal, sample_count, small_plan, write_rehearsal_cell
 from calibration.recording import read_recording
 from calibration.registration import transform_difference
 from cell_config import load_cell
 from drivers.sim.rehearsal import hidden_frames, rehearsal_truths
-from tests.app.rehearsal import Process, run_cellcal, write_rehearsal_cell
 
 SEED = 5
 PURE = ("--origin-std-mm", "0", "--tilt-std-deg", "0", "--compliance-mm", "0")  # a twin with no kinematic error
-
-
-def small_plan(cell: Path, robot: str, out: Path, n: int = 14) -> Path:
-    """The first ``n`` targets (two clusters) of the coarsest anchor grid."""
-    full = out.with_suffix(".full.json")
-    done = run_cellcal(cell, "plan", "--robot", robot, "--q2-step", "50", "--q3-step", "50", "--out", str(full))
-    assert done.returncode == 0, done.stderr
-    plan = Plan.load(full)
-    Plan(plan.targets[:n], plan.params).save(out)
-    return out
-
-
-class Rehearsal:
-    """The three device processes of the rehearsal, started in the order an operator would."""
-
-    def __init__(self, cell: Path, *motive_args: str) -> None:
-        self.cell = cell
-        self.controller = Process(cell, "fake-controller")
-        self.motive = Process(cell, "fake-motive", "--seed", str(SEED), *motive_args)
-        self.bridge = Process(cell, "mocap-bridge")
-
-    def __enter__(self) -> "Rehearsal":
-        self.controller.start()
-        self.motive.start()
-        self.bridge.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        for p in (self.bridge, self.motive, self.controller):
-            p.stop()
-
-
-def sample_count(session: Path) -> int:
-    db = session / "session.sqlite"
-    if not db.exists():
-        return 0
-    with sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=5) as con:
-        try:
-            return int(con.execute("SELECT COUNT(*) FROM samples WHERE status = 'ok'").fetchone()[0])
-        except sqlite3.OperationalError:
-            return 0
 
 
 def wait_for_samples(session: Path, n: int, timeout_s: float = 60.0) -> None:
@@ -96,7 +54,7 @@ def check_recording(cell_path: Path, session: Path, out_csv: Path, n_targets: in
 def test_register_then_collect_both_arms_in_separate_processes(tmp_path: Path) -> None:
     cell_path = write_rehearsal_cell(tmp_path)
     truths = rehearsal_truths(load_cell(cell_path), SEED, origin_std_mm=0, tilt_std_deg=0, compliance_mm=0)
-    with Rehearsal(cell_path, *PURE):
+    with Rehearsal(cell_path, *PURE, seed=SEED):
         for robot in ("R1", "R2"):
             done = run_cellcal(cell_path, "register", "--robot", robot, "--yes", "--speed", "1", "--no-progress",
                                "--json", str(tmp_path / f"reg_{robot}.json"))
@@ -160,7 +118,7 @@ def test_bridge_killed_mid_collection_is_waited_for(tmp_path: Path) -> None:
     cell_path = registered_cell(tmp_path)
     truths = rehearsal_truths(load_cell(cell_path), SEED, origin_std_mm=0, tilt_std_deg=0, compliance_mm=0)
     plan, session = small_plan(cell_path, "R1", tmp_path / "plan.json"), tmp_path / "s"
-    with Rehearsal(cell_path, *PURE) as r:
+    with Rehearsal(cell_path, *PURE, seed=SEED) as r:
         c = collector(cell_path, plan, session).start(ready=False)
         try:
             wait_for_samples(session, 3)
@@ -178,7 +136,7 @@ def test_controller_killed_and_restarted_is_reconnected(tmp_path: Path) -> None:
     cell_path = registered_cell(tmp_path)
     truths = rehearsal_truths(load_cell(cell_path), SEED, origin_std_mm=0, tilt_std_deg=0, compliance_mm=0)
     plan, session = small_plan(cell_path, "R1", tmp_path / "plan.json"), tmp_path / "s"
-    with Rehearsal(cell_path, *PURE) as r:
+    with Rehearsal(cell_path, *PURE, seed=SEED) as r:
         c = collector(cell_path, plan, session).start(ready=False)
         try:
             wait_for_samples(session, 3)
@@ -196,7 +154,7 @@ def test_alarm_during_a_move_stops_both_arms_and_the_session_resumes(tmp_path: P
     cell_path = registered_cell(tmp_path)
     truths = rehearsal_truths(load_cell(cell_path), SEED, origin_std_mm=0, tilt_std_deg=0, compliance_mm=0)
     plan, session = small_plan(cell_path, "R1", tmp_path / "plan.json"), tmp_path / "s"
-    with Rehearsal(cell_path, *PURE) as r:
+    with Rehearsal(cell_path, *PURE, seed=SEED) as r:
         c = collector(cell_path, plan, session).start(ready=False)
         try:
             wait_for_samples(session, 3)
@@ -220,7 +178,7 @@ def test_alarm_during_a_move_stops_both_arms_and_the_session_resumes(tmp_path: P
 def test_non_finite_joint_feedback_is_refused_before_any_point(tmp_path: Path) -> None:
     cell_path = registered_cell(tmp_path)
     plan, session = small_plan(cell_path, "R1", tmp_path / "plan.json"), tmp_path / "s"
-    with Rehearsal(cell_path, *PURE) as r:
+    with Rehearsal(cell_path, *PURE, seed=SEED) as r:
         r.controller.signal(signal.SIGUSR2)  # the fake now reports NaN joint angles
         time.sleep(0.5)
         done = run_cellcal(cell_path, "collect", "--robot", "R1", "--plan", str(plan), "--session", str(session),
@@ -262,7 +220,7 @@ def read_health(cell_path: Path, timeout_s: float, until) -> dict:  # noqa: ANN0
 
 def test_bridge_reconnects_to_a_restarted_motive_and_publishes_its_health(tmp_path: Path) -> None:
     cell_path = write_rehearsal_cell(tmp_path)
-    with Rehearsal(cell_path, *PURE) as r:
+    with Rehearsal(cell_path, *PURE, seed=SEED) as r:
         first = read_health(cell_path, 15, lambda h: h["state"] == "streaming" and h["frames_published"] > 100)
         assert first["connections"] == 1 and first["handshakes"] == 1 and first["natnet_version"] == "4.1"
         assert sorted(first["bodies"].values()) == ["mti", "weldgun"]  # resolved from Motive's model definitions
@@ -284,7 +242,7 @@ def test_a_zenoh_router_relays_the_mocap_between_machines(tmp_path: Path) -> Non
     cell = load_cell(cell_path)
     router = Process(cell_path, "router").start()
     try:
-        with Rehearsal(cell_path, *PURE):
+        with Rehearsal(cell_path, *PURE, seed=SEED):
             with ZenohMocapSource(cell.name, config=cell.zenoh_for("collector"), rigid_bodies=["weldgun"]) as sub:
                 frames, deadline = [], time.monotonic() + 15
                 while len(frames) < 50 and time.monotonic() < deadline:

@@ -20,7 +20,7 @@ from calibration.models import ConstantModel
 from cell_config import load_cell
 from drivers.motoros.fake_cell import build_fake_controller
 from drivers.sim.can_probe import SimulatedProbe
-from tests.app.rehearsal import write_rehearsal_cell
+from app.rehearsal import write_rehearsal_cell
 
 
 class NominalContact:
