@@ -47,6 +47,7 @@ def cmd_plan_dual(args: argparse.Namespace) -> int:
         i = plan.failed[0]
         raise ModelError(f"{len(plan.failed)} of {len(plan.waypoints)} waypoints not solved, nothing written; "
                          f"first: waypoint {i}: {plan.waypoints[i].reason}")
+    _check_dual_plan(planner.cell, plan.q(), planner.options.limit_margin_deg)
     if args.out:
         save_plan(plan, args.out)
     write_json(args.json, summary)
@@ -54,6 +55,23 @@ def cmd_plan_dual(args: argparse.Namespace) -> int:
           f"{summary['solve_ms_median']:.2f} ms, residual <= {summary['max_residual_mm']:.1e} mm, clearance >= "
           f"{summary['min_clearance_mm']:.0f} mm" + (f" -> {args.out}" if args.out else ""))
     return 0
+
+
+def _check_dual_plan(cell: Any, q: Any, margin_deg: float) -> None:
+    """The cell-safety check every motion goes through, on the plan's waypoints and the moves between them.
+
+    The plan's moves are both arms together; the process zone (gun and workpiece ends, which the relative pose
+    brings together on purpose) is left to the planner's relative-pose constraint.
+
+    Raises:
+        UnsafeTarget: naming the waypoint; nothing is written.
+    """
+    from app.capsules import PROCESS_ZONE
+    from app.safety import CellSafety, SafetyConfig
+
+    safety = CellSafety(cell, SafetyConfig(joint_margin_deg=margin_deg, process_zone=PROCESS_ZONE))
+    for i in range(len(q)):
+        safety.check_dual_motion(q[max(i - 1, 0)], q[i], i)
 
 
 def _model_sets(specs: list[str] | None, cell: Any) -> dict[str, dict[str, Any]]:
