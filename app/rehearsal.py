@@ -42,8 +42,8 @@ def write_rehearsal_cell(folder: Path, via_router: bool = False, **controller: A
     for entry in data["robots"].values():
         entry["robot"] = str(PACKAGE_DIR / entry["robot"])
         entry["tool"] = str(PACKAGE_DIR / entry["tool"])
-    data["controller"].update(motion_port=free_port(), state_port=free_port(), max_speed_fraction=1.0,
-                              **controller)
+    data["controller"].update({"motion_port": free_port(), "state_port": free_port(), "max_speed_fraction": 1.0,
+                               **controller})
     data["mocap"].update(command_port=free_port(socket.SOCK_DGRAM), data_port=free_port(socket.SOCK_DGRAM))
     bridge = free_port()
     data["zenoh"]["roles"]["bridge"]["listen"] = [f"tcp/127.0.0.1:{bridge}"]

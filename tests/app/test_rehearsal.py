@@ -250,3 +250,28 @@ def test_a_zenoh_router_relays_the_mocap_between_machines(tmp_path: Path) -> Non
         assert len(frames) >= 50 and {f.body_id for f in frames} == {11}
     finally:
         assert router.stop() == 0, router.output
+
+
+def test_operator_checks_refuse_or_only_look_and_nothing_moves(tmp_path: Path) -> None:
+    cell_path = registered_cell(tmp_path)
+    text = cell_path.read_text().replace("max_speed_fraction: 1.0", "max_speed_fraction: 0.25")
+    cell_path.write_text(text)
+    plan, session = small_plan(cell_path, "R1", tmp_path / "plan.json"), tmp_path / "s"
+    base = ("collect", "--robot", "R1", "--plan", str(plan), "--session", str(session), "--no-progress")
+    with Rehearsal(cell_path, *PURE, seed=SEED) as r:
+        asked = run_cellcal(cell_path, *base)  # no terminal to ask on, no --yes
+        assert asked.returncode == 2 and "needs confirmation" in asked.stderr and "--yes" in asked.stderr
+        fast = run_cellcal(cell_path, *base, "--yes", "--speed", "0.5")
+        assert fast.returncode == 2 and "above the cell's cap" in fast.stderr and "0.25" in fast.stderr
+        looked = run_cellcal(cell_path, *base, "--dry-run", "--json", str(tmp_path / "dry.json"))
+        assert looked.returncode == 0, looked.stderr
+        assert "dry run, no motion" in looked.stdout and "14 targets" in looked.stdout
+        assert json.loads((tmp_path / "dry.json").read_text())["safe"] is True
+        reg = run_cellcal(cell_path, "register", "--robot", "R2", "--dry-run")
+        assert reg.returncode == 0 and "dry run" in reg.stdout, reg.stderr
+        recal = run_cellcal(cell_path, "recalibrate", "--robot", "R1", "--plan", str(plan), "--model-dir",
+                            str(tmp_path / "models"), "--validation", "5", "--dry-run")
+        assert recal.returncode == 0 and "dry run, no motion" in recal.stdout, recal.stderr
+        assert r.controller.stop() == 0
+    assert "trajectory points received: 0" in r.controller.output
+    assert not session.exists()
