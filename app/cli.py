@@ -116,6 +116,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="cellcal", description=__doc__.splitlines()[0])
     parser.add_argument("--cell", help="cell.yaml (default: the packaged Motoman cell)")
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
+    parser.add_argument("--version", action="version", version=f"cellcal {version()}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     def add(name: str, func: Callable[[argparse.Namespace], int], help_text: str) -> argparse.ArgumentParser:
@@ -162,7 +163,19 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def version() -> str:
+    """The installed package's version (the source tree's pyproject when run uninstalled)."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as package_version
+
+    try:
+        return package_version("cellcal")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run one subcommand: 0 on success, 2 on bad input or a refused action, 130 on Ctrl-C."""
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
@@ -171,6 +184,10 @@ def main(argv: list[str] | None = None) -> int:
     except CellCalError as e:
         print(f"cellcal {args.command}: {e}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        resumable = " (continue with --resume)" if getattr(args, "session", None) else ""
+        print(f"cellcal {args.command}: stopped{resumable}", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":
