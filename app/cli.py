@@ -11,7 +11,7 @@ import sys
 from typing import Callable
 
 from app.cli_cell import add_cell_parsers
-from app.cli_common import fitter_from_args, read_recording_arg, write_json
+from app.cli_common import check_output_args, fitter_from_args, read_recording_arg, write_json
 from app.cli_dual import add_dual_parsers
 from app.cli_real import add_real_parsers
 from calibration.errors import CellCalError
@@ -167,6 +167,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
     try:
+        check_output_args(args)
         return args.func(args)
     except CellCalError as e:
         print(f"cellcal {args.command}: {e}", file=sys.stderr)

@@ -52,6 +52,24 @@ def fitter_from_args(args: argparse.Namespace) -> Any:
     return fitter_for(robot, train, cpa, FitOptions(a=args.a)), robot
 
 
+#: File outputs every subcommand may take; ``demo --out`` is a folder and is left to the demo.
+OUTPUT_FILE_OPTIONS = ("out", "json", "html")
+
+
+def check_output_args(args: argparse.Namespace) -> None:
+    """Refuse an empty, symlink, device, FIFO or folder output path before any work, so nothing is written.
+
+    Raises:
+        OutputError: the first such ``--out``/``--json``/``--html`` path.
+    """
+    from calibration.files import check_output_path
+
+    for name in OUTPUT_FILE_OPTIONS:
+        value = getattr(args, name, None)
+        if isinstance(value, str) and not (name == "out" and args.command == "demo"):
+            check_output_path(value)
+
+
 def write_json(path: str | None, data: dict[str, Any]) -> None:
     """Write ``data`` as JSON to ``path`` atomically; nothing when ``path`` is None."""
     if path:

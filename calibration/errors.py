@@ -53,6 +53,20 @@ class DataError(CellCalError):
         super().__init__(f"{where}: {reason}")
 
 
+class OutputError(CellCalError):
+    """An output file cannot be written; whatever was at the path is left as it was.
+
+    Args:
+        path: the output path.
+        reason: what is wrong (a symlink, a device, a folder, a failed write) and what to give instead.
+    """
+
+    def __init__(self, path: str | Path, reason: str) -> None:
+        self.path = str(path)
+        self.reason = reason
+        super().__init__(f"{self.path or '(empty path)'}: {reason}")
+
+
 class ModelError(CellCalError):
     """A kinematic model or identification request is inconsistent (unknown method, bad shapes)."""
 
