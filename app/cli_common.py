@@ -26,6 +26,17 @@ def read_recording_arg(path: str, robot: Any | None = None) -> Any:
     return read_recording(path, robot.robot.lower_rad, robot.robot.upper_rad)
 
 
+def load_model_for(path: str, robot: Any) -> Any:
+    """The model file ``path``, checked to be ``robot``'s (a cell entry): its recorded robot and its geometry.
+
+    Raises:
+        DataError: the file is unusable, or records another robot, or holds another robot type's geometry.
+    """
+    from calibration.models import load_model
+
+    return load_model(path, robot.name, robot.model())
+
+
 def fitter_for(robot: Any, train: Any, cpa: Any | None = None, options: Any | None = None) -> Any:
     """A Fitter for one arm of the cell: its nominal model, link masses and joint limits."""
     from calibration.errors import ModelError

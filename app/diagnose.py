@@ -57,9 +57,7 @@ def run_diagnose(robot: str, data: str | Path, heldout: str | Path | None = None
     limits = (spec.lower_rad, spec.upper_rad)
     rec = read_recording(data, *limits)
     ho = read_recording(heldout, *limits) if heldout is not None else None
-    used = load_model(model) if model is not None else None
-    if used is not None and used.robot != robot:
-        raise ModelError(f"model {model} is for robot {used.robot!r}, not {robot!r}")
+    used = load_model(model, robot, nominal) if model is not None else None
     try:
         gravity = GravityModel.from_spec(spec, nominal)
     except ModelError as e:
