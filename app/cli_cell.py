@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any, Callable
 
-from app.cli_common import cell_spec, fitter_for, write_json
+from app.cli_common import cell_spec, fitter_for, log, write_json
 from calibration.errors import CellCalError
 
 
@@ -162,8 +162,10 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     plan = _load_plan(args.plan, args.robot) if args.plan else None
     if args.session:
         _require_session(args.session)
-    model_in_service(model_dir, args.robot, robot.model())  # another robot's model: stop before motion (an
-    # unusable one is logged as a warning here and replaced by a valid candidate)
+    service = model_in_service(model_dir, args.robot, robot.model())  # another robot's model: stop before motion
+    if service.problem:
+        log.warning("the model in service %s is unusable (%s); a valid candidate will replace it",
+                    model_dir / "current.yaml", service.problem)
     stamp = _time.strftime("%Y%m%dT%H%M%S")
     work = model_dir / "sessions" / stamp
     seed = args.validation_seed if args.validation_seed is not None else int(_time.time()) % 100_000

@@ -139,8 +139,7 @@ def model_in_service(model_dir: Path, robot: str, nominal: PoeModel | None = Non
     try:
         model = load_model(path)
     except DataError as e:
-        log.warning("the model in service is unusable; a valid candidate replaces it: %s", e)
-        return InService(None, e.reason)
+        return InService(None, f"{e.key}: {e.reason}" if getattr(e, "key", "") else e.reason)
     check_model_for(model, robot, nominal, path)
     return InService(model)
 

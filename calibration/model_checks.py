@@ -140,9 +140,14 @@ def check_model_for(model: KinematicModel, robot: str, nominal: PoeModel | None 
     cos = np.clip(np.sum(geo.H * nominal.H, axis=0), -1.0, 1.0)
     angle = np.degrees(np.arccos(cos))
     links = np.linalg.norm(geo.P[:, 1:-1] - nominal.P[:, 1:-1], axis=0)
-    if angle.max() > AXIS_TOLERANCE_DEG or links.max() > LINK_TOLERANCE_MM:
+    if links.max() > LINK_TOLERANCE_MM:
         j = int(np.argmax(links))
-        raise ModelFileError(path, "geometry", f"not {robot}'s geometry: link vector P[{j + 1}] differs from the robot "
-                                               f"YAML by {links[j]:.0f} mm and an axis by {angle.max():.1f} deg "
-                                               f"(tolerance {LINK_TOLERANCE_MM:g} mm, {AXIS_TOLERANCE_DEG:g} deg); "
-                                               "a model of another robot type?")
+        what = (f"link vector P[{j + 1}] differs from the robot YAML's by {links[j]:.0f} mm "
+                f"(tolerance {LINK_TOLERANCE_MM:g} mm)")
+    elif angle.max() > AXIS_TOLERANCE_DEG:
+        j = int(np.argmax(angle))
+        what = (f"joint {j + 1}'s axis differs from the robot YAML's by {angle[j]:.1f} deg "
+                f"(tolerance {AXIS_TOLERANCE_DEG:g} deg)")
+    else:
+        return
+    raise ModelFileError(path, "geometry", f"not {robot}'s geometry: {what}; a model of another robot type?")
