@@ -2,7 +2,9 @@
 
 Every model maps joint angles to the tool-marker pose, ``fk(q) -> (R (N, 3, 3), p (N, 3))``, and saves to
 one versioned, human-readable file (``.yaml``/``.yml`` or ``.json``) that loads back to bit-identical
-predictions (floats are written with their shortest exact repr).
+predictions (floats are written with their shortest exact repr). A file is checked when it is loaded (and a
+model before it is saved) by :mod:`calibration.model_checks`: finite numbers, rotations, the recorded robot,
+a known method, and each kind's own blocks; :func:`load_model` also checks it against the arm it is used for.
 """
 
 from __future__ import annotations
