@@ -168,3 +168,13 @@ def test_recalibrate_cli_replaces_a_nan_model_in_service(tmp_path, files, capsys
         in caplog.text
     assert load_model(models / "current.yaml").method == "nls1"
     assert [p.read_bytes() for p in (models / "previous").iterdir()] == [(files / "nan.yaml").read_bytes()]
+
+
+def test_diagnose_refuses_a_model_of_another_robot_or_a_nan_model(files, tmp_path, capsys):
+    out, js = tmp_path / "d.yaml", tmp_path / "d.json"
+    common = ["--data", str(files / "train.csv"), "--out", str(out), "--json", str(js)]
+    assert_bad_input(capsys, ["diagnose", "--robot", "R2", "--model", str(files / "r1.yaml")] + common,
+                     "r1.yaml: robot: the model is for R1, not R2")
+    assert_bad_input(capsys, ["diagnose", "--robot", "R1", "--model", str(files / "nan.yaml")] + common,
+                     "nan.yaml: geometry.P[2][2]: expected a finite number, got nan")
+    assert not out.exists() and not js.exists()
