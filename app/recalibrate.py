@@ -144,15 +144,6 @@ def model_in_service(model_dir: Path, robot: str, nominal: PoeModel | None = Non
     return InService(model)
 
 
-def current_model(model_dir: Path, robot: str, nominal: PoeModel | None = None) -> KinematicModel | None:
-    """The usable model in service in ``model_dir`` (None when there is none or it is unusable).
-
-    Raises:
-        DataError: ``current.yaml`` belongs to another robot.
-    """
-    return model_in_service(model_dir, robot, nominal).model
-
-
 def _validation_stats(model: KinematicModel, validation: Recording) -> dict[str, Any]:
     return error_stats(errors(model, validation))
 
