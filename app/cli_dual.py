@@ -9,17 +9,20 @@ from app.cell_options import add_motion_options
 from app.cli_common import cell_spec, write_json
 
 
-def _model_pair(spec: str | None, where: str) -> dict[str, Any]:
-    """``R1=a.yaml,R2=b.yaml`` -> {robot: model}; robots not named stay nominal (absent from the dict)."""
+def _model_pair(spec: str | None, where: str, cell: Any) -> dict[str, Any]:
+    """``R1=a.yaml,R2=b.yaml`` -> {robot: model}; robots not named stay nominal (absent from the dict).
+
+    Each file must record the arm it is given for and hold that arm's geometry (robot YAML).
+    """
+    from app.cli_common import load_model_for
     from calibration.errors import DataError
-    from calibration.models import load_model
 
     models: dict[str, Any] = {}
     for item in filter(None, (spec or "").split(",")):
         robot, sep, path = item.partition("=")
         if not sep or robot.strip() not in ("R1", "R2") or not path.strip():
             raise DataError(where, None, None, f"bad model entry {item!r}; expected R1=FILE,R2=FILE")
-        models[robot.strip()] = load_model(path.strip())
+        models[robot.strip()] = load_model_for(path.strip(), cell.robot(robot.strip()))
     return models
 
 
@@ -31,9 +34,10 @@ def cmd_plan_dual(args: argparse.Namespace) -> int:
     from app.plan_result import save_plan
     from calibration.errors import ModelError
 
-    models = _model_pair(args.models, "--models")
+    cell = cell_spec(args)
+    models = _model_pair(args.models, "--models", cell)
     T_rel = read_pose(args.relative_pose) if args.relative_pose else None
-    planner = DualPlanner(cell_spec(args), models.get("R1"), models.get("R2"), PlannerOptions(compile=not args.no_compile))
+    planner = DualPlanner(cell, models.get("R1"), models.get("R2"), PlannerOptions(compile=not args.no_compile))
     path = read_path(args.path, planner)
     q0 = np.radians(Q_REF_DEG)
     plan = planner.plan(path, relative_pose(planner, q0) if T_rel is None else T_rel, q0)
@@ -83,7 +87,7 @@ def _model_sets(specs: list[str] | None, cell: Any) -> dict[str, dict[str, Any]]
         label, sep, rest = spec.partition(":")
         if not sep or "=" in label:
             label, rest = "", spec
-        pair = _model_pair(rest, "--models")
+        pair = _model_pair(rest, "--models", cell)
         if not label:
             label = "/".join(sorted({m.method for m in pair.values()})) or "nominal"
         for robot in ("R1", "R2"):
