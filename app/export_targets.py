@@ -67,7 +67,7 @@ def export_rows(plan: PlanResult, cell: CellSpec, frame: str = "flange", skip_fa
             nominal = spec.robot.model(spec.tool if frame == "tool" else None)
             R, p = nominal.fk(q[None])
             rows.append({"index": i, "robot": name, "q_rad": q.tolist(),
-                         "pulses": np.rint(q * spec.robot.pulses_per_rad).astype(int).tolist(),
+                         "pulses": spec.robot.to_pulses(q).tolist(),
                          "p_mm": p[0].tolist(), "rpy_deg": rpy_deg(R[0]).tolist()})
     return rows
 
