@@ -14,6 +14,7 @@ from app.cli_cell import add_cell_parsers
 from app.cli_common import fitter_from_args, read_recording_arg, write_json
 from app.cli_dual import add_dual_parsers
 from app.cli_real import add_real_parsers
+from app.jobs.cli import add_job_parsers
 from calibration.errors import CellCalError
 
 log = logging.getLogger("cellcal.app")
@@ -159,6 +160,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_dual_parsers(add)
     add_cell_parsers(add)
     add_real_parsers(add)
+    add_job_parsers(add)
     return parser
 
 
