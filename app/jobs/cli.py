@@ -54,17 +54,19 @@ def cmd_compensate_job(args: argparse.Namespace) -> int:
         raise DataError(args.out, None, None, "--out must be a file path, not a directory or empty")
     if out.exists() and out.resolve() == Path(args.job).resolve():
         raise DataError(args.out, None, None, "--out must differ from --job (the input is never overwritten)")
+    if args.json is not None and (not args.json or Path(args.json).is_dir()):
+        raise DataError(args.json, None, None, "--json must be a file path, not a directory or empty")
     cell = cell_spec(args)
     models = load_job_models(args.model, cell)
     job = read_job(args.job)
     comp = JobCompensator(cell, models).compensate(job)
     data = write_job(job, comp.replacements)
     summary = {"job": str(args.job), "out": str(out), **comp.to_json()}
-    try:
-        atomic_write_bytes(out, data)
-    except OSError as e:
-        raise DataError(out, None, None, f"cannot write ({e.__class__.__name__}: {e.strerror or e})") from e
-    write_json(args.json, summary)
+    for path, write in ((args.json, lambda: write_json(args.json, summary)), (out, lambda: atomic_write_bytes(out, data))):
+        try:
+            write()
+        except OSError as e:
+            raise DataError(path, None, None, f"cannot write ({e.__class__.__name__}: {e.strerror or e})") from e
     robots = ", ".join(f"{r}: {m}" for r, m in comp.models.items())
     print(f"{len(comp.points)} positions compensated ({robots}), residual <= {summary['max_residual_mm']:.1e} mm "
           f"under the model, {summary['max_written_residual_mm']:.1e} mm as written -> {out}")

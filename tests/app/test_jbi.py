@@ -197,6 +197,26 @@ def test_point_only_the_nominal_arm_reaches_within_limits_is_refused(cell):
         assert comp.points[1].q_after_deg[4] <= 90.0 and comp.points[1].residual_mm <= 1e-6
 
 
+def test_cartesian_branch_follows_rconf_flip(cell):
+    data = cartesian_job(cell)
+    model = planted(cell, "R1")
+
+    def rconf(name: bytes, flags: bytes) -> bytes:
+        return data.replace(b"///RCONF 0,0,0,0,0,0,0,0\r\n" + name, b"///RCONF " + flags + b"\r\n" + name)
+
+    no_flip = rconf(b"C00002", b"1,0,0,0,0,0,0,0")  # R outside (-90, 90]: the wrist-flipped solution, R = 120
+    comp = JobCompensator(cell, {"R1": model}).compensate(parse_job(no_flip))
+    assert abs(comp.points[2].q_after_deg[3]) > 90 and comp.points[2].residual_mm <= 1e-6
+    assert abs(comp.points[3].q_after_deg[3]) <= 90
+    for flags, line in ((b"1,0,0,0,0,0,0,0", 9), (b"0,0,0,0,1,0,0,0", 9)):  # no-flip needs R = 180; T >= 180
+        with pytest.raises(JobError, match=rf"line {line}: C00000: the nominal R1 reaches this pose nowhere within "
+                                           r"its joint limits and ///RCONF"):
+            JobCompensator(cell, {"R1": model}).compensate(parse_job(rconf(b"C00000", flags)))
+    user = data.replace(b"///POSTYPE BASE", b"///POSTYPE USER")
+    with pytest.raises(JobError, match=r"line 14: C00002: ///POSTYPE USER positions are not compensated"):
+        JobCompensator(cell, {"R1": model}).compensate(parse_job(user))
+
+
 def test_pulse_conversion_round_trips_through_the_job(cell):
     spec = cell.robot("R2").robot
     q = np.radians(Q_R2_DEG)
