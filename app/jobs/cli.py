@@ -44,25 +44,37 @@ def load_job_models(specs: list[str], cell: Any) -> dict[str, Any]:
     return models
 
 
+def _output_path(text: str, flag: str) -> Path:
+    """``text`` as a file to write: refused when empty, a directory, or under an existing non-directory."""
+    from calibration.errors import DataError
+
+    path = Path(text)
+    if not text or path.is_dir():
+        raise DataError(text, None, None, f"{flag} must be a file path, not a directory or empty")
+    parent = next((p for p in path.absolute().parents if p.exists()), None)
+    if parent is not None and not parent.is_dir():
+        raise DataError(text, None, None, f"{flag} lies under {parent}, which is not a directory")
+    return path
+
+
 def cmd_compensate_job(args: argparse.Namespace) -> int:
     from app.jobs import JobCompensator, read_job, write_job
     from calibration.errors import DataError
     from calibration.files import atomic_write_bytes
 
-    out = Path(args.out)
-    if not args.out or out.is_dir():
-        raise DataError(args.out, None, None, "--out must be a file path, not a directory or empty")
+    out = _output_path(args.out, "--out")
     if out.exists() and out.resolve() == Path(args.job).resolve():
         raise DataError(args.out, None, None, "--out must differ from --job (the input is never overwritten)")
-    if args.json is not None and (not args.json or Path(args.json).is_dir()):
-        raise DataError(args.json, None, None, "--json must be a file path, not a directory or empty")
+    if args.json is not None:
+        _output_path(args.json, "--json")
     cell = cell_spec(args)
     models = load_job_models(args.model, cell)
     job = read_job(args.job)
     comp = JobCompensator(cell, models).compensate(job)
     data = write_job(job, comp.replacements)
     summary = {"job": str(args.job), "out": str(out), **comp.to_json()}
-    for path, write in ((args.json, lambda: write_json(args.json, summary)), (out, lambda: atomic_write_bytes(out, data))):
+    writers = ((args.json, lambda: write_json(args.json, summary)), (out, lambda: atomic_write_bytes(out, data)))
+    for path, write in writers:
         try:
             write()
         except OSError as e:

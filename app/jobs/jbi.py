@@ -249,7 +249,8 @@ def _assign(positions: list[JobPosition], refs: dict, groups: tuple, path: Path)
         if not users:
             raise JobError(path, p.line, f"{p.name} is not used by any move instruction; cannot tell its robot")
         if len(users) > 1:
-            raise JobError(path, p.line, f"{p.name} is used by several robots: {', '.join(sorted(u for _, u in users))}")
+            names = ", ".join(sorted(u for _, u in users))
+            raise JobError(path, p.line, f"{p.name} is used by several robots: {names}")
         (g, unit), = users
         out.append(JobPosition(p.name, p.line, p.postype, p.values, p.decimals, p.tool, p.rconf, unit, g))
     missing = sorted(set(refs) - seen)

@@ -276,6 +276,9 @@ def test_bad_model_arguments_exit_2(cell, tmp_path, capsys):
     assert_bad_input(capsys, base + ["--model", str(binary)], str(binary))
     assert_bad_input(capsys, base + ["--model", f"R3={r2}"], "R3", "valid: R1, R2")
     assert_bad_input(capsys, base + ["--model", str(r2), "--out", str(job)], "--out must differ from --job")
+    assert_bad_input(capsys, base + ["--model", str(r2), "--out", str(job / "OUT.JBI")], "--out lies under")
+    assert_bad_input(capsys, base + ["--model", str(r2), "--json", str(tmp_path)], "--json must be a file path")
+    assert_bad_input(capsys, base + ["--model", str(r2), "--out", ""], "--out must be a file path")
     assert not out.exists()
 
 
