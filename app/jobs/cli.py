@@ -81,7 +81,8 @@ def cmd_compensate_job(args: argparse.Namespace) -> int:
             raise DataError(path, None, None, f"cannot write ({e.__class__.__name__}: {e.strerror or e})") from e
     robots = ", ".join(f"{r}: {m}" for r, m in comp.models.items())
     print(f"{len(comp.points)} positions compensated ({robots}), residual <= {summary['max_residual_mm']:.1e} mm "
-          f"under the model, {summary['max_written_residual_mm']:.1e} mm as written -> {out}")
+          f"under the model, {summary['max_written_residual_mm']:.1e} mm as written, joints moved by up to "
+          f"{summary['max_joint_change_deg']:.3f} deg -> {out}")
     return 0
 
 

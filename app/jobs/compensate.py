@@ -50,6 +50,7 @@ class PointResult:
     unit: str
     robot: str
     postype: str
+    tool: int | None
     before: list[float]  # pulses (int) or X, Y, Z [mm], Rx, Ry, Rz [deg]
     after: list[float]
     q_before_deg: list[float]
@@ -73,6 +74,8 @@ class Compensation:
         return {"schema": "cellcal.compensated_job/1", "models": self.models,
                 "max_residual_mm": max((p.residual_mm for p in self.points), default=0.0),
                 "max_written_residual_mm": max((p.written_residual_mm for p in self.points), default=0.0),
+                "max_joint_change_deg": max((float(np.abs(p.joint_change_deg).max()) for p in self.points),
+                                            default=0.0),
                 "points": [asdict(p) for p in self.points]}
 
 
@@ -198,7 +201,7 @@ class JobCompensator:
         before = list(pos.values)
         if pos.postype == "PULSE":
             before, after = [int(v) for v in before], [int(v) for v in after]
-        return PointResult(pos.line, pos.name, pos.group, pos.unit, robot, pos.postype, before, after,
+        return PointResult(pos.line, pos.name, pos.group, pos.unit, robot, pos.postype, pos.tool, before, after,
                            q0.tolist(), q1.tolist(), (q1 - q0).tolist(), res.residual_mm, res.residual_deg,
                            w_mm, w_deg)
 
