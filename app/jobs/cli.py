@@ -70,7 +70,7 @@ def cmd_compensate_job(args: argparse.Namespace) -> int:
     cell = cell_spec(args)
     models = load_job_models(args.model, cell)
     job = read_job(args.job)
-    comp = JobCompensator(cell, models).compensate(job)
+    comp = JobCompensator(cell, models, max_joint_change_deg=args.max_joint_change_deg).compensate(job)
     data = write_job(job, comp.replacements)
     summary = {"job": str(args.job), "out": str(out), **comp.to_json()}
     writers = ((args.json, lambda: write_json(args.json, summary)), (out, lambda: atomic_write_bytes(out, data)))
@@ -95,5 +95,8 @@ def add_job_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                         "repeat for a second robot (RB1 is the cell's first robot R1, RB2 its second R2)")
     p.add_argument("--job", required=True, help="input job file (.JBI): PULSE, ROBOT or BASE C positions")
     p.add_argument("--out", required=True, help="compensated job file to write (never the input)")
+    p.add_argument("--max-joint-change-deg", type=float, default=5.0,
+                   help="refuse a point whose compensation moves any joint by more than this [deg] (default 5; "
+                        "orientation fixes near the wrist singularity swing joints 4 and 6)")
     p.add_argument("--json", help="write per position: line, group, before/after values, joint change [deg], "
                                   "residual [mm, deg] as JSON")

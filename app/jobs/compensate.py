@@ -86,10 +86,14 @@ class JobCompensator:
         cell: the cell (pulse conventions, joint limits, nominal geometry and tools).
         models: robot name (R1, R2) -> calibrated model; the job's robots must all have one.
         tol_mm: largest accepted residual of a compensated point under its model [mm].
+        max_joint_change_deg: largest accepted change of any joint [deg]; a bigger one (an orientation fix near
+            the wrist singularity, q5 ~ 0, swings joints 4 and 6) is refused rather than written.
     """
 
-    def __init__(self, cell: CellSpec, models: Mapping[str, Any], tol_mm: float = 1e-6) -> None:
+    def __init__(self, cell: CellSpec, models: Mapping[str, Any], tol_mm: float = 1e-6,
+                 max_joint_change_deg: float = 5.0) -> None:
         self.cell, self.models, self.tol_mm = cell, dict(models), tol_mm
+        self.max_joint_change_deg = max_joint_change_deg
         self.units = {f"RB{i}": name for i, name in enumerate(cell.robots, start=1)}
         self._ik: dict[str, tuple[ArmIk, ArmIk]] = {}
         for name, model in self.models.items():
@@ -112,6 +116,13 @@ class JobCompensator:
                 point = self._pulse(job, pos, robot)
             else:
                 point = self._cartesian(job, pos, robot, last.get(robot, np.radians(HOME_DEG)))
+            change = np.abs(point.joint_change_deg)
+            if change.max() > self.max_joint_change_deg:
+                j = int(np.argmax(change))
+                raise JobError(job.path, pos.line, f"{pos.name}: compensation moves {robot} joint {j + 1} by "
+                                                   f"{change[j]:.2f} deg, more than the {self.max_joint_change_deg:g} "
+                                                   f"deg allowed (joint 5 at {point.q_before_deg[4]:.2f} deg; near "
+                                                   "q5 = 0 the wrist is singular); raise --max-joint-change-deg")
             last[robot] = np.radians(point.q_after_deg)
             points.append(point)
             lines[pos.line] = f"{pos.name}={format_values(point.after, pos.decimals)}"

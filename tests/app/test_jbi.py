@@ -217,6 +217,33 @@ def test_cartesian_branch_follows_rconf_flip(cell):
         JobCompensator(cell, {"R1": model}).compensate(parse_job(user))
 
 
+def test_two_robots_in_one_group_are_compensated(cell):
+    data = two_group_job(cell).replace(b"///GROUP1 RB1\r\n///GROUP2 RB2\r\n", b"///GROUP1 RB1,RB2\r\n")
+    data = data.replace(b"V=11.0  +MOVL C", b"C").replace(b"V=20.0  +MOVC C", b"C")
+    models = {"R1": planted(cell, "R1", 1), "R2": planted(cell, "R2", 2)}
+    comp = JobCompensator(cell, models).compensate(parse_job(data))
+    assert [(p.robot, p.group) for p in comp.points] == [("R1", 1), ("R2", 1)] * 4
+    _check_points(cell, comp, models, parse_job(data))
+
+
+def test_big_joint_change_near_the_wrist_singularity_is_refused(cell, tmp_path, capsys):
+    from app.cli import main
+
+    q = [list(r) for r in Q_R1_DEG]
+    q[0][4] = -0.5  # q5 ~ 0: the orientation fix needs large swings of joints 4 and 6 (about 10 deg here)
+    data = single_job(cell, q)
+    model = planted(cell, "R1")
+    with pytest.raises(JobError, match=r"line 8: C00000: compensation moves R1 joint \d by [\d.]+ deg, more than "
+                                       r"the 5 deg allowed \(joint 5 at -0\.50 deg"):
+        JobCompensator(cell, {"R1": model}).compensate(parse_job(data))
+    job, out, m = tmp_path / "IN.JBI", tmp_path / "OUT.JBI", tmp_path / "r1.yaml"
+    job.write_bytes(data)
+    save_model(model, m)
+    assert main(["compensate-job", "--model", str(m), "--job", str(job), "--out", str(out),
+                 "--max-joint-change-deg", "180"]) == 0
+    assert out.exists() and "4 positions" in capsys.readouterr().out
+
+
 def test_pulse_conversion_round_trips_through_the_job(cell):
     spec = cell.robot("R2").robot
     q = np.radians(Q_R2_DEG)
