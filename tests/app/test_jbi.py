@@ -55,7 +55,7 @@ def two_group_job(cell) -> bytes:
     for i, (a, b) in enumerate(zip(pulses(cell, "R1", Q_R1_DEG), pulses(cell, "R2", Q_R2_DEG))):
         lines += ["///TOOL 0", f"C{2 * i:05d}={a}", "///TOOL 1", f"C{2 * i + 1:05d}={b}"]
         moves.append(f"MOVL C{2 * i:05d} V=11.0  +MOVL C{2 * i + 1:05d} V=11.0")
-    moves.insert(2, "MOVC C00004 V=20.0  +MOVC C00005 V=20.0".replace("C00004", "C00004"))
+    moves.insert(2, "MOVC C00004 V=20.0  +MOVC C00005 V=20.0")  # a circle point shared with the MOVL below
     return crlf(["/JOB", "//NAME R1-R2", "//POS", "///NPOS 8,0,0,0,0,0", "///POSTYPE PULSE", "///PULSE", *lines,
                  "//INST", "///DATE 2026/12/01 12:00", "///ATTR SC,RW", "///GROUP1 RB1", "///GROUP2 RB2", "NOP",
                  *moves, "END"])
