@@ -15,6 +15,7 @@ from app.cli_common import (cell_spec, check_output_args, fitter_from_args, load
                              write_json)
 from app.cli_dual import add_dual_parsers
 from app.cli_real import add_real_parsers
+from app.jobs.cli import add_job_parsers
 from calibration.errors import CellCalError
 
 log = logging.getLogger("cellcal.app")
@@ -170,6 +171,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_dual_parsers(add)
     add_cell_parsers(add)
     add_real_parsers(add)
+    add_job_parsers(add)
     return parser
 
 
