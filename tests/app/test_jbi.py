@@ -30,7 +30,7 @@ def cell():
 
 def planted(cell, robot: str, seed: int = 1) -> ConstantModel:
     par = MinimalParameterisation(cell.robot(robot).model(), fit_tool=True)
-    return ConstantModel(robot, "planted", par.model(planted_parameters(par, seed=seed)))
+    return ConstantModel(robot, "nls1", par.model(planted_parameters(par, seed=seed)))
 
 
 def pulses(cell, robot: str, q_deg) -> list[str]:
@@ -303,9 +303,9 @@ def test_bad_model_arguments_exit_2(cell, tmp_path, capsys):
     assert_bad_input(capsys, base + ["--model", str(binary)], str(binary))
     assert_bad_input(capsys, base + ["--model", f"R3={r2}"], "R3", "valid: R1, R2")
     assert_bad_input(capsys, base + ["--model", str(r2), "--out", str(job)], "--out must differ from --job")
-    assert_bad_input(capsys, base + ["--model", str(r2), "--out", str(job / "OUT.JBI")], "--out lies under")
-    assert_bad_input(capsys, base + ["--model", str(r2), "--json", str(tmp_path)], "--json must be a file path")
-    assert_bad_input(capsys, base + ["--model", str(r2), "--out", ""], "--out must be a file path")
+    assert_bad_input(capsys, base + ["--model", str(r2), "--out", str(job / "OUT.JBI")], "lies under a file")
+    assert_bad_input(capsys, base + ["--model", str(r2), "--json", str(tmp_path)], str(tmp_path), "folder")
+    assert_bad_input(capsys, base + ["--model", str(r2), "--out", ""], "empty")
     assert not out.exists()
 
 
