@@ -19,11 +19,11 @@ from typing import Any
 import numpy as np
 
 from calibration.cdc import LocalFits, build_cdc, cluster_anchors, fit_local
-from calibration.cpa import identify_cpa, split_sweeps
+from calibration.identification.cpa import identify_cpa, split_sweeps
 from calibration.errors import ModelError
 from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, GeometricProblem
 from calibration.models import ConstantModel, KinematicModel
-from calibration.observability import DEFAULT_RELATIVE_TOLERANCE, Observability, analyse, filter_weights
+from calibration.identification.observability import DEFAULT_RELATIVE_TOLERANCE, Observability, analyse, filter_weights
 from calibration.parameterisation import MinimalParameterisation
 from calibration.physics.gravity import GravityModel
 from calibration.physics_informed import ExtendedKinematics, PhysicsInformedModel

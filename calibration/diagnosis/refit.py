@@ -3,8 +3,8 @@ Levenberg-Marquardt solver (:mod:`calibration.identification.lm`).
 
 The geometric parameters move only along ``basis`` (directions outside it stay at their start),
 ``x = x0 + basis @ z``; every effect keeps its settings and refits its ``values``. An optional Gaussian prior
-(the Tikhonov filter of :func:`calibration.observability.filter_weights`) pulls the geometry and the effect
-values toward nominal (zero), so what the data barely see stays near nominal. The residual is exact
+(the Tikhonov filter of :func:`calibration.identification.observability.filter_weights`) pulls the geometry and
+the effect values toward nominal (zero), so what the data barely see stays near nominal. The residual is exact
 (POE forward kinematics with the effects applied); the Jacobian uses the analytic geometric Jacobian at the
 perturbed joint angles and each effect's analytic pose Jacobian (first order in the small effects). The
 parameter covariance is the Gauss-Newton one scaled by the residual variance,
@@ -24,7 +24,7 @@ from calibration.diagnosis.inuse import InUse
 from calibration.errors import ModelError
 from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, lm, weighted_residuals
 from calibration.identification.lm import Groups, Linearisation, LMSettings, Residuals, StopReason
-from calibration.observability import DEFAULT_RELATIVE_TOLERANCE, analyse_jacobian, filter_weights
+from calibration.identification.observability import DEFAULT_RELATIVE_TOLERANCE, analyse_jacobian, filter_weights
 from calibration.parameterisation import MinimalParameterisation
 from calibration.physics.base import Context, Effect
 from calibration.physics_informed import ExtendedKinematics
@@ -67,7 +67,7 @@ def filter_prior(inuse: InUse, q: np.ndarray, context: Context | None, effects: 
                  a: float = DEFAULT_ORIENTATION_WEIGHT, tolerance: float = DEFAULT_RELATIVE_TOLERANCE) -> np.ndarray:
     """Prior weights (27 + p_e,) of the Tikhonov filter over the geometry and ``effects``, around nominal.
 
-    The rule of the ``pi`` fit (:func:`calibration.observability.filter_weights`) applied to the joint
+    The rule of the ``pi`` fit (:func:`calibration.identification.observability.filter_weights`) applied to the joint
     Jacobian. Each parameter is scaled to millimetres of tool motion: geometry and extended blocks by their
     kinematics' scale, a physics effect by the change that moves the tool 1 mm RMS over the data.
     """

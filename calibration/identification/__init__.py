@@ -3,7 +3,9 @@
 - :mod:`.lm`: the solver (damping, acceptance, stopping, an honest :class:`LMResult`) and the
   :class:`LeastSquaresProblem` protocol a problem implements (residuals, Jacobian, prior);
 - :mod:`.geometric`: :class:`GeometricProblem` (minimal POE parameters from static poses, batched over
-  clusters), the orientation weight and the weighted pose residuals shared by every problem.
+  clusters), the orientation weight and the weighted pose residuals shared by every problem;
+- :mod:`.observability`: which parameter directions a data set sees, and the Tikhonov filter weights;
+- :mod:`.cpa`: circular point analysis (joint axes from single-joint sweeps).
 
 The joint geometry + physics refit of diagnosis (:class:`calibration.diagnosis.refit.JointProblem`) is another
 problem of the same solver.

@@ -193,7 +193,7 @@ def test_unknown_model_kind_and_compliance_form_are_refused(arm):
 def test_joint_refit_recovers_planted_backlash_and_geometry(arm):
     cr, nominal, gravity = arm
     twin, fit, _ = make_case(nominal, gravity, {"backlash": 0.3}, 7, DESIGN, n_heldout=5)
-    from calibration.observability import analyse
+    from calibration.identification.observability import analyse
 
     par = MinimalParameterisation(nominal, fit_tool=True)
     obs = analyse(par, fit.q)
