@@ -203,6 +203,24 @@ def test_joint_refit_recovers_planted_backlash_and_geometry(arm):
     assert sol.rms_mm < 0.06 and sol.converged and sol.reason is StopReason.COST
 
 
+def test_joint_refit_whose_damping_blows_up_has_not_converged(arm):
+    """The refit reports the solver's stop honestly: with a Jacobian of the wrong sign no step lowers the cost,
+    the damping passes its cap, and the fit says not converged (it used to say converged) and stays at its start."""
+    cr, nominal, gravity = arm
+    _, fit, _ = make_case(nominal, gravity, {"backlash": 0.3}, 7, DESIGN, n_heldout=5)
+
+    class WrongSign(JointProblem):
+        def jacobian(self, u, e):
+            return -super().jacobian(u, e)
+
+    par = MinimalParameterisation(nominal, fit_tool=True)
+    sol = WrongSign(par, fit.q, fit.R, fit.p, fit.context(), np.zeros(par.size), np.eye(par.size),
+                    (Backlash((1, 2, 3), np.zeros(3)),), rotation_residual_scale(1641.0)).solve()
+    assert not sol.converged and sol.reason is StopReason.DAMPING and sol.iterations < 40
+    np.testing.assert_array_equal(sol.x, np.zeros(par.size))
+    np.testing.assert_array_equal(sol.effects[0].values, np.zeros(3))
+
+
 def test_blocked_folds_keep_clusters_together():
     groups = np.repeat(np.arange(40), 7)
     fold = blocked_folds(groups, 5)

@@ -145,16 +145,12 @@ def test_iteration_cap_is_not_convergence(synthetic_arm):
 
 
 def test_nothing_to_fit_stops_at_once():
+    """A problem with no free variable (e.g. a refit with every direction held) is solved as it stands."""
     problem, _ = exponentials([5, 5])
-
-    class Fixed(Exponentials):
-        @property
-        def shape(self) -> tuple[int, int]:
-            return self.groups.n, 0
-    fixed = Fixed(problem.t, problem.y, problem.group)
-    fixed.residuals = lambda z: Residuals(problem.y[:, None])  # type: ignore[method-assign]
-    res = lm.solve(fixed)
+    res = lm.solve(Ridge(np.zeros((10, 0)), problem.y, [5, 5], np.zeros(0)))
     assert res.converged.all() and res.reason == (StopReason.STEP,) * 2 and np.all(res.iterations == 0)
+    assert res.z.shape == (2, 0)
+    np.testing.assert_allclose(res.cost, [np.sum(problem.y[:5] ** 2), np.sum(problem.y[5:] ** 2)])
 
 
 @pytest.mark.parametrize("bad, match", [
