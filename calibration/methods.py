@@ -96,7 +96,8 @@ class Fitter:
         problem = GeometricProblem(self.par, rec.q, rec.R, rec.p, a=self.options.a, basis=obs.basis)
         res = problem.solve()
         if not res.converged.all():
-            log.warning("global NLS stopped after %d iterations without converging", res.iterations)
+            log.warning("global NLS stopped after %d iterations without converging (%s)", res.iterations,
+                        res.reason[0].value)
         return res.x[0]
 
     def global_fit(self) -> np.ndarray:
@@ -112,7 +113,8 @@ class Fitter:
             res = GeometricProblem(kin, self.train.q, self.train.R, self.train.p, a=self.options.a,
                                    prior_weight=filter_weights(obs)).solve()
             if not res.converged.all():
-                log.warning("physics-informed fit stopped after %d iterations without converging", res.iterations)
+                log.warning("physics-informed fit stopped after %d iterations without converging (%s)",
+                            res.iterations, res.reason[0].value)
             self._cache["pi"] = PhysicsInformedModel(self.robot, "pi", kin, res.x[0], obs.rank,
                                                      {"hidden_directions": len(obs.singular_values) - obs.rank})
         return self._cache["pi"]
