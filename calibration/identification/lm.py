@@ -254,6 +254,7 @@ def solve(problem: LeastSquaresProblem, z0: np.ndarray | None = None, settings: 
     lam = np.full(G, settings.damping0)
     lin = clock.linearise(z, None) if not done.all() else None
     current = cost(groups, lin.residuals) if lin is not None else None
+    known = lin.residuals if lin is not None else None  # residuals at z, when the solver has them
     for it in range(1, settings.max_iter + 1):
         if done.all():
             break
@@ -273,9 +274,11 @@ def solve(problem: LeastSquaresProblem, z0: np.ndarray | None = None, settings: 
                 reason = [why if h else r for r, h in zip(reason, hit)]
                 iterations[hit], done = it, done | hit
         z = np.where(better[:, None], z + step, z)
-        if better.any() and not done.all():
-            lin = clock.linearise(z, trial if better.all() else None)
-            current = cost(groups, lin.residuals)
-    final = clock.residuals(z)
+        if better.any():
+            known = trial if better.all() else None
+            if not done.all():
+                lin = clock.linearise(z, known)
+                current, known = cost(groups, lin.residuals), lin.residuals
+    final = known if known is not None else clock.residuals(z)
     return LMResult(z, cost(groups, final), final, iterations, tuple(reason),
                     time.perf_counter() - start, clock.seconds)
