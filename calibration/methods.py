@@ -19,11 +19,11 @@ from typing import Any
 import numpy as np
 
 from calibration.cdc import LocalFits, build_cdc, cluster_anchors, fit_local
-from calibration.cpa import identify_cpa, split_sweeps
+from calibration.identification.cpa import identify_cpa, split_sweeps
 from calibration.errors import ModelError
 from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, GeometricProblem
 from calibration.models import ConstantModel, KinematicModel
-from calibration.observability import DEFAULT_RELATIVE_TOLERANCE, Observability, analyse, filter_weights
+from calibration.identification.observability import DEFAULT_RELATIVE_TOLERANCE, Observability, analyse, filter_weights
 from calibration.parameterisation import MinimalParameterisation
 from calibration.physics.gravity import GravityModel
 from calibration.physics_informed import ExtendedKinematics, PhysicsInformedModel
@@ -96,7 +96,8 @@ class Fitter:
         problem = GeometricProblem(self.par, rec.q, rec.R, rec.p, a=self.options.a, basis=obs.basis)
         res = problem.solve()
         if not res.converged.all():
-            log.warning("global NLS stopped after %d iterations without converging", res.iterations)
+            log.warning("global NLS stopped after %d iterations without converging (%s)", res.iterations,
+                        res.reason[0].value)
         return res.x[0]
 
     def global_fit(self) -> np.ndarray:
@@ -112,7 +113,8 @@ class Fitter:
             res = GeometricProblem(kin, self.train.q, self.train.R, self.train.p, a=self.options.a,
                                    prior_weight=filter_weights(obs)).solve()
             if not res.converged.all():
-                log.warning("physics-informed fit stopped after %d iterations without converging", res.iterations)
+                log.warning("physics-informed fit stopped after %d iterations without converging (%s)",
+                            res.iterations, res.reason[0].value)
             self._cache["pi"] = PhysicsInformedModel(self.robot, "pi", kin, res.x[0], obs.rank,
                                                      {"hidden_directions": len(obs.singular_values) - obs.rank})
         return self._cache["pi"]

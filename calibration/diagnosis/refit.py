@@ -1,9 +1,10 @@
-"""Joint refit of geometry and physics: Levenberg-Marquardt on ``[geometric parameters; effect parameters]``.
+"""Joint refit of geometry and physics: ``[geometric parameters; effect parameters]`` as a problem of the one
+Levenberg-Marquardt solver (:mod:`calibration.identification.lm`).
 
 The geometric parameters move only along ``basis`` (directions outside it stay at their start),
 ``x = x0 + basis @ z``; every effect keeps its settings and refits its ``values``. An optional Gaussian prior
-(the Tikhonov filter of :func:`calibration.observability.filter_weights`) pulls the geometry and the effect
-values toward nominal (zero), so what the data barely see stays near nominal. The residual is exact
+(the Tikhonov filter of :func:`calibration.identification.observability.filter_weights`) pulls the geometry and
+the effect values toward nominal (zero), so what the data barely see stays near nominal. The residual is exact
 (POE forward kinematics with the effects applied); the Jacobian uses the analytic geometric Jacobian at the
 perturbed joint angles and each effect's analytic pose Jacobian (first order in the small effects). The
 parameter covariance is the Gauss-Newton one scaled by the residual variance,
@@ -21,8 +22,9 @@ from calibration import so3
 from calibration.diagnosis.extended import ExtendedEffect
 from calibration.diagnosis.inuse import InUse
 from calibration.errors import ModelError
-from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, weighted_residuals
-from calibration.observability import DEFAULT_RELATIVE_TOLERANCE, analyse_jacobian, filter_weights
+from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, lm, weighted_residuals
+from calibration.identification.lm import Groups, Linearisation, LMSettings, Residuals, StopReason
+from calibration.identification.observability import DEFAULT_RELATIVE_TOLERANCE, analyse_jacobian, filter_weights
 from calibration.parameterisation import MinimalParameterisation
 from calibration.physics.base import Context, Effect
 from calibration.physics_informed import ExtendedKinematics
@@ -41,9 +43,10 @@ class JointFit:
         rms_mm: position RMS on the fit data [mm].
         n_parameters: k + the free effect directions.
         iterations: LM iterations run.
-        converged: whether the relative cost change fell below tolerance.
+        converged: whether the solver met its stopping criterion (relative cost change below tolerance).
         seconds: wall time.
         theta: the model in use's extended parameters (77,) with ``x`` and the extended effects' values in.
+        reason: why the solver stopped (see :class:`calibration.identification.lm.StopReason`).
     """
 
     x: np.ndarray
@@ -57,13 +60,14 @@ class JointFit:
     converged: bool
     seconds: float
     theta: np.ndarray | None = None
+    reason: StopReason | None = None
 
 
 def filter_prior(inuse: InUse, q: np.ndarray, context: Context | None, effects: tuple[Effect, ...],
                  a: float = DEFAULT_ORIENTATION_WEIGHT, tolerance: float = DEFAULT_RELATIVE_TOLERANCE) -> np.ndarray:
     """Prior weights (27 + p_e,) of the Tikhonov filter over the geometry and ``effects``, around nominal.
 
-    The rule of the ``pi`` fit (:func:`calibration.observability.filter_weights`) applied to the joint
+    The rule of the ``pi`` fit (:func:`calibration.identification.observability.filter_weights`) applied to the joint
     Jacobian. Each parameter is scaled to millimetres of tool motion: geometry and extended blocks by their
     kinematics' scale, a physics effect by the change that moves the tool 1 mm RMS over the data.
     """
@@ -138,6 +142,10 @@ class JointProblem:
         self.prior_weight = None if prior_weight is None else np.asarray(prior_weight, dtype=float)
         if self.prior_weight is not None and self.prior_weight.shape != (par.size + self.theta0.size,):
             raise ModelError(f"prior_weight must be ({par.size + self.theta0.size},), got {self.prior_weight.shape}")
+        J0 = np.zeros((par.size + self.theta0.size, self.k + self.B.shape[1]))
+        J0[: par.size, : self.k] = self.basis
+        J0[par.size:, self.k:] = self.B
+        self._prior_jacobian = J0 if self.prior_weight is None else self.prior_weight[:, None] * J0
 
     def unpack(self, u: np.ndarray) -> tuple[np.ndarray, tuple[Effect, ...]]:
         """Geometric parameters (m,) and effects for a stacked vector ``[z; theta]``."""
@@ -150,10 +158,27 @@ class JointProblem:
         x = self.x0 + self.basis @ u[: self.k]
         values = self.theta0 + self.B @ u[self.k:]
         r = self.prior_weight * np.concatenate([x, values])
-        J = np.zeros((r.size, u.size))
-        J[: self.par.size, : self.k] = self.basis
-        J[self.par.size:, self.k:] = self.B
-        return r, self.prior_weight[:, None] * J
+        return r, self._prior_jacobian
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return 1, self.k + self.B.shape[1]
+
+    @property
+    def groups(self) -> Groups:
+        return Groups.single(self.q.shape[0])
+
+    def residuals(self, u: np.ndarray) -> Residuals:
+        """The solver's view at u (1, k + k_e): weighted residual rows, prior, rotation errors as ``extra``."""
+        r, e = self.residual(u[0])
+        return Residuals(r, None if self.prior_weight is None else self.prior(u[0])[0][None], e)
+
+    def linearise(self, u: np.ndarray, at: Residuals | None) -> Linearisation:
+        """Residuals (``at`` when given) and the Jacobian (N, 6, k + k_e) at u (1, k + k_e)."""
+        at = self.residuals(u) if at is None else at
+        J = self.jacobian(u[0], at.extra)
+        J_prior = None if self.prior_weight is None else self._prior_jacobian
+        return Linearisation(at, J.reshape(-1, 6, J.shape[-1]), J_prior)
 
     def theta(self, x: np.ndarray, effects: tuple[Effect, ...]) -> tuple[np.ndarray, tuple[Effect, ...]]:
         """Extended parameters with geometry ``x`` and the extended effects in, and the other effects."""
@@ -185,38 +210,30 @@ class JointProblem:
         Jr[:, 3:] = -self.w_rot * (so3.right_jacobian_inv(e) @ J[:, 3:])
         return Jr.reshape(Jr.shape[0] * 6, J.shape[-1])
 
-    def solve(self, max_iter: int = 40, tol: float = 1e-10) -> JointFit:
-        """Levenberg-Marquardt from ``[0; current effect values]``."""
-        start = time.perf_counter()
-        u = np.zeros(self.k + self.B.shape[1])
+    def settings(self, max_iter: int = 40, tol: float = 1e-10) -> LMSettings:
+        """The solver settings of :meth:`solve`: relative cost change ``tol``, minimum-norm (lstsq) steps."""
+        return LMSettings(max_iter=max_iter, cost_rtol=tol, step_atol=0.0, damping0=1e-4, damping_min=1e-12,
+                          diag_floor=1e-300, linear_solver="lstsq")
 
-        def total(u: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-            r, e = self.residual(u)
-            rp = self.prior(u)[0]
-            return r, e, float(np.sum(r * r) + np.sum(rp * rp))
-        r, e, cost = total(u)
-        lam, converged, it = 1e-4, False, 0
-        J = self.jacobian(u, e)
-        for it in range(1, max_iter + 1):
-            rp, Jp = self.prior(u)
-            A = J.T @ J + Jp.T @ Jp
-            g = J.T @ r.ravel() + Jp.T @ rp
-            diag = np.diag(A).copy() + 1e-300
-            step = np.linalg.lstsq(A + lam * np.diag(diag), -g, rcond=None)[0]
-            r_try, e_try, cost_try = total(u + step)
-            if cost_try < cost:
-                rel = (cost - cost_try) / max(cost, 1e-300)
-                u, r, e, cost = u + step, r_try, e_try, cost_try
-                lam = max(lam / 3.0, 1e-12)
-                if rel < tol:
-                    converged = True
-                    break
-                J = self.jacobian(u, e)
-            else:
-                lam *= 4.0
-                if lam > 1e8:
-                    converged = True
-                    break
+    def solve(self, max_iter: int = 40, tol: float = 1e-10, settings: LMSettings | None = None) -> JointFit:
+        """Levenberg-Marquardt from ``[0; current effect values]``, then the covariance at the solution."""
+        start = time.perf_counter()
+        res = lm.solve(self, None, settings or self.settings(max_iter, tol))
+        u, r, e = res.z[0], res.residuals.r, res.residuals.extra
+        cov, s2 = self.covariance(u, r, e)
+        std = np.sqrt(np.clip(np.diag(cov), 0, None))
+        x, effects = self.unpack(u)
+        stds, i = [], self.k
+        for ef in effects:
+            stds.append(std[i: i + ef.size])
+            i += ef.size
+        rms = float(np.sqrt(np.mean(np.sum(r[:, :3] ** 2, axis=1))))
+        theta, _ = self.theta(x, effects)
+        return JointFit(x, effects, tuple(stds), cov, s2, rms, u.size, int(res.iterations[0]), bool(res.converged[0]),
+                        time.perf_counter() - start, theta, res.reason[0])
+
+    def covariance(self, u: np.ndarray, r: np.ndarray, e: np.ndarray) -> tuple[np.ndarray, float]:
+        """Covariance of ``[z; effect values]`` (k + p_e, k + p_e) at u and the residual variance ``s^2``."""
         J = self.jacobian(u, e)
         Jp = self.prior(u)[1]
         n_res, p = r.size, u.size
@@ -226,13 +243,4 @@ class JointProblem:
         T = np.zeros((self.k + self.theta0.size, u.size))
         T[: self.k, : self.k] = np.eye(self.k)
         T[self.k:, self.k:] = self.B
-        cov = T @ cov @ T.T  # covariance of [z; effect values]
-        std = np.sqrt(np.clip(np.diag(cov), 0, None))
-        x, effects = self.unpack(u)
-        stds, i = [], self.k
-        for ef in effects:
-            stds.append(std[i: i + ef.size])
-            i += ef.size
-        rms = float(np.sqrt(np.mean(np.sum(r[:, :3] ** 2, axis=1))))
-        theta, _ = self.theta(x, effects)
-        return JointFit(x, effects, tuple(stds), cov, s2, rms, p, it, converged, time.perf_counter() - start, theta)
+        return T @ cov @ T.T, s2

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from calibration.cpa import fit_circle, identify_cpa, split_sweeps
+from calibration.identification.cpa import fit_circle, identify_cpa, split_sweeps
 from calibration.errors import ModelError
 from calibration.parameterisation import MinimalParameterisation
 from calibration.poe import pose_error

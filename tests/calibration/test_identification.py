@@ -5,7 +5,7 @@ import pytest
 
 from calibration.errors import ModelError
 from calibration.identification import GeometricProblem, rotation_residual_scale
-from calibration.observability import analyse
+from calibration.identification.observability import analyse
 from calibration.poe import pose_error
 from tests.conftest import cluster_design, measure
 

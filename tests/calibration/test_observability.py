@@ -3,7 +3,7 @@
 import numpy as np
 
 from calibration.identification import GeometricProblem
-from calibration.observability import analyse
+from calibration.identification.observability import analyse
 from calibration.poe import pose_error
 from tests.conftest import cluster_design, measure
 

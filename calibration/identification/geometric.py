@@ -3,12 +3,12 @@
 The cost of one problem is ``sum_i |p_i - p(q_i, x)|^2 + (2a) |log(R_i R(q_i, x)^T)|^2`` (+ an optional prior),
 so with the paper's weight ``a = 1641`` one millimetre of position error weighs as much as one degree of
 orientation error (``2a = (180/pi)^2``). Many independent problems (one per cluster) are solved at once
-by a batched Levenberg-Marquardt on analytic Jacobians: one vectorised pass per iteration for all of them.
+by the batched Levenberg-Marquardt of :mod:`.lm` on analytic Jacobians: one vectorised pass per iteration for
+all of them. :class:`GeometricProblem` supplies the residuals, the Jacobian and the prior; the solver the rest.
 """
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -16,6 +16,8 @@ import numpy as np
 
 from calibration import so3
 from calibration.errors import ModelError
+from calibration.identification import lm
+from calibration.identification.lm import Groups, Linearisation, LMSettings, Residuals, StopReason
 
 
 class Kinematics(Protocol):
@@ -57,9 +59,10 @@ class NlsResult:
         x: identified parameters, shape (G, m) (G = 1 for a single problem).
         cost: final cost per problem, shape (G,).
         rms_mm: final position RMS per problem [mm], shape (G,).
-        iterations: iterations run.
-        converged: per problem, shape (G,).
+        iterations: iterations run (the longest-running problem's).
+        converged: per problem, shape (G,): a stopping criterion on the cost or the step was met.
         seconds: wall time of the solve.
+        reason: why each problem stopped (see :class:`calibration.identification.lm.StopReason`).
     """
 
     x: np.ndarray
@@ -68,6 +71,7 @@ class NlsResult:
     iterations: int
     converged: np.ndarray
     seconds: float
+    reason: tuple[StopReason, ...] = ()
 
 
 class GeometricProblem:
@@ -99,15 +103,10 @@ class GeometricProblem:
         groups = np.zeros(N, dtype=int) if groups is None else np.asarray(groups, dtype=int)
         if groups.shape != (N,) or groups.min() < 0:
             raise ModelError("groups must be one non-negative integer per sample")
-        self.n_groups = int(groups.max()) + 1
-        counts = np.bincount(groups, minlength=self.n_groups)
-        if np.any(counts == 0):
-            raise ModelError("every group index 0..G-1 must have at least one sample")
         # Samples sorted by group so per-group sums are contiguous reductions.
-        order = np.argsort(groups, kind="stable")
-        self.q, self.R_meas, self.p_meas, self.groups = self.q[order], R_meas[order], p_meas[order], groups[order]
-        self._starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-        self._counts = counts
+        order, self.groups = Groups.sorted_from_index(groups)
+        self.n_groups = self.groups.n
+        self.q, self.R_meas, self.p_meas, self.sample_group = self.q[order], R_meas[order], p_meas[order], groups[order]
         self.w_rot = rotation_residual_scale(a)
         m = kin.size
         self.basis = np.eye(m) if basis is None else np.asarray(basis, dtype=float)
@@ -117,68 +116,45 @@ class GeometricProblem:
         x_ref = np.zeros(m) if x_ref is None else np.asarray(x_ref, dtype=float)
         self.x_ref = np.broadcast_to(x_ref, (self.n_groups, m)).copy()
 
-    def _evaluate(self, z: np.ndarray, with_jacobian: bool) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
-        """Residuals (N, 6), optional Jacobian w.r.t. z (N, 6, k), and per-group cost (G,)."""
-        x = self.x_ref + z @ self.basis.T
-        xs = x[self.groups]
-        if with_jacobian:
-            R, p, J = self.kin.jacobian(self.q, xs)
-        else:
-            R, p = self.kin.pose(self.q, xs)
-            J = None
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.n_groups, self.basis.shape[1]
+
+    def parameters(self, z: np.ndarray) -> np.ndarray:
+        """Parameters (G, m) of the solver's variables z (G, k)."""
+        return self.x_ref + z @ self.basis.T
+
+    def _prior(self, x: np.ndarray) -> np.ndarray | None:
+        return None if self.prior_weight is None else self.prior_weight * (x - self.x_ref)
+
+    def residuals(self, z: np.ndarray) -> Residuals:
+        """Weighted residual rows (N, 6) and prior residuals (G, m) at z (G, k)."""
+        x = self.parameters(z)
+        R, p = self.kin.pose(self.q, x[self.sample_group])
+        return Residuals(weighted_residuals(self.R_meas, self.p_meas, R, p, self.w_rot)[0], self._prior(x))
+
+    def linearise(self, z: np.ndarray, at: Residuals | None = None) -> Linearisation:
+        """Residuals and d r / d z (N, 6, k) from one pass of the kinematics' Jacobian (``at`` is not needed)."""
+        x = self.parameters(z)
+        R, p, J = self.kin.jacobian(self.q, x[self.sample_group])
         r, e = weighted_residuals(self.R_meas, self.p_meas, R, p, self.w_rot)
-        cost = np.add.reduceat(np.sum(r * r, axis=1), self._starts)
-        if self.prior_weight is not None:
-            cost = cost + np.sum((self.prior_weight * (x - self.x_ref)) ** 2, axis=1)
-        if J is None:
-            return r, None, cost
         # d r / dx: position rows -dp; rotation rows -w * Jr^-1(e) dtheta.
         Jr = np.empty_like(J)
         Jr[:, :3] = -J[:, :3]
         Jr[:, 3:] = -self.w_rot * (so3.right_jacobian_inv(e) @ J[:, 3:])
-        return r, Jr @ self.basis, cost
+        J_prior = None if self.prior_weight is None else self.prior_weight[:, None] * self.basis
+        return Linearisation(Residuals(r, self._prior(x)), Jr @ self.basis, J_prior)
 
-    def _normal_equations(self, Jz: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Per-group ``J^T J`` (G, k, k) and ``J^T r`` (G, k)."""
-        G, k = self.n_groups, Jz.shape[-1]
-        if np.all(self._counts == self._counts[0]):  # equal groups: one batched product
-            Jg = Jz.reshape(G, -1, k)
-            JgT = np.swapaxes(Jg, 1, 2)
-            return JgT @ Jg, (JgT @ r.reshape(G, -1, 1))[..., 0]
-        JzT = np.swapaxes(Jz, 1, 2)
-        return np.add.reduceat(JzT @ Jz, self._starts), np.add.reduceat((JzT @ r[:, :, None])[..., 0], self._starts)
+    def settings(self, max_iter: int = 50, tol: float = 1e-6) -> LMSettings:
+        """The solver settings of :meth:`solve`: relative cost change ``tol``, step norm 1e-12, LU solves."""
+        return LMSettings(max_iter=max_iter, cost_rtol=tol, step_atol=1e-12, damping0=1e-3, damping_min=1e-9,
+                          diag_floor=1e-12, linear_solver="lu")
 
-    def solve(self, z0: np.ndarray | None = None, max_iter: int = 50, tol: float = 1e-6) -> NlsResult:
-        """Batched Levenberg-Marquardt from ``x_ref`` (or ``x_ref + basis @ z0``)."""
-        start = time.perf_counter()
-        G, k = self.n_groups, self.basis.shape[1]
-        z = np.zeros((G, k)) if z0 is None else np.broadcast_to(z0, (G, k)).copy()
-        lam = np.full(G, 1e-3)
-        converged = np.zeros(G, dtype=bool)
-        r, Jz, cost = self._evaluate(z, True)
-        Bw = None if self.prior_weight is None else self.prior_weight[:, None] * self.basis  # (m, k)
-        it = 0
-        for it in range(1, max_iter + 1):
-            A, g = self._normal_equations(Jz, r)
-            if Bw is not None:
-                A += Bw.T @ Bw
-                g += (z @ self.basis.T * self.prior_weight**2) @ self.basis
-            diag = np.einsum("gii->gi", A) + 1e-12
-            step = np.linalg.solve(A + lam[:, None, None] * (diag[:, :, None] * np.eye(k)), -g[:, :, None])[..., 0]
-            step[converged] = 0.0
-            r_try, _, cost_try = self._evaluate(z + step, False)
-            better = cost_try < cost
-            rel = np.abs(cost - cost_try) / np.maximum(cost, 1e-300)
-            converged |= (better & (rel < tol)) | (np.linalg.norm(step, axis=1) < 1e-12)
-            lam = np.where(better, np.maximum(lam / 3.0, 1e-9), lam * 4.0)
-            converged |= lam > 1e8
-            if converged.all():
-                z = np.where(better[:, None], z + step, z)
-                break
-            if better.any():
-                z = np.where(better[:, None], z + step, z)
-                r, Jz, cost = self._evaluate(z, True)
-        r, _, cost = self._evaluate(z, False)
-        rms = np.sqrt(np.add.reduceat(np.sum(r[:, :3] ** 2, axis=1), self._starts) / self._counts)
-        x = self.x_ref + z @ self.basis.T
-        return NlsResult(x, cost, rms, it, converged, time.perf_counter() - start)
+    def solve(self, z0: np.ndarray | None = None, max_iter: int = 50, tol: float = 1e-6,
+              settings: LMSettings | None = None) -> NlsResult:
+        """Batched Levenberg-Marquardt from ``x_ref`` (or ``x_ref + basis @ z0``); ``settings`` overrides the rest."""
+        res = lm.solve(self, z0, settings or self.settings(max_iter, tol))
+        r = res.residuals.r
+        rms = np.sqrt(self.groups.sum(np.sum(r[:, :3] ** 2, axis=1)) / self.groups.counts)
+        return NlsResult(self.parameters(res.z), res.cost, rms, int(res.iterations.max(initial=0)), res.converged,
+                         res.seconds, res.reason)
