@@ -13,16 +13,18 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
 import numpy as np
 
+from calibration.casadi_expr import CasadiPose, interpolator_sx
 from calibration.errors import ModelError
 from calibration.identification import GeometricProblem
-from calibration.models import KinematicModel, poe_from_dict, poe_to_dict
+from calibration.models import Block, KinematicModel, poe_from_dict, poe_to_dict
 from calibration.parameterisation import MinimalParameterisation
 from calibration.physics_informed import ExtendedKinematics
+from calibration.poe import PoeModel
 from calibration.recording import Recording
 
 log = logging.getLogger("cellcal.calibration")
@@ -127,6 +129,48 @@ class CdcModel(KinematicModel):
     @property
     def n_parameters(self) -> int:
         return int(self.info.get("n_parameters", self.kinematics.size))
+
+    def blocks(self) -> tuple[Block, ...]:
+        """The blocks shared by every configuration (tool, compliance, deflection); the geometric block is the
+        interpolator's."""
+        return self.kinematics.blocks()[1:]
+
+    def vector(self) -> np.ndarray:
+        return np.asarray(self.theta_ref[self.kinematics.par.size:], dtype=float).copy()
+
+    def with_vector(self, theta: np.ndarray) -> "CdcModel":
+        g = self.kinematics.par.size
+        return replace(self, theta_ref=np.concatenate([self.theta_ref[:g], np.asarray(theta, dtype=float)]))
+
+    def jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        R, p, J = self.kinematics.jacobian(q, self.parameters_at(q))
+        return R, p, J[..., self.kinematics.par.size:]
+
+    def casadi(self, q: Any, theta: Any = None, q_at: Any = None) -> CasadiPose:
+        """The pose on casadi symbols; the geometric block is the interpolator's expression of ``q_at``'s (q2,
+        q3) when it has one, else a frozen input (kind ``cdc-frozen``) that a caller fixes at an iterate."""
+        import casadi as ca
+
+        kin, g = self.kinematics, self.kinematics.par.size
+        kin.check_casadi(self.theta_ref)
+        rest = ca.DM(self.theta_ref[g:]) if theta is None else theta
+        q_at = q if q_at is None else q_at
+        u = ca.SX.sym("u", len(self.inputs))
+        expr = interpolator_sx(self.interpolator, u, g)
+        if expr is not None:
+            xq = ca.substitute(expr, u, ca.vertcat(*[q_at[i] for i in self.inputs]))
+            return replace(kin.casadi(q, ca.vertcat(xq, rest)), kind="cdc")
+        x = ca.SX.sym("x", g)
+        e = kin.casadi(q, ca.vertcat(x, rest))
+        return replace(e, kind="cdc-frozen", frozen=x,
+                       frozen_at=lambda qq: self.parameters_at(np.asarray(qq, dtype=float)[None])[0, :g])
+
+    def effects_geometry(self, theta: Any = None) -> tuple[PoeModel, Any, Any]:
+        """The arm effects on this model act on (its reference geometry), in casadi: ``(nominal, H, P)``."""
+        import casadi as ca
+
+        par = self.kinematics.par
+        return (par.nominal,) + tuple(ca.DM(a) for a in par.geometry(self.theta_ref[: par.size]))
 
     def _body(self) -> dict[str, Any]:
         return {"nominal": poe_to_dict(self.kinematics.par.nominal), "fit_tool": self.kinematics.par.fit_tool,

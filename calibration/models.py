@@ -11,7 +11,7 @@ import abc
 import importlib
 import json
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -27,6 +27,18 @@ SCHEMA = "cellcal.model/1"
 MODEL_KIND_MODULES = {"constant": "calibration.models", "cdc": "calibration.cdc", "pi": "calibration.physics_informed",
                       "physics": "calibration.physics.model", "diagnosed": "calibration.diagnosis.model"}
 log = logging.getLogger("cellcal.calibration")
+
+
+@dataclass(frozen=True)
+class Block:
+    """One named block of a model's parameter vector (a model kind declares its blocks once)."""
+
+    name: str
+    names: tuple[str, ...]
+
+    @property
+    def size(self) -> int:
+        return len(self.names)
 
 
 def poe_to_dict(m: PoeModel) -> dict[str, Any]:
@@ -61,6 +73,49 @@ class KinematicModel(abc.ABC):
     def out_of_range(self, q: np.ndarray) -> np.ndarray:
         """Boolean mask (N,) of configurations outside the region the model was fitted on."""
         return np.zeros(np.atleast_2d(q).shape[0], dtype=bool)
+
+    def pose(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Tool pose for joint angles q [rad] (N, 6): ``(R (N, 3, 3), p (N, 3) [mm])`` (same as :meth:`fk`)."""
+        return self.fk(q)
+
+    def blocks(self) -> tuple[Block, ...]:
+        """The parameter blocks of :meth:`vector`, in layout order."""
+        return ()
+
+    def vector(self) -> np.ndarray:
+        """The parameters the Jacobians are taken with respect to, shape (m,) (layout of :meth:`blocks`)."""
+        return np.zeros(0)
+
+    def with_vector(self, theta: np.ndarray) -> "KinematicModel":
+        """The same model with other parameters (m,)."""
+        raise ModelError(f"a {self.kind} model has no parameter vector")
+
+    def casadi(self, q: Any, theta: Any = None, q_at: Any = None) -> Any:
+        """The pose as casadi expressions (a :class:`calibration.casadi_expr.CasadiPose`).
+
+        Args:
+            q: casadi symbols (or expressions) of the joint angles the kinematics see [rad] (6,).
+            theta: casadi symbols for :meth:`vector` (m,), or None for the model's own values (constants).
+            q_at: the joint reading configuration-dependent parameters are evaluated at (default ``q``); it
+                differs from ``q`` when joint effects deflect the joints before the kinematics.
+        """
+        raise ModelError(f"a {self.kind} model has no casadi expression")
+
+    def jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Pose and ``d[p (mm); rotation (rad)] / d vector`` (N, 6, m) in the base frame.
+
+        By default exact, from the model's own casadi expression; kinds with an analytic form override it.
+        """
+        from calibration.casadi_expr import pose_jacobians
+
+        R, p = self.fk(q)
+        return R, p, pose_jacobians(lambda qs, ts: self.casadi(qs, ts), q, self.vector())[0]
+
+    def jacobian_q(self, q: np.ndarray) -> np.ndarray:
+        """``d[p (mm); rotation (rad)] / dq`` (N, 6, 6): exact, from the model's own casadi expression."""
+        from calibration.casadi_expr import pose_jacobians
+
+        return pose_jacobians(lambda qs, ts: self.casadi(qs, ts), q, self.vector())[1]
 
     @property
     @abc.abstractmethod
@@ -109,6 +164,35 @@ class ConstantModel(KinematicModel):
     @property
     def n_parameters(self) -> int:
         return self.parameters
+
+    def _chart(self) -> Any:
+        """Minimal parameters around this geometry (``x = 0`` is this model; the flange point included)."""
+        from calibration.parameterisation import MinimalParameterisation
+
+        return MinimalParameterisation(self.model, fit_tool=True)
+
+    def blocks(self) -> tuple[Block, ...]:
+        return (Block("geometry", tuple(self._chart().names())),)
+
+    def vector(self) -> np.ndarray:
+        return np.zeros(self._chart().size)
+
+    def with_vector(self, theta: np.ndarray) -> "ConstantModel":
+        return replace(self, model=self._chart().model(np.asarray(theta, dtype=float)))
+
+    def jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        par = self._chart()
+        return par.jacobian(q, np.zeros(par.size))
+
+    def jacobian_q(self, q: np.ndarray) -> np.ndarray:
+        return self.model.jacobian_q(q)
+
+    def casadi(self, q: Any, theta: Any = None, q_at: Any = None) -> Any:
+        if theta is None:
+            return self.model.casadi(q, kind="constant")
+        from calibration.casadi_expr import chain_pose, poe_chain
+
+        return chain_pose(poe_chain(self.model, q, *self._chart().casadi_geometry(theta)), "constant")
 
     def _body(self) -> dict[str, Any]:
         return {"geometry": poe_to_dict(self.model)}

@@ -18,11 +18,12 @@ from typing import Any, ClassVar
 import numpy as np
 
 from calibration import so3
+from calibration.casadi_expr import CasadiPose, poe_chain
 from calibration.diagnosis.extended import ExtendedEffect, ToolFrame
 from calibration.diagnosis.inuse import InUse
-from calibration.models import KinematicModel
+from calibration.models import Block, KinematicModel
 from calibration.physics.base import Context, Effect, effect_from_dict
-from calibration.physics.model import PhysicsModel
+from calibration.physics.model import PhysicsModel, casadi_effects, effect_blocks, split_values
 from calibration.poe import PoeModel
 
 
@@ -61,6 +62,38 @@ class DiagnosedModel(KinematicModel):
     @property
     def n_parameters(self) -> int:
         return int(self.base.n_parameters) + sum(e.size for e in self.effects)
+
+    def blocks(self) -> tuple[Block, ...]:
+        """The base model's blocks, then one per effect."""
+        return tuple(self.base.blocks()) + effect_blocks(self.effects)
+
+    def vector(self) -> np.ndarray:
+        return np.concatenate([self.base.vector()] + [e.values for e in self.effects])
+
+    def with_vector(self, theta: np.ndarray) -> "DiagnosedModel":
+        theta = np.asarray(theta, dtype=float)
+        k = self.base.vector().size
+        values = split_values(self.effects, theta[k:])
+        return replace(self, base=self.base.with_vector(theta[:k]),
+                       effects=tuple(e.with_values(v) for e, v in zip(self.effects, values)))
+
+    def casadi(self, q: Any, theta: Any = None, q_at: Any = None) -> CasadiPose:
+        """The pose at the default context on casadi symbols, exactly as :meth:`fk`: the effects deflect the
+        joints on the base model's arm, then the base model's own expression runs at the deflected joints with
+        its configuration-dependent parameters at the reading ``q``. Exact in q (no frozen fixed point)."""
+        import casadi as ca
+
+        k = self.base.vector().size
+        base_theta = None if theta is None else theta[:k]
+        values = split_values(self.effects, self.vector()[k:] if theta is None else theta[k:])
+        geo, H, P = self.base.effects_geometry(base_theta)  # type: ignore[attr-defined]
+        q_chain, P_eff = casadi_effects(self.effects, values, geo, q, H, P)
+        pose = self.base.casadi(q_chain, base_theta, q if q_at is None else q_at)
+        if any(e.target == "geometry" for e in self.effects):  # the pose change the grown links cause
+            c0, c1 = poe_chain(geo, q_chain, H, P), poe_chain(geo, q_chain, H, P_eff)
+            R = c1.R_base_tool @ c0.R_base_tool.T @ pose.R
+            pose = replace(pose, R=R, p=pose.p + c1.p_base_tool - c0.p_base_tool)
+        return replace(pose, kind="diagnosed")
 
     def _body(self) -> dict[str, Any]:
         return {"base": self.base.to_dict(), "effects": [e.to_dict() for e in self.effects]}

@@ -1,5 +1,9 @@
 """A fitted physics model: POE geometry plus identified non-geometric effects, saved as a model file.
 
+Its parameter blocks are its effects' values; its pose (numpy, any context), its casadi expression (the
+default context, exact in q) and through it its exact Jacobians all come from the effects' one definition
+(:meth:`~calibration.physics.base.Effect.joint_terms`, :meth:`~calibration.physics.base.Effect.grow`).
+
 ``calibration.models.load_model`` finds the kind ``"physics"`` through the :class:`KinematicModel`
 registry, which is filled when this module is imported: ``calibration/models.py`` (or whoever calls
 ``load_model``) must import ``calibration.physics.model`` first.
@@ -7,14 +11,53 @@ registry, which is filled when this module is imported: ``calibration/models.py`
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
 import numpy as np
 
-from calibration.models import KinematicModel, poe_from_dict, poe_to_dict
+from calibration.casadi_expr import CasadiPose, casadi_ops, chain_pose, poe_chain
+from calibration.models import Block, KinematicModel, poe_from_dict, poe_to_dict
 from calibration.physics.base import Context, Effect, apply_effects, effect_from_dict
 from calibration.poe import PoeModel
+
+
+def effect_blocks(effects: tuple[Effect, ...]) -> tuple[Block, ...]:
+    """One parameter block per effect, named by its kind."""
+    return tuple(Block(e.kind, tuple(e.names)) for e in effects)
+
+
+def split_values(effects: tuple[Effect, ...], theta: Any) -> list[Any]:
+    """``theta`` (sum of sizes,) cut into each effect's values (numpy slices or casadi sub-expressions)."""
+    out, k = [], 0
+    for e in effects:
+        out.append(theta[k:k + e.size])
+        k += e.size
+    return out
+
+
+def casadi_effects(effects: tuple[Effect, ...], values: list[Any], geo: PoeModel, q: Any, H: Any, P: Any
+                   ) -> tuple[Any, Any]:
+    """Effects on the arm ``geo`` with axes/link vectors ``H``, ``P`` (casadi) at joint symbols q, the default
+    context: ``(q + delta_q (6,), P changed by the geometry effects (3, n+1))``."""
+    import casadi as ca
+
+    ops = casadi_ops()
+    cache: list[Any] = []
+
+    def chain() -> Any:  # the chain of the effects' arm at q, built once when an effect needs it
+        if not cache:
+            cache.append(poe_chain(geo, q, H, P))
+        return cache[0]
+
+    dq: Any = ca.SX.zeros(q.shape[0])
+    cols = [P[:, c] for c in range(P.shape[1])]
+    for e, v in zip(effects, values):
+        if e.target == "geometry":
+            cols = e.grow(cols, v, 1, None, geo)
+        else:
+            dq = dq + ca.vertcat(*e.casadi_dq(ops, q, chain, v))
+    return q + dq, ca.horzcat(*cols)
 
 
 @dataclass
@@ -49,6 +92,26 @@ class PhysicsModel(KinematicModel):
     @property
     def n_parameters(self) -> int:
         return int(self.geometric_parameters) + sum(e.size for e in self.effects)
+
+    def blocks(self) -> tuple[Block, ...]:
+        return effect_blocks(self.effects)
+
+    def vector(self) -> np.ndarray:
+        return np.concatenate([e.values for e in self.effects]) if self.effects else np.zeros(0)
+
+    def with_vector(self, theta: np.ndarray) -> "PhysicsModel":
+        values = split_values(self.effects, np.asarray(theta, dtype=float))
+        return replace(self, effects=tuple(e.with_values(v) for e, v in zip(self.effects, values)))
+
+    def casadi(self, q: Any, theta: Any = None, q_at: Any = None) -> CasadiPose:
+        """The pose at the default context on casadi symbols: exact, the joint effects' deflection a function
+        of q the caller differentiates through."""
+        import casadi as ca
+
+        values = split_values(self.effects, self.vector() if theta is None else theta)
+        H, P = ca.DM(self.model.H), ca.DM(self.model.P)
+        q_chain, P_eff = casadi_effects(self.effects, values, self.model, q, H, P)
+        return chain_pose(poe_chain(self.model, q_chain, H, P_eff), "physics")
 
     def _body(self) -> dict[str, Any]:
         return {"geometry": poe_to_dict(self.model), "geometric_parameters": int(self.geometric_parameters),
