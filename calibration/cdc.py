@@ -13,22 +13,20 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field, replace
-from typing import Any, ClassVar
+from dataclasses import dataclass
 
 import numpy as np
 
-from calibration.casadi_expr import CasadiPose, interpolator_sx
 from calibration.errors import ModelError
 from calibration.identification import GeometricProblem
-from calibration.models import Block, KinematicModel, poe_from_dict, poe_to_dict
+from calibration.models.cdc import CDC_INPUTS, CdcModel
 from calibration.parameterisation import MinimalParameterisation
 from calibration.physics_informed import ExtendedKinematics
-from calibration.poe import PoeModel
 from calibration.recording import Recording
 
 log = logging.getLogger("cellcal.calibration")
-CDC_INPUTS = (1, 2)  # q2, q3 (0-based)
+__all__ = ["CDC_INPUTS", "CdcModel", "LocalFits", "build_cdc", "cluster_anchors", "expand_anchors", "fit_local",
+           "geometric_cdc"]
 
 
 @dataclass(frozen=True)
@@ -97,93 +95,6 @@ def fit_local(kin: ExtendedKinematics, rec: Recording, theta_ref: np.ndarray, a:
     if not res.converged.all():
         log.warning("%d of %d local fits stopped before converging", int((~res.converged).sum()), len(res.x))
     return LocalFits(anchor_q[:, list(CDC_INPUTS)], res.x, res.rms_mm, np.asarray(theta_ref), res.converged, seconds)
-
-
-@dataclass
-class CdcModel(KinematicModel):
-    """Configuration-dependent model: the geometric block of an extended model interpolated over (q2, q3)."""
-
-    kind: ClassVar[str] = "cdc"
-    robot: str
-    method: str
-    kinematics: ExtendedKinematics
-    theta_ref: np.ndarray
-    interpolator: Any  # calibration.interpolation.Interpolator
-    inputs: tuple[int, ...] = CDC_INPUTS
-    info: dict[str, Any] = field(default_factory=dict)
-
-    def parameters_at(self, q: np.ndarray) -> np.ndarray:
-        """Full extended parameters per sample, shape (N, size): the reference with interpolated geometry."""
-        q = np.atleast_2d(np.asarray(q, dtype=float))
-        theta = np.array(np.broadcast_to(self.theta_ref, (q.shape[0], self.kinematics.size)))
-        theta[:, : self.kinematics.par.size] = self.interpolator.predict(q[:, list(self.inputs)])
-        return theta
-
-    def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return self.kinematics.pose(q, self.parameters_at(q))
-
-    def out_of_range(self, q: np.ndarray) -> np.ndarray:
-        q = np.atleast_2d(np.asarray(q, dtype=float))
-        return self.interpolator.out_of_range(q[:, list(self.inputs)])
-
-    @property
-    def n_parameters(self) -> int:
-        return int(self.info.get("n_parameters", self.kinematics.size))
-
-    def blocks(self) -> tuple[Block, ...]:
-        """The blocks shared by every configuration (tool, compliance, deflection); the geometric block is the
-        interpolator's."""
-        return self.kinematics.blocks()[1:]
-
-    def vector(self) -> np.ndarray:
-        return np.asarray(self.theta_ref[self.kinematics.par.size:], dtype=float).copy()
-
-    def with_vector(self, theta: np.ndarray) -> "CdcModel":
-        g = self.kinematics.par.size
-        return replace(self, theta_ref=np.concatenate([self.theta_ref[:g], np.asarray(theta, dtype=float)]))
-
-    def jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        R, p, J = self.kinematics.jacobian(q, self.parameters_at(q))
-        return R, p, J[..., self.kinematics.par.size:]
-
-    def casadi(self, q: Any, theta: Any = None, q_at: Any = None) -> CasadiPose:
-        """The pose on casadi symbols; the geometric block is the interpolator's expression of ``q_at``'s (q2,
-        q3) when it has one, else a frozen input (kind ``cdc-frozen``) that a caller fixes at an iterate."""
-        import casadi as ca
-
-        kin, g = self.kinematics, self.kinematics.par.size
-        kin.check_casadi(self.theta_ref)
-        rest = ca.DM(self.theta_ref[g:]) if theta is None else theta
-        q_at = q if q_at is None else q_at
-        u = ca.SX.sym("u", len(self.inputs))
-        expr = interpolator_sx(self.interpolator, u, g)
-        if expr is not None:
-            xq = ca.substitute(expr, u, ca.vertcat(*[q_at[i] for i in self.inputs]))
-            return replace(kin.casadi(q, ca.vertcat(xq, rest)), kind="cdc")
-        x = ca.SX.sym("x", g)
-        e = kin.casadi(q, ca.vertcat(x, rest))
-        return replace(e, kind="cdc-frozen", frozen=x,
-                       frozen_at=lambda qq: self.parameters_at(np.asarray(qq, dtype=float)[None])[0, :g])
-
-    def effects_geometry(self, theta: Any = None) -> tuple[PoeModel, Any, Any]:
-        """The arm effects on this model act on (its reference geometry), in casadi: ``(nominal, H, P)``."""
-        import casadi as ca
-
-        par = self.kinematics.par
-        return (par.nominal,) + tuple(ca.DM(a) for a in par.geometry(self.theta_ref[: par.size]))
-
-    def _body(self) -> dict[str, Any]:
-        return {"nominal": poe_to_dict(self.kinematics.par.nominal), "fit_tool": self.kinematics.par.fit_tool,
-                "theta_ref": self.theta_ref.tolist(), "inputs": list(self.inputs),
-                "interpolator": self.interpolator.to_dict()}
-
-    @classmethod
-    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "CdcModel":
-        from calibration.interpolation import interpolator_from_dict
-
-        kin = ExtendedKinematics(MinimalParameterisation(poe_from_dict(body["nominal"]), bool(body["fit_tool"])))
-        return cls(robot, method, kin, np.array(body["theta_ref"], dtype=float),
-                   interpolator_from_dict(body["interpolator"]), tuple(int(i) for i in body["inputs"]), info)
 
 
 def geometric_cdc(par: MinimalParameterisation) -> tuple[ExtendedKinematics, np.ndarray]:

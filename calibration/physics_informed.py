@@ -1,4 +1,4 @@
-"""The physics-informed model: geometry plus what the diagnosis of the real R1 data found.
+"""The physics-informed kinematics: geometry plus what the diagnosis of the real R1 data found.
 
 Beyond the minimal POE geometry (27 parameters with the flange shift), the model carries
 - the tool-marker rotation (3): ``R_flange_tool <- R_flange_tool exp(w)``;
@@ -8,6 +8,11 @@ Beyond the minimal POE geometry (27 parameters with the flange shift), the model
 - a smooth structural deflection (6 x 7): a small pose correction ``xi = F7(q2, q3) C`` (translation mm,
   rotation rad) in the joint-1 frame, ``F7 = [1, sin q2, sin q3, cos q2, cos q3, sin(q2+q3), cos(q2+q3)]``,
   which takes up link bending that joint compliance alone cannot represent.
+The blocks after the geometry are declared once (:data:`BLOCKS`); :class:`ExtendedKinematics` derives its
+sizes, names, offsets, pose, analytic Jacobian and casadi expression from that declaration, the diagnosis its
+effect blocks (:mod:`calibration.diagnosis.extended`), and the compliance block's deflection is the one
+:class:`~calibration.physics.compliance.MassFreeCompliance` definition. The fitted model kind is
+:mod:`calibration.models.pi`.
 All terms are fitted jointly by the batched LM (``Fitter.physics_informed``) with a Tikhonov filter on the
 joint, mm-scaled Jacobian: directions whose singular value is below 1 % of the largest are damped toward
 nominal, so what the data cannot see stays near the vendor arm.
@@ -15,17 +20,16 @@ nominal, so what the data cannot see stays near the vendor arm.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
-from typing import Any, ClassVar
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from calibration import so3
 from calibration.casadi_expr import NUMPY, CasadiPose, Ops, casadi_ops, check_small_rotations, exp_sx, poe_chain, \
     rot_sx
-from calibration.models import Block, KinematicModel, poe_from_dict, poe_to_dict
+from calibration.models.base import Block
 from calibration.parameterisation import MinimalParameterisation
-from calibration.poe import PoeModel
 from calibration.physics.compliance import COMPLIANCE_NAMES, MassFreeCompliance
 
 DEFLECTION_TERMS = ("1", "sin_q2", "sin_q3", "cos_q2", "cos_q3", "sin_q2q3", "cos_q2q3")
@@ -216,61 +220,9 @@ class GeometryView:
         return self.kin.jacobian(q, self.full(x), geometry_only=True)
 
 
-@dataclass
-class PhysicsInformedModel(KinematicModel):
-    """A fitted :class:`ExtendedKinematics` (kind ``pi``)."""
+def __getattr__(name: str) -> Any:  # the model kind moved to calibration.models.pi; old imports keep working
+    if name == "PhysicsInformedModel":
+        from calibration.models.pi import PhysicsInformedModel
 
-    kind: ClassVar[str] = "pi"
-    robot: str
-    method: str
-    kinematics: ExtendedKinematics
-    theta: np.ndarray
-    rank: int = 0
-    info: dict[str, Any] = field(default_factory=dict)
-
-    def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return self.kinematics.pose(q, self.theta)
-
-    @property
-    def n_parameters(self) -> int:
-        return self.kinematics.size
-
-    def parameters(self) -> dict[str, float]:
-        return dict(zip(self.kinematics.names(), self.theta.tolist()))
-
-    def blocks(self) -> tuple[Block, ...]:
-        return self.kinematics.blocks()
-
-    def vector(self) -> np.ndarray:
-        return np.asarray(self.theta, dtype=float).copy()
-
-    def with_vector(self, theta: np.ndarray) -> "PhysicsInformedModel":
-        return replace(self, theta=np.asarray(theta, dtype=float))
-
-    def jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        return self.kinematics.jacobian(q, self.theta)
-
-    def casadi(self, q: Any, theta: Any = None, q_at: Any = None) -> CasadiPose:
-        import casadi as ca
-
-        self.kinematics.check_casadi(self.theta)
-        return self.kinematics.casadi(q, ca.DM(self.theta) if theta is None else theta)
-
-    def effects_geometry(self, theta: Any = None) -> tuple[PoeModel, Any, Any]:
-        """The arm the effects on this model act on, in casadi: ``(nominal with tool, H (3, n), P (3, n+1))``,
-        its geometric block (of ``theta``, which may be symbols; of the model's own when None)."""
-        import casadi as ca
-
-        par = self.kinematics.par
-        if theta is None:
-            return (par.nominal,) + tuple(ca.DM(a) for a in par.geometry(self.theta[: par.size]))
-        return (par.nominal,) + par.casadi_geometry(theta[: par.size])
-
-    def _body(self) -> dict[str, Any]:
-        return {"nominal": poe_to_dict(self.kinematics.par.nominal), "fit_tool": self.kinematics.par.fit_tool,
-                "rank": self.rank, "theta": self.theta.tolist(), "names": self.kinematics.names()}
-
-    @classmethod
-    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "PhysicsInformedModel":
-        kin = ExtendedKinematics(MinimalParameterisation(poe_from_dict(body["nominal"]), bool(body["fit_tool"])))
-        return cls(robot, method, kin, np.array(body["theta"], dtype=float), int(body["rank"]), info)
+        return PhysicsInformedModel
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

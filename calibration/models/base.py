@@ -1,8 +1,14 @@
-"""Fitted kinematic models and their files.
+"""The model base, its registry and the model files.
 
 Every model maps joint angles to the tool-marker pose, ``fk(q) -> (R (N, 3, 3), p (N, 3))``, and saves to
 one versioned, human-readable file (``.yaml``/``.yml`` or ``.json``) that loads back to bit-identical
 predictions (floats are written with their shortest exact repr).
+
+A model kind declares its parameter blocks once (:meth:`KinematicModel.blocks`, a tuple of :class:`Block`)
+and from that declaration gives its pose, its parameter and joint Jacobians and its casadi expression
+(:meth:`KinematicModel.casadi`). The kinds live next to this module: ``constant``, ``pi``, ``cdc``,
+``physics``, ``diagnosed``; each registers itself when its module is imported (:data:`MODEL_KIND_MODULES`
+says where, so loading a file imports the one it needs).
 """
 
 from __future__ import annotations
@@ -11,7 +17,7 @@ import abc
 import importlib
 import json
 import logging
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -24,8 +30,9 @@ from calibration.poe import PoeModel
 
 SCHEMA = "cellcal.model/1"
 #: Where each model kind is defined; imported on first load so this module imports none of them.
-MODEL_KIND_MODULES = {"constant": "calibration.models", "cdc": "calibration.cdc", "pi": "calibration.physics_informed",
-                      "physics": "calibration.physics.model", "diagnosed": "calibration.diagnosis.model"}
+MODEL_KIND_MODULES = {"constant": "calibration.models.constant", "cdc": "calibration.models.cdc",
+                      "pi": "calibration.models.pi", "physics": "calibration.models.physics",
+                      "diagnosed": "calibration.models.diagnosed"}
 log = logging.getLogger("cellcal.calibration")
 
 
@@ -145,61 +152,6 @@ class KinematicModel(abc.ABC):
         if kind not in KinematicModel._registry:
             raise ModelError(f"unknown model kind {kind!r}; valid: {', '.join(sorted(MODEL_KIND_MODULES))}")
         return KinematicModel._registry[kind]._from_body(d["robot"], d["method"], d.get("info", {}), d)
-
-
-@dataclass
-class ConstantModel(KinematicModel):
-    """One geometry for the whole workspace (nominal, base, CPA, NLS fits)."""
-
-    kind: ClassVar[str] = "constant"
-    robot: str
-    method: str
-    model: PoeModel
-    parameters: int = 0
-    info: dict[str, Any] = field(default_factory=dict)
-
-    def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return self.model.fk(q)
-
-    @property
-    def n_parameters(self) -> int:
-        return self.parameters
-
-    def _chart(self) -> Any:
-        """Minimal parameters around this geometry (``x = 0`` is this model; the flange point included)."""
-        from calibration.parameterisation import MinimalParameterisation
-
-        return MinimalParameterisation(self.model, fit_tool=True)
-
-    def blocks(self) -> tuple[Block, ...]:
-        return (Block("geometry", tuple(self._chart().names())),)
-
-    def vector(self) -> np.ndarray:
-        return np.zeros(self._chart().size)
-
-    def with_vector(self, theta: np.ndarray) -> "ConstantModel":
-        return replace(self, model=self._chart().model(np.asarray(theta, dtype=float)))
-
-    def jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        par = self._chart()
-        return par.jacobian(q, np.zeros(par.size))
-
-    def jacobian_q(self, q: np.ndarray) -> np.ndarray:
-        return self.model.jacobian_q(q)
-
-    def casadi(self, q: Any, theta: Any = None, q_at: Any = None) -> Any:
-        if theta is None:
-            return self.model.casadi(q, kind="constant")
-        from calibration.casadi_expr import chain_pose, poe_chain
-
-        return chain_pose(poe_chain(self.model, q, *self._chart().casadi_geometry(theta)), "constant")
-
-    def _body(self) -> dict[str, Any]:
-        return {"geometry": poe_to_dict(self.model)}
-
-    @classmethod
-    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "ConstantModel":
-        return cls(robot, method, poe_from_dict(body["geometry"]), int(body.get("n_parameters", 0)), info)
 
 
 def _plain(obj: Any) -> Any:
