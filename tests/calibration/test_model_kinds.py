@@ -13,6 +13,7 @@ import pytest
 from calibration import so3
 from calibration.cdc import CdcModel
 from calibration.diagnosis.model import DiagnosedModel
+from calibration.interpolation.fourier import Fourier13Interpolator
 from calibration.models import ConstantModel
 from calibration.parameterisation import MinimalParameterisation
 from calibration.physics import (Backlash, GearTransmission, GravityModel, JointCompliance, JointOffset,
@@ -23,28 +24,6 @@ from cell_config.loader import load_cell
 
 ca = pytest.importorskip("casadi")
 KINDS = ("constant", "pi", "cdc", "physics", "diagnosed-pi", "diagnosed-cdc")
-
-
-class Fourier13:
-    """13 Fourier terms in (q2, q3) written with numpy ufuncs (casadi-expressible through ``basis``)."""
-
-    kind = "fourier13-test"
-
-    def __init__(self, m: int, seed: int = 1, scale: float = 1e-2) -> None:
-        self.coefficients = np.random.default_rng(seed).normal(0, scale, (13, m))
-
-    def basis(self, x: np.ndarray) -> np.ndarray:
-        a, b = x[:, 0], x[:, 1]
-        cols = [np.ones(x.shape[0], dtype=x.dtype) * 1.0]
-        for k in (1, 2, 3):
-            cols += [np.sin(k * a), np.cos(k * a), np.sin(k * b), np.cos(k * b)]
-        return np.stack(cols, axis=1)
-
-    def predict(self, x: np.ndarray) -> np.ndarray:
-        return self.basis(np.asarray(x, dtype=float)) @ self.coefficients
-
-    def out_of_range(self, x: np.ndarray) -> np.ndarray:
-        return np.zeros(len(x), dtype=bool)
 
 
 def _effects(gravity: GravityModel) -> tuple:
@@ -68,7 +47,9 @@ def models() -> dict:
     geometry = par.model(rng.normal(size=par.size) * par.scale() * 0.5)
     gravity = GravityModel.from_spec(spec.robot, geometry)
     pi = PhysicsInformedModel("R1", "pi", kin, theta, kin.size)
-    cdc = CdcModel("R1", "fbf13", kin, theta, Fourier13(par.size))
+    x = rng.uniform(-1.5, 1.5, (40, 2))
+    y = rng.normal(size=(40, par.size)) * par.scale() * 0.3
+    cdc = CdcModel("R1", "fbf13", kin, theta, Fourier13Interpolator().fit(x, y))
     physics = PhysicsModel("R1", "diagnose", geometry, _effects(gravity), par.size)
     effects = _effects(gravity)[:3] + (_effects(gravity)[-1],)
     return {"constant": ConstantModel("R1", "nls", geometry, par.size), "pi": pi, "cdc": cdc, "physics": physics,
@@ -139,3 +120,34 @@ def test_pi_analytic_jacobian_has_77_columns(models):
     """pi's analytic Jacobian (the fitter's) covers every block: 27 + 3 + 5 + 42 columns."""
     assert [b.size for b in models["pi"].blocks()] == [27, 3, 5, 42]
     assert models["pi"].jacobian(_q(2, 0))[2].shape == (2, 6, 77)
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_model_file_round_trip_is_bit_identical(models, kind, tmp_path):
+    from calibration.models import load_model, save_model
+
+    model = models[kind]
+    q = _q(10, seed=6)
+    for suffix in (".yaml", ".json"):
+        save_model(model, tmp_path / f"m{suffix}")
+        loaded = load_model(tmp_path / f"m{suffix}")
+        assert loaded.kind == model.kind and [b.names for b in loaded.blocks()] == [b.names for b in model.blocks()]
+        for a, b in zip(loaded.fk(q), model.fk(q)):
+            np.testing.assert_array_equal(a, b)
+
+
+def test_mass_free_compliance_is_a_registered_joint_effect(models):
+    """One definition: the pi model's compliance block is this effect, which loads like every effect."""
+    from calibration.physics import EFFECT_KINDS, effect_from_dict
+    from calibration.physics_informed import block_slice, compliance_regressor
+
+    e = MassFreeCompliance(values=np.array([1e-3, -5e-4, 2e-4, 3e-4, -1e-4]))
+    assert EFFECT_KINDS["joint_compliance:mass_free"] is MassFreeCompliance
+    back = effect_from_dict(e.to_dict())
+    assert type(back) is MassFreeCompliance and np.array_equal(back.values, e.values)
+    geometry = models["constant"].model
+    q = _q(20, seed=7)
+    np.testing.assert_array_equal(e.regressor(geometry, q), compliance_regressor(q))
+    assert e.block(27) == block_slice("compliance", 27) == slice(30, 35)
+    physics = PhysicsModel("R1", "diagnose", geometry, (e,))
+    np.testing.assert_allclose(physics.fk(q)[1], geometry.fk(q + e.delta_q(geometry, q))[1], atol=1e-12)
