@@ -108,6 +108,20 @@ class KinematicModel(abc.ABC):
         """
         raise ModelError(f"a {self.kind} model has no casadi expression")
 
+    def pose_at(self, q: np.ndarray, q_at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pose at the joint angles q (N, 6) the kinematics see, configuration-dependent parameters at the
+        reading ``q_at`` (N, 6) (they differ when joint effects act on this model, see ``diagnosed``)."""
+        raise ModelError(f"a {self.kind} model cannot carry effects; valid bases: pi, cdc")
+
+    def effects_arm(self) -> PoeModel:
+        """The POE arm the effects acting on this model see (their gravity torques, their link growth)."""
+        raise ModelError(f"a {self.kind} model cannot carry effects; valid bases: pi, cdc")
+
+    def effects_geometry(self, theta: Any = None) -> tuple[PoeModel, Any, Any]:
+        """:meth:`effects_arm` in casadi: ``(arm with tool, H (3, n), P (3, n+1))``, the geometry from
+        ``theta`` (symbols for :meth:`vector`) or from the model's own values when None."""
+        raise ModelError(f"a {self.kind} model cannot carry effects; valid bases: pi, cdc")
+
     def jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Pose and ``d[p (mm); rotation (rad)] / d vector`` (N, 6, m) in the base frame.
 

@@ -13,6 +13,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from calibration.casadi_expr import CasadiPose, poe_chain
+from calibration.errors import ModelError
 from calibration.models.base import Block, KinematicModel
 from calibration.models.physics import casadi_effects, effect_blocks, split_values
 from calibration.physics.base import Context, Effect, effect_from_dict
@@ -36,6 +37,12 @@ class DiagnosedModel(KinematicModel):
     effects: tuple[Effect, ...] = ()
     info: dict[str, Any] = field(default_factory=dict)
 
+    def __post_init__(self) -> None:
+        pose_effects = [e.kind for e in self.effects if e.target not in ("joints", "geometry")]
+        if pose_effects:
+            raise ModelError(f"{', '.join(pose_effects)} act on the pose: they belong in the base model's "
+                             "parameters, not in a diagnosed model's effects")
+
     def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pose with the default context (static, t = 0, no payload, reference temperature)."""
         return self.fk_context(q, None)
@@ -48,9 +55,9 @@ class DiagnosedModel(KinematicModel):
         and geometry effects add the pose change their grown links cause on that arm.
         """
         q = np.atleast_2d(np.asarray(q, dtype=float))
-        geo = self.base.effects_arm()  # type: ignore[attr-defined]
+        geo = self.base.effects_arm()
         dq = sum((e.delta_q(geo, q, context) for e in self.effects if e.target == "joints"), np.zeros_like(q))
-        R, p = self.base.pose_at(q + dq, q)  # type: ignore[attr-defined]
+        R, p = self.base.pose_at(q + dq, q)
         geometric = [e for e in self.effects if e.target == "geometry"]
         if geometric:
             P = None
@@ -91,7 +98,7 @@ class DiagnosedModel(KinematicModel):
         k = self.base.vector().size
         base_theta = None if theta is None else theta[:k]
         values = split_values(self.effects, self.vector()[k:] if theta is None else theta[k:])
-        geo, H, P = self.base.effects_geometry(base_theta)  # type: ignore[attr-defined]
+        geo, H, P = self.base.effects_geometry(base_theta)
         q_chain, P_eff = casadi_effects(self.effects, values, geo, q, H, P)
         pose = self.base.casadi(q_chain, base_theta, q if q_at is None else q_at)
         if any(e.target == "geometry" for e in self.effects):  # the pose change the grown links cause
