@@ -39,6 +39,7 @@ TOOL_NAMES = ("tool_rx_rad", "tool_ry_rad", "tool_rz_rad")
 #: diagnosis' effect blocks) is derived from this.
 BLOCKS = (Block("tool", TOOL_NAMES), Block("compliance", COMPLIANCE_NAMES),
           Block("deflection", tuple(f"deflect_{t}_{a}" for t in DEFLECTION_TERMS for a in DEFLECTION_AXES)))
+_TAIL_SIZES = tuple(b.size for b in BLOCKS)
 EZ = np.array([0.0, 0.0, 1.0])
 _COMPLIANCE = MassFreeCompliance()  # the one definition of the compliance block's joint deflection
 
@@ -86,7 +87,8 @@ class ExtendedKinematics:
 
     @property
     def sizes(self) -> tuple[int, ...]:
-        return tuple(b.size for b in self.blocks())
+        """Block sizes in layout order (without building the names: called per solver iteration)."""
+        return (self.par.size,) + _TAIL_SIZES
 
     @property
     def size(self) -> int:
