@@ -8,12 +8,14 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
-from typing import Callable
+from typing import Any, Callable
 
 from app.cli_cell import add_cell_parsers
-from app.cli_common import fitter_from_args, read_recording_arg, write_json
+from app.cli_common import (cell_spec, check_output_args, fitter_from_args, load_model_for, read_recording_arg,
+                             write_json)
 from app.cli_dual import add_dual_parsers
 from app.cli_real import add_real_parsers
+from app.jobs.cli import add_job_parsers
 from calibration.errors import CellCalError
 
 log = logging.getLogger("cellcal.app")
@@ -34,10 +36,9 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
 def cmd_predict(args: argparse.Namespace) -> int:
     from calibration import so3
-    from calibration.models import load_model
     from calibration.recording import read_joints, write_table
 
-    model = load_model(args.model)
+    model = _model_arg(args)
     q = read_joints(args.joints)
     outside = model.out_of_range(q)
     if outside.any():
@@ -51,12 +52,20 @@ def cmd_predict(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_evaluate(args: argparse.Namespace) -> int:
-    from calibration.metrics import error_stats, errors
+def _model_arg(args: argparse.Namespace) -> Any:
+    """``--model``, checked (and checked to be ``--robot``'s when that is given)."""
     from calibration.models import load_model
 
-    model = load_model(args.model)
-    test = read_recording_arg(args.test)
+    if args.robot:
+        return load_model_for(args.model, cell_spec(args).robot(args.robot))
+    return load_model(args.model)
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from calibration.metrics import error_stats, errors
+
+    model = _model_arg(args)
+    test = read_recording_arg(args.test, cell_spec(args).robot(args.robot) if args.robot else None)
     result = {"robot": model.robot, "method": model.method, "samples": len(test),
               "test": error_stats(errors(model, test))}
     pos, ori = result["test"]["position_mm"], result["test"]["orientation_deg"]
@@ -72,10 +81,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
     from pathlib import Path
 
-    from calibration.models import load_model
-
     methods = parse_methods(args.methods)
-    files = {f"{Path(f).stem} (file)": load_model(f) for f in args.model}
+    robot = cell_spec(args).robot(args.robot)
+    files = {f"{Path(f).stem} (file)": load_model_for(f, robot) for f in args.model}
     fitter, robot = fitter_from_args(args)
     test = read_recording_arg(args.test, robot)
     cmp = run_comparison(fitter, test, methods, files=files)
@@ -116,6 +124,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="cellcal", description=__doc__.splitlines()[0])
     parser.add_argument("--cell", help="cell.yaml (default: the packaged Motoman cell)")
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
+    parser.add_argument("--version", action="version", version=f"cellcal {version()}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     def add(name: str, func: Callable[[argparse.Namespace], int], help_text: str) -> argparse.ArgumentParser:
@@ -131,10 +140,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="model file (.yaml or .json)")
     p = add("predict", cmd_predict, "tool poses of a model for joint angles")
     p.add_argument("--model", required=True)
+    p.add_argument("--robot", help="the arm the model is for (R1, R2): refuse a model of another robot")
     p.add_argument("--joints", required=True, help="CSV with q1..q6 [rad] (header) or 6 headerless columns")
     p.add_argument("--out", required=True)
     p = add("evaluate", cmd_evaluate, "accuracy of a model on a recording")
     p.add_argument("--model", required=True)
+    p.add_argument("--robot", help="the arm the model is for (R1, R2): refuse a model of another robot and "
+                                   "joints outside its limits")
     p.add_argument("--test", required=True)
     p.add_argument("--json", help="write the statistics as JSON")
     p = add("compare", cmd_compare, "the paper's comparison table for every method")
@@ -159,18 +171,36 @@ def build_parser() -> argparse.ArgumentParser:
     add_dual_parsers(add)
     add_cell_parsers(add)
     add_real_parsers(add)
+    add_job_parsers(add)
     return parser
 
 
+def version() -> str:
+    """The installed package's version (the source tree's pyproject when run uninstalled)."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as package_version
+
+    try:
+        return package_version("cellcal")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run one subcommand: 0 on success, 2 on bad input or a refused action, 130 on Ctrl-C."""
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
     try:
+        check_output_args(args)
         return args.func(args)
     except CellCalError as e:
         print(f"cellcal {args.command}: {e}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        resumable = " (continue with --resume)" if getattr(args, "session", None) else ""
+        print(f"cellcal {args.command}: stopped{resumable}", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any, Callable
 
-from app.cli_common import cell_spec, fitter_for, write_json
+from app.cli_common import cell_spec, fitter_for, log, write_json
 from calibration.errors import CellCalError
 
 
@@ -149,7 +149,7 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     from app.cell_options import confirm_motion, motion_config, open_runtime, safety_for
     from app.collect import export
     from app.demo import collect_arm
-    from app.recalibrate import check_model_dir, current_model, decide_and_install
+    from app.recalibrate import check_model_dir, decide_and_install, model_in_service
     from app.session_plan import validation_plan
     from calibration.recording import read_recording
 
@@ -162,7 +162,10 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     plan = _load_plan(args.plan, args.robot) if args.plan else None
     if args.session:
         _require_session(args.session)
-    current_model(model_dir, args.robot)  # unreadable or foreign model in service: stop before any motion
+    service = model_in_service(model_dir, args.robot, robot.model())  # another robot's model: stop before motion
+    if service.problem:
+        log.warning("the model in service %s is unusable (%s); a valid candidate will replace it",
+                    model_dir / "current.yaml", service.problem)
     stamp = _time.strftime("%Y%m%dT%H%M%S")
     work = model_dir / "sessions" / stamp
     seed = args.validation_seed if args.validation_seed is not None else int(_time.time()) % 100_000
@@ -190,7 +193,7 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     export(work / "validation", work / "validation.csv")
     fitter = fitter_for(robot, read(work / "train.csv"), cpa)
     model, _ = fitter.fit(args.method)
-    decision = decide_and_install(model_dir, model, read(work / "validation.csv"))
+    decision = decide_and_install(model_dir, model, read(work / "validation.csv"), robot.model())
     print(decision.summary())
     print(f"model in service: {decision.current_path}" + (f"; previous one archived as {decision.archived}"
                                                            if decision.archived else ""))

@@ -26,6 +26,17 @@ def read_recording_arg(path: str, robot: Any | None = None) -> Any:
     return read_recording(path, robot.robot.lower_rad, robot.robot.upper_rad)
 
 
+def load_model_for(path: str, robot: Any) -> Any:
+    """The model file ``path``, checked to be ``robot``'s (a cell entry): its recorded robot and its geometry.
+
+    Raises:
+        DataError: the file is unusable, or records another robot, or holds another robot type's geometry.
+    """
+    from calibration.models import load_model
+
+    return load_model(path, robot.name, robot.model())
+
+
 def fitter_for(robot: Any, train: Any, cpa: Any | None = None, options: Any | None = None) -> Any:
     """A Fitter for one arm of the cell: its nominal model, link masses and joint limits."""
     from calibration.errors import ModelError
@@ -50,6 +61,24 @@ def fitter_from_args(args: argparse.Namespace) -> Any:
     train = read_recording_arg(args.train, robot)
     cpa = read_recording_arg(args.cpa, robot) if args.cpa else None
     return fitter_for(robot, train, cpa, FitOptions(a=args.a)), robot
+
+
+#: File outputs every subcommand may take; ``demo --out`` is a folder and is left to the demo.
+OUTPUT_FILE_OPTIONS = ("out", "json", "html")
+
+
+def check_output_args(args: argparse.Namespace) -> None:
+    """Refuse an empty, symlink, device, FIFO or folder output path before any work, so nothing is written.
+
+    Raises:
+        OutputError: the first such ``--out``/``--json``/``--html`` path.
+    """
+    from calibration.files import check_output_path
+
+    for name in OUTPUT_FILE_OPTIONS:
+        value = getattr(args, name, None)
+        if isinstance(value, str) and not (name == "out" and args.command == "demo"):
+            check_output_path(value)
 
 
 def write_json(path: str | None, data: dict[str, Any]) -> None:

@@ -48,7 +48,8 @@ def cmd_mocap_bridge(args: argparse.Namespace) -> int:
            f"(cellcal/{cell.name}/mocap/*); stop with Ctrl-C")
     service.run()
     h = service.health()
-    print(f"mocap-bridge stopped: {h.frames_published} frames published, {h.connections} connection(s) to Motive")
+    print(f"mocap-bridge stopped: {h.frames_published} frames published, {h.connections} connection(s) and "
+          f"{h.handshakes} handshake(s) with Motive")
     return 0
 
 

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from app.report import write_report
+from calibration.files import atomic_write_text
 
 _STYLE = """body{font-family:system-ui,sans-serif;margin:2em;max-width:1200px;color:#222}
 table{border-collapse:collapse;margin:1em 0}th,td{border:1px solid #bbb;padding:4px 8px;text-align:right}
@@ -84,5 +85,5 @@ def write_html(out_dir: Path, comparisons: dict[str, Any], tests: dict[str, Any]
     page = ("<!DOCTYPE html>\n<html lang='en'><head><meta charset='utf-8'><title>cellcal demo</title>"
             f"<style>{_STYLE}</style></head><body>\n" + "\n".join(body) + "\n</body></html>\n")
     path = out_dir / "report.html"
-    path.write_text(page, encoding="utf-8")
+    atomic_write_text(path, page)
     return path

@@ -55,11 +55,9 @@ def run_diagnose(robot: str, data: str | Path, heldout: str | Path | None = None
     spec = cr.robot
     nominal = cr.model()
     limits = (spec.lower_rad, spec.upper_rad)
+    used = load_model(model, robot, nominal) if model is not None else None  # another robot's model: refused
     rec = read_recording(data, *limits)
     ho = read_recording(heldout, *limits) if heldout is not None else None
-    used = load_model(model) if model is not None else None
-    if used is not None and used.robot != robot:
-        raise ModelError(f"model {model} is for robot {used.robot!r}, not {robot!r}")
     try:
         gravity = GravityModel.from_spec(spec, nominal)
     except ModelError as e:

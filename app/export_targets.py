@@ -28,6 +28,16 @@ def rpy_deg(R: np.ndarray) -> np.ndarray:
     return np.degrees(np.stack([rx, ry, rz], axis=-1))
 
 
+def R_from_rpy_deg(rpy: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`rpy_deg`: ``R = Rz @ Ry @ Rx`` from Yaskawa's ``(Rx, Ry, Rz)`` [deg], shape (..., 3, 3)."""
+    rx, ry, rz = np.moveaxis(np.radians(np.asarray(rpy, dtype=float)), -1, 0)
+    cx, sx, cy, sy, cz, sz = np.cos(rx), np.sin(rx), np.cos(ry), np.sin(ry), np.cos(rz), np.sin(rz)
+    rows = [[cz * cy, cz * sy * sx - sz * cx, cz * sy * cx + sz * sx],
+            [sz * cy, sz * sy * sx + cz * cx, sz * sy * cx - cz * sx],
+            [-sy, cy * sx, cy * cx]]
+    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+
+
 def export_rows(plan: PlanResult, cell: CellSpec, frame: str = "flange", skip_failed: bool = False
                 ) -> list[dict[str, Any]]:
     """Controller targets of a plan: joint angles, encoder pulses and "filtered" nominal poses.
@@ -67,7 +77,7 @@ def export_rows(plan: PlanResult, cell: CellSpec, frame: str = "flange", skip_fa
             nominal = spec.robot.model(spec.tool if frame == "tool" else None)
             R, p = nominal.fk(q[None])
             rows.append({"index": i, "robot": name, "q_rad": q.tolist(),
-                         "pulses": np.rint(q * spec.robot.pulses_per_rad).astype(int).tolist(),
+                         "pulses": spec.robot.to_pulses(q).tolist(),
                          "p_mm": p[0].tolist(), "rpy_deg": rpy_deg(R[0]).tolist()})
     return rows
 

@@ -39,7 +39,9 @@ class BridgeHealth:
         bodies: Motive id -> published rigid-body name.
         frames_published: frames published since the process started.
         last_frame_age_s: seconds since the last published frame (-1 before the first).
-        connections: successful connections to Motive so far (more than 1: Motive was restarted).
+        connections: times the bridge (re)connected its NatNet client to Motive.
+        handshakes: NAT_SERVERINFO answers received over all connections; the client handshakes again by itself
+            when Motive restarts, so more handshakes than connections means Motive came back on its own.
         last_error: the last connection error, ``""`` if none.
         pid: process id. time: wall-clock time of the message [s].
     """
@@ -50,6 +52,7 @@ class BridgeHealth:
     frames_published: int
     last_frame_age_s: float
     connections: int
+    handshakes: int
     last_error: str
     pid: int
     time: float
@@ -83,6 +86,8 @@ class BridgeService:
         self.connections = 0
         self.last_error = ""
         self._last_frame = -1.0
+        self._source: Any = None
+        self._past_handshakes = 0
         self._session: Any = None
         self._health_pub: Any = None
         self._last_health = 0.0
@@ -90,8 +95,9 @@ class BridgeService:
     def health(self) -> BridgeHealth:
         """The bridge's state now."""
         age = -1.0 if self._last_frame < 0 else time.monotonic() - self._last_frame
+        handshakes = self._past_handshakes + (self._source.stats.handshakes if self._source is not None else 0)
         return BridgeHealth(self.state, self.version, {str(k): v for k, v in self.names.items()}, self.published,
-                            round(age, 3), self.connections, self.last_error, os.getpid(), time.time())
+                            round(age, 3), self.connections, handshakes, self.last_error, os.getpid(), time.time())
 
     def run(self) -> None:
         """Serve until ``stop`` is set; the Zenoh session is opened first and closed last.
@@ -113,9 +119,12 @@ class BridgeService:
                     backoff = min(2 * backoff, self.max_backoff_s)
                     continue
                 backoff = 0.1
+                self._source = source
                 try:
                     self._stream(source)
                 finally:
+                    self._past_handshakes += source.stats.handshakes
+                    self._source = None
                     source.close()
             self.state = "stopped"
             self._publish_health(force=True)

@@ -21,6 +21,7 @@ from typing import Any, Literal
 import numpy as np
 
 from calibration.errors import ConfigError, DataError, UnsafeTarget
+from calibration.files import atomic_write_text
 
 SCHEMA = "cellcal.plan/1"
 TargetKind = Literal["anchor", "perturb", "cpa", "validation"]
@@ -108,10 +109,8 @@ class Plan:
         return Plan(tuple(targets), dict(d.get("params") or {}))
 
     def save(self, path: str | Path) -> None:
-        """Write the plan as JSON."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(self.to_dict(), indent=1) + "\n", encoding="utf-8")
+        """Write the plan as JSON, atomically (a failed write leaves the old file, never a cut-off one)."""
+        atomic_write_text(path, json.dumps(self.to_dict(), indent=1) + "\n")
 
     @staticmethod
     def load(path: str | Path) -> "Plan":

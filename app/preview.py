@@ -29,6 +29,7 @@ import numpy as np
 
 from app.capsules import SEGMENTS, CellCapsules
 from calibration.errors import DataError
+from calibration.files import atomic_write_text
 from cell_config.loader import CellSpec
 
 logger = logging.getLogger("cellcal.app")
@@ -247,7 +248,6 @@ def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve
     path = None
     if html_out is not None:
         path = Path(html_out)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(meshcat.Visualizer(window=windows[0]).static_html(), encoding="utf-8")
+        atomic_write_text(path, meshcat.Visualizer(window=windows[0]).static_html())
         logger.info("wrote preview of %d frames to %s", len(frames), path)
     return PreviewResult(len(frames), path, url)

@@ -120,7 +120,8 @@ class RealCell:
 
     Args:
         cell: the cell description with ``controller``, ``mocap`` and (for collection) ``registration``.
-        robots: arms whose mocap is read (default: every arm of the cell).
+        robots: arms whose mocap is read (default: every arm of the cell; empty: no mocap at all, e.g. for the
+            contact validation, which reads the CAN probe instead).
         registered: True to require a registration of those arms and read their frames in the base frame;
             False to read mocap-world frames (for ``cellcal register``).
         stream_wait_s: how long a read waits for a stopped mocap stream [s].
@@ -132,7 +133,7 @@ class RealCell:
                  stream_wait_s: float = 30.0, reset_alarms: bool = False) -> None:
         self.cell = cell
         self.reset_alarms = reset_alarms
-        self.robots = tuple(robots or cell.robots)
+        self.robots = tuple(cell.robots if robots is None else robots)
         self.registered = registered
         self.stream_wait_s = stream_wait_s
         self.drivers: dict[str, RobotDriver] = {}
@@ -155,7 +156,7 @@ class RealCell:
         if cell.controller is None:
             raise ConfigError(cell.path, "controller", "no controller block: the real cell needs the MotoROS "
                                                        "controller's host and motion groups (or run with --sim)")
-        if cell.mocap is None:
+        if cell.mocap is None and self.robots:
             raise ConfigError(cell.path, "mocap", "no mocap block: the real cell needs Motive's address and each "
                                                   "arm's rigid-body name (or run with --sim)")
         for name in cell.robots:
@@ -191,7 +192,8 @@ class RealCell:
                                        reset_alarms=self.reset_alarms)
                 driver.connect()
                 self.drivers[name] = driver
-            self._session = open_session(self.cell.zenoh_for("collector"))
+            if self.robots:
+                self._session = open_session(self.cell.zenoh_for("collector"))
             for name in self.robots:
                 sub = ZenohMocapSource(self.cell.name, session=self._session,
                                        rigid_bodies=[self.cell.mocap.rigid_bodies[name]], max_buffered_frames=100_000)

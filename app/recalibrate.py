@@ -4,21 +4,28 @@ The model folder holds the model in service as ``current.yaml``. A recalibration
 session collected now from a plan, or from an existing session), measures fresh validation poses, and
 compares the position RMS error of both models on them. The candidate replaces ``current.yaml`` only when
 its RMS is strictly lower; the replaced model is archived as ``previous/<timestamp>.yaml``. A candidate that
-is not better is kept out of service and filed as ``rejected/<timestamp>.yaml`` for the record.
+is not better is kept out of service and filed as ``rejected/<timestamp>.yaml`` for the record. A model in
+service that fails validation (a NaN parameter, a matrix that is not a rotation, an unknown method) is never
+kept: the decision reports why, and a valid candidate replaces it. A model of another robot there means the
+wrong folder, and the recalibration stops before any motion.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from calibration.errors import ConfigError, DataError
+from calibration.errors import ConfigError, DataError, ModelError
+from calibration.files import check_output_path
 from calibration.metrics import error_stats, errors
+from calibration.model_checks import check_model_for
 from calibration.models import KinematicModel, load_model, save_model
+from calibration.poe import PoeModel
 from calibration.recording import Recording
 
 log = logging.getLogger("cellcal.app")
@@ -40,6 +47,8 @@ class Decision:
         current_path: ``current.yaml``.
         archived: where the replaced model went (``previous/<timestamp>.yaml``), or None.
         rejected: where a candidate that was not better went (``rejected/<timestamp>.yaml``), or None.
+        current_problem: why the model in service was unusable (then ``current`` is None and a valid candidate
+            replaced it), or None.
     """
 
     robot: str
@@ -51,6 +60,7 @@ class Decision:
     current_path: Path
     archived: Path | None
     rejected: Path | None
+    current_problem: str | None = None
 
     @property
     def candidate_rms_mm(self) -> float:
@@ -64,17 +74,21 @@ class Decision:
 
     def to_json(self) -> dict[str, Any]:
         return {"robot": self.robot, "method": self.method, "replaced": self.replaced,
-                "decision": "replaced" if self.replaced and self.current else "installed" if self.replaced else "kept",
+                "decision": "replaced" if self.archived else "installed" if self.replaced else "kept",
                 "validation_samples": self.validation_samples,
                 "candidate": {"position_rms_mm": self.candidate_rms_mm, "validation": self.candidate},
                 "current": None if self.current is None else {"position_rms_mm": self.current_rms_mm,
                                                               "validation": self.current},
                 "current_path": str(self.current_path), "archived": str(self.archived) if self.archived else None,
-                "rejected": str(self.rejected) if self.rejected else None}
+                "rejected": str(self.rejected) if self.rejected else None,
+                "current_problem": self.current_problem}
 
     def summary(self) -> str:
         """One line saying what happened, with both figures."""
         new = f"candidate {self.method} {self.candidate_rms_mm:.4f} mm RMS"
+        if self.current_problem is not None:
+            return (f"{self.robot}: replaced the unusable model in service ({self.current_problem}) with {new} on "
+                    f"{self.validation_samples} validation poses")
         if self.current is None:
             return f"{self.robot}: no model in service; installed {new} on {self.validation_samples} validation poses"
         old = f"model in service {self.current_rms_mm:.4f} mm RMS"
@@ -92,40 +106,78 @@ def _stamp(folder: Path) -> Path:
     return path
 
 
-def current_model(model_dir: Path, robot: str) -> KinematicModel | None:
-    """The model in service in ``model_dir`` (None when there is none).
+@dataclass(frozen=True)
+class InService:
+    """What the model folder's ``current.yaml`` holds.
+
+    Attributes:
+        model: the usable model in service, or None.
+        problem: why the file in service cannot be used (a value not finite, a rotation that is not one, an
+            unknown method, a malformed file), or None; an unusable model is replaced by any valid candidate.
+    """
+
+    model: KinematicModel | None
+    problem: str | None = None
+
+
+def model_in_service(model_dir: Path, robot: str, nominal: PoeModel | None = None) -> InService:
+    """The model in service in ``model_dir``: usable, absent, or unusable with the reason.
+
+    Args:
+        model_dir: the model folder.
+        robot: the arm being recalibrated.
+        nominal: its nominal geometry (robot YAML), to refuse another robot type's model.
 
     Raises:
-        DataError: ``current.yaml`` is unreadable or belongs to another robot.
+        DataError: ``current.yaml`` is a valid model of another robot (the wrong folder: nothing is touched).
+        OutputError: ``current.yaml`` is a symlink, a folder or a device (it would have to be replaced).
     """
     path = Path(model_dir) / CURRENT
-    if not path.exists():
-        return None
-    model = load_model(path)
-    if model.robot != robot:
-        raise DataError(path, None, None, f"the model in service is for {model.robot}, not {robot}")
-    return model
+    if not path.exists() and not path.is_symlink():
+        return InService(None)
+    check_output_path(path)
+    try:
+        model = load_model(path)
+    except DataError as e:
+        return InService(None, f"{e.key}: {e.reason}" if getattr(e, "key", "") else e.reason)
+    check_model_for(model, robot, nominal, path)
+    return InService(model)
 
 
-def decide_and_install(model_dir: str | Path, candidate: KinematicModel, validation: Recording) -> Decision:
+def _validation_stats(model: KinematicModel, validation: Recording) -> dict[str, Any]:
+    return error_stats(errors(model, validation))
+
+
+def decide_and_install(model_dir: str | Path, candidate: KinematicModel, validation: Recording,
+                       nominal: PoeModel | None = None) -> Decision:
     """Compare ``candidate`` with the model in service on ``validation``; install it only when it is better.
 
-    Better means a strictly lower position RMS error [mm] on the validation poses.
+    Better means a strictly lower position RMS error [mm] on the validation poses. A model in service that is
+    unusable (its file fails validation, or its validation errors are not finite) never counts as better:
+    the problem is reported in the decision and a valid candidate replaces it (the old file is archived).
 
     Raises:
-        DataError: the model in service is unreadable or for another robot, or there are no validation poses.
+        DataError: the model in service is for another robot, or there are no validation poses.
+        ModelError: the candidate's own validation errors are not finite (nothing is installed).
     """
     model_dir = Path(model_dir)
     if len(validation) == 0:
         raise DataError(validation.source, None, None, "no validation poses to compare the models on")
-    current = current_model(model_dir, candidate.robot)
-    cand_stats = error_stats(errors(candidate, validation))
-    cur_stats = None if current is None else error_stats(errors(current, validation))
+    service = model_in_service(model_dir, candidate.robot, nominal)
+    cand_stats = _validation_stats(candidate, validation)
+    if not math.isfinite(cand_stats["position_mm"]["rms"]):
+        raise ModelError(f"the candidate {candidate.method} model gives non-finite errors on the validation poses; "
+                         "nothing installed")
+    cur_stats, problem = None, service.problem
+    if service.model is not None:
+        cur_stats = _validation_stats(service.model, validation)
+        if not math.isfinite(cur_stats["position_mm"]["rms"]):
+            cur_stats, problem = None, "its errors on the validation poses are not finite"
     better = cur_stats is None or cand_stats["position_mm"]["rms"] < cur_stats["position_mm"]["rms"]
     current_path = model_dir / CURRENT
     archived = rejected = None
     if better:
-        if current is not None:
+        if current_path.exists():
             archived = _stamp(model_dir / "previous")
             archived.parent.mkdir(parents=True, exist_ok=True)
             os.replace(current_path, archived)
@@ -134,7 +186,7 @@ def decide_and_install(model_dir: str | Path, candidate: KinematicModel, validat
         rejected = _stamp(model_dir / "rejected")
         save_model(candidate, rejected)
     decision = Decision(candidate.robot, candidate.method, better, len(validation), cand_stats, cur_stats,
-                        current_path, archived, rejected)
+                        current_path, archived, rejected, problem)
     log.info("%s", decision.summary())
     return decision
 

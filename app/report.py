@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from app.compare import Comparison
+from calibration.files import atomic_open, atomic_write_text
 from calibration.recording import Recording
 
 PAPER_R1_TEST = {  # the paper's Table IV (R1 test set, position mean / std / max mm)
@@ -102,16 +103,19 @@ def write_report(cmp: Comparison, test: Recording, out_dir: str | Path, with_pap
         lines += ["![Fourier singular values](fourier_singular_values.png)", "",
                   "![Fourier V heat map](fourier_v_heatmap.png)", ""]
     md = out / "report.md"
-    md.write_text("\n".join(lines), encoding="utf-8")
+    atomic_write_text(md, "\n".join(lines))
     files.append(md)
     return files
 
 
 def save_figure(fig: object, path: Path) -> Path:
-    """Save a matplotlib figure as PNG (tight layout, 110 dpi) and close it."""
+    """Save a matplotlib figure as PNG (tight layout, 110 dpi), atomically, and close it."""
     import matplotlib.pyplot as plt
 
-    fig.tight_layout()  # type: ignore[attr-defined]
-    fig.savefig(path, dpi=110)  # type: ignore[attr-defined]
-    plt.close(fig)  # type: ignore[arg-type]
+    try:
+        fig.tight_layout()  # type: ignore[attr-defined]
+        with atomic_open(path, binary=True) as f:
+            fig.savefig(f, format="png", dpi=110)  # type: ignore[attr-defined]
+    finally:
+        plt.close(fig)  # type: ignore[arg-type]
     return path

@@ -39,6 +39,9 @@ class SafetyConfig:
         floor_clearance_mm: minimum surface distance of a moving capsule above the floor [mm].
         path_step_deg: joint-space sampling of a motion path [deg].
         allow_unknown_others: proceed when another arm's pose is unknown (its capsules are then ignored).
+        process_zone: capsules whose pairs between the two arms are not checked against each other (the dual
+            process brings the gun and the workpiece together on purpose, at a planned relative pose; see
+            :data:`app.capsules.PROCESS_ZONE`). Empty (everything checked) unless given explicitly.
     """
 
     joint_margin_deg: float = 0.0
@@ -49,6 +52,7 @@ class SafetyConfig:
     floor_clearance_mm: float = 20.0
     path_step_deg: float = 2.0
     allow_unknown_others: bool = False
+    process_zone: tuple[str, ...] = ()
 
 
 class CellSafety:
@@ -63,6 +67,11 @@ class CellSafety:
         self.cell = cell
         self.config = config
         self.capsule_model = CellCapsules(cell, config.floor_z_mm)
+        unknown = [z for z in config.process_zone if z not in SEGMENTS]
+        if unknown:
+            raise ConfigError("SafetyConfig", "process_zone", f"unknown capsules {unknown}; valid: {', '.join(SEGMENTS)}")
+        zone = np.array([s in config.process_zone for s in SEGMENTS])
+        self._zone_pairs = zone[:, None] & zone[None, :]  # (6, 6): pairs left to the process's own planning
 
     def limits(self, robot: str) -> tuple[np.ndarray, np.ndarray]:
         """Joint limits with the margin applied [rad]: ``(lower (6,), upper (6,))``."""
@@ -123,7 +132,7 @@ class CellSafety:
         if self.config.check_collisions:
             for name, oq in other_q.items():
                 gap = self.capsule_model.gaps(robot, segs, name, self.capsules(name, oq)[0])
-                bad = gap < self.config.clearance_mm
+                bad = (gap < self.config.clearance_mm) & ~self._zone_pairs
                 if bad.any():
                     i, k, m = (int(v) for v in np.argwhere(bad)[0])
                     raise UnsafeTarget(robot, None, float(gap[i, k, m]), self.config.clearance_mm,
@@ -142,6 +151,22 @@ class CellSafety:
         self.check_limits(robot, q_to, None if index is None else [index])
         pts = self.path(q_from, q_to)
         self.check_configs(robot, pts, others, None if index is None else [index] * len(pts))
+
+    def check_dual_motion(self, q_from: np.ndarray, q_to: np.ndarray, index: int | None = None) -> None:
+        """Check both arms moving together along the joint-space path from ``q_from`` to ``q_to`` (R1 then R2,
+        shape (12,) [rad]): at every sample each arm against limits, floor and the other arm at the same sample.
+
+        Raises:
+            UnsafeTarget: before any motion.
+        """
+        q_from, q_to = np.asarray(q_from, dtype=float), np.asarray(q_to, dtype=float)
+        pts = self.path(q_from, q_to)
+        where = None if index is None else [index]
+        self.check_limits("R1", q_to[:6], where)
+        self.check_limits("R2", q_to[6:], where)
+        for k in range(len(pts)):
+            self.check_configs("R1", pts[k, :6], {"R2": pts[k, 6:]}, where)
+            self.check_configs("R2", pts[k, 6:], {"R1": pts[k, :6]}, where)
 
     def check_plan(self, robot: str, q_targets: np.ndarray, others: Mapping[str, np.ndarray] | None,
                    q_start: np.ndarray | None = None) -> None:

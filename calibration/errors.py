@@ -53,6 +53,39 @@ class DataError(CellCalError):
         super().__init__(f"{where}: {reason}")
 
 
+class ModelFileError(DataError):
+    """A model file is unusable: a value that is not finite, a matrix that is not a rotation, an unknown method,
+    a model of another robot, a malformed block.
+
+    Args:
+        path: the model file (``""`` while the file is being decoded; the loader fills it in).
+        key: dotted key inside the file (``geometry.R_flange``, ``theta_ref``), ``""`` for the whole file.
+        reason: what is wrong and what was expected.
+    """
+
+    def __init__(self, path: str | Path, key: str, reason: str) -> None:
+        self.path = str(path)
+        self.row = None
+        self.column = None
+        self.key = key
+        self.reason = reason
+        CellCalError.__init__(self, ": ".join(x for x in (self.path, key, reason) if x))
+
+
+class OutputError(CellCalError):
+    """An output file cannot be written; whatever was at the path is left as it was.
+
+    Args:
+        path: the output path.
+        reason: what is wrong (a symlink, a device, a folder, a failed write) and what to give instead.
+    """
+
+    def __init__(self, path: str | Path, reason: str) -> None:
+        self.path = str(path)
+        self.reason = reason
+        super().__init__(f"{self.path or '(empty path)'}: {reason}")
+
+
 class ModelError(CellCalError):
     """A kinematic model or identification request is inconsistent (unknown method, bad shapes)."""
 

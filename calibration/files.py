@@ -1,24 +1,137 @@
-"""Atomic file writes: a crash or a full disk never leaves a half-written file behind."""
+"""Atomic output files: a crash, a full disk or a failed serialisation never leaves a half-written file.
+
+Every file cellcal writes (models, recordings, plans, reports, pages, JSON summaries) goes through
+:func:`atomic_open` (or its shorthands :func:`atomic_write_text` and :func:`atomic_write_bytes`):
+
+- the content goes to a temporary file in the same folder, is fsynced, then renamed over the target, so a
+  reader sees the old file or the new one, never a mix;
+- a new file gets the mode a plain ``open(path, "w")`` would give (0o666 minus the umask); an existing file
+  keeps its mode (and, where the process may, its owner);
+- a symlink, a folder, a device node, a FIFO or a socket at the target is refused, never replaced (so
+  ``--json /dev/full`` does not turn the device into a regular file); an empty path or one under a file is
+  refused too. :func:`check_output_path` runs the same checks early, before any work is done.
+"""
 
 from __future__ import annotations
 
+import contextlib
 import os
-import tempfile
+import secrets
+import stat
+from collections.abc import Iterator
 from pathlib import Path
+from typing import IO, Any
+
+from calibration.errors import OutputError
+
+_KINDS = {stat.S_IFDIR: "a folder", stat.S_IFCHR: "a character device", stat.S_IFBLK: "a block device",
+          stat.S_IFIFO: "a FIFO", stat.S_IFSOCK: "a socket"}
+
+
+def check_output_path(path: str | Path) -> os.stat_result | None:
+    """Refuse an output path that must not be replaced; the existing file's status, None when it is new.
+
+    Raises:
+        OutputError: the path is empty, a symlink, a folder, a device, a FIFO or a socket, or lies under a file.
+    """
+    if not str(path):
+        raise OutputError(path, "empty output path; give a file name")
+    path = Path(path)
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        st = None
+    except NotADirectoryError:
+        raise OutputError(path, "lies under a file, not a folder") from None
+    if st is None:
+        for parent in path.parents:
+            if parent.exists() or parent.is_symlink():
+                if not parent.is_dir():
+                    raise OutputError(path, f"lies under {parent}, which is not a folder")
+                break
+        return None
+    if stat.S_ISLNK(st.st_mode):
+        raise OutputError(path, "is a symbolic link; refusing to replace it (give the file it points to)")
+    if not stat.S_ISREG(st.st_mode):
+        kind = _KINDS.get(stat.S_IFMT(st.st_mode), "not a regular file")
+        hint = "give a file name inside it" if stat.S_ISDIR(st.st_mode) else "leave the option out to write nothing"
+        raise OutputError(path, f"is {kind}; refusing to replace it with a regular file ({hint})")
+    return st
+
+
+def _create_temp(path: Path) -> tuple[int, Path]:
+    while True:
+        tmp = path.parent / f".{path.name}.{secrets.token_hex(6)}.tmp"
+        try:  # mode 0o666: the kernel applies the umask, exactly as for open(path, "w")
+            return os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o666), tmp
+        except FileExistsError:
+            continue
+
+
+def _keep_owner_and_mode(fd: int, st: os.stat_result | None) -> None:
+    if st is None:
+        return
+    os.fchmod(fd, stat.S_IMODE(st.st_mode))
+    if hasattr(os, "fchown") and (st.st_uid, st.st_gid) != (os.geteuid(), os.getegid()):
+        with contextlib.suppress(PermissionError):
+            os.fchown(fd, st.st_uid, st.st_gid)
+
+
+def _fsync_folder(folder: Path) -> None:
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+@contextlib.contextmanager
+def atomic_open(path: str | Path, binary: bool = False) -> Iterator[IO[Any]]:
+    """A file object whose content replaces ``path`` only when the ``with`` block ends without an exception.
+
+    Text mode writes UTF-8 with no newline translation. On any exception (a failed serialisation midway, a
+    full disk) the temporary file is removed, ``path`` is left as it was and the exception propagates
+    (an ``OSError`` as :class:`OutputError`).
+
+    Raises:
+        OutputError: the path is refused (see :func:`check_output_path`) or the write failed.
+    """
+    st = check_output_path(path)  # before Path(): Path("") is the current folder
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = _create_temp(path)
+    except OSError as e:
+        raise OutputError(path, f"cannot write ({e.strerror or e})") from e
+    try:
+        with (os.fdopen(fd, "wb") if binary else os.fdopen(fd, "w", encoding="utf-8", newline="")) as f:
+            _keep_owner_and_mode(f.fileno(), st)
+            yield f
+            f.flush()
+            os.fsync(f.fileno())
+        check_output_path(path)  # not swapped for a symlink or a device while we wrote
+        os.replace(tmp, path)
+    except BaseException as e:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        if isinstance(e, OSError):
+            raise OutputError(path, f"cannot write ({e.strerror or e})") from e
+        raise
+    _fsync_folder(path.parent)
 
 
 def atomic_write_text(path: str | Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same folder, fsynced, then renamed."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """Write ``text`` (UTF-8) to ``path`` atomically; see :func:`atomic_open`."""
+    with atomic_open(path) as f:
+        f.write(text)
+
+
+def atomic_write_bytes(path: str | Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically; see :func:`atomic_open`."""
+    with atomic_open(path, binary=True) as f:
+        f.write(data)

@@ -155,6 +155,17 @@ class ExtendedKinematics:
         E = so3.exp(w_base)
         return E @ R0, (E @ p0[:, :, None])[..., 0] + (Rz @ xi[:, :3, None])[..., 0]
 
+    def jacobian_q(self, q: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        """``d[p; rotation] / dq`` (N, 6, 6) with the compliance and the deflection held at their values at q."""
+        _, _, x, _, _, qe, _, _, w_base = self._parts(q, theta)
+        J0 = self.par.nominal.jacobian_q(qe, *self.par.geometry(x))
+        E = so3.exp(w_base)
+        return np.concatenate([E @ J0[:, :3], E @ J0[:, 3:]], axis=1)
+
+    def deflection_rotation(self, q: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        """The rotation (N, 3, 3) the structural deflection applies to the whole arm, in the base frame."""
+        return so3.exp(self._parts(q, theta)[8])
+
     def geometry_view(self, theta_ref: np.ndarray) -> "GeometryView":
         """The geometric block alone as kinematics, with every other term fixed at ``theta_ref``."""
         return GeometryView(self, np.asarray(theta_ref, dtype=float))

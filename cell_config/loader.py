@@ -60,6 +60,25 @@ class RobotSpec:
     links: tuple[LinkInertia, ...] = ()
     payload_kg: float | None = None
     capsules_mm: Mapping[str, float] = field(default_factory=dict)  # collision capsule radius per segment [mm]
+    pulse_sign: np.ndarray = field(default_factory=lambda: np.ones(6))  # (6,) +1 or -1
+    pulse_zero: np.ndarray = field(default_factory=lambda: np.zeros(6))  # (6,) [pulses] at q = 0
+
+    def to_pulses(self, q: np.ndarray) -> np.ndarray:
+        """Controller encoder pulses of joint angles, the robot YAML's pulse convention (the one definition).
+
+        Args:
+            q: joint angles [rad], shape (..., 6).
+
+        Returns:
+            ``pulse_zero + pulse_sign * q * pulses_per_rad`` rounded to the nearest pulse, int64, shape (..., 6).
+        """
+        q = np.asarray(q, dtype=float)
+        return np.rint(self.pulse_zero + self.pulse_sign * q * self.pulses_per_rad).astype(np.int64)
+
+    def from_pulses(self, pulses: np.ndarray) -> np.ndarray:
+        """Joint angles [rad] of controller pulses, shape (..., 6): the inverse of :meth:`to_pulses`."""
+        pulses = np.asarray(pulses, dtype=float)
+        return (pulses - self.pulse_zero) * self.pulse_sign / self.pulses_per_rad
 
     def model(self, tool: "ToolSpec | None" = None) -> PoeModel:
         """The nominal POE model of this arm carrying ``tool`` (flange frame when None)."""
@@ -161,6 +180,12 @@ def load_robot(path: str | Path) -> RobotSpec:
             raise r.error(f"links[{i}]", "expected a mapping with mass_kg and com_mm")
         entry = Node(r.path, link, f"links[{i}]")
         links.append(LinkInertia(float(entry.array("mass_kg", ())), entry.array("com_mm", (3,))))
+    pulse_sign = r.array("pulse_sign", (6,))
+    if not np.all(np.isin(pulse_sign, (-1.0, 1.0))):
+        raise r.error("pulse_sign", f"expected +1 or -1 per joint, got {pulse_sign.tolist()}")
+    pulse_zero = r.array("pulse_zero", (6,))
+    if np.any(pulse_zero != np.rint(pulse_zero)):
+        raise r.error("pulse_zero", f"expected whole pulses, got {pulse_zero.tolist()}")
     payload = r.get("payload_kg", None)
     caps = r.child("capsules_mm")
     caps.only(CAPSULE_SEGMENTS)
@@ -170,6 +195,7 @@ def load_robot(path: str | Path) -> RobotSpec:
         lower_rad=np.radians(lower), upper_rad=np.radians(upper), max_speed_rad_s=np.radians(speeds),
         pulses_per_rad=pulses * 180.0 / np.pi, links=tuple(links),
         payload_kg=None if payload is None else float(payload), capsules_mm=capsules,
+        pulse_sign=pulse_sign, pulse_zero=pulse_zero,
     )
 
 

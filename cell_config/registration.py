@@ -19,7 +19,6 @@ with ``repr`` so a save/load round trip is bit-identical.
 from __future__ import annotations
 
 import os
-import secrets
 import stat
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -30,7 +29,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from calibration.errors import ConfigError
+from calibration.errors import ConfigError, OutputError
+from calibration.files import atomic_write_text
 from cell_config._yaml import Node, read_yaml
 
 _HEADER = """\
@@ -190,45 +190,9 @@ def save_registration(path: str | Path, robot: str, reg: RobotRegistration) -> N
 
 def _atomic_write(path: Path, text: str) -> None:
     try:
-        mode = stat.S_IMODE(os.stat(path).st_mode)
-    except FileNotFoundError:
-        mode = None
-    folder = path.parent
-    while True:
-        tmp = folder / f".{path.name}.{secrets.token_hex(6)}.tmp"
-        try:
-            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)  # the umask applies, as for open()
-            break
-        except FileExistsError:
-            continue
-        except OSError as e:
-            raise ConfigError(path, "", f"cannot write ({e.__class__.__name__}: {e})") from e
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            if mode is not None:
-                os.fchmod(f.fileno(), mode)
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException as e:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        if isinstance(e, OSError):
-            raise ConfigError(path, "", f"cannot write ({e.__class__.__name__}: {e})") from e
-        raise
-    try:
-        dir_fd = os.open(folder, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(dir_fd)
-    except OSError:
-        pass
-    finally:
-        os.close(dir_fd)
+        atomic_write_text(path, text)
+    except OutputError as e:
+        raise ConfigError(path, "", e.reason) from e
 
 
 def registrations_for(path: Path, robots: Mapping[str, Any]) -> dict[str, RobotRegistration]:

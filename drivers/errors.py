@@ -14,6 +14,23 @@ class DriverError(CellCalError):
         super().__init__(f"{device}: {reason}")
 
 
+class InvalidArgument(DriverError):
+    """A caller passed a driver, link or simulated device a value it cannot use; raised before anything is sent.
+
+    Args:
+        device: the driver, link or simulated device (``motoros@10.0.0.2:50240/R1``, ``sim:R1``, ``sim:clock``).
+        argument: the parameter name (``speed_fraction``).
+        value: what was passed.
+        expected: what would have been accepted (``"in (0, 1]"``).
+    """
+
+    def __init__(self, device: str, argument: str, value: object, expected: str) -> None:
+        self.argument = argument
+        self.value = value
+        self.expected = expected
+        super().__init__(device, f"{argument} must be {expected}, got {value!r}")
+
+
 class DriverTimeout(DriverError, TimeoutError):
     """A device did not answer or settle in time."""
 

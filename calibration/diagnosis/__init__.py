@@ -1,23 +1,32 @@
 """Diagnosis: find the physics a kinematic model left out, model it and show the fit improve.
 
+- :mod:`.core`: :func:`diagnose` as named steps (split, model in use, residual drivers, candidate signatures,
+  selection, held-out confirmation, refit, report);
+- :mod:`.inuse`: the model in use, of any kind, as extended kinematics; :mod:`.extended`: candidates that are
+  blocks of it;
+- :mod:`.drivers`: what the residual follows; :mod:`.candidates`: the candidate library and signatures;
+- :mod:`.selection`: the linearised selection and the one acceptance rule (:class:`Evidence`);
+- :mod:`.refit`: the joint refit; :mod:`.model`: the refitted model file; :mod:`.noise`: the noise floor;
+- :mod:`.report`: the result dataclasses and their JSON; :mod:`.explain`: their plain-language sentences;
+- :mod:`.synthetic`: concealed synthetic cases for tests and proofs.
+
 Math only: the workflow that reads files and writes reports is :mod:`app.diagnose`.
 """
 
-from calibration.diagnosis.candidates import KINDS, Candidate, Untested, library, signature, visibility
+from calibration.diagnosis.candidates import KINDS, Untested
 from calibration.diagnosis.core import DiagnoseOptions, diagnose
+from calibration.diagnosis.drivers import Driver, Mismatch, drivers, locate_mismatch
 from calibration.diagnosis.extended import ExtendedEffect, MassFreeCompliance, StructuralDeflection, ToolFrame
 from calibration.diagnosis.inuse import InUse
 from calibration.diagnosis.model import DiagnosedModel, result_model
-from calibration.diagnosis.drivers import Driver, Mismatch, drivers, locate_mismatch
 from calibration.diagnosis.noise import NoiseFloor, noise_floor
 from calibration.diagnosis.refit import JointFit, JointProblem
-from calibration.diagnosis.report import SCHEMA, Accuracy, Diagnosis, Evidence, FoundEffect, PlotData
-from calibration.diagnosis.selection import LinearSelection, SelectionOptions, Step, blocked_folds, forward_select
+from calibration.diagnosis.report import SCHEMA, Accuracy, Diagnosis, EffectEvidence, FoundEffect, PlotData
+from calibration.diagnosis.selection import Evidence, SelectionOptions, blocked_folds
 
 __all__ = [
-    "Accuracy", "Candidate", "DiagnoseOptions", "DiagnosedModel", "Diagnosis", "Driver", "Evidence",
-    "ExtendedEffect", "FoundEffect", "InUse", "JointFit", "JointProblem", "MassFreeCompliance",
-    "StructuralDeflection", "ToolFrame", "result_model", "KINDS", "LinearSelection", "Mismatch", "NoiseFloor", "PlotData", "SCHEMA", "SelectionOptions",
-    "Step", "Untested", "blocked_folds", "diagnose", "drivers", "forward_select",
-    "library", "locate_mismatch", "noise_floor", "signature", "visibility",
+    "Accuracy", "DiagnoseOptions", "DiagnosedModel", "Diagnosis", "Driver", "EffectEvidence", "Evidence",
+    "ExtendedEffect", "FoundEffect", "InUse", "JointFit", "JointProblem", "KINDS", "MassFreeCompliance", "Mismatch",
+    "NoiseFloor", "PlotData", "SCHEMA", "SelectionOptions", "StructuralDeflection", "ToolFrame", "Untested",
+    "blocked_folds", "diagnose", "drivers", "locate_mismatch", "noise_floor", "result_model",
 ]

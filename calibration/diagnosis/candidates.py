@@ -8,19 +8,19 @@ what it would be over the reference workspace (the held-out poses, or the robot'
 identified from the data, and is reported as such rather than searched for.
 
 Once selected, the candidates of one kind are merged into one effect acting on all their joints or links
-(:func:`merge`); warm-up thermal candidates have their time constant refined first (:func:`tune_warmup`).
+(:func:`merge`); warm-up thermal candidates have their time constant refined by the selection
+(:func:`calibration.diagnosis.selection.tune_warmup`). :class:`Signatures` gives the signatures on the model in use.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 from scipy.linalg import block_diag
-from scipy.optimize import minimize_scalar
 
 from calibration.diagnosis.extended import ExtendedEffect, MassFreeCompliance, StructuralDeflection, ToolFrame
+from calibration.diagnosis.inuse import InUse
 from calibration.errors import ModelError
 from calibration.physics.base import Context, Effect
 from calibration.physics.compliance import JointCompliance, PayloadCompliance
@@ -82,11 +82,29 @@ class Untested:
     reason: str
 
 
-def signature(effect: Effect, model: PoeModel, q: np.ndarray, context: Context | None, w_rot: float) -> np.ndarray:
-    """Weighted first-order residual signature of an effect, shape (6N, m)."""
-    J = effect.pose_jacobian(model, q, context).copy()
-    J[:, 3:] *= w_rot
-    return J.reshape(-1, J.shape[-1])
+@dataclass(frozen=True)
+class Signatures:
+    """Signatures of effects on the fitted model in use, by default on the fit data.
+
+    Attributes:
+        inuse: the model in use at its fitted parameters.
+        q: joint angles of the fit data [rad], shape (N, 6).
+        context: their context.
+        w_rot: rotation residual scale (``sqrt(2a)``).
+    """
+
+    inuse: InUse
+    q: np.ndarray
+    context: Context
+    w_rot: float
+
+    def __call__(self, effect: Effect) -> np.ndarray:
+        """The signature (6N, m) of ``effect`` on the fit data."""
+        return self.on(effect, self.q, self.context)
+
+    def on(self, effect: Effect, q: np.ndarray, context: Context) -> np.ndarray:
+        """The signature (6M, m) of ``effect`` at joint angles q (M, 6) with their context."""
+        return self.inuse.signature(effect, q, context, self.inuse.theta, self.w_rot)
 
 
 def _varies(context: Context, key: str) -> bool:
@@ -216,28 +234,6 @@ def merged_effect(kind: str, cands: list[Candidate]) -> Effect:
     if kind == "joint_compliance":
         return type(first)(first.gravity, joints, np.zeros(len(joints)))  # type: ignore[attr-defined]
     return type(first)(joints=joints, values=np.zeros(len(joints)))  # type: ignore[call-arg]
-
-
-def tune_warmup(pool: list[tuple[Candidate, np.ndarray]], rss: Callable[[Effect], float],
-                 sig: Callable[[Effect], np.ndarray]) -> list[tuple[Candidate, np.ndarray]]:
-    """One warm-up thermal candidate per link, its time constant refined from the best of the grid."""
-    out, best = [], {}
-    for c, S in pool:
-        e = c.effect
-        if c.kind == "thermal_drift" and e.mode == "warmup":  # type: ignore[attr-defined]
-            cost = rss(e)
-            if c.label not in best or cost < best[c.label][0]:
-                best[c.label] = (cost, c)
-        else:
-            out.append((c, S))
-    for _, c in best.values():
-        e = c.effect
-        f = lambda lt: rss(ThermalDrift(e.links, e.values, "warmup", float(np.exp(lt))))  # type: ignore[attr-defined]  # noqa: E731
-        lt0 = np.log(e.tau_s)  # type: ignore[attr-defined]
-        lt = minimize_scalar(f, bounds=(lt0 - 1.2, lt0 + 1.2), method="bounded", options={"xatol": 1e-3}).x
-        e2 = ThermalDrift(e.links, np.zeros(e.size), "warmup", float(np.exp(lt)))  # type: ignore[attr-defined]
-        out.append((Candidate(c.kind, c.label, c.joints, e2, c.extra_dof), sig(e2)))
-    return out
 
 
 def dedupe(items: list[Untested], testable: set[str]) -> list[Untested]:

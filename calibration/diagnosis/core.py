@@ -1,14 +1,25 @@
 """Diagnose a kinematic model against recordings: find the physics it left out, model it, show the gain.
 
-1. Fit the model in use (geometric NLS, or refit a given model's geometry along the observable directions; any
-   kind: constant, physics, pi, cdc, see :mod:`.inuse`).
-2. Locate the mismatch: correlate its residual with every driver (:mod:`.drivers`).
-3. Hypothesise: the candidate library with signatures, what the geometry absorbs projected out
-   (:mod:`.candidates`).
-4. Select with blocked cross-validation, the BIC and nested F-tests (:mod:`.selection`).
-5. Refit the model in use and the selected effects together (:mod:`.refit`) into a model file
-   (:func:`.model.result_model`).
-6. Report held-out accuracy before and after, per effect, with a plain-language verdict (:mod:`.explain`).
+:func:`diagnose` runs these steps, each a function of this module that takes and returns plain data:
+
+1. :func:`split_data`: the fit and the held-out data (a share of the clusters set aside when no held-out
+   recording is given).
+2. :func:`fit_model_in_use`: the geometric NLS, or a given model's geometry refitted along its observable
+   directions (any kind: constant, physics, pi, cdc, see :mod:`.inuse`); its held-out accuracy is the baseline.
+3. :func:`residual_drivers`: where the mismatch is, its residual correlated with every driver (:mod:`.drivers`).
+4. :func:`candidate_signatures`: the hypotheses, the candidate library with signatures, what the geometry
+   absorbs projected out (:mod:`.candidates`).
+5. :func:`select_effects`: forward selection with blocked cross-validation, the BIC and nested F-tests
+   (:mod:`.selection`).
+6. :func:`confirm_on_heldout`: the selected kinds, in order, refitted jointly with the model in use
+   (:mod:`.refit`); each kept only if the held-out data confirm it.
+7. :func:`refit_model`: the noise floor and the model file (:func:`.model.result_model`), refitted on all
+   the data when the held-out share was set aside from it.
+8. :func:`report`: held-out accuracy before and after, per effect, with a plain-language verdict
+   (:mod:`.explain`).
+
+Every acceptance (selection, its backward confirmation, the held-out confirmation) is the one rule
+:meth:`.selection.Evidence.accepted`.
 """
 
 from __future__ import annotations
@@ -18,25 +29,24 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.linalg import block_diag
-from scipy.optimize import minimize_scalar
 
 from calibration.diagnosis import explain
-from calibration.diagnosis.candidates import KINDS, Candidate, dedupe, library, merge, tune_warmup, visibility
+from calibration.diagnosis.candidates import KINDS, Candidate, Signatures, Untested, dedupe, library, merge, visibility
+from calibration.diagnosis.drivers import Driver, Mismatch, drivers, locate_mismatch
 from calibration.diagnosis.inuse import InUse
 from calibration.diagnosis.model import result_model
-from calibration.diagnosis.drivers import drivers, locate_mismatch
-from calibration.diagnosis.noise import noise_floor
+from calibration.diagnosis.noise import NoiseFloor, noise_floor
 from calibration.diagnosis.refit import JointFit, JointProblem, filter_prior
-from calibration.diagnosis.report import Accuracy, Diagnosis, Evidence, PlotData
-from calibration.diagnosis.selection import LinearSelection, SelectionOptions, blocked_folds, forward_select
+from calibration.diagnosis.report import Accuracy, Diagnosis, EffectEvidence, FoundEffect, PlotData
+from calibration.diagnosis.selection import (Evidence, LinearSelection, Selection, SelectionOptions, blocked_folds,
+                                             forward_select, tune_warmup)
 from calibration.errors import DataError
 from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, rotation_residual_scale, weighted_residuals
 from calibration.models import KinematicModel
-from calibration.observability import DEFAULT_RELATIVE_TOLERANCE, analyse
+from calibration.observability import DEFAULT_RELATIVE_TOLERANCE, Observability, analyse
 from calibration.physics.base import Context, Effect
 from calibration.physics.gravity import GravityModel
 from calibration.physics.joint_effects import JointOffset
-from calibration.physics.thermal import ThermalDrift
 from calibration.poe import PoeModel, pose_error
 from calibration.recording import Recording
 
@@ -81,6 +91,378 @@ class DiagnoseOptions:
 ONE_JOINT_KINDS = ("joint_compliance", "payload_compliance", "gear_transmission", "backlash")
 
 
+@dataclass(frozen=True)
+class Split:
+    """The data of a diagnosis.
+
+    Attributes:
+        fit: the samples the model and the effects are fitted on.
+        heldout: the samples that confirm them.
+        everything: the data as given (with the set-aside share when ``source`` is ``split``).
+        groups: cluster id per fit sample (N,).
+        source: ``given`` (a separate held-out recording) or ``split`` (clusters set aside from the data).
+        context, heldout_context: the per-sample context of ``fit`` and ``heldout``.
+    """
+
+    fit: Recording
+    heldout: Recording
+    everything: Recording
+    groups: np.ndarray
+    source: str
+    context: Context
+    heldout_context: Context
+
+
+@dataclass(frozen=True)
+class FittedInUse:
+    """The model in use fitted to the fit data: what the effects are added to.
+
+    Attributes:
+        inuse: the model in use at its fitted parameters.
+        effects: its own effects, refitted (physics models).
+        name: its name in the report (``geometric``, ``pi``, ``cdc-<method>``, with its effects).
+        basis: the geometric directions (27, k) the selection's columns span (what the data see).
+        refit_basis: the geometric directions the joint refit moves (with the filter prior: all, damped).
+        prior: whether the joint refit uses the Tikhonov filter prior (the geometric NLS).
+        observability: the observability of its geometry, when analysed.
+        accuracy: its held-out accuracy (the baseline).
+        heldout_mm: its held-out position errors [mm] (M,).
+    """
+
+    inuse: InUse
+    effects: tuple[Effect, ...]
+    name: str
+    basis: np.ndarray
+    refit_basis: np.ndarray
+    prior: bool
+    observability: Observability | None
+    accuracy: Accuracy
+    heldout_mm: np.ndarray
+
+    def theta_at(self, x: np.ndarray) -> np.ndarray:
+        """The fitted parameters with the geometric block ``x``."""
+        th = self.inuse.theta.copy()
+        th[: self.inuse.n_geometric] = x
+        return th
+
+
+@dataclass(frozen=True)
+class ResidualDrivers:
+    """The baseline's weighted residual on the fit data (N, 6), the drivers and the ones it follows."""
+
+    residual: np.ndarray
+    drivers: tuple[Driver, ...]
+    mismatch: tuple[Mismatch, ...]
+
+
+@dataclass(frozen=True)
+class Hypotheses:
+    """The candidates the data can test, as columns of the linearised selection problem.
+
+    Attributes:
+        problem: the selection problem (baseline columns and every candidate's).
+        pool: identifiable candidates with the indices of their columns in ``problem``.
+        bases: the visible parameter directions of each candidate, by :meth:`Candidate.key`.
+        hidden: candidates the data cannot identify, with the reason.
+        untested: candidates the data cannot test (missing columns), with the reason.
+        signature: the signatures on the fitted model in use.
+    """
+
+    problem: LinearSelection
+    pool: list[tuple[Candidate, np.ndarray]]
+    bases: dict[tuple, np.ndarray]
+    hidden: list[Untested]
+    untested: list[Untested]
+    signature: Signatures
+
+
+@dataclass(frozen=True)
+class Confirmed:
+    """The outcome of the held-out confirmation.
+
+    Attributes:
+        kept: the effects kept (zero-valued templates) with their parameter bases, in order.
+        kinds: their kinds.
+        fit: the joint fit of the model in use with the kept effects on the fit data.
+        accuracy: its held-out accuracy.
+        heldout_mm: its held-out position errors [mm] (M,).
+        effects: the report entries of the kept effects (parameters from ``fit``).
+        rejected: the report entries of the selected kinds the held-out data did not confirm.
+    """
+
+    kept: list[tuple[Effect, np.ndarray]]
+    kinds: list[str]
+    fit: JointFit
+    accuracy: Accuracy
+    heldout_mm: np.ndarray
+    effects: list[FoundEffect]
+    rejected: list[FoundEffect]
+
+
+@dataclass(frozen=True)
+class Refitted:
+    """The noise floor after the final fit, the model file and the notes on how it was refitted."""
+
+    noise: NoiseFloor
+    model: KinematicModel
+    notes: tuple[str, ...]
+
+
+def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording | None = None,
+             model: KinematicModel | None = None, gravity: GravityModel | None = None,
+             joint_limits: tuple[np.ndarray, np.ndarray] | None = None,
+             options: DiagnoseOptions | None = None) -> Diagnosis:
+    """Find, model and quantify the physics a kinematic model leaves out.
+
+    Args:
+        robot: robot name (``R1``).
+        nominal: the nominal arm with its tool.
+        data: the recording to diagnose on (extra columns ``t``, ``temp_c``, ``payload_kg``, ``dir1..6``,
+            ``qd1..qd6``, ``cluster`` are used when present).
+        heldout: a separate recording for the before/after figures; None sets aside a share of the clusters.
+        model: the model in use (constant, physics, pi or cdc); None fits the geometric NLS (``nls1``).
+        gravity: link masses for gravity torques (``joint_compliance``); None leaves that kind untested.
+        joint_limits: ``(lower, upper)`` [rad] (6,), the reference workspace when no held-out data is given.
+        options: settings.
+
+    Raises:
+        ModelError: a model kind diagnose does not know.
+    """
+    opts = options or DiagnoseOptions()
+    split = split_data(data, heldout, opts)
+    base = fit_model_in_use(model, nominal, split, opts)
+    residual = residual_drivers(base, split, gravity, opts)
+    hypotheses = candidate_signatures(base, split, residual, gravity, joint_limits, opts)
+    selection = select_effects(hypotheses)
+    confirmed = confirm_on_heldout(base, split, hypotheses, selection, opts)
+    refitted = refit_model(robot, model, base, split, confirmed, opts)
+    return report(robot, split, base, residual, hypotheses, confirmed, refitted)
+
+
+def split_data(data: Recording, heldout: Recording | None, options: DiagnoseOptions) -> Split:
+    """The fit and held-out data: ``heldout`` when given, else every ``1/heldout_fraction``-th block of
+    clusters set aside."""
+    groups = _groups(data, options.cluster_size)
+    if heldout is not None:
+        return Split(data, heldout, data, groups, "given", data.context(), heldout.context())
+    k = max(2, int(round(1.0 / options.heldout_fraction)))
+    ho = blocked_folds(groups, k) == 0
+    fit, held = data.subset(~ho), data.subset(ho)
+    return Split(fit, held, data, groups[~ho], "split", fit.context(), held.context())
+
+
+def fit_model_in_use(model: KinematicModel | None, nominal: PoeModel, split: Split, options: DiagnoseOptions
+                     ) -> FittedInUse:
+    """The model in use fitted to the fit data: its geometric block (cdc: held) and its own effects."""
+    if model is None:
+        inuse, effects, basis, obs, name = _fit_geometric(nominal, split, options)
+    else:
+        inuse, effects, basis, obs, name = _refit_given(model, nominal, split, options)
+    prior = model is None  # the geometric model and the effects are fitted with the Tikhonov filter
+    refit_basis = np.eye(inuse.n_geometric) if prior else basis  # with the filter every direction moves, damped
+    accuracy, heldout_mm = _accuracy(name, inuse, inuse.theta, effects, split.heldout, split.heldout_context)
+    return FittedInUse(inuse, effects, name, basis, refit_basis, prior, obs, accuracy, heldout_mm)
+
+
+def _fit_geometric(nominal: PoeModel, split: Split, options: DiagnoseOptions
+                   ) -> tuple[InUse, tuple[Effect, ...], np.ndarray, Observability, str]:
+    """The geometric NLS with the filter prior; the selection sees the directions the data see."""
+    fit, ctx = split.fit, split.context
+    inuse = InUse.from_model(None, nominal)
+    g = inuse.n_geometric
+    obs = analyse(inuse.par, fit.q, a=options.a, tolerance=options.tolerance)
+    prior = filter_prior(inuse, fit.q, ctx, (), options.a, options.tolerance)
+    sol = JointProblem(inuse.par, fit.q, fit.R, fit.p, ctx, np.zeros(g), np.eye(g), (),
+                       rotation_residual_scale(options.a), prior_weight=prior).solve()
+    return inuse.with_theta(sol.theta), (), obs.basis, obs, "geometric"
+
+
+def _refit_given(model: KinematicModel, nominal: PoeModel, split: Split, options: DiagnoseOptions
+                 ) -> tuple[InUse, tuple[Effect, ...], np.ndarray, Observability | None, str]:
+    """A given model with its geometry refitted along its observable directions (when refitted) and its own
+    effects refitted."""
+    fit = split.fit
+    inuse = InUse.from_model(model, nominal)
+    g = inuse.n_geometric
+    obs = None
+    refit = options.refit_geometry == "yes" or (options.refit_geometry == "auto"
+                                                and inuse.kind in ("constant", "physics"))
+    if inuse.kind == "cdc" or not refit:
+        basis = np.zeros((g, 0))  # cdc: a file cannot carry a shift of the interpolated geometry
+    else:
+        view = inuse.par if inuse.plain(inuse.theta) else inuse.kin.geometry_view(inuse.theta)
+        obs = analyse(view, fit.q, inuse.theta[:g], options.a, options.tolerance)
+        basis = obs.basis
+    sol = JointProblem(inuse.par, fit.q, fit.R, fit.p, split.context, inuse.theta[:g], basis, inuse.effects,
+                       rotation_residual_scale(options.a), inuse=inuse).solve()
+    name = "+".join([_base_name(model)] + [e.kind for e in sol.effects])
+    return inuse.with_theta(sol.theta, ()), sol.effects, basis, obs, name
+
+
+def residual_drivers(base: FittedInUse, split: Split, gravity: GravityModel | None, options: DiagnoseOptions
+                     ) -> ResidualDrivers:
+    """The baseline's residual on the fit data, and the drivers it follows, strongest first."""
+    fit, inuse = split.fit, base.inuse
+    R, p = inuse.pose(fit.q, base.effects, split.context, inuse.theta)
+    r0, _ = weighted_residuals(fit.R, fit.p, R, p, rotation_residual_scale(options.a))
+    drv = drivers(inuse.geometry(inuse.theta), fit.q, split.context, gravity)
+    return ResidualDrivers(r0, tuple(drv), tuple(locate_mismatch(r0, drv)))
+
+
+def candidate_signatures(base: FittedInUse, split: Split, residual: ResidualDrivers, gravity: GravityModel | None,
+                         joint_limits: tuple[np.ndarray, np.ndarray] | None, options: DiagnoseOptions) -> Hypotheses:
+    """The candidates with their signatures on the fitted model in use, the ones the data cannot identify set
+    apart, as columns of the selection problem."""
+    fit, ctx, inuse = split.fit, split.context, base.inuse
+    w_rot = rotation_residual_scale(options.a)
+    sig = Signatures(inuse, fit.q, ctx, w_rot)
+    A = np.concatenate([_geometric_columns(inuse, fit.q, inuse.theta, base.basis, w_rot)]
+                       + [sig(e) for e in base.effects], axis=1)
+    kinds = tuple(k for k in options.kinds if k not in _present_kinds(base))
+    cands, untested = library(inuse.geometry(inuse.theta), fit.q, ctx, gravity, kinds, options.compliance_form)
+    q_ref, ctx_ref = _reference(None if split.source == "split" else split.heldout, fit.q, ctx, joint_limits, options)
+    pool, hidden, bases = _screen(cands, A, sig, q_ref, ctx_ref, options.selection.visible_min)
+    problem = LinearSelection(A, residual.residual, split.groups, options.selection)
+    pool = tune_warmup(pool, problem, sig)
+    pool = [(c, problem.add(S)) for c, S in pool]
+    hidden = dedupe(hidden, {c.label for c, _ in pool})
+    log.info("diagnose: %d candidates testable, %d not identifiable, %d untested", len(pool), len(hidden), len(untested))
+    return Hypotheses(problem, pool, bases, hidden, untested, sig)
+
+
+def _present_kinds(base: FittedInUse) -> set[str]:
+    """Kinds the model in use already carries (not candidates)."""
+    present = {e.kind for e in base.effects}
+    if base.inuse.kind in ("pi", "cdc"):  # they carry the tool rotation, the mass-free compliance and the deflection
+        present |= {"tool_frame", "joint_compliance", "structural_deflection"}
+    return present
+
+
+def _screen(cands: list[Candidate], A: np.ndarray, sig: Signatures, q_ref: np.ndarray, ctx_ref: Context,
+            visible_min: float) -> tuple[list[tuple[Candidate, np.ndarray]], list[Untested], dict[tuple, np.ndarray]]:
+    """Identifiable candidates with their signatures in their visible directions, the others with the reason,
+    and the visible directions of each identifiable one."""
+    Q = np.linalg.qr(A)[0]
+    n_fit, n_ref = sig.q.shape[0], q_ref.shape[0]
+    pool, hidden, bases = [], [], {}
+    for c in cands:
+        S = sig(c.effect)
+        S_ref = sig.on(c.effect, q_ref, ctx_ref)
+        Qc, S_ref_varying = Q, S_ref
+        if c.kind in ONE_JOINT_KINDS and len(c.joints) == 1:
+            # An effect on one joint's angle is identifiable only beyond its mean over the data, which is a joint
+            # offset (a compliance whose torque barely varies is an offset, not a compliance). Once identified a
+            # gear error carries that mean itself, so it is not reported as a gear error plus an offset.
+            # Its variation on the data is measured against its variation over the reference workspace.
+            Qc = np.linalg.qr(np.concatenate([A, sig(JointOffset((c.joints[0],), np.zeros(1)))], axis=1))[0]
+            off = sig.on(JointOffset(c.joints, np.zeros(1)), q_ref, ctx_ref)
+            S_ref_varying = S_ref - off @ np.linalg.lstsq(off, S_ref, rcond=None)[0]
+        vis, exc, B = visibility(S, Qc, S_ref_varying, n_fit, n_ref, visible_min)
+        if vis < visible_min:
+            hidden.append(explain.not_identifiable(c, vis, exc, sig.q, q_ref))
+            continue
+        if c.kind == "gear_transmission":
+            B = visibility(S, Q, S_ref, n_fit, n_ref, visible_min)[2]
+        bases[c.key()] = B
+        pool.append((c, S @ B))
+    return pool, hidden, bases
+
+
+def select_effects(hypotheses: Hypotheses) -> Selection:
+    """Forward selection on the fit data, confirmed backward per kind (see :mod:`.selection`)."""
+    return forward_select(hypotheses.problem, hypotheses.pool, hypotheses.signature)
+
+
+def confirm_on_heldout(base: FittedInUse, split: Split, hypotheses: Hypotheses, selection: Selection,
+                       options: DiagnoseOptions) -> Confirmed:
+    """Each selected kind, in the order first selected and merged over its joints or links, refitted jointly
+    with the model in use and the kinds kept before it; kept only when the rule accepts it on the held-out data."""
+    kinds = selection.kinds()
+    merged = [merge(k, selection.of_kind(k), hypotheses.bases) for k in kinds]
+    kept: list[tuple[Effect, np.ndarray]] = []
+    kept_kinds: list[str] = []
+    final, acc, dp = joint_fit(base, [], split.fit, options), base.accuracy, base.heldout_mm
+    found, rejected = [], []
+    for kind, (e0, B) in zip(kinds, merged):
+        trial = joint_fit(base, kept + [(e0, B)], split.fit, options)
+        t_acc, t_dp = _accuracy("+".join([base.name] + kept_kinds + [kind]), base.inuse, base.theta_at(trial.x),
+                                trial.effects, split.heldout, split.heldout_context)
+        rule, reported = _heldout_evidence(hypotheses.problem, selection, kind, kept_kinds, (acc, dp), (t_acc, t_dp))
+        item = explain.found(trial.effects[-1], trial.effect_std[-1], reported)
+        if rule.accepted(options.selection):
+            kept.append((e0, B))
+            kept_kinds.append(kind)
+            found.append(item)
+            final, acc, dp = trial, t_acc, t_dp
+        else:
+            rejected.append(item)
+    # Parameters and uncertainties of the kept effects from the final joint fit.
+    n = len(base.effects)
+    found = [explain.found(final.effects[n + i], final.effect_std[n + i], item.evidence) for i, item in enumerate(found)]
+    return Confirmed(kept, kept_kinds, final, acc, dp, found, rejected)
+
+
+def _heldout_evidence(problem: LinearSelection, selection: Selection, kind: str, kept_kinds: list[str],
+                      before: tuple[Accuracy, np.ndarray], after: tuple[Accuracy, np.ndarray]
+                      ) -> tuple[Evidence, EffectEvidence]:
+    """The evidence for adding ``kind`` to the kinds kept (fit-data tests and the held-out improvement), and
+    its report form."""
+    fit = selection.fit_evidence(problem, kind, kept_kinds)
+    z = _paired_z(before[1] ** 2 - after[1] ** 2)
+    cv_z = next(s.evidence.heldout_z for s in selection.steps if s.candidate.kind == kind)
+    rule = Evidence(fit.delta_bic, fit.f_pvalue, z, before[0].rms_mm, after[0].rms_mm)
+    return rule, EffectEvidence(fit.delta_bic, fit.f_pvalue, cv_z, before[0], after[0], z)  # type: ignore[arg-type]
+
+
+def joint_fit(base: FittedInUse, chosen: list[tuple[Effect, np.ndarray]], rec: Recording, options: DiagnoseOptions
+              ) -> JointFit:
+    """The model in use, its own effects and ``chosen`` (templates with their parameter bases) refitted on
+    ``rec``."""
+    inuse = base.inuse
+    n_base = sum(e.size for e in base.effects)
+    B = block_diag(np.eye(n_base), *[b for _, b in chosen])
+    effects = base.effects + tuple(e for e, _ in chosen)
+    c = rec.context()
+    weights = filter_prior(inuse, rec.q, c, effects, options.a, options.tolerance) if base.prior else None
+    return JointProblem(inuse.par, rec.q, rec.R, rec.p, c, inuse.theta[: inuse.n_geometric], base.refit_basis,
+                        effects, rotation_residual_scale(options.a), B if B.size else None, inuse=inuse,
+                        prior_weight=weights).solve()
+
+
+def refit_model(robot: str, model: KinematicModel | None, base: FittedInUse, split: Split, confirmed: Confirmed,
+                options: DiagnoseOptions) -> Refitted:
+    """The noise floor after the final fit and the model file; when the held-out share was set aside from the
+    data, the saved model is refitted on all of it (the held-out figures stay those of the fit data)."""
+    fit, final = split.fit, confirmed.fit
+    R, p = base.inuse.pose(fit.q, final.effects, split.context, base.theta_at(final.x))
+    r_final, _ = weighted_residuals(fit.R, fit.p, R, p, rotation_residual_scale(options.a))
+    noise = noise_floor(r_final, split.groups, final.n_parameters)
+    saved, saved_on, all_note = final, fit, ""
+    if split.source == "split":  # the set-aside clusters chose the effects; the saved model learns from them too
+        saved, saved_on = joint_fit(base, confirmed.kept, split.everything, options), split.everything
+        all_note = (f"The saved model is refitted on all {len(split.everything)} samples (the {len(fit)} fit samples "
+                    f"and the {len(split.heldout)} set-aside ones); the held-out figures are those of the fit on "
+                    f"{len(fit)}.")
+    info = {"baseline": base.name, "fit_samples": len(saved_on), "effects_found": confirmed.kinds}
+    physics, refit_note = result_model(robot, base.inuse, model, base.theta_at(saved.x), saved.effects,
+                                       base.refit_basis.shape[1], info)
+    obs = base.observability
+    notes = tuple(n for n in [obs.summary(damped=base.prior) if obs is not None else "", refit_note, all_note] if n)
+    return Refitted(noise, physics, notes)
+
+
+def report(robot: str, split: Split, base: FittedInUse, residual: ResidualDrivers, hypotheses: Hypotheses,
+           confirmed: Confirmed, refitted: Refitted) -> Diagnosis:
+    """Everything found, with the held-out accuracy before and after and the verdict."""
+    c = confirmed
+    verdict = explain.verdict(c.effects, base.accuracy, c.accuracy, refitted.noise.floor_mm, hypotheses.hidden,
+                              hypotheses.untested, c.rejected)
+    plots = PlotData(np.linalg.norm(residual.residual[:, :3], axis=1), residual.drivers, base.heldout_mm, c.heldout_mm)
+    return Diagnosis(robot, len(split.fit), len(split.heldout), split.source, refitted.noise, base.accuracy,
+                     c.accuracy, residual.mismatch, tuple(c.effects), tuple(hypotheses.hidden),
+                     tuple(hypotheses.untested), verdict, refitted.model, refitted.notes, plots, tuple(c.rejected))
+
+
 def _groups(rec: Recording, size: int) -> np.ndarray:
     try:
         return rec.clusters(size)
@@ -113,217 +495,6 @@ def _geometric_columns(inuse: InUse, q: np.ndarray, theta: np.ndarray, basis: np
     J = inuse.jacobian_geometry(q, theta) @ basis
     J[:, 3:] *= w_rot
     return J.reshape(J.shape[0] * 6, J.shape[-1])
-
-
-def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording | None = None,
-             model: KinematicModel | None = None, gravity: GravityModel | None = None,
-             joint_limits: tuple[np.ndarray, np.ndarray] | None = None,
-             options: DiagnoseOptions | None = None) -> Diagnosis:
-    """Find, model and quantify the physics a kinematic model leaves out.
-
-    Args:
-        robot: robot name (``R1``).
-        nominal: the nominal arm with its tool.
-        data: the recording to diagnose on (extra columns ``t``, ``temp_c``, ``payload_kg``, ``dir1..6``,
-            ``qd1..qd6``, ``cluster`` are used when present).
-        heldout: a separate recording for the before/after figures; None sets aside a share of the clusters.
-        model: the model in use (constant, physics, pi or cdc); None fits the geometric NLS (``nls1``).
-        gravity: link masses for gravity torques (``joint_compliance``); None leaves that kind untested.
-        joint_limits: ``(lower, upper)`` [rad] (6,), the reference workspace when no held-out data is given.
-        options: settings.
-
-    Raises:
-        ModelError: a model kind diagnose does not know.
-    """
-    opts = options or DiagnoseOptions()
-    w_rot = rotation_residual_scale(opts.a)
-    groups_all = _groups(data, opts.cluster_size)
-    everything = data
-    source = "given"
-    if heldout is None:
-        k = max(2, int(round(1.0 / opts.heldout_fraction)))
-        ho = blocked_folds(groups_all, k) == 0
-        data, heldout, groups_all = data.subset(~ho), data.subset(ho), groups_all[~ho]
-        source = "split"
-    fit, groups = data, groups_all
-    ctx, ctx_ho = fit.context(), heldout.context()
-    # 1. The model in use, fitted: its geometric block (cdc: held) and its own effects refitted.
-    base_effects: tuple[Effect, ...] = ()
-    obs = None
-    prior = model is None  # the geometric model and the effects are fitted with the Tikhonov filter
-    if model is None:
-        inuse = InUse.from_model(None, nominal)
-        g = inuse.n_geometric
-        obs = analyse(inuse.par, fit.q, a=opts.a, tolerance=opts.tolerance)
-        sol = JointProblem(inuse.par, fit.q, fit.R, fit.p, ctx, np.zeros(g), np.eye(g), (), w_rot,
-                           prior_weight=filter_prior(inuse, fit.q, ctx, (), opts.a, opts.tolerance)).solve()
-        inuse = inuse.with_theta(sol.theta)
-        basis = obs.basis  # the selection's geometric columns: what the data see
-        base_name = "geometric"
-    else:
-        inuse = InUse.from_model(model, nominal)
-        g = inuse.n_geometric
-        refit = opts.refit_geometry == "yes" or (opts.refit_geometry == "auto" and inuse.kind in ("constant", "physics"))
-        if inuse.kind == "cdc" or not refit:
-            basis = np.zeros((g, 0))  # cdc: a file cannot carry a shift of the interpolated geometry
-        else:
-            view = inuse.par if inuse.plain(inuse.theta) else inuse.kin.geometry_view(inuse.theta)
-            obs = analyse(view, fit.q, inuse.theta[:g], opts.a, opts.tolerance)
-            basis = obs.basis
-        sol = JointProblem(inuse.par, fit.q, fit.R, fit.p, ctx, inuse.theta[:g], basis, inuse.effects, w_rot,
-                           inuse=inuse).solve()
-        inuse, base_effects = inuse.with_theta(sol.theta, ()), sol.effects
-        base_name = "+".join([_base_name(model)] + [e.kind for e in base_effects])
-    par = inuse.par
-    theta_base = inuse.theta
-    x_base = theta_base[: par.size]
-
-    def theta_at(x: np.ndarray) -> np.ndarray:
-        th = theta_base.copy()
-        th[: par.size] = x
-        return th
-    geo = inuse.geometry(theta_base)
-    baseline, before_dp = _accuracy(base_name, inuse, theta_base, base_effects, heldout, ctx_ho)
-
-    # 2. Where the mismatch is.
-    R, p = inuse.pose(fit.q, base_effects, ctx, theta_base)
-    r0, _ = weighted_residuals(fit.R, fit.p, R, p, w_rot)
-    drv = drivers(geo, fit.q, ctx, gravity)
-    mismatch = locate_mismatch(r0, drv)
-
-    # 3. Candidates, with what the geometry absorbs projected out.
-    def signature(e: Effect, q: np.ndarray, c: Context) -> np.ndarray:
-        return inuse.signature(e, q, c, theta_base, w_rot)
-    A = np.concatenate([_geometric_columns(inuse, fit.q, theta_base, basis, w_rot)]
-                       + [signature(e, fit.q, ctx) for e in base_effects], axis=1)
-    present = {e.kind for e in base_effects}
-    if inuse.kind in ("pi", "cdc"):  # they carry the tool rotation, the mass-free compliance and the deflection
-        present |= {"tool_frame", "joint_compliance", "structural_deflection"}
-    cands, untested = library(geo, fit.q, ctx, gravity, tuple(k for k in opts.kinds if k not in present),
-                              opts.compliance_form)
-    q_ref, ctx_ref = _reference(None if source == "split" else heldout, fit.q, ctx, joint_limits, opts)
-    Q = np.linalg.qr(A)[0]
-
-    def sig_offset(j: int) -> np.ndarray:
-        return signature(JointOffset((j,), np.zeros(1)), fit.q, ctx)
-    pool, hidden, bases = [], [], {}
-    for c in cands:
-        S = signature(c.effect, fit.q, ctx)
-        # An effect on one joint's angle is identifiable only beyond its mean over the data, which is a joint
-        # offset (a compliance whose torque barely varies is an offset, not a compliance). Once identified a gear
-        # error carries that mean itself, so it is not reported as a gear error plus an offset.
-        # Its variation on the data is measured against its variation over the reference workspace.
-        S_ref = signature(c.effect, q_ref, ctx_ref)
-        Qc, S_ref_varying = Q, S_ref
-        if c.kind in ONE_JOINT_KINDS and len(c.joints) == 1:
-            Qc = np.linalg.qr(np.concatenate([A, sig_offset(c.joints[0])], axis=1))[0]
-            off = signature(JointOffset(c.joints, np.zeros(1)), q_ref, ctx_ref)
-            S_ref_varying = S_ref - off @ np.linalg.lstsq(off, S_ref, rcond=None)[0]
-        vis, exc, B = visibility(S, Qc, S_ref_varying, len(fit), q_ref.shape[0], opts.selection.visible_min)
-        if vis < opts.selection.visible_min:
-            hidden.append(explain.not_identifiable(c, vis, exc, fit.q, q_ref))
-        else:
-            if c.kind == "gear_transmission":
-                B = visibility(S, Q, S_ref, len(fit), q_ref.shape[0], opts.selection.visible_min)[2]
-            bases[c.key()] = B
-            pool.append((c, S @ B))
-    problem = LinearSelection(A, r0, groups, opts.selection)
-
-    def sig(e: Effect) -> np.ndarray:
-        return signature(e, fit.q, ctx)
-
-    pool = tune_warmup(pool, lambda e: problem.rss([], sig(e)), sig)
-    pool = [(c, problem.add(S)) for c, S in pool]
-    hidden = dedupe(hidden, {c.label for c, _ in pool})
-    log.info("diagnose: %d candidates testable, %d not identifiable, %d untested", len(pool), len(hidden), len(untested))
-
-    # 4. Selection.
-    def refine(c: Candidate, S: np.ndarray, chosen_S: list[np.ndarray]) -> tuple[Candidate, np.ndarray]:
-        e = c.effect
-        if c.kind != "thermal_drift" or getattr(e, "mode", "") != "warmup" or c.extra_dof == 0:
-            return c, S
-        cost = lambda lt: problem.rss(chosen_S, sig(e.__class__(e.links, e.values, "warmup", float(np.exp(lt)))))  # type: ignore[attr-defined]  # noqa: E731
-        lt0 = np.log(e.tau_s)  # type: ignore[attr-defined]
-        res = minimize_scalar(cost, bounds=(lt0 - 1.2, lt0 + 1.2), method="bounded", options={"xatol": 1e-3})
-        e2 = ThermalDrift(e.links, e.values, "warmup", float(np.exp(res.x)))  # type: ignore[attr-defined]
-        return Candidate(c.kind, c.label, c.joints, e2, c.extra_dof), problem.add(sig(e2))
-
-    def rebuild(c: Candidate, S: np.ndarray, chosen: list[Candidate]) -> tuple[Candidate, np.ndarray] | None:
-        if any(o.kind == c.kind and o.label == c.label for o in chosen):
-            return None
-        if c.kind != "thermal_drift":
-            return c, S
-        th = [o for o in chosen if o.kind == "thermal_drift"]
-        if not th:
-            return c, S
-        e, t0 = c.effect, th[0].effect
-        if e.mode != t0.mode:  # type: ignore[attr-defined]
-            return None
-        if e.mode == "warmup" and e.tau_s != t0.tau_s:  # type: ignore[attr-defined]
-            e = ThermalDrift(e.links, e.values, "warmup", t0.tau_s)  # type: ignore[attr-defined]
-            return Candidate(c.kind, c.label, c.joints, e, 0), problem.add(sig(e))
-        return Candidate(c.kind, c.label, c.joints, e, 0), S
-
-    steps, step_S = forward_select(problem, pool, refine, rebuild)
-
-    # 5. Joint refit, effects in the order they were first selected; each confirmed on the held-out data.
-    kinds_in_order = list(dict.fromkeys(s.candidate.kind for s in steps))
-    merged = [merge(k, [s.candidate for s in steps if s.candidate.kind == k], bases) for k in kinds_in_order]
-    n_base = sum(e.size for e in base_effects)
-    refit_basis = np.eye(par.size) if prior else basis  # with the filter every geometric direction moves, damped
-
-    def joint_fit(chosen: list[tuple[Effect, np.ndarray]], rec: Recording = fit) -> JointFit:
-        B = block_diag(np.eye(n_base), *[b for _, b in chosen])
-        effects = base_effects + tuple(e for e, _ in chosen)
-        c = rec.context()
-        weights = filter_prior(inuse, rec.q, c, effects, opts.a, opts.tolerance) if prior else None
-        return JointProblem(par, rec.q, rec.R, rec.p, c, x_base, refit_basis, effects, w_rot, B if B.size else None,
-                            inuse=inuse, prior_weight=weights).solve()
-
-    kept: list[tuple[Effect, np.ndarray]] = []
-    kept_kinds: list[str] = []
-    final_fit = joint_fit([])
-    cur_acc, cur_dp = baseline, before_dp
-    effects_out, rejected = [], []
-    for kind, (e0, B) in zip(kinds_in_order, merged):
-        trial = joint_fit(kept + [(e0, B)])
-        acc, dp = _accuracy("+".join([base_name] + kept_kinds + [kind]), inuse, theta_at(trial.x), trial.effects,
-                            heldout, ctx_ho)
-        mine = [j for j, st in enumerate(steps) if st.candidate.kind == kind]
-        others = [j for j, st in enumerate(steps) if st.candidate.kind in kept_kinds]
-        ev = problem.compare([step_S[j] for j in others], sum(steps[j].candidate.extra_dof for j in others),
-                             [step_S[j] for j in mine], sum(steps[j].candidate.extra_dof for j in mine))
-        z_ho = _paired_z(cur_dp**2 - dp**2)
-        evidence = Evidence(ev["delta_bic"], ev["f_pvalue"], steps[mine[0]].cv_z, cur_acc, acc, z_ho)
-        item = explain.found(trial.effects[-1], trial.effect_std[-1], evidence)
-        fit_ok = ev["delta_bic"] < opts.selection.bic_threshold and ev["f_pvalue"] < opts.selection.f_alpha
-        if fit_ok and z_ho > opts.selection.z_min and acc.rms_mm < cur_acc.rms_mm:
-            kept.append((e0, B))
-            kept_kinds.append(kind)
-            effects_out.append(item)
-            final_fit, cur_acc, cur_dp = trial, acc, dp
-        else:
-            rejected.append(item)
-    # Parameters and uncertainties of the kept effects from the final joint fit.
-    effects_out = [explain.found(final_fit.effects[len(base_effects) + i], final_fit.effect_std[len(base_effects) + i],
-                                 item.evidence) for i, item in enumerate(effects_out)]
-
-    # 6. Noise floor, verdict.
-    R, p = inuse.pose(fit.q, final_fit.effects, ctx, theta_at(final_fit.x))
-    r_final, _ = weighted_residuals(fit.R, fit.p, R, p, w_rot)
-    noise = noise_floor(r_final, groups, final_fit.n_parameters)
-    saved, saved_on, all_note = final_fit, fit, ""
-    if source == "split":  # the set-aside clusters chose the effects; the saved model learns from them too
-        saved, saved_on = joint_fit(kept, everything), everything
-        all_note = (f"The saved model is refitted on all {len(everything)} samples (the {len(fit)} fit samples and "
-                    f"the {len(heldout)} set-aside ones); the held-out figures are those of the fit on {len(fit)}.")
-    physics, refit_note = result_model(robot, inuse, model, theta_at(saved.x), saved.effects, refit_basis.shape[1],
-                                       {"baseline": base_name, "fit_samples": len(saved_on), "effects_found": kept_kinds})
-    notes = tuple(n for n in [obs.summary(damped=prior) if obs is not None else "", refit_note, all_note] if n)
-    verdict = explain.verdict(effects_out, baseline, cur_acc, noise.floor_mm, hidden, untested, rejected)
-    return Diagnosis(robot, len(fit), len(heldout), source, noise, baseline, cur_acc, tuple(mismatch),
-                     tuple(effects_out), tuple(hidden), tuple(untested), verdict, physics, notes,
-                     PlotData(np.linalg.norm(r0[:, :3], axis=1), tuple(drv), before_dp, cur_dp), tuple(rejected))
 
 
 def _base_name(model: KinematicModel) -> str:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from calibration.diagnosis.candidates import Candidate, Untested
-from calibration.diagnosis.report import Accuracy, Evidence, FoundEffect
+from calibration.diagnosis.report import Accuracy, EffectEvidence, FoundEffect
 from calibration.physics.base import Effect
 
 PHYSICS = {
@@ -46,7 +46,7 @@ def not_identifiable(c: Candidate, visible: float, excited: float, q_fit: np.nda
     return Untested(c.kind, c.label, c.joints, f"{why}; visible fraction {visible:.3f}")
 
 
-def found(effect: Effect, std: np.ndarray, evidence: Evidence) -> FoundEffect:
+def found(effect: Effect, std: np.ndarray, evidence: EffectEvidence) -> FoundEffect:
     """The report entry of a fitted effect."""
     params = effect.parameters()
     unc: dict[str, float | None] = {k: float(s) for k, s in zip(effect.names, std)}

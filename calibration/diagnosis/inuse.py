@@ -18,11 +18,10 @@ diagnosed exactly as before.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from calibration import so3
 from calibration.diagnosis.extended import ExtendedEffect
 from calibration.errors import ModelError
 from calibration.models import ConstantModel, KinematicModel
@@ -30,6 +29,9 @@ from calibration.parameterisation import MinimalParameterisation
 from calibration.physics.base import Context, Effect, apply_effects
 from calibration.physics_informed import ExtendedKinematics
 from calibration.poe import PoeModel
+
+if TYPE_CHECKING:
+    from calibration.cdc import CdcModel
 
 
 @dataclass(frozen=True)
@@ -40,14 +42,14 @@ class InUse:
         kin: the extended kinematics (its ``par`` is the geometric parameterisation).
         theta: parameters (77,) (cdc: ``theta_ref``, geometric block a shift of the interpolated geometry).
         kind: the model kind (``constant``, ``physics``, ``pi``, ``cdc``).
-        interpolate: cdc only: joint angles (N, 6) -> per-sample parameters (N, 77).
+        cdc: the cdc model in use (its per-sample parameters and its reference geometry), else None.
         effects: the model's own effects (physics models).
     """
 
     kin: ExtendedKinematics
     theta: np.ndarray
     kind: str = "constant"
-    interpolate: Callable[[np.ndarray], np.ndarray] | None = None
+    cdc: "CdcModel | None" = None
     effects: tuple[Effect, ...] = ()
 
     @classmethod
@@ -71,7 +73,7 @@ class InUse:
         if isinstance(model, CdcModel):
             theta = np.asarray(model.theta_ref, dtype=float).copy()
             theta[: model.kinematics.par.size] = 0.0
-            return cls(model.kinematics, theta, "cdc", model.parameters_at)
+            return cls(model.kinematics, theta, "cdc", model)
         kind = getattr(model, "kind", type(model).__name__)
         raise ModelError(f"diagnose cannot use a {kind!r} model; valid kinds: constant, physics, pi, cdc")
 
@@ -84,20 +86,20 @@ class InUse:
         return self.kin.par.size
 
     def with_theta(self, theta: np.ndarray, effects: tuple[Effect, ...] | None = None) -> "InUse":
-        return InUse(self.kin, np.asarray(theta, dtype=float), self.kind, self.interpolate,
+        return InUse(self.kin, np.asarray(theta, dtype=float), self.kind, self.cdc,
                      self.effects if effects is None else tuple(effects))
 
     def plain(self, theta: np.ndarray) -> bool:
         """True when only the geometric block is in use (the exact POE path applies)."""
-        return self.interpolate is None and not np.any(theta[self.n_geometric:])
+        return self.cdc is None and not np.any(theta[self.n_geometric:])
 
     def thetas(self, q: np.ndarray, theta: np.ndarray) -> np.ndarray:
         """Per-sample parameters (N, 77)."""
         q = np.atleast_2d(q)
-        if self.interpolate is None:
+        if self.cdc is None:
             return np.array(np.broadcast_to(theta, (q.shape[0], theta.size)))
         g = self.n_geometric
-        th = np.array(self.interpolate(q), dtype=float)
+        th = np.array(self.cdc.parameters_at(q), dtype=float)
         th[:, g:] = theta[g:]
         th[:, :g] += theta[:g]
         return th
@@ -105,14 +107,9 @@ class InUse:
     def geometry(self, theta: np.ndarray) -> PoeModel:
         """One POE geometry (the drivers' and regressors' arm; cdc: its reference geometry plus the shift)."""
         x = theta[: self.n_geometric]
-        if self.interpolate is not None:
-            x = x + self._cdc_reference()
+        if self.cdc is not None:
+            x = x + np.asarray(self.cdc.theta_ref)[: self.n_geometric]
         return self.par.model(x)
-
-    def _cdc_reference(self) -> np.ndarray:
-        owner = getattr(self.interpolate, "__self__", None)
-        ref = getattr(owner, "theta_ref", None)
-        return np.zeros(self.n_geometric) if ref is None else np.asarray(ref)[: self.n_geometric]
 
     @staticmethod
     def split_effects(theta: np.ndarray, effects: tuple[Effect, ...], n_geometric: int
@@ -149,10 +146,7 @@ class InUse:
 
     def jacobian_q(self, q: np.ndarray, theta: np.ndarray) -> np.ndarray:
         """``d[p; rotation] / dq`` (N, 6, 6) at per-sample parameters (compliance and deflection held)."""
-        _, _, x, _, _, qe, _, _, w_base = self.kin._parts(q, self.thetas(q, theta))
-        J0 = self.par.nominal.jacobian_q(qe, *self.par.geometry(x))
-        E = so3.exp(w_base)
-        return np.concatenate([E @ J0[:, :3], E @ J0[:, 3:]], axis=1)
+        return self.kin.jacobian_q(q, self.thetas(q, theta))
 
     def jacobian_geometry(self, q: np.ndarray, theta: np.ndarray) -> np.ndarray:
         """``d[p; rotation] / d x`` (N, 6, 27) of the geometric block (a shift of it for cdc)."""
@@ -170,8 +164,7 @@ class InUse:
             return effect.pose_jacobian(geo, q, context)
         if effect.target == "geometry":
             J = effect.pose_jacobian(geo, q, context)
-            _, _, _, _, _, _, _, _, w_base = self.kin._parts(q, self.thetas(q, theta))
-            E = so3.exp(w_base)
+            E = self.kin.deflection_rotation(q, self.thetas(q, theta))
             return np.concatenate([E @ J[:, :3], E @ J[:, 3:]], axis=1)
         return self.jacobian_q(q, theta) @ effect.regressor(geo, q, context)
 

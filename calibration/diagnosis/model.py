@@ -61,12 +61,11 @@ def result_model(robot: str, inuse: InUse, used: KinematicModel | None, theta: n
                "a physics model" + (" (tool-marker rotation folded into the POE tool frame)." if extended else ".")
         folded = sum(e.size for e in extended)  # fitted tool rotations count as identified parameters
         return PhysicsModel(robot, "diagnose", geo, rest, n_geometric_free + folded, info), note
-    if inuse.kind == "cdc":
-        owner = getattr(inuse.interpolate, "__self__")
+    if inuse.cdc is not None:
+        cdc = inuse.cdc
         ref = full.copy()
-        ref[:g] = owner.theta_ref[:g]
-        base: KinematicModel = CdcModel(robot, owner.method, inuse.kin, ref, owner.interpolator, owner.inputs,
-                                        dict(owner.info))
+        ref[:g] = cdc.theta_ref[:g]
+        base: KinematicModel = CdcModel(robot, cdc.method, inuse.kin, ref, cdc.interpolator, cdc.inputs, dict(cdc.info))
         base_kind = "cdc"
     else:
         base = PhysicsInformedModel(robot, "diagnose", inuse.kin, full, n_geometric_free, dict(info))

@@ -49,8 +49,9 @@ class Accuracy:
 
 
 @dataclass(frozen=True)
-class Evidence:
-    """Why an effect was accepted.
+class EffectEvidence:
+    """Why an effect was kept or rejected, as reported (the rule reads
+    :class:`calibration.diagnosis.selection.Evidence`).
 
     Attributes:
         delta_bic: BIC of the final model minus that of the final model without this effect (fit data).
@@ -92,7 +93,7 @@ class FoundEffect:
     links: tuple[str, ...]
     parameters: dict[str, float]
     uncertainty: dict[str, float | None]
-    evidence: Evidence
+    evidence: EffectEvidence
     explanation: str
 
     def to_json(self) -> dict[str, Any]:
@@ -161,9 +162,6 @@ class Diagnosis:
 
     def to_json(self) -> dict[str, Any]:
         """The ``cellcal.diagnose/1`` report as plain Python (finite floats; NaN becomes None)."""
-        def skipped(u: Untested) -> dict[str, Any]:
-            return {"kind": u.kind, "on": u.label, "joints": list(u.joints), "reason": u.reason}
-
         out = {
             "schema": SCHEMA, "robot": self.robot,
             "samples": {"fit": self.n_fit, "heldout": self.n_heldout, "heldout_source": self.heldout_source},
@@ -175,13 +173,17 @@ class Diagnosis:
                          for m in self.mismatch],
             "effects": [e.to_json() for e in self.effects],
             "rejected_on_heldout": [e.to_json() for e in self.rejected],
-            "not_identifiable": [skipped(u) for u in self.not_identifiable],
-            "untested": [skipped(u) for u in self.untested],
+            "not_identifiable": [_skipped(u) for u in self.not_identifiable],
+            "untested": [_skipped(u) for u in self.untested],
             "final": self.final.to_json(),
             "verdict": self.verdict,
             "notes": list(self.notes),
         }
         return _finite(out)
+
+
+def _skipped(u: Untested) -> dict[str, Any]:
+    return {"kind": u.kind, "on": u.label, "joints": list(u.joints), "reason": u.reason}
 
 
 def _finite(obj: Any) -> Any:

@@ -2,7 +2,8 @@
 
 Selection works on the residual of the model in use linearised around its fit, ``r0 ~ A z + S theta``
 (``A``: geometric columns, ``S``: candidate signatures), so each candidate costs one linear least squares.
-A candidate joins only if all three hold:
+A candidate joins only if all three hold (:meth:`Evidence.accepted`, the one acceptance rule: the backward
+confirmation below applies its fit-data part, the diagnosis's confirmation on the held-out data all of it):
 
 1. the BIC on all fit data drops by more than ``-bic_threshold``;
 2. the nested F-test against the current set rejects at ``f_alpha``;
@@ -11,19 +12,23 @@ A candidate joins only if all three hold:
    held-out squared error has a z-score above ``z_min``, or above ``z_extend`` for one more joint or link of a
    kind already selected (the physics is established; the question left is where it acts).
 
-After the forward pass each selected kind is confirmed by the nested test of the final set against the
-final set without it; a kind that fails is dropped.
+After the forward pass each selected kind is confirmed by the nested tests (1 and 2) of the final set against
+the final set without it; a kind that fails is dropped. Warm-up thermal candidates have their time constant
+refined here, against the columns already chosen (:func:`refine_warmup`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Collection
 
 import numpy as np
 from scipy import stats
+from scipy.optimize import minimize_scalar
 
 from calibration.diagnosis.candidates import Candidate
+from calibration.physics.base import Effect
+from calibration.physics.thermal import ThermalDrift
 
 
 @dataclass(frozen=True)
@@ -55,24 +60,75 @@ class SelectionOptions:
 
 
 @dataclass(frozen=True)
+class Evidence:
+    """What the acceptance rule reads about adding effects to a model (:meth:`accepted` is the rule).
+
+    Attributes:
+        delta_bic: BIC with the effects minus without them, on the fit data.
+        f_pvalue: p-value of the nested F-test of the same comparison.
+        heldout_z: z-score of the improvement on data the fit did not see (cross-validated during the
+            selection; the held-out recording in the diagnosis's confirmation); None judges the fit data alone
+            (the backward confirmation of the selection).
+        rms_mm_before, rms_mm_after: position RMS on that unseen data without and with the effects [mm].
+    """
+
+    delta_bic: float
+    f_pvalue: float
+    heldout_z: float | None = None
+    rms_mm_before: float = float("nan")
+    rms_mm_after: float = float("nan")
+
+    def accepted(self, options: SelectionOptions, extends: bool = False) -> bool:
+        """The one acceptance rule: the BIC drops by more than ``-bic_threshold``, the F-test rejects at
+        ``f_alpha`` and, unless only the fit data are judged, the unseen data improve: ``heldout_z`` above
+        ``z_min`` (``z_extend`` when ``extends``: one more joint or link of a kind already selected) and a lower
+        RMS."""
+        fits = self.delta_bic < options.bic_threshold and self.f_pvalue < options.f_alpha
+        if self.heldout_z is None or not fits:
+            return fits
+        return (self.heldout_z > (options.z_extend if extends else options.z_min)
+                and self.rms_mm_after < self.rms_mm_before)
+
+
+@dataclass(frozen=True)
 class Step:
     """One accepted candidate with the evidence that admitted it.
 
     Attributes:
         candidate: the candidate (settings refined, e.g. the warm-up time constant).
-        delta_bic: BIC change on the fit data.
-        f_pvalue: nested F-test p-value.
-        cv_rms_mm_before, cv_rms_mm_after: cross-validated position RMS before and after [mm].
-        cv_z: z-score of the held-out improvement.
+        evidence: its evidence against the steps before it (``heldout_z``: cross-validated; the RMS
+            cross-validated position RMS [mm]).
     """
 
     candidate: Candidate
-    delta_bic: float
-    f_pvalue: float
-    cv_rms_mm_before: float
-    cv_rms_mm_after: float
-    cv_z: float
+    evidence: Evidence
 
+
+@dataclass(frozen=True)
+class Selection:
+    """The accepted steps in order and the column indices of each in the :class:`LinearSelection`."""
+
+    steps: tuple[Step, ...] = ()
+    columns: tuple[np.ndarray, ...] = ()
+
+    def kinds(self) -> list[str]:
+        """The selected kinds in the order they were first selected."""
+        return list(dict.fromkeys(s.candidate.kind for s in self.steps))
+
+    def of_kind(self, kind: str) -> list[Candidate]:
+        return [s.candidate for s in self.steps if s.candidate.kind == kind]
+
+    def without(self, kind: str) -> "Selection":
+        keep = [i for i, s in enumerate(self.steps) if s.candidate.kind != kind]
+        return Selection(tuple(self.steps[i] for i in keep), tuple(self.columns[i] for i in keep))
+
+    def fit_evidence(self, problem: "LinearSelection", kind: str, given: Collection[str]) -> Evidence:
+        """Nested tests on the fit data of adding the steps of ``kind`` to the steps of the kinds ``given``."""
+        base = [i for i, s in enumerate(self.steps) if s.candidate.kind in given]
+        extra = [i for i, s in enumerate(self.steps) if s.candidate.kind == kind]
+        return problem.fit_evidence([self.columns[i] for i in base], sum(self.steps[i].candidate.extra_dof for i in base),
+                                    [self.columns[i] for i in extra],
+                                    sum(self.steps[i].candidate.extra_dof for i in extra))
 
 def blocked_folds(groups: np.ndarray, k: int, blocks_per_fold: int = 4) -> np.ndarray:
     """Fold index (N,) of every sample: contiguous runs of clusters (in recording order) dealt round robin."""
@@ -185,9 +241,10 @@ class LinearSelection:
     def bic(self, rss: float, p: int) -> float:
         return self.n_res * np.log(rss / self.n_res) + p * np.log(self.n_res)
 
-    def compare(self, base: list[np.ndarray], base_dof: int, extra: list[np.ndarray], extra_dof: int,
-                cv_base: tuple[np.ndarray, np.ndarray] | None = None) -> dict[str, float]:
-        """Evidence for adding column sets ``extra`` to ``base``: delta_bic, f_pvalue, cv RMS [mm], cv_z."""
+    def fit_evidence(self, base: list[np.ndarray], base_dof: int, extra: list[np.ndarray], extra_dof: int
+                     ) -> Evidence:
+        """Evidence of the fit data for adding column sets ``extra`` to ``base``: BIC change and F-test p-value
+        (``*_dof``: settings chosen from the data, counted as parameters)."""
         rss0, rss1 = self.rss(base), self.rss(base + extra)
         m = int(sum(len(e) for e in extra))
         p0 = self.base.size + sum(len(b) for b in base) + base_dof
@@ -196,91 +253,166 @@ class LinearSelection:
         dof2 = self.n_res - p1
         F = ((rss0 - rss1) / max(m, 1)) / max(rss1 / dof2, 1e-300)
         pval = float(stats.f.sf(F, max(m, 1), dof2)) if rss1 < rss0 else 1.0
+        return Evidence(float(d_bic), pval)
+
+    def compare(self, base: list[np.ndarray], base_dof: int, extra: list[np.ndarray], extra_dof: int,
+                cv_base: tuple[np.ndarray, np.ndarray] | None = None) -> Evidence:
+        """:meth:`fit_evidence` plus the cross-validated evidence: z-score of the per-cluster drop of the
+        held-out squared error, and the cross-validated position RMS [mm] before and after."""
+        fit = self.fit_evidence(base, base_dof, extra, extra_dof)
         ss0, ssp0 = self.cv(base) if cv_base is None else cv_base
         ss1, ssp1 = self.cv(base + extra)
         d = ss0 - ss1
         se = d.std(ddof=1) / np.sqrt(d.size) if d.size > 1 else np.inf
         z = float(d.mean() / se) if se > 0 else 0.0
-        return {"delta_bic": float(d_bic), "f_pvalue": pval, "cv_rms_mm_before": float(np.sqrt(ssp0.sum() / self.N)),
-                "cv_rms_mm_after": float(np.sqrt(ssp1.sum() / self.N)), "cv_z": z}
-
-    def accepts(self, ev: dict[str, float], extends: bool = False) -> bool:
-        """Whether the evidence admits a candidate (``extends``: its kind is already selected)."""
-        o = self.options
-        return (ev["delta_bic"] < o.bic_threshold and ev["f_pvalue"] < o.f_alpha
-                and ev["cv_z"] > (o.z_extend if extends else o.z_min) and ev["cv_rms_mm_after"] < ev["cv_rms_mm_before"])
+        return Evidence(fit.delta_bic, fit.f_pvalue, z, float(np.sqrt(ssp0.sum() / self.N)),
+                        float(np.sqrt(ssp1.sum() / self.N)))
 
 
-Refiner = Callable[[Candidate, np.ndarray, list[np.ndarray]], tuple[Candidate, np.ndarray]]
-Rebuilder = Callable[[Candidate, np.ndarray, list[Candidate]], "tuple[Candidate, np.ndarray] | None"]
+#: The first-order residual signature (6N, m) of an effect on the fit data.
+Signature = Callable[[Effect], np.ndarray]
 
 
-def forward_select(problem: LinearSelection, pool: list[tuple[Candidate, np.ndarray]], refine: Refiner,
-                   rebuild: Rebuilder) -> tuple[list[Step], list[np.ndarray]]:
+def refine_warmup(effect: ThermalDrift, problem: LinearSelection, sets: list[np.ndarray], signature: Signature
+                  ) -> ThermalDrift:
+    """The warm-up effect with the time constant, within a factor ``e^1.2`` of its own, that fits best with the
+    column sets ``sets``."""
+    lt0 = np.log(effect.tau_s)
+    res = minimize_scalar(_warmup_rss, bounds=(lt0 - 1.2, lt0 + 1.2), args=(effect, problem, sets, signature),
+                          method="bounded", options={"xatol": 1e-3})
+    return _with_tau(effect, float(np.exp(res.x)))
+
+
+def _with_tau(effect: ThermalDrift, tau_s: float) -> ThermalDrift:
+    return ThermalDrift(effect.links, effect.values, "warmup", tau_s)
+
+
+def _warmup_rss(log_tau: float, effect: ThermalDrift, problem: LinearSelection, sets: list[np.ndarray],
+                signature: Signature) -> float:
+    return problem.rss(sets, signature(_with_tau(effect, float(np.exp(log_tau)))))
+
+
+def _is_warmup(c: Candidate) -> bool:
+    return c.kind == "thermal_drift" and getattr(c.effect, "mode", "") == "warmup"
+
+
+def tune_warmup(pool: list[tuple[Candidate, np.ndarray]], problem: LinearSelection, signature: Signature
+                ) -> list[tuple[Candidate, np.ndarray]]:
+    """One warm-up thermal candidate per link, its time constant refined from the best of the grid; the
+    other candidates first, in order."""
+    out, best = [], {}
+    for c, S in pool:
+        if _is_warmup(c):
+            cost = problem.rss([], signature(c.effect))
+            if c.label not in best or cost < best[c.label][0]:
+                best[c.label] = (cost, c)
+        else:
+            out.append((c, S))
+    for _, c in best.values():
+        e = refine_warmup(c.effect, problem, [], signature)  # type: ignore[arg-type]
+        out.append((Candidate(c.kind, c.label, c.joints, e, c.extra_dof), signature(e)))
+    return out
+
+
+def forward_select(problem: LinearSelection, pool: list[tuple[Candidate, np.ndarray]], signature: Signature
+                   ) -> Selection:
     """Greedy forward selection (fallback kinds only when nothing else passes), then backward confirmation
     per kind.
 
     Args:
         problem: the linearised problem.
         pool: identifiable candidates with the indices of their columns in ``problem``.
-        refine: improves the settings of a winning candidate (a warm-up time constant) given the chosen
-            column sets, and returns it with its (new) column indices.
-        rebuild: after each acceptance, maps a pool entry to its version compatible with the chosen
-            candidates (same settings for one kind), or None when it can no longer join.
+        signature: an effect's signature on the fit data (columns for refined warm-up candidates).
 
     Returns:
         The accepted steps in order and their column indices.
     """
-    chosen: list[Candidate] = []
-    chosen_S: list[np.ndarray] = []
     steps: list[Step] = []
+    columns: list[np.ndarray] = []
     while pool and len(steps) < problem.options.max_steps:
-        dof = sum(c.extra_dof for c in chosen)
-        found_kinds = {c.kind for c in chosen}
-        cv_base = problem.cv(chosen_S)
-        best = None
-        for tier in (False, True):
-            for cand, S in pool:
-                if (cand.kind in problem.options.fallback_kinds) != tier:
-                    continue
-                ev = problem.compare(chosen_S, dof, [S], cand.extra_dof, cv_base)
-                if problem.accepts(ev, cand.kind in found_kinds) and (best is None or ev["delta_bic"] < best[2]["delta_bic"]):
-                    best = (cand, S, ev)
-            if best is not None:
-                break
+        dof = sum(s.candidate.extra_dof for s in steps)
+        found_kinds = {s.candidate.kind for s in steps}
+        cv_base = problem.cv(columns)
+        best = _best(problem, pool, columns, dof, found_kinds, cv_base)
         if best is None:
             break
-        cand, S = refine(best[0], best[1], chosen_S)
-        ev = problem.compare(chosen_S, dof, [S], cand.extra_dof, cv_base)
-        if not problem.accepts(ev, cand.kind in found_kinds):
+        cand, S = _refine(problem, signature, best[0], best[1], columns)
+        ev = problem.compare(columns, dof, [S], cand.extra_dof, cv_base)
+        if not ev.accepted(problem.options, cand.kind in found_kinds):
             cand, S, ev = best
-        chosen.append(cand)
-        chosen_S.append(S)
-        steps.append(Step(cand, **ev))
-        new_pool, seen = [], set()
-        for c, s in pool:
-            r = rebuild(c, s, chosen)
-            if r is not None and r[0].key() not in seen:
-                seen.add(r[0].key())
-                new_pool.append(r)
-        pool = new_pool
-    return _confirm(problem, steps, chosen_S)
+        steps.append(Step(cand, ev))
+        columns.append(S)
+        pool = _rebuild_pool(problem, signature, pool, [s.candidate for s in steps])
+    return _confirm(problem, Selection(tuple(steps), tuple(columns)))
 
 
-def _confirm(problem: LinearSelection, steps: list[Step], sigs: list[np.ndarray]) -> tuple[list[Step], list[np.ndarray]]:
+def _best(problem: LinearSelection, pool: list[tuple[Candidate, np.ndarray]], columns: list[np.ndarray], dof: int,
+          found_kinds: set[str], cv_base: tuple[np.ndarray, np.ndarray]
+          ) -> tuple[Candidate, np.ndarray, Evidence] | None:
+    """The accepted candidate with the lowest BIC; fallback kinds only when no other is accepted."""
+    best = None
+    for tier in (False, True):
+        for cand, S in pool:
+            if (cand.kind in problem.options.fallback_kinds) != tier:
+                continue
+            ev = problem.compare(columns, dof, [S], cand.extra_dof, cv_base)
+            if ev.accepted(problem.options, cand.kind in found_kinds) and (best is None or ev.delta_bic < best[2].delta_bic):
+                best = (cand, S, ev)
+        if best is not None:
+            break
+    return best
+
+
+def _refine(problem: LinearSelection, signature: Signature, c: Candidate, S: np.ndarray, columns: list[np.ndarray]
+            ) -> tuple[Candidate, np.ndarray]:
+    """A winning warm-up candidate with its time constant refined given the chosen columns (new columns)."""
+    if not _is_warmup(c) or c.extra_dof == 0:
+        return c, S
+    e = refine_warmup(c.effect, problem, columns, signature)  # type: ignore[arg-type]
+    return Candidate(c.kind, c.label, c.joints, e, c.extra_dof), problem.add(signature(e))
+
+
+def _rebuild(problem: LinearSelection, signature: Signature, c: Candidate, S: np.ndarray, chosen: list[Candidate]
+             ) -> tuple[Candidate, np.ndarray] | None:
+    """A pool entry in its version compatible with the chosen candidates (thermal: the chosen mode and time
+    constant), or None when it can no longer join."""
+    if any(o.kind == c.kind and o.label == c.label for o in chosen):
+        return None
+    if c.kind != "thermal_drift":
+        return c, S
+    th = [o for o in chosen if o.kind == "thermal_drift"]
+    if not th:
+        return c, S
+    e, t0 = c.effect, th[0].effect
+    if e.mode != t0.mode:  # type: ignore[attr-defined]
+        return None
+    if e.mode == "warmup" and e.tau_s != t0.tau_s:  # type: ignore[attr-defined]
+        e = _with_tau(e, t0.tau_s)  # type: ignore[arg-type, attr-defined]
+        return Candidate(c.kind, c.label, c.joints, e, 0), problem.add(signature(e))
+    return Candidate(c.kind, c.label, c.joints, e, 0), S
+
+
+def _rebuild_pool(problem: LinearSelection, signature: Signature, pool: list[tuple[Candidate, np.ndarray]],
+                  chosen: list[Candidate]) -> list[tuple[Candidate, np.ndarray]]:
+    new_pool, seen = [], set()
+    for c, s in pool:
+        r = _rebuild(problem, signature, c, s, chosen)
+        if r is not None and r[0].key() not in seen:
+            seen.add(r[0].key())
+            new_pool.append(r)
+    return new_pool
+
+
+def _confirm(problem: LinearSelection, sel: Selection) -> Selection:
     """Drop, weakest first, every kind whose removal from the final set the nested tests do not reject."""
-    while steps:
+    while sel.steps:
         worst = None
-        for kind in {s.candidate.kind for s in steps}:
-            keep = [i for i, s in enumerate(steps) if s.candidate.kind != kind]
-            drop = [i for i, s in enumerate(steps) if s.candidate.kind == kind]
-            ev = problem.compare([sigs[i] for i in keep], sum(steps[i].candidate.extra_dof for i in keep),
-                                 [sigs[i] for i in drop], sum(steps[i].candidate.extra_dof for i in drop))
-            if not (ev["delta_bic"] < problem.options.bic_threshold and ev["f_pvalue"] < problem.options.f_alpha):
-                if worst is None or ev["delta_bic"] > worst[1]:
-                    worst = (kind, ev["delta_bic"])
+        kinds = {s.candidate.kind for s in sel.steps}
+        for kind in kinds:
+            ev = sel.fit_evidence(problem, kind, kinds - {kind})
+            if not ev.accepted(problem.options) and (worst is None or ev.delta_bic > worst[1]):
+                worst = (kind, ev.delta_bic)
         if worst is None:
             break
-        keep = [i for i, s in enumerate(steps) if s.candidate.kind != worst[0]]
-        steps, sigs = [steps[i] for i in keep], [sigs[i] for i in keep]
-    return steps, sigs
+        sel = sel.without(worst[0])
+    return sel

@@ -2,7 +2,9 @@
 
 Every model maps joint angles to the tool-marker pose, ``fk(q) -> (R (N, 3, 3), p (N, 3))``, and saves to
 one versioned, human-readable file (``.yaml``/``.yml`` or ``.json``) that loads back to bit-identical
-predictions (floats are written with their shortest exact repr).
+predictions (floats are written with their shortest exact repr). A file is checked when it is loaded (and a
+model before it is saved) by :mod:`calibration.model_checks`: finite numbers, rotations, the recorded robot,
+a known method, and each kind's own blocks; :func:`load_model` also checks it against the arm it is used for.
 
 A model kind declares its parameter blocks once (:meth:`KinematicModel.blocks`, a tuple of :class:`Block`)
 and from that declaration gives its pose, its parameter and joint Jacobians and its casadi expression
@@ -24,8 +26,9 @@ from typing import Any, ClassVar
 import numpy as np
 import yaml
 
-from calibration.errors import DataError, ModelError
+from calibration.errors import DataError, ModelError, ModelFileError
 from calibration.files import atomic_write_text
+from calibration.model_checks import check_model_data, check_model_for
 from calibration.poe import PoeModel
 
 SCHEMA = "cellcal.model/1"
@@ -161,11 +164,20 @@ class KinematicModel(abc.ABC):
         if d.get("schema") != SCHEMA:
             raise ModelError(f"unsupported model schema {d.get('schema')!r}; expected {SCHEMA!r}")
         kind = d.get("kind")
-        if kind in MODEL_KIND_MODULES and kind not in KinematicModel._registry:
-            importlib.import_module(MODEL_KIND_MODULES[kind])  # defining the class registers the kind
-        if kind not in KinematicModel._registry:
-            raise ModelError(f"unknown model kind {kind!r}; valid: {', '.join(sorted(MODEL_KIND_MODULES))}")
-        return KinematicModel._registry[kind]._from_body(d["robot"], d["method"], d.get("info", {}), d)
+        return model_class(kind)._from_body(d["robot"], d["method"], d.get("info", {}), d)
+
+
+def model_class(kind: Any) -> type[KinematicModel]:
+    """The class of a model kind, imported on first use.
+
+    Raises:
+        ModelError: the kind is unknown (the message lists the valid ones).
+    """
+    if kind in MODEL_KIND_MODULES and kind not in KinematicModel._registry:
+        importlib.import_module(MODEL_KIND_MODULES[kind])  # defining the class registers the kind
+    if kind not in KinematicModel._registry:
+        raise ModelError(f"unknown model kind {kind!r}; valid: {', '.join(sorted(MODEL_KIND_MODULES))}")
+    return KinematicModel._registry[kind]
 
 
 def _plain(obj: Any) -> Any:
@@ -182,9 +194,15 @@ def _plain(obj: Any) -> Any:
 
 
 def save_model(model: KinematicModel, path: str | Path) -> None:
-    """Write a model file (JSON for ``.json``, YAML otherwise), atomically."""
+    """Write a model file (JSON for ``.json``, YAML otherwise), atomically.
+
+    Raises:
+        ModelFileError: the model would be refused when loaded (a value not finite, ...); nothing is written.
+        OutputError: the path is refused or the write failed (see :func:`calibration.files.atomic_open`).
+    """
     path = Path(path)
     data = _plain(model.to_dict())
+    check_model_data(data, path)
     if path.suffix.lower() == ".json":
         text = json.dumps(data, indent=1)
     else:
@@ -193,25 +211,62 @@ def save_model(model: KinematicModel, path: str | Path) -> None:
     atomic_write_text(path, text)
 
 
-def load_model(path: str | Path) -> KinematicModel:
-    """Read a model file written by :func:`save_model`."""
-    path = Path(path)
+def _read_model_file(path: Path) -> dict[str, Any]:
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise DataError(path, None, None, "model file not found") from None
+    except IsADirectoryError:
+        raise DataError(path, None, None, "is a folder, not a model file") from None
+    except UnicodeDecodeError:
+        raise DataError(path, None, None, "not a model file (binary content; expected YAML or JSON text)") from None
+    except OSError as e:
+        raise DataError(path, None, None, f"cannot read the model file ({e.strerror or e})") from e
     try:
         if path.suffix.lower() == ".json":
             data = json.loads(text)
         else:
             data = yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
-    except (json.JSONDecodeError, yaml.YAMLError) as e:
+    except (json.JSONDecodeError, yaml.YAMLError, RecursionError) as e:
         raise DataError(path, None, None, f"not a valid model file ({e.__class__.__name__})") from e
     if not isinstance(data, dict):
         raise DataError(path, None, None, "not a model file (expected a mapping)")
+    return data
+
+
+def load_model(path: str | Path, robot: str | None = None, nominal: PoeModel | None = None) -> KinematicModel:
+    """Read and check a model file written by :func:`save_model`.
+
+    Args:
+        path: the model file.
+        robot: the arm the caller uses the model for; the file must record it (None: any robot).
+        nominal: that arm's nominal geometry (robot YAML); the model's geometry must lie near it (see
+            :func:`calibration.model_checks.check_model_for`).
+
+    Raises:
+        DataError: the file is missing, a folder, binary or not YAML/JSON; ModelFileError (a DataError) when a
+            number is not finite, a rotation is not orthonormal with determinant +1, the method is unknown, a
+            block is malformed, or the model is for another robot.
+    """
+    path = Path(path)
+    data = _read_model_file(path)
+    if data.get("schema") != SCHEMA:
+        raise DataError(path, None, None, f"unsupported model schema {data.get('schema')!r}; expected {SCHEMA!r}")
     try:
-        return KinematicModel.from_dict(data)
-    except (KeyError, TypeError, ValueError) as e:
+        model_class(data.get("kind"))
+    except ModelError as e:
+        raise ModelFileError(path, "kind", str(e)) from e
+    check_model_data(data, path)
+    try:
+        model = KinematicModel.from_dict(data)
+    except ModelFileError as e:
+        raise ModelFileError(path, e.key, e.reason) from e
+    except KeyError as e:
+        raise ModelFileError(path, str(e.args[0]), "missing") from e
+    except (TypeError, ValueError, IndexError) as e:
         raise DataError(path, None, None, f"malformed model file: {e!r}") from e
     except ModelError as e:
         raise DataError(path, None, None, str(e)) from e
+    if robot is not None:
+        check_model_for(model, robot, nominal, path)
+    return model

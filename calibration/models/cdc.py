@@ -15,6 +15,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from calibration.casadi_expr import CasadiPose, interpolator_sx
+from calibration.errors import ModelFileError
 from calibration.models.base import Block, KinematicModel, poe_from_dict, poe_to_dict
 from calibration.parameterisation import MinimalParameterisation
 from calibration.physics_informed import ExtendedKinematics
@@ -114,5 +115,31 @@ class CdcModel(KinematicModel):
         from calibration.interpolation import interpolator_from_dict
 
         kin = ExtendedKinematics(MinimalParameterisation(poe_from_dict(body["nominal"]), bool(body["fit_tool"])))
-        return cls(robot, method, kin, np.array(body["theta_ref"], dtype=float),
-                   interpolator_from_dict(body["interpolator"]), tuple(int(i) for i in body["inputs"]), info)
+        theta_ref = _vector(body["theta_ref"], kin.size, "theta_ref")
+        interpolator = interpolator_from_dict(body["interpolator"])
+        inputs = _inputs(body["inputs"], kin.par.n_joints, interpolator.n_inputs)
+        if interpolator.n_outputs != kin.par.size:
+            raise ModelFileError("", "interpolator.n_outputs", f"expected {kin.par.size} (the geometric block), "
+                                                               f"got {interpolator.n_outputs}")
+        return cls(robot, method, kin, theta_ref, interpolator, inputs, info)
+
+
+def _vector(value: Any, size: int, key: str) -> np.ndarray:
+    """``value`` as a float vector of ``size`` entries, or a ModelFileError naming ``key``."""
+    v = np.array(value, dtype=float) if isinstance(value, list) else None
+    if v is None or v.shape != (size,):
+        got = f"{len(value)} entries" if isinstance(value, list) else repr(value)
+        raise ModelFileError("", key, f"expected a list of {size} numbers, got {got}")
+    return v
+
+
+def _inputs(value: Any, n_joints: int, n_inputs: int) -> tuple[int, ...]:
+    """The joint indices (0-based) the interpolator reads, checked against the arm and the interpolator."""
+    ok = (isinstance(value, list) and all(isinstance(i, int) and not isinstance(i, bool) for i in value)
+          and all(0 <= i < n_joints for i in value) and len(set(value)) == len(value))
+    if not ok:
+        raise ModelFileError("", "inputs", f"expected distinct joint indices 0..{n_joints - 1} (q2, q3: [1, 2]), "
+                                           f"got {value!r}")
+    if len(value) != n_inputs:
+        raise ModelFileError("", "inputs", f"the interpolator takes {n_inputs} inputs, the list names {len(value)}")
+    return tuple(value)

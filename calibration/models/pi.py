@@ -13,6 +13,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from calibration.casadi_expr import CasadiPose
+from calibration.errors import ModelFileError
 from calibration.models.base import Block, KinematicModel, poe_from_dict, poe_to_dict
 from calibration.parameterisation import MinimalParameterisation
 from calibration.physics_informed import ExtendedKinematics
@@ -85,4 +86,8 @@ class PhysicsInformedModel(KinematicModel):
     @classmethod
     def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "PhysicsInformedModel":
         kin = ExtendedKinematics(MinimalParameterisation(poe_from_dict(body["nominal"]), bool(body["fit_tool"])))
-        return cls(robot, method, kin, np.array(body["theta"], dtype=float), int(body["rank"]), info)
+        theta = np.array(body["theta"], dtype=float) if isinstance(body["theta"], list) else None
+        if theta is None or theta.shape != (kin.size,):
+            got = f"{len(body['theta'])} entries" if isinstance(body["theta"], list) else repr(body["theta"])
+            raise ModelFileError("", "theta", f"expected a list of {kin.size} numbers, got {got}")
+        return cls(robot, method, kin, theta, int(body["rank"]), info)

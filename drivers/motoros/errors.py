@@ -4,25 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from drivers.errors import DriverError, RobotFault
+from drivers.errors import DriverError, InvalidArgument, RobotFault
+
+__all__ = ["ControllerNotReady", "InvalidArgument", "NonFiniteFeedback"]  # InvalidArgument: shared, in drivers.errors
 from drivers.motoros.codes import SUBCODE_NAMES
-
-
-class InvalidArgument(DriverError):
-    """A caller passed the driver or link a value it cannot use; raised before anything is sent.
-
-    Args:
-        device: the driver or link (``motoros@10.0.0.2:50240/R1``).
-        argument: the parameter name (``speed_fraction``).
-        value: what was passed.
-        expected: what would have been accepted (``"in (0, 1]"``).
-    """
-
-    def __init__(self, device: str, argument: str, value: object, expected: str) -> None:
-        self.argument = argument
-        self.value = value
-        self.expected = expected
-        super().__init__(device, f"{argument} must be {expected}, got {value!r}")
 
 
 class NonFiniteFeedback(DriverError):

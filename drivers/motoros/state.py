@@ -86,13 +86,15 @@ class StateStream:
             except OSError as e:
                 self._error = f"connect failed: {e}"
             else:
-                delay = self.backoff_s
-                self._pump(sock)
+                if self._pump(sock):  # only a connection that delivered state resets the back-off: a peer that
+                    delay = self.backoff_s  # accepts and sends garbage is retried ever more slowly, up to the cap
             if self._stop.wait(delay):
                 break
             delay = min(2 * delay, self.max_backoff_s)
 
-    def _pump(self, sock: socket.socket) -> None:
+    def _pump(self, sock: socket.socket) -> bool:
+        """Read state packets until the connection fails; True when at least one message decoded."""
+        healthy = False
         framer = Framer(self.device)
         sock.settimeout(0.1)
         with self._cond:
@@ -105,7 +107,7 @@ class StateStream:
                 except TimeoutError:
                     continue
                 for packet in packets:
-                    self._store(packet)
+                    healthy = self._store(packet) or healthy
         except DriverError as e:
             log.warning("%s; reconnecting", e)
             self._error = e.reason
@@ -114,13 +116,14 @@ class StateStream:
             with self._cond:
                 self._up = False
                 self._cond.notify_all()
+        return healthy
 
-    def _store(self, packet: Packet) -> None:
+    def _store(self, packet: Packet) -> bool:
         try:
             msg = decode(packet)
         except ProtocolError as e:
             log.debug("skipping state packet: %s", e)
-            return
+            return False
         now = time.monotonic()
         with self._cond:
             if isinstance(msg, RobotStatusMsg):
@@ -131,6 +134,7 @@ class StateStream:
                 for fb in msg.groups:
                     self._feedback[fb.group] = (fb, now)
             self._cond.notify_all()
+        return True
 
     def _fresh(self, sample: tuple[_M, float] | None, what: str) -> tuple[_M, float]:
         if not self._up:

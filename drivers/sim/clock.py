@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import time
 
-from calibration.errors import ConfigError
+from drivers.errors import InvalidArgument
 
 
 class SimClock:
@@ -15,11 +15,14 @@ class SimClock:
 
     Args:
         time_scale: simulated seconds per real second (> 0).
+
+    Raises:
+        InvalidArgument: ``time_scale`` is not positive.
     """
 
     def __init__(self, time_scale: float = 1.0) -> None:
         if not time_scale > 0:
-            raise ConfigError("SimClock", "time_scale", f"expected a positive number, got {time_scale!r}")
+            raise InvalidArgument("sim:clock", "time_scale", time_scale, "a positive number of simulated s per real s")
         self.time_scale = float(time_scale)
         self._t0 = time.monotonic()
 

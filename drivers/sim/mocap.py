@@ -21,9 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from calibration import so3
-from calibration.errors import ConfigError
 from drivers.base import MocapSource, RigidBodyFrame
-from drivers.errors import DriverDisconnected
+from drivers.errors import DriverDisconnected, InvalidArgument
 from drivers.sim.robot import SimRobotDriver
 
 log = logging.getLogger("cellcal.drivers")
@@ -77,12 +76,13 @@ class SimMocapSource(MocapSource):
     def __init__(self, bodies: Mapping[int, SimRobotDriver], config: SimMocapConfig = SimMocapConfig(),
                  T_ref_base: Mapping[int, np.ndarray] | None = None) -> None:
         if not bodies:
-            raise ConfigError("SimMocapSource", "bodies", "expected at least one rigid body")
+            raise InvalidArgument("sim:mocap", "bodies", dict(bodies), "at least one rigid body")
         clocks = {id(d.clock) for d in bodies.values()}
         if len(clocks) != 1:
-            raise ConfigError("SimMocapSource", "bodies", "all simulated arms must share one SimClock")
+            raise InvalidArgument("sim:mocap", "bodies", {b: d.device for b, d in bodies.items()},
+                                  "arms that all share one SimClock")
         if not config.rate_hz > 0:
-            raise ConfigError("SimMocapSource", "rate_hz", f"expected a positive rate, got {config.rate_hz!r}")
+            raise InvalidArgument("sim:mocap", "rate_hz", config.rate_hz, "a positive rate [Hz]")
         self.bodies = dict(bodies)
         self.config = config
         self.clock = next(iter(bodies.values())).clock

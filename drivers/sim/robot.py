@@ -16,10 +16,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calibration.errors import ConfigError
 from cell_config.loader import RobotSpec
 from drivers.base import JointState, RobotDriver, RobotStatus
-from drivers.errors import DriverDisconnected, DriverTimeout, RobotFault
+from drivers.errors import DriverDisconnected, DriverTimeout, InvalidArgument, RobotFault
 from drivers.sim.clock import SimClock
 from drivers.sim.truth import Truth
 
@@ -71,12 +70,16 @@ class SimRobotDriver(RobotDriver):
         q0: initial joint angles [rad], shape (6,); zeros when None.
         clock: simulated clock (shared with a :class:`SimMocapSource`); a real-time clock when None.
         config: behaviour options.
+
+    Raises:
+        InvalidArgument: ``truth`` has no ``pose`` or ``q0`` is not 6 angles (here), or a call is given a
+            value it cannot use (``move_to``'s ``q``/``speed_fraction``, ``schedule_fault``'s counts).
     """
 
     def __init__(self, name: str, spec: RobotSpec, truth: Truth, q0: np.ndarray | None = None,
                  clock: SimClock | None = None, config: SimRobotConfig = SimRobotConfig()) -> None:
         if not hasattr(truth, "pose"):
-            raise ConfigError("SimRobotDriver", "truth", "expected an object with pose(q, context)")
+            raise InvalidArgument(f"sim:{name}", "truth", truth, "an object with pose(q, context)")
         self.name = name
         self.spec = spec
         self.truth = truth
@@ -84,7 +87,7 @@ class SimRobotDriver(RobotDriver):
         self.config = config
         q0 = np.zeros(6) if q0 is None else np.asarray(q0, dtype=float).copy()
         if q0.shape != (6,):
-            raise ConfigError("SimRobotDriver", "q0", f"expected shape (6,), got {q0.shape}")
+            raise InvalidArgument(f"sim:{name}", "q0", q0, "6 joint angles [rad], shape (6,)")
         self._lock = threading.RLock()
         self._segments: list[_Segment] = [_Segment(-np.inf, -np.inf, q0, q0)]
         self._dir_history: list[tuple[float, np.ndarray]] = [(-np.inf, np.zeros(6))]
@@ -132,7 +135,8 @@ class SimRobotDriver(RobotDriver):
         the arm and every joint reading after it is NaN.
         """
         if at_call < 1 or repeat < 1:
-            raise ConfigError("SimRobotDriver", "schedule_fault", "expected at_call >= 1 and repeat >= 1")
+            bad = ("at_call", at_call) if at_call < 1 else ("repeat", repeat)
+            raise InvalidArgument(self.device, *bad, ">= 1")
         with self._lock:
             self._scheduled[at_call] = (fault, repeat)
 
@@ -181,10 +185,9 @@ class SimRobotDriver(RobotDriver):
     def move_to(self, q: np.ndarray, speed_fraction: float) -> None:
         q = np.asarray(q, dtype=float)
         if q.shape != (6,) or not np.all(np.isfinite(q)):
-            raise ConfigError("SimRobotDriver.move_to", "q", f"expected 6 finite angles, got {q!r}")
+            raise InvalidArgument(self.device, "q", q, "6 finite joint angles [rad]")
         if not 0.0 < speed_fraction <= 1.0:
-            raise ConfigError("SimRobotDriver.move_to", "speed_fraction",
-                              f"expected a value in (0, 1], got {speed_fraction!r}")
+            raise InvalidArgument(self.device, "speed_fraction", speed_fraction, "in (0, 1]")
         with self._lock:
             self.move_calls += 1
             self._trigger_scheduled()

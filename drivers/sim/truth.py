@@ -21,9 +21,9 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from calibration.errors import ConfigError
 from calibration.parameterisation import MinimalParameterisation
 from calibration.poe import PoeModel
+from drivers.errors import InvalidArgument
 
 
 @runtime_checkable
@@ -77,14 +77,14 @@ def sim_context_to_twin(context: Mapping[str, np.ndarray] | None) -> dict[str, n
     ``dir`` (N, 6) becomes ``dir1..dir6`` (N,) each; every other key passes unchanged.
 
     Raises:
-        ConfigError: ``dir`` is not two-dimensional.
+        InvalidArgument: ``dir`` is not two-dimensional.
     """
     out: dict[str, np.ndarray] = {}
     for key, value in (context or {}).items():
         if key == "dir":
             d = np.asarray(value, dtype=float)
             if d.ndim != 2:
-                raise ConfigError("TwinTruth", "context.dir", f"expected shape (N, 6), got {d.shape}")
+                raise InvalidArgument("sim:truth", "context.dir", d.shape, "an array of shape (N, 6)")
             out.update({f"dir{i + 1}": d[:, i] for i in range(d.shape[1])})
         else:
             out[key] = value
@@ -100,7 +100,7 @@ class TwinTruth:
 
     def __init__(self, twin: Any) -> None:
         if not hasattr(twin, "pose"):
-            raise ConfigError("TwinTruth", "twin", "expected an object with pose(q, context)")
+            raise InvalidArgument("sim:truth", "twin", twin, "an object with pose(q, context)")
         self.twin = twin
 
     def pose(self, q: np.ndarray, context: Mapping[str, np.ndarray] | None = None

@@ -122,3 +122,45 @@ def test_compare_adds_saved_models_as_rows(tmp_path, data, capsys):
                               str(data / "test.csv"), "--methods", "nominal", "--model", str(other), "--json",
                               str(tmp_path / "c2.json")], "r2", "robot 'R2'")
     assert not (tmp_path / "c2.json").exists()
+
+
+def test_version_and_ctrl_c(tmp_path, capsys, monkeypatch):
+    """--version prints the package version; Ctrl-C is one line and exit 130, with no traceback."""
+    import app.cli as cli
+
+    with pytest.raises(SystemExit) as e:
+        cli.main(["--version"])
+    assert e.value.code == 0 and capsys.readouterr().out.startswith("cellcal ")
+
+    def interrupted(args):  # what a KeyboardInterrupt in the middle of a collection looks like to main()
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "cmd_fit", interrupted)
+    argv = ["fit", "--robot", "R1", "--train", str(tmp_path / "x.csv"), "--method", "nls1", "--out", "m.yaml"]
+    assert cli.main(argv) == 130
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["cellcal fit: stopped"]
+
+
+def test_ctrl_c_during_a_collection_is_one_line_exit_130_and_resumable(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from app.rehearsal import REPO, sample_count
+
+    plan, session = tmp_path / "plan.json", tmp_path / "s"
+    assert main(["plan", "--robot", "R1", "--q2-step", "50", "--q3-step", "50", "--out", str(plan)]) == 0
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "collect", "--robot", "R1", "--plan", str(plan),
+                             "--session", str(session), "--sim", "--time-scale", "2", "--no-progress"], cwd=REPO,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while sample_count(session) < 2 and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.1)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    lines = [line for line in err.strip().splitlines() if not line.startswith("target ")]
+    assert lines[-1] == "cellcal collect: stopped (continue with --resume)" and "Traceback" not in err
+    assert 2 <= sample_count(session) < 56

@@ -159,7 +159,9 @@ def test_validate_dual_sim_json_and_bad_inputs(tmp_path, capsys):
     assert v["configurations"] == 3 and set(v["models"]) == {"nominal", "fbf13"}
     assert v["models"]["fbf13"]["mean_mm"] < v["models"]["nominal"]["mean_mm"]
     never = tmp_path / "never.json"
-    assert_bad_input(capsys, ["validate-dual", "--configurations", "3", "--json", str(never)], "use --sim")
+    assert_bad_input(capsys, ["validate-dual", "--configurations", "3", "--json", str(never)], "needs --plan", "--sim")
+    assert_bad_input(capsys, ["validate-dual", "--plan", str(never), "--json", str(never)], "no controller block",
+                     "--sim")
     assert_bad_input(capsys, ["validate-dual", "--sim", "--configurations", "1", "--json", str(never)], ">= 2")
     assert_bad_input(capsys, ["validate-dual", "--sim", "--methods", "nominal,magic", "--json", str(never)],
          "unknown model set 'magic'")

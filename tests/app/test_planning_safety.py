@@ -134,3 +134,25 @@ def test_the_path_is_checked_not_only_the_target(cell):
     safety.check_configs("R1", np.stack([start, end]), others)
     with pytest.raises(UnsafeTarget, match="too close to R2"):
         safety.check_motion("R1", start, end, others, index=0)
+
+
+def test_dual_motion_checks_both_arms_together_and_leaves_only_the_process_zone(cell):
+    from app.capsules import PROCESS_ZONE, SEGMENTS
+    from app.cli_dual import _check_dual_plan
+
+    safety = CellSafety(cell, SafetyConfig(process_zone=PROCESS_ZONE))
+    r2 = np.radians([0, 40, 0, 0, 0, 0])
+    start = np.concatenate([np.radians([-60, 70, 60, 0, 0, 0]), r2])
+    end = np.concatenate([np.radians([40, 70, 60, 0, 0, 0]), r2])
+    safety.check_configs("R1", np.stack([start[:6], end[:6]]), {"R2": r2})  # both ends are clear ...
+    with pytest.raises(UnsafeTarget, match="too close to R2") as e:  # ... the joint move between them is not
+        safety.check_dual_motion(start, end, index=7)
+    assert "target 7" in str(e.value)
+    with pytest.raises(UnsafeTarget, match="too close to the floor"):
+        _check_dual_plan(cell, np.stack([np.concatenate([np.radians([0, 90, 0, 0, 0, 0]), r2])]), 0.0)
+    with pytest.raises(ConfigError, match="unknown capsules"):
+        CellSafety(cell, SafetyConfig(process_zone=("gun",)))
+    # the process zone leaves exactly the pairs with both capsules in it unchecked
+    zone = CellSafety(cell, SafetyConfig(process_zone=PROCESS_ZONE))._zone_pairs
+    assert zone.sum() == len(PROCESS_ZONE) ** 2 and all(zone[SEGMENTS.index(a), SEGMENTS.index(b)]
+                                                          for a in PROCESS_ZONE for b in PROCESS_ZONE)

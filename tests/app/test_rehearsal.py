@@ -16,56 +16,14 @@ from pathlib import Path
 
 import numpy as np
 
-from app.planning import Plan
+from app.rehearsal import Process, Rehearsal, run_cellcal, sample_count, small_plan, write_rehearsal_cell
 from calibration.recording import read_recording
 from calibration.registration import transform_difference
 from cell_config import load_cell
 from drivers.sim.rehearsal import hidden_frames, rehearsal_truths
-from tests.app.rehearsal import Process, run_cellcal, write_rehearsal_cell
 
 SEED = 5
 PURE = ("--origin-std-mm", "0", "--tilt-std-deg", "0", "--compliance-mm", "0")  # a twin with no kinematic error
-
-
-def small_plan(cell: Path, robot: str, out: Path, n: int = 14) -> Path:
-    """The first ``n`` targets (two clusters) of the coarsest anchor grid."""
-    full = out.with_suffix(".full.json")
-    done = run_cellcal(cell, "plan", "--robot", robot, "--q2-step", "50", "--q3-step", "50", "--out", str(full))
-    assert done.returncode == 0, done.stderr
-    plan = Plan.load(full)
-    Plan(plan.targets[:n], plan.params).save(out)
-    return out
-
-
-class Rehearsal:
-    """The three device processes of the rehearsal, started in the order an operator would."""
-
-    def __init__(self, cell: Path, *motive_args: str) -> None:
-        self.cell = cell
-        self.controller = Process(cell, "fake-controller")
-        self.motive = Process(cell, "fake-motive", "--seed", str(SEED), *motive_args)
-        self.bridge = Process(cell, "mocap-bridge")
-
-    def __enter__(self) -> "Rehearsal":
-        self.controller.start()
-        self.motive.start()
-        self.bridge.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        for p in (self.bridge, self.motive, self.controller):
-            p.stop()
-
-
-def sample_count(session: Path) -> int:
-    db = session / "session.sqlite"
-    if not db.exists():
-        return 0
-    with sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=5) as con:
-        try:
-            return int(con.execute("SELECT COUNT(*) FROM samples WHERE status = 'ok'").fetchone()[0])
-        except sqlite3.OperationalError:
-            return 0
 
 
 def wait_for_samples(session: Path, n: int, timeout_s: float = 60.0) -> None:
@@ -96,7 +54,7 @@ def check_recording(cell_path: Path, session: Path, out_csv: Path, n_targets: in
 def test_register_then_collect_both_arms_in_separate_processes(tmp_path: Path) -> None:
     cell_path = write_rehearsal_cell(tmp_path)
     truths = rehearsal_truths(load_cell(cell_path), SEED, origin_std_mm=0, tilt_std_deg=0, compliance_mm=0)
-    with Rehearsal(cell_path, *PURE):
+    with Rehearsal(cell_path, *PURE, seed=SEED):
         for robot in ("R1", "R2"):
             done = run_cellcal(cell_path, "register", "--robot", robot, "--yes", "--speed", "1", "--no-progress",
                                "--json", str(tmp_path / f"reg_{robot}.json"))
@@ -160,7 +118,7 @@ def test_bridge_killed_mid_collection_is_waited_for(tmp_path: Path) -> None:
     cell_path = registered_cell(tmp_path)
     truths = rehearsal_truths(load_cell(cell_path), SEED, origin_std_mm=0, tilt_std_deg=0, compliance_mm=0)
     plan, session = small_plan(cell_path, "R1", tmp_path / "plan.json"), tmp_path / "s"
-    with Rehearsal(cell_path, *PURE) as r:
+    with Rehearsal(cell_path, *PURE, seed=SEED) as r:
         c = collector(cell_path, plan, session).start(ready=False)
         try:
             wait_for_samples(session, 3)
@@ -178,7 +136,7 @@ def test_controller_killed_and_restarted_is_reconnected(tmp_path: Path) -> None:
     cell_path = registered_cell(tmp_path)
     truths = rehearsal_truths(load_cell(cell_path), SEED, origin_std_mm=0, tilt_std_deg=0, compliance_mm=0)
     plan, session = small_plan(cell_path, "R1", tmp_path / "plan.json"), tmp_path / "s"
-    with Rehearsal(cell_path, *PURE) as r:
+    with Rehearsal(cell_path, *PURE, seed=SEED) as r:
         c = collector(cell_path, plan, session).start(ready=False)
         try:
             wait_for_samples(session, 3)
@@ -196,7 +154,7 @@ def test_alarm_during_a_move_stops_both_arms_and_the_session_resumes(tmp_path: P
     cell_path = registered_cell(tmp_path)
     truths = rehearsal_truths(load_cell(cell_path), SEED, origin_std_mm=0, tilt_std_deg=0, compliance_mm=0)
     plan, session = small_plan(cell_path, "R1", tmp_path / "plan.json"), tmp_path / "s"
-    with Rehearsal(cell_path, *PURE) as r:
+    with Rehearsal(cell_path, *PURE, seed=SEED) as r:
         c = collector(cell_path, plan, session).start(ready=False)
         try:
             wait_for_samples(session, 3)
@@ -220,7 +178,7 @@ def test_alarm_during_a_move_stops_both_arms_and_the_session_resumes(tmp_path: P
 def test_non_finite_joint_feedback_is_refused_before_any_point(tmp_path: Path) -> None:
     cell_path = registered_cell(tmp_path)
     plan, session = small_plan(cell_path, "R1", tmp_path / "plan.json"), tmp_path / "s"
-    with Rehearsal(cell_path, *PURE) as r:
+    with Rehearsal(cell_path, *PURE, seed=SEED) as r:
         r.controller.signal(signal.SIGUSR2)  # the fake now reports NaN joint angles
         time.sleep(0.5)
         done = run_cellcal(cell_path, "collect", "--robot", "R1", "--plan", str(plan), "--session", str(session),
@@ -230,3 +188,90 @@ def test_non_finite_joint_feedback_is_refused_before_any_point(tmp_path: Path) -
         assert r.controller.stop() == 0
     assert sample_count(session) == 0
     assert "trajectory points received: 0" in r.controller.output
+
+
+def read_health(cell_path: Path, timeout_s: float, until) -> dict:  # noqa: ANN001 - a predicate on the message
+    """Health messages of the bridge, read as any machine on the network would, until ``until(msg)``."""
+    import queue
+
+    from app.mocap_service import health_key
+    from drivers.bus import open_session
+
+    cell = load_cell(cell_path)
+    got: queue.Queue = queue.Queue()
+    session = open_session(cell.zenoh_for("collector"))
+    sub = session.declare_subscriber(health_key(cell.name, "mocap-bridge"),
+                                     lambda s: got.put(json.loads(s.payload.to_bytes())))
+    try:
+        deadline = time.monotonic() + timeout_s
+        last = None
+        while time.monotonic() < deadline:
+            try:
+                last = got.get(timeout=0.5)
+            except queue.Empty:
+                continue
+            if until(last):
+                return last
+        raise AssertionError(f"no matching health message within {timeout_s} s; last: {last}")
+    finally:
+        sub.undeclare()
+        session.close()
+
+
+def test_bridge_reconnects_to_a_restarted_motive_and_publishes_its_health(tmp_path: Path) -> None:
+    cell_path = write_rehearsal_cell(tmp_path)
+    with Rehearsal(cell_path, *PURE, seed=SEED) as r:
+        first = read_health(cell_path, 15, lambda h: h["state"] == "streaming" and h["frames_published"] > 100)
+        assert first["connections"] == 1 and first["handshakes"] == 1 and first["natnet_version"] == "4.1"
+        assert sorted(first["bodies"].values()) == ["mti", "weldgun"]  # resolved from Motive's model definitions
+        r.motive.kill()
+        read_health(cell_path, 15, lambda h: h["state"] == "connecting" or h["last_frame_age_s"] > 1.0)
+        r.motive.start()
+        again = read_health(cell_path, 20, lambda h: h["handshakes"] >= 2 and h["state"] == "streaming"
+                            and h["last_frame_age_s"] < 0.5)
+        assert again["frames_published"] > first["frames_published"]
+        r.bridge.signal(signal.SIGINT)
+        assert r.bridge.wait(15) == 0, r.bridge.output
+    assert "handshake(s) with Motive" in r.bridge.output
+
+
+def test_a_zenoh_router_relays_the_mocap_between_machines(tmp_path: Path) -> None:
+    from drivers.bus import ZenohMocapSource
+
+    cell_path = write_rehearsal_cell(tmp_path, via_router=True)
+    cell = load_cell(cell_path)
+    router = Process(cell_path, "router").start()
+    try:
+        with Rehearsal(cell_path, *PURE, seed=SEED):
+            with ZenohMocapSource(cell.name, config=cell.zenoh_for("collector"), rigid_bodies=["weldgun"]) as sub:
+                frames, deadline = [], time.monotonic() + 15
+                while len(frames) < 50 and time.monotonic() < deadline:
+                    frames += sub.read(0.5)
+        assert len(frames) >= 50 and {f.body_id for f in frames} == {11}
+    finally:
+        assert router.stop() == 0, router.output
+
+
+def test_operator_checks_refuse_or_only_look_and_nothing_moves(tmp_path: Path) -> None:
+    cell_path = registered_cell(tmp_path)
+    text = cell_path.read_text().replace("max_speed_fraction: 1.0", "max_speed_fraction: 0.25")
+    cell_path.write_text(text)
+    plan, session = small_plan(cell_path, "R1", tmp_path / "plan.json"), tmp_path / "s"
+    base = ("collect", "--robot", "R1", "--plan", str(plan), "--session", str(session), "--no-progress")
+    with Rehearsal(cell_path, *PURE, seed=SEED) as r:
+        asked = run_cellcal(cell_path, *base)  # no terminal to ask on, no --yes
+        assert asked.returncode == 2 and "needs confirmation" in asked.stderr and "--yes" in asked.stderr
+        fast = run_cellcal(cell_path, *base, "--yes", "--speed", "0.5")
+        assert fast.returncode == 2 and "above the cell's cap" in fast.stderr and "0.25" in fast.stderr
+        looked = run_cellcal(cell_path, *base, "--dry-run", "--json", str(tmp_path / "dry.json"))
+        assert looked.returncode == 0, looked.stderr
+        assert "dry run, no motion" in looked.stdout and "14 targets" in looked.stdout
+        assert json.loads((tmp_path / "dry.json").read_text())["safe"] is True
+        reg = run_cellcal(cell_path, "register", "--robot", "R2", "--dry-run")
+        assert reg.returncode == 0 and "dry run" in reg.stdout, reg.stderr
+        recal = run_cellcal(cell_path, "recalibrate", "--robot", "R1", "--plan", str(plan), "--model-dir",
+                            str(tmp_path / "models"), "--validation", "5", "--dry-run")
+        assert recal.returncode == 0 and "dry run, no motion" in recal.stdout, recal.stderr
+        assert r.controller.stop() == 0
+    assert "trajectory points received: 0" in r.controller.output
+    assert not session.exists()

@@ -203,6 +203,20 @@ def test_joint_refit_recovers_planted_backlash_and_geometry(arm):
     assert sol.rms_mm < 0.06 and sol.converged
 
 
+def test_one_acceptance_rule_reads_the_fit_tests_and_the_heldout_improvement():
+    from calibration.diagnosis import Evidence, SelectionOptions
+
+    o = SelectionOptions(bic_threshold=-10.0, f_alpha=1e-3, z_min=3.0, z_extend=2.0)
+    assert Evidence(-11.0, 1e-4).accepted(o)  # fit data alone (the backward confirmation)
+    assert not Evidence(-9.0, 1e-4).accepted(o) and not Evidence(-11.0, 2e-3).accepted(o)
+    good = Evidence(-11.0, 1e-4, 3.5, 0.20, 0.10)
+    assert good.accepted(o)
+    assert not Evidence(-11.0, 1e-4, 2.5, 0.20, 0.10).accepted(o)  # held-out gain within noise
+    assert Evidence(-11.0, 1e-4, 2.5, 0.20, 0.10).accepted(o, extends=True)  # one more joint of a kind found
+    assert not Evidence(-11.0, 1e-4, 3.5, 0.20, 0.21).accepted(o)  # held-out RMS worse
+    assert not Evidence(-9.0, 1e-4, 9.0, 0.20, 0.10).accepted(o)  # the held-out data do not excuse the BIC
+
+
 def test_blocked_folds_keep_clusters_together():
     groups = np.repeat(np.arange(40), 7)
     fold = blocked_folds(groups, 5)

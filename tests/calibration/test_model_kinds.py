@@ -52,7 +52,7 @@ def models() -> dict:
     cdc = CdcModel("R1", "fbf13", kin, theta, Fourier13Interpolator().fit(x, y))
     physics = PhysicsModel("R1", "diagnose", geometry, _effects(gravity), par.size)
     effects = _effects(gravity)[:3] + (_effects(gravity)[-1],)
-    return {"constant": ConstantModel("R1", "nls", geometry, par.size), "pi": pi, "cdc": cdc, "physics": physics,
+    return {"constant": ConstantModel("R1", "nls1", geometry, par.size), "pi": pi, "cdc": cdc, "physics": physics,
             "diagnosed-pi": DiagnosedModel("R1", "diagnose", pi, effects),
             "diagnosed-cdc": DiagnosedModel("R1", "diagnose", cdc, effects)}
 

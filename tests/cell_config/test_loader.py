@@ -73,7 +73,7 @@ def test_rehearsal_cell_puts_every_device_on_loopback():
         assert cell.robot(name).tool.name == default.robot(name).tool.name
     assert cell.controller == ControllerConfig("127.0.0.1", 50240, 50241, groups={"R1": 0, "R2": 1})
     assert cell.mocap == MocapConfig("127.0.0.1", "127.0.0.1", False, {"R1": "weldgun", "R2": "mti"})
-    assert cell.probe == ProbeConfig("virtual", "rehearsal", 500000, 0x180)
+    assert cell.probe == ProbeConfig("virtual", "rehearsal", 500000, 0x5A0)
     assert cell.zenoh_for("bridge") == ZenohConfig("peer", ("tcp/127.0.0.1:7447",), (), False)
     assert cell.zenoh_for("collector") == ZenohConfig("peer", (), ("tcp/127.0.0.1:7447",), False)
     assert cell.zenoh_for("router") == ZenohConfig("router", ("tcp/127.0.0.1:7446",), (), False)
@@ -469,6 +469,47 @@ def test_malformed_capsules_name_the_key(tmp_path, line, key, reason):
     assert _CAPS_LINE in text
     bad = tmp_path / "bad.yaml"
     bad.write_text(text.replace(_CAPS_LINE, line))
+    with pytest.raises(ConfigError) as e:
+        load_robot(bad)
+    assert e.value.key == key and reason in e.value.reason and e.value.path == str(bad)
+
+
+# --- the controller's pulse convention in the robot YAML ---------------------------------------------------------
+
+_SIGN_LINE = "pulse_sign: [1, 1, 1, 1, 1, 1]"
+_ZERO_LINE = "pulse_zero: [0, 0, 0, 0, 0, 0]  # [pulses] at q = 0"
+
+
+def test_pulse_convention_round_trips_and_follows_sign_and_zero(tmp_path):
+    spec = load_robot(DEFAULT_CELL.parent / "robots" / "MA2010.yaml")
+    np.testing.assert_array_equal(spec.pulse_sign, np.ones(6))
+    np.testing.assert_array_equal(spec.pulse_zero, np.zeros(6))
+    np.testing.assert_allclose(spec.pulses_per_rad[0], 1341.380023 * 180 / np.pi)
+    pulses = np.random.default_rng(0).integers(-200000, 200000, (50, 6))
+    np.testing.assert_array_equal(spec.to_pulses(spec.from_pulses(pulses)), pulses)
+    text = (DEFAULT_CELL.parent / "robots" / "MA2010.yaml").read_text()
+    other = tmp_path / "signed.yaml"
+    other.write_text(text.replace(_SIGN_LINE, "pulse_sign: [1, -1, 1, 1, -1, 1]")
+                     .replace(_ZERO_LINE, "pulse_zero: [0, 100, 0, 0, -7, 0]"))
+    signed = load_robot(other)
+    q = np.radians([[10.0, 20.0, -5.0, 0.0, 30.0, 1.0]])
+    expected = np.rint(np.array([0, 100, 0, 0, -7, 0]) + np.array([1, -1, 1, 1, -1, 1]) * q * spec.pulses_per_rad)
+    np.testing.assert_array_equal(signed.to_pulses(q), expected)
+    np.testing.assert_allclose(signed.from_pulses(signed.to_pulses(q)), q, atol=1e-5)
+
+
+@pytest.mark.parametrize("old, new, key, reason", [
+    (_SIGN_LINE, "", "pulse_sign", "required key is missing"),
+    (_SIGN_LINE, "pulse_sign: [1, 1, 0, 1, 1, 1]", "pulse_sign", "expected +1 or -1 per joint"),
+    (_SIGN_LINE, "pulse_sign: [1, 1]", "pulse_sign", "expected shape (6,)"),
+    (_ZERO_LINE, "pulse_zero: [0, 0.5, 0, 0, 0, 0]", "pulse_zero", "expected whole pulses"),
+    (_ZERO_LINE, "pulse_zero: [0, zero, 0, 0, 0, 0]", "pulse_zero", "expected numbers of shape (6,)"),
+])
+def test_malformed_pulse_convention_names_the_key(tmp_path, old, new, key, reason):
+    text = (DEFAULT_CELL.parent / "robots" / "MA2010.yaml").read_text()
+    assert old in text
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(text.replace(old, new))
     with pytest.raises(ConfigError) as e:
         load_robot(bad)
     assert e.value.key == key and reason in e.value.reason and e.value.path == str(bad)

@@ -505,3 +505,41 @@ def test_stop_traj_mode_is_refused_while_a_queue_holds_motion(fake, arms) -> Non
     assert not r1.link.trajectory_mode
     r1.move_to(Q0[0], 1.0)  # motion_possible is 0 again: the driver restarts trajectory mode
     np.testing.assert_allclose(r1.wait_settled(2.0).q, Q0[0], atol=1e-4)
+
+
+def test_a_peer_that_only_sends_garbage_is_retried_ever_more_slowly() -> None:
+    """Issue 12: the state reader reconnected at 20 Hz to a peer that accepts and sends garbage."""
+    import socket
+    import threading
+
+    from drivers.motoros.state import StateStream
+
+    server = socket.create_server(("127.0.0.1", 0))
+    server.settimeout(0.1)
+    stop = threading.Event()
+    accepted = []
+
+    def serve() -> None:
+        while not stop.is_set():
+            try:
+                conn, _ = server.accept()
+            except TimeoutError:
+                continue
+            accepted.append(time.monotonic())
+            conn.sendall(b"\xff\xff\xff\x7fgarbage")
+            conn.close()
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    reader_stop = threading.Event()
+    stream = StateStream("127.0.0.1", server.getsockname()[1], "motoros-test", reader_stop, connect_timeout_s=0.5,
+                         backoff_s=0.05, max_backoff_s=1.0, stale_after_s=0.5)
+    stream.start()
+    time.sleep(2.0)
+    reader_stop.set()
+    stream.join()
+    stop.set()
+    thread.join(timeout=2)
+    server.close()
+    # doubling from 0.05 s to the 1 s cap: 0, 0.05, 0.15, 0.35, 0.75, 1.55 -> at most 6 tries in 2 s (20 Hz: 40)
+    assert 3 <= len(accepted) <= 7, len(accepted)

@@ -165,3 +165,38 @@ def test_mocap_blackout_and_cell_frame(r1):
         arm.clock.sleep(0.3)
         mocap.read(0.0)
         assert all(f.tracking_valid for f in mocap.read(1.0))
+
+
+def test_bad_arguments_raise_invalid_argument_carrying_the_value(r1):
+    from drivers.errors import DriverError, InvalidArgument
+
+    with pytest.raises(InvalidArgument, match=r"sim:clock: time_scale must be a positive .*, got 0") as err:
+        SimClock(0)
+    assert (err.value.device, err.value.argument, err.value.value) == ("sim:clock", "time_scale", 0)
+    with pytest.raises(InvalidArgument, match="sim:R1: truth must be an object with pose"):
+        SimRobotDriver("R1", r1.robot, object())
+    with pytest.raises(InvalidArgument, match=r"sim:R1: q0 must be 6 joint angles"):
+        SimRobotDriver("R1", r1.robot, planted_truth(r1.model(), seed=3), q0=np.zeros(5))
+    arm = make_arm(r1)
+    with arm:
+        with pytest.raises(InvalidArgument, match=r"sim:R1: speed_fraction must be in \(0, 1\], got 1.5") as err:
+            arm.move_to(np.zeros(6), 1.5)
+        assert err.value.value == 1.5 and isinstance(err.value, DriverError)
+        with pytest.raises(InvalidArgument, match="sim:R1: q must be 6 finite joint angles"):
+            arm.move_to(np.full(6, np.nan), 0.5)
+        with pytest.raises(InvalidArgument, match="sim:R1: repeat must be >= 1, got 0"):
+            arm.schedule_fault(SimFault.ALARM, 1, repeat=0)
+        assert arm.move_calls == 0
+    with pytest.raises(InvalidArgument, match="sim:mocap: bodies must be at least one rigid body"):
+        SimMocapSource({})
+    with pytest.raises(InvalidArgument, match=r"sim:mocap: rate_hz must be a positive rate \[Hz\], got 0"):
+        SimMocapSource({1: make_arm(r1)}, SimMocapConfig(rate_hz=0))
+    with pytest.raises(InvalidArgument, match="sim:mocap: bodies must be arms that all share one SimClock"):
+        SimMocapSource({1: make_arm(r1), 2: make_arm(r1)})
+
+
+def test_motoros_and_sim_share_one_invalid_argument():
+    from drivers.errors import InvalidArgument
+    from drivers.motoros.errors import InvalidArgument as MotorosInvalidArgument
+
+    assert MotorosInvalidArgument is InvalidArgument

@@ -1,7 +1,10 @@
 """The one-machine rehearsal as real OS processes: a private copy of rehearsal.yaml and process handles.
 
-Every test gets its own cell file with free loopback ports (so tests and a developer's own rehearsal never
-collide) and a speed cap of 1 (the fakes run in real time; full speed keeps the tests short).
+:func:`write_rehearsal_cell` writes a copy of ``cell_config/rehearsal.yaml`` with free loopback ports (so
+several rehearsals, the tests and a developer's own never collide) and a speed cap of 1 (the fakes run in real
+time). :class:`Process` starts a long-running ``cellcal`` command (fake-controller, fake-motive, mocap-bridge,
+router, collect) as its own OS process and waits for its ready line; :func:`run_cellcal` runs one to its end.
+Used by ``tests/app/test_rehearsal.py`` and ``scripts/rehearsal.py``.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ import yaml
 
 from cell_config.loader import PACKAGE_DIR
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[1]
 
 
 def free_port(kind: int = socket.SOCK_STREAM) -> int:
@@ -29,19 +32,27 @@ def free_port(kind: int = socket.SOCK_STREAM) -> int:
         return int(s.getsockname()[1])
 
 
-def write_rehearsal_cell(folder: Path, **controller: Any) -> Path:
-    """A copy of ``cell_config/rehearsal.yaml`` in ``folder`` with free ports; ``controller`` overrides keys."""
+def write_rehearsal_cell(folder: Path, via_router: bool = False, **controller: Any) -> Path:
+    """A copy of ``cell_config/rehearsal.yaml`` in ``folder`` with free ports; ``controller`` overrides keys.
+
+    ``via_router``: the bridge and the collector both connect (as clients) to ``cellcal router`` instead of the
+    collector connecting to the bridge.
+    """
     data = yaml.safe_load((PACKAGE_DIR / "rehearsal.yaml").read_text())
     for entry in data["robots"].values():
         entry["robot"] = str(PACKAGE_DIR / entry["robot"])
         entry["tool"] = str(PACKAGE_DIR / entry["tool"])
-    data["controller"].update(motion_port=free_port(), state_port=free_port(), max_speed_fraction=1.0,
-                              **controller)
+    data["controller"].update({"motion_port": free_port(), "state_port": free_port(), "max_speed_fraction": 1.0,
+                               **controller})
     data["mocap"].update(command_port=free_port(socket.SOCK_DGRAM), data_port=free_port(socket.SOCK_DGRAM))
     bridge = free_port()
     data["zenoh"]["roles"]["bridge"]["listen"] = [f"tcp/127.0.0.1:{bridge}"]
     data["zenoh"]["roles"]["collector"]["connect"] = [f"tcp/127.0.0.1:{bridge}"]
-    data["zenoh"]["roles"]["router"]["listen"] = [f"tcp/127.0.0.1:{free_port()}"]
+    router = free_port()
+    data["zenoh"]["roles"]["router"]["listen"] = [f"tcp/127.0.0.1:{router}"]
+    if via_router:
+        for role in ("bridge", "collector"):
+            data["zenoh"]["roles"][role] = {"mode": "client", "connect": [f"tcp/127.0.0.1:{router}"]}
     path = folder / "rehearsal.yaml"
     path.write_text(yaml.safe_dump(data, sort_keys=False))
     return path
@@ -92,7 +103,8 @@ class Process:
         return self
 
     def _read(self) -> None:
-        assert self.proc is not None and self.proc.stdout is not None
+        if self.proc is None or self.proc.stdout is None:
+            return
         for line in self.proc.stdout:
             self.lines.append(line)
 
@@ -101,8 +113,8 @@ class Process:
         return "".join(self.lines)
 
     def signal(self, sig: int) -> None:
-        assert self.proc is not None
-        self.proc.send_signal(sig)
+        if self.proc is not None:
+            self.proc.send_signal(sig)
 
     def kill(self) -> None:
         """SIGKILL: the process gets no chance to clean up (a crash, a pulled plug)."""
@@ -126,8 +138,56 @@ class Process:
         return code
 
     def wait(self, timeout_s: float) -> int:
-        assert self.proc is not None
+        if self.proc is None:
+            raise RuntimeError(f"{self.name} was never started")
         code = self.proc.wait(timeout=timeout_s)
         if self._reader is not None:
             self._reader.join(timeout=5)
         return code
+
+
+def small_plan(cell: Path, robot: str, out: Path, n: int = 14) -> Path:
+    """The first ``n`` targets (two clusters) of the coarsest anchor grid."""
+    from app.planning import Plan
+
+    full = out.with_suffix(".full.json")
+    done = run_cellcal(cell, "plan", "--robot", robot, "--q2-step", "50", "--q3-step", "50", "--out", str(full))
+    if done.returncode != 0:
+        raise RuntimeError(f"cellcal plan failed: {done.stderr}")
+    plan = Plan.load(full)
+    Plan(plan.targets[:n], plan.params).save(out)
+    return out
+
+
+class Rehearsal:
+    """The three device processes of the rehearsal, started in the order an operator would."""
+
+    def __init__(self, cell: Path, *motive_args: str, seed: int = 5) -> None:
+        self.cell = cell
+        self.controller = Process(cell, "fake-controller")
+        self.motive = Process(cell, "fake-motive", "--seed", str(seed), *motive_args)
+        self.bridge = Process(cell, "mocap-bridge")
+
+    def __enter__(self) -> "Rehearsal":
+        self.controller.start()
+        self.motive.start()
+        self.bridge.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for p in (self.bridge, self.motive, self.controller):
+            p.stop()
+
+
+def sample_count(session: Path) -> int:
+    """Samples measured so far in a session folder (read-only, while a collector may be writing)."""
+    import sqlite3
+
+    db = session / "session.sqlite"
+    if not db.exists():
+        return 0
+    with sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=5) as con:
+        try:
+            return int(con.execute("SELECT COUNT(*) FROM samples WHERE status = 'ok'").fetchone()[0])
+        except sqlite3.OperationalError:
+            return 0

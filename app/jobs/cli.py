@@ -1,0 +1,102 @@
+"""``cellcal compensate-job``: a Yaskawa job compensated with calibrated models, every other line kept."""
+
+from __future__ import annotations
+
+import argparse
+import re
+from pathlib import Path
+from typing import Any, Callable
+
+from app.cli_common import cell_spec, write_json
+
+_ROBOT_SPEC = re.compile(r"^([A-Za-z][A-Za-z0-9_]*)=(.+)$")
+
+
+def load_job_models(specs: list[str], cell: Any) -> dict[str, Any]:
+    """``FILE`` (the robot the model was fitted for) or ``ROBOT=FILE`` per entry -> {robot: model}.
+
+    Raises:
+        DataError: unreadable model file, unknown robot, a model fitted for another robot, or a robot twice.
+    """
+    from calibration.errors import DataError, ModelError
+    from calibration.models import load_model
+
+    models: dict[str, Any] = {}
+    for spec in specs:
+        m = _ROBOT_SPEC.match(spec)
+        robot, path = (m.group(1), m.group(2)) if m and not Path(spec).exists() else (None, spec)
+        if robot is not None and robot not in cell.robots:
+            raise DataError(spec, None, None, f"unknown robot {robot!r} in --model; valid: {', '.join(cell.robots)}")
+        if Path(path).is_dir():
+            raise DataError(path, None, None, "expected a model file, found a directory")
+        try:
+            model = load_model(path)
+        except (UnicodeDecodeError, OSError) as e:
+            raise DataError(path, None, None, f"not a readable model file ({e.__class__.__name__})") from e
+        robot = robot or model.robot
+        if model.robot != robot:
+            raise DataError(path, None, None, f"model fitted for {model.robot}, given for {robot}")
+        if robot not in cell.robots:
+            raise ModelError(f"{path}: model of unknown robot {robot!r}; valid: {', '.join(cell.robots)}")
+        if robot in models:
+            raise DataError(path, None, None, f"a second model for {robot}; give one --model per robot")
+        models[robot] = model
+    return models
+
+
+def _output_path(text: str, flag: str) -> Path:
+    """``text`` as a file to write: refused when empty, a directory, or under an existing non-directory."""
+    from calibration.errors import DataError
+
+    path = Path(text)
+    if not text or path.is_dir():
+        raise DataError(text, None, None, f"{flag} must be a file path, not a directory or empty")
+    parent = next((p for p in path.absolute().parents if p.exists()), None)
+    if parent is not None and not parent.is_dir():
+        raise DataError(text, None, None, f"{flag} lies under {parent}, which is not a directory")
+    return path
+
+
+def cmd_compensate_job(args: argparse.Namespace) -> int:
+    from app.jobs import JobCompensator, read_job, write_job
+    from calibration.errors import DataError
+    from calibration.files import atomic_write_bytes
+
+    out = _output_path(args.out, "--out")
+    if out.exists() and out.resolve() == Path(args.job).resolve():
+        raise DataError(args.out, None, None, "--out must differ from --job (the input is never overwritten)")
+    if args.json is not None:
+        _output_path(args.json, "--json")
+    cell = cell_spec(args)
+    models = load_job_models(args.model, cell)
+    job = read_job(args.job)
+    comp = JobCompensator(cell, models, max_joint_change_deg=args.max_joint_change_deg).compensate(job)
+    data = write_job(job, comp.replacements)
+    summary = {"job": str(args.job), "out": str(out), **comp.to_json()}
+    writers = ((args.json, lambda: write_json(args.json, summary)), (out, lambda: atomic_write_bytes(out, data)))
+    for path, write in writers:
+        try:
+            write()
+        except OSError as e:
+            raise DataError(path, None, None, f"cannot write ({e.__class__.__name__}: {e.strerror or e})") from e
+    robots = ", ".join(f"{r}: {m}" for r, m in comp.models.items())
+    print(f"{len(comp.points)} positions compensated ({robots}), residual <= {summary['max_residual_mm']:.1e} mm "
+          f"under the model, {summary['max_written_residual_mm']:.1e} mm as written, joints moved by up to "
+          f"{summary['max_joint_change_deg']:.3f} deg -> {out}")
+    return 0
+
+
+def add_job_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
+    p = add("compensate-job", cmd_compensate_job,
+            "rewrite a Yaskawa INFORM job (.JBI) so the calibrated arms reach the poses the nominal ones would")
+    p.add_argument("--cell", default=argparse.SUPPRESS, help="cell.yaml (default: the packaged Motoman cell)")
+    p.add_argument("--model", action="append", required=True, metavar="[ROBOT=]FILE",
+                   help="calibrated model file; ROBOT=FILE to name the robot (default: the robot it was fitted for); "
+                        "repeat for a second robot (RB1 is the cell's first robot R1, RB2 its second R2)")
+    p.add_argument("--job", required=True, help="input job file (.JBI): PULSE, ROBOT or BASE C positions")
+    p.add_argument("--out", required=True, help="compensated job file to write (never the input)")
+    p.add_argument("--max-joint-change-deg", type=float, default=5.0,
+                   help="refuse a point whose compensation moves any joint by more than this [deg] (default 5; "
+                        "orientation fixes near the wrist singularity swing joints 4 and 6)")
+    p.add_argument("--json", help="write per position: line, group, before/after values, joint change [deg], "
+                                  "residual [mm, deg] as JSON")

@@ -1,0 +1,153 @@
+"""Checks a model file passes before any prediction is made from it.
+
+:func:`check_model_data` runs on the decoded file, whatever the model kind: every number finite, every
+``R_*`` matrix a rotation, the robot recorded, the method known. :func:`check_model_for` runs on a loaded
+model once the caller knows which arm it is for: the recorded robot must be that arm, and the model's
+reference geometry (joint axes and link vectors) must lie near that arm's nominal geometry from the robot
+YAML, so a model of another robot type is refused even when its robot name was edited. Each failure is a
+:class:`~calibration.errors.ModelFileError` naming the file and the key.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from calibration.errors import ModelFileError
+
+if TYPE_CHECKING:
+    from calibration.models import KinematicModel
+    from calibration.poe import PoeModel
+
+#: Largest entry of ``R^T R - I`` accepted for a stored rotation (hand-edited files keep ~7 digits).
+ROTATION_TOLERANCE = 1e-6
+#: A fitted link vector (between joint 1 and the flange) lies this close to the nominal one [mm]; fits move
+#: them by a few mm, while the cell's two robot types differ by 146 mm or more.
+LINK_TOLERANCE_MM = 50.0
+#: A fitted joint axis lies this close to the nominal one [deg].
+AXIS_TOLERANCE_DEG = 5.0
+#: Methods a model file may record besides the fitting methods: diagnose results and simulation twins.
+OTHER_METHODS = ("diagnose", "twin")
+
+
+def known_methods() -> tuple[str, ...]:
+    """Every method a model file may record."""
+    from calibration.methods import METHODS  # here: calibration.methods imports calibration.models
+
+    return tuple(METHODS) + OTHER_METHODS
+
+
+def _leaves(node: Any, key: str) -> Iterator[tuple[str, Any]]:
+    if isinstance(node, dict):
+        for k, v in node.items():
+            yield from _leaves(v, f"{key}.{k}" if key else str(k))
+    elif isinstance(node, (list, tuple)):
+        for i, v in enumerate(node):
+            yield from _leaves(v, f"{key}[{i}]")
+    else:
+        yield key, node
+
+
+def _mappings(node: Any, key: str) -> Iterator[tuple[str, dict[str, Any]]]:
+    if isinstance(node, dict):
+        yield key, node
+        for k, v in node.items():
+            yield from _mappings(v, f"{key}.{k}" if key else str(k))
+    elif isinstance(node, (list, tuple)):
+        for i, v in enumerate(node):
+            yield from _mappings(v, f"{key}[{i}]")
+
+
+def _check_rotation(path: str | Path, key: str, value: Any) -> None:
+    try:
+        R = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        R = None
+    if R is None or R.shape != (3, 3):
+        raise ModelFileError(path, key, "expected a 3x3 rotation matrix")
+    err = float(np.max(np.abs(R.T @ R - np.eye(3))))
+    if err > ROTATION_TOLERANCE:
+        raise ModelFileError(path, key, f"not a rotation: its columns are not orthonormal (R^T R - I up to "
+                                        f"{err:.2g}, tolerance {ROTATION_TOLERANCE:g})")
+    if np.linalg.det(R) < 0:
+        raise ModelFileError(path, key, "not a rotation: determinant -1 (a reflection)")
+
+
+def check_model_data(data: dict[str, Any], path: str | Path = "") -> None:
+    """Refuse a decoded model file whose numbers, rotations, robot or method cannot be used.
+
+    Raises:
+        ModelFileError: a number is NaN or infinite, an ``R_*`` entry is not a rotation (orthonormal,
+            determinant +1), the robot is missing, or the method is unknown (the message lists the valid ones).
+    """
+    for key, value in _leaves(data, ""):
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ModelFileError(path, key, f"expected a finite number, got {value}")
+    for key, mapping in _mappings(data, ""):
+        for k, v in mapping.items():
+            if isinstance(k, str) and k.startswith("R_"):
+                _check_rotation(path, f"{key}.{k}" if key else k, v)
+    robot = data.get("robot")
+    if not isinstance(robot, str) or not robot:
+        raise ModelFileError(path, "robot", f"expected the name of the robot the model was fitted for (R1, R2), "
+                                            f"got {robot!r}; every {data.get('schema')} file records it")
+    method = data.get("method")
+    if method not in known_methods():
+        raise ModelFileError(path, "method", f"unknown method {method!r}; valid: {', '.join(known_methods())}")
+
+
+def reference_geometry(model: KinematicModel) -> PoeModel:
+    """The geometry a model is built on (its POE geometry, or the nominal of an extended or CDC model)."""
+    from calibration.models import poe_from_dict
+
+    d = model.to_dict()
+    while True:
+        for key in ("geometry", "nominal"):
+            if isinstance(d.get(key), dict):
+                return poe_from_dict(d[key])
+        if not isinstance(d.get("base"), dict):
+            raise ModelFileError("", "", f"a {model.kind} model has no geometry to check")
+        d = d["base"]
+
+
+def check_model_for(model: KinematicModel, robot: str, nominal: PoeModel | None = None,
+                    path: str | Path = "") -> None:
+    """Refuse a model that is not for ``robot``.
+
+    Args:
+        model: a loaded model.
+        robot: the arm the caller will use it for (``--robot``, or the arm a plan assigns it to).
+        nominal: that arm's nominal geometry (robot YAML); when given, the model's joint axes must lie within
+            :data:`AXIS_TOLERANCE_DEG` and its link vectors (joint 1 to the flange; base and tool excluded,
+            which registration and tool fits move freely) within :data:`LINK_TOLERANCE_MM` of it.
+        path: the model file, for the message.
+
+    Raises:
+        ModelFileError: the model records another robot, or its geometry is another robot type's.
+    """
+    if model.robot != robot:
+        raise ModelFileError(path, "robot", f"the model is for {model.robot}, not {robot} (the file records robot "
+                                            f"{model.robot!r}; give {robot}'s model)")
+    if nominal is None:
+        return
+    geo = reference_geometry(model)
+    if geo.H.shape != nominal.H.shape:
+        raise ModelFileError(path, "geometry", f"{geo.n_joints} joints, but {robot} has {nominal.n_joints}")
+    cos = np.clip(np.sum(geo.H * nominal.H, axis=0), -1.0, 1.0)
+    angle = np.degrees(np.arccos(cos))
+    links = np.linalg.norm(geo.P[:, 1:-1] - nominal.P[:, 1:-1], axis=0)
+    if links.max() > LINK_TOLERANCE_MM:
+        j = int(np.argmax(links))
+        what = (f"link vector P[{j + 1}] differs from the robot YAML's by {links[j]:.0f} mm "
+                f"(tolerance {LINK_TOLERANCE_MM:g} mm)")
+    elif angle.max() > AXIS_TOLERANCE_DEG:
+        j = int(np.argmax(angle))
+        what = (f"joint {j + 1}'s axis differs from the robot YAML's by {angle[j]:.1f} deg "
+                f"(tolerance {AXIS_TOLERANCE_DEG:g} deg)")
+    else:
+        return
+    raise ModelFileError(path, "geometry", f"not {robot}'s geometry: {what}; a model of another robot type?")
