@@ -13,20 +13,20 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from dataclasses import dataclass
 
 import numpy as np
 
-from calibration.errors import ModelError, ModelFileError
+from calibration.errors import ModelError
 from calibration.identification import GeometricProblem
-from calibration.models import KinematicModel, poe_from_dict, poe_to_dict
+from calibration.models.cdc import CDC_INPUTS, CdcModel
 from calibration.parameterisation import MinimalParameterisation
 from calibration.physics_informed import ExtendedKinematics
 from calibration.recording import Recording
 
 log = logging.getLogger("cellcal.calibration")
-CDC_INPUTS = (1, 2)  # q2, q3 (0-based)
+__all__ = ["CDC_INPUTS", "CdcModel", "LocalFits", "build_cdc", "cluster_anchors", "expand_anchors", "fit_local",
+           "geometric_cdc"]
 
 
 @dataclass(frozen=True)
@@ -95,77 +95,6 @@ def fit_local(kin: ExtendedKinematics, rec: Recording, theta_ref: np.ndarray, a:
     if not res.converged.all():
         log.warning("%d of %d local fits stopped before converging", int((~res.converged).sum()), len(res.x))
     return LocalFits(anchor_q[:, list(CDC_INPUTS)], res.x, res.rms_mm, np.asarray(theta_ref), res.converged, seconds)
-
-
-@dataclass
-class CdcModel(KinematicModel):
-    """Configuration-dependent model: the geometric block of an extended model interpolated over (q2, q3)."""
-
-    kind: ClassVar[str] = "cdc"
-    robot: str
-    method: str
-    kinematics: ExtendedKinematics
-    theta_ref: np.ndarray
-    interpolator: Any  # calibration.interpolation.Interpolator
-    inputs: tuple[int, ...] = CDC_INPUTS
-    info: dict[str, Any] = field(default_factory=dict)
-
-    def parameters_at(self, q: np.ndarray) -> np.ndarray:
-        """Full extended parameters per sample, shape (N, size): the reference with interpolated geometry."""
-        q = np.atleast_2d(np.asarray(q, dtype=float))
-        theta = np.array(np.broadcast_to(self.theta_ref, (q.shape[0], self.kinematics.size)))
-        theta[:, : self.kinematics.par.size] = self.interpolator.predict(q[:, list(self.inputs)])
-        return theta
-
-    def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return self.kinematics.pose(q, self.parameters_at(q))
-
-    def out_of_range(self, q: np.ndarray) -> np.ndarray:
-        q = np.atleast_2d(np.asarray(q, dtype=float))
-        return self.interpolator.out_of_range(q[:, list(self.inputs)])
-
-    @property
-    def n_parameters(self) -> int:
-        return int(self.info.get("n_parameters", self.kinematics.size))
-
-    def _body(self) -> dict[str, Any]:
-        return {"nominal": poe_to_dict(self.kinematics.par.nominal), "fit_tool": self.kinematics.par.fit_tool,
-                "theta_ref": self.theta_ref.tolist(), "inputs": list(self.inputs),
-                "interpolator": self.interpolator.to_dict()}
-
-    @classmethod
-    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "CdcModel":
-        from calibration.interpolation import interpolator_from_dict
-
-        kin = ExtendedKinematics(MinimalParameterisation(poe_from_dict(body["nominal"]), bool(body["fit_tool"])))
-        theta_ref = _vector(body["theta_ref"], kin.size, "theta_ref")
-        interpolator = interpolator_from_dict(body["interpolator"])
-        inputs = _inputs(body["inputs"], kin.par.n_joints, interpolator.n_inputs)
-        if interpolator.n_outputs != kin.par.size:
-            raise ModelFileError("", "interpolator.n_outputs", f"expected {kin.par.size} (the geometric block), "
-                                                               f"got {interpolator.n_outputs}")
-        return cls(robot, method, kin, theta_ref, interpolator, inputs, info)
-
-
-def _vector(value: Any, size: int, key: str) -> np.ndarray:
-    """``value`` as a float vector of ``size`` entries, or a ModelFileError naming ``key``."""
-    v = np.array(value, dtype=float) if isinstance(value, list) else None
-    if v is None or v.shape != (size,):
-        got = f"{len(value)} entries" if isinstance(value, list) else repr(value)
-        raise ModelFileError("", key, f"expected a list of {size} numbers, got {got}")
-    return v
-
-
-def _inputs(value: Any, n_joints: int, n_inputs: int) -> tuple[int, ...]:
-    """The joint indices (0-based) the interpolator reads, checked against the arm and the interpolator."""
-    ok = (isinstance(value, list) and all(isinstance(i, int) and not isinstance(i, bool) for i in value)
-          and all(0 <= i < n_joints for i in value) and len(set(value)) == len(value))
-    if not ok:
-        raise ModelFileError("", "inputs", f"expected distinct joint indices 0..{n_joints - 1} (q2, q3: [1, 2]), "
-                                           f"got {value!r}")
-    if len(value) != n_inputs:
-        raise ModelFileError("", "inputs", f"the interpolator takes {n_inputs} inputs, the list names {len(value)}")
-    return tuple(value)
 
 
 def geometric_cdc(par: MinimalParameterisation) -> tuple[ExtendedKinematics, np.ndarray]:

@@ -26,7 +26,8 @@ from calibration.models import ConstantModel, KinematicModel
 from calibration.identification.observability import DEFAULT_RELATIVE_TOLERANCE, Observability, analyse, filter_weights
 from calibration.parameterisation import MinimalParameterisation
 from calibration.physics.gravity import GravityModel
-from calibration.physics_informed import ExtendedKinematics, PhysicsInformedModel
+from calibration.models.pi import PhysicsInformedModel
+from calibration.physics_informed import ExtendedKinematics
 from calibration.poe import PoeModel
 from calibration.recording import Recording
 

@@ -12,6 +12,7 @@ Layout of a parameter vector ``x``: ``[d_1a, d_1b, ..., d_na, d_nb]`` origin off
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -108,6 +109,25 @@ class MinimalParameterisation:
         P[..., 1:-1, :] += dO[..., 1:, :] - dO[..., :-1, :]
         P[..., -1, :] += tool - dO[..., -1, :]
         return np.swapaxes(h, -1, -2), np.swapaxes(P, -1, -2)
+
+    def casadi_geometry(self, x: Any) -> tuple[Any, Any]:
+        """:meth:`geometry` on casadi: ``(H (3, n), P (3, n+1))`` for one parameter vector x (m,) of symbols."""
+        import casadi as ca
+
+        from calibration.casadi_expr import rot_sx
+
+        n = self.n_joints
+        Hn, Pn = self.nominal.H, self.nominal.P
+        hs, dO = [], []
+        for j in range(n):
+            k1, k2 = ca.DM(self.k1[j]), ca.DM(self.k2[j])
+            hs.append(rot_sx(k2, x[2 * n + 2 * j + 1]) @ (rot_sx(k1, x[2 * n + 2 * j]) @ ca.DM(Hn[:, j])))
+            dO.append(x[2 * j] * k1 + x[2 * j + 1] * k2)
+        tool = x[4 * n: 4 * n + 3] if self.fit_tool else ca.SX.zeros(3)
+        cols = [ca.DM(Pn[:, 0]) + dO[0]]
+        cols += [ca.DM(Pn[:, i]) + dO[i] - dO[i - 1] for i in range(1, n)]
+        cols.append(ca.DM(Pn[:, n]) + tool - dO[n - 1])
+        return ca.horzcat(*hs), ca.horzcat(*cols)
 
     def scale(self, reach_mm: float = 1000.0) -> np.ndarray:
         """Parameter units per millimetre of tool motion: 1 for offsets, 1/reach for tilts, shape (m,)."""

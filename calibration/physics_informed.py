@@ -1,4 +1,4 @@
-"""The physics-informed model: geometry plus what the diagnosis of the real R1 data found.
+"""The physics-informed kinematics: geometry plus what the diagnosis of the real R1 data found.
 
 Beyond the minimal POE geometry (27 parameters with the flange shift), the model carries
 - the tool-marker rotation (3): ``R_flange_tool <- R_flange_tool exp(w)``;
@@ -8,6 +8,11 @@ Beyond the minimal POE geometry (27 parameters with the flange shift), the model
 - a smooth structural deflection (6 x 7): a small pose correction ``xi = F7(q2, q3) C`` (translation mm,
   rotation rad) in the joint-1 frame, ``F7 = [1, sin q2, sin q3, cos q2, cos q3, sin(q2+q3), cos(q2+q3)]``,
   which takes up link bending that joint compliance alone cannot represent.
+The blocks after the geometry are declared once (:data:`BLOCKS`); :class:`ExtendedKinematics` derives its
+sizes, names, offsets, pose, analytic Jacobian and casadi expression from that declaration, the diagnosis its
+effect blocks (:mod:`calibration.diagnosis.extended`), and the compliance block's deflection is the one
+:class:`~calibration.physics.compliance.MassFreeCompliance` definition. The fitted model kind is
+:mod:`calibration.models.pi`.
 All terms are fitted jointly by the batched LM (``Fitter.physics_informed``) with a Tikhonov filter on the
 joint, mm-scaled Jacobian: directions whose singular value is below 1 % of the largest are damped toward
 nominal, so what the data cannot see stays near the vendor arm.
@@ -15,35 +20,55 @@ nominal, so what the data cannot see stays near the vendor arm.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from calibration import so3
-from calibration.errors import ModelFileError
-from calibration.models import KinematicModel, poe_from_dict, poe_to_dict
+from calibration.casadi_expr import NUMPY, CasadiPose, Ops, casadi_ops, check_small_rotations, exp_sx, poe_chain, \
+    rot_sx
+from calibration.models.base import Block
 from calibration.parameterisation import MinimalParameterisation
+from calibration.physics.compliance import COMPLIANCE_NAMES, MassFreeCompliance
 
-COMPLIANCE_NAMES = ("c2_sin_q2_rad", "c2_cos_u_rad", "c2_sin_u_rad", "c3_cos_u_rad", "c3_sin_u_rad")
 DEFLECTION_TERMS = ("1", "sin_q2", "sin_q3", "cos_q2", "cos_q3", "sin_q2q3", "cos_q2q3")
 DEFLECTION_AXES = ("dx_mm", "dy_mm", "dz_mm", "rx_rad", "ry_rad", "rz_rad")
+TOOL_NAMES = ("tool_rx_rad", "tool_ry_rad", "tool_rz_rad")
+#: The blocks after the geometric one, in layout order, declared once: everything (sizes, names, offsets, the
+#: diagnosis' effect blocks) is derived from this.
+BLOCKS = (Block("tool", TOOL_NAMES), Block("compliance", COMPLIANCE_NAMES),
+          Block("deflection", tuple(f"deflect_{t}_{a}" for t in DEFLECTION_TERMS for a in DEFLECTION_AXES)))
+_TAIL_SIZES = tuple(b.size for b in BLOCKS)
 EZ = np.array([0.0, 0.0, 1.0])
+_COMPLIANCE = MassFreeCompliance()  # the one definition of the compliance block's joint deflection
+
+
+def block_slice(name: str, n_geometric: int) -> slice:
+    """Where block ``name`` (``tool``, ``compliance``, ``deflection``) sits in ``theta``."""
+    start = n_geometric
+    for b in BLOCKS:
+        if b.name == name:
+            return slice(start, start + b.size)
+        start += b.size
+    raise KeyError(f"unknown block {name!r}; valid: {', '.join(b.name for b in BLOCKS)}")
+
+
+def deflection_terms(ops: Ops, q2: Any, q3: Any) -> list[Any]:
+    """The F7 terms in (q2, q3), written once for numpy (columns (N,)) and casadi (scalars)."""
+    return [q2 * 0.0 + 1.0, ops.sin(q2), ops.sin(q3), ops.cos(q2), ops.cos(q3), ops.sin(q2 + q3), ops.cos(q2 + q3)]
 
 
 def deflection_basis(q: np.ndarray) -> np.ndarray:
     """F7 basis at joint angles q (N, 6), shape (N, 7)."""
-    q2, q3 = q[:, 1], q[:, 2]
-    return np.stack([np.ones_like(q2), np.sin(q2), np.sin(q3), np.cos(q2), np.cos(q3), np.sin(q2 + q3),
-                     np.cos(q2 + q3)], axis=1)
+    return np.stack(deflection_terms(NUMPY, q[:, 1], q[:, 2]), axis=1)
 
 
 def compliance_regressor(q: np.ndarray) -> np.ndarray:
-    """d(dq)/dc, shape (N, 6, 5): gravity-shaped joint deflections of joints 2 and 3."""
-    q2, u = q[:, 1], q[:, 1] - q[:, 2]
-    Y = np.zeros((q.shape[0], 6, 5))
-    Y[:, 1, 0], Y[:, 1, 1], Y[:, 1, 2] = np.sin(q2), np.cos(u), np.sin(u)
-    Y[:, 2, 3], Y[:, 2, 4] = np.cos(u), np.sin(u)
+    """d(dq)/dc, shape (N, 6, 5): gravity-shaped joint deflections of joints 2 and 3 (mass-free form)."""
+    Y = np.zeros((q.shape[0], 6, len(COMPLIANCE_NAMES)))
+    for j, col, v in _COMPLIANCE.joint_terms(NUMPY, list(q.T), lambda: None, None, q.shape[0]):
+        Y[:, j, col] = v
     return Y
 
 
@@ -51,22 +76,26 @@ def compliance_regressor(q: np.ndarray) -> np.ndarray:
 class ExtendedKinematics:
     """Geometry (minimal POE) + tool rotation + gravity compliance + structural deflection.
 
-    Layout of theta: ``[x (27), w_tool (3), c (5), C (7 x 6, row-major)]``, 77 parameters.
+    Layout of theta: the geometric block then :data:`BLOCKS`, ``[x (27), w_tool (3), c (5), C (7 x 6,
+    row-major)]``, 77 parameters. :meth:`pose`, :meth:`jacobian` and :meth:`casadi` all read that layout.
     """
 
     par: MinimalParameterisation
 
+    def blocks(self) -> tuple[Block, ...]:
+        return (Block("geometry", tuple(self.par.names())),) + BLOCKS
+
     @property
-    def sizes(self) -> tuple[int, int, int, int]:
-        return self.par.size, 3, len(COMPLIANCE_NAMES), len(DEFLECTION_TERMS) * 6
+    def sizes(self) -> tuple[int, ...]:
+        """Block sizes in layout order (without building the names: called per solver iteration)."""
+        return (self.par.size,) + _TAIL_SIZES
 
     @property
     def size(self) -> int:
         return sum(self.sizes)
 
     def names(self) -> list[str]:
-        return (self.par.names() + ["tool_rx_rad", "tool_ry_rad", "tool_rz_rad"] + list(COMPLIANCE_NAMES)
-                + [f"deflect_{t}_{a}" for t in DEFLECTION_TERMS for a in DEFLECTION_AXES])
+        return [n for b in self.blocks() for n in b.names]
 
     def scale(self, reach_mm: float = 1000.0) -> np.ndarray:
         """Parameter units per mm of tool motion: angles (tilts, tool and deflection rotations, compliance) / reach."""
@@ -74,10 +103,36 @@ class ExtendedKinematics:
         deflect = np.tile([1.0, 1.0, 1.0, 1.0 / reach_mm, 1.0 / reach_mm, 1.0 / reach_mm], len(DEFLECTION_TERMS))
         return np.concatenate([self.par.scale(reach_mm), np.full(t + c, 1.0 / reach_mm), deflect])
 
-    def split(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        g, t, c, _ = self.sizes
-        return (theta[..., :g], theta[..., g:g + t], theta[..., g + t:g + t + c],
-                theta[..., g + t + c:].reshape(theta.shape[:-1] + (len(DEFLECTION_TERMS), 6)))
+    def split(self, theta: Any) -> tuple[Any, Any, Any, Any]:
+        """``(x, w_tool, c, C)``; C is (..., 7, 6) for numpy arrays, the flat block for casadi."""
+        g = self.par.size
+        t, c, d = (block_slice(b.name, g) for b in BLOCKS)
+        if isinstance(theta, np.ndarray):
+            return (theta[..., :g], theta[..., t], theta[..., c],
+                    theta[..., d].reshape(theta.shape[:-1] + (len(DEFLECTION_TERMS), 6)))
+        return theta[:g], theta[t], theta[c], theta[d]
+
+    def casadi(self, q: Any, theta: Any) -> CasadiPose:
+        """:meth:`pose` (plus the skeleton) on casadi symbols q (6,) for one parameter vector (77,), which may
+        itself be an expression; the deflection moves the skeleton with the tool."""
+        import casadi as ca
+
+        x, w_tool, c, C = self.split(theta)
+        dq = _COMPLIANCE.casadi_dq(casadi_ops(), q, lambda: None, c)
+        H, P = self.par.casadi_geometry(x)
+        ch = poe_chain(self.par.nominal, q + ca.vertcat(*dq), H, P)
+        R0 = ch.R_base_tool @ exp_sx(w_tool)
+        F = deflection_terms(casadi_ops(), q[1], q[2])
+        xi = [sum(F[k] * C[6 * k + j] for k in range(len(DEFLECTION_TERMS))) for j in range(6)]
+        Rz = rot_sx(ca.DM(EZ), q[0])
+        pose = CasadiPose(R0, ch.p_base_tool, ca.horzcat(*ch.p_base_origin), ca.horzcat(*ch.axes_base), "pi")
+        return pose.transformed(exp_sx(Rz @ ca.vertcat(*xi[3:])), Rz @ ca.vertcat(*xi[:3]))
+
+    def check_casadi(self, theta: np.ndarray) -> None:
+        """ModelError unless the tool and deflection rotations of ``theta`` are in :func:`exp_sx`'s exact range."""
+        _, w_tool, _, C = self.split(np.asarray(theta, dtype=float))
+        bound = max(np.linalg.norm(w_tool), float(np.abs(C[:, 3:]).sum(axis=0).max()) * np.sqrt(3))
+        check_small_rotations(bound, "tool or deflection")
 
     def _parts(self, q: np.ndarray, theta: np.ndarray) -> tuple[Any, ...]:
         q = np.atleast_2d(np.asarray(q, dtype=float))
@@ -178,37 +233,9 @@ class GeometryView:
         return self.kin.jacobian(q, self.full(x), geometry_only=True)
 
 
-@dataclass
-class PhysicsInformedModel(KinematicModel):
-    """A fitted :class:`ExtendedKinematics` (kind ``pi``)."""
+def __getattr__(name: str) -> Any:  # the model kind moved to calibration.models.pi; old imports keep working
+    if name == "PhysicsInformedModel":
+        from calibration.models.pi import PhysicsInformedModel
 
-    kind: ClassVar[str] = "pi"
-    robot: str
-    method: str
-    kinematics: ExtendedKinematics
-    theta: np.ndarray
-    rank: int = 0
-    info: dict[str, Any] = field(default_factory=dict)
-
-    def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return self.kinematics.pose(q, self.theta)
-
-    @property
-    def n_parameters(self) -> int:
-        return self.kinematics.size
-
-    def parameters(self) -> dict[str, float]:
-        return dict(zip(self.kinematics.names(), self.theta.tolist()))
-
-    def _body(self) -> dict[str, Any]:
-        return {"nominal": poe_to_dict(self.kinematics.par.nominal), "fit_tool": self.kinematics.par.fit_tool,
-                "rank": self.rank, "theta": self.theta.tolist(), "names": self.kinematics.names()}
-
-    @classmethod
-    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "PhysicsInformedModel":
-        kin = ExtendedKinematics(MinimalParameterisation(poe_from_dict(body["nominal"]), bool(body["fit_tool"])))
-        theta = np.array(body["theta"], dtype=float) if isinstance(body["theta"], list) else None
-        if theta is None or theta.shape != (kin.size,):
-            got = f"{len(body['theta'])} entries" if isinstance(body["theta"], list) else repr(body["theta"])
-            raise ModelFileError("", "theta", f"expected a list of {kin.size} numbers, got {got}")
-        return cls(robot, method, kin, theta, int(body["rank"]), info)
+        return PhysicsInformedModel
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -15,6 +15,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
+from typing import Any
+
 import numpy as np
 
 from calibration import so3
@@ -145,6 +147,12 @@ class PoeModel:
             R = R @ so3.rot(Hs[:, :, i], q[:, i])
             p = p + (R @ Ps[:, :, i + 1, None])[..., 0]
         return R @ self.R_6_tool, p + R @ self.p_6_tool
+
+    def casadi(self, q: Any, theta: Any = None, q_at: Any = None, kind: str = "poe") -> Any:
+        """The chain on casadi symbols q (n,) as a :class:`calibration.casadi_expr.CasadiPose` (no parameters)."""
+        from calibration.casadi_expr import chain_pose, poe_chain
+
+        return chain_pose(poe_chain(self, q), kind)
 
     def jacobian_q(self, q: np.ndarray, H: np.ndarray | None = None, P: np.ndarray | None = None) -> np.ndarray:
         """Geometric Jacobian of the tool pose with respect to the joint angles.

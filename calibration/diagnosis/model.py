@@ -5,15 +5,14 @@
 - extended terms only (a ``pi``/``cdc`` in use, or ``tool_frame``/mass-free ``joint_compliance``/
   ``structural_deflection`` found): a ``pi`` model with the refitted ``theta``, or a ``cdc`` model with its
   interpolator and the refitted ``theta_ref``;
-- both: a ``diagnosed`` model, that ``pi``/``cdc`` model plus the physics effects acting on it (joint effects
-  perturb q before its kinematics). ``load_model`` knows this kind once :mod:`calibration.diagnosis.model`
-  is imported (``calibration/models.py`` imports it at its end for ``evaluate``/``compare``).
+- both: a ``diagnosed`` model (:mod:`calibration.models.diagnosed`), that ``pi``/``cdc`` model plus the physics
+  effects acting on it (joint effects perturb q before its kinematics).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
-from typing import Any, ClassVar
+from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
@@ -21,54 +20,12 @@ from calibration import so3
 from calibration.diagnosis.extended import ExtendedEffect, ToolFrame
 from calibration.diagnosis.inuse import InUse
 from calibration.models import KinematicModel
-from calibration.physics.base import Context, Effect, effect_from_dict
-from calibration.physics.model import PhysicsModel
+from calibration.models.diagnosed import DiagnosedModel
+from calibration.models.physics import PhysicsModel
+from calibration.physics.base import Effect
 from calibration.poe import PoeModel
 
-
-@dataclass
-class DiagnosedModel(KinematicModel):
-    """A ``pi`` or ``cdc`` model plus physics effects (kind ``diagnosed``).
-
-    Attributes:
-        robot, method: as every model.
-        base: the pi or cdc model the effects act on.
-        effects: physics effects (joint effects perturb q before ``base``'s kinematics).
-        info: free metadata.
-    """
-
-    kind: ClassVar[str] = "diagnosed"
-    robot: str
-    method: str
-    base: KinematicModel
-    effects: tuple[Effect, ...] = ()
-    info: dict[str, Any] = field(default_factory=dict)
-
-    def _inuse(self) -> InUse:
-        return InUse.from_model(self.base, self.base.kinematics.par.nominal)  # type: ignore[attr-defined]
-
-    def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Pose with the default context (static, t = 0, no payload, reference temperature)."""
-        return self.fk_context(q, None)
-
-    def fk_context(self, q: np.ndarray, context: Context | None) -> tuple[np.ndarray, np.ndarray]:
-        """Pose ``(R (N, 3, 3), p (N, 3) [mm])`` for joint angles q [rad] (N, 6) and a per-sample context."""
-        return self._inuse().pose(q, self.effects, context)
-
-    def out_of_range(self, q: np.ndarray) -> np.ndarray:
-        return self.base.out_of_range(q)
-
-    @property
-    def n_parameters(self) -> int:
-        return int(self.base.n_parameters) + sum(e.size for e in self.effects)
-
-    def _body(self) -> dict[str, Any]:
-        return {"base": self.base.to_dict(), "effects": [e.to_dict() for e in self.effects]}
-
-    @classmethod
-    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "DiagnosedModel":
-        return cls(robot, method, KinematicModel.from_dict(body["base"]),
-                   tuple(effect_from_dict(e) for e in body.get("effects", [])), info)
+__all__ = ["DiagnosedModel", "result_model"]
 
 
 def _fold_tool(geo: PoeModel, w: np.ndarray) -> PoeModel:
@@ -89,8 +46,8 @@ def result_model(robot: str, inuse: InUse, used: KinematicModel | None, theta: n
         n_geometric_free: geometric directions refitted.
         info: metadata for the file.
     """
-    from calibration.cdc import CdcModel
-    from calibration.physics_informed import PhysicsInformedModel
+    from calibration.models.cdc import CdcModel
+    from calibration.models.pi import PhysicsInformedModel
 
     g = inuse.n_geometric
     full, rest = InUse.split_effects(theta, effects, g)

@@ -1,20 +1,31 @@
-"""Non-geometric physics of the arms: effect models, gravity torques, the digital twin and the fitted model.
+"""Non-geometric physics of the arms: effect models, gravity torques and the digital twin.
 
-Pinocchio is imported only when gravity torques are computed (:meth:`GravityModel.torque`).
+Each effect writes its formula once for numpy and casadi (:mod:`calibration.physics.base`). The fitted model
+of geometry plus effects is the ``physics`` model kind, :mod:`calibration.models.physics` (re-exported here as
+``PhysicsModel``). Pinocchio is imported only for :meth:`GravityModel.torque`.
 """
 
-from calibration.physics.base import (EFFECT_KINDS, Context, Effect, apply_effects, context_array,
+from typing import Any
+
+from calibration.physics.base import (EFFECT_KINDS, Context, Effect, ExtendedEffect, apply_effects, context_array,
                                       effect_from_dict)
-from calibration.physics.compliance import JointCompliance, PayloadCompliance
+from calibration.physics.compliance import JointCompliance, MassFreeCompliance, PayloadCompliance
 from calibration.physics.gravity import G_STANDARD, GravityModel, gravity_regressor, point_mass_torque
 from calibration.physics.joint_effects import Backlash, GearTransmission, JointOffset, MocapLatency
-from calibration.physics.model import PhysicsModel
 from calibration.physics.thermal import ThermalDrift, link_names
 from calibration.physics.twin import Twin, default_effect, plant, reference_context
 
 __all__ = [
-    "Backlash", "Context", "EFFECT_KINDS", "Effect", "G_STANDARD", "GearTransmission", "GravityModel",
-    "JointCompliance", "JointOffset", "MocapLatency", "PayloadCompliance", "PhysicsModel", "ThermalDrift",
-    "Twin", "apply_effects", "context_array", "default_effect", "effect_from_dict", "gravity_regressor",
+    "Backlash", "Context", "EFFECT_KINDS", "Effect", "ExtendedEffect", "G_STANDARD", "GearTransmission",
+    "GravityModel", "JointCompliance", "JointOffset", "MassFreeCompliance", "MocapLatency", "PayloadCompliance",
+    "PhysicsModel", "ThermalDrift", "Twin", "apply_effects", "context_array", "default_effect", "effect_from_dict", "gravity_regressor",
     "link_names", "plant", "point_mass_torque", "reference_context",
 ]
+
+
+def __getattr__(name: str) -> Any:  # the model kind imports this package, so it is re-exported lazily
+    if name == "PhysicsModel":
+        from calibration.models.physics import PhysicsModel
+
+        return PhysicsModel
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -21,18 +21,32 @@ key             meaning                                    default
 Effects that are linear in their parameters give a regressor ``Y (N, n, m)`` with
 ``delta_q == Y @ values``, and every effect gives the first-order pose Jacobian ``(N, 6, m)`` (rows
 ``[p (mm); rotation (rad)]`` in the base frame) so a fitter gets Jacobians cheaply.
+
+One definition, two backends: a joint effect writes its regressor once, as :meth:`Effect.joint_terms` against
+:class:`calibration.casadi_expr.Ops`; :meth:`Effect.regressor` evaluates it on numpy arrays and
+:meth:`Effect.casadi_dq` on casadi symbols (the default context), so a planner differentiates through the
+deflection exactly. A geometry effect does the same with :meth:`Effect.grow`.
+
+The registry :data:`EFFECT_KINDS` maps ``kind`` (or ``kind:form`` for a second form of a kind, such as the
+mass-free joint compliance) to its class; effects that are blocks of the ``pi`` layout and act on the pose
+(:class:`ExtendedEffect` with ``target == "pose"``) are declared with ``register=False``: they are saved in a
+``pi`` model's parameters, never as effects of a physics model.
 """
 
 from __future__ import annotations
 
 import abc
 from dataclasses import dataclass, fields, replace
-from typing import Any, ClassVar, Literal, Mapping
+from typing import Any, Callable, ClassVar, Literal, Mapping
 
 import numpy as np
 
+from calibration.casadi_expr import NUMPY, Ops
 from calibration.errors import ModelError
 from calibration.poe import PoeModel
+
+#: ``(joint index 0-based, value column, d delta_q[joint] / d values[column])``: one regressor entry.
+Term = tuple[int, int, Any]
 
 Context = Mapping[str, Any]
 
@@ -99,12 +113,13 @@ class Effect(abc.ABC):
     """
 
     kind: ClassVar[str]
-    target: ClassVar[Literal["joints", "geometry"]] = "joints"
+    form: ClassVar[str] = ""  # a second form of a kind (``mass_free``), saved as ``form`` in the file
+    target: ClassVar[Literal["joints", "geometry", "pose"]] = "joints"
 
-    def __init_subclass__(cls, **kwargs: Any) -> None:
+    def __init_subclass__(cls, register: bool = True, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
-        if "kind" in cls.__dict__:
-            EFFECT_KINDS[cls.kind] = cls
+        if register and "kind" in cls.__dict__:
+            EFFECT_KINDS[registry_key(cls.kind, cls.form)] = cls
 
     def __post_init__(self) -> None:
         values = np.array(getattr(self, "values"), dtype=float).reshape(-1)
@@ -132,9 +147,44 @@ class Effect(abc.ABC):
         """The same effect with other parameter values (m,)."""
         return replace(self, values=np.asarray(values, dtype=float))
 
+    def joint_terms(self, ops: Ops, q: list[Any], chain: Callable[[], Any], context: Context | None,
+                    N: int) -> list[Term]:
+        """The non-zero regressor entries, written once for numpy and casadi. Joint effects only.
+
+        Args:
+            ops: the backend (:data:`calibration.casadi_expr.NUMPY` or ``casadi_ops()``).
+            q: per-joint angles [rad]: numpy columns (N,) or casadi scalars.
+            chain: returns the frames of the effect's geometry at ``q`` (a :class:`~calibration.poe.Chain` or
+                :class:`~calibration.casadi_expr.SxChain`); called only by effects that need it.
+            context: per-sample context (numpy) or None (casadi: the default context).
+            N: number of samples (1 for casadi).
+        """
+        raise ModelError(f"{self.kind} does not act on the joint angles; use pose_jacobian")
+
     def regressor(self, model: PoeModel, q: np.ndarray, context: Context | None = None) -> np.ndarray:
         """Linear form ``delta_q = Y @ values``; Y has shape (N, n, m). Joint effects only."""
-        raise ModelError(f"{self.kind} does not act on the joint angles; use pose_jacobian")
+        q = check_q(model, q)
+        Y = np.zeros(q.shape + (self.size,))
+        for j, col, v in self.joint_terms(NUMPY, list(q.T), lambda: model.chain(q), context, q.shape[0]):
+            Y[:, j, col] = v
+        return Y
+
+    def casadi_dq(self, ops: Ops, q: Any, chain: Callable[[], Any], values: Any = None) -> list[Any]:
+        """``delta_q`` at the default context on casadi symbols q (n,), as n expressions; ``values`` (m,)
+        may be symbols (default: this effect's values). Zero for geometry effects."""
+        n = q.shape[0]
+        dq: list[Any] = [0.0] * n
+        if self.target != "joints":
+            return dq
+        values = self.values if values is None else values
+        for j, col, v in self.joint_terms(ops, [q[i] for i in range(n)], chain, None, 1):
+            dq[j] = dq[j] + values[col] * v
+        return dq
+
+    def grow(self, P: list[Any], values: Any, N: int, context: Context | None, model: PoeModel) -> list[Any]:
+        """Link vectors ``P`` (one entry per column: (N, 3) numpy or (3, 1) casadi) changed by a geometry
+        effect with ``values``; written once for both backends. Geometry effects only."""
+        raise ModelError(f"{self.kind} does not change the link geometry")
 
     def delta_q(self, model: PoeModel, q: np.ndarray, context: Context | None = None) -> np.ndarray:
         """Joint-angle perturbation [rad], shape (N, n); zero for geometry effects."""
@@ -168,17 +218,25 @@ class Effect(abc.ABC):
         return cls(values=values, **kw)
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain mapping ``{kind, parameters: {name: value}, **config}`` that :func:`effect_from_dict` reads."""
-        return {"kind": self.kind, **self._config(), "parameters": self.parameters()}
+        """Plain mapping ``{kind, [form,] parameters: {name: value}, **config}`` that :func:`effect_from_dict`
+        reads."""
+        form = {"form": self.form} if self.form else {}
+        return {"kind": self.kind, **form, **self._config(), "parameters": self.parameters()}
+
+
+def registry_key(kind: str, form: str = "") -> str:
+    """Key of an effect class in :data:`EFFECT_KINDS`: ``kind``, or ``kind:form`` for a second form."""
+    return f"{kind}:{form}" if form else kind
 
 
 def effect_from_dict(d: Mapping[str, Any]) -> Effect:
     """Inverse of :meth:`Effect.to_dict`."""
     kind = d.get("kind")
-    if kind not in EFFECT_KINDS:
-        raise ModelError(f"unknown effect kind {kind!r}; valid: {', '.join(sorted(EFFECT_KINDS))}")
-    cls = EFFECT_KINDS[kind]
-    config = {k: v for k, v in d.items() if k not in ("kind", "parameters")}
+    key = registry_key(kind, str(d.get("form") or "")) if isinstance(kind, str) else kind
+    if key not in EFFECT_KINDS:
+        raise ModelError(f"unknown effect kind {key!r}; valid: {', '.join(sorted(EFFECT_KINDS))}")
+    cls = EFFECT_KINDS[key]
+    config = {k: v for k, v in d.items() if k not in ("kind", "form", "parameters")}
     params = dict(d["parameters"])
     probe = cls._from_config(config, np.zeros(len(params)))
     if list(probe.names) != list(params):
@@ -204,8 +262,36 @@ def apply_effects(model: PoeModel, effects: tuple[Effect, ...] | list[Effect], q
     dq = np.zeros_like(q)
     P = None
     for e in effects:
+        if e.target == "pose":
+            raise ModelError(f"{e.kind} acts on the pose of a pi model, not on a POE model; fit a pi model")
         if e.target == "geometry":
             P = e.geometry(model, N, context, P)
         else:
             dq = dq + e.delta_q(model, q, context)
     return model.fk(q + dq, P=P)
+
+
+@dataclass(frozen=True, eq=False)
+class ExtendedEffect(Effect, register=False):
+    """An effect whose values add to one block of the ``pi`` parameters (after the geometric block).
+
+    The blocks are declared once, in :data:`calibration.physics_informed.BLOCKS`; ``block_name`` names one.
+    """
+
+    block_name: ClassVar[str] = ""
+
+    def block(self, n_geometric: int) -> slice:
+        """Where its values sit in ``theta`` of an ``ExtendedKinematics`` with ``n_geometric`` geometry."""
+        from calibration.physics_informed import block_slice
+
+        return block_slice(self.block_name, n_geometric)
+
+    def pose_jacobian(self, model: PoeModel, q: np.ndarray, context: Context | None = None) -> np.ndarray:
+        """First-order pose change per parameter on a POE model: its block's columns of the ``pi`` Jacobian
+        at ``theta = 0`` around that model."""
+        from calibration.parameterisation import MinimalParameterisation
+        from calibration.physics_informed import ExtendedKinematics
+
+        q = check_q(model, q)
+        kin = ExtendedKinematics(MinimalParameterisation(model, fit_tool=True))
+        return kin.jacobian(q, np.zeros(kin.size))[2][..., self.block(kin.par.size)]

@@ -5,28 +5,32 @@
 with the torque of the payload ``payload_kg`` (context) as a point mass at the tool point. Both are linear
 in the compliances ``c_i`` [rad/(N m)], one per listed joint (1-based).
 
-When the link inertias are unknown, ``delta_q_i = c_i Y_i(q) pi`` is linear in the products
-``c_i pi``; :meth:`JointCompliance.lumped_regressor` gives that form for a mass-free fit.
+``joint_compliance`` in the mass-free form (``form: mass_free``, :class:`MassFreeCompliance`), for when the
+link masses are unknown: the shape of the shoulder and elbow gravity torques of a planar two-link arm with
+unknown lumped masses, ``u = q2 - q3``, ``dq2 = c1 sin q2 + c2 cos u + c3 sin u``, ``dq3 = c4 cos u + c5 sin u``
+[rad]. It is also the compliance block of the ``pi`` model (:mod:`calibration.physics_informed`).
+
+Each writes its regressor once (:meth:`~calibration.physics.base.Effect.joint_terms`) for numpy and casadi;
+the torques come from :func:`calibration.physics.gravity.chain_torques`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
-from calibration.physics.base import Context, Effect, check_joints, check_q, context_array
-from calibration.physics.gravity import GravityModel, point_mass_torque
-from calibration.poe import PoeModel
+from calibration.casadi_expr import Ops
+from calibration.physics.base import Context, Effect, ExtendedEffect, Term, check_joints, context_array
+from calibration.physics.gravity import GravityModel, chain_torques
+
+COMPLIANCE_NAMES = ("c2_sin_q2_rad", "c2_cos_u_rad", "c2_sin_u_rad", "c3_cos_u_rad", "c3_sin_u_rad")
 
 
-def _select(tau: np.ndarray, joints: tuple[int, ...]) -> np.ndarray:
-    """Regressor (N, n, len(joints)) placing tau[:, j-1] in row j-1, column of j."""
-    Y = np.zeros(tau.shape + (len(joints),))
-    for col, j in enumerate(joints):
-        Y[:, j - 1, col] = tau[:, j - 1]
-    return Y
+def _select(tau: list[Any], joints: tuple[int, ...]) -> list[Term]:
+    """Terms placing the torque of joint j in row j-1, column of j."""
+    return [(j - 1, col, tau[j - 1]) for col, j in enumerate(joints)]
 
 
 @dataclass(frozen=True, eq=False)
@@ -52,23 +56,8 @@ class JointCompliance(Effect):
     def names(self) -> tuple[str, ...]:
         return tuple(f"c{j}_rad_per_Nm" for j in self.joints)
 
-    def regressor(self, model: PoeModel, q: np.ndarray, context: Context | None = None) -> np.ndarray:
-        q = check_q(model, q)
-        return _select(self.gravity.torque(model, q), self.joints)
-
-    def lumped_regressor(self, model: PoeModel, q: np.ndarray) -> np.ndarray:
-        """Mass-free form: ``delta_q[:, j-1] = L[:, j-1, col(j)] @ (c_j pi)``.
-
-        Returns:
-            ``L`` shape (N, n, len(joints), 4n): row j-1 of the gravity regressor in slot col(j), so with
-            ``theta (len(joints), 4n) = c[:, None] * pi`` one has ``delta_q = einsum('nicp,cp->ni', L, theta)``.
-        """
-        q = check_q(model, q)
-        Yg = self.gravity.regressor(model, q)
-        L = np.zeros((q.shape[0], model.n_joints, len(self.joints), Yg.shape[2]))
-        for col, j in enumerate(self.joints):
-            L[:, j - 1, col] = Yg[:, j - 1]
-        return L
+    def joint_terms(self, ops: Ops, q: list[Any], chain: Any, context: Context | None, N: int) -> list[Term]:
+        return _select(chain_torques(ops, chain(), self.gravity.lumped, self.gravity.g), self.joints)
 
     def _config(self) -> dict[str, Any]:
         return {"joints": list(self.joints), "gravity": self.gravity.to_dict()}
@@ -101,7 +90,34 @@ class PayloadCompliance(Effect):
     def names(self) -> tuple[str, ...]:
         return tuple(f"c{j}_rad_per_Nm" for j in self.joints)
 
-    def regressor(self, model: PoeModel, q: np.ndarray, context: Context | None = None) -> np.ndarray:
-        q = check_q(model, q)
-        mass = context_array(context, "payload_kg", q.shape[0])
-        return _select(point_mass_torque(model, q, mass, self.g), self.joints)
+    def joint_terms(self, ops: Ops, q: list[Any], chain: Any, context: Context | None, N: int) -> list[Term]:
+        mass = context_array(context, "payload_kg", N)  # the default context (casadi): no payload
+        if ops.name != "numpy":
+            if not np.any(mass):
+                return []
+            mass = float(mass[0])
+        return _select([t * mass for t in chain_torques(ops, chain(), None, self.g)], self.joints)
+
+
+@dataclass(frozen=True, eq=False)
+class MassFreeCompliance(ExtendedEffect):
+    """Gravity-shaped deflection of joints 2 and 3 with unknown masses, ``u = q2 - q3``:
+    ``dq2 = c1 sin q2 + c2 cos u + c3 sin u``, ``dq3 = c4 cos u + c5 sin u`` [rad] (values ``c1..c5``)."""
+
+    kind = "joint_compliance"
+    form: ClassVar[str] = "mass_free"
+    block_name: ClassVar[str] = "compliance"
+    joints: tuple[int, ...] = (2, 3)
+    values: np.ndarray = field(default_factory=lambda: np.zeros(len(COMPLIANCE_NAMES)))
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return COMPLIANCE_NAMES
+
+    def joint_terms(self, ops: Ops, q: list[Any], chain: Any, context: Context | None, N: int) -> list[Term]:
+        u = q[1] - q[2]
+        return [(1, 0, ops.sin(q[1])), (1, 1, ops.cos(u)), (1, 2, ops.sin(u)), (2, 3, ops.cos(u)),
+                (2, 4, ops.sin(u))]
+
+    def pose_jacobian(self, model: Any, q: np.ndarray, context: Context | None = None) -> np.ndarray:
+        return Effect.pose_jacobian(self, model, q, context)  # a joint effect: jacobian_q @ regressor

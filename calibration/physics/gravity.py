@@ -82,6 +82,33 @@ def point_mass_torque(model: PoeModel, q: np.ndarray, mass_kg: np.ndarray, g: fl
     return tau * np.broadcast_to(np.asarray(mass_kg, dtype=float), (q.shape[0],))[:, None]
 
 
+def chain_torques(ops: Any, chain: Any, lumped: np.ndarray | None, g: float = G_STANDARD) -> list[Any]:
+    """Gravity torque per joint [N m] from a chain of frames, written once for numpy and casadi.
+
+    ``tau_i = sum_{k >= i} a_i . (m_k (o_k - o_i) + R_k (m_k s_k)) / 1000`` with ``a_i = g_vec x w_i``: the
+    lumped form of :func:`gravity_regressor` contracted with ``lumped`` (4n,). With ``lumped`` None, the
+    torque of 1 kg at the tool point, ``a_i . (p_tool - o_i) / 1000`` (see :func:`point_mass_torque`).
+
+    Args:
+        ops: :data:`calibration.casadi_expr.NUMPY` (chain of (N, ...) arrays) or ``casadi_ops()``.
+        chain: a :class:`calibration.poe.Chain` or :class:`calibration.casadi_expr.SxChain`.
+    """
+    g_vec = np.array([0.0, 0.0, -g])
+    n = len(chain.axes_base)
+    a = [ops.cross(g_vec, chain.axes_base[i]) for i in range(n)]
+    o = chain.p_base_origin
+    if lumped is None:
+        return [ops.dot(a[i], chain.p_base_tool - o[i]) / 1000.0 for i in range(n)]
+    tau = []
+    for i in range(n):
+        t: Any = 0.0
+        for k in range(i, n):
+            m_k, ms_k = lumped[4 * k], lumped[4 * k + 1: 4 * k + 4]
+            t = t + ops.dot(a[i], m_k * (o[k] - o[i]) + ops.matvec(chain.R_base_link[k + 1], ms_k))
+        tau.append(t / 1000.0)
+    return tau
+
+
 @dataclass(frozen=True, eq=False)
 class GravityModel:
     """Lumped inertial parameters of the moving links, enough for gravity torques.

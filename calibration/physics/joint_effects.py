@@ -1,6 +1,7 @@
 """Joint-angle effects that need no model of the arm: offsets, backlash, gear transmission error, latency.
 
-All are linear in their parameters and act as ``q_true = q + delta_q``:
+All are linear in their parameters and act as ``q_true = q + delta_q``; each writes its regressor once
+(:meth:`~calibration.physics.base.Effect.joint_terms`) for numpy and casadi:
 
 - ``joint_offset``: ``delta_q_i = offset{i}_rad`` (the simplest geometric error; axis tilts, origin offsets,
   link lengths, base and tool frames are left to :class:`calibration.parameterisation.MinimalParameterisation`
@@ -17,17 +18,9 @@ from typing import Any
 
 import numpy as np
 
+from calibration.casadi_expr import Ops
 from calibration.errors import ModelError
-from calibration.physics.base import Context, Effect, check_joints, check_q, context_dirs, context_qd
-from calibration.poe import PoeModel
-
-
-def _unit_rows(N: int, n: int, joints: tuple[int, ...], scale: np.ndarray) -> np.ndarray:
-    """Regressor (N, n, len(joints)) with scale[:, col] in row j-1 of column col."""
-    Y = np.zeros((N, n, len(joints)))
-    for col, j in enumerate(joints):
-        Y[:, j - 1, col] = scale[:, col]
-    return Y
+from calibration.physics.base import Context, Effect, Term, check_joints, context_dirs, context_qd
 
 
 @dataclass(frozen=True, eq=False)
@@ -46,9 +39,8 @@ class JointOffset(Effect):
     def names(self) -> tuple[str, ...]:
         return tuple(f"offset{j}_rad" for j in self.joints)
 
-    def regressor(self, model: PoeModel, q: np.ndarray, context: Context | None = None) -> np.ndarray:
-        q = check_q(model, q)
-        return _unit_rows(q.shape[0], q.shape[1], self.joints, np.ones((q.shape[0], len(self.joints))))
+    def joint_terms(self, ops: Ops, q: list[Any], chain: Any, context: Context | None, N: int) -> list[Term]:
+        return [(j - 1, col, 1.0) for col, j in enumerate(self.joints)]
 
 
 @dataclass(frozen=True, eq=False)
@@ -67,10 +59,9 @@ class Backlash(Effect):
     def names(self) -> tuple[str, ...]:
         return tuple(f"b{j}_rad" for j in self.joints)
 
-    def regressor(self, model: PoeModel, q: np.ndarray, context: Context | None = None) -> np.ndarray:
-        q = check_q(model, q)
-        d = context_dirs(context, q.shape[0], q.shape[1])
-        return _unit_rows(q.shape[0], q.shape[1], self.joints, 0.5 * d[:, [j - 1 for j in self.joints]])
+    def joint_terms(self, ops: Ops, q: list[Any], chain: Any, context: Context | None, N: int) -> list[Term]:
+        d = context_dirs(context, N, len(q))  # the default context (casadi): static, no direction
+        return [(j - 1, col, 0.5 * _scalar(d[:, j - 1], ops)) for col, j in enumerate(self.joints)]
 
 
 @dataclass(frozen=True, eq=False)
@@ -101,16 +92,13 @@ class GearTransmission(Effect):
     def names(self) -> tuple[str, ...]:
         return tuple(f"j{j}_{f}{k}_rad" for j, ks in self.harmonics for k in ks for f in ("sin", "cos"))
 
-    def regressor(self, model: PoeModel, q: np.ndarray, context: Context | None = None) -> np.ndarray:
-        q = check_q(model, q)
-        Y = np.zeros(q.shape + (self.size,))
-        col = 0
+    def joint_terms(self, ops: Ops, q: list[Any], chain: Any, context: Context | None, N: int) -> list[Term]:
+        terms, col = [], 0
         for j, ks in self.harmonics:
             for k in ks:
-                Y[:, j - 1, col] = np.sin(k * q[:, j - 1])
-                Y[:, j - 1, col + 1] = np.cos(k * q[:, j - 1])
+                terms += [(j - 1, col, ops.sin(k * q[j - 1])), (j - 1, col + 1, ops.cos(k * q[j - 1]))]
                 col += 2
-        return Y
+        return terms
 
     def _config(self) -> dict[str, Any]:
         return {"harmonics": [[j, list(ks)] for j, ks in self.harmonics]}
@@ -131,6 +119,11 @@ class MocapLatency(Effect):
     def names(self) -> tuple[str, ...]:
         return ("latency_s",)
 
-    def regressor(self, model: PoeModel, q: np.ndarray, context: Context | None = None) -> np.ndarray:
-        q = check_q(model, q)
-        return -context_qd(context, q.shape[0], q.shape[1])[:, :, None]
+    def joint_terms(self, ops: Ops, q: list[Any], chain: Any, context: Context | None, N: int) -> list[Term]:
+        qd = context_qd(context, N, len(q))  # the default context (casadi): at rest
+        return [(j, 0, -_scalar(qd[:, j], ops)) for j in range(len(q))]
+
+
+def _scalar(column: np.ndarray, ops: Ops) -> Any:
+    """A per-sample context column (N,) for numpy; its one value as a float for casadi (N = 1)."""
+    return column if ops.name == "numpy" else float(column[0])

@@ -84,14 +84,24 @@ class ThermalDrift(Effect):
                              "and cannot grow")
         return cols, (P / norms).T  # (L, 3)
 
+    def grow(self, P: list[Any], values: Any, N: int, context: Context | None, model: PoeModel) -> list[Any]:
+        cols, u = self._directions(model)
+        s = self.drive(N, context)
+        P = list(P)
+        for c, uj, v in zip(cols, u, [values[i] for i in range(len(cols))]):
+            if isinstance(P[c], np.ndarray):
+                P[c] = P[c] + (v * s)[:, None] * uj
+            else:  # casadi, one configuration at the default context
+                import casadi as ca
+
+                P[c] = P[c] + v * float(s[0]) * ca.DM(uj)
+        return P
+
     def geometry(self, model: PoeModel, N: int, context: Context | None = None,
                  P: np.ndarray | None = None) -> np.ndarray:
-        cols, u = self._directions(model)
         P = np.array(np.broadcast_to(model.P if P is None else P, (N, 3, model.n_joints + 1)))
-        s = self.drive(N, context)
-        for c, uj, v in zip(cols, u, self.values):
-            P[:, :, c] += (v * s)[:, None] * uj
-        return P
+        grown = self.grow([P[:, :, c] for c in range(P.shape[2])], self.values, N, context, model)
+        return np.stack(grown, axis=2)
 
     def pose_jacobian(self, model: PoeModel, q: np.ndarray, context: Context | None = None) -> np.ndarray:
         q = check_q(model, q)

@@ -69,6 +69,53 @@ def test_plan_dual_with_model_files_pose_and_path_files(tmp_path):
     assert s["models"] == {"R1": "constant", "R2": "cdc"} and s["waypoints"] == 4 and s["converged"]
 
 
+def _diagnosed_r1(cell):
+    """A diagnosed model of R1: a pi model plus gravity compliance (masses from the YAML), gear and offsets."""
+    from calibration.diagnosis.model import DiagnosedModel
+    from calibration.physics import GearTransmission, GravityModel, JointCompliance, JointOffset
+    from calibration.physics_informed import ExtendedKinematics, PhysicsInformedModel
+
+    spec = cell.robot("R1")
+    kin = ExtendedKinematics(MinimalParameterisation(spec.model(), fit_tool=True))
+    theta = np.random.default_rng(11).normal(size=kin.size) * kin.scale() * 0.3
+    pi = PhysicsInformedModel("R1", "pi", kin, theta, kin.size)
+    effects = (JointCompliance(GravityModel.from_spec(spec.robot), (2, 3, 5), np.array([2e-6, 3e-6, 5e-6])),
+               GearTransmission(((1, (1, 2)),), np.array([3e-4, -2e-4, 1e-4, 2e-4])),
+               JointOffset((4, 6), np.array([1e-3, -1e-3])))
+    return DiagnosedModel("R1", "diagnose", pi, effects)
+
+
+def test_plan_dual_plans_a_diagnosed_model_exactly(tmp_path):
+    """Through the model's own casadi expression (deflection a function of q, no frozen fixed point): the
+    relative pose holds to 1e-6 mm under the model's own numpy pose."""
+    from calibration import so3
+    from calibration.models import load_model
+
+    cell = load_cell()
+    model = _diagnosed_r1(cell)
+    save_model(model, tmp_path / "r1.yaml")
+    out, js = tmp_path / "plan.json", tmp_path / "s.json"
+    assert main(["plan-dual", "--models", f"R1={tmp_path / 'r1.yaml'}", "--path", "sweep:8", "--out", str(out),
+                 "--json", str(js)]) == 0
+    s = json.loads(js.read_text())
+    assert s["models"] == {"R1": "diagnosed", "R2": "constant"} and s["converged"] and s["max_residual_mm"] < 1e-6
+    plan = json.loads(out.read_text())
+    loaded = load_model(tmp_path / "r1.yaml")
+    T_wp_gun = np.array(plan["T_wp_gun"])
+    T = {n: cell.robot(n).T_cell_base for n in ("R1", "R2")}
+    q1 = np.array([w["R1"] for w in plan["waypoints"]])
+    q2 = np.array([w["R2"] for w in plan["waypoints"]])
+    R1, p1 = loaded.fk(q1)
+    R2, p2 = cell.robot("R2").model().fk(q2)
+    R1, p1 = T["R1"][:3, :3] @ R1, p1 @ T["R1"][:3, :3].T + T["R1"][:3, 3]
+    R2, p2 = T["R2"][:3, :3] @ R2, p2 @ T["R2"][:3, :3].T + T["R2"][:3, 3]
+    res_mm = np.linalg.norm(np.einsum("nji,nj->ni", R2, p1 - p2) - T_wp_gun[:3, 3], axis=1)
+    res_rad = np.linalg.norm(so3.log(T_wp_gun[:3, :3].T @ np.swapaxes(R2, 1, 2) @ R1), axis=1)
+    assert res_mm.max() < 1e-6 and res_rad.max() < 1e-8
+    frozen_mm = np.linalg.norm(model.fk(q1)[1] - model.base.fk(q1)[1], axis=1)
+    assert frozen_mm.min() > 0.1  # the effects move the tool: a frozen or dropped deflection would show
+
+
 def test_plan_dual_bad_inputs_write_nothing(tmp_path, capsys):
     out = tmp_path / "never.json"
     model = tmp_path / "m.json"

@@ -56,14 +56,14 @@ def test_relative_position_is_the_gun_point_in_the_workpiece_frame(cell):
         relative_position(cell, twins["R1"].pose, twins["R2"].pose, np.zeros((2, 6)))
 
 
-def test_physics_model_plans_through_frozen_dq(cell):
+def test_physics_model_plans_through_its_exact_expression(cell):
     from app.casadi_kinematics import casadi_fk
     from calibration.physics import PhysicsModel
 
     twin = make_twins(cell, FAST)["R1"]
     model = PhysicsModel("R1", "twin", twin.geometry, twin.effects)
     fk = casadi_fk(model)
-    assert fk.kind == "physics-frozen" and fk.n_frozen == 6
+    assert fk.kind == "physics" and fk.n_frozen == 0 and not fk.frozen  # the deflection is a function of q
     q = np.radians([5.0, 20.0, -10.0, 3.0, 25.0, -4.0])
     R, p, _, _ = fk.function(q, fk.x0(q))
     R_np, p_np = model.fk(q[None])

@@ -1,10 +1,16 @@
-"""Fitted kinematic models and their files.
+"""The model base, its registry and the model files.
 
 Every model maps joint angles to the tool-marker pose, ``fk(q) -> (R (N, 3, 3), p (N, 3))``, and saves to
 one versioned, human-readable file (``.yaml``/``.yml`` or ``.json``) that loads back to bit-identical
 predictions (floats are written with their shortest exact repr). A file is checked when it is loaded (and a
 model before it is saved) by :mod:`calibration.model_checks`: finite numbers, rotations, the recorded robot,
 a known method, and each kind's own blocks; :func:`load_model` also checks it against the arm it is used for.
+
+A model kind declares its parameter blocks once (:meth:`KinematicModel.blocks`, a tuple of :class:`Block`)
+and from that declaration gives its pose, its parameter and joint Jacobians and its casadi expression
+(:meth:`KinematicModel.casadi`). The kinds live next to this module: ``constant``, ``pi``, ``cdc``,
+``physics``, ``diagnosed``; each registers itself when its module is imported (:data:`MODEL_KIND_MODULES`
+says where, so loading a file imports the one it needs).
 """
 
 from __future__ import annotations
@@ -13,7 +19,7 @@ import abc
 import importlib
 import json
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -27,9 +33,22 @@ from calibration.poe import PoeModel
 
 SCHEMA = "cellcal.model/1"
 #: Where each model kind is defined; imported on first load so this module imports none of them.
-MODEL_KIND_MODULES = {"constant": "calibration.models", "cdc": "calibration.cdc", "pi": "calibration.physics_informed",
-                      "physics": "calibration.physics.model", "diagnosed": "calibration.diagnosis.model"}
+MODEL_KIND_MODULES = {"constant": "calibration.models.constant", "cdc": "calibration.models.cdc",
+                      "pi": "calibration.models.pi", "physics": "calibration.models.physics",
+                      "diagnosed": "calibration.models.diagnosed"}
 log = logging.getLogger("cellcal.calibration")
+
+
+@dataclass(frozen=True)
+class Block:
+    """One named block of a model's parameter vector (a model kind declares its blocks once)."""
+
+    name: str
+    names: tuple[str, ...]
+
+    @property
+    def size(self) -> int:
+        return len(self.names)
 
 
 def poe_to_dict(m: PoeModel) -> dict[str, Any]:
@@ -64,6 +83,63 @@ class KinematicModel(abc.ABC):
     def out_of_range(self, q: np.ndarray) -> np.ndarray:
         """Boolean mask (N,) of configurations outside the region the model was fitted on."""
         return np.zeros(np.atleast_2d(q).shape[0], dtype=bool)
+
+    def pose(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Tool pose for joint angles q [rad] (N, 6): ``(R (N, 3, 3), p (N, 3) [mm])`` (same as :meth:`fk`)."""
+        return self.fk(q)
+
+    def blocks(self) -> tuple[Block, ...]:
+        """The parameter blocks of :meth:`vector`, in layout order."""
+        return ()
+
+    def vector(self) -> np.ndarray:
+        """The parameters the Jacobians are taken with respect to, shape (m,) (layout of :meth:`blocks`)."""
+        return np.zeros(0)
+
+    def with_vector(self, theta: np.ndarray) -> "KinematicModel":
+        """The same model with other parameters (m,)."""
+        raise ModelError(f"a {self.kind} model has no parameter vector")
+
+    def casadi(self, q: Any, theta: Any = None, q_at: Any = None) -> Any:
+        """The pose as casadi expressions (a :class:`calibration.casadi_expr.CasadiPose`).
+
+        Args:
+            q: casadi symbols (or expressions) of the joint angles the kinematics see [rad] (6,).
+            theta: casadi symbols for :meth:`vector` (m,), or None for the model's own values (constants).
+            q_at: the joint reading configuration-dependent parameters are evaluated at (default ``q``); it
+                differs from ``q`` when joint effects deflect the joints before the kinematics.
+        """
+        raise ModelError(f"a {self.kind} model has no casadi expression")
+
+    def pose_at(self, q: np.ndarray, q_at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pose at the joint angles q (N, 6) the kinematics see, configuration-dependent parameters at the
+        reading ``q_at`` (N, 6) (they differ when joint effects act on this model, see ``diagnosed``)."""
+        raise ModelError(f"a {self.kind} model cannot carry effects; valid bases: pi, cdc")
+
+    def effects_arm(self) -> PoeModel:
+        """The POE arm the effects acting on this model see (their gravity torques, their link growth)."""
+        raise ModelError(f"a {self.kind} model cannot carry effects; valid bases: pi, cdc")
+
+    def effects_geometry(self, theta: Any = None) -> tuple[PoeModel, Any, Any]:
+        """:meth:`effects_arm` in casadi: ``(arm with tool, H (3, n), P (3, n+1))``, the geometry from
+        ``theta`` (symbols for :meth:`vector`) or from the model's own values when None."""
+        raise ModelError(f"a {self.kind} model cannot carry effects; valid bases: pi, cdc")
+
+    def jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Pose and ``d[p (mm); rotation (rad)] / d vector`` (N, 6, m) in the base frame.
+
+        By default exact, from the model's own casadi expression; kinds with an analytic form override it.
+        """
+        from calibration.casadi_expr import pose_jacobians
+
+        R, p = self.fk(q)
+        return R, p, pose_jacobians(lambda qs, ts: self.casadi(qs, ts), q, self.vector())[0]
+
+    def jacobian_q(self, q: np.ndarray) -> np.ndarray:
+        """``d[p (mm); rotation (rad)] / dq`` (N, 6, 6): exact, from the model's own casadi expression."""
+        from calibration.casadi_expr import pose_jacobians
+
+        return pose_jacobians(lambda qs, ts: self.casadi(qs, ts), q, self.vector())[1]
 
     @property
     @abc.abstractmethod
@@ -102,32 +178,6 @@ def model_class(kind: Any) -> type[KinematicModel]:
     if kind not in KinematicModel._registry:
         raise ModelError(f"unknown model kind {kind!r}; valid: {', '.join(sorted(MODEL_KIND_MODULES))}")
     return KinematicModel._registry[kind]
-
-
-@dataclass
-class ConstantModel(KinematicModel):
-    """One geometry for the whole workspace (nominal, base, CPA, NLS fits)."""
-
-    kind: ClassVar[str] = "constant"
-    robot: str
-    method: str
-    model: PoeModel
-    parameters: int = 0
-    info: dict[str, Any] = field(default_factory=dict)
-
-    def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return self.model.fk(q)
-
-    @property
-    def n_parameters(self) -> int:
-        return self.parameters
-
-    def _body(self) -> dict[str, Any]:
-        return {"geometry": poe_to_dict(self.model)}
-
-    @classmethod
-    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "ConstantModel":
-        return cls(robot, method, poe_from_dict(body["geometry"]), int(body.get("n_parameters", 0)), info)
 
 
 def _plain(obj: Any) -> Any:

@@ -1,0 +1,145 @@
+"""The ``cdc`` model kind: the ``pi`` layout with its geometric block interpolated over (q2, q3).
+
+Its blocks are the terms every configuration shares (tool rotation, compliance, deflection); the geometric
+block is the interpolator's. Its casadi expression writes the interpolator out in casadi when it can
+(:func:`calibration.casadi_expr.interpolator_sx`), so derivatives include the parameters' dependence on q;
+otherwise the geometric block is a frozen input (kind ``cdc-frozen``). The fits that build it are in
+:mod:`calibration.cdc`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any, ClassVar
+
+import numpy as np
+
+from calibration.casadi_expr import CasadiPose, interpolator_sx
+from calibration.errors import ModelFileError
+from calibration.models.base import Block, KinematicModel, poe_from_dict, poe_to_dict
+from calibration.parameterisation import MinimalParameterisation
+from calibration.physics_informed import ExtendedKinematics
+from calibration.poe import PoeModel
+
+CDC_INPUTS = (1, 2)  # q2, q3 (0-based)
+
+
+@dataclass
+class CdcModel(KinematicModel):
+    """Configuration-dependent model: the geometric block of an extended model interpolated over (q2, q3)."""
+
+    kind: ClassVar[str] = "cdc"
+    robot: str
+    method: str
+    kinematics: ExtendedKinematics
+    theta_ref: np.ndarray
+    interpolator: Any  # calibration.interpolation.Interpolator
+    inputs: tuple[int, ...] = CDC_INPUTS
+    info: dict[str, Any] = field(default_factory=dict)
+
+    def parameters_at(self, q: np.ndarray) -> np.ndarray:
+        """Full extended parameters per sample, shape (N, size): the reference with interpolated geometry."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        theta = np.array(np.broadcast_to(self.theta_ref, (q.shape[0], self.kinematics.size)))
+        theta[:, : self.kinematics.par.size] = self.interpolator.predict(q[:, list(self.inputs)])
+        return theta
+
+    def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.kinematics.pose(q, self.parameters_at(q))
+
+    def out_of_range(self, q: np.ndarray) -> np.ndarray:
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        return self.interpolator.out_of_range(q[:, list(self.inputs)])
+
+    @property
+    def n_parameters(self) -> int:
+        return int(self.info.get("n_parameters", self.kinematics.size))
+
+    def blocks(self) -> tuple[Block, ...]:
+        """The blocks shared by every configuration (tool, compliance, deflection); the geometric block is the
+        interpolator's."""
+        return self.kinematics.blocks()[1:]
+
+    def vector(self) -> np.ndarray:
+        return np.asarray(self.theta_ref[self.kinematics.par.size:], dtype=float).copy()
+
+    def with_vector(self, theta: np.ndarray) -> "CdcModel":
+        g = self.kinematics.par.size
+        return replace(self, theta_ref=np.concatenate([self.theta_ref[:g], np.asarray(theta, dtype=float)]))
+
+    def jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        R, p, J = self.kinematics.jacobian(q, self.parameters_at(q))
+        return R, p, J[..., self.kinematics.par.size:]
+
+    def casadi(self, q: Any, theta: Any = None, q_at: Any = None) -> CasadiPose:
+        """The pose on casadi symbols; the geometric block is the interpolator's expression of ``q_at``'s (q2,
+        q3) when it has one, else a frozen input (kind ``cdc-frozen``) that a caller fixes at an iterate."""
+        import casadi as ca
+
+        kin, g = self.kinematics, self.kinematics.par.size
+        kin.check_casadi(self.theta_ref)
+        rest = ca.DM(self.theta_ref[g:]) if theta is None else theta
+        q_at = q if q_at is None else q_at
+        u = ca.SX.sym("u", len(self.inputs))
+        expr = interpolator_sx(self.interpolator, u, g)
+        if expr is not None:
+            xq = ca.substitute(expr, u, ca.vertcat(*[q_at[i] for i in self.inputs]))
+            return replace(kin.casadi(q, ca.vertcat(xq, rest)), kind="cdc")
+        x = ca.SX.sym("x", g)
+        e = kin.casadi(q, ca.vertcat(x, rest))
+        return replace(e, kind="cdc-frozen", frozen=x,
+                       frozen_at=lambda qq: self.parameters_at(np.asarray(qq, dtype=float)[None])[0, :g])
+
+    def pose_at(self, q: np.ndarray, q_at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pose at joint angles q (N, 6) [rad] the kinematics see, the geometry interpolated at ``q_at``."""
+        return self.kinematics.pose(q, self.parameters_at(q_at))
+
+    def effects_arm(self) -> PoeModel:
+        """The POE arm effects acting on this model see: its reference geometry."""
+        return self.kinematics.par.model(self.theta_ref[: self.kinematics.par.size])
+
+    def effects_geometry(self, theta: Any = None) -> tuple[PoeModel, Any, Any]:
+        """The arm effects on this model act on (its reference geometry), in casadi: ``(nominal, H, P)``."""
+        import casadi as ca
+
+        par = self.kinematics.par
+        return (par.nominal,) + tuple(ca.DM(a) for a in par.geometry(self.theta_ref[: par.size]))
+
+    def _body(self) -> dict[str, Any]:
+        return {"nominal": poe_to_dict(self.kinematics.par.nominal), "fit_tool": self.kinematics.par.fit_tool,
+                "theta_ref": self.theta_ref.tolist(), "inputs": list(self.inputs),
+                "interpolator": self.interpolator.to_dict()}
+
+    @classmethod
+    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "CdcModel":
+        from calibration.interpolation import interpolator_from_dict
+
+        kin = ExtendedKinematics(MinimalParameterisation(poe_from_dict(body["nominal"]), bool(body["fit_tool"])))
+        theta_ref = _vector(body["theta_ref"], kin.size, "theta_ref")
+        interpolator = interpolator_from_dict(body["interpolator"])
+        inputs = _inputs(body["inputs"], kin.par.n_joints, interpolator.n_inputs)
+        if interpolator.n_outputs != kin.par.size:
+            raise ModelFileError("", "interpolator.n_outputs", f"expected {kin.par.size} (the geometric block), "
+                                                               f"got {interpolator.n_outputs}")
+        return cls(robot, method, kin, theta_ref, interpolator, inputs, info)
+
+
+def _vector(value: Any, size: int, key: str) -> np.ndarray:
+    """``value`` as a float vector of ``size`` entries, or a ModelFileError naming ``key``."""
+    v = np.array(value, dtype=float) if isinstance(value, list) else None
+    if v is None or v.shape != (size,):
+        got = f"{len(value)} entries" if isinstance(value, list) else repr(value)
+        raise ModelFileError("", key, f"expected a list of {size} numbers, got {got}")
+    return v
+
+
+def _inputs(value: Any, n_joints: int, n_inputs: int) -> tuple[int, ...]:
+    """The joint indices (0-based) the interpolator reads, checked against the arm and the interpolator."""
+    ok = (isinstance(value, list) and all(isinstance(i, int) and not isinstance(i, bool) for i in value)
+          and all(0 <= i < n_joints for i in value) and len(set(value)) == len(value))
+    if not ok:
+        raise ModelFileError("", "inputs", f"expected distinct joint indices 0..{n_joints - 1} (q2, q3: [1, 2]), "
+                                           f"got {value!r}")
+    if len(value) != n_inputs:
+        raise ModelFileError("", "inputs", f"the interpolator takes {n_inputs} inputs, the list names {len(value)}")
+    return tuple(value)
