@@ -101,7 +101,8 @@ def check_model_data(data: dict[str, Any], path: str | Path = "") -> None:
 
 
 def reference_geometry(model: KinematicModel) -> PoeModel:
-    """The geometry a model is built on (its POE geometry, or the nominal of an extended or CDC model)."""
+    """The geometry a model is built on (its POE geometry, or the nominal of an extended or CDC model; of the
+    wrapped model for ``diagnosed`` and ``rebased``)."""
     from calibration.models import poe_from_dict
 
     d = model.to_dict()
@@ -109,9 +110,10 @@ def reference_geometry(model: KinematicModel) -> PoeModel:
         for key in ("geometry", "nominal"):
             if isinstance(d.get(key), dict):
                 return poe_from_dict(d[key])
-        if not isinstance(d.get("base"), dict):
+        inner = next((d[key] for key in ("base", "inner") if isinstance(d.get(key), dict)), None)
+        if inner is None:
             raise ModelFileError("", "", f"a {model.kind} model has no geometry to check")
-        d = d["base"]
+        d = inner
 
 
 def check_model_for(model: KinematicModel, robot: str, nominal: PoeModel | None = None,

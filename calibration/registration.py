@@ -125,24 +125,60 @@ class RegistrationProblem:
 
     def __init__(self, model: PoeModel, q: np.ndarray, R_world_marker: np.ndarray, p_world_marker: np.ndarray,
                  T_flange_marker_guess: np.ndarray | None = None, a: float = DEFAULT_ORIENTATION_WEIGHT) -> None:
-        self.q = np.atleast_2d(np.asarray(q, dtype=float))
-        self.n_samples = N = self.q.shape[0]
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        if not np.isfinite(q).all():
+            raise ModelError("joint angles and marker poses must be finite (no NaN or inf)")
+        flange = replace(model, R_flange_tool=np.eye(3), p_flange_tool=np.zeros(3))
+        R_bf, p_bf = flange.fk(q)
+        guess = make_T(model.R_flange_tool, model.p_flange_tool) if T_flange_marker_guess is None \
+            else T_flange_marker_guess
+        self._setup(R_bf, p_bf, R_world_marker, p_world_marker, guess, a)
+        self.q = q
+        self._check_motion()
+
+    @classmethod
+    def from_poses(cls, R_base_flange: np.ndarray, p_base_flange: np.ndarray, R_world_marker: np.ndarray,
+                   p_world_marker: np.ndarray, T_flange_marker_guess: np.ndarray | None = None,
+                   a: float = DEFAULT_ORIENTATION_WEIGHT, check_motion: bool = True) -> "RegistrationProblem":
+        """The same problem around any pose function: ``T_world_marker_i = T_world_base @ T_i @ T_flange_marker``.
+
+        Args:
+            R_base_flange, p_base_flange: the inner poses ``T_i`` (N, 3, 3), (N, 3) [mm] (a flange, or a whole
+                fitted model's tool pose, see :mod:`calibration.rebase`).
+            R_world_marker, p_world_marker: measured poses, as in the constructor.
+            T_flange_marker_guess: second starting point (4, 4) [mm]; None: identity.
+            a: orientation weight.
+            check_motion: raise :class:`DegenerateRegistration` when the poses do not rotate about two axes
+                (False for callers that hold the unseen directions themselves).
+        """
+        self = cls.__new__(cls)
+        self._setup(R_base_flange, p_base_flange, R_world_marker, p_world_marker,
+                    np.eye(4) if T_flange_marker_guess is None else T_flange_marker_guess, a)
+        self.q = None
+        if check_motion:
+            self._check_motion()
+        return self
+
+    def _setup(self, R_bf: np.ndarray, p_bf: np.ndarray, R_world_marker: np.ndarray, p_world_marker: np.ndarray,
+               guess: np.ndarray, a: float) -> None:
+        """Store and check the inner poses, the measured poses and the flange-marker guess."""
+        self.R_bf, self.p_bf = np.asarray(R_bf, dtype=float), np.asarray(p_bf, dtype=float)
+        self.n_samples = N = self.p_bf.shape[0] if self.p_bf.ndim == 2 else 0
+        if self.R_bf.shape != (N, 3, 3) or self.p_bf.shape != (N, 3):
+            raise ModelError(f"inner poses must be (N, 3, 3) and (N, 3), got {self.R_bf.shape} and {self.p_bf.shape}")
         self.R_meas = np.asarray(R_world_marker, dtype=float)
         self.p_meas = np.asarray(p_world_marker, dtype=float)
         if self.R_meas.shape != (N, 3, 3) or self.p_meas.shape != (N, 3):
             raise ModelError(f"marker poses must be (N, 3, 3) and (N, 3) for N = {N} joint samples, "
                              f"got {self.R_meas.shape} and {self.p_meas.shape}")
-        if not (np.isfinite(self.q).all() and np.isfinite(self.R_meas).all() and np.isfinite(self.p_meas).all()):
+        if not (np.isfinite(self.R_bf).all() and np.isfinite(self.p_bf).all() and np.isfinite(self.R_meas).all()
+                and np.isfinite(self.p_meas).all()):
             raise ModelError("joint angles and marker poses must be finite (no NaN or inf)")
-        flange = replace(model, R_flange_tool=np.eye(3), p_flange_tool=np.zeros(3))
-        self.R_bf, self.p_bf = flange.fk(self.q)
-        guess = make_T(model.R_flange_tool, model.p_flange_tool) if T_flange_marker_guess is None \
-            else np.asarray(T_flange_marker_guess, dtype=float)
+        guess = np.asarray(guess, dtype=float)
         if guess.shape != (4, 4):
             raise ModelError(f"T_flange_marker_guess must be (4, 4), got {guess.shape}")
         self.T_flange_marker_guess = make_T(_project_rotation(guess[:3, :3]), guess[:3, 3])
         self.w_a = rotation_residual_scale(a)
-        self._check_motion()
 
     def _check_motion(self) -> None:
         """Raise unless there are 3 poses whose flange orientations rotate about two non-parallel axes.

@@ -10,6 +10,7 @@ module         holds
 ``cdc``        ``cdc``: the ``pi`` layout with its geometric block interpolated over (q2, q3)
 ``physics``    ``physics``: POE geometry + fitted effects (:mod:`calibration.physics`)
 ``diagnosed``  ``diagnosed``: a ``pi`` or ``cdc`` model + effects
+``rebased``    ``rebased``: a model of any kind with base and tool-marker corrections (:mod:`calibration.rebase`)
 =============  ==========================================================================================
 
 Only the base and ``constant`` are imported here; a kind's module is imported when a file of that kind is

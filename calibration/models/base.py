@@ -9,7 +9,7 @@ a known method, and each kind's own blocks; :func:`load_model` also checks it ag
 A model kind declares its parameter blocks once (:meth:`KinematicModel.blocks`, a tuple of :class:`Block`)
 and from that declaration gives its pose, its parameter and joint Jacobians and its casadi expression
 (:meth:`KinematicModel.casadi`). The kinds live next to this module: ``constant``, ``pi``, ``cdc``,
-``physics``, ``diagnosed``; each registers itself when its module is imported (:data:`MODEL_KIND_MODULES`
+``physics``, ``diagnosed``, ``rebased``; each registers itself when its module is imported (:data:`MODEL_KIND_MODULES`
 says where, so loading a file imports the one it needs).
 """
 
@@ -35,7 +35,7 @@ SCHEMA = "cellcal.model/1"
 #: Where each model kind is defined; imported on first load so this module imports none of them.
 MODEL_KIND_MODULES = {"constant": "calibration.models.constant", "cdc": "calibration.models.cdc",
                       "pi": "calibration.models.pi", "physics": "calibration.models.physics",
-                      "diagnosed": "calibration.models.diagnosed"}
+                      "diagnosed": "calibration.models.diagnosed", "rebased": "calibration.models.rebased"}
 log = logging.getLogger("cellcal.calibration")
 
 
