@@ -1,0 +1,240 @@
+"""Every method on every shared day, and across days with and without a rebase on 3 clusters of the new day.
+
+Same-day table: each training recording of ``../shared/data/welding_motoman`` -> that day's test recording(s)
+(0620: both test files; 0627: before -> before, after -> after; 0524 has no test and is left out), position
+error mean / max [mm] per method.
+
+Cross-day matrix: the model fitted on recording A, tested on the test recording of B, (a) as is and (b) after
+:func:`calibration.rebase.rebase` on 21 poses of B: the 3 clusters of B's *training* recording spread widest
+over the (q2, q3) grid (never B's test data), against (c) B's own same-day full calibration with the same
+method; the ratio (b) / (c) of test means is the issue's goal (<= 1.25).
+
+    python scripts/bench_days.py [--json FILE] [--methods m1,m2,...] [--cross-methods m1,...] [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from calibration.errors import ModelError  # noqa: E402
+from calibration.methods import METHODS, FitOptions, Fitter  # noqa: E402
+from calibration.metrics import errors  # noqa: E402
+from calibration.models.rebased import wrap_pose  # noqa: E402
+from calibration.poe import pose_error  # noqa: E402
+from calibration.rebase import RebaseProblem  # noqa: E402
+from calibration.recording import Recording, read_recording  # noqa: E402
+from cell_config import load_cell  # noqa: E402
+
+#: ``../shared/data/welding_motoman`` next to the checkout (or next to a folder holding worktrees).
+DATA = next((d / "shared" / "data" / "welding_motoman" for d in ROOT.parents
+             if (d / "shared" / "data" / "welding_motoman").exists()), ROOT.parent / "shared" / "data" / "welding_motoman")
+#: Default methods: all but cpa (the recordings hold no single-joint sweeps).
+DEFAULT_METHODS = tuple(m for m in METHODS if m != "cpa")
+QUICK_METHODS = ("nominal", "nls1", "pi", "fbf13")
+GOAL_RATIO = 1.25
+N_REBASE_CLUSTERS = 3
+CLUSTER_SIZE = 7
+
+
+@dataclass(frozen=True)
+class Unit:
+    """One training recording and the test recordings it is judged on (``label``, folder)."""
+
+    name: str
+    train: str
+    tests: tuple[tuple[str, str], ...]
+
+
+UNITS = (
+    Unit("0516", "test0516_R1", (("0516", "test0516_R1"),)),
+    Unit("0613", "test0613_R1", (("0613", "test0613"),)),
+    Unit("0620", "test0620_R1", (("0620 before", "test0620_beforecalib"), ("0620 after", "test0620_aftercalib"))),
+    Unit("0627 before", "test0627_beforecalib", (("0627 before", "test0627_beforecalib"),)),
+    Unit("0627 after", "test0627_aftercalib", (("0627 after", "test0627_aftercalib"),)),
+    Unit("0725", "test0725_R1", (("0725", "test0725_R1"),)),
+    Unit("0801", "test0801_R1", (("0801", "test0801_R1"),)),
+)
+
+
+def make_fitter(robot: Any, train: Recording) -> Fitter:
+    """A Fitter for one arm of the cell (its nominal model, link masses, joint limits), as ``compare`` builds it."""
+    from calibration.physics.gravity import GravityModel
+
+    nominal = robot.model()
+    try:
+        gravity = GravityModel.from_spec(robot.robot, nominal)
+    except ModelError:
+        gravity = None
+    return Fitter(robot.name, nominal, train, FitOptions(), None, gravity, (robot.robot.lower_rad, robot.robot.upper_rad))
+
+
+def spread_clusters(rec: Recording, k: int = N_REBASE_CLUSTERS) -> list[int]:
+    """The ``k`` clusters whose anchors (first pose) spread widest over (q2, q3): farthest-point sampling from the
+    anchor farthest from the anchors' mean."""
+    cluster = rec.clusters(CLUSTER_SIZE)
+    ids = np.unique(cluster)
+    anchors = np.array([rec.q[np.flatnonzero(cluster == c)[0], 1:3] for c in ids])
+    chosen = [int(np.argmax(np.linalg.norm(anchors - anchors.mean(axis=0), axis=1)))]
+    while len(chosen) < k:
+        d = np.min(np.linalg.norm(anchors[:, None] - anchors[chosen][None], axis=2), axis=1)
+        chosen.append(int(np.argmax(d)))
+    return [int(ids[i]) for i in chosen]
+
+
+def mean_max(e: np.ndarray) -> dict[str, float]:
+    return {"mean": float(np.mean(e)), "max": float(np.max(e))}
+
+
+def cell(s: dict[str, float] | None) -> str:
+    return "–" if s is None else f"{s['mean']:.3f}/{s['max']:.3f}"
+
+
+def parse(text: str | None, default: tuple[str, ...]) -> list[str]:
+    if not text:
+        return list(default)
+    chosen = [m.strip() for m in text.split(",") if m.strip()]
+    unknown = [m for m in chosen if m not in METHODS]
+    if unknown or not chosen:
+        raise SystemExit(f"unknown method {unknown[0] if unknown else text!r}; valid: {', '.join(METHODS)}")
+    return chosen
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--json", help="write every figure to this JSON file")
+    parser.add_argument("--data", type=Path, default=DATA, help=f"the welding_motoman folder (default {DATA})")
+    parser.add_argument("--methods", help=f"comma-separated methods (default: {','.join(DEFAULT_METHODS)})")
+    parser.add_argument("--cross-methods", help="methods of the cross-day matrix (default: the same as --methods)")
+    parser.add_argument("--quick", action="store_true", help=f"only {','.join(QUICK_METHODS)}")
+    args = parser.parse_args(argv)
+    data = args.data
+    if not data.exists():
+        print(f"shared recordings not found at {data}", file=sys.stderr)
+        return 2
+    methods = parse(args.methods, QUICK_METHODS if args.quick else DEFAULT_METHODS)
+    cross_methods = [m for m in parse(args.cross_methods, tuple(methods)) if m in methods]
+    timings: dict[str, float] = {}
+    start = time.perf_counter()
+
+    robot = load_cell().robot("R1")
+    limits = (robot.robot.lower_rad, robot.robot.upper_rad)
+    train = {u.name: read_recording(data / "PH_grad_data" / u.train, *limits) for u in UNITS}
+    tests = {label: read_recording(data / "kinematic_raw_data" / folder, *limits)
+             for u in UNITS for label, folder in u.tests}
+    timings["read_s"] = time.perf_counter() - start
+
+    # -- fits (one per training recording and method) and the same-day table --
+    t = time.perf_counter()
+    models: dict[str, dict[str, Any]] = {}
+    fit_seconds: dict[str, dict[str, float]] = {}
+    for u in UNITS:
+        fitter = make_fitter(robot, train[u.name])
+        models[u.name], fit_seconds[u.name] = {}, {}
+        for m in methods:
+            models[u.name][m], fit_seconds[u.name][m] = fitter.fit(m)
+        print(f"fitted {u.name}: {sum(fit_seconds[u.name].values()):.1f} s", file=sys.stderr, flush=True)
+    timings["fit_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    same_day: dict[str, dict[str, dict[str, float]]] = {}
+    target_unit: dict[str, str] = {}
+    for u in UNITS:
+        for label, _ in u.tests:
+            target_unit[label] = u.name
+            same_day[label] = {m: mean_max(errors(models[u.name][m], tests[label]).position_mm) for m in methods}
+    timings["same_day_eval_s"] = time.perf_counter() - t
+
+    # -- cross-day: model of A on B's test, as is and rebased on 3 clusters of B's training recording --
+    t = time.perf_counter()
+    rebase_clusters = {u.name: spread_clusters(train[u.name]) for u in UNITS}
+    rebase_data = {name: rec.subset(np.isin(rec.clusters(CLUSTER_SIZE), rebase_clusters[name]))
+                   for name, rec in train.items()}
+    cross: dict[str, dict[str, dict[str, dict[str, Any]]]] = {m: {} for m in cross_methods}
+    for m in cross_methods:
+        for a in UNITS:
+            cross[m][a.name] = {}
+            rebases = {}
+            for b in UNITS:
+                if b.name != a.name:
+                    rebases[b.name] = RebaseProblem.from_recording(models[a.name][m], rebase_data[b.name]).solve()
+            for label, test in tests.items():
+                b_name = target_unit[label]
+                if b_name == a.name:
+                    continue
+                R_i, p_i = models[a.name][m].fk(test.q)  # the rebased model's pose is this, wrapped
+                res = rebases[b_name]
+                R_r, p_r = wrap_pose(res.T_base_correction, R_i, p_i, res.T_tool_correction)
+                as_is = mean_max(pose_error(test.R, test.p, R_i, p_i)[0])
+                rebased = mean_max(pose_error(test.R, test.p, R_r, p_r)[0])
+                ref = same_day[label][m]
+                cross[m][a.name][label] = {
+                    "as_is": as_is, "rebased": rebased, "same_day": ref, "ratio": rebased["mean"] / ref["mean"],
+                    "fitted_directions": res.fitted, "held": list(res.held), "converged": res.converged,
+                    "rebase_mean_mm": {"before": res.mean_before_mm, "after": res.mean_after_mm}}
+    timings["cross_day_s"] = time.perf_counter() - t
+    timings["total_s"] = time.perf_counter() - start
+
+    report(methods, cross_methods, same_day, cross, rebase_clusters, train, timings)
+    if args.json:
+        out = {"methods": methods, "cross_methods": cross_methods, "same_day": same_day, "cross_day": cross,
+               "fit_seconds": fit_seconds, "rebase_clusters": rebase_clusters, "goal_ratio": GOAL_RATIO,
+               "timings": timings}
+        Path(args.json).write_text(json.dumps(out, indent=1))
+    return 0
+
+
+def report(methods: list[str], cross_methods: list[str], same_day: dict, cross: dict, clusters: dict,
+           train: dict, timings: dict) -> None:
+    """Markdown tables: same day, rebase poses, per-method cross-day matrices and the goal summary."""
+    print("## Same day: position error mean/max [mm] on the day's test recording\n")
+    print("| training → test | " + " | ".join(methods) + " |")
+    print("|---|" + "---|" * len(methods))
+    for label, row in same_day.items():
+        unit = label if label in train else label.split()[0]
+        print(f"| {unit} → {label} | " + " | ".join(cell(row[m]) for m in methods) + " |")
+    print("\n## Rebase poses: 3 clusters of each day's training recording (anchor q2, q3 in deg)\n")
+    print("| day | clusters |")
+    print("|---|---|")
+    for name, ids in clusters.items():
+        rec = train[name]
+        cl = rec.clusters(CLUSTER_SIZE)
+        anchors = [np.degrees(rec.q[np.flatnonzero(cl == c)[0], 1:3]) for c in ids]
+        print(f"| {name} | " + ", ".join(f"#{c} ({q2:.0f}, {q3:.0f})" for c, (q2, q3) in zip(ids, anchors)) + " |")
+    labels = list(same_day)
+    for m in cross_methods:
+        print(f"\n## Cross day, {m}: test mean [mm] as is → rebased on 21 poses (ratio to the same-day {m} fit)\n")
+        print("| model from \\ tested on | " + " | ".join(labels) + " |")
+        print("|---|" + "---|" * len(labels))
+        print("| *same-day fit* | " + " | ".join(f"*{same_day[lb][m]['mean']:.3f}*" for lb in labels) + " |")
+        for a, row in cross[m].items():
+            cells = []
+            for lb in labels:
+                c = row.get(lb)
+                cells.append("–" if c is None else
+                             f"{c['as_is']['mean']:.3f} → {c['rebased']['mean']:.3f} ({c['ratio']:.2f})")
+            print(f"| {a} | " + " | ".join(cells) + " |")
+    print(f"\n## Goal: rebased test mean within {GOAL_RATIO} × the same-day fit's\n")
+    print("| method | pairs | meet | median ratio | worst ratio (pair) | rebased max/same-day max, worst |")
+    print("|---|---|---|---|---|---|")
+    for m in cross_methods:
+        pairs = [(a, lb, c) for a, row in cross[m].items() for lb, c in row.items()]
+        ratios = np.array([c["ratio"] for _, _, c in pairs])
+        worst = max(pairs, key=lambda x: x[2]["ratio"])
+        max_ratio = max(c["rebased"]["max"] / c["same_day"]["max"] for _, _, c in pairs)
+        print(f"| {m} | {len(pairs)} | {int(np.sum(ratios <= GOAL_RATIO))} | {np.median(ratios):.2f} | "
+              f"{worst[2]['ratio']:.2f} ({worst[0]} → {worst[1]}) | {max_ratio:.2f} |")
+    print("\nTimings [s]: " + ", ".join(f"{k} {v:.1f}" for k, v in timings.items()))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
