@@ -163,10 +163,11 @@ def main(argv: list[str] | None = None) -> int:
     for m in cross_methods:
         for a in UNITS:
             cross[m][a.name] = {}
-            rebases = {}
+            rebases, bounds = {}, {}
             for b in UNITS:
                 if b.name != a.name:
                     rebases[b.name] = RebaseProblem.from_recording(models[a.name][m], rebase_data[b.name]).solve()
+                    bounds[b.name] = RebaseProblem.from_recording(models[a.name][m], train[b.name]).solve()
             for label, test in tests.items():
                 b_name = target_unit[label]
                 if b_name == a.name:
@@ -176,9 +177,13 @@ def main(argv: list[str] | None = None) -> int:
                 R_r, p_r = wrap_pose(res.T_base_correction, R_i, p_i, res.T_tool_correction)
                 as_is = mean_max(pose_error(test.R, test.p, R_i, p_i)[0])
                 rebased = mean_max(pose_error(test.R, test.p, R_r, p_r)[0])
+                bound = bounds[b_name]
+                R_b, p_b = wrap_pose(bound.T_base_correction, R_i, p_i, bound.T_tool_correction)
+                rebased_all = mean_max(pose_error(test.R, test.p, R_b, p_b)[0])
                 ref = same_day[label][m]
                 cross[m][a.name][label] = {
                     "as_is": as_is, "rebased": rebased, "same_day": ref, "ratio": rebased["mean"] / ref["mean"],
+                    "rebased_all_clusters": rebased_all, "ratio_all_clusters": rebased_all["mean"] / ref["mean"],
                     "fitted_directions": res.fitted, "held": list(res.held), "converged": res.converged,
                     "rebase_mean_mm": {"before": res.mean_before_mm, "after": res.mean_after_mm}}
     timings["cross_day_s"] = time.perf_counter() - t
@@ -223,16 +228,25 @@ def report(methods: list[str], cross_methods: list[str], same_day: dict, cross: 
                 cells.append("–" if c is None else
                              f"{c['as_is']['mean']:.3f} → {c['rebased']['mean']:.3f} ({c['ratio']:.2f})")
             print(f"| {a} | " + " | ".join(cells) + " |")
-    print(f"\n## Goal: rebased test mean within {GOAL_RATIO} × the same-day fit's\n")
-    print("| method | pairs | meet | median ratio | worst ratio (pair) | rebased max/same-day max, worst |")
-    print("|---|---|---|---|---|---|")
+    print(f"\n## Goal: rebased test mean within {GOAL_RATIO} × the same-day fit's (21 poses; in brackets the "
+          "same rebase on all of B's training poses, a bound on what frames alone can do)\n")
+    print("| method | pairs | meet | median ratio | worst ratio (pair) | worst max ratio | meet [all poses] | "
+          "median [all poses] |")
+    print("|---|---|---|---|---|---|---|---|")
     for m in cross_methods:
         pairs = [(a, lb, c) for a, row in cross[m].items() for lb, c in row.items()]
         ratios = np.array([c["ratio"] for _, _, c in pairs])
+        bound = np.array([c["ratio_all_clusters"] for _, _, c in pairs])
         worst = max(pairs, key=lambda x: x[2]["ratio"])
         max_ratio = max(c["rebased"]["max"] / c["same_day"]["max"] for _, _, c in pairs)
         print(f"| {m} | {len(pairs)} | {int(np.sum(ratios <= GOAL_RATIO))} | {np.median(ratios):.2f} | "
-              f"{worst[2]['ratio']:.2f} ({worst[0]} → {worst[1]}) | {max_ratio:.2f} |")
+              f"{worst[2]['ratio']:.2f} ({worst[0]} → {worst[1]}) | {max_ratio:.2f} | "
+              f"{int(np.sum(bound <= GOAL_RATIO))} | {np.median(bound):.2f} |")
+    print(f"\nPairs (model from → tested on) that miss the goal with 21 poses:\n")
+    for m in cross_methods:
+        miss = [f"{a} → {lb} ({c['ratio']:.2f})" for a, row in cross[m].items() for lb, c in row.items()
+                if c["ratio"] > GOAL_RATIO]
+        print(f"- {m}: {len(miss)}: " + ", ".join(miss))
     print("\nTimings [s]: " + ", ".join(f"{k} {v:.1f}" for k, v in timings.items()))
 
 
