@@ -69,7 +69,10 @@ def run_day(robot, day: str, methods: tuple[str, ...]) -> dict:
         e = errors(model, test).position_mm
         warning = model.info.get("warning") if method not in REFERENCES else None
         rows[method] = {"mean": float(e.mean()), "max": float(e.max()), "seconds": time.perf_counter() - t0,
-                        "warning": warning}
+                        "warning": warning, "heldout": model.info.get("heldout"),
+                        "probe_range_excess": model.info.get("probe_range_excess")}
+        if "local_prior" in model.info:
+            rows["local_prior"] = model.info["local_prior"]
     limit = min(1.5 * rows["nls1"]["max"], 2.0 * rows["nominal"]["max"])
     for method in methods:
         rows[method]["goal"] = rows[method]["max"] <= max(1.5 * rows["nls1"]["max"], 2.0 * rows["nominal"]["max"])
@@ -92,10 +95,12 @@ def main() -> None:
     cols = REFERENCES + methods
     print("| day | " + " | ".join(cols) + " |")
     print("|---|" + "---|" * len(cols))
-    warnings = []
+    warnings, priors = [], []
     for day in args.days:
         rows = run_day(robot, day, methods)
         result[day] = rows
+        if "local_prior" in rows:
+            priors.append(f"{day}: {rows['local_prior']}")
         cells = []
         for m in cols:
             mark = "" if m in REFERENCES or rows[m]["goal_strict"] else (" ✗" if not rows[m]["goal"] else " (✗)")
@@ -107,6 +112,8 @@ def main() -> None:
           "(✗): only one of the two; w: the model carries a warning")
     for w in warnings:
         print("warning:", w)
+    for p in priors:
+        print("local prior", p)
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=1))
 
