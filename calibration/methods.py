@@ -54,6 +54,8 @@ class FitOptions:
             (the ``linear`` interpolator, one-standard-error rule toward the stronger prior). 0.1 was the fixed
             value before.
         local_prior_grid: candidate local priors.
+        fourier_ridge_grid: candidate ridge strengths of fbf13/fbf7 (0 = the paper's least squares), chosen on
+            held-out clusters by the same rule.
         nls0_clusters: number of clusters nearest q = 0 used by ``nls0``.
         fbf7_rank: rank of the SVD-reduced Fourier basis.
         cluster_size: samples per anchor when the recording has no cluster column.
@@ -65,6 +67,7 @@ class FitOptions:
     fit_tool: bool = True
     local_prior: float | None = None
     local_prior_grid: tuple[float, ...] = (0.1, 0.3, 1.0, 3.0, 10.0)
+    fourier_ridge_grid: tuple[float, ...] = (0.0, 1e-3, 1e-2, 1e-1)
     nls0_clusters: int = 9
     fbf7_rank: int = 7
     cluster_size: int = 7
@@ -246,10 +249,26 @@ class Fitter:
             options["rank"] = self.options.fbf7_rank
         if method in ("nn", "ae"):
             options["random_state"] = self.options.seed
+        if method in ("fbf13", "fbf7"):
+            options["ridge"] = self._choose_strength(method, options, "ridge", self.options.fourier_ridge_grid)
         kin, local = self.physics_informed().kinematics, self.local_fits()
         model = build_cdc(self.robot, method, kin, local, **options)
         model.info.update(self._cdc_checks(method, options, model))
         return model
+
+    def _choose_strength(self, method: str, options: dict[str, Any], name: str, grid: tuple[float, ...]) -> float:
+        """Option ``name`` of interpolator ``method`` from ``grid``, on held-out training clusters (1-SE rule)."""
+        from calibration.interpolation import make_interpolator
+
+        local, pi = self.local_fits(), self.physics_informed()
+        groups, _ = cluster_anchors(self.train, self.options.cluster_size)
+        scores = [robust.held_out(lambda: make_interpolator(method, **{**options, name: v}), pi.kinematics,
+                                  pi.theta, local.anchors, local.x, groups, self.train, CDC_INPUTS,
+                                  seed=self.options.seed) for v in grid]
+        chosen = grid[robust.one_se_choice(grid, scores)]
+        self._cache.setdefault("strengths", {})[method] = {
+            name: chosen, "grid": list(grid), "heldout_rms_mm": [round(s.rms_mm, 4) for s in scores]}
+        return chosen
 
     def _cdc_checks(self, method: str, options: dict[str, Any], model: Any) -> dict[str, Any]:
         """Held-out-cluster and probe-range checks of a CDC fit (training data only); a warning when it fails."""
@@ -269,6 +288,8 @@ class Fitter:
                                    "share_over_limit": round(float(np.mean(excess > robust.RANGE_EXCESS_LIMIT)), 3)},
             "local_prior": self._cache.get("local_prior_cv", {"chosen": self.options.local_prior}),
         }
+        if method in self._cache.get("strengths", {}):
+            info["strength"] = self._cache["strengths"][method]
         problems = []
         if h.ratio > robust.HELDOUT_RATIO_LIMIT:
             problems.append(f"on training clusters held out from it, its position RMS is {h.rms_mm:.3f} mm (max "
