@@ -51,8 +51,9 @@ class FitOptions:
         fit_tool: identify the flange-point shift too (3 parameters).
         local_prior: ridge strength of local cluster fits toward the pi reference geometry [1/mm-equivalent];
             None (default) chooses it from ``local_prior_grid`` on clusters held out from the training recording
-            (the ``linear`` interpolator, one-standard-error rule toward the stronger prior). 0.1 was the fixed
-            value before.
+            (the ``linear`` interpolator, one-standard-error rule toward the stronger prior) among the priors
+            whose corrections over the workspace stay within ``robust.WORKSPACE_RATIO_LIMIT`` times those on
+            the training poses (the strongest when none does). 0.1 was the fixed value before.
         local_prior_grid: candidate local priors.
         fourier_ridge_grid: candidate ridge strengths of fbf13/fbf7 (0 = the paper's least squares), chosen on
             held-out clusters by the same rule.
@@ -152,16 +153,23 @@ class Fitter:
         grid = tuple(self.options.local_prior_grid)
         pi = self.physics_informed()
         groups, _ = cluster_anchors(self.train, self.options.cluster_size)
-        scores = []
+        scores, ratios = [], []
         for prior in grid:
             local = self._local_at(prior)
             scores.append(robust.held_out(lambda: make_interpolator("linear"), pi.kinematics, pi.theta,
                                           local.anchors, local.x, groups, self.train, CDC_INPUTS,
                                           seed=self.options.seed))
-        chosen = grid[robust.one_se_choice(grid, scores)]
+            model = build_cdc(self.robot, "linear", pi.kinematics, local)
+            ratios.append(robust.workspace_ratio(model.fk, pi.fk, self.train.q, self._workspace_probes())[0])
+        ok = [i for i, r in enumerate(ratios) if r <= robust.WORKSPACE_RATIO_LIMIT]
+        if ok:
+            chosen = grid[ok[robust.one_se_choice(tuple(grid[i] for i in ok), [scores[i] for i in ok])]]
+        else:
+            chosen = max(grid)
         self._cache["local_prior_cv"] = {"chosen": chosen, "grid": list(grid),
                                          "heldout_rms_mm": [round(s.rms_mm, 4) for s in scores],
-                                         "se_mm": [round(s.se_rms_mm, 4) for s in scores]}
+                                         "se_mm": [round(s.se_rms_mm, 4) for s in scores],
+                                         "workspace_ratio": [round(r, 2) for r in ratios]}
         log.info("local prior %g chosen on held-out clusters: %s", chosen, self._cache["local_prior_cv"])
         return chosen
 
@@ -256,6 +264,14 @@ class Fitter:
         model.info.update(self._cdc_checks(method, options, model))
         return model
 
+    def _workspace_probes(self) -> np.ndarray:
+        if "workspace_probes" not in self._cache:
+            _, anchor_q = cluster_anchors(self.train, self.options.cluster_size)
+            self._cache["workspace_probes"] = robust.workspace_probes(
+                anchor_q[:, list(CDC_INPUTS)], self.joint_limits, self.par.n_joints, CDC_INPUTS,
+                seed=self.options.seed)
+        return self._cache["workspace_probes"]
+
     def _choose_strength(self, method: str, options: dict[str, Any], name: str, grid: tuple[float, ...]) -> float:
         """Option ``name`` of interpolator ``method`` from ``grid``, on held-out training clusters (1-SE rule)."""
         from calibration.interpolation import make_interpolator
@@ -280,12 +296,15 @@ class Fitter:
                             local.x, groups, self.train, CDC_INPUTS, seed=self.options.seed)
         probes = robust.probe_grid(local.anchors)
         excess = robust.range_excess(model.interpolator.predict(probes), local.x, 0.01 * self.par.scale())
+        ratio, probe_mm, train_mm = robust.workspace_ratio(model.fk, pi.fk, self.train.q, self._workspace_probes())
         info: dict[str, Any] = {
             "heldout": {"rms_mm": round(h.rms_mm, 4), "max_mm": round(h.max_mm, 4),
                         "reference_rms_mm": round(h.reference_rms_mm, 4),
                         "reference_max_mm": round(h.reference_max_mm, 4)},
             "probe_range_excess": {"max": round(float(excess.max()), 3),
                                    "share_over_limit": round(float(np.mean(excess > robust.RANGE_EXCESS_LIMIT)), 3)},
+            "workspace_correction": {"ratio": round(ratio, 2), "probe_p99_mm": round(probe_mm, 4),
+                                     "train_p99_mm": round(train_mm, 4)},
             "local_prior": self._cache.get("local_prior_cv", {"chosen": self.options.local_prior}),
         }
         if method in self._cache.get("strengths", {}):
@@ -295,6 +314,11 @@ class Fitter:
             problems.append(f"on training clusters held out from it, its position RMS is {h.rms_mm:.3f} mm (max "
                             f"{h.max_mm:.3f}) against {h.reference_rms_mm:.3f} mm (max {h.reference_max_mm:.3f}) "
                             f"for the constant reference fit (x{h.ratio:.2f})")
+        if ratio > robust.WORKSPACE_RATIO_LIMIT:
+            problems.append(f"its correction over the constant reference reaches {probe_mm:.3f} mm (99th "
+                            f"percentile) at configurations spread over the joint limits against {train_mm:.3f} mm "
+                            f"on the training poses (x{ratio:.1f}): the local fits carry directions the clusters "
+                            f"cannot see")
         if excess.max() > robust.RANGE_EXCESS_LIMIT:
             problems.append(f"at {np.mean(excess > robust.RANGE_EXCESS_LIMIT):.0%} of {len(probes)} probe "
                             f"configurations within 10 deg of the anchors' (q2, q3) box its raw parameters leave "

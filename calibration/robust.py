@@ -8,6 +8,11 @@ Two checks, both blind to any test recording:
   figure for the constant reference (the global fit the local fits are pulled toward). It chooses the
   strengths of :mod:`calibration.methods` (local prior, ridge, smoothing, weight decay) and flags an
   interpolator that does worse than the constant fit on clusters it has not seen.
+- **Corrections over the workspace.** The CDC model's position correction over the reference at probe
+  configurations spread over the joint limits (wrist and base joints anywhere, (q2, q3) at the anchors, so the
+  interpolation itself stays in range) should be about as large as on the training poses: local fits that
+  absorb directions a 7-pose cluster cannot see show up as corrections several times larger there. The
+  figure is the ratio of the 99th percentiles [-].
 - **Range at probe configurations.** The interpolated geometric parameters at a grid of (q2, q3) spread over
   the anchors' box widened by ``margin`` must stay near the range the local fits span: the excess beyond
   [min, max] per parameter, in units of that parameter's range, is reported (0 = inside).
@@ -28,6 +33,9 @@ from calibration.recording import Recording
 N_FOLDS = 5
 #: A CDC fit whose held-out RMS exceeds the reference's by this factor is flagged.
 HELDOUT_RATIO_LIMIT = 1.25
+#: A CDC fit whose workspace correction (p99) exceeds its training correction by this factor is flagged; the
+#: local prior is chosen among the strengths that stay below it.
+WORKSPACE_RATIO_LIMIT = 2.0
 #: A CDC fit whose parameters at a probe leave the anchors' range by more than this (x range) is flagged.
 RANGE_EXCESS_LIMIT = 5.0
 
@@ -133,3 +141,21 @@ def range_excess(predicted: np.ndarray, x_local: np.ndarray, floor: np.ndarray |
     lo, hi = x_local.min(axis=0), x_local.max(axis=0)
     width = np.maximum(hi - lo, floor)
     return ((np.maximum(predicted - hi, 0.0) + np.maximum(lo - predicted, 0.0)) / width).max(axis=1)
+
+
+def workspace_probes(anchors_q23: np.ndarray, joint_limits: tuple[np.ndarray, np.ndarray] | None, n_joints: int,
+                     inputs: tuple[int, ...], n: int = 2000, seed: int = 0) -> np.ndarray:
+    """Joint configurations (n, n_joints) [rad]: the interpolation inputs at random anchors, every other joint
+    uniform within ``joint_limits`` (within +-pi when None)."""
+    rng = np.random.default_rng(seed)
+    lo, hi = (np.full(n_joints, -np.pi), np.full(n_joints, np.pi)) if joint_limits is None else joint_limits
+    q = rng.uniform(lo, hi, (n, n_joints))
+    q[:, list(inputs)] = anchors_q23[rng.integers(0, len(anchors_q23), n)]
+    return q
+
+
+def workspace_ratio(fk: Callable, reference_fk: Callable, q_train: np.ndarray, q_probe: np.ndarray) -> tuple[float, float, float]:
+    """``(ratio, p99 probe [mm], p99 train [mm])`` of the position correction ``|p(q) - p_ref(q)|``."""
+    train = np.percentile(np.linalg.norm(fk(q_train)[1] - reference_fk(q_train)[1], axis=1), 99)
+    probe = np.percentile(np.linalg.norm(fk(q_probe)[1] - reference_fk(q_probe)[1], axis=1), 99)
+    return float(probe / max(train, 1e-9)), float(probe), float(train)

@@ -88,3 +88,25 @@ def test_an_interpolator_worse_than_the_reference_is_seen_on_held_out_clusters(f
     h = robust.held_out(lambda: make_interpolator("nearest"), pi.kinematics, pi.theta, local.anchors, noisy,
                         groups, fitter.train, CDC_INPUTS)
     assert h.ratio > robust.HELDOUT_RATIO_LIMIT
+
+
+def test_workspace_probes_keep_the_interpolation_inputs_at_anchors_and_the_joints_within_limits():
+    anchors = np.radians([[0.0, 10.0], [20.0, -30.0], [-40.0, 5.0]])
+    lo, hi = np.radians([-170, -90, -80, -150, -135, -210.0]), np.radians([170, 150, 150, 150, 90, 210.0])
+    q = robust.workspace_probes(anchors, (lo, hi), 6, CDC_INPUTS, n=500, seed=1)
+    assert q.shape == (500, 6) and np.all(q >= lo) and np.all(q <= hi)
+    assert {tuple(r) for r in q[:, 1:3]} <= {tuple(r) for r in anchors}
+
+
+def test_workspace_ratio_compares_corrections_on_probes_and_training_poses():
+    def ref(q):
+        return None, np.zeros((len(q), 3))
+
+    def model(q):  # correction grows with |q4|: small on training poses (q4 ~ 0), large over the workspace
+        return None, np.column_stack([0.1 + np.abs(q[:, 3]), np.zeros(len(q)), np.zeros(len(q))])
+
+    q_train = np.zeros((10, 6))
+    q_probe = np.zeros((10, 6))
+    q_probe[:, 3] = 1.0
+    ratio, probe, train = robust.workspace_ratio(model, ref, q_train, q_probe)
+    np.testing.assert_allclose([ratio, probe, train], [11.0, 1.1, 0.1])
