@@ -325,5 +325,5 @@ class Fitter:
                             f"the local fits' range by up to {excess.max():.1f} times that range (clipped to it)")
         if problems:
             info["warning"] = f"{method} may be unstable: " + "; ".join(problems) + \
-                ". Prefer a smoother method (fbf13, pi) or check the fit."
+                ". Prefer pi or a stronger local prior (FitOptions.local_prior), or check the fit."
         return info
