@@ -104,14 +104,19 @@ def geometric_cdc(par: MinimalParameterisation) -> tuple[ExtendedKinematics, np.
 
 
 def build_cdc(robot: str, method: str, kin: ExtendedKinematics, local: LocalFits, **options: object) -> CdcModel:
-    """Fit interpolator ``method`` (nearest, linear, cubic, rbf, fbf13, fbf7, nn, ae) to the local parameters."""
+    """Fit interpolator ``method`` (nearest, linear, cubic, rbf, fbf13, fbf7, nn, ae) to the local parameters.
+
+    The model clips the interpolated parameters to the local fits' per-parameter range, so a kind that
+    extrapolates (rbf, Fourier, nn) or overshoots between anchors (cubic, ae decoding) stays within what the
+    clusters measured."""
     from calibration.interpolation import make_interpolator
 
     interp = make_interpolator(method, **options).fit(local.anchors, local.x)
     g = local.x.shape[1]
     n_params = g * _effective_terms(interp, local.x.shape[0]) + kin.size - g
+    bounds = np.stack([local.x.min(axis=0), local.x.max(axis=0)])
     return CdcModel(robot, method, kin, local.theta_ref, interp, CDC_INPUTS,
-                    {"n_parameters": int(n_params), "clusters": len(local.x)})
+                    {"n_parameters": int(n_params), "clusters": len(local.x)}, bounds)
 
 
 def _effective_terms(interp: object, n_anchors: int) -> int:

@@ -18,7 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from calibration.cdc import LocalFits, build_cdc, cluster_anchors, fit_local
+from calibration import robust
+from calibration.cdc import CDC_INPUTS, LocalFits, build_cdc, cluster_anchors, fit_local
 from calibration.identification.cpa import identify_cpa, split_sweeps
 from calibration.errors import ModelError
 from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, GeometricProblem
@@ -48,7 +49,14 @@ class FitOptions:
         tolerance: relative singular value below which a parameter direction counts as unobservable: held at
             its reference by nls0/nls1 (truncation), damped toward nominal by pi (Tikhonov filter at that cutoff).
         fit_tool: identify the flange-point shift too (3 parameters).
-        local_prior: ridge strength of local cluster fits toward the pi reference geometry [1/mm-equivalent].
+        local_prior: ridge strength of local cluster fits toward the pi reference geometry [1/mm-equivalent];
+            None (default) chooses it from ``local_prior_grid`` on clusters held out from the training recording
+            (the ``linear`` interpolator, one-standard-error rule toward the stronger prior) among the priors
+            whose corrections over the workspace stay within ``robust.WORKSPACE_RATIO_LIMIT`` times those on
+            the training poses (the strongest when none does). 0.1 was the fixed value before.
+        local_prior_grid: candidate local priors.
+        fourier_ridge_grid: candidate ridge strengths of fbf13/fbf7 (0 = the paper's least squares), chosen on
+            held-out clusters by the same rule.
         nls0_clusters: number of clusters nearest q = 0 used by ``nls0``.
         fbf7_rank: rank of the SVD-reduced Fourier basis.
         cluster_size: samples per anchor when the recording has no cluster column.
@@ -58,7 +66,9 @@ class FitOptions:
     a: float = DEFAULT_ORIENTATION_WEIGHT
     tolerance: float = DEFAULT_RELATIVE_TOLERANCE
     fit_tool: bool = True
-    local_prior: float = 0.1
+    local_prior: float | None = None
+    local_prior_grid: tuple[float, ...] = (0.1, 0.3, 1.0, 3.0, 10.0)
+    fourier_ridge_grid: tuple[float, ...] = (0.0, 1e-3, 1e-2, 1e-1)
     nls0_clusters: int = 9
     fbf7_rank: int = 7
     cluster_size: int = 7
@@ -122,10 +132,46 @@ class Fitter:
 
     def local_fits(self) -> LocalFits:
         if "local" not in self._cache:
-            pi = self.physics_informed()
-            self._cache["local"] = fit_local(pi.kinematics, self.train, pi.theta, self.options.a,
-                                             self.options.local_prior, self.options.cluster_size)
+            prior = self.options.local_prior
+            if prior is None:
+                prior = self._choose_local_prior()
+            self._cache["local"] = self._local_at(prior)
         return self._cache["local"]
+
+    def _local_at(self, prior: float) -> LocalFits:
+        fits = self._cache.setdefault("local_by_prior", {})
+        if prior not in fits:
+            pi = self.physics_informed()
+            fits[prior] = fit_local(pi.kinematics, self.train, pi.theta, self.options.a, prior,
+                                    self.options.cluster_size)
+        return fits[prior]
+
+    def _choose_local_prior(self) -> float:
+        """The local prior of ``local_prior_grid`` chosen on held-out training clusters (see FitOptions)."""
+        from calibration.interpolation import make_interpolator
+
+        grid = tuple(self.options.local_prior_grid)
+        pi = self.physics_informed()
+        groups, _ = cluster_anchors(self.train, self.options.cluster_size)
+        scores, ratios = [], []
+        for prior in grid:
+            local = self._local_at(prior)
+            scores.append(robust.held_out(lambda: make_interpolator("linear"), pi.kinematics, pi.theta,
+                                          local.anchors, local.x, groups, self.train, CDC_INPUTS,
+                                          seed=self.options.seed))
+            model = build_cdc(self.robot, "linear", pi.kinematics, local)
+            ratios.append(robust.workspace_ratio(model.fk, pi.fk, self.train.q, self._workspace_probes())[0])
+        ok = [i for i, r in enumerate(ratios) if r <= robust.WORKSPACE_RATIO_LIMIT]
+        if ok:
+            chosen = grid[ok[robust.one_se_choice(tuple(grid[i] for i in ok), [scores[i] for i in ok])]]
+        else:
+            chosen = max(grid)
+        self._cache["local_prior_cv"] = {"chosen": chosen, "grid": list(grid),
+                                         "heldout_rms_mm": [round(s.rms_mm, 4) for s in scores],
+                                         "se_mm": [round(s.se_rms_mm, 4) for s in scores],
+                                         "workspace_ratio": [round(r, 2) for r in ratios]}
+        log.info("local prior %g chosen on held-out clusters: %s", chosen, self._cache["local_prior_cv"])
+        return chosen
 
     def fit(self, method: str) -> tuple[KinematicModel, float]:
         """Fit one method. Returns the model and its fit time [s], shared global/local fits included."""
@@ -211,4 +257,73 @@ class Fitter:
             options["rank"] = self.options.fbf7_rank
         if method in ("nn", "ae"):
             options["random_state"] = self.options.seed
-        return build_cdc(self.robot, method, self.physics_informed().kinematics, self.local_fits(), **options)
+        if method in ("fbf13", "fbf7"):
+            options["ridge"] = self._choose_strength(method, options, "ridge", self.options.fourier_ridge_grid)
+        kin, local = self.physics_informed().kinematics, self.local_fits()
+        model = build_cdc(self.robot, method, kin, local, **options)
+        model.info.update(self._cdc_checks(method, options, model))
+        return model
+
+    def _workspace_probes(self) -> np.ndarray:
+        if "workspace_probes" not in self._cache:
+            _, anchor_q = cluster_anchors(self.train, self.options.cluster_size)
+            self._cache["workspace_probes"] = robust.workspace_probes(
+                anchor_q[:, list(CDC_INPUTS)], self.joint_limits, self.par.n_joints, CDC_INPUTS,
+                seed=self.options.seed)
+        return self._cache["workspace_probes"]
+
+    def _choose_strength(self, method: str, options: dict[str, Any], name: str, grid: tuple[float, ...]) -> float:
+        """Option ``name`` of interpolator ``method`` from ``grid``, on held-out training clusters (1-SE rule)."""
+        from calibration.interpolation import make_interpolator
+
+        local, pi = self.local_fits(), self.physics_informed()
+        groups, _ = cluster_anchors(self.train, self.options.cluster_size)
+        scores = [robust.held_out(lambda: make_interpolator(method, **{**options, name: v}), pi.kinematics,
+                                  pi.theta, local.anchors, local.x, groups, self.train, CDC_INPUTS,
+                                  seed=self.options.seed) for v in grid]
+        chosen = grid[robust.one_se_choice(grid, scores)]
+        self._cache.setdefault("strengths", {})[method] = {
+            name: chosen, "grid": list(grid), "heldout_rms_mm": [round(s.rms_mm, 4) for s in scores]}
+        return chosen
+
+    def _cdc_checks(self, method: str, options: dict[str, Any], model: Any) -> dict[str, Any]:
+        """Held-out-cluster and probe-range checks of a CDC fit (training data only); a warning when it fails."""
+        from calibration.interpolation import make_interpolator
+
+        local, pi = self.local_fits(), self.physics_informed()
+        groups, _ = cluster_anchors(self.train, self.options.cluster_size)
+        h = robust.held_out(lambda: make_interpolator(method, **options), pi.kinematics, pi.theta, local.anchors,
+                            local.x, groups, self.train, CDC_INPUTS, seed=self.options.seed)
+        probes = robust.probe_grid(local.anchors)
+        excess = robust.range_excess(model.interpolator.predict(probes), local.x, 0.01 * self.par.scale())
+        ratio, probe_mm, train_mm = robust.workspace_ratio(model.fk, pi.fk, self.train.q, self._workspace_probes())
+        info: dict[str, Any] = {
+            "heldout": {"rms_mm": round(h.rms_mm, 4), "max_mm": round(h.max_mm, 4),
+                        "reference_rms_mm": round(h.reference_rms_mm, 4),
+                        "reference_max_mm": round(h.reference_max_mm, 4)},
+            "probe_range_excess": {"max": round(float(excess.max()), 3),
+                                   "share_over_limit": round(float(np.mean(excess > robust.RANGE_EXCESS_LIMIT)), 3)},
+            "workspace_correction": {"ratio": round(ratio, 2), "probe_p99_mm": round(probe_mm, 4),
+                                     "train_p99_mm": round(train_mm, 4)},
+            "local_prior": self._cache.get("local_prior_cv", {"chosen": self.options.local_prior}),
+        }
+        if method in self._cache.get("strengths", {}):
+            info["strength"] = self._cache["strengths"][method]
+        problems = []
+        if h.ratio > robust.HELDOUT_RATIO_LIMIT:
+            problems.append(f"on training clusters held out from it, its position RMS is {h.rms_mm:.3f} mm (max "
+                            f"{h.max_mm:.3f}) against {h.reference_rms_mm:.3f} mm (max {h.reference_max_mm:.3f}) "
+                            f"for the constant reference fit (x{h.ratio:.2f})")
+        if ratio > robust.WORKSPACE_RATIO_LIMIT:
+            problems.append(f"its correction over the constant reference reaches {probe_mm:.3f} mm (99th "
+                            f"percentile) at configurations spread over the joint limits against {train_mm:.3f} mm "
+                            f"on the training poses (x{ratio:.1f}): the local fits carry directions the clusters "
+                            f"cannot see")
+        if excess.max() > robust.RANGE_EXCESS_LIMIT:
+            problems.append(f"at {np.mean(excess > robust.RANGE_EXCESS_LIMIT):.0%} of {len(probes)} probe "
+                            f"configurations within 10 deg of the anchors' (q2, q3) box its raw parameters leave "
+                            f"the local fits' range by up to {excess.max():.1f} times that range (clipped to it)")
+        if problems:
+            info["warning"] = f"{method} may be unstable: " + "; ".join(problems) + \
+                ". Prefer pi or a stronger local prior (FitOptions.local_prior), or check the fit."
+        return info

@@ -125,13 +125,37 @@ class _FourierBase(Interpolator):
         self._anchors = x
 
 
+def _ridge_solve(b: np.ndarray, y: np.ndarray, ridge: float) -> np.ndarray:
+    """Coefficients (m, n) of ``y ~ b c``: least squares (pseudo-inverse) for ridge = 0, else ridge regression
+    with penalty ``ridge * mean(diag(b^T b))`` on every column but a constant one (the mean is not shrunk)."""
+    if ridge == 0.0:
+        return (np.linalg.pinv(b) @ y).T
+    gram = b.T @ b
+    const = np.all(np.isclose(b, b[:1]), axis=0)
+    penalty = ridge * float(np.mean(np.diag(gram))) * np.diag(~const).astype(float)
+    return np.linalg.solve(gram + penalty, b.T @ y).T
+
+
+def _check_ridge(kind: str, ridge: float) -> float:
+    if isinstance(ridge, bool) or not isinstance(ridge, (int, float, np.floating)) or not (
+            np.isfinite(ridge) and ridge >= 0.0):
+        raise ModelError(f"{kind}: ridge must be a finite number >= 0, got {ridge!r}")
+    return float(ridge)
+
+
 class Fourier13Interpolator(_FourierBase):
-    """Least-squares fit of the 13-term Fourier basis: ``y(x) = A b(x)``, A shape (m, 13)."""
+    """Least-squares fit of the 13-term Fourier basis: ``y(x) = A b(x)``, A shape (m, 13).
+
+    Args:
+        ridge: ridge strength on the 12 non-constant coefficients, relative to the mean diagonal of the basis
+            Gram matrix (0 = the paper's plain least squares).
+    """
 
     kind: ClassVar[str] = "fbf13"
 
-    def __init__(self) -> None:
+    def __init__(self, ridge: float = 0.0) -> None:
         super().__init__()
+        self.ridge = _check_ridge(self.kind, ridge)
         self._A: np.ndarray | None = None
 
     @property
@@ -151,7 +175,7 @@ class Fourier13Interpolator(_FourierBase):
 
     def _fit(self, x: np.ndarray, y: np.ndarray) -> None:
         self._set_anchors(x)
-        self._A = (np.linalg.pinv(fbf13_basis(x)) @ y).T
+        self._A = _ridge_solve(fbf13_basis(x), y, self.ridge)
 
     def _basis_map(self) -> np.ndarray:
         return self._A  # type: ignore[return-value]
@@ -160,11 +184,12 @@ class Fourier13Interpolator(_FourierBase):
         return fbf13_basis(x) @ self._A.T  # type: ignore[union-attr]
 
     def _state(self) -> dict[str, Any]:
-        return {"anchors": self._anchors.tolist(), "coefficients": self._A.tolist()}  # type: ignore[union-attr]
+        return {"options": {"ridge": self.ridge}, "anchors": self._anchors.tolist(),  # type: ignore[union-attr]
+                "coefficients": self._A.tolist()}  # type: ignore[union-attr]
 
     @classmethod
     def _from_state(cls, d: dict[str, Any]) -> Interpolator:
-        obj = cls()
+        obj = from_options(cls, d)
         obj._set_anchors(array_field(d, "anchors", 2))
         obj._A = _checked(d, "coefficients", (None, 13))
         return obj
@@ -175,12 +200,14 @@ class FourierReducedInterpolator(_FourierBase):
 
     Args:
         rank: number r of reduced basis functions kept, 1..13 (the paper uses 7).
+        ridge: ridge strength of both least-squares fits (as ``fbf13``'s; 0 = the paper's).
     """
 
     kind: ClassVar[str] = "fbf7"
 
-    def __init__(self, rank: int = 7) -> None:
+    def __init__(self, rank: int = 7, ridge: float = 0.0) -> None:
         super().__init__()
+        self.ridge = _check_ridge(self.kind, ridge)
         if isinstance(rank, bool) or not isinstance(rank, (int, np.integer)) or not 1 <= rank <= 13:
             raise ModelError(f"{self.kind}: rank must be an int in 1..13, got {rank!r}")
         self.rank = int(rank)
@@ -202,10 +229,10 @@ class FourierReducedInterpolator(_FourierBase):
     def _fit(self, x: np.ndarray, y: np.ndarray) -> None:
         self._set_anchors(x)
         b = fbf13_basis(x)
-        A = (np.linalg.pinv(b) @ y).T
+        A = _ridge_solve(b, y, self.ridge)
         V = np.linalg.svd(A, full_matrices=True)[2].T  # (13, 13), columns by decreasing singular value
         self._V = np.ascontiguousarray(V[:, :self.rank])
-        self._C = (np.linalg.pinv(b @ self._V) @ y).T
+        self._C = _ridge_solve(b @ self._V, y, self.ridge)
 
     def _predict(self, x: np.ndarray) -> np.ndarray:
         return (fbf13_basis(x) @ self._V) @ self._C.T  # type: ignore[operator,union-attr]
@@ -214,7 +241,7 @@ class FourierReducedInterpolator(_FourierBase):
         return self._C @ self._V.T  # type: ignore[operator,union-attr]
 
     def _state(self) -> dict[str, Any]:
-        return {"options": {"rank": self.rank}, "anchors": self._anchors.tolist(),  # type: ignore[union-attr]
+        return {"options": {"rank": self.rank, "ridge": self.ridge}, "anchors": self._anchors.tolist(),  # type: ignore[union-attr]
                 "reduced_basis": self._V.tolist(), "coefficients": self._C.tolist()}  # type: ignore[union-attr]
 
     @classmethod

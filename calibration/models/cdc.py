@@ -36,12 +36,18 @@ class CdcModel(KinematicModel):
     interpolator: Any  # calibration.interpolation.Interpolator
     inputs: tuple[int, ...] = CDC_INPUTS
     info: dict[str, Any] = field(default_factory=dict)
+    #: per-parameter [min, max] of the geometric block, shape (2, g), or None: the interpolated parameters are
+    #: clipped to it (the local fits' range), so no kind extrapolates beyond what the anchors span.
+    bounds: np.ndarray | None = None
+
+    def _clip(self, x: np.ndarray) -> np.ndarray:
+        return x if self.bounds is None else np.clip(x, self.bounds[0], self.bounds[1])
 
     def parameters_at(self, q: np.ndarray) -> np.ndarray:
         """Full extended parameters per sample, shape (N, size): the reference with interpolated geometry."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
         theta = np.array(np.broadcast_to(self.theta_ref, (q.shape[0], self.kinematics.size)))
-        theta[:, : self.kinematics.par.size] = self.interpolator.predict(q[:, list(self.inputs)])
+        theta[:, : self.kinematics.par.size] = self._clip(self.interpolator.predict(q[:, list(self.inputs)]))
         return theta
 
     def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -83,6 +89,8 @@ class CdcModel(KinematicModel):
         u = ca.SX.sym("u", len(self.inputs))
         expr = interpolator_sx(self.interpolator, u, g)
         if expr is not None:
+            if self.bounds is not None:
+                expr = ca.fmin(ca.fmax(expr, ca.DM(self.bounds[0])), ca.DM(self.bounds[1]))
             xq = ca.substitute(expr, u, ca.vertcat(*[q_at[i] for i in self.inputs]))
             return replace(kin.casadi(q, ca.vertcat(xq, rest)), kind="cdc")
         x = ca.SX.sym("x", g)
@@ -108,7 +116,8 @@ class CdcModel(KinematicModel):
     def _body(self) -> dict[str, Any]:
         return {"nominal": poe_to_dict(self.kinematics.par.nominal), "fit_tool": self.kinematics.par.fit_tool,
                 "theta_ref": self.theta_ref.tolist(), "inputs": list(self.inputs),
-                "interpolator": self.interpolator.to_dict()}
+                "interpolator": self.interpolator.to_dict(),
+                **({} if self.bounds is None else {"bounds": self.bounds.tolist()})}
 
     @classmethod
     def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "CdcModel":
@@ -121,7 +130,13 @@ class CdcModel(KinematicModel):
         if interpolator.n_outputs != kin.par.size:
             raise ModelFileError("", "interpolator.n_outputs", f"expected {kin.par.size} (the geometric block), "
                                                                f"got {interpolator.n_outputs}")
-        return cls(robot, method, kin, theta_ref, interpolator, inputs, info)
+        bounds = None
+        if "bounds" in body:
+            lo_hi = body["bounds"]
+            if not (isinstance(lo_hi, list) and len(lo_hi) == 2):
+                raise ModelFileError("", "bounds", f"expected [min list, max list], got {lo_hi!r}")
+            bounds = np.stack([_vector(lo_hi[0], kin.par.size, "bounds"), _vector(lo_hi[1], kin.par.size, "bounds")])
+        return cls(robot, method, kin, theta_ref, interpolator, inputs, info, bounds)
 
 
 def _vector(value: Any, size: int, key: str) -> np.ndarray:

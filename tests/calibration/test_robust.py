@@ -1,0 +1,112 @@
+"""The robustness checks of CDC fits: held-out clusters, probe ranges, bounded outputs, the chosen local prior."""
+
+import numpy as np
+import pytest
+
+from calibration import robust
+from calibration.cdc import CDC_INPUTS, CdcModel, cluster_anchors, geometric_cdc
+from calibration.errors import ModelFileError
+from calibration.interpolation import Fourier13Interpolator, make_interpolator
+from calibration.methods import FitOptions, Fitter
+from calibration.models import load_model, save_model
+from calibration.parameterisation import MinimalParameterisation
+from tests.conftest import cluster_design, measure
+
+
+@pytest.fixture(scope="module")
+def fitter(synthetic_arm, r1_nominal):
+    _, _, truth = synthetic_arm
+    q, cluster = cluster_design(step_deg=15.0)
+    return Fitter("R1", r1_nominal, measure(truth.fk, q, 0.02, 0.01, 1, cluster), FitOptions())
+
+
+def test_cluster_folds_hold_out_every_cluster_once():
+    folds = robust.cluster_folds(23, 5, seed=3)
+    assert folds.shape == (23,) and set(folds) == set(range(5))
+    assert np.bincount(folds).max() - np.bincount(folds).min() <= 1
+    np.testing.assert_array_equal(folds, robust.cluster_folds(23, 5, seed=3))
+
+
+def test_range_excess_in_units_of_the_range():
+    x_local = np.array([[0.0, 10.0], [1.0, 10.0]])
+    pred = np.array([[0.5, 10.0], [3.0, 10.0], [-0.5, 10.0], [0.5, 10.5]])
+    np.testing.assert_allclose(robust.range_excess(pred, x_local, floor=0.1), [0.0, 2.0, 0.5, 5.0])
+
+
+def test_one_se_rule_takes_the_strongest_tied_strength():
+    h = [robust.HeldOut(r, 1.0, 0.0, 0.0, 0.01) for r in (0.50, 0.495, 0.503, 0.52)]
+    assert robust.one_se_choice((0.1, 1.0, 3.0, 10.0), h) == 2
+
+
+def test_cdc_model_clips_to_its_bounds_and_keeps_them_in_its_file(tmp_path, r1_nominal):
+    par = MinimalParameterisation(r1_nominal)
+    rng = np.random.default_rng(2)
+    x = rng.uniform(-0.5, 0.5, (30, 2))
+    y = np.column_stack([1e-3 * np.sin(3 * x[:, 0] + k) for k in range(par.size)])
+    bounds = np.stack([y.min(axis=0), y.max(axis=0)])
+    model = CdcModel("R1", "fbf13", *geometric_cdc(par), Fourier13Interpolator().fit(x, y), bounds=bounds)
+    far = np.zeros((3, 6))
+    far[:, 1:3] = [[2.5, -2.5], [3.0, 3.0], [-3.0, 1.0]]  # far outside the anchors: Fourier extrapolates
+    theta = model.parameters_at(far)[:, : par.size]
+    assert np.all(theta >= bounds[0]) and np.all(theta <= bounds[1])
+    save_model(model, tmp_path / "m.json")
+    back = load_model(tmp_path / "m.json")
+    np.testing.assert_array_equal(back.bounds, bounds)
+    assert np.array_equal(back.fk(far)[1], model.fk(far)[1])
+
+
+def test_cdc_model_file_with_bad_bounds_is_refused(tmp_path, r1_nominal):
+    import json
+
+    par = MinimalParameterisation(r1_nominal)
+    x = np.random.default_rng(2).uniform(-0.5, 0.5, (30, 2))
+    y = np.zeros((30, par.size))
+    model = CdcModel("R1", "fbf13", *geometric_cdc(par), Fourier13Interpolator().fit(x, y),
+                     bounds=np.zeros((2, par.size)))
+    save_model(model, tmp_path / "m.json")
+    doc = json.loads((tmp_path / "m.json").read_text())
+    body = doc.get("body", doc)
+    body["bounds"] = [[0.0] * 3]
+    (tmp_path / "m.json").write_text(json.dumps(doc))
+    with pytest.raises(ModelFileError, match="bounds"):
+        load_model(tmp_path / "m.json")
+
+
+def test_cdc_fit_records_its_checks_and_the_chosen_prior(fitter):
+    model, _ = fitter.fit("linear")
+    held = model.info["heldout"]
+    assert held["rms_mm"] > 0 and held["reference_rms_mm"] > 0
+    assert model.info["local_prior"]["chosen"] in FitOptions().local_prior_grid
+    assert "warning" not in model.info  # planted constant geometry: nothing to flag
+    assert model.bounds.shape == (2, fitter.par.size)
+
+
+def test_an_interpolator_worse_than_the_reference_is_seen_on_held_out_clusters(fitter):
+    local, pi = fitter.local_fits(), fitter.physics_informed()
+    groups, _ = cluster_anchors(fitter.train)
+    noisy = local.x + np.random.default_rng(0).normal(0.0, 0.3, local.x.shape) * fitter.par.scale()
+    h = robust.held_out(lambda: make_interpolator("nearest"), pi.kinematics, pi.theta, local.anchors, noisy,
+                        groups, fitter.train, CDC_INPUTS)
+    assert h.ratio > robust.HELDOUT_RATIO_LIMIT
+
+
+def test_workspace_probes_keep_the_interpolation_inputs_at_anchors_and_the_joints_within_limits():
+    anchors = np.radians([[0.0, 10.0], [20.0, -30.0], [-40.0, 5.0]])
+    lo, hi = np.radians([-170, -90, -80, -150, -135, -210.0]), np.radians([170, 150, 150, 150, 90, 210.0])
+    q = robust.workspace_probes(anchors, (lo, hi), 6, CDC_INPUTS, n=500, seed=1)
+    assert q.shape == (500, 6) and np.all(q >= lo) and np.all(q <= hi)
+    assert {tuple(r) for r in q[:, 1:3]} <= {tuple(r) for r in anchors}
+
+
+def test_workspace_ratio_compares_corrections_on_probes_and_training_poses():
+    def ref(q):
+        return None, np.zeros((len(q), 3))
+
+    def model(q):  # correction grows with |q4|: small on training poses (q4 ~ 0), large over the workspace
+        return None, np.column_stack([0.1 + np.abs(q[:, 3]), np.zeros(len(q)), np.zeros(len(q))])
+
+    q_train = np.zeros((10, 6))
+    q_probe = np.zeros((10, 6))
+    q_probe[:, 3] = 1.0
+    ratio, probe, train = robust.workspace_ratio(model, ref, q_train, q_probe)
+    np.testing.assert_allclose([ratio, probe, train], [11.0, 1.1, 0.1])
