@@ -112,9 +112,9 @@ def open_runtime(cell: Any, args: argparse.Namespace, robots: Sequence[str] | No
     its markers in a hidden world frame derived from ``--seed``, as a real Motive does.
     """
     if args.sim:
-        from app.cell_runtime import SimCell, SimCellConfig
+        from app.cell_runtime import SimCell, SimCellOptions
 
-        return SimCell(cell, SimCellConfig(time_scale=args.time_scale, seed=args.seed, mocap_world=not registered))
+        return SimCell(cell, SimCellOptions(time_scale=args.time_scale, seed=args.seed, mocap_world=not registered))
     from app.real_cell import RealCell
 
     return RealCell(cell, robots, registered=registered, reset_alarms=args.reset_alarms)

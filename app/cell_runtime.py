@@ -24,6 +24,7 @@ import numpy as np
 
 from app.motion import move_safely  # noqa: F401  (re-exported: the cell's guarded move)
 from calibration.errors import ConfigError
+from calibration.physics import PlantedErrors
 from cell_config.loader import CellSpec, ZenohConfig
 from drivers.base import MocapSource, RobotDriver
 
@@ -40,17 +41,16 @@ def park_q(robot: str) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class SimCellConfig:
-    """How the simulated cell behaves.
+class SimCellOptions:
+    """How the simulated cell behaves: the one set of options of every simulated cell (``demo``,
+    ``collect --sim``, ``validate-dual --sim``, the tests).
 
     Attributes:
         time_scale: simulated seconds per real second (the arms, the mocap and every timeout follow it).
         mocap_rate_hz: mocap frame rate [Hz].
-        noise_pos_mm: per-frame mocap position noise, per axis [mm].
-        noise_rot_deg: per-frame mocap orientation noise, per axis [deg].
-        origin_std_mm: planted joint-origin errors, standard deviation [mm].
-        tilt_std_deg: planted joint-axis tilts, standard deviation [deg].
-        compliance_mm: RMS tool displacement of the planted gravity compliance [mm] (0: purely geometric).
+        noise_pos_mm: per-frame (per-sample) measurement position noise, per axis [mm].
+        noise_rot_deg: per-frame (per-sample) measurement orientation noise, per axis [deg].
+        errors: how wrong each arm is (planted by :func:`calibration.physics.planted_twin`).
         settle_time_s: simulated settling time after each move [s].
         seed: seed of everything planted or random; each robot gets its own derived seed.
         mocap_world: report the markers in a hidden mocap world frame derived from ``seed`` (as a real Motive
@@ -61,9 +61,7 @@ class SimCellConfig:
     mocap_rate_hz: float = 60.0
     noise_pos_mm: float = 0.02
     noise_rot_deg: float = 0.005
-    origin_std_mm: float = 0.5
-    tilt_std_deg: float = 0.05
-    compliance_mm: float = 1.0
+    errors: PlantedErrors = PlantedErrors(compliance_mm=1.0)
     settle_time_s: float = 0.15
     seed: int = 0
     mocap_world: bool = False
@@ -166,7 +164,7 @@ class SimCell:
         robots: the arms to simulate (default: every arm of the cell).
     """
 
-    def __init__(self, cell: CellSpec, config: SimCellConfig = SimCellConfig(),
+    def __init__(self, cell: CellSpec, config: SimCellOptions = SimCellOptions(),
                  robots: tuple[str, ...] | None = None) -> None:
         self.cell = cell
         self.config = config
@@ -191,15 +189,13 @@ class SimCell:
         from drivers.bus import MocapBridge, ZenohMocapSource, mocap_key, open_session, wait_for_subscriber
         from drivers.errors import DriverError
         from drivers.sim import SimClock, SimMocapConfig, SimMocapSource, SimRobotConfig, SimRobotDriver
-        from drivers.sim import physics_truth
+        from drivers.sim import cell_truths
 
         c = self.config
         try:
             clock = SimClock(c.time_scale)
-            for k, name in enumerate(self.robots):
+            for name, truth in cell_truths(self.cell, c.seed, c.errors, self.robots).items():
                 r = self.cell.robot(name)
-                truth = physics_truth(r.model(), r.robot, seed=c.seed * 100 + k + 1, origin_std_mm=c.origin_std_mm,
-                                      tilt_std_deg=c.tilt_std_deg, compliance_mm=c.compliance_mm)
                 driver = SimRobotDriver(name, r.robot, truth, q0=self.park_q(name), clock=clock,
                                         config=SimRobotConfig(settle_time_s=c.settle_time_s))
                 driver.connect()

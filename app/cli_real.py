@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import signal
 import threading
 from typing import Any, Callable
@@ -96,6 +97,7 @@ def cmd_fake_controller(args: argparse.Namespace) -> int:
 
 def cmd_fake_motive(args: argparse.Namespace) -> int:
     from drivers.natnet.fake_motive import FakeMotive
+    from calibration.physics import PlantedErrors
     from drivers.sim.rehearsal import RehearsalMocap, StateReader, rehearsal_truths
 
     cell = cell_spec(args)
@@ -103,8 +105,8 @@ def cmd_fake_motive(args: argparse.Namespace) -> int:
         raise CellCalError(f"{cell.path}: the fake Motive needs the controller block (to watch the arms) and the "
                            "mocap block (where to serve)")
     stop = stop_on_signals()
-    truths = rehearsal_truths(cell, args.seed, origin_std_mm=args.origin_std_mm, tilt_std_deg=args.tilt_std_deg,
-                              compliance_mm=args.compliance_mm)
+    truths = rehearsal_truths(cell, args.seed, PlantedErrors(args.origin_std_mm, math.radians(args.tilt_std_deg),
+                                                             args.compliance_mm))
     m = cell.mocap
     if not m.server_address.startswith("127."):
         raise CellCalError(f"{cell.path}: mocap.server_address {m.server_address}: the fake Motive serves on "

@@ -22,12 +22,13 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from app.cell_runtime import SimCell, SimCellConfig, move_safely
+from app.cell_runtime import SimCell, SimCellOptions, move_safely
 from app.collect import CollectConfig, SessionResult, export, run_session
 from app.planning import Plan
 from app.safety import CellSafety
@@ -67,7 +68,7 @@ class DemoConfig:
     n_validation: int = 50
     robots: tuple[str, ...] = ("R1", "R2")
     methods: tuple[str, ...] | None = None
-    sim: SimCellConfig = field(default_factory=SimCellConfig)
+    sim: SimCellOptions = field(default_factory=SimCellOptions)
     collect: CollectConfig = DEMO_COLLECT
     progress: bool = True
 
@@ -210,7 +211,7 @@ def run_demo(out_dir: str | Path, cell: CellSpec, config: DemoConfig = DemoConfi
     clear_previous(out, tuple(cell.robots))
     methods, left_out = config.chosen_methods()
     safety = CellSafety(cell)
-    sim_config = SimCellConfig(**{**config.sim.__dict__, "seed": config.seed})
+    sim_config = replace(config.sim, seed=config.seed)
     robots: dict[str, Any] = {}
     comparisons: dict[str, Any] = {}
     tests: dict[str, Any] = {}
@@ -235,8 +236,9 @@ def run_demo(out_dir: str | Path, cell: CellSpec, config: DemoConfig = DemoConfi
                "config": {"full": config.full, "seed": config.seed, "time_scale": sim_config.time_scale,
                           "mocap_rate_hz": sim_config.mocap_rate_hz, "anchor_step_deg": config.plan_spec().q2_step_deg,
                           "validation_poses": config.n_validation, "methods": list(methods)},
-               "planted": {"origin_std_mm": sim_config.origin_std_mm, "tilt_std_deg": sim_config.tilt_std_deg,
-                           "compliance_rms_mm": sim_config.compliance_mm, "mocap_noise_mm": sim_config.noise_pos_mm}}
+               "planted": {"origin_std_mm": sim_config.errors.offset_std_mm,
+                           "tilt_std_deg": math.degrees(sim_config.errors.tilt_std_rad),
+                           "compliance_rms_mm": sim_config.errors.compliance_mm, "mocap_noise_mm": sim_config.noise_pos_mm}}
     report = write_html(out, comparisons, tests, summary)
     seconds = time.monotonic() - t0
     summary["seconds"] = round(seconds, 3)

@@ -1,6 +1,7 @@
 """The simulated dual-robot cell for validation: true twins, calibration data from them, fitted model sets.
 
-Each arm's truth is a :class:`~calibration.physics.Twin`: the nominal arm with planted geometric errors
+Each arm's truth is a :class:`~calibration.physics.Twin` from the one planter,
+:func:`~calibration.physics.planted_twin`, with the errors of :data:`VALIDATION_CELL`: planted geometric errors
 (joint-origin offsets and axis tilts) and a gravity-like joint compliance (joints 2, 3, 5 sag in proportion to
 the arm's own gravity torque, link masses from the robot YAML). Calibration data are measured from the twin
 directly with Gaussian position/orientation noise (no simulated motion, so it stays fast):
@@ -22,10 +23,12 @@ from typing import Any
 
 import numpy as np
 
+from app.cell_runtime import SimCellOptions
 from calibration import so3
 from calibration.cdc import expand_anchors
 from calibration.errors import ModelError
 from calibration.models import KinematicModel
+from calibration.physics import PlantedErrors
 from calibration.recording import Recording
 from cell_config.loader import CellSpec
 
@@ -35,42 +38,34 @@ ROBOTS = ("R1", "R2")
 SIM_METHODS = ("nominal", "cpa", "fbf13", "ae", "pi")
 
 
+#: The simulated cell of ``validate-dual --sim``: its planted errors and the noise of its calibration data.
+VALIDATION_CELL = SimCellOptions(seed=7, noise_pos_mm=0.03, noise_rot_deg=0.01,
+                                 errors=PlantedErrors(offset_std_mm=0.3, tilt_std_rad=4e-4, compliance_mm=0.6))
+
+
 @dataclass(frozen=True)
-class SimCellOptions:
-    """How wrong the simulated arms are and how they are measured.
+class TrainingGrid:
+    """Where the training anchors of each arm lie.
 
     Attributes:
-        seed: seed of every random draw (R2 uses ``seed + 1``).
-        offset_sigma_mm: standard deviation of the planted joint-origin offsets [mm].
-        tilt_sigma_rad: standard deviation of the planted axis tilts [rad].
-        compliance_mm: RMS tool displacement of the planted joint compliance [mm].
-        noise_mm, noise_deg: measurement noise per axis [mm], [deg].
         grid_step_deg: (q2, q3) spacing of the training anchors [deg].
         wrist_spread_deg: joints 1, 4, 5, 6 of each anchor uniform in +- this [deg].
     """
 
-    seed: int = 7
-    offset_sigma_mm: float = 0.3
-    tilt_sigma_rad: float = 4e-4
-    compliance_mm: float = 0.6
-    noise_mm: float = 0.03
-    noise_deg: float = 0.01
     grid_step_deg: float = 10.0
     wrist_spread_deg: float = 30.0
 
 
-def make_twins(cell: CellSpec, options: SimCellOptions = SimCellOptions()) -> dict[str, Any]:
-    """The true twin of each arm: planted geometry errors plus joint compliance under gravity."""
-    from calibration.physics import GravityModel, Twin
+def make_twins(cell: CellSpec, options: SimCellOptions = VALIDATION_CELL) -> dict[str, Any]:
+    """The true twin of each arm (R1 seeded ``options.seed``, R2 ``options.seed + 1``), from the one planter."""
+    from calibration.physics import GravityModel, planted_twin
 
     twins = {}
     for k, name in enumerate(ROBOTS):
         spec = cell.robot(name)
         nominal = spec.model()
         gravity = GravityModel.from_spec(spec.robot, nominal)
-        twins[name] = Twin.random(nominal, {"joint_compliance": options.compliance_mm}, options.seed + k,
-                                  gravity=gravity, offset_sigma_mm=options.offset_sigma_mm,
-                                  tilt_sigma_rad=options.tilt_sigma_rad)
+        twins[name] = planted_twin(nominal, options.errors, options.seed + k, gravity)
     return twins
 
 
@@ -79,22 +74,23 @@ def measure(twin: Any, q: np.ndarray, options: SimCellOptions, seed: int,
     """A recording of the twin at joint angles q [rad] (N, 6) with Gaussian noise; ``cluster`` (N,) ids."""
     rng = np.random.default_rng(seed)
     R, p = twin.pose(q)
-    p = p + rng.normal(0.0, options.noise_mm, p.shape)
-    R = so3.exp(rng.normal(0.0, np.radians(options.noise_deg), p.shape)) @ R
+    p = p + rng.normal(0.0, options.noise_pos_mm, p.shape)
+    R = so3.exp(rng.normal(0.0, np.radians(options.noise_rot_deg), p.shape)) @ R
     extra = {} if cluster is None else {"cluster": np.asarray(cluster, dtype=float)}
     return Recording(np.asarray(q, dtype=float), p, so3.R_to_quat(R), extra, "simulated twin")
 
 
-def training_design(cell: CellSpec, name: str, options: SimCellOptions) -> tuple[np.ndarray, np.ndarray]:
+def training_design(cell: CellSpec, name: str, options: SimCellOptions, grid: TrainingGrid = TrainingGrid()
+                    ) -> tuple[np.ndarray, np.ndarray]:
     """Cluster design inside the arm's limits: ``(q (N, 6) [rad], cluster (N,))``, 7 samples per anchor."""
     spec = cell.robot(name).robot
     lo, hi = np.degrees(spec.lower_rad) + 5.0, np.degrees(spec.upper_rad) - 5.0
     rng = np.random.default_rng(options.seed + 100)
-    s = options.grid_step_deg
+    s = grid.grid_step_deg
     anchors = []
     for q2 in np.arange(max(-45.0, lo[1]), min(50.0, hi[1]) + 1e-9, s):
         for q3 in np.arange(max(-45.0, lo[2]), min(35.0, hi[2]) + 1e-9, s):
-            w = rng.uniform(-options.wrist_spread_deg, options.wrist_spread_deg, 4)
+            w = rng.uniform(-grid.wrist_spread_deg, grid.wrist_spread_deg, 4)
             anchors.append([w[0], q2, q3, w[1], w[2], w[3]])
     return expand_anchors(np.radians(anchors))
 
@@ -113,7 +109,8 @@ def cpa_design(n_per_sweep: int = 15, span_deg: float = 120.0) -> tuple[np.ndarr
 
 
 def fit_model_sets(cell: CellSpec, twins: dict[str, Any], methods: tuple[str, ...] = SIM_METHODS,
-                   options: SimCellOptions = SimCellOptions()) -> dict[str, dict[str, KinematicModel]]:
+                   options: SimCellOptions = VALIDATION_CELL, grid: TrainingGrid = TrainingGrid()
+                   ) -> dict[str, dict[str, KinematicModel]]:
     """Fit every requested model set on data measured from the twins.
 
     Returns:
@@ -131,7 +128,7 @@ def fit_model_sets(cell: CellSpec, twins: dict[str, Any], methods: tuple[str, ..
     out: dict[str, dict[str, KinematicModel]] = {m: {} for m in methods}
     for k, name in enumerate(ROBOTS):
         spec = cell.robot(name)
-        q, cluster = training_design(cell, name, options)
+        q, cluster = training_design(cell, name, options, grid)
         train = measure(twins[name], q, options, options.seed + 10 + k, cluster)
         qc, cc = cpa_design()
         cpa = measure(twins[name], qc, options, options.seed + 20 + k, cc)

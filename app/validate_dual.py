@@ -260,7 +260,7 @@ def contact_plan(cell: CellSpec, twins: dict[str, Any], n: int) -> tuple[np.ndar
 
 
 def run_sim_validation(cell: CellSpec, n: int = 20, model_sets: dict[str, dict[str, Any]] | None = None,
-                       methods: tuple[str, ...] | None = None, options: Any = None,
+                       methods: tuple[str, ...] | None = None, options: Any = None, grid: Any = None,
                        tolerance_mm: float = 0.1, channel: str = "cellcal-validate") -> ContactValidation:
     """The whole check on the simulated cell: twins, fitted model sets (unless given), contacts, statistics.
 
@@ -269,22 +269,24 @@ def run_sim_validation(cell: CellSpec, n: int = 20, model_sets: dict[str, dict[s
         n: number of contact configurations (>= 2).
         model_sets: ``{label: {"R1": model, "R2": model}}``; fitted on twin data when None.
         methods: model sets to fit when ``model_sets`` is None (default ``SIM_METHODS``).
-        options: :class:`~app.sim_dual.SimCellOptions`.
+        options: the simulated cell, :class:`~app.cell_runtime.SimCellOptions` (default
+            :data:`~app.sim_dual.VALIDATION_CELL`).
+        grid: where the training anchors lie, :class:`~app.sim_dual.TrainingGrid`.
         tolerance_mm: the simulated probe touches within this distance [mm].
         channel: python-can virtual channel shared by the simulated and the reading probe.
     """
     from app.safety import CellSafety
-    from app.sim_dual import SIM_METHODS, SimCellOptions, fit_model_sets, make_twins
+    from app.sim_dual import SIM_METHODS, VALIDATION_CELL, TrainingGrid, fit_model_sets, make_twins
     from drivers.can_probe import CanContactProbe
     from drivers.sim.can_probe import SimulatedProbe
     from drivers.sim import SimClock, SimRobotConfig, SimRobotDriver
 
     if n < 2:
         raise ModelError(f"validation needs at least 2 configurations, got {n}")
-    options = options or SimCellOptions()
+    options = options or VALIDATION_CELL
     twins = make_twins(cell, options)
     if model_sets is None:
-        model_sets = fit_model_sets(cell, twins, methods or SIM_METHODS, options)
+        model_sets = fit_model_sets(cell, twins, methods or SIM_METHODS, options, grid or TrainingGrid())
     q_plan, p_contact = contact_plan(cell, twins, n)
     clock = SimClock(200.0)
     drivers = {k: SimRobotDriver(k, cell.robot(k).robot, twins[k], q0=q_plan[0, 6 * i:6 * i + 6], clock=clock,

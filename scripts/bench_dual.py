@@ -72,10 +72,9 @@ class PredictOnly:
 
 def fitted_fbf13(cell: object) -> dict[str, object]:
     """fbf13 models fitted by ``Fitter`` on noisy data measured from the simulated cell's twins."""
-    from app.sim_dual import SimCellOptions, fit_model_sets, make_twins
+    from app.sim_dual import fit_model_sets, make_twins
 
-    options = SimCellOptions()
-    return fit_model_sets(cell, make_twins(cell, options), ("fbf13",), options)["fbf13"]
+    return fit_model_sets(cell, make_twins(cell), ("fbf13",))["fbf13"]
 
 
 def run(planner: DualPlanner, n: int) -> dict[str, float]:

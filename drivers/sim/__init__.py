@@ -4,10 +4,9 @@ from drivers.sim.can_probe import SimulatedProbe
 from drivers.sim.clock import SimClock
 from drivers.sim.mocap import SimMocapConfig, SimMocapSource
 from drivers.sim.robot import SimFault, SimRobotConfig, SimRobotDriver
-from drivers.sim.truth import PoeTruth, Truth, TwinTruth, physics_truth, planted_truth, sim_context_to_twin
+from drivers.sim.truth import Truth, TwinTruth, cell_truths, planted_truth, sim_context_to_twin
 
 __all__ = [
-    "PoeTruth",
     "SimClock",
     "SimFault",
     "SimMocapConfig",
@@ -17,7 +16,7 @@ __all__ = [
     "SimulatedProbe",
     "Truth",
     "TwinTruth",
-    "physics_truth",
+    "cell_truths",
     "planted_truth",
     "sim_context_to_twin",
 ]
