@@ -11,10 +11,10 @@ from calibration.errors import CellCalError
 
 
 def _load_plan(path: str, robot: str) -> Any:
-    from app.planning import Plan
+    from app.plan_file import read_plan
     from calibration.errors import DataError
 
-    plan = Plan.load(path)
+    plan = read_plan(path, "collection")
     if plan.robots != (robot,):
         raise DataError(path, None, "targets", f"the plan moves {', '.join(plan.robots) or 'nothing'}, "
                                                f"expected {robot} only")

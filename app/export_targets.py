@@ -14,7 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from app.plan_result import PlanResult, load_plan_result
+from app.plan_file import read_plan
+from app.plan_result import PlanResult
 from calibration.files import atomic_write_text
 from calibration.errors import ModelError, UnsafeTarget
 from cell_config.loader import CellSpec
@@ -113,7 +114,7 @@ def export_targets(plan: PlanResult | str | Path, cell: CellSpec, out: str | Pat
         DataError, ModelError: unreadable plan, unknown frame or file type.
     """
     if not isinstance(plan, PlanResult):
-        plan = load_plan_result(plan)
+        plan = read_plan(plan, "dual")
     if Path(out).suffix.lower() not in (".csv", ".json"):
         raise ModelError(f"unknown target file type {Path(out).suffix!r}; valid: .csv, .json")
     rows = export_rows(plan, cell, frame, skip_failed)

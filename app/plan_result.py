@@ -1,8 +1,9 @@
-"""Results of the dual-robot planner and their plan file (JSON, schema ``cellcal.plan/1``).
+"""Results of the dual-robot planner and their plan file (JSON, schema ``cellcal.plan/1``, kind ``dual``).
 
 A plan file holds, per waypoint, both arms' joint angles [rad], whether the planner proved the waypoint
 (``converged``) and why not. Reading a file back treats any entry without ``converged: true`` as unsolved,
-so nothing downstream (export, execution) can take an unproven waypoint for a solved one.
+so nothing downstream (export, execution) can take an unproven waypoint for a solved one. Files are read
+with :func:`app.plan_file.read_plan`.
 """
 
 from __future__ import annotations
@@ -14,10 +15,10 @@ from typing import Any
 
 import numpy as np
 
+from app.plan_file import PLAN_SCHEMA
 from calibration.errors import DataError
 from calibration.files import atomic_write_text
 
-PLAN_SCHEMA = "cellcal.plan/1"
 
 
 @dataclass(frozen=True)
@@ -87,45 +88,35 @@ class PlanResult:
         return {"schema": PLAN_SCHEMA, "kind": "dual", "models": self.models, "T_wp_gun": self.T_wp_gun.tolist(),
                 "converged": self.converged, "waypoints": wps}
 
+    @classmethod
+    def from_dict(cls, d: dict[str, Any], source: str | Path = "<plan>") -> "PlanResult":
+        """A :class:`PlanResult` from a plan file's content; entries without ``converged: true`` count as unsolved.
+
+        Raises:
+            DataError: not a dual plan, or joint vectors that are not 6 finite numbers.
+        """
+        if not isinstance(d, dict) or d.get("schema") != PLAN_SCHEMA or not isinstance(d.get("waypoints"), list):
+            raise DataError(source, None, None, f"expected a dual plan (schema {PLAN_SCHEMA!r} with 'waypoints')")
+        out = []
+        for i, w in enumerate(d["waypoints"]):
+            if not isinstance(w, dict) or not {"R1", "R2"} <= set(w):
+                raise DataError(source, None, None, f"waypoint {i}: expected R1 and R2 with 6 finite numbers each "
+                                                    "[rad]; it names no robot pair")
+            try:
+                q1, q2 = np.asarray(w["R1"], dtype=float), np.asarray(w["R2"], dtype=float)
+            except (TypeError, ValueError):
+                q1 = q2 = np.full(0, np.nan)
+            if q1.shape != (6,) or q2.shape != (6,) or not np.all(np.isfinite(np.r_[q1, q2])):
+                raise DataError(source, None, None, f"waypoint {i}: expected R1 and R2 with 6 finite numbers each [rad]")
+            ok = w.get("converged") is True
+            nan = float("nan")
+            out.append(WaypointResult(q1, q2, float(w.get("residual_mm", nan)), float(w.get("residual_deg", nan)),
+                                      float(w.get("track_mm", nan)), nan, float(w.get("clearance_mm", nan)), nan,
+                                      float(w.get("solve_ms", nan)), 0, ok,
+                                      w.get("reason", "") if ok else (w.get("reason") or "not marked converged")))
+        return cls(tuple(out), np.asarray(d.get("T_wp_gun", np.eye(4)), dtype=float), dict(d.get("models", {})))
+
 
 def save_plan(plan: PlanResult, path: str | Path) -> None:
     """Write the plan file (JSON, schema ``cellcal.plan/1``) atomically."""
     atomic_write_text(Path(path), json.dumps(plan.to_dict(), indent=1))
-
-
-
-def plan_from_dict(d: dict[str, Any], source: str | Path = "<plan>") -> PlanResult:
-    """A :class:`PlanResult` from a plan file's content; entries without ``converged: true`` count as unsolved.
-
-    Raises:
-        DataError: not a dual plan, or joint vectors that are not 6 finite numbers.
-    """
-    if not isinstance(d, dict) or d.get("schema") != PLAN_SCHEMA or not isinstance(d.get("waypoints"), list):
-        raise DataError(source, None, None, f"expected a dual plan (schema {PLAN_SCHEMA!r} with 'waypoints')")
-    out = []
-    for i, w in enumerate(d["waypoints"]):
-        try:
-            q1, q2 = np.asarray(w["R1"], dtype=float), np.asarray(w["R2"], dtype=float)
-        except (KeyError, TypeError, ValueError) as e:
-            raise DataError(source, None, None, f"waypoint {i}: expected R1 and R2 with 6 numbers each [rad]") from e
-        if q1.shape != (6,) or q2.shape != (6,) or not np.all(np.isfinite(np.r_[q1, q2])):
-            raise DataError(source, None, None, f"waypoint {i}: expected R1 and R2 with 6 finite numbers each [rad]")
-        ok = w.get("converged") is True
-        nan = float("nan")
-        out.append(WaypointResult(q1, q2, float(w.get("residual_mm", nan)), float(w.get("residual_deg", nan)),
-                                  float(w.get("track_mm", nan)), nan, float(w.get("clearance_mm", nan)), nan,
-                                  float(w.get("solve_ms", nan)), 0, ok,
-                                  w.get("reason", "") if ok else (w.get("reason") or "not marked converged")))
-    return PlanResult(tuple(out), np.asarray(d.get("T_wp_gun", np.eye(4)), dtype=float), dict(d.get("models", {})))
-
-
-def load_plan_result(path: str | Path) -> PlanResult:
-    """Read a plan file written by :func:`save_plan`."""
-    path = Path(path)
-    try:
-        return plan_from_dict(json.loads(path.read_text(encoding="utf-8")), path)
-    except FileNotFoundError:
-        raise DataError(path, None, None, "plan file not found") from None
-    except json.JSONDecodeError as e:
-        raise DataError(path, None, None, f"not a JSON plan ({e})") from e
-

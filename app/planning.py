@@ -6,7 +6,8 @@ range depends on q2; :func:`paper_q3_bounds` reproduces the recorded design exac
 are linear in q2 with a kink at q2 = 0, truncated toward zero to whole degrees, q3 runs from the lower bound
 in 5 deg steps and ends on the upper bound, and rows alternate direction (serpentine) to keep moves short.
 
-A plan saves to JSON (``schema: cellcal.plan/1``) with angles in radians written exactly.
+A plan saves to JSON (``schema: cellcal.plan/1``, ``kind: collection``) with angles in radians written exactly;
+:func:`app.plan_file.read_plan` reads it back.
 """
 
 from __future__ import annotations
@@ -23,7 +24,8 @@ import numpy as np
 from calibration.errors import ConfigError, DataError, UnsafeTarget
 from calibration.files import atomic_write_text
 
-SCHEMA = "cellcal.plan/1"
+from app.plan_file import PLAN_SCHEMA as SCHEMA
+
 TargetKind = Literal["anchor", "perturb", "cpa", "validation"]
 KINDS: tuple[str, ...] = ("anchor", "perturb", "cpa", "validation")
 VALIDATION_CLUSTER = -1
@@ -80,7 +82,7 @@ class Plan:
         return tuple(dict.fromkeys(t.robot for t in self.targets))
 
     def to_dict(self) -> dict[str, Any]:
-        return {"schema": SCHEMA, "params": self.params, "targets": [t.to_dict() for t in self.targets]}
+        return {"schema": SCHEMA, "kind": "collection", "params": self.params, "targets": [t.to_dict() for t in self.targets]}
 
     @staticmethod
     def from_dict(d: Any, source: str = "<plan>") -> "Plan":
@@ -111,18 +113,6 @@ class Plan:
     def save(self, path: str | Path) -> None:
         """Write the plan as JSON, atomically (a failed write leaves the old file, never a cut-off one)."""
         atomic_write_text(path, json.dumps(self.to_dict(), indent=1) + "\n")
-
-    @staticmethod
-    def load(path: str | Path) -> "Plan":
-        """Read a plan written by :meth:`save`; raises DataError on a malformed file."""
-        path = Path(path)
-        try:
-            d = json.loads(path.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise DataError(path, None, None, "file not found") from None
-        except (json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise DataError(path, None, None, f"not valid JSON ({e})") from None
-        return Plan.from_dict(d, str(path))
 
 
 def paper_q3_bounds(q2_deg: float) -> tuple[float, float]:

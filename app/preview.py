@@ -6,9 +6,9 @@ network). The commands are recorded in-process by a small window object that sta
 zmq server, so no server process or port is needed; ``serve=True`` uses a real meshcat server instead (for
 a live view in the browser).
 
-Plans: a dual plan (``{"schema": "cellcal.plan/1", "waypoints": [{"R1": [6 rad], "R2": [6 rad]}, ...]}``) or
-a single-robot collection plan with ``targets: [{"robot": "R1", "q": [6 rad]}, ...]``; a robot a frame does
-not mention keeps its previous configuration (the home configuration q = 0 at the start).
+Plans: any plan file (:func:`app.plan_file.read_plan`): a dual plan draws both arms per waypoint; a
+single-robot collection plan moves its arm target by target while the other keeps its previous configuration
+(the home configuration q = 0 at the start).
 Arms are drawn as the cell's collision capsules (:mod:`app.capsules`, the model the safety checks and the
 dual planner use, radii from the robot YAMLs): a cylinder and two end spheres per capsule, no meshes. Viewer
 units are metres.
@@ -19,7 +19,6 @@ from __future__ import annotations
 import base64
 import contextlib
 import io
-import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -51,45 +50,32 @@ class PreviewResult:
     url: str | None = None
 
 
-def load_plan(plan: str | Path | dict[str, Any]) -> list[dict[str, np.ndarray]]:
+def plan_frames(plan: Any) -> list[dict[str, np.ndarray]]:
     """Frames of a dual or collection plan: one ``{"R1": q (6,), "R2": q (6,)}`` per waypoint [rad].
 
+    Args:
+        plan: a plan file path, its parsed content, a :class:`~app.planning.Plan` or a
+            :class:`~app.plan_result.PlanResult` (read with :func:`app.plan_file.read_plan`).
+
     Raises:
-        DataError: unreadable file, unknown layout, or a joint vector that is not 6 finite numbers.
+        DataError: unreadable or malformed plan, a robot other than R1/R2, or no waypoints.
     """
-    path = Path(plan) if not isinstance(plan, dict) else Path("<plan>")
-    if not isinstance(plan, dict):
-        try:
-            plan = json.loads(path.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise DataError(path, None, None, "plan file not found") from None
-        except json.JSONDecodeError as e:
-            raise DataError(path, None, None, f"not a JSON plan ({e})") from e
-    if not isinstance(plan, dict) or not any(isinstance(plan.get(k), list) for k in ("waypoints", "targets")):
-        raise DataError(path, None, None, "expected a plan with 'waypoints' ({R1: [6], R2: [6]}) or 'targets' "
-                                          "({robot: R1|R2, q: [6]})")
-    entries = plan["waypoints"] if isinstance(plan.get("waypoints"), list) else plan["targets"]
-    current = {"R1": np.zeros(6), "R2": np.zeros(6)}
-    frames = []
-    for i, e in enumerate(entries):
-        if not isinstance(e, dict):
-            raise DataError(path, None, None, f"entry {i}: expected a mapping")
-        items = [(e["robot"], e.get("q"))] if "robot" in e else [(k, e[k]) for k in ("R1", "R2") if k in e]
-        if not items:
-            raise DataError(path, None, None, f"entry {i}: names no robot (expected keys R1/R2 or robot + q)")
-        for robot, q in items:
-            if robot not in current:
-                raise DataError(path, None, None, f"entry {i}: unknown robot {robot!r}; valid: R1, R2")
-            try:
-                qa = np.asarray(q, dtype=float)
-            except (TypeError, ValueError):
-                qa = np.full(0, np.nan)
-            if qa.shape != (6,) or not np.all(np.isfinite(qa)):
-                raise DataError(path, None, None, f"entry {i}: {robot} joint angles must be 6 finite numbers [rad]")
-            current[robot] = qa
-        frames.append({k: v.copy() for k, v in current.items()})
+    from app.plan_file import read_plan
+    from app.plan_result import PlanResult
+
+    plan = read_plan(plan)
+    if isinstance(plan, PlanResult):
+        frames = [{"R1": w.q_R1.copy(), "R2": w.q_R2.copy()} for w in plan.waypoints]
+    else:
+        current = {"R1": np.zeros(6), "R2": np.zeros(6)}
+        frames = []
+        for i, t in enumerate(plan.targets):
+            if t.robot not in current:
+                raise DataError("<plan>", None, None, f"entry {i}: unknown robot {t.robot!r}; valid: R1, R2")
+            current[t.robot] = np.asarray(t.q, dtype=float)
+            frames.append({k: v.copy() for k, v in current.items()})
     if not frames:
-        raise DataError(path, None, None, "the plan has no waypoints")
+        raise DataError("<plan>", None, None, "the plan has no waypoints")
     return frames
 
 
@@ -174,7 +160,7 @@ def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve
 
     Args:
         cell: the loaded cell.
-        plan: plan file path, its parsed dict, or a ``PlanResult`` (anything with ``to_dict()``).
+        plan: plan file path, its parsed dict, a ``Plan`` or a ``PlanResult``.
         html_out: write the self-contained static page here.
         serve: also start a meshcat server (a subprocess on 127.0.0.1, alive while this process runs) and draw
             there; the URL is returned. The caller keeps the process alive (e.g. waits for Enter).
@@ -196,7 +182,7 @@ def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve
 
     if html_out is None and not serve:
         raise ModelError("preview needs html_out (a static page) or serve=True (a live viewer)")
-    frames = load_plan(plan.to_dict() if hasattr(plan, "to_dict") else plan)
+    frames = plan_frames(plan)
     models = models or {n: cell.robot(n).model() for n in ("R1", "R2")}
     capsules = CellCapsules(cell)
     windows = [RecordingWindow()] if html_out is not None else []

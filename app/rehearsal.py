@@ -148,13 +148,14 @@ class Process:
 
 def small_plan(cell: Path, robot: str, out: Path, n: int = 14) -> Path:
     """The first ``n`` targets (two clusters) of the coarsest anchor grid."""
+    from app.plan_file import read_plan
     from app.planning import Plan
 
     full = out.with_suffix(".full.json")
     done = run_cellcal(cell, "plan", "--robot", robot, "--q2-step", "50", "--q3-step", "50", "--out", str(full))
     if done.returncode != 0:
         raise RuntimeError(f"cellcal plan failed: {done.stderr}")
-    plan = Plan.load(full)
+    plan = read_plan(full, "collection")
     Plan(plan.targets[:n], plan.params).save(out)
     return out
 

@@ -29,9 +29,9 @@ def contact_configurations(plan_path: str | Path) -> tuple[np.ndarray, np.ndarra
         DataError: not a dual plan file.
         ModelError: the plan has unsolved waypoints or fewer than 2.
     """
-    from app.plan_result import load_plan_result
+    from app.plan_file import read_plan
 
-    plan = load_plan_result(plan_path)
+    plan = read_plan(plan_path, "dual")
     unsolved = [i for i, w in enumerate(plan.waypoints) if not w.converged]
     if unsolved:
         raise ModelError(f"{plan_path}: waypoints {unsolved[:5]} are not solved; validate only a fully solved plan")

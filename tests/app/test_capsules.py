@@ -137,7 +137,8 @@ def test_preview_draws_the_capsule_radii(cell, tmp_path, monkeypatch):
             windows.append(self)
 
     monkeypatch.setattr(preview_mod, "RecordingWindow", Recording)
-    plan = {"waypoints": [{"R1": [0.0] * 6, "R2": [0.0] * 6}, {"R1": [0.1] * 6, "R2": [-0.1] * 6}]}
+    plan = {"schema": "cellcal.plan/1", "kind": "dual",
+            "waypoints": [{"R1": [0.0] * 6, "R2": [0.0] * 6}, {"R1": [0.1] * 6, "R2": [-0.1] * 6}]}
     preview_mod.preview(cell, plan, html_out=tmp_path / "p.html")
     caps = CellCapsules(cell)
     segs = {n: caps.segments(n, np.zeros(6))[0] for n in ("R1", "R2")}
