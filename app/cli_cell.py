@@ -6,7 +6,8 @@ import argparse
 from pathlib import Path
 from typing import Any, Callable
 
-from app.cli_common import cell_spec, fitter_for, log, write_json
+from app.cli_common import cell_spec, log, write_json
+from app.fitting import fitter_for
 from calibration.errors import CellCalError
 
 

@@ -1,4 +1,4 @@
-"""Helpers shared by the ``cellcal`` subcommands: the cell, recordings, fitters and JSON outputs."""
+"""Helpers shared by the ``cellcal`` subcommands: the cell, recordings, fitters from arguments and JSON outputs."""
 
 from __future__ import annotations
 
@@ -37,24 +37,9 @@ def load_model_for(path: str, robot: Any) -> Any:
     return load_model(path, robot.name, robot.model())
 
 
-def fitter_for(robot: Any, train: Any, cpa: Any | None = None, options: Any | None = None) -> Any:
-    """A Fitter for one arm of the cell: its nominal model, link masses and joint limits."""
-    from calibration.errors import ModelError
-    from calibration.methods import FitOptions, Fitter
-    from calibration.physics.gravity import GravityModel
-
-    nominal = robot.model()
-    try:
-        gravity = GravityModel.from_spec(robot.robot, nominal)
-    except ModelError as e:
-        log.warning("%s: joint compliance takes the mass-free form: %s", robot.name, e)
-        gravity = None
-    return Fitter(robot.name, nominal, train, options or FitOptions(), cpa, gravity,
-                  (robot.robot.lower_rad, robot.robot.upper_rad))
-
-
 def fitter_from_args(args: argparse.Namespace) -> Any:
     """A Fitter for ``--robot``/``--train``/``--cpa``/``--a``, and the robot's cell entry."""
+    from app.fitting import fitter_for
     from calibration.methods import FitOptions
 
     robot = cell_spec(args).robot(args.robot)

@@ -151,7 +151,7 @@ def fit_and_compare(cell: CellSpec, robot: str, rec: Recordings, methods: tuple[
                     progress: bool = True) -> Any:
     """Fit ``methods`` on the training set, evaluate them on the test set, save every model as YAML."""
     from app.compare import run_comparison
-    from app.cli_common import fitter_for
+    from app.fitting import fitter_for
     from calibration.models import save_model
 
     fitter = fitter_for(cell.robot(robot), rec.train, rec.cpa)

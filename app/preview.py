@@ -154,6 +154,70 @@ def _capsule_transforms(seg_m: np.ndarray) -> dict[str, np.ndarray]:
             "_end1": tf.translation_matrix(seg_m[1])}
 
 
+def _windows(static: bool, serve: bool) -> tuple[list[Any], str | None]:
+    """The windows to draw in: a recording window for the static page, a live meshcat server's; its URL."""
+    import meshcat
+
+    windows: list[Any] = [RecordingWindow()] if static else []
+    url = None
+    if serve:
+        with contextlib.redirect_stdout(io.StringIO()):  # meshcat prints the URL; we return and log it
+            live = meshcat.Visualizer()
+        url = live.url()
+        logger.info("meshcat viewer at %s (the server lives as long as this process)", url)
+        windows.append(live.window)
+    return windows, url
+
+
+def _scene(window: Any, capsules: CellCapsules) -> tuple[Any, Any]:
+    """Background, camera and floor in ``window``: ``(viewer, the cellcal node the arms are drawn under)``."""
+    import meshcat
+    import meshcat.geometry as g
+    import meshcat.transformations as tf
+
+    top = meshcat.Visualizer(window=window)
+    top["/Background"].set_property("top_color", [0.93, 0.93, 0.93])
+    top["/Background"].set_property("bottom_color", [0.75, 0.75, 0.75])
+    top["/Grid"].set_property("visible", False)
+    top["/Axes"].set_property("visible", False)
+    top["/Cameras/default/rotated/<object>"].set_property("position", [0.0, 1.4, 3.4])
+    vis = top["cellcal"]  # the viewer orbits the origin: centre the cell on it
+    vis.set_transform(tf.translation_matrix([-1.35, 0.2, -0.1]))
+    vis["cell/floor"].set_object(g.Box([4.2, 2.4, 0.02]), g.MeshLambertMaterial(color=0x9E9E8E))
+    vis["cell/floor"].set_transform(tf.translation_matrix([1.35, -0.2, capsules.floor_z_mm * 1e-3 - 0.01]))
+    return top, vis
+
+
+def _draw_arm(vis: Any, anim: Any, cell: CellSpec, capsules: CellCapsules, name: str, q: np.ndarray,
+              model: Any) -> None:
+    """One arm's capsules and tool triad, animated over its joint angles q [rad] (F, 6)."""
+    import meshcat.geometry as g
+
+    segs = capsules.segments(name, q, model) * 1e-3  # (F, 6, 2, 3) [m]
+    tools = _tool_poses(cell, model, name, q)
+    mat = g.MeshPhongMaterial(color=COLORS[name])
+    for k, seg in enumerate(SEGMENTS):
+        r = float(capsules.radii(name)[k]) * 1e-3
+        length = float(np.linalg.norm(segs[0, k, 1] - segs[0, k, 0]))
+        vis[f"{name}/capsules/{seg}"].set_object(g.Cylinder(length, r), mat)
+        vis[f"{name}/capsules/{seg}_end0"].set_object(g.Sphere(r), mat)
+        vis[f"{name}/capsules/{seg}_end1"].set_object(g.Sphere(r), mat)
+    vis[f"{name}/tool"].set_object(g.triad(0.25))
+    if name == "R2":
+        vis["R2/tool/workpiece"].set_object(g.Box([0.12, 0.12, 0.01]), g.MeshLambertMaterial(color=0xD0D0D0))
+    for f in range(len(q)):
+        with anim.at_frame(vis, f) as af:
+            for k, seg in enumerate(SEGMENTS):
+                for suffix, T in _capsule_transforms(segs[f, k]).items():
+                    af[f"{name}/capsules/{seg}{suffix}"].set_transform(T)
+            af[f"{name}/tool"].set_transform(tools[f])
+    # the first frame as static transforms too, so the page shows the arms before the clip starts
+    for k, seg in enumerate(SEGMENTS):
+        for suffix, T in _capsule_transforms(segs[0, k]).items():
+            vis[f"{name}/capsules/{seg}{suffix}"].set_transform(T)
+    vis[f"{name}/tool"].set_transform(tools[0])
+
+
 def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve: bool = False,
             models: dict[str, Any] | None = None, fps: float = 10.0) -> PreviewResult:
     """Draw the cell and animate a plan.
@@ -174,8 +238,6 @@ def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve
         DataError: the plan is malformed. ModelError: neither ``html_out`` nor ``serve`` was asked for.
     """
     import meshcat
-    import meshcat.geometry as g
-    import meshcat.transformations as tf
     from meshcat.animation import Animation
 
     from calibration.errors import ModelError
@@ -185,51 +247,12 @@ def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve
     frames = plan_frames(plan)
     models = models or {n: cell.robot(n).model() for n in ("R1", "R2")}
     capsules = CellCapsules(cell)
-    windows = [RecordingWindow()] if html_out is not None else []
-    url = None
-    if serve:
-        with contextlib.redirect_stdout(io.StringIO()):  # meshcat prints the URL; we return and log it
-            live = meshcat.Visualizer()
-        url = live.url()
-        logger.info("meshcat viewer at %s (the server lives as long as this process)", url)
-        windows.append(live.window)
+    windows, url = _windows(html_out is not None, serve)
     for window in windows:
-        top = meshcat.Visualizer(window=window)
-        top["/Background"].set_property("top_color", [0.93, 0.93, 0.93])
-        top["/Background"].set_property("bottom_color", [0.75, 0.75, 0.75])
-        top["/Grid"].set_property("visible", False)
-        top["/Axes"].set_property("visible", False)
-        top["/Cameras/default/rotated/<object>"].set_property("position", [0.0, 1.4, 3.4])
-        vis = top["cellcal"]  # the viewer orbits the origin: centre the cell on it
-        vis.set_transform(tf.translation_matrix([-1.35, 0.2, -0.1]))
-        vis["cell/floor"].set_object(g.Box([4.2, 2.4, 0.02]), g.MeshLambertMaterial(color=0x9E9E8E))
-        vis["cell/floor"].set_transform(tf.translation_matrix([1.35, -0.2, capsules.floor_z_mm * 1e-3 - 0.01]))
+        top, vis = _scene(window, capsules)
         anim = Animation(default_framerate=fps)
         for name in ("R1", "R2"):
-            q = np.array([frame[name] for frame in frames])
-            segs = capsules.segments(name, q, models[name]) * 1e-3  # (F, 6, 2, 3) [m]
-            tools = _tool_poses(cell, models[name], name, q)
-            mat = g.MeshPhongMaterial(color=COLORS[name])
-            for k, seg in enumerate(SEGMENTS):
-                r = float(capsules.radii(name)[k]) * 1e-3
-                length = float(np.linalg.norm(segs[0, k, 1] - segs[0, k, 0]))
-                vis[f"{name}/capsules/{seg}"].set_object(g.Cylinder(length, r), mat)
-                vis[f"{name}/capsules/{seg}_end0"].set_object(g.Sphere(r), mat)
-                vis[f"{name}/capsules/{seg}_end1"].set_object(g.Sphere(r), mat)
-            vis[f"{name}/tool"].set_object(g.triad(0.25))
-            if name == "R2":
-                vis["R2/tool/workpiece"].set_object(g.Box([0.12, 0.12, 0.01]), g.MeshLambertMaterial(color=0xD0D0D0))
-            for f in range(len(frames)):
-                with anim.at_frame(vis, f) as af:
-                    for k, seg in enumerate(SEGMENTS):
-                        for suffix, T in _capsule_transforms(segs[f, k]).items():
-                            af[f"{name}/capsules/{seg}{suffix}"].set_transform(T)
-                    af[f"{name}/tool"].set_transform(tools[f])
-            # the first frame as static transforms too, so the page shows the arms before the clip starts
-            for k, seg in enumerate(SEGMENTS):
-                for suffix, T in _capsule_transforms(segs[0, k]).items():
-                    vis[f"{name}/capsules/{seg}{suffix}"].set_transform(T)
-            vis[f"{name}/tool"].set_transform(tools[0])
+            _draw_arm(vis, anim, cell, capsules, name, np.array([frame[name] for frame in frames]), models[name])
         top.set_animation(anim, play=True, repetitions=1)
     path = None
     if html_out is not None:

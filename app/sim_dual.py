@@ -119,7 +119,7 @@ def fit_model_sets(cell: CellSpec, twins: dict[str, Any], methods: tuple[str, ..
     Raises:
         ModelError: an unknown method (the message names the valid ones).
     """
-    from app.cli_common import fitter_for
+    from app.fitting import fitter_for
     from calibration.methods import METHODS
 
     bad = [m for m in methods if m not in METHODS]

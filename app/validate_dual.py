@@ -13,14 +13,15 @@ the first motion and each move again against the other arm's live pose (:func:`c
 
 On the simulated cell (:func:`run_sim_validation`) the contact configurations are planned with the true
 twins (so contact truly holds), the simulated arms are driven there, and a simulated probe on python-can's
-virtual bus touches when the true tip is within ``tolerance_mm`` of the point; a :class:`CanContactProbe` on
+virtual bus touches when the true tip is within ``tolerance_mm`` of the point (the sensor,
+:class:`drivers.sim.contact.SimContactSensor`, polls :func:`true_tip_distance` in its thread); a :class:`CanContactProbe` on
 the same bus confirms it. The cell's base-to-base transform is taken as exact in the simulation.
 """
 
 from __future__ import annotations
 
 import logging
-import threading
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -126,41 +127,16 @@ def evaluate_models(cell: CellSpec, model_sets: dict[str, dict[str, Any]], q: np
     return stats, devs
 
 
-class SimContactSensor:
-    """The simulated probe's physics: touches while the true gun tip is within ``tolerance_mm`` of the point.
+def true_tip_distance(cell: CellSpec, drivers: dict[str, Any], p_wp_contact: np.ndarray) -> Callable[[], float]:
+    """A function giving the true distance of the gun tip from the contact point now [mm] (simulated arms)."""
+    p = np.asarray(p_wp_contact, dtype=float)
 
-    Polls both simulated arms' true poses in a thread and sends touch / release frames through a
-    :class:`~drivers.sim.can_probe.SimulatedProbe` on its bus, as a real probe would.
-    """
+    def distance_mm() -> float:
+        t = np.array([drivers["R1"].clock.now()])
+        p1 = drivers["R1"].true_pose(t)[1]
+        return float(np.linalg.norm(relative_from_poses(cell, p1, drivers["R2"].true_pose(t))[0] - p))
 
-    def __init__(self, cell: CellSpec, drivers: dict[str, Any], probe: Any, p_wp_contact: np.ndarray,
-                 tolerance_mm: float = 0.1, period_s: float = 0.002) -> None:
-        self.cell, self.drivers, self.probe = cell, drivers, probe
-        self.p, self.tol, self.period = np.asarray(p_wp_contact, dtype=float), tolerance_mm, period_s
-        self.touching = False
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="sim-contact", daemon=True)
-
-    def distance_mm(self) -> float:
-        """True distance of the gun tip from the contact point now [mm]."""
-        t = np.array([self.drivers["R1"].clock.now()])
-        p1 = self.drivers["R1"].true_pose(t)[1]
-        return float(np.linalg.norm(relative_from_poses(self.cell, p1, self.drivers["R2"].true_pose(t))[0] - self.p))
-
-    def _run(self) -> None:
-        while not self._stop.wait(self.period):
-            inside = self.distance_mm() <= self.tol
-            if inside != self.touching:
-                self.touching = inside
-                self.probe.touch() if inside else self.probe.release()
-
-    def __enter__(self) -> "SimContactSensor":
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        self._thread.join(timeout=2.0)
+    return distance_mm
 
 
 #: The order in which collect_contacts moves the arms to each configuration (one at a time, each checked).
@@ -279,6 +255,7 @@ def run_sim_validation(cell: CellSpec, n: int = 20, model_sets: dict[str, dict[s
     from app.sim_dual import SIM_METHODS, VALIDATION_CELL, TrainingGrid, fit_model_sets, make_twins
     from drivers.can_probe import CanContactProbe
     from drivers.sim.can_probe import SimulatedProbe
+    from drivers.sim.contact import SimContactSensor
     from drivers.sim import SimClock, SimRobotConfig, SimRobotDriver
 
     if n < 2:
@@ -296,7 +273,7 @@ def run_sim_validation(cell: CellSpec, n: int = 20, model_sets: dict[str, dict[s
                 CanContactProbe(channel, interface="virtual") as probe:
             for d in drivers.values():
                 d.connect()
-            with SimContactSensor(cell, drivers, sim_probe, p_contact, tolerance_mm):
+            with SimContactSensor(true_tip_distance(cell, drivers, p_contact), sim_probe, tolerance_mm):
                 readings, confirmed = collect_contacts(drivers, probe, q_plan, CellSafety(cell))
     finally:
         for d in drivers.values():
