@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.casadi_kinematics import casadi_fk
+from app.dual.casadi_kinematics import casadi_fk
 from calibration.errors import ModelError
 from calibration.cdc import CdcModel, geometric_cdc
 from calibration.models import ConstantModel

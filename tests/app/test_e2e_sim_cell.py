@@ -10,10 +10,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.cell_runtime import SimCell, SimCellOptions
-from app.demo import DEMO_COLLECT, collect_arm, export_recordings, fit_and_compare
-from app.safety import CellSafety
-from app.session_plan import PlanSpec, session_plan
+from app.cell.runtime import SimCell, SimCellOptions
+from app.demo.run import DEMO_COLLECT, collect_arm, export_recordings, fit_and_compare
+from app.cell.safety import CellSafety
+from app.cell.session_plan import PlanSpec, session_plan
 from calibration.physics import PlantedErrors
 from cell_config import load_cell
 

@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from app.plan_file import read_plan
-from app.plan_result import PlanResult, WaypointResult
-from app.planning import Plan, Target
+from app.cell.plan_file import read_plan
+from app.dual.plan_result import PlanResult, WaypointResult
+from app.cell.planning import Plan, Target
 from calibration.errors import DataError
 
 

@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.plan_file import read_plan
-from app.planning import (Plan, anchor_grid, build_plan, paper_q3_bounds, plan_anchor_grid, plan_cpa_sweeps,
+from app.cell.plan_file import read_plan
+from app.cell.planning import (Plan, anchor_grid, build_plan, paper_q3_bounds, plan_anchor_grid, plan_cpa_sweeps,
                           plan_validation)
-from app.safety import CellSafety, SafetyConfig, segment_distance
+from app.cell.safety import CellSafety, SafetyConfig, segment_distance
 from calibration.errors import ConfigError, DataError, UnsafeTarget
 from cell_config import load_cell
 
@@ -138,8 +138,8 @@ def test_the_path_is_checked_not_only_the_target(cell):
 
 
 def test_dual_motion_checks_both_arms_together_and_leaves_only_the_process_zone(cell):
-    from app.capsules import PROCESS_ZONE, SEGMENTS
-    from app.cli_dual import _check_dual_plan
+    from app.cell.capsules import PROCESS_ZONE, SEGMENTS
+    from app.cli.dual import _check_dual_plan
 
     safety = CellSafety(cell, SafetyConfig(process_zone=PROCESS_ZONE))
     r2 = np.radians([0, 40, 0, 0, 0, 0])

@@ -14,7 +14,7 @@ import pytest
 
 pytest.importorskip("meshcat")
 
-from app.preview import plan_frames, preview  # noqa: E402
+from app.dual.preview import plan_frames, preview  # noqa: E402
 from calibration.errors import DataError, ModelError  # noqa: E402
 from cell_config.loader import load_cell  # noqa: E402
 

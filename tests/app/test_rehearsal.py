@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from app.rehearsal import Process, Rehearsal, run_cellcal, sample_count, small_plan, write_rehearsal_cell
+from app.cell.rehearsal import Process, Rehearsal, run_cellcal, sample_count, small_plan, write_rehearsal_cell
 from calibration.recording import read_recording
 from calibration.registration import transform_difference
 from cell_config import load_cell
@@ -195,7 +195,7 @@ def read_health(cell_path: Path, timeout_s: float, until) -> dict:  # noqa: ANN0
     """Health messages of the bridge, read as any machine on the network would, until ``until(msg)``."""
     import queue
 
-    from app.mocap_service import health_key
+    from app.cell.mocap_service import health_key
     from drivers.bus import open_session
 
     cell = load_cell(cell_path)

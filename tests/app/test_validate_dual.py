@@ -8,8 +8,8 @@ import pytest
 pytest.importorskip("casadi")
 pytest.importorskip("can")
 
-from app.sim_dual import TrainingGrid, fit_model_sets, make_twins  # noqa: E402
-from app.validate_dual import DeviationStats, relative_position, run_sim_validation  # noqa: E402
+from app.dual.sim import TrainingGrid, fit_model_sets, make_twins  # noqa: E402
+from app.dual.validate import DeviationStats, relative_position, run_sim_validation  # noqa: E402
 from calibration.errors import ModelError  # noqa: E402
 from cell_config.loader import load_cell  # noqa: E402
 
@@ -57,7 +57,7 @@ def test_relative_position_is_the_gun_point_in_the_workpiece_frame(cell):
 
 
 def test_physics_model_plans_through_its_exact_expression(cell):
-    from app.casadi_kinematics import casadi_fk
+    from app.dual.casadi_kinematics import casadi_fk
     from calibration.physics import PhysicsModel
 
     twin = make_twins(cell)["R1"]
