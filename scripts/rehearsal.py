@@ -28,8 +28,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from app.cell.rehearsal import Rehearsal, run_cellcal, small_plan, write_rehearsal_cell  # noqa: E402
-from calibration.recording import read_recording  # noqa: E402
 from calibration.physics import PlantedErrors  # noqa: E402
+from calibration.recording import read_recording  # noqa: E402
 from calibration.registration import transform_difference  # noqa: E402
 from cell_config import load_cell  # noqa: E402
 from drivers.sim.rehearsal import hidden_frames, rehearsal_truths  # noqa: E402

@@ -21,10 +21,9 @@ from typing import Any, Literal
 
 import numpy as np
 
+from app.cell.plan_file import PLAN_SCHEMA as SCHEMA
 from calibration.errors import ConfigError, DataError, UnsafeTarget
 from calibration.files import atomic_write_text
-
-from app.cell.plan_file import PLAN_SCHEMA as SCHEMA
 
 TargetKind = Literal["anchor", "perturb", "cpa", "validation"]
 KINDS: tuple[str, ...] = ("anchor", "perturb", "cpa", "validation")

@@ -6,8 +6,8 @@ import argparse
 from pathlib import Path
 from typing import Any, Callable
 
-from app.cli.common import cell_spec, log, write_json
 from app.analysis.fitting import fitter_for
+from app.cli.common import cell_spec, log, write_json
 from calibration.errors import CellCalError
 
 

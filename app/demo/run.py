@@ -28,9 +28,9 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from app.cell.runtime import SimCell, SimCellOptions, move_safely
 from app.cell.collect import CollectConfig, SessionResult, export, run_session
 from app.cell.planning import Plan
+from app.cell.runtime import SimCell, SimCellOptions, move_safely
 from app.cell.safety import CellSafety
 from app.cell.session_plan import PlanSpec, session_plan
 from calibration.errors import ConfigError

@@ -16,8 +16,8 @@ import numpy as np
 
 from app.cell.plan_file import read_plan
 from app.dual.plan_result import PlanResult
-from calibration.files import atomic_write_text
 from calibration.errors import ModelError, UnsafeTarget
+from calibration.files import atomic_write_text
 from cell_config.loader import CellSpec
 
 

@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from app.dual.planner import DualPlanner, PlannerOptions
 from app.dual.plan_result import PlanResult
+from app.dual.planner import DualPlanner, PlannerOptions
 from calibration import so3
 from calibration.errors import DataError, ModelError
 from cell_config.loader import CellSpec

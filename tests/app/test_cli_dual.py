@@ -10,8 +10,8 @@ import pytest
 pytest.importorskip("casadi")
 
 from app.cli.commands import main  # noqa: E402
-from calibration.interpolation.fourier import Fourier13Interpolator  # noqa: E402
 from calibration.cdc import CdcModel, geometric_cdc  # noqa: E402
+from calibration.interpolation.fourier import Fourier13Interpolator  # noqa: E402
 from calibration.models import save_model  # noqa: E402
 from calibration.parameterisation import MinimalParameterisation  # noqa: E402
 from cell_config.loader import load_cell  # noqa: E402

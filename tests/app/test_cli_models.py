@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import yaml
 
-from app.cli.commands import main
 from app.analysis.recalibrate import decide_and_install
+from app.cli.commands import main
 from calibration.errors import ModelError, OutputError
 from calibration.models import ConstantModel, load_model, save_model
 from calibration.parameterisation import MinimalParameterisation

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from app.cell.runtime import SimCell, SimCellOptions
-from app.demo.run import DEMO_COLLECT, collect_arm, export_recordings, fit_and_compare
 from app.cell.safety import CellSafety
 from app.cell.session_plan import PlanSpec, session_plan
+from app.demo.run import DEMO_COLLECT, collect_arm, export_recordings, fit_and_compare
 from calibration.physics import PlantedErrors
 from cell_config import load_cell
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from app.cell.plan_file import read_plan
-from app.dual.plan_result import PlanResult, WaypointResult
 from app.cell.planning import Plan, Target
+from app.dual.plan_result import PlanResult, WaypointResult
 from calibration.errors import DataError
 
 

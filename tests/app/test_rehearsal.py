@@ -17,10 +17,10 @@ from pathlib import Path
 import numpy as np
 
 from app.cell.rehearsal import Process, Rehearsal, run_cellcal, sample_count, small_plan, write_rehearsal_cell
+from calibration.physics import PlantedErrors
 from calibration.recording import read_recording
 from calibration.registration import transform_difference
 from cell_config import load_cell
-from calibration.physics import PlantedErrors
 from drivers.sim.rehearsal import hidden_frames, rehearsal_truths
 
 SEED = 5

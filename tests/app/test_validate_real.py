@@ -14,13 +14,13 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from app.cell.rehearsal import write_rehearsal_cell
 from app.cli.commands import main
 from app.dual.validate import relative_position
 from calibration.models import ConstantModel
 from cell_config import load_cell
 from drivers.motoros.fake_cell import build_fake_controller
 from drivers.sim.can_probe import SimulatedProbe
-from app.cell.rehearsal import write_rehearsal_cell
 
 
 class NominalContact:

@@ -9,10 +9,10 @@ import pytest
 
 from calibration import so3
 from calibration.errors import CellCalError, DataError, ModelError, UnsafeTarget
+from calibration.physics import PlantedErrors, planted_twin
 from calibration.registration import (DegenerateRegistration, RegistrationProblem, make_T, registration_plan,
                                       relative_base, retract, transform_difference)
 from cell_config.loader import load_cell
-from calibration.physics import PlantedErrors, planted_twin
 
 NOISE_MM, NOISE_DEG = 0.02, 0.005
 Q_CENTER_DEG = {"R1": (0.0, 10.0, -10.0, 0.0, -45.0, 0.0), "R2": (0.0, 5.0, -5.0, 10.0, -40.0, 20.0)}
