@@ -33,7 +33,7 @@ PACKAGE_DIR = Path(__file__).resolve().parent
 DEFAULT_CELL = PACKAGE_DIR / "cell.yaml"
 REHEARSAL_CELL = PACKAGE_DIR / "rehearsal.yaml"
 
-#: The collision capsules of an arm (``capsules_mm`` in the robot YAML); app/capsules.py says what each spans.
+#: The collision capsules of an arm (``capsules_mm`` in the robot YAML); app/cell/capsules.py says what each spans.
 CAPSULE_SEGMENTS: tuple[str, ...] = ("base", "shoulder", "upper_arm", "forearm", "wrist", "tool")
 
 

@@ -29,8 +29,8 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from app.dual_paths import Q_REF_DEG, relative_pose, sweep_path  # noqa: E402
-from app.dual_plan import DualPlanner, PlannerOptions  # noqa: E402
+from app.dual.paths import Q_REF_DEG, relative_pose, sweep_path  # noqa: E402
+from app.dual.planner import DualPlanner, PlannerOptions  # noqa: E402
 from calibration.cdc import CdcModel, geometric_cdc  # noqa: E402
 from calibration.parameterisation import MinimalParameterisation  # noqa: E402
 from cell_config.loader import load_cell  # noqa: E402
@@ -72,10 +72,9 @@ class PredictOnly:
 
 def fitted_fbf13(cell: object) -> dict[str, object]:
     """fbf13 models fitted by ``Fitter`` on noisy data measured from the simulated cell's twins."""
-    from app.sim_dual import SimCellOptions, fit_model_sets, make_twins
+    from app.dual.sim import fit_model_sets, make_twins
 
-    options = SimCellOptions()
-    return fit_model_sets(cell, make_twins(cell, options), ("fbf13",), options)["fbf13"]
+    return fit_model_sets(cell, make_twins(cell), ("fbf13",))["fbf13"]
 
 
 def run(planner: DualPlanner, n: int) -> dict[str, float]:

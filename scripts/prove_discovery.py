@@ -3,7 +3,7 @@
 For each case a digital twin (geometric errors + the effects of the case at a magnitude) generates a fit
 recording (cluster design with context columns) and a held-out recording, written as CSV files; the truth is
 written to a separate file under ``truth/`` that the diagnosing code never reads (it is only given the two
-CSV paths through :func:`app.diagnose.run_diagnose`). The table then compares planted and found.
+CSV paths through :func:`app.analysis.diagnose.run_diagnose`). The table then compares planted and found.
 
 Detection power: for each kind, the smallest magnitude (RMS tool displacement on the fit poses) at which the
 planted kind is found, with no other kind, in >= 90 % of seeds. A table row is "ok" when, in addition, the
@@ -27,7 +27,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from app.diagnose import run_diagnose  # noqa: E402
+from app.analysis.diagnose import run_diagnose  # noqa: E402
 from calibration.diagnosis.synthetic import Design, make_case  # noqa: E402
 from calibration.physics import GravityModel, Twin, apply_effects  # noqa: E402
 from calibration.recording import write_recording  # noqa: E402

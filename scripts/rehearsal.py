@@ -27,7 +27,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from app.rehearsal import Rehearsal, run_cellcal, small_plan, write_rehearsal_cell  # noqa: E402
+from app.cell.rehearsal import Rehearsal, run_cellcal, small_plan, write_rehearsal_cell  # noqa: E402
+from calibration.physics import PlantedErrors  # noqa: E402
 from calibration.recording import read_recording  # noqa: E402
 from calibration.registration import transform_difference  # noqa: E402
 from cell_config import load_cell  # noqa: E402
@@ -68,8 +69,7 @@ def truth_check(cell_path: Path, work: Path, seed: int, pure: bool, regs: dict, 
     """What only the fake knows, against what cellcal found and recorded."""
     cell = load_cell(cell_path)
     hidden = hidden_frames(cell, seed)
-    kw = dict(origin_std_mm=0.0, tilt_std_deg=0.0, compliance_mm=0.0) if pure else {}
-    truths = rehearsal_truths(cell, seed, **kw)
+    truths = rehearsal_truths(cell, seed, PlantedErrors(0.0, 0.0, 0.0)) if pure else rehearsal_truths(cell, seed)
     out: dict = {}
     for robot in ("R1", "R2"):
         d_mm, d_deg = transform_difference(cell.registration[robot].T_world_base, hidden[robot].T_world_base)

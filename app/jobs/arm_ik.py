@@ -1,7 +1,7 @@
 """Inverse kinematics of one arm under any model kind: Gauss-Newton on the casadi forward kinematics.
 
 Built once per model (:class:`ArmIk`), then solved per target pose. The residual and its exact Jacobian come from
-one casadi function built on the public :func:`app.casadi_kinematics.casadi_fk` (the dual planner's kinematics),
+one casadi function built on the public :func:`app.dual.casadi_kinematics.casadi_fk` (the dual planner's kinematics),
 so a configuration-dependent model is solved with its parameters' dependence on q; a model whose parameters
 casadi cannot see (``frozen``) is solved as a fixed point, its parameters re-evaluated at every iterate, as the
 planner does. Joints are kept inside the limits (a step that would cross one stops at it); the result says
@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from app.casadi_kinematics import casadi_fk
+from app.dual.casadi_kinematics import casadi_fk
 
 __all__ = ["ArmIk", "IkResult", "pose_error"]
 

@@ -7,7 +7,7 @@ import re
 from pathlib import Path
 from typing import Any, Callable
 
-from app.cli_common import cell_spec, write_json
+from app.cli.common import cell_spec, write_json
 
 _ROBOT_SPEC = re.compile(r"^([A-Za-z][A-Za-z0-9_]*)=(.+)$")
 

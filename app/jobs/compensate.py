@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from app.export_targets import R_from_rpy_deg, rpy_deg
+from app.dual.export_targets import R_from_rpy_deg, rpy_deg
 from app.jobs.arm_ik import ArmIk, IkResult, pose_error
 from app.jobs.jbi import Job, JobError, JobPosition, format_values
 from calibration.models import ConstantModel

@@ -10,7 +10,7 @@
 - :mod:`.report`: the result dataclasses and their JSON; :mod:`.explain`: their plain-language sentences;
 - :mod:`.synthetic`: concealed synthetic cases for tests and proofs.
 
-Math only: the workflow that reads files and writes reports is :mod:`app.diagnose`.
+Math only: the workflow that reads files and writes reports is :mod:`app.analysis.diagnose`.
 """
 
 from calibration.diagnosis.candidates import KINDS, Untested

@@ -132,7 +132,7 @@ def make_case(nominal: "PoeModel", gravity: "GravityModel", magnitudes_mm: dict[
     """A twin with the given effects concealed (magnitudes = RMS tool displacement on the design), planted
     geometric errors (0.5 mm, 0.5 mrad), and its fit and held-out recordings."""
     q, _, cols = design_and_context(design, seed)
-    twin = Twin.random(nominal, magnitudes_mm, seed, gravity=gravity, offset_sigma_mm=0.5, tilt_sigma_rad=5e-4,
+    twin = Twin.random(nominal, magnitudes_mm, seed, gravity=gravity, offset_std_mm=0.5, tilt_std_rad=5e-4,
                        templates=proof_templates(gravity, seed), q_ref=q, context=context_of(cols))
     rng = np.random.default_rng(seed + 100_000)
     fit = measure(twin, q, cols, design, rng, "synthetic fit")

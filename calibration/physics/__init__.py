@@ -13,13 +13,14 @@ from calibration.physics.compliance import JointCompliance, MassFreeCompliance, 
 from calibration.physics.gravity import G_STANDARD, GravityModel, gravity_regressor, point_mass_torque
 from calibration.physics.joint_effects import Backlash, GearTransmission, JointOffset, MocapLatency
 from calibration.physics.thermal import ThermalDrift, link_names
-from calibration.physics.twin import Twin, default_effect, plant, reference_context
+from calibration.physics.twin import PlantedErrors, Twin, default_effect, plant, planted_twin, reference_context
 
 __all__ = [
     "Backlash", "Context", "EFFECT_KINDS", "Effect", "ExtendedEffect", "G_STANDARD", "GearTransmission",
     "GravityModel", "JointCompliance", "JointOffset", "MassFreeCompliance", "MocapLatency", "PayloadCompliance",
-    "PhysicsModel", "ThermalDrift", "Twin", "apply_effects", "context_array", "default_effect", "effect_from_dict", "gravity_regressor",
-    "link_names", "plant", "point_mass_torque", "reference_context",
+    "PhysicsModel", "PlantedErrors", "ThermalDrift", "Twin", "apply_effects", "context_array", "default_effect",
+    "effect_from_dict", "gravity_regressor", "link_names", "plant", "planted_twin", "point_mass_torque",
+    "reference_context",
 ]
 
 

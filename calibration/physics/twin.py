@@ -4,6 +4,10 @@ A :class:`Twin` is a POE geometry (the nominal arm with planted geometric errors
 true parameters. :meth:`Twin.random` plants effects at given magnitudes with a seed, and
 :meth:`Twin.to_dict` writes a truth file for a proof script. Diagnosing code must never read that file.
 
+:class:`PlantedErrors` and :func:`planted_twin` are the one error planter of the simulated cell: the demo,
+``collect --sim``, ``validate-dual --sim``, the rehearsal and the tests all build their true arms with it
+(geometric errors plus, optionally, a gravity-driven joint compliance).
+
 Planting magnitudes are stated as what a person can check: the RMS tool-position perturbation [mm] each
 effect causes on its own over a reference set of poses, under a context that excites it (see
 :func:`reference_context`). Geometric errors are planted as parameters of
@@ -13,6 +17,7 @@ effect causes on its own over a reference set of poses, under a context that exc
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
@@ -88,6 +93,39 @@ def plant(effect: Effect, model: PoeModel, magnitude_mm: float, rng: np.random.G
     return effect.with_values(x)
 
 
+@dataclass(frozen=True)
+class PlantedErrors:
+    """How wrong a simulated arm is.
+
+    Attributes:
+        offset_std_mm: standard deviation of the planted joint-origin offsets [mm].
+        tilt_std_rad: standard deviation of the planted joint-axis tilts [rad].
+        compliance_mm: RMS tool displacement of the planted gravity-driven joint compliance [mm] (0: none).
+    """
+
+    offset_std_mm: float = 0.5
+    tilt_std_rad: float = math.radians(0.05)
+    compliance_mm: float = 0.0
+
+
+def planted_twin(nominal: PoeModel, errors: PlantedErrors = PlantedErrors(), seed: int = 0,
+                 gravity: GravityModel | None = None) -> "Twin":
+    """The true arm: ``nominal`` with seeded geometric errors and, if asked, a joint compliance under gravity.
+
+    Args:
+        nominal: the nominal arm with its tool.
+        errors: the planted magnitudes.
+        seed: random seed; the same seed plants the same errors.
+        gravity: link masses, needed when ``errors.compliance_mm > 0``.
+
+    Raises:
+        ModelError: a compliance is asked for without a gravity model.
+    """
+    effects = {"joint_compliance": errors.compliance_mm} if errors.compliance_mm > 0 else {}
+    return Twin.random(nominal, effects, seed, gravity=gravity, offset_std_mm=errors.offset_std_mm,
+                       tilt_std_rad=errors.tilt_std_rad)
+
+
 @dataclass(frozen=True, eq=False)
 class Twin:
     """Simulated truth: geometry with planted errors and effects with true parameters.
@@ -129,7 +167,7 @@ class Twin:
 
     @classmethod
     def random(cls, nominal: PoeModel, magnitudes_mm: Mapping[str, float], seed: int,
-               gravity: GravityModel | None = None, offset_sigma_mm: float = 0.0, tilt_sigma_rad: float = 0.0,
+               gravity: GravityModel | None = None, offset_std_mm: float = 0.0, tilt_std_rad: float = 0.0,
                templates: Mapping[str, Effect] | None = None, q_ref: np.ndarray | None = None,
                context: Context | None = None) -> "Twin":
         """Plant geometric errors and effects at given magnitudes.
@@ -139,15 +177,15 @@ class Twin:
             magnitudes_mm: effect kind -> RMS tool-position change [mm] over ``q_ref`` under ``context``.
             seed: seed of every random draw.
             gravity: link masses, needed for ``joint_compliance``.
-            offset_sigma_mm, tilt_sigma_rad: standard deviations of the planted minimal geometric parameters.
+            offset_std_mm, tilt_std_rad: standard deviations of the planted minimal geometric parameters.
             templates: kind -> effect whose joints/links/settings to use (default :func:`default_effect`).
             q_ref: reference poses [rad] (N, 6); default 200 poses uniform in +-1 rad.
             context: reference context; default :func:`reference_context`.
         """
         rng = np.random.default_rng(seed)
         par = MinimalParameterisation(nominal)
-        x = np.concatenate([rng.normal(0, offset_sigma_mm, 2 * par.n_joints),
-                            rng.normal(0, tilt_sigma_rad, 2 * par.n_joints)])
+        x = np.concatenate([rng.normal(0, offset_std_mm, 2 * par.n_joints),
+                            rng.normal(0, tilt_std_rad, 2 * par.n_joints)])
         geometry = par.model(x)
         q_ref = rng.uniform(-1.0, 1.0, (200, nominal.n_joints)) if q_ref is None else np.asarray(q_ref, float)
         context = reference_context(q_ref.shape[0], rng) if context is None else context
@@ -157,7 +195,7 @@ class Twin:
             effects.append(plant(template, geometry, float(mag), rng, q_ref, context))
             log.debug("planted %s at %.3f mm: %s", kind, mag, effects[-1].parameters())
         info = {"seed": int(seed), "magnitudes_mm": {k: float(v) for k, v in magnitudes_mm.items()},
-                "offset_sigma_mm": float(offset_sigma_mm), "tilt_sigma_rad": float(tilt_sigma_rad)}
+                "offset_std_mm": float(offset_std_mm), "tilt_std_rad": float(tilt_std_rad)}
         return cls.from_parameters(par, x, tuple(effects), info)
 
     def to_dict(self) -> dict[str, Any]:

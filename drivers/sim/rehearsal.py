@@ -26,6 +26,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from calibration import so3
+from calibration.physics import PlantedErrors
 from drivers.errors import ProtocolError
 
 log = logging.getLogger("cellcal.drivers")
@@ -84,17 +85,12 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-def rehearsal_truths(cell: Any, seed: int, *, origin_std_mm: float = 0.5, tilt_std_deg: float = 0.05,
-                     compliance_mm: float = 1.0) -> dict[str, Any]:
+def rehearsal_truths(cell: Any, seed: int, errors: PlantedErrors = PlantedErrors(compliance_mm=1.0)
+                     ) -> dict[str, Any]:
     """Each arm's physics twin (a :class:`~drivers.sim.truth.TwinTruth`), seeded like the simulated cell."""
-    from drivers.sim.truth import physics_truth
+    from drivers.sim.truth import cell_truths
 
-    truths = {}
-    for k, name in enumerate(cell.robots):
-        r = cell.robot(name)
-        truths[name] = physics_truth(r.model(), r.robot, seed=seed * 100 + k + 1, origin_std_mm=origin_std_mm,
-                                     tilt_std_deg=tilt_std_deg, compliance_mm=compliance_mm)
-    return truths
+    return cell_truths(cell, seed, errors)
 
 
 class StateReader:

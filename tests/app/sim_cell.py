@@ -6,9 +6,9 @@ import sys
 
 import numpy as np
 
-from app.collect import CollectConfig, run_session
-from app.planning import build_plan, plan_anchor_grid
-from app.safety import CellSafety
+from app.cell.collect import CollectConfig, run_session
+from app.cell.planning import build_plan, plan_anchor_grid
+from app.cell.safety import CellSafety
 from cell_config import load_cell
 from drivers.sim import SimClock, SimMocapConfig, SimMocapSource, SimRobotConfig, SimRobotDriver, planted_truth
 

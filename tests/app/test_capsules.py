@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import yaml
 
-from app.capsules import (DEFAULT_FLOOR_Z_MM, FLOOR_CHECKED, PROCESS_ZONE, SEGMENTS, SPANS, CellCapsules,
+from app.cell.capsules import (DEFAULT_FLOOR_Z_MM, FLOOR_CHECKED, PROCESS_ZONE, SEGMENTS, SPANS, CellCapsules,
                           pairs_outside, segment_distance, segment_distance_casadi)
-from app.safety import CellSafety, SafetyConfig
+from app.cell.safety import CellSafety, SafetyConfig
 from calibration.errors import ConfigError
 from cell_config import DEFAULT_CELL, load_cell
 from cell_config.loader import CAPSULE_SEGMENTS
@@ -57,7 +57,7 @@ def test_capsules_span_the_skeleton_points(cell, name):
 @pytest.mark.parametrize("name", ["R1", "R2"])
 def test_casadi_capsules_are_the_numpy_capsules(cell, name):
     ca = pytest.importorskip("casadi")
-    from app.casadi_kinematics import casadi_fk
+    from app.dual.casadi_kinematics import casadi_fk
 
     caps = CellCapsules(cell)
     fk = casadi_fk(cell.robot(name).model())
@@ -83,8 +83,8 @@ def test_casadi_segment_distance_matches_numpy():
 
 def test_planner_clearances_are_the_safety_gaps(cell):
     pytest.importorskip("casadi")
-    from app.dual_paths import Q_REF_DEG, relative_pose
-    from app.dual_plan import DualPlanner, PlannerOptions
+    from app.dual.paths import Q_REF_DEG, relative_pose
+    from app.dual.planner import DualPlanner, PlannerOptions
 
     planner = DualPlanner(cell, options=PlannerOptions(compile=False))
     assert planner.options.pairs == pairs_outside(PROCESS_ZONE)
@@ -127,7 +127,7 @@ def test_preview_draws_the_capsule_radii(cell, tmp_path, monkeypatch):
     pytest.importorskip("meshcat")
     import umsgpack
 
-    import app.preview as preview_mod
+    import app.dual.preview as preview_mod
 
     windows = []
 
@@ -137,7 +137,8 @@ def test_preview_draws_the_capsule_radii(cell, tmp_path, monkeypatch):
             windows.append(self)
 
     monkeypatch.setattr(preview_mod, "RecordingWindow", Recording)
-    plan = {"waypoints": [{"R1": [0.0] * 6, "R2": [0.0] * 6}, {"R1": [0.1] * 6, "R2": [-0.1] * 6}]}
+    plan = {"schema": "cellcal.plan/1", "kind": "dual",
+            "waypoints": [{"R1": [0.0] * 6, "R2": [0.0] * 6}, {"R1": [0.1] * 6, "R2": [-0.1] * 6}]}
     preview_mod.preview(cell, plan, html_out=tmp_path / "p.html")
     caps = CellCapsules(cell)
     segs = {n: caps.segments(n, np.zeros(6))[0] for n in ("R1", "R2")}

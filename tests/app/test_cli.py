@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from app.cli import main
+from app.cli.commands import main
 from calibration.recording import write_recording
 from tests.conftest import assert_bad_input, cluster_design, measure
 
@@ -126,7 +126,7 @@ def test_compare_adds_saved_models_as_rows(tmp_path, data, capsys):
 
 def test_version_and_ctrl_c(tmp_path, capsys, monkeypatch):
     """--version prints the package version; Ctrl-C is one line and exit 130, with no traceback."""
-    import app.cli as cli
+    import app.cli.commands as cli
 
     with pytest.raises(SystemExit) as e:
         cli.main(["--version"])
@@ -148,7 +148,7 @@ def test_ctrl_c_during_a_collection_is_one_line_exit_130_and_resumable(tmp_path)
     import sys
     import time
 
-    from app.rehearsal import REPO, sample_count
+    from app.cell.rehearsal import REPO, sample_count
 
     plan, session = tmp_path / "plan.json", tmp_path / "s"
     assert main(["plan", "--robot", "R1", "--q2-step", "50", "--q3-step", "50", "--out", str(plan)]) == 0

@@ -9,9 +9,9 @@ import pytest
 
 pytest.importorskip("casadi")
 
-from app.cli import main  # noqa: E402
-from calibration.interpolation.fourier import Fourier13Interpolator  # noqa: E402
+from app.cli.commands import main  # noqa: E402
 from calibration.cdc import CdcModel, geometric_cdc  # noqa: E402
+from calibration.interpolation.fourier import Fourier13Interpolator  # noqa: E402
 from calibration.models import save_model  # noqa: E402
 from calibration.parameterisation import MinimalParameterisation  # noqa: E402
 from cell_config.loader import load_cell  # noqa: E402
@@ -55,8 +55,8 @@ def test_plan_dual_with_model_files_pose_and_path_files(tmp_path):
 
     pose = list(T[:3, 3]) + list(so3.R_to_quat(T[:3, :3]))
     (tmp_path / "pose.json").write_text(json.dumps({"p_mm": pose[:3], "quat": pose[3:]}))
-    from app.dual_paths import sweep_path
-    from app.dual_plan import DualPlanner, PlannerOptions
+    from app.dual.paths import sweep_path
+    from app.dual.planner import DualPlanner, PlannerOptions
 
     wp = sweep_path(DualPlanner(cell, options=PlannerOptions(compile=False)), 4)
     rows = ["x,y,z,qw,qx,qy,qz"] + [",".join(f"{v:.17g}" for v in np.r_[t[:3, 3], so3.R_to_quat(t[:3, :3])])

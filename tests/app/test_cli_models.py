@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import yaml
 
-from app.cli import main
-from app.recalibrate import decide_and_install
+from app.analysis.recalibrate import decide_and_install
+from app.cli.commands import main
 from calibration.errors import ModelError, OutputError
 from calibration.models import ConstantModel, load_model, save_model
 from calibration.parameterisation import MinimalParameterisation
@@ -124,7 +124,7 @@ def test_an_unusable_model_in_service_is_reported_and_a_valid_candidate_replaces
 def test_a_model_in_service_whose_errors_are_not_finite_never_wins(tmp_path, arm, monkeypatch):
     validation, good, poor = arm
     save_model(good, tmp_path / "current.yaml")
-    import app.recalibrate as recal
+    import app.analysis.recalibrate as recal
 
     real = recal._validation_stats
 

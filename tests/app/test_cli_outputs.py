@@ -6,7 +6,7 @@ import stat
 
 import pytest
 
-from app.cli import main
+from app.cli.commands import main
 from tests.conftest import assert_bad_input
 
 PLAN = ["plan", "--robot", "R1", "--q2-step", "30", "--q3-step", "30", "--out"]

@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.collect import SessionAborted, export, run_session
-from app.mocap_window import quat_average
-from app.planning import build_plan
-from app.session_store import Sample, SessionStore
+from app.cell.collect import SessionAborted, export, run_session
+from app.cell.mocap_window import quat_average
+from app.cell.planning import build_plan
+from app.cell.session_store import Sample, SessionStore
 from calibration import so3
 from calibration.errors import DataError, UnsafeTarget
 from calibration.recording import read_recording

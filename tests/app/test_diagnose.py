@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.diagnose import run_diagnose
+from app.analysis.diagnose import run_diagnose
 from calibration.diagnosis.synthetic import Design, make_case
 from calibration.errors import CellCalError, DataError
 from calibration.models import load_model

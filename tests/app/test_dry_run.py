@@ -8,9 +8,9 @@ import re
 import numpy as np
 import pytest
 
-from app.dry_run import PlanSummary, summarize_plan
-from app.planning import KINDS, Target, build_plan
-from app.safety import CellSafety
+from app.cell.dry_run import PlanSummary, summarize_plan
+from app.cell.planning import KINDS, Target, build_plan
+from app.cell.safety import CellSafety
 from calibration.errors import ConfigError, UnsafeTarget
 from cell_config import load_cell
 from sim_cell import R2_PARK, small_plan

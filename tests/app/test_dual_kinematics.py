@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.casadi_kinematics import casadi_fk
-from calibration.errors import ModelError
+from app.dual.casadi_kinematics import casadi_fk
 from calibration.cdc import CdcModel, geometric_cdc
+from calibration.errors import ModelError
 from calibration.models import ConstantModel
 from calibration.parameterisation import MinimalParameterisation
 from cell_config.loader import load_cell

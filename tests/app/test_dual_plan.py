@@ -10,13 +10,14 @@ import pytest
 
 pytest.importorskip("casadi")
 
-from app.dual_paths import Q_REF_DEG, plan_dual, relative_pose, sweep_path  # noqa: E402
-from app.dual_plan import DualPlanner, PlannerOptions  # noqa: E402
-from app.export_targets import export_rows, export_targets, rpy_deg, write_targets  # noqa: E402
-from app.plan_result import load_plan_result, save_plan  # noqa: E402
+from app.cell.plan_file import read_plan
+from app.dual.export_targets import export_rows, export_targets, rpy_deg, write_targets  # noqa: E402
+from app.dual.paths import Q_REF_DEG, plan_dual, relative_pose, sweep_path  # noqa: E402
+from app.dual.plan_result import save_plan  # noqa: E402
+from app.dual.planner import DualPlanner, PlannerOptions  # noqa: E402
 from calibration import so3  # noqa: E402
-from calibration.errors import DataError, ModelError, UnsafeTarget  # noqa: E402
 from calibration.cdc import CdcModel, geometric_cdc  # noqa: E402
+from calibration.errors import DataError, ModelError, UnsafeTarget  # noqa: E402
 from calibration.parameterisation import MinimalParameterisation  # noqa: E402
 from cell_config.loader import load_cell  # noqa: E402
 
@@ -181,7 +182,7 @@ def test_plan_dual_file_round_trip_and_export(cell, tmp_path):
     plan = plan_dual(cell, n=5, options=FAST)
     assert plan.converged and len(plan.waypoints) == 5
     save_plan(plan, tmp_path / "plan.json")
-    back = load_plan_result(tmp_path / "plan.json")
+    back = read_plan(tmp_path / "plan.json", "dual")
     np.testing.assert_array_equal(back.q(), plan.q())
     assert export_targets(tmp_path / "plan.json", cell, tmp_path / "t.csv") == 10
     d = json.loads((tmp_path / "plan.json").read_text())

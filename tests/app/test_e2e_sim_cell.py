@@ -10,10 +10,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.cell_runtime import SimCell, SimCellConfig
-from app.demo import DEMO_COLLECT, collect_arm, export_recordings, fit_and_compare
-from app.safety import CellSafety
-from app.session_plan import PlanSpec, session_plan
+from app.cell.runtime import SimCell, SimCellOptions
+from app.cell.safety import CellSafety
+from app.cell.session_plan import PlanSpec, session_plan
+from app.demo.run import DEMO_COLLECT, collect_arm, export_recordings, fit_and_compare
+from calibration.physics import PlantedErrors
 from cell_config import load_cell
 
 # q1 and the wrist stay near 1 deg in the anchor design, so their geometry is not observable: validation poses
@@ -22,7 +23,7 @@ SPEC = PlanSpec(q2_step_deg=20.0, q3_step_deg=20.0, cpa=True, cpa_step_deg=15.0,
                 wrist_range_deg=2.0, seed=3)
 
 
-def _collect(tmp_path, sim_config: SimCellConfig):
+def _collect(tmp_path, sim_config: SimCellOptions):
     cell = load_cell()
     safety = CellSafety(cell)
     with SimCell(cell, sim_config) as sim:
@@ -40,7 +41,7 @@ def _collect(tmp_path, sim_config: SimCellConfig):
 def geometric(tmp_path_factory):
     """R1 collected on a twin with geometric errors only (no compliance)."""
     # A slower simulated clock than the demo's: the test must not depend on how loaded the machine is.
-    return _collect(tmp_path_factory.mktemp("geo"), SimCellConfig(compliance_mm=0.0, seed=5, time_scale=8.0))
+    return _collect(tmp_path_factory.mktemp("geo"), SimCellOptions(errors=PlantedErrors(compliance_mm=0.0), seed=5, time_scale=8.0))
 
 
 def test_collection_over_zenoh_matches_the_twin(geometric):
@@ -71,13 +72,13 @@ def test_planted_geometric_errors_recovered(geometric, tmp_path):
 
 
 def test_twin_adapter_passes_directions_and_time():
-    from drivers.sim import physics_truth, sim_context_to_twin
+    from drivers.sim import planted_truth, sim_context_to_twin
 
     ctx = sim_context_to_twin({"dir": np.array([[1, -1, 0, 1, 1, -1]]), "t": np.array([2.0])})
     assert set(ctx) == {"t", "dir1", "dir2", "dir3", "dir4", "dir5", "dir6"} and ctx["dir2"][0] == -1
     r1 = load_cell().robot("R1")
-    stiff = physics_truth(r1.model(), r1.robot, seed=1, compliance_mm=0.0)
-    soft = physics_truth(r1.model(), r1.robot, seed=1, compliance_mm=1.0)
+    stiff = planted_truth(r1.model(), PlantedErrors(compliance_mm=0.0), seed=1, spec=r1.robot)
+    soft = planted_truth(r1.model(), PlantedErrors(compliance_mm=1.0), seed=1, spec=r1.robot)
     q = np.radians([[1.0, 30.0, -20.0, 1.0, 1.0, 1.0]])
     _, p_stiff = stiff.pose(q, {"dir": np.ones((1, 6)), "t": np.zeros(1)})
     _, p_soft = soft.pose(q, {"dir": np.ones((1, 6)), "t": np.zeros(1)})

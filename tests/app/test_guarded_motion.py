@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from app.motion import move_safely
-from app.safety import CellSafety
-from app.validate_dual import check_contact_sequence, collect_contacts
+from app.cell.motion import move_safely
+from app.cell.safety import CellSafety
+from app.dual.validate import check_contact_sequence, collect_contacts
 from calibration.errors import UnsafeTarget
 from cell_config import load_cell
 from drivers.sim import SimClock, SimRobotConfig, SimRobotDriver, planted_truth

@@ -9,7 +9,7 @@ import pytest
 
 pytest.importorskip("casadi")
 
-from app.export_targets import R_from_rpy_deg, rpy_deg  # noqa: E402
+from app.dual.export_targets import R_from_rpy_deg, rpy_deg  # noqa: E402
 from app.jobs import JobCompensator, JobError, parse_job, read_job, write_job  # noqa: E402
 from calibration.cdc import CdcModel, geometric_cdc  # noqa: E402
 from calibration.models import ConstantModel, save_model  # noqa: E402
@@ -227,7 +227,7 @@ def test_two_robots_in_one_group_are_compensated(cell):
 
 
 def test_big_joint_change_near_the_wrist_singularity_is_refused(cell, tmp_path, capsys):
-    from app.cli import main
+    from app.cli.commands import main
 
     q = [list(r) for r in Q_R1_DEG]
     q[0][4] = -0.5  # q5 ~ 0: the orientation fix needs large swings of joints 4 and 6 (about 10 deg here)
@@ -312,7 +312,7 @@ def test_bad_model_arguments_exit_2(cell, tmp_path, capsys):
 # --- the command ------------------------------------------------------------------------------------------------
 
 def test_cli_writes_the_compensated_job_and_its_json(cell, tmp_path, capsys):
-    from app.cli import main
+    from app.cli.commands import main
 
     m1, m2 = tmp_path / "r1.yaml", tmp_path / "r2.json"
     save_model(planted(cell, "R1", 1), m1)

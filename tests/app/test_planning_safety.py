@@ -9,9 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.planning import (Plan, anchor_grid, build_plan, paper_q3_bounds, plan_anchor_grid, plan_cpa_sweeps,
+from app.cell.plan_file import read_plan
+from app.cell.planning import (Plan, anchor_grid, build_plan, paper_q3_bounds, plan_anchor_grid, plan_cpa_sweeps,
                           plan_validation)
-from app.safety import CellSafety, SafetyConfig, segment_distance
+from app.cell.safety import CellSafety, SafetyConfig, segment_distance
 from calibration.errors import ConfigError, DataError, UnsafeTarget
 from cell_config import load_cell
 
@@ -72,22 +73,22 @@ def test_plan_json_round_trip_and_bad_files(tmp_path):
     path = tmp_path / "plan.json"
     plan.save(path)
     assert json.loads(path.read_text())["schema"] == "cellcal.plan/1"
-    back = Plan.load(path)
+    back = read_plan(path)
     np.testing.assert_array_equal(back.q, plan.q)
     assert back.targets[5].kind == plan.targets[5].kind and back.params == {"step": 20}
     d = plan.to_dict()
     d["targets"][3]["q_rad"][2] = float("nan")
     path.write_text(json.dumps(d))
     with pytest.raises(DataError, match=r"targets\[3\].q_rad"):
-        Plan.load(path)
+        read_plan(path)
     d["targets"][3]["q_rad"] = [0] * 6
     d["targets"][3]["kind"] = "warmup"
     path.write_text(json.dumps(d))
     with pytest.raises(DataError, match="expected one of anchor"):
-        Plan.load(path)
+        read_plan(path)
     path.write_text("{")
     with pytest.raises(DataError, match="not valid JSON"):
-        Plan.load(path)
+        read_plan(path)
 
 
 def test_segment_distance():
@@ -137,8 +138,8 @@ def test_the_path_is_checked_not_only_the_target(cell):
 
 
 def test_dual_motion_checks_both_arms_together_and_leaves_only_the_process_zone(cell):
-    from app.capsules import PROCESS_ZONE, SEGMENTS
-    from app.cli_dual import _check_dual_plan
+    from app.cell.capsules import PROCESS_ZONE, SEGMENTS
+    from app.cli.dual import _check_dual_plan
 
     safety = CellSafety(cell, SafetyConfig(process_zone=PROCESS_ZONE))
     r2 = np.radians([0, 40, 0, 0, 0, 0])

@@ -14,7 +14,7 @@ import pytest
 
 pytest.importorskip("meshcat")
 
-from app.preview import load_plan, preview  # noqa: E402
+from app.dual.preview import plan_frames, preview  # noqa: E402
 from calibration.errors import DataError, ModelError  # noqa: E402
 from cell_config.loader import load_cell  # noqa: E402
 
@@ -36,23 +36,31 @@ def _dual_plan(n: int = 12) -> dict:
 def test_load_dual_and_collection_plans(tmp_path):
     p = tmp_path / "plan.json"
     p.write_text(json.dumps(_dual_plan(3)))
-    frames = load_plan(p)
+    frames = plan_frames(p)
     assert len(frames) == 3 and frames[2]["R1"].shape == (6,)
-    coll = {"schema": "cellcal.collection/1",
-            "targets": [{"robot": "R1", "q": [0.1] * 6}, {"robot": "R1", "q": [0.2] * 6}]}
-    frames = load_plan(coll)
+    coll = {"schema": "cellcal.plan/1", "kind": "collection",
+            "targets": [_target("R1", [0.1] * 6), _target("R1", [0.2] * 6)]}
+    frames = plan_frames(coll)
     assert len(frames) == 2
     np.testing.assert_array_equal(frames[1]["R1"], [0.2] * 6)
     np.testing.assert_array_equal(frames[1]["R2"], np.zeros(6))  # the other arm stays home
 
 
+def _target(robot: str, q: list) -> dict:
+    return {"robot": robot, "q_rad": q, "cluster": 0, "kind": "anchor"}
+
+
+PLAN = {"schema": "cellcal.plan/1"}
+
+
 @pytest.mark.parametrize("plan, message", [
     ({"schema": "x"}, "expected a plan with 'waypoints'"),
-    ({"targets": [{"robot": "R3", "q": [0] * 6}]}, "unknown robot 'R3'; valid: R1, R2"),
-    ({"targets": [{"robot": "R1", "q": [0] * 5}]}, "6 finite numbers"),
-    ({"waypoints": [{"R1": [0, 0, 0, 0, 0, "a"]}]}, "6 finite numbers"),
-    ({"waypoints": [{"foo": 1}]}, "names no robot"),
-    ({"waypoints": []}, "no waypoints"),
+    ({**PLAN, "kind": "weld"}, "unknown plan kind 'weld'; valid: collection, dual"),
+    ({**PLAN, "targets": [_target("R3", [0] * 6)]}, "unknown robot 'R3'; valid: R1, R2"),
+    ({**PLAN, "targets": [_target("R1", [0] * 5)]}, "6 finite numbers"),
+    ({**PLAN, "waypoints": [{"R1": [0, 0, 0, 0, 0, "a"], "R2": [0] * 6}]}, "6 finite numbers"),
+    ({**PLAN, "waypoints": [{"foo": 1}]}, "names no robot"),
+    ({**PLAN, "waypoints": []}, "no waypoints"),
 ])
 def test_bad_plans_are_refused_and_nothing_is_written(cell, tmp_path, plan, message):
     out = tmp_path / "p.html"
@@ -63,7 +71,7 @@ def test_bad_plans_are_refused_and_nothing_is_written(cell, tmp_path, plan, mess
 
 def test_missing_plan_file(tmp_path):
     with pytest.raises(DataError, match="plan file not found"):
-        load_plan(tmp_path / "nope.json")
+        plan_frames(tmp_path / "nope.json")
 
 
 def test_preview_needs_an_output(cell):

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from app.cli_common import fitter_for
+from app.analysis.fitting import fitter_for
 from calibration.methods import CDC_METHODS, FitOptions, Fitter
 from calibration.metrics import errors
 from calibration.recording import read_recording

@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from app.cli import main
-from app.recalibrate import decide_and_install
+from app.analysis.recalibrate import decide_and_install
+from app.cli.commands import main
 from calibration.errors import DataError
 from calibration.models import ConstantModel, load_model, save_model
 from calibration.parameterisation import MinimalParameterisation

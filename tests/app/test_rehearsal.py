@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from app.rehearsal import Process, Rehearsal, run_cellcal, sample_count, small_plan, write_rehearsal_cell
+from app.cell.rehearsal import Process, Rehearsal, run_cellcal, sample_count, small_plan, write_rehearsal_cell
+from calibration.physics import PlantedErrors
 from calibration.recording import read_recording
 from calibration.registration import transform_difference
 from cell_config import load_cell
@@ -53,7 +54,7 @@ def check_recording(cell_path: Path, session: Path, out_csv: Path, n_targets: in
 
 def test_register_then_collect_both_arms_in_separate_processes(tmp_path: Path) -> None:
     cell_path = write_rehearsal_cell(tmp_path)
-    truths = rehearsal_truths(load_cell(cell_path), SEED, origin_std_mm=0, tilt_std_deg=0, compliance_mm=0)
+    truths = rehearsal_truths(load_cell(cell_path), SEED, PlantedErrors(0.0, 0.0, 0.0))
     with Rehearsal(cell_path, *PURE, seed=SEED):
         for robot in ("R1", "R2"):
             done = run_cellcal(cell_path, "register", "--robot", robot, "--yes", "--speed", "1", "--no-progress",
@@ -116,7 +117,7 @@ def collector(cell_path: Path, plan: Path, session: Path, *extra: str) -> Proces
 
 def test_bridge_killed_mid_collection_is_waited_for(tmp_path: Path) -> None:
     cell_path = registered_cell(tmp_path)
-    truths = rehearsal_truths(load_cell(cell_path), SEED, origin_std_mm=0, tilt_std_deg=0, compliance_mm=0)
+    truths = rehearsal_truths(load_cell(cell_path), SEED, PlantedErrors(0.0, 0.0, 0.0))
     plan, session = small_plan(cell_path, "R1", tmp_path / "plan.json"), tmp_path / "s"
     with Rehearsal(cell_path, *PURE, seed=SEED) as r:
         c = collector(cell_path, plan, session).start(ready=False)
@@ -134,7 +135,7 @@ def test_bridge_killed_mid_collection_is_waited_for(tmp_path: Path) -> None:
 
 def test_controller_killed_and_restarted_is_reconnected(tmp_path: Path) -> None:
     cell_path = registered_cell(tmp_path)
-    truths = rehearsal_truths(load_cell(cell_path), SEED, origin_std_mm=0, tilt_std_deg=0, compliance_mm=0)
+    truths = rehearsal_truths(load_cell(cell_path), SEED, PlantedErrors(0.0, 0.0, 0.0))
     plan, session = small_plan(cell_path, "R1", tmp_path / "plan.json"), tmp_path / "s"
     with Rehearsal(cell_path, *PURE, seed=SEED) as r:
         c = collector(cell_path, plan, session).start(ready=False)
@@ -152,7 +153,7 @@ def test_controller_killed_and_restarted_is_reconnected(tmp_path: Path) -> None:
 
 def test_alarm_during_a_move_stops_both_arms_and_the_session_resumes(tmp_path: Path) -> None:
     cell_path = registered_cell(tmp_path)
-    truths = rehearsal_truths(load_cell(cell_path), SEED, origin_std_mm=0, tilt_std_deg=0, compliance_mm=0)
+    truths = rehearsal_truths(load_cell(cell_path), SEED, PlantedErrors(0.0, 0.0, 0.0))
     plan, session = small_plan(cell_path, "R1", tmp_path / "plan.json"), tmp_path / "s"
     with Rehearsal(cell_path, *PURE, seed=SEED) as r:
         c = collector(cell_path, plan, session).start(ready=False)
@@ -194,7 +195,7 @@ def read_health(cell_path: Path, timeout_s: float, until) -> dict:  # noqa: ANN0
     """Health messages of the bridge, read as any machine on the network would, until ``until(msg)``."""
     import queue
 
-    from app.mocap_service import health_key
+    from app.cell.mocap_service import health_key
     from drivers.bus import open_session
 
     cell = load_cell(cell_path)

@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.collect import SessionAborted, run_session
-from app.motion import NonFiniteFeedback, move_safely
-from app.planning import build_plan
-from app.session_store import SessionLocked, SessionStore
+from app.cell.collect import SessionAborted, run_session
+from app.cell.motion import NonFiniteFeedback, move_safely
+from app.cell.planning import build_plan
+from app.cell.session_store import SessionLocked, SessionStore
 from calibration.errors import DataError
 from drivers.base import MocapSource
 from drivers.errors import DriverError
@@ -57,7 +57,7 @@ def kill(proc: subprocess.Popen) -> None:
 
 HOLD = """
 import sys, time
-from app.session_store import SessionStore
+from app.cell.session_store import SessionStore
 store = SessionStore(sys.argv[1], create=sys.argv[2] == "create")
 print("locked", flush=True)
 time.sleep(60)
@@ -114,9 +114,9 @@ def test_the_lock_is_held_for_the_stores_lifetime_only(tmp_path):
 
 CREATE = """
 import sys, time
-import app.session_store as ss
-from app.collect import run_session
-from app.planning import build_plan
+import app.cell.session_store as ss
+from app.cell.collect import run_session
+from app.cell.planning import build_plan
 from sim_cell import FAST, R2_PARK, make_cell, small_plan
 
 def hook(stage):
@@ -285,7 +285,7 @@ def test_nan_joint_feedback_is_a_driver_error_and_never_reaches_move_to(tmp_path
 def test_cli_collect_prints_the_recorded_stops_and_refuses_a_locked_session(tmp_path, capsys):
     import json
 
-    from app.cli import main
+    from app.cli.commands import main
     from tests.conftest import assert_bad_input
 
     session = tmp_path / "s"

@@ -8,12 +8,12 @@ import pytest
 pytest.importorskip("casadi")
 pytest.importorskip("can")
 
-from app.sim_dual import SimCellOptions, fit_model_sets, make_twins  # noqa: E402
-from app.validate_dual import DeviationStats, relative_position, run_sim_validation  # noqa: E402
+from app.dual.sim import TrainingGrid, fit_model_sets, make_twins  # noqa: E402
+from app.dual.validate import DeviationStats, relative_position, run_sim_validation  # noqa: E402
 from calibration.errors import ModelError  # noqa: E402
 from cell_config.loader import load_cell  # noqa: E402
 
-FAST = SimCellOptions(grid_step_deg=15.0)
+FAST = TrainingGrid(grid_step_deg=15.0)
 
 
 @pytest.fixture(scope="module")
@@ -23,7 +23,7 @@ def cell():
 
 @pytest.fixture(scope="module")
 def result(cell):
-    return run_sim_validation(cell, 4, methods=("nominal", "cpa", "fbf13", "pi"), options=FAST,
+    return run_sim_validation(cell, 4, methods=("nominal", "cpa", "fbf13", "pi"), grid=FAST,
                               channel="test-validate-dual")
 
 
@@ -42,7 +42,7 @@ def test_calibrated_sets_are_closer_to_contact_than_nominal(result):
 
 
 def test_relative_position_is_the_gun_point_in_the_workpiece_frame(cell):
-    twins = make_twins(cell, FAST)
+    twins = make_twins(cell)
     q = np.radians([[0, 15, 5, 0, 30, 0, 0, 0, 0, 0, -30, 0]])
     p = relative_position(cell, twins["R1"].pose, twins["R2"].pose, q)
     R1, p1 = twins["R1"].pose(q[:, :6])
@@ -57,10 +57,10 @@ def test_relative_position_is_the_gun_point_in_the_workpiece_frame(cell):
 
 
 def test_physics_model_plans_through_its_exact_expression(cell):
-    from app.casadi_kinematics import casadi_fk
+    from app.dual.casadi_kinematics import casadi_fk
     from calibration.physics import PhysicsModel
 
-    twin = make_twins(cell, FAST)["R1"]
+    twin = make_twins(cell)["R1"]
     model = PhysicsModel("R1", "twin", twin.geometry, twin.effects)
     fk = casadi_fk(model)
     assert fk.kind == "physics" and fk.n_frozen == 0 and not fk.frozen  # the deflection is a function of q
@@ -75,5 +75,5 @@ def test_bad_requests(cell):
     with pytest.raises(ModelError, match="at least 2"):
         run_sim_validation(cell, 1)
     with pytest.raises(ModelError, match="unknown model set 'bogus'; valid: .*fbf13.*pi"):
-        fit_model_sets(cell, make_twins(cell, FAST), ("bogus",), FAST)
+        fit_model_sets(cell, make_twins(cell), ("bogus",), grid=FAST)
     assert DeviationStats.of(np.array([1.0, 3.0])) == DeviationStats(2.0, 1.0, 3.0)

@@ -14,13 +14,13 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from app.cli import main
-from app.validate_dual import relative_position
+from app.cell.rehearsal import write_rehearsal_cell
+from app.cli.commands import main
+from app.dual.validate import relative_position
 from calibration.models import ConstantModel
 from cell_config import load_cell
 from drivers.motoros.fake_cell import build_fake_controller
 from drivers.sim.can_probe import SimulatedProbe
-from app.rehearsal import write_rehearsal_cell
 
 
 class NominalContact:
@@ -52,7 +52,7 @@ def test_validate_dual_on_the_real_path_drives_the_plan_and_reads_the_probe(tmp_
     assert main(["--cell", str(cell_path), "plan-dual", "--path", "sweep:4", "--no-compile", "--out", str(plan)]) == 0
     cell = load_cell(cell_path)
     p_contact = np.asarray(json.loads(plan.read_text())["T_wp_gun"], dtype=float)[:3, 3]
-    from app.cell_runtime import park_q
+    from app.cell.runtime import park_q
 
     fake = build_fake_controller(cell, initial_q={n: park_q(n) for n in ("R1", "R2")})
     with fake, SimulatedProbe(cell.probe.channel, heartbeat_period_s=0.02, base_id=cell.probe.base_id) as sim_probe:

@@ -103,7 +103,7 @@ def test_joint_jacobian_matches_finite_differences(models, kind):
 
 @pytest.mark.parametrize("kind", KINDS)
 def test_casadi_expression_matches_numpy_pose(models, kind):
-    from app.casadi_kinematics import casadi_fk
+    from app.dual.casadi_kinematics import casadi_fk
 
     model = models[kind]
     fk = casadi_fk(model)

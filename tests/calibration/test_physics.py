@@ -226,8 +226,8 @@ def test_pose_signature_is_jacobian_times_delta_q(r1, index):
 def test_twin_round_trip_and_reproducible(r1):
     cr, m, gm = r1
     mags = {"joint_compliance": 0.3, "backlash": 0.1, "thermal_drift": 0.1, "gear_transmission": 0.05}
-    tw = Twin.random(m, mags, seed=11, gravity=gm, offset_sigma_mm=0.2, tilt_sigma_rad=3e-4)
-    again = Twin.random(m, mags, seed=11, gravity=gm, offset_sigma_mm=0.2, tilt_sigma_rad=3e-4)
+    tw = Twin.random(m, mags, seed=11, gravity=gm, offset_std_mm=0.2, tilt_std_rad=3e-4)
+    again = Twin.random(m, mags, seed=11, gravity=gm, offset_std_mm=0.2, tilt_std_rad=3e-4)
     assert json.dumps(tw.to_dict()) == json.dumps(again.to_dict())
     back = Twin.from_dict(json.loads(json.dumps(tw.to_dict())))
     q = random_q(cr, 30)

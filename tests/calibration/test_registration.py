@@ -9,10 +9,10 @@ import pytest
 
 from calibration import so3
 from calibration.errors import CellCalError, DataError, ModelError, UnsafeTarget
+from calibration.physics import PlantedErrors, planted_twin
 from calibration.registration import (DegenerateRegistration, RegistrationProblem, make_T, registration_plan,
                                       relative_base, retract, transform_difference)
 from cell_config.loader import load_cell
-from drivers.sim.truth import planted_truth
 
 NOISE_MM, NOISE_DEG = 0.02, 0.005
 Q_CENTER_DEG = {"R1": (0.0, 10.0, -10.0, 0.0, -45.0, 0.0), "R2": (0.0, 5.0, -5.0, 10.0, -40.0, 20.0)}
@@ -222,7 +222,7 @@ def test_transform_difference_of_known_offset():
 def test_planted_kinematic_error_leak_into_world_base(cell, robot):
     """How much of a 0.5 mm (1 sigma) joint-origin error the registration absorbs into T_world_base.
 
-    The nominal model is wrong by planted joint-origin offsets (drivers.sim.truth.planted_truth; first without
+    The nominal model is wrong by planted joint-origin offsets (calibration.physics.planted_twin; first without
     tilts, then with its default 0.05 deg tilts); registration cannot tell part of them from a shifted base or
     marker, so that part lands in the transforms. Noise-free data, 20 seeds each.
     """
@@ -231,13 +231,13 @@ def test_planted_kinematic_error_leak_into_world_base(cell, robot):
     for tilt_std_deg in (0.0, 0.05):
         leaks, origin_sums = [], []
         for seed in range(20):
-            truth = planted_truth(model, origin_std_mm=0.5, tilt_std_deg=tilt_std_deg, seed=seed)
+            truth = planted_twin(model, PlantedErrors(0.5, math.radians(tilt_std_deg)), seed=seed)
             T_wb, _ = planted_world(seed, model)
-            R, p = marker_poses(T_wb, truth.model.fk(q))
+            R, p = marker_poses(T_wb, truth.geometry.fk(q))
             res = RegistrationProblem(model, q, R, p).solve()
             assert res.converged
             leaks.append(transform_difference(res.T_world_base, T_wb) + (res.rms_mm,))
-            origin_sums.append(np.abs(truth.params[:12]).sum())
+            origin_sums.append(np.abs(list(truth.info["geometric"].values())[:12]).sum())
         leaks = np.array(leaks)
         print(f"\n{robot}, 0.5 mm joint-origin + {tilt_std_deg} deg tilt errors, 20 seeds: T_world_base leak "
               f"median {np.median(leaks[:, 0]):.3f} mm / {np.median(leaks[:, 1]):.4f} deg, max "

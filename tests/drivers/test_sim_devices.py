@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 
 from calibration import so3
+from calibration.physics import Twin
 from cell_config import load_cell
 from drivers.errors import DriverDisconnected, DriverTimeout, RobotFault
-from drivers.sim import (PoeTruth, SimClock, SimFault, SimMocapConfig, SimMocapSource, SimRobotConfig,
-                         SimRobotDriver, planted_truth)
+from drivers.sim import (SimClock, SimFault, SimMocapConfig, SimMocapSource, SimRobotConfig, SimRobotDriver,
+                         TwinTruth, planted_truth)
 
 
 @pytest.fixture
@@ -147,7 +148,7 @@ def test_mocap_blackout_and_cell_frame(r1):
     cell = load_cell()
     arm = make_arm(r1, scale=200.0)
     r2 = cell.robot("R2")
-    arm2 = SimRobotDriver("R2", r2.robot, PoeTruth(r2.model()), clock=arm.clock)
+    arm2 = SimRobotDriver("R2", r2.robot, TwinTruth(Twin(r2.model())), clock=arm.clock)
     mocap = SimMocapSource({1: arm, 2: arm2}, SimMocapConfig(noise_pos_mm=0.0, noise_rot_deg=0.0),
                            T_ref_base={2: r2.T_cell_base})
     with arm, arm2, mocap:

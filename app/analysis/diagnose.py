@@ -1,0 +1,155 @@
+"""The ``diagnose`` workflow: read recordings, find the physics the model in use left out, write the report.
+
+``run_diagnose`` is what ``cellcal diagnose`` calls. Everything is read and validated before anything is
+written; the JSON report (``cellcal.diagnose/1``), the Markdown report with PNG plots and the fitted
+physics model file are each written atomically.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from app.analysis.report import save_figure
+from calibration.diagnosis import DiagnoseOptions, Diagnosis, diagnose
+from calibration.errors import ModelError
+from calibration.files import atomic_write_text
+
+log = logging.getLogger("cellcal.app")
+
+
+def run_diagnose(robot: str, data: str | Path, heldout: str | Path | None = None, model: str | Path | None = None,
+                 json_path: str | Path | None = None, report_dir: str | Path | None = None,
+                 model_out: str | Path | None = None, cell: str | Path | None = None,
+                 options: DiagnoseOptions | None = None) -> Diagnosis:
+    """Diagnose one robot's model against recordings and write the requested outputs.
+
+    Args:
+        robot: robot name in the cell (``R1``, ``R2``).
+        data: recording CSV or Welding_Motoman folder to diagnose on.
+        heldout: recording for the before/after figures; None sets aside a fifth of the clusters of ``data``.
+        model: model file in use (constant, physics, pi or cdc; a diagnosed file is refused: give its base); None fits the
+            geometric NLS (``nls1``) on ``data``.
+        json_path: write the ``cellcal.diagnose/1`` JSON report here.
+        report_dir: write ``report.md`` and PNG plots into this folder.
+        model_out: write the refitted model (physics, pi, cdc or diagnosed, see
+            :func:`calibration.diagnosis.result_model`) here (``.yaml``/``.json``).
+        cell: cell YAML (default: the packaged Motoman cell).
+        options: diagnosis settings.
+
+    Returns:
+        The diagnosis.
+
+    Raises:
+        CellCalError: bad input (unknown robot, unreadable data, unusable model); nothing is written.
+    """
+    from calibration.models import load_model, save_model
+    from calibration.physics.gravity import GravityModel
+    from calibration.recording import read_recording
+    from cell_config import load_cell
+
+    cr = (load_cell(cell) if cell else load_cell()).robot(robot)
+    spec = cr.robot
+    nominal = cr.model()
+    limits = (spec.lower_rad, spec.upper_rad)
+    used = load_model(model, robot, nominal) if model is not None else None  # another robot's model: refused
+    rec = read_recording(data, *limits)
+    ho = read_recording(heldout, *limits) if heldout is not None else None
+    try:
+        gravity = GravityModel.from_spec(spec, nominal)
+    except ModelError as e:
+        log.warning("joint compliance cannot be tested: %s", e)
+        gravity = None
+    result = diagnose(robot, nominal, rec, ho, used, gravity, limits, options)
+    if model_out is not None:
+        save_model(result.model, model_out)
+    if json_path is not None:
+        atomic_write_text(Path(json_path), json.dumps(result.to_json(), indent=1))
+    if report_dir is not None:
+        write_report(result, report_dir)
+    return result
+
+
+def markdown(result: Diagnosis) -> str:
+    """The Markdown report (plots referenced by file name)."""
+    j = result.to_json()
+    b, f = result.baseline, result.final
+    lines = [f"# Diagnosis: {result.robot}", "", f"**Verdict.** {result.verdict}", "",
+             f"Samples: {result.n_fit} fit, {result.n_heldout} held out ({result.heldout_source}). "
+             f"Noise floor {result.noise.floor_mm:.3f} mm (within clusters {result.noise.within_cluster_mm:.3f}, "
+             f"fit residual {result.noise.fit_residual_mm:.3f}).", "",
+             "| model | held-out RMS mm | max mm | RMS deg | max deg |", "|---|---:|---:|---:|---:|",
+             f"| {b.model} (before) | {b.rms_mm:.4f} | {b.max_mm:.4f} | {b.rms_deg:.4f} | {b.max_deg:.4f} |",
+             f"| {f.model} (after) | {f.rms_mm:.4f} | {f.max_mm:.4f} | {f.rms_deg:.4f} | {f.max_deg:.4f} |", ""]
+    lines += ["## Effects found", ""]
+    if result.effects:
+        lines += ["| kind | on | parameters | delta BIC | held-out RMS before -> after mm |", "|---|---|---|---:|---|"]
+        for e in result.effects:
+            on = ", ".join(e.links) or ", ".join(map(str, e.joints)) or "-"
+            ps = "; ".join(f"{k} = {v:.4g}" + (f" ± {e.uncertainty[k]:.2g}" if e.uncertainty.get(k) else "")
+                           for k, v in e.parameters.items())
+            lines.append(f"| {e.kind} | {on} | {ps} | {e.evidence.delta_bic:.1f} | "
+                         f"{e.evidence.before.rms_mm:.4f} -> {e.evidence.after.rms_mm:.4f} |")
+        lines += [""] + [f"- {e.explanation}" for e in result.effects]
+    else:
+        lines.append("None confirmed on the held-out data.")
+    if result.rejected:
+        lines += ["", "## Selected on the fit data but not confirmed on the held-out data", ""]
+        lines += [f"- {e.kind} on {', '.join(e.links) or ', '.join(map(str, e.joints)) or '-'}: held-out RMS "
+                  f"{e.evidence.before.rms_mm:.4f} -> {e.evidence.after.rms_mm:.4f} mm (z = {e.evidence.heldout_z:.1f}). "
+                  f"{e.explanation}" for e in result.rejected]
+    lines += ["", "## Where the model and the data disagree", "", "| driver | correlation | where |", "|---|---:|---|"]
+    lines += [f"| {m['regressor']} | {m['correlation']:.3f} | {m['where']} |" for m in j["mismatch"]]
+    lines += ["", "## Not identifiable from this data", ""]
+    lines += [f"- {u.kind} on {u.label}: {u.reason}" for u in result.not_identifiable] or ["- none"]
+    lines += ["", "## Not tested (missing data columns)", ""]
+    lines += [f"- {u.kind} on {u.label}: {u.reason}" for u in result.untested] or ["- none"]
+    if result.notes:
+        lines += ["", "## Notes", ""] + [f"- {n}" for n in result.notes]
+    lines += ["", "## Plots", "", "![residual against its strongest drivers](mismatch.png)", "",
+              "![held-out error before and after](heldout.png)", ""]
+    return "\n".join(lines)
+
+
+def write_report(result: Diagnosis, out_dir: str | Path) -> list[Path]:
+    """Write ``report.md``, ``mismatch.png`` and ``heldout.png`` into ``out_dir``; returns the files."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    files = []
+    pd = result.plots
+    if pd is not None:
+        names = [m.regressor for m in result.mismatch][:4]
+        drv = {d.name: d for d in pd.drivers}
+        shown = [drv[n] for n in names if n in drv] or list(pd.drivers[:1])
+        fig, axes = plt.subplots(1, len(shown), figsize=(4 * len(shown), 3.6), squeeze=False)
+        for ax, d in zip(axes[0], shown):
+            ax.scatter(d.values, pd.fit_residual_mm, s=4, alpha=0.5)
+            ax.set_xlabel(f"{d.name} [{d.unit}]")
+            ax.set_ylabel("baseline position residual [mm]")
+            ax.grid(alpha=0.3)
+        files.append(save_figure(fig, out / "mismatch.png"))
+        fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 3.8))
+        a1.plot(pd.heldout_before_mm, lw=0.8, label=f"before ({result.baseline.model})")
+        a1.plot(pd.heldout_after_mm, lw=0.8, label=f"after ({result.final.model})")
+        a1.axhline(result.noise.floor_mm, color="k", ls="--", lw=0.8, label="noise floor (RMS)")
+        a1.set_xlabel("held-out sample")
+        a1.set_ylabel("position error [mm]")
+        a1.legend(fontsize=7)
+        bins = np.linspace(0, max(pd.heldout_before_mm.max(), pd.heldout_after_mm.max()), 40)
+        a2.hist(pd.heldout_before_mm, bins, alpha=0.6, label="before")
+        a2.hist(pd.heldout_after_mm, bins, alpha=0.6, label="after")
+        a2.set_xlabel("position error [mm]")
+        a2.legend(fontsize=7)
+        files.append(save_figure(fig, out / "heldout.png"))
+    md = out / "report.md"
+    atomic_write_text(md, markdown(result))
+    files.append(md)
+    return files

@@ -1,0 +1,36 @@
+"""Fitting one arm of the cell: a :class:`~calibration.methods.Fitter` set up from the arm's cell entry.
+
+Shared by the workflows that fit models (the demo, the simulated dual-cell validation, ``cellcal fit`` and
+``compare``): the arm's nominal model, its link masses (for the joint compliance; the mass-free form when the
+robot YAML has none) and its joint limits.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+log = logging.getLogger("cellcal.app")
+
+
+def fitter_for(robot: Any, train: Any, cpa: Any | None = None, options: Any | None = None) -> Any:
+    """A Fitter for one arm of the cell: its nominal model, link masses and joint limits.
+
+    Args:
+        robot: the arm's cell entry (:meth:`cell_config.loader.CellSpec.robot`).
+        train: the training :class:`~calibration.recording.Recording`.
+        cpa: the CPA sweeps recording, or None.
+        options: :class:`~calibration.methods.FitOptions` (default options when None).
+    """
+    from calibration.errors import ModelError
+    from calibration.methods import FitOptions, Fitter
+    from calibration.physics.gravity import GravityModel
+
+    nominal = robot.model()
+    try:
+        gravity = GravityModel.from_spec(robot.robot, nominal)
+    except ModelError as e:
+        log.warning("%s: joint compliance takes the mass-free form: %s", robot.name, e)
+        gravity = None
+    return Fitter(robot.name, nominal, train, options or FitOptions(), cpa, gravity,
+                  (robot.robot.lower_rad, robot.robot.upper_rad))

@@ -1,0 +1,108 @@
+"""The one plan-file reader: a collection plan or a dual plan, chosen by the file's ``kind``.
+
+A plan file is JSON with ``schema: cellcal.plan/1`` and a ``kind``:
+
+* ``collection``: one arm's calibration poses (``targets``: robot, q_rad, cluster, kind), read as an
+  :class:`app.cell.planning.Plan` (written by ``cellcal plan``);
+* ``dual``: both arms per waypoint (``waypoints``: R1, R2 [rad], converged, ...), read as an
+  :class:`app.dual.plan_result.PlanResult` (written by ``cellcal plan-dual``).
+
+A file without ``kind`` (written before it was recorded) is told apart by its layout: ``waypoints`` is a
+dual plan, ``targets`` a collection plan. :func:`read_plan` is what every command and workflow reads a plan
+with (collect, export, preview, validate, the rehearsal); each kind's own ``from_dict`` checks its entries.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Literal
+
+from calibration.errors import DataError
+
+if TYPE_CHECKING:
+    from app.dual.plan_result import PlanResult
+    from app.cell.planning import Plan
+
+PLAN_SCHEMA = "cellcal.plan/1"
+PlanKind = Literal["collection", "dual"]
+PLAN_KINDS: tuple[str, ...] = ("collection", "dual")
+
+
+_LAYOUTS = {None: "a plan with 'waypoints' (kind 'dual') or 'targets' (kind 'collection')",
+            "dual": "a dual plan with 'waypoints' (from cellcal plan-dual)",
+            "collection": "a collection plan with 'targets' (from cellcal plan)"}
+
+
+def plan_kind(d: Any, source: str | Path = "<plan>", expected: PlanKind | None = None) -> str:
+    """The kind of a plan file's content: its ``kind``, or the layout of a file without one.
+
+    Args:
+        d: the parsed JSON. source: where it came from (for messages).
+        expected: the kind the caller needs, named in the message of a file that is not a plan.
+
+    Raises:
+        DataError: not a plan file (wrong schema, unknown kind, neither ``waypoints`` nor ``targets``).
+    """
+    layout = f"expected {_LAYOUTS[expected]} and schema {PLAN_SCHEMA!r}"
+    if not isinstance(d, dict) or d.get("schema") != PLAN_SCHEMA:
+        raise DataError(source, None, "schema", layout)
+    kind = d.get("kind")
+    if kind is None:
+        kind = "dual" if isinstance(d.get("waypoints"), list) else "collection" if "targets" in d else None
+        if kind is None:
+            raise DataError(source, None, None, layout)
+    if kind not in PLAN_KINDS:
+        raise DataError(source, None, "kind", f"unknown plan kind {kind!r}; valid: {', '.join(PLAN_KINDS)}")
+    return str(kind)
+
+
+def plan_from_data(d: Any, source: str | Path = "<plan>", kind: PlanKind | None = None) -> "Plan | PlanResult":
+    """A plan from a plan file's content, by its kind.
+
+    Args:
+        d: the parsed JSON.
+        source: where it came from (for messages).
+        kind: the kind the caller needs; another kind is refused (None: either).
+
+    Raises:
+        DataError: not a plan, not of ``kind``, or a malformed entry (the message names it).
+    """
+    from app.dual.plan_result import PlanResult
+    from app.cell.planning import Plan
+
+    found = plan_kind(d, source, kind)
+    if kind is not None and found != kind:
+        raise DataError(source, None, "kind", f"this is a {found} plan; expected {_LAYOUTS[kind]}")
+    return PlanResult.from_dict(d, source) if found == "dual" else Plan.from_dict(d, str(source))
+
+
+def read_plan(source: "str | Path | dict[str, Any] | Plan | PlanResult", kind: PlanKind | None = None
+              ) -> "Plan | PlanResult":
+    """Read a plan file (or take parsed content or a plan object) as a :class:`Plan` or :class:`PlanResult`.
+
+    Args:
+        source: a path, the parsed JSON, or an already built plan (returned as it is, kind checked).
+        kind: the kind the caller needs (None: either).
+
+    Raises:
+        DataError: missing or unreadable file, not JSON, not a plan, another kind, or a malformed entry.
+    """
+    from app.dual.plan_result import PlanResult
+    from app.cell.planning import Plan
+
+    if isinstance(source, (Plan, PlanResult)):
+        found = "dual" if isinstance(source, PlanResult) else "collection"
+        if kind is not None and found != kind:
+            raise DataError("<plan>", None, "kind", f"this is a {found} plan; expected a {kind} plan")
+        return source
+    if isinstance(source, dict):
+        return plan_from_data(source, "<plan>", kind)
+    path = Path(source)
+    try:
+        d = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise DataError(path, None, None, "plan file not found") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise DataError(path, None, None, f"not valid JSON ({e})") from None
+    return plan_from_data(d, path, kind)

@@ -1,0 +1,368 @@
+"""Durable storage of a collection session: one SQLite file in the session folder.
+
+WAL journal with ``synchronous=FULL``: every sample is committed (and on disk) as soon as it exists, so a
+killed collector loses at most the sample it was measuring. The plan is stored in the same file. The target
+index is the primary key of the samples table: a target is recorded at most once (measured or skipped).
+
+One collector per folder: a :class:`SessionStore` holds an exclusive ``flock`` on ``session.lock`` (with the
+holder's pid written in it) for its whole lifetime; the kernel releases it when the process dies, so a killed
+collector never leaves a stale lock. A second store on the same folder is refused at once
+(:class:`SessionLocked`).
+
+Creation is atomic: the plan, the information and the schema tag are committed in one transaction. A folder
+whose ``session.sqlite`` holds no committed plan (a collector killed while creating it) counts as "not yet
+created": a new session takes it over and a resume is refused with a clear message.
+
+Why the arms were stopped (alarm, e-stop, lost connection, abort) is kept in an ``events`` table
+(:meth:`SessionStore.add_event`, :meth:`SessionStore.events`).
+"""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import math
+import os
+import sqlite3
+import time
+from collections.abc import Callable
+from contextlib import closing
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from app.cell.planning import Plan
+from calibration.errors import DataError
+
+DB_NAME = "session.sqlite"
+LOCK_NAME = "session.lock"
+SCHEMA = "cellcal.session/1"
+QUAT_NORM_TOL = 1e-3
+
+_SAMPLE_COLUMNS = (
+    ["target_index", "status", "robot", "kind", "cluster"] + [f"q{i}" for i in range(1, 7)]
+    + ["x", "y", "z", "qw", "qx", "qy", "qz", "std_pos_mm", "std_rot_deg", "marker_err", "frames", "t"]
+    + [f"dir{i}" for i in range(1, 7)] + ["attempts", "reason", "recorded_at"]
+)
+_DDL = f"""
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS samples (
+    target_index INTEGER PRIMARY KEY,
+    status TEXT NOT NULL CHECK (status IN ('ok', 'skipped')),
+    robot TEXT NOT NULL, kind TEXT NOT NULL, cluster INTEGER NOT NULL,
+    {", ".join(f"q{i} REAL" for i in range(1, 7))},
+    x REAL, y REAL, z REAL, qw REAL, qx REAL, qy REAL, qz REAL,
+    std_pos_mm REAL, std_rot_deg REAL, marker_err REAL, frames INTEGER, t REAL,
+    {", ".join(f"dir{i} INTEGER" for i in range(1, 7))},
+    attempts INTEGER NOT NULL, reason TEXT, recorded_at REAL NOT NULL
+);
+CREATE TABLE IF NOT EXISTS events (
+    id INTEGER PRIMARY KEY AUTOINCREMENT, t_wall REAL NOT NULL, robot TEXT NOT NULL, kind TEXT NOT NULL,
+    reason TEXT NOT NULL, target_index INTEGER
+);
+"""
+
+#: Called with a stage name (``"schema"``: the file exists, nothing committed; ``"init"``: inside the creation
+#: transaction, before its commit) while a session is created. None in production; a test's child process
+#: sets it to hold creation open and be killed there.
+creation_hook: Callable[[str], None] | None = None
+
+EventKind = Literal["alarm", "e-stop", "robot-fault", "driver-fault", "connection-lost", "bad-feedback", "aborted"]
+
+
+class SessionLocked(DataError):
+    """Another process holds the session folder (a collector or a resume is running on it).
+
+    Attributes:
+        folder: the session folder.
+        pid: the process holding it, as written in the lock file (None if unreadable).
+    """
+
+    def __init__(self, folder: Path, pid: int | None) -> None:
+        self.folder = folder
+        self.pid = pid
+        holder = f"process {pid}" if pid is not None else "another process (pid unknown)"
+        super().__init__(folder, None, None, f"session folder is in use by {holder}; only one collector may use a "
+                                             f"session at a time: wait for it to end or stop it, then retry")
+
+
+@dataclass(frozen=True)
+class SessionEvent:
+    """Why the session stopped the arms, as recorded.
+
+    Attributes:
+        t_wall: wall-clock time [s since the epoch].
+        robot: the robot whose driver reported it.
+        kind: what happened (alarm, e-stop, robot-fault, connection-lost, bad-feedback, aborted).
+        reason: the driver's or the session's message.
+        target_index: the target being visited, or None.
+    """
+
+    t_wall: float
+    robot: str
+    kind: str
+    reason: str
+    target_index: int | None = None
+
+    def line(self) -> str:
+        """One human-readable line (what ``cellcal collect`` prints)."""
+        when = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(self.t_wall))
+        at = f" at target {self.target_index}" if self.target_index is not None else ""
+        return f"{when} {self.robot} {self.kind}{at}: {self.reason}"
+
+
+class _FolderLock:
+    """An exclusive flock on ``<folder>/session.lock`` holding the owner's pid; released on close or death."""
+
+    def __init__(self, folder: Path) -> None:
+        self.path = folder / LOCK_NAME
+        self.fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(self.fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            pid = self._holder()
+            os.close(self.fd)
+            raise SessionLocked(folder, pid) from None
+        os.ftruncate(self.fd, 0)
+        os.pwrite(self.fd, f"{os.getpid()}\n".encode(), 0)
+
+    def _holder(self) -> int | None:
+        try:
+            return int(os.pread(self.fd, 64, 0).decode().strip())
+        except ValueError:
+            return None
+
+    def release(self) -> None:
+        if self.fd >= 0:
+            os.close(self.fd)  # closing the descriptor drops the flock
+            self.fd = -1
+
+
+@dataclass(frozen=True)
+class Sample:
+    """One averaged static measurement of a target.
+
+    Attributes:
+        target_index: index of the target in the plan.
+        q: joint angles read from the controller [rad], shape (6,).
+        p: mean tool-marker position [mm], shape (3,).
+        quat: mean orientation (w, x, y, z), shape (4,).
+        std_pos_mm: RMS distance of the frames from the mean position [mm].
+        std_rot_deg: RMS angle of the frames from the mean orientation [deg].
+        marker_err: mean marker error of the averaged frames [mm].
+        frames: number of frames averaged.
+        t: time since the session started [s].
+        dirs: sign (-1, 0, +1) of each joint's last motion, shape (6,); 0 = unknown or never moved.
+        attempts: measurement attempts it took.
+    """
+
+    target_index: int
+    q: np.ndarray
+    p: np.ndarray
+    quat: np.ndarray
+    std_pos_mm: float
+    std_rot_deg: float
+    marker_err: float
+    frames: int
+    t: float
+    dirs: np.ndarray
+    attempts: int = 1
+
+
+class SessionStore:
+    """The session's SQLite file. Use as a context manager.
+
+    Args:
+        session_dir: the session folder (created when ``create`` is True).
+        create: start a new session; False opens an existing one.
+    """
+
+    def __init__(self, session_dir: str | Path, create: bool = False, *, lock: bool = True) -> None:
+        self.dir = Path(session_dir)
+        self.path = self.dir / DB_NAME
+        if create:
+            self.dir.mkdir(parents=True, exist_ok=True)
+        elif not self.path.exists():
+            raise DataError(self.path, None, None, "no session here (session.sqlite not found): nothing to resume; "
+                                                   "start a new collect with a plan")
+        self._lock = _FolderLock(self.dir) if lock else None
+        try:
+            self.conn = self._connect()
+            if create and self.is_created():
+                raise DataError(self.path, None, None, "a session already exists here; resume it or pick a new folder")
+            if not create and not self.is_created():
+                raise DataError(self.path, None, None, "no session here: its creation was interrupted before the plan "
+                                                       "was stored, so there is nothing to resume; start a new "
+                                                       "collect with a plan in this folder (it takes it over)")
+        except BaseException:
+            self.close()
+            raise
+
+    def _connect(self) -> sqlite3.Connection:
+        conn = None
+        try:
+            conn = sqlite3.connect(self.path, timeout=10.0, isolation_level=None)
+            conn.execute("PRAGMA journal_mode=WAL")
+            conn.execute("PRAGMA synchronous=FULL")
+            conn.executescript(_DDL)
+            return conn
+        except sqlite3.DatabaseError as e:
+            if conn is not None:
+                conn.close()
+            raise DataError(self.path, None, None, f"not a usable session database ({e})") from e
+
+    def is_created(self) -> bool:
+        """True once the plan is committed (a killed creation leaves a file without one)."""
+        return self.conn.execute("SELECT 1 FROM meta WHERE key = 'plan'").fetchone() is not None
+
+    @staticmethod
+    def exists(session_dir: str | Path) -> bool:
+        """True when ``session_dir`` holds a fully created session (read-only look, no lock taken)."""
+        path = Path(session_dir) / DB_NAME
+        if not path.exists():
+            return False
+        try:
+            with closing(sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=10.0)) as conn:
+                return conn.execute("SELECT 1 FROM meta WHERE key = 'plan'").fetchone() is not None
+        except sqlite3.DatabaseError:  # no meta table yet, or not a database: no created session
+            return False
+
+    def __enter__(self) -> "SessionStore":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Close the database and release the folder lock; safe to call twice."""
+        conn = getattr(self, "conn", None)
+        if conn is not None:
+            conn.close()
+            self.conn = None  # type: ignore[assignment]
+        if self._lock is not None:
+            self._lock.release()
+
+    # ---- metadata and plan -------------------------------------------------------------------------------
+
+    def init(self, plan: Plan, info: dict[str, Any]) -> None:
+        """Store the plan and the session information in one transaction (once, when the session is created).
+
+        Until it commits the folder holds no session: a kill before leaves a folder a new session takes over.
+
+        Raises:
+            DataError: the folder already holds a created session or recorded rows.
+        """
+        _hook("schema")
+        rows = {"schema": SCHEMA, "plan": json.dumps(plan.to_dict()), "info": json.dumps(info),
+                "created_wall": repr(time.time())}
+        with self.conn:
+            self.conn.execute("BEGIN IMMEDIATE")
+            if self.is_created() or self.conn.execute("SELECT 1 FROM samples").fetchone() is not None:
+                raise DataError(self.path, None, None, "a session already exists here; resume it or pick a new folder")
+            self.conn.execute("DELETE FROM meta")  # leftovers of an interrupted creation (never committed: empty)
+            self.conn.executemany("INSERT INTO meta (key, value) VALUES (?, ?)", rows.items())
+            _hook("init")
+
+    def _meta(self, key: str) -> str:
+        row = self.conn.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()
+        if row is None:
+            raise DataError(self.path, None, key, "missing from the session (was it created by cellcal?)")
+        return row[0]
+
+    def plan(self) -> Plan:
+        """The plan stored in the session."""
+        return Plan.from_dict(json.loads(self._meta("plan")), str(self.path))
+
+    def info(self) -> dict[str, Any]:
+        """Session information (robot, rigid body, options) stored at creation."""
+        return json.loads(self._meta("info"))
+
+    def created_wall(self) -> float:
+        """Wall-clock creation time [s since the epoch]."""
+        return float(self._meta("created_wall"))
+
+    # ---- samples -------------------------------------------------------------------------------------------
+
+    def done(self) -> set[int]:
+        """Target indices already recorded (measured or skipped)."""
+        return {r[0] for r in self.conn.execute("SELECT target_index FROM samples")}
+
+    def add_sample(self, s: Sample, robot: str, kind: str, cluster: int,
+                   lower: np.ndarray | None = None, upper: np.ndarray | None = None) -> None:
+        """Validate and commit one measured sample; nothing is written when a value is unusable.
+
+        Raises:
+            DataError: non-finite value, quaternion norm off by more than 1e-3, joint outside [lower, upper],
+                or the target already recorded.
+        """
+        values = np.concatenate([s.q, s.p, s.quat, [s.std_pos_mm, s.std_rot_deg, s.marker_err, s.t]])
+        if values.shape != (17,) or not np.all(np.isfinite(values)):
+            raise DataError(self.path, None, f"target {s.target_index}", "sample has non-finite or missing values")
+        norm = float(np.linalg.norm(s.quat))
+        if abs(norm - 1.0) > QUAT_NORM_TOL:
+            raise DataError(self.path, None, f"target {s.target_index}", f"quaternion norm {norm:.6f} is not 1")
+        if lower is not None and upper is not None:
+            bad = np.flatnonzero((s.q < lower) | (s.q > upper))
+            if bad.size:
+                j = int(bad[0])
+                raise DataError(self.path, None, f"target {s.target_index}",
+                                f"q{j + 1} = {math.degrees(s.q[j]):.3f} deg is outside the joint limits "
+                                f"[{math.degrees(lower[j]):.1f}, {math.degrees(upper[j]):.1f}] deg")
+        row = ([s.target_index, "ok", robot, kind, cluster] + [float(v) for v in s.q]
+               + [float(v) for v in s.p] + [float(v) for v in s.quat]
+               + [s.std_pos_mm, s.std_rot_deg, s.marker_err, int(s.frames), s.t]
+               + [int(v) for v in s.dirs] + [s.attempts, None, time.time()])
+        self._insert(row)
+
+    def add_skipped(self, target_index: int, robot: str, kind: str, cluster: int, reason: str,
+                    attempts: int) -> None:
+        """Commit a target that could not be measured, with the reason."""
+        values = {"target_index": target_index, "status": "skipped", "robot": robot, "kind": kind,
+                  "cluster": cluster, "attempts": attempts, "reason": reason, "recorded_at": time.time()}
+        row = [values.get(c) for c in _SAMPLE_COLUMNS]
+        self._insert(row)
+
+    def forget_skipped(self) -> int:
+        """Delete skipped rows so a resumed session tries those targets again; returns how many."""
+        with self.conn:
+            return self.conn.execute("DELETE FROM samples WHERE status = 'skipped'").rowcount
+
+    def _insert(self, row: list[Any]) -> None:
+        sql = f"INSERT INTO samples ({', '.join(_SAMPLE_COLUMNS)}) VALUES ({', '.join('?' * len(_SAMPLE_COLUMNS))})"
+        try:
+            with self.conn:
+                self.conn.execute(sql, row)
+        except sqlite3.IntegrityError as e:
+            raise DataError(self.path, None, f"target {row[0]}", f"already recorded ({e})") from e
+
+    # ---- events --------------------------------------------------------------------------------------------
+
+    def add_event(self, robot: str, kind: EventKind, reason: str, target_index: int | None = None) -> SessionEvent:
+        """Commit why the arms were stopped (at once, like a sample) and return the recorded event."""
+        event = SessionEvent(time.time(), robot, kind, reason, target_index)
+        with self.conn:
+            self.conn.execute("INSERT INTO events (t_wall, robot, kind, reason, target_index) VALUES (?, ?, ?, ?, ?)",
+                              (event.t_wall, robot, kind, reason, target_index))
+        return event
+
+    def events(self) -> list[SessionEvent]:
+        """Every recorded event, oldest first."""
+        cur = self.conn.execute("SELECT t_wall, robot, kind, reason, target_index FROM events ORDER BY id")
+        return [SessionEvent(*r) for r in cur]
+
+    def rows(self, status: Literal["ok", "skipped"] | None = None) -> list[dict[str, Any]]:
+        """Recorded rows as dicts ordered by target index, optionally filtered by status."""
+        sql = f"SELECT {', '.join(_SAMPLE_COLUMNS)} FROM samples"
+        args: tuple[Any, ...] = ()
+        if status is not None:
+            sql += " WHERE status = ?"
+            args = (status,)
+        cur = self.conn.execute(sql + " ORDER BY target_index", args)
+        return [dict(zip(_SAMPLE_COLUMNS, r)) for r in cur]
+
+
+def _hook(stage: str) -> None:
+    if creation_hook is not None:
+        creation_hook(stage)

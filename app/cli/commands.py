@@ -1,0 +1,207 @@
+"""The ``cellcal`` command line: one function per subcommand.
+
+Exit codes: 0 success, 2 bad input (one clear line on stderr, nothing written), 1 unexpected failure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from typing import Any, Callable
+
+from app.cli.cell import add_cell_parsers
+from app.cli.common import (cell_spec, check_output_args, fitter_from_args, load_model_for, read_recording_arg,
+                             write_json)
+from app.cli.dual import add_dual_parsers
+from app.cli.real import add_real_parsers
+from app.jobs.cli import add_job_parsers
+from calibration.errors import CellCalError
+
+log = logging.getLogger("cellcal.app")
+
+
+def cmd_fit(args: argparse.Namespace) -> int:
+    from calibration.models import save_model
+
+    fitter, _ = fitter_from_args(args)
+    model, seconds = fitter.fit(args.method)
+    if model.info.get("warning"):
+        print(f"warning: {model.info['warning']}", file=sys.stderr)
+    save_model(model, args.out)
+    print(f"{args.method}: {model.n_parameters} parameters fitted on {len(fitter.train)} samples in {seconds:.3f} s "
+          f"-> {args.out}")
+    return 0
+
+
+def cmd_predict(args: argparse.Namespace) -> int:
+    from calibration import so3
+    from calibration.recording import read_joints, write_table
+
+    model = _model_arg(args)
+    q = read_joints(args.joints)
+    outside = model.out_of_range(q)
+    if outside.any():
+        print(f"warning: {int(outside.sum())} of {len(q)} configurations lie outside the region the "
+              f"{model.method} model was fitted on; its parameters there are extrapolated", file=sys.stderr)
+    R, p = model.fk(q)
+    quat = so3.R_to_quat(R)
+    write_table(args.out, {"x": p[:, 0], "y": p[:, 1], "z": p[:, 2], "qw": quat[:, 0], "qx": quat[:, 1],
+                           "qy": quat[:, 2], "qz": quat[:, 3]})
+    print(f"{len(q)} poses -> {args.out}")
+    return 0
+
+
+def _model_arg(args: argparse.Namespace) -> Any:
+    """``--model``, checked (and checked to be ``--robot``'s when that is given)."""
+    from calibration.models import load_model
+
+    if args.robot:
+        return load_model_for(args.model, cell_spec(args).robot(args.robot))
+    return load_model(args.model)
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from calibration.metrics import error_stats, errors
+
+    model = _model_arg(args)
+    test = read_recording_arg(args.test, cell_spec(args).robot(args.robot) if args.robot else None)
+    result = {"robot": model.robot, "method": model.method, "samples": len(test),
+              "test": error_stats(errors(model, test))}
+    pos, ori = result["test"]["position_mm"], result["test"]["orientation_deg"]
+    print(f"{model.method} on {len(test)} samples: position mean {pos['mean']:.3f} std {pos['std']:.3f} "
+          f"max {pos['max']:.3f} mm; orientation mean {ori['mean']:.3f} max {ori['max']:.3f} deg")
+    write_json(args.json, result)
+    return 0
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    from app.analysis.compare import parse_methods, run_comparison
+    from app.analysis.report import comparison_table, write_report
+
+    from pathlib import Path
+
+    methods = parse_methods(args.methods)
+    robot = cell_spec(args).robot(args.robot)
+    files = {f"{Path(f).stem} (file)": load_model_for(f, robot) for f in args.model}
+    fitter, robot = fitter_from_args(args)
+    test = read_recording_arg(args.test, robot)
+    cmp = run_comparison(fitter, test, methods, files=files)
+    warning = cmp.analysis["observability"]["warning"]
+    if warning:
+        print(f"warning: {warning}", file=sys.stderr)
+    print(comparison_table(cmp, with_paper=args.robot == "R1"))
+    write_json(args.json, cmp.to_json())
+    if args.report:
+        files = write_report(cmp, test, args.report, with_paper=args.robot == "R1")
+        print(f"report: {files[-1]}")
+    return 0
+
+
+# -- dual-robot planning, validation, preview, export ----------------------------------------------------------
+
+
+def cmd_diagnose(args: argparse.Namespace) -> int:
+    from app.analysis.diagnose import run_diagnose
+
+    from calibration.diagnosis import DiagnoseOptions
+
+    result = run_diagnose(args.robot, args.data, heldout=args.heldout, model=args.model, json_path=args.json,
+                          report_dir=args.report, model_out=args.out, cell=args.cell,
+                          options=DiagnoseOptions(compliance_form=args.compliance_form))
+    print(result.verdict)
+    return 0
+
+
+def _add_fit_inputs(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
+    p.add_argument("--train", required=True, help="training recording CSV or Welding_Motoman folder")
+    p.add_argument("--cpa", help="single-joint sweep recording for circular point analysis")
+    p.add_argument("--a", type=float, default=1641.0, help="orientation weight (1641: 1 mm ~ 1 deg)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="cellcal", description=__doc__.splitlines()[0])
+    parser.add_argument("--cell", help="cell.yaml (default: the packaged Motoman cell)")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
+    parser.add_argument("--version", action="version", version=f"cellcal {version()}")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    def add(name: str, func: Callable[[argparse.Namespace], int], help_text: str) -> argparse.ArgumentParser:
+        p = sub.add_parser(name, help=help_text)
+        p.set_defaults(func=func)
+        return p
+
+    from calibration.methods import METHODS
+
+    p = add("fit", cmd_fit, "fit one method and save the model")
+    _add_fit_inputs(p)
+    p.add_argument("--method", required=True, choices=METHODS)
+    p.add_argument("--out", required=True, help="model file (.yaml or .json)")
+    p = add("predict", cmd_predict, "tool poses of a model for joint angles")
+    p.add_argument("--model", required=True)
+    p.add_argument("--robot", help="the arm the model is for (R1, R2): refuse a model of another robot")
+    p.add_argument("--joints", required=True, help="CSV with q1..q6 [rad] (header) or 6 headerless columns")
+    p.add_argument("--out", required=True)
+    p = add("evaluate", cmd_evaluate, "accuracy of a model on a recording")
+    p.add_argument("--model", required=True)
+    p.add_argument("--robot", help="the arm the model is for (R1, R2): refuse a model of another robot and "
+                                   "joints outside its limits")
+    p.add_argument("--test", required=True)
+    p.add_argument("--json", help="write the statistics as JSON")
+    p = add("compare", cmd_compare, "the paper's comparison table for every method")
+    _add_fit_inputs(p)
+    p.add_argument("--test", required=True)
+    p.add_argument("--methods", default="all", help="all, or a comma-separated list")
+    p.add_argument("--model", action="append", default=[], metavar="FILE",
+                   help="a saved model (a diagnose result, ...) to add as a row of its own; repeatable")
+    p.add_argument("--json", help="write the comparison as JSON")
+    p.add_argument("--report", help="write Markdown tables and PNG plots into this folder")
+    p = add("diagnose", cmd_diagnose, "find the physics the model in use left out, model it, show the fit improve")
+    p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
+    p.add_argument("--data", required=True, help="recording CSV or Welding_Motoman folder to fit on")
+    p.add_argument("--heldout", help="recording the selection never fits on (default: held-out clusters of --data)")
+    p.add_argument("--model", help="model in use (default: the geometric NLS fit of --data)")
+    p.add_argument("--json", help="write the report (schema cellcal.diagnose/1)")
+    p.add_argument("--report", help="write the report as Markdown with plots into this folder")
+    p.add_argument("--out", help="save the refitted geometry + physics model")
+    p.add_argument("--compliance-form", choices=("auto", "masses", "mass_free"), default="auto",
+                   help="joint compliance from the robot YAML's link masses, or in the mass-free gravity form "
+                        "(auto: masses when the YAML has them)")
+    add_dual_parsers(add)
+    add_cell_parsers(add)
+    add_real_parsers(add)
+    add_job_parsers(add)
+    return parser
+
+
+def version() -> str:
+    """The installed package's version (the source tree's pyproject when run uninstalled)."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as package_version
+
+    try:
+        return package_version("cellcal")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run one subcommand: 0 on success, 2 on bad input or a refused action, 130 on Ctrl-C."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
+    try:
+        check_output_args(args)
+        return args.func(args)
+    except CellCalError as e:
+        print(f"cellcal {args.command}: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        resumable = " (continue with --resume)" if getattr(args, "session", None) else ""
+        print(f"cellcal {args.command}: stopped{resumable}", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

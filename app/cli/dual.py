@@ -1,0 +1,211 @@
+"""``cellcal`` subcommands of the dual-robot spray task: plan-dual, validate-dual, preview, export-targets."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any, Callable
+
+from app.cli.cell_options import add_motion_options
+from app.cli.common import cell_spec, write_json
+
+
+def _model_pair(spec: str | None, where: str, cell: Any) -> dict[str, Any]:
+    """``R1=a.yaml,R2=b.yaml`` -> {robot: model}; robots not named stay nominal (absent from the dict).
+
+    Each file must record the arm it is given for and hold that arm's geometry (robot YAML).
+    """
+    from app.cli.common import load_model_for
+    from calibration.errors import DataError
+
+    models: dict[str, Any] = {}
+    for item in filter(None, (spec or "").split(",")):
+        robot, sep, path = item.partition("=")
+        if not sep or robot.strip() not in ("R1", "R2") or not path.strip():
+            raise DataError(where, None, None, f"bad model entry {item!r}; expected R1=FILE,R2=FILE")
+        models[robot.strip()] = load_model_for(path.strip(), cell.robot(robot.strip()))
+    return models
+
+
+def cmd_plan_dual(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from app.dual.paths import Q_REF_DEG, read_path, read_pose, relative_pose
+    from app.dual.planner import DualPlanner, PlannerOptions
+    from app.dual.plan_result import save_plan
+    from calibration.errors import ModelError
+
+    cell = cell_spec(args)
+    models = _model_pair(args.models, "--models", cell)
+    T_rel = read_pose(args.relative_pose) if args.relative_pose else None
+    planner = DualPlanner(cell, models.get("R1"), models.get("R2"), PlannerOptions(compile=not args.no_compile))
+    path = read_path(args.path, planner)
+    q0 = np.radians(Q_REF_DEG)
+    plan = planner.plan(path, relative_pose(planner, q0) if T_rel is None else T_rel, q0)
+    ms = [w.solve_ms for w in plan.waypoints]
+    summary = {"waypoints": len(plan.waypoints), "converged": plan.converged, "failed": plan.failed,
+               "models": plan.models, "solve_ms_median": float(np.median(ms)),
+               "max_residual_mm": max(w.residual_mm for w in plan.waypoints),
+               "max_residual_deg": max(w.residual_deg for w in plan.waypoints),
+               "min_clearance_mm": min(w.clearance_mm for w in plan.waypoints), "out": args.out}
+    if not plan.converged:
+        i = plan.failed[0]
+        raise ModelError(f"{len(plan.failed)} of {len(plan.waypoints)} waypoints not solved, nothing written; "
+                         f"first: waypoint {i}: {plan.waypoints[i].reason}")
+    _check_dual_plan(planner.cell, plan.q(), planner.options.limit_margin_deg)
+    if args.out:
+        save_plan(plan, args.out)
+    write_json(args.json, summary)
+    print(f"{len(plan.waypoints)} waypoints solved ({plan.models['R1']}/{plan.models['R2']}), median "
+          f"{summary['solve_ms_median']:.2f} ms, residual <= {summary['max_residual_mm']:.1e} mm, clearance >= "
+          f"{summary['min_clearance_mm']:.0f} mm" + (f" -> {args.out}" if args.out else ""))
+    return 0
+
+
+def _check_dual_plan(cell: Any, q: Any, margin_deg: float) -> None:
+    """The cell-safety check every motion goes through, on the plan's waypoints and the moves between them.
+
+    The plan's moves are both arms together; the process zone (gun and workpiece ends, which the relative pose
+    brings together on purpose) is left to the planner's relative-pose constraint.
+
+    Raises:
+        UnsafeTarget: naming the waypoint; nothing is written.
+    """
+    from app.cell.capsules import PROCESS_ZONE
+    from app.cell.safety import CellSafety, SafetyConfig
+
+    safety = CellSafety(cell, SafetyConfig(joint_margin_deg=margin_deg, process_zone=PROCESS_ZONE))
+    for i in range(len(q)):
+        safety.check_dual_motion(q[max(i - 1, 0)], q[i], i)
+
+
+def _model_sets(specs: list[str] | None, cell: Any) -> dict[str, dict[str, Any]]:
+    """``[LABEL:]R1=a,R2=b`` per entry -> {label: {R1, R2}} (label: the models' method by default)."""
+    from calibration.models import ConstantModel
+
+    out: dict[str, dict[str, Any]] = {}
+    for spec in specs or []:
+        label, sep, rest = spec.partition(":")
+        if not sep or "=" in label:
+            label, rest = "", spec
+        pair = _model_pair(rest, "--models", cell)
+        if not label:
+            label = "/".join(sorted({m.method for m in pair.values()})) or "nominal"
+        for robot in ("R1", "R2"):
+            pair.setdefault(robot, ConstantModel(robot, "nominal", cell.robot(robot).model()))
+        out[label] = pair
+    return out
+
+
+def cmd_validate_dual(args: argparse.Namespace) -> int:
+    from calibration.errors import ModelError
+
+    cell = cell_spec(args)
+    if args.sim:
+        from app.dual.validate import run_sim_validation
+
+        if args.configurations < 2:
+            raise ModelError(f"--configurations must be >= 2, got {args.configurations}")
+        methods = tuple(m.strip() for m in args.methods.split(",") if m.strip()) if args.methods else None
+        result = run_sim_validation(cell, args.configurations, _model_sets(args.models, cell) or None, methods)
+    else:
+        result = _validate_real(args, cell)
+        if result is None:
+            return 0
+    print(result.table())
+    write_json(args.json, result.to_json())
+    return 0
+
+
+def _validate_real(args: argparse.Namespace, cell: Any) -> Any:
+    """The contact validation on the real arms and probe; None after a dry run."""
+    import numpy as np
+
+    from app.cli.cell_options import confirm_motion, open_runtime, safety_for, speed_fraction
+    from app.cell.motion import live_poses
+    from app.dual.validate import check_contact_sequence
+    from app.dual.validate_real import contact_configurations, open_probe, run_real_validation
+    from calibration.errors import ModelError
+
+    if not args.plan:
+        raise ModelError("the real-cell validation needs --plan DUAL_PLAN (from plan-dual) with the contact "
+                         "configurations; --sim plans its own")
+    runtime = open_runtime(cell, args, robots=())  # the arms only: contacts come from the CAN probe
+    probe = open_probe(cell)
+    q_plan, p_contact = contact_configurations(args.plan)
+    model_sets, speed, safety = _model_sets(args.models, cell), speed_fraction(cell, args), safety_for(cell, args)
+    with runtime as rt:
+        if args.dry_run:
+            now = live_poses(rt.drivers)
+            check_contact_sequence(safety, q_plan, np.concatenate([now["R1"], now["R2"]]))
+            print(f"dry run, no motion: {len(q_plan)} contact configurations of {args.plan}, every move checked "
+                  f"safe from where the arms stand; {len(model_sets)} model set(s) to score besides nominal")
+            write_json(args.json, {"dry_run": True, "configurations": len(q_plan)})
+            return None
+        confirm_motion(args, f"R1 and R2 will visit {len(q_plan)} contact configurations at {speed:g} of full "
+                             "speed, one arm at a time")
+        with probe:
+            return run_real_validation(cell, rt, safety, q_plan, p_contact, model_sets, probe, speed_fraction=speed)
+
+
+def cmd_preview(args: argparse.Namespace) -> int:
+    from app.dual.preview import preview
+    from calibration.errors import ModelError
+
+    if not args.html and not args.serve:
+        raise ModelError("preview needs --html OUT (a static page) or --serve (a live viewer)")
+    result = preview(cell_spec(args), args.plan, html_out=args.html, serve=args.serve)
+    if result.html_path:
+        print(f"{result.n_frames} frames -> {result.html_path}")
+    if result.url:
+        print(f"live viewer at {result.url}; press Enter to stop", flush=True)
+        try:
+            input()
+        except (EOFError, KeyboardInterrupt):
+            pass
+    return 0
+
+
+def cmd_export_targets(args: argparse.Namespace) -> int:
+    from app.dual.export_targets import export_targets
+
+    n = export_targets(args.plan, cell_spec(args), args.out, args.frame, args.skip_failed)
+    print(f"{n} targets ({args.frame} frame) -> {args.out}")
+    return 0
+
+
+def add_dual_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
+    def cell_arg(p: argparse.ArgumentParser) -> None:  # also accepted after the subcommand
+        p.add_argument("--cell", default=argparse.SUPPRESS, help="cell.yaml (default: the packaged Motoman cell)")
+
+    p = add("plan-dual", cmd_plan_dual, "plan both arms holding a relative tool pose along a workpiece path")
+    cell_arg(p)
+    p.add_argument("--models", help="R1=FILE,R2=FILE (a robot left out uses its nominal model)")
+    p.add_argument("--relative-pose", help="gun pose in the workpiece frame: a file (JSON {p_mm, quat} or CSV) or "
+                                           "inline x,y,z,qw,qx,qy,qz [mm]; default: the reference pose")
+    p.add_argument("--path", default="sweep:200", help="CSV/JSON of workpiece poses in the cell frame "
+                                                       "(x,y,z,qw,qx,qy,qz [mm]) or sweep:N (default sweep:200)")
+    p.add_argument("--out", help="write the plan file (JSON)")
+    p.add_argument("--json", help="write a summary as JSON")
+    p.add_argument("--no-compile", action="store_true", help="interpreted casadi function (no C compiler)")
+    p = add("validate-dual", cmd_validate_dual, "contact validation of model sets (the paper's dual-robot check)")
+    cell_arg(p)
+    p.add_argument("--plan", help="dual plan (plan-dual --out) whose waypoints are the contact configurations; "
+                                  "needed on the real cell")
+    p.add_argument("--configurations", type=int, default=20, help="contact configurations with --sim, inward to "
+                                                                  "outstretched")
+    p.add_argument("--models", action="append", help="[LABEL:]R1=FILE,R2=FILE, repeatable; with --sim and none, "
+                                                     "the model sets are fitted on twin data")
+    p.add_argument("--methods", help="model sets to fit with --sim (default nominal,cpa,fbf13,ae,physics)")
+    p.add_argument("--json", help="write the statistics as JSON")
+    add_motion_options(p)
+    p = add("preview", cmd_preview, "meshcat preview of a plan (static HTML page or live viewer)")
+    cell_arg(p)
+    p.add_argument("--plan", required=True, help="plan file (dual or collection)")
+    p.add_argument("--html", help="write a self-contained HTML page")
+    p.add_argument("--serve", action="store_true", help="start a live meshcat viewer and wait for Enter")
+    p = add("export-targets", cmd_export_targets, "controller targets (rad, pulses, poses) from a dual plan")
+    cell_arg(p)
+    p.add_argument("--plan", required=True, help="plan file written by plan-dual")
+    p.add_argument("--out", required=True, help="targets file (.csv or .json)")
+    p.add_argument("--frame", choices=("flange", "tool"), default="flange", help="pose frame of the targets")
+    p.add_argument("--skip-failed", action="store_true", help="leave out unsolved waypoints instead of refusing")

@@ -1,0 +1,122 @@
+"""Results of the dual-robot planner and their plan file (JSON, schema ``cellcal.plan/1``, kind ``dual``).
+
+A plan file holds, per waypoint, both arms' joint angles [rad], whether the planner proved the waypoint
+(``converged``) and why not. Reading a file back treats any entry without ``converged: true`` as unsolved,
+so nothing downstream (export, execution) can take an unproven waypoint for a solved one. Files are read
+with :func:`app.cell.plan_file.read_plan`.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from app.cell.plan_file import PLAN_SCHEMA
+from calibration.errors import DataError
+from calibration.files import atomic_write_text
+
+
+
+@dataclass(frozen=True)
+class WaypointResult:
+    """One solved (or refused) waypoint.
+
+    Attributes:
+        q_R1, q_R2: joint angles [rad], shape (6,).
+        residual_mm, residual_deg: relative-pose error in the models (numpy FK) [mm], [deg].
+        track_mm, track_deg: workpiece distance from its target pose [mm], [deg].
+        clearance_mm: smallest capsule surface distance between the arms [mm].
+        singularity: smallest singularity measure (0 = singular, 1 = far).
+        solve_ms: wall time of the solve including the checks [ms].
+        iterations: Newton iterations.
+        converged: every hard condition holds; only then may the waypoint be executed.
+        reason: why not, or "" when converged.
+    """
+
+    q_R1: np.ndarray
+    q_R2: np.ndarray
+    residual_mm: float
+    residual_deg: float
+    track_mm: float
+    track_deg: float
+    clearance_mm: float
+    singularity: float
+    solve_ms: float
+    iterations: int
+    converged: bool
+    reason: str = ""
+
+
+@dataclass(frozen=True)
+class PlanResult:
+    """A planned sequence.
+
+    Attributes:
+        waypoints: per-waypoint results in path order.
+        T_wp_gun: the relative pose that was held, shape (4, 4) [mm].
+        models: model kind per robot, e.g. ``{"R1": "cdc", "R2": "constant"}``.
+    """
+
+    waypoints: tuple[WaypointResult, ...]
+    T_wp_gun: np.ndarray
+    models: dict[str, str]
+
+    @property
+    def converged(self) -> bool:
+        return all(w.converged for w in self.waypoints)
+
+    @property
+    def failed(self) -> list[int]:
+        """Indices of waypoints that must not be executed."""
+        return [i for i, w in enumerate(self.waypoints) if not w.converged]
+
+    def q(self) -> np.ndarray:
+        """Joint angles of all waypoints [rad], shape (N, 12): R1 then R2."""
+        return np.array([np.concatenate([w.q_R1, w.q_R2]) for w in self.waypoints])
+
+    def to_dict(self) -> dict[str, Any]:
+        """The plan file content (schema ``cellcal.plan/1``)."""
+        wps = []
+        for w in self.waypoints:
+            wps.append({"R1": w.q_R1.tolist(), "R2": w.q_R2.tolist(), "converged": w.converged, "reason": w.reason,
+                        "residual_mm": w.residual_mm, "residual_deg": w.residual_deg, "track_mm": w.track_mm,
+                        "clearance_mm": w.clearance_mm, "solve_ms": w.solve_ms})
+        return {"schema": PLAN_SCHEMA, "kind": "dual", "models": self.models, "T_wp_gun": self.T_wp_gun.tolist(),
+                "converged": self.converged, "waypoints": wps}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any], source: str | Path = "<plan>") -> "PlanResult":
+        """A :class:`PlanResult` from a plan file's content; entries without ``converged: true`` count as unsolved.
+
+        Raises:
+            DataError: not a dual plan, or joint vectors that are not 6 finite numbers.
+        """
+        if not isinstance(d, dict) or d.get("schema") != PLAN_SCHEMA or not isinstance(d.get("waypoints"), list):
+            raise DataError(source, None, None, f"expected a dual plan (schema {PLAN_SCHEMA!r} with 'waypoints')")
+        out = []
+        for i, w in enumerate(d["waypoints"]):
+            if not isinstance(w, dict) or not {"R1", "R2"} <= set(w):
+                raise DataError(source, None, None, f"waypoint {i}: expected R1 and R2 with 6 finite numbers each "
+                                                    "[rad]; it names no robot pair")
+            try:
+                q1, q2 = np.asarray(w["R1"], dtype=float), np.asarray(w["R2"], dtype=float)
+            except (TypeError, ValueError):
+                q1 = q2 = np.full(0, np.nan)
+            if q1.shape != (6,) or q2.shape != (6,) or not np.all(np.isfinite(np.r_[q1, q2])):
+                raise DataError(source, None, None, f"waypoint {i}: expected R1 and R2 with 6 finite numbers each [rad]")
+            ok = w.get("converged") is True
+            nan = float("nan")
+            out.append(WaypointResult(q1, q2, float(w.get("residual_mm", nan)), float(w.get("residual_deg", nan)),
+                                      float(w.get("track_mm", nan)), nan, float(w.get("clearance_mm", nan)), nan,
+                                      float(w.get("solve_ms", nan)), 0, ok,
+                                      w.get("reason", "") if ok else (w.get("reason") or "not marked converged")))
+        return cls(tuple(out), np.asarray(d.get("T_wp_gun", np.eye(4)), dtype=float), dict(d.get("models", {})))
+
+
+def save_plan(plan: PlanResult, path: str | Path) -> None:
+    """Write the plan file (JSON, schema ``cellcal.plan/1``) atomically."""
+    atomic_write_text(Path(path), json.dumps(plan.to_dict(), indent=1))

@@ -1,0 +1,51 @@
+"""The one plan-file reader: a collection or a dual plan by the file's kind."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from app.cell.plan_file import read_plan
+from app.cell.planning import Plan, Target
+from app.dual.plan_result import PlanResult, WaypointResult
+from calibration.errors import DataError
+
+
+def _dual() -> PlanResult:
+    w = WaypointResult(np.zeros(6), np.full(6, 0.1), 0.0, 0.0, 0.0, 0.0, 50.0, 1.0, 1.0, 3, True)
+    return PlanResult((w, w), np.eye(4), {"R1": "constant", "R2": "constant"})
+
+
+def _collection() -> Plan:
+    return Plan((Target("R1", np.full(6, 0.2), 0, "anchor"),), {"step": 5})
+
+
+def test_each_kind_reads_back_as_its_own_type(tmp_path):
+    (tmp_path / "d.json").write_text(json.dumps(_dual().to_dict()))
+    _collection().save(tmp_path / "c.json")
+    dual, coll = read_plan(tmp_path / "d.json"), read_plan(tmp_path / "c.json")
+    assert isinstance(dual, PlanResult) and dual.converged and dual.q().shape == (2, 12)
+    assert isinstance(coll, Plan) and coll.params == {"step": 5}
+    assert json.loads((tmp_path / "c.json").read_text())["kind"] == "collection"
+
+
+def test_a_file_without_kind_is_told_by_its_layout():
+    d = _collection().to_dict()
+    d.pop("kind")
+    assert isinstance(read_plan(d), Plan)
+    d = _dual().to_dict()
+    d.pop("kind")
+    assert isinstance(read_plan(d), PlanResult)
+
+
+@pytest.mark.parametrize("plan, kind, message", [
+    (_collection().to_dict(), "dual", "this is a collection plan; expected a dual plan"),
+    (_dual().to_dict(), "collection", "this is a dual plan; expected a collection plan"),
+    (_dual(), "collection", "this is a dual plan; expected a collection plan"),
+    ({"schema": "cellcal.plan/1"}, None, "expected a plan with 'waypoints'"),
+])
+def test_the_wrong_kind_is_refused(plan, kind, message):
+    with pytest.raises(DataError, match=message):
+        read_plan(plan, kind)
