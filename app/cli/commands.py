@@ -75,6 +75,28 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_rebase(args: argparse.Namespace) -> int:
+    from calibration.models import save_model
+    from calibration.rebase import rebase
+
+    robot = cell_spec(args).robot(args.robot)
+    model = load_model_for(args.model, robot)
+    data = read_recording_arg(args.data, robot)
+    rebased, result = rebase(model, data, tolerance=args.tolerance, rotations=not args.translation_only)
+    if not result.converged:
+        raise CellCalError(f"rebase of {args.model} on {args.data} did not converge ({result.reason.value}); "
+                           "nothing written")
+    save_model(rebased, args.out)
+    print(result.summary())
+    print(f"rebased {model.method} model -> {args.out}")
+    write_json(args.json, {"robot": robot.name, "model": str(args.model), "data": str(args.data),
+                           "samples": result.n_samples, "fitted_directions": result.fitted, "held": list(result.held),
+                           "position_mean_mm": {"before": result.mean_before_mm, "after": result.mean_after_mm},
+                           "T_base_correction": result.T_base_correction.tolist(),
+                           "T_tool_correction": result.T_tool_correction.tolist(), "out": str(args.out)})
+    return 0
+
+
 def cmd_compare(args: argparse.Namespace) -> int:
     from app.analysis.compare import parse_methods, run_comparison
     from app.analysis.report import comparison_table, write_report
@@ -149,6 +171,16 @@ def build_parser() -> argparse.ArgumentParser:
                                    "joints outside its limits")
     p.add_argument("--test", required=True)
     p.add_argument("--json", help="write the statistics as JSON")
+    p = add("rebase", cmd_rebase, "move a fitted model of any kind onto a new day: refit only its base and tool-marker "
+                                  "frames on a few poses")
+    p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
+    p.add_argument("--model", required=True, help="the fitted model file")
+    p.add_argument("--data", required=True, help="a few poses of the new day (recording CSV or Welding_Motoman folder)")
+    p.add_argument("--out", required=True, help="the rebased model file")
+    p.add_argument("--json", help="write the corrections and the error before/after as JSON")
+    p.add_argument("--tolerance", type=float, default=1e-2,
+                   help="frame directions below this fraction of the largest singular value are held at zero")
+    p.add_argument("--translation-only", action="store_true", help="fit only the two translations (6 parameters)")
     p = add("compare", cmd_compare, "the paper's comparison table for every method")
     _add_fit_inputs(p)
     p.add_argument("--test", required=True)

@@ -164,3 +164,36 @@ def test_ctrl_c_during_a_collection_is_one_line_exit_130_and_resumable(tmp_path)
     lines = [line for line in err.strip().splitlines() if not line.startswith("target ")]
     assert lines[-1] == "cellcal collect: stopped (continue with --resume)" and "Traceback" not in err
     assert 2 <= sample_count(session) < 56
+
+
+def test_rebase_moves_a_model_onto_a_shifted_day_and_refuses_another_robots_model(tmp_path, capsys):
+    """cellcal rebase: a rigid base + marker change of a new day is taken up by the frames alone."""
+    from calibration import so3
+    from calibration.models import ConstantModel, load_model, save_model
+    from calibration.recording import Recording, write_recording
+    from cell_config import load_cell
+    from tests.conftest import assert_bad_input, cluster_design
+
+    cell = load_cell()
+    nominal = cell.robot("R1").model()
+    model = ConstantModel("R1", "nls1", nominal)
+    save_model(model, tmp_path / "m.yaml")
+    q, cluster = cluster_design(step_deg=30.0)
+    q = q[cluster < 3]  # three clusters: a few poses of the new day
+    R, p = nominal.fk(q)
+    R_b, p_b = so3.exp(np.radians([0.05, -0.03, 0.2])), np.array([1.5, -0.8, 0.6])  # the day's new frame
+    R_t, p_t = so3.exp(np.radians([0.1, 0.0, -0.1])), np.array([0.3, 0.2, -0.4])  # the marker re-glued
+    R_new = R_b @ R @ R_t
+    p_new = p @ R_b.T + p_b + np.einsum("nij,j->ni", R_b @ R, p_t)
+    write_recording(Recording(q, p_new, so3.R_to_quat(R_new)), tmp_path / "day.csv")
+    assert main(["rebase", "--robot", "R1", "--model", str(tmp_path / "m.yaml"), "--data", str(tmp_path / "day.csv"),
+                 "--out", str(tmp_path / "r.yaml"), "--json", str(tmp_path / "r.json")]) == 0
+    rebased = load_model(tmp_path / "r.yaml", "R1", nominal)
+    R_fit, p_fit = rebased.fk(q)
+    held = json.loads((tmp_path / "r.json").read_text())["held"]
+    # what the poses see is recovered; a direction they cannot see is held and named, not guessed
+    assert np.max(np.linalg.norm(p_fit - p_new, axis=1)) < 0.05 and isinstance(held, list)
+    assert json.loads((tmp_path / "r.json").read_text())["position_mean_mm"]["after"] < 0.05
+    assert_bad_input(capsys, ["rebase", "--robot", "R2", "--model", str(tmp_path / "m.yaml"), "--data",
+                              str(tmp_path / "day.csv"), "--out", str(tmp_path / "x.yaml")], "R1")
+    assert not (tmp_path / "x.yaml").exists()
