@@ -38,6 +38,8 @@ from calibration.errors import DataError
 
 DB_NAME = "session.sqlite"
 LOCK_NAME = "session.lock"
+_INTERRUPTED = ("no session here: its creation was interrupted before the plan was stored (or the file is empty), "
+                "so there is nothing to resume; start a new collect with a plan in this folder (it takes it over)")
 SCHEMA = "cellcal.session/1"
 QUAT_NORM_TOL = 1e-3
 
@@ -187,15 +189,15 @@ class SessionStore:
         elif not self.path.exists():
             raise DataError(self.path, None, None, "no session here (session.sqlite not found): nothing to resume; "
                                                    "start a new collect with a plan")
+        elif not self._created_read_only(self.path):  # looked at read-only: opening must not write tables into it
+            raise DataError(self.path, None, None, _INTERRUPTED)
         self._lock = _FolderLock(self.dir) if lock else None
         try:
             self.conn = self._connect()
             if create and self.is_created():
                 raise DataError(self.path, None, None, "a session already exists here; resume it or pick a new folder")
             if not create and not self.is_created():
-                raise DataError(self.path, None, None, "no session here: its creation was interrupted before the plan "
-                                                       "was stored, so there is nothing to resume; start a new "
-                                                       "collect with a plan in this folder (it takes it over)")
+                raise DataError(self.path, None, None, _INTERRUPTED)
         except BaseException:
             self.close()
             raise
@@ -216,6 +218,21 @@ class SessionStore:
     def is_created(self) -> bool:
         """True once the plan is committed (a killed creation leaves a file without one)."""
         return self.conn.execute("SELECT 1 FROM meta WHERE key = 'plan'").fetchone() is not None
+
+    @staticmethod
+    def _created_read_only(path: Path) -> bool:
+        """True when ``path`` holds a committed plan; False for an empty or half-created file (nothing written).
+
+        Raises:
+            DataError: the file is not an SQLite database at all.
+        """
+        try:
+            with closing(sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=10.0)) as conn:
+                return conn.execute("SELECT 1 FROM meta WHERE key = 'plan'").fetchone() is not None
+        except sqlite3.OperationalError:  # no meta table yet: an empty file or a creation killed early
+            return False
+        except sqlite3.DatabaseError as e:
+            raise DataError(path, None, None, f"not a usable session database ({e})") from e
 
     @staticmethod
     def exists(session_dir: str | Path) -> bool:

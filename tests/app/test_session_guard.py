@@ -311,3 +311,18 @@ def test_cli_collect_prints_the_recorded_stops_and_refuses_a_locked_session(tmp_
     assert "R1 alarm at target 1: sim:R1: alarm (injected)" in out
     (event,) = json.loads((tmp_path / "out.json").read_text())["events"]
     assert (event["robot"], event["kind"], event["target_index"]) == ("R1", "alarm", 1)
+
+
+def test_export_of_an_empty_session_file_writes_nothing_into_it(tmp_path, capsys):
+    """Issue 12: `export` on an empty session.sqlite used to create the session tables in it."""
+    from app.cli import main
+    from tests.conftest import assert_bad_input
+
+    session = tmp_path / "s"
+    session.mkdir()
+    (session / "session.sqlite").touch()
+    assert_bad_input(capsys, ["export", "--session", str(session), "--out", str(tmp_path / "r.csv")],
+                     "no session here", "empty")
+    assert (session / "session.sqlite").stat().st_size == 0
+    assert sorted(p.name for p in session.iterdir()) == ["session.sqlite"]  # no lock, no WAL, no journal
+    assert not (tmp_path / "r.csv").exists()
