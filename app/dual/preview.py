@@ -161,8 +161,11 @@ def _windows(static: bool, serve: bool) -> tuple[list[Any], str | None]:
     windows: list[Any] = [RecordingWindow()] if static else []
     url = None
     if serve:
+        from app.dual.meshcat_server import start
+
+        _, zmq_url, _ = start()  # web server on 127.0.0.1 only (meshcat's own listens on every interface)
         with contextlib.redirect_stdout(io.StringIO()):  # meshcat prints the URL; we return and log it
-            live = meshcat.Visualizer()
+            live = meshcat.Visualizer(zmq_url=zmq_url)
         url = live.url()
         logger.info("meshcat viewer at %s (the server lives as long as this process)", url)
         windows.append(live.window)

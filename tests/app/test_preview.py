@@ -131,3 +131,28 @@ def test_browser_renders_both_arms(cell, tmp_path):
     orange = ((r > 0.7) & (g > 0.3) & (g < 0.65) & (b < 0.3)).sum()
     blue = ((b > 0.55) & (r < 0.3) & (g > 0.3) & (g < 0.65)).sum()
     assert orange > 1000 and blue > 1000, (orange, blue)  # R1 and R2 both drawn
+
+
+def _listening(port: int) -> list[str]:
+    """Local addresses (hex, as /proc/net shows them) of the sockets listening on ``port``."""
+    found = []
+    for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+        try:
+            lines = open(table).read().splitlines()[1:]
+        except OSError:
+            continue
+        for line in lines:
+            local, state = line.split()[1], line.split()[3]
+            if state == "0A" and int(local.rsplit(":", 1)[1], 16) == port:
+                found.append(local.rsplit(":", 1)[0])
+    return found
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/net/tcp"), reason="needs /proc/net/tcp to see the listening sockets")
+def test_the_live_viewer_listens_on_loopback_only(cell):
+    """Issue 12: `preview --serve` listened on 0.0.0.0:7000 (meshcat's own web server binds every interface)."""
+    result = preview(cell, _dual_plan(3), serve=True)
+    port = int(re.search(r":(\d+)/", result.url).group(1))
+    addresses = _listening(port)
+    assert addresses and set(addresses) == {"0100007F"}, addresses  # 127.0.0.1 and nothing else
+    assert result.url.startswith("http://127.0.0.1:")
