@@ -79,6 +79,26 @@ def plan_frames(plan: Any) -> list[dict[str, np.ndarray]]:
     return frames
 
 
+def _check_limits(cell: CellSpec, frames: list[dict[str, np.ndarray]]) -> None:
+    """Refuse a plan with a joint beyond its limit, as export-targets does (a preview must not show what the
+    controller would never be sent).
+
+    Raises:
+        UnsafeTarget: naming the waypoint, robot, joint, value and limit.
+    """
+    from calibration.errors import UnsafeTarget
+
+    for name in ("R1", "R2"):
+        spec = cell.robot(name).robot
+        q = np.array([f[name] for f in frames])
+        bad = (q < spec.lower_rad) | (q > spec.upper_rad)
+        if bad.any():
+            i, j = (int(v) for v in np.argwhere(bad)[0])
+            limit = spec.lower_rad[j] if q[i, j] < spec.lower_rad[j] else spec.upper_rad[j]
+            raise UnsafeTarget(name, j + 1, float(q[i, j]), float(limit), f"waypoint {i} of the plan is beyond the "
+                                                                          "joint limits; not drawn")
+
+
 class RecordingWindow:
     """Stands in for meshcat's zmq server: keeps the scene and renders it as one static page."""
 
@@ -248,6 +268,7 @@ def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve
     if html_out is None and not serve:
         raise ModelError("preview needs html_out (a static page) or serve=True (a live viewer)")
     frames = plan_frames(plan)
+    _check_limits(cell, frames)
     models = models or {n: cell.robot(n).model() for n in ("R1", "R2")}
     capsules = CellCapsules(cell)
     windows, url = _windows(html_out is not None, serve)

@@ -156,3 +156,15 @@ def test_the_live_viewer_listens_on_loopback_only(cell):
     addresses = _listening(port)
     assert addresses and set(addresses) == {"0100007F"}, addresses  # 127.0.0.1 and nothing else
     assert result.url.startswith("http://127.0.0.1:")
+
+
+def test_a_plan_beyond_the_joint_limits_is_refused_like_export_targets(cell, tmp_path):
+    """Issue 12: preview drew plans with joints outside the limits that export-targets refuses."""
+    from calibration.errors import UnsafeTarget
+
+    plan = _dual_plan(3)
+    plan["waypoints"][1]["R2"][3] = float(np.radians(200.0))  # MA1440 joint 4 stops at 150 deg
+    with pytest.raises(UnsafeTarget, match="waypoint 1") as e:
+        preview(cell, plan, html_out=tmp_path / "p.html")
+    assert e.value.robot == "R2" and e.value.joint == 4
+    assert not (tmp_path / "p.html").exists()
