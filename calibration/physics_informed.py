@@ -20,7 +20,7 @@ nominal, so what the data cannot see stays near the vendor arm.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -30,6 +30,7 @@ from calibration.casadi_expr import NUMPY, CasadiPose, Ops, casadi_ops, check_sm
     rot_sx
 from calibration.models.base import Block
 from calibration.parameterisation import MinimalParameterisation
+from calibration.poe import PoeModel
 from calibration.physics.compliance import COMPLIANCE_NAMES, MassFreeCompliance
 
 DEFLECTION_TERMS = ("1", "sin_q2", "sin_q3", "cos_q2", "cos_q3", "sin_q2q3", "cos_q2q3")
@@ -127,6 +128,21 @@ class ExtendedKinematics:
         Rz = rot_sx(ca.DM(EZ), q[0])
         pose = CasadiPose(R0, ch.p_base_tool, ca.horzcat(*ch.p_base_origin), ca.horzcat(*ch.axes_base), "pi")
         return pose.transformed(exp_sx(Rz @ ca.vertcat(*xi[3:])), Rz @ ca.vertcat(*xi[:3]))
+
+    def constant_arm(self, theta: np.ndarray) -> PoeModel:
+        """The geometric block and the tool rotation of ``theta`` (size,) as one POE arm: the pose with the
+        compliance and the deflection at zero."""
+        x, w_tool, _, _ = self.split(np.asarray(theta, dtype=float))
+        arm = self.par.model(x)
+        return replace(arm, R_flange_tool=arm.R_flange_tool @ so3.exp(w_tool))
+
+    def lost_terms(self, theta: np.ndarray) -> tuple[str, ...]:
+        """What :meth:`constant_arm` leaves out of ``theta``, with the size of each block."""
+        _, _, c, C = self.split(np.asarray(theta, dtype=float))
+        return (f"the gravity compliance (joint deflection under load, {c.size} parameters, "
+                f"max |c| = {np.abs(c).max():.3g})",
+                f"the structural deflection (a configuration-dependent base twist, {C.size} parameters, "
+                f"max |C| = {np.abs(C).max():.3g})")
 
     def check_casadi(self, theta: np.ndarray) -> None:
         """ModelError unless the tool and deflection rotations of ``theta`` are in :func:`exp_sx`'s exact range."""
