@@ -137,12 +137,15 @@ class ExtendedKinematics:
         return replace(arm, R_flange_tool=arm.R_flange_tool @ so3.exp(w_tool))
 
     def lost_terms(self, theta: np.ndarray) -> tuple[str, ...]:
-        """What :meth:`constant_arm` leaves out of ``theta``, with the size of each block."""
+        """What :meth:`constant_arm` leaves out of ``theta``: each non-zero block after the tool rotation."""
         _, _, c, C = self.split(np.asarray(theta, dtype=float))
-        return (f"the gravity compliance (joint deflection under load, {c.size} parameters, "
-                f"max |c| = {np.abs(c).max():.3g})",
-                f"the structural deflection (a configuration-dependent base twist, {C.size} parameters, "
-                f"max |C| = {np.abs(C).max():.3g})")
+        lost = []
+        if np.any(c != 0):
+            lost.append(f"the gravity compliance (joint deflection under the arm's weight, {c.size} parameters)")
+        if np.any(C != 0):
+            lost.append(f"the structural deflection (a twist and shift of the whole arm that depends on q1, q2, q3, "
+                        f"{C.size} parameters)")
+        return tuple(lost)
 
     def check_casadi(self, theta: np.ndarray) -> None:
         """ModelError unless the tool and deflection rotations of ``theta`` are in :func:`exp_sx`'s exact range."""

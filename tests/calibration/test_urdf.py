@@ -164,3 +164,14 @@ def test_rpy_round_trip_including_gimbal_lock(rpy):
 def test_rpy_refuses_a_non_rotation():
     with pytest.raises(ModelError, match="not a rotation"):
         rpy_from_R(np.diag([1.0, 1.0, -1.0]))
+
+
+def test_lost_names_only_the_blocks_a_model_uses(kinds):
+    pi = kinds["pi"][0]
+    par = pi.kinematics.par
+    theta = pi.theta.copy()
+    theta[par.size + 3:] = 0.0
+    assert PhysicsInformedModel("R1", "pi", pi.kinematics, theta, pi.rank).urdf_geometry().lost == ()
+    theta[par.size + 3] = 1e-4  # one compliance parameter: the compliance is lost, the (zero) deflection is not
+    lost = PhysicsInformedModel("R1", "pi", pi.kinematics, theta, pi.rank).urdf_geometry().lost
+    assert len(lost) == 1 and "compliance" in lost[0]
