@@ -30,8 +30,8 @@ from calibration.casadi_expr import NUMPY, CasadiPose, Ops, casadi_ops, check_sm
     rot_sx
 from calibration.models.base import Block
 from calibration.parameterisation import MinimalParameterisation
-from calibration.poe import PoeModel
 from calibration.physics.compliance import COMPLIANCE_NAMES, MassFreeCompliance
+from calibration.poe import PoeModel
 
 DEFLECTION_TERMS = ("1", "sin_q2", "sin_q3", "cos_q2", "cos_q3", "sin_q2q3", "cos_q2q3")
 DEFLECTION_AXES = ("dx_mm", "dy_mm", "dz_mm", "rx_rad", "ry_rad", "rz_rad")
