@@ -20,7 +20,7 @@ nominal, so what the data cannot see stays near the vendor arm.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -31,6 +31,7 @@ from calibration.casadi_expr import NUMPY, CasadiPose, Ops, casadi_ops, check_sm
 from calibration.models.base import Block
 from calibration.parameterisation import MinimalParameterisation
 from calibration.physics.compliance import COMPLIANCE_NAMES, MassFreeCompliance
+from calibration.poe import PoeModel
 
 DEFLECTION_TERMS = ("1", "sin_q2", "sin_q3", "cos_q2", "cos_q3", "sin_q2q3", "cos_q2q3")
 DEFLECTION_AXES = ("dx_mm", "dy_mm", "dz_mm", "rx_rad", "ry_rad", "rz_rad")
@@ -127,6 +128,24 @@ class ExtendedKinematics:
         Rz = rot_sx(ca.DM(EZ), q[0])
         pose = CasadiPose(R0, ch.p_base_tool, ca.horzcat(*ch.p_base_origin), ca.horzcat(*ch.axes_base), "pi")
         return pose.transformed(exp_sx(Rz @ ca.vertcat(*xi[3:])), Rz @ ca.vertcat(*xi[:3]))
+
+    def constant_arm(self, theta: np.ndarray) -> PoeModel:
+        """The geometric block and the tool rotation of ``theta`` (size,) as one POE arm: the pose with the
+        compliance and the deflection at zero."""
+        x, w_tool, _, _ = self.split(np.asarray(theta, dtype=float))
+        arm = self.par.model(x)
+        return replace(arm, R_flange_tool=arm.R_flange_tool @ so3.exp(w_tool))
+
+    def lost_terms(self, theta: np.ndarray) -> tuple[str, ...]:
+        """What :meth:`constant_arm` leaves out of ``theta``: each non-zero block after the tool rotation."""
+        _, _, c, C = self.split(np.asarray(theta, dtype=float))
+        lost = []
+        if np.any(c != 0):
+            lost.append(f"the gravity compliance (joint deflection under the arm's weight, {c.size} parameters)")
+        if np.any(C != 0):
+            lost.append(f"the structural deflection (a twist and shift of the whole arm that depends on q1, q2, q3, "
+                        f"{C.size} parameters)")
+        return tuple(lost)
 
     def check_casadi(self, theta: np.ndarray) -> None:
         """ModelError unless the tool and deflection rotations of ``theta`` are in :func:`exp_sx`'s exact range."""

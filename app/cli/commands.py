@@ -97,6 +97,29 @@ def cmd_rebase(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_export_urdf(args: argparse.Namespace) -> int:
+    from calibration.models import load_model
+    from calibration.urdf import JointLimits, write_urdf
+
+    name = args.robot or load_model(args.model).robot
+    robot = cell_spec(args).robot(name)
+    model = load_model_for(args.model, robot)
+    geometry = model.urdf_geometry()
+    spec = robot.robot
+    write_urdf(args.out, geometry, JointLimits(spec.lower_rad, spec.upper_rad, spec.max_speed_rad_s), robot.name,
+               str(args.model))
+    print(f"{model.kind} {model.method} model of {robot.name}: exported {geometry.exported} -> {args.out}")
+    for item in geometry.lost:
+        print(f"  lost: {item}")
+    if not geometry.lost:
+        print("  lost: nothing (the model is one constant geometry)")
+    write_json(args.json, {"robot": robot.name, "model": str(args.model), "kind": model.kind, "method": model.method,
+                           "exported": geometry.exported, "lost": list(geometry.lost), "out": str(args.out),
+                           "base_link": "base_link", "tool_link": "tool_marker",
+                           "joints": [f"joint_{i + 1}" for i in range(geometry.arm.n_joints)]})
+    return 0
+
+
 def cmd_compare(args: argparse.Namespace) -> int:
     from app.analysis.compare import parse_methods, run_comparison
     from app.analysis.report import comparison_table, write_report
@@ -181,6 +204,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tolerance", type=float, default=1e-2,
                    help="frame directions below this fraction of the largest singular value are held at zero")
     p.add_argument("--translation-only", action="store_true", help="fit only the two translations (6 parameters)")
+    p = add("export-urdf", cmd_export_urdf, "write a model's calibrated geometry as a URDF (revolute chain, flange "
+                                            "and tool-marker frames, joint limits; says what a URDF cannot hold)")
+    p.add_argument("--model", required=True, help="the model file (constant, pi, cdc, physics, diagnosed, rebased)")
+    p.add_argument("--robot", help="robot name in the cell (R1, R2; default: the robot the model records); its YAML "
+                                   "gives the joint limits")
+    p.add_argument("--out", required=True, help="the URDF file to write (lengths in metres)")
+    p.add_argument("--json", help="write what was exported and what was lost as JSON")
     p = add("compare", cmd_compare, "the paper's comparison table for every method")
     _add_fit_inputs(p)
     p.add_argument("--test", required=True)

@@ -125,6 +125,15 @@ class KinematicModel(abc.ABC):
         ``theta`` (symbols for :meth:`vector`) or from the model's own values when None."""
         raise ModelError(f"a {self.kind} model cannot carry effects; valid bases: pi, cdc")
 
+    def urdf_geometry(self) -> Any:
+        """The constant geometry a URDF can hold and what it loses (a :class:`calibration.urdf.UrdfGeometry`).
+
+        Raises:
+            ModelError: this kind has no constant geometry to export.
+        """
+        raise ModelError(f"a {self.kind} model cannot be exported as a URDF; exportable kinds: "
+                         "constant, pi, cdc, physics, diagnosed, rebased")
+
     def jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Pose and ``d[p (mm); rotation (rad)] / d vector`` (N, 6, m) in the base frame.
 

@@ -113,6 +113,16 @@ class CdcModel(KinematicModel):
         par = self.kinematics.par
         return (par.nominal,) + tuple(ca.DM(a) for a in par.geometry(self.theta_ref[: par.size]))
 
+    def urdf_geometry(self) -> Any:
+        from calibration.urdf import UrdfGeometry
+
+        joints = ", ".join(f"q{i + 1}" for i in self.inputs)
+        lost = (f"the configuration-dependent geometry (the {self.kinematics.par.size} geometric parameters "
+                f"interpolated over {joints} by the {self.interpolator.__class__.__name__}; the URDF holds them "
+                "at theta_ref everywhere)",) + self.kinematics.lost_terms(self.theta_ref)
+        return UrdfGeometry(self.kinematics.constant_arm(self.theta_ref),
+                            f"the reference geometry theta_ref of the {self.method} model", lost)
+
     def _body(self) -> dict[str, Any]:
         return {"nominal": poe_to_dict(self.kinematics.par.nominal), "fit_tool": self.kinematics.par.fit_tool,
                 "theta_ref": self.theta_ref.tolist(), "inputs": list(self.inputs),

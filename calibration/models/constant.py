@@ -62,6 +62,11 @@ class ConstantModel(KinematicModel):
 
         return chain_pose(poe_chain(self.model, q, *self._chart().casadi_geometry(theta)), "constant")
 
+    def urdf_geometry(self) -> Any:
+        from calibration.urdf import UrdfGeometry
+
+        return UrdfGeometry(self.model, f"the constant {self.method} geometry")
+
     def _body(self) -> dict[str, Any]:
         return {"geometry": poe_to_dict(self.model)}
 

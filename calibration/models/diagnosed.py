@@ -107,6 +107,11 @@ class DiagnosedModel(KinematicModel):
             pose = replace(pose, R=R, p=pose.p + c1.p_base_tool - c0.p_base_tool)
         return replace(pose, kind="diagnosed")
 
+    def urdf_geometry(self) -> Any:
+        geo = self.base.urdf_geometry()
+        lost = geo.lost + tuple(f"the {e.kind} effect ({e.size} parameters)" for e in self.effects)
+        return replace(geo, exported=f"{geo.exported} (the base of the diagnosed model)", lost=lost)
+
     def _body(self) -> dict[str, Any]:
         return {"base": self.base.to_dict(), "effects": [e.to_dict() for e in self.effects]}
 

@@ -109,6 +109,12 @@ class PhysicsModel(KinematicModel):
         q_chain, P_eff = casadi_effects(self.effects, values, self.model, q, H, P)
         return chain_pose(poe_chain(self.model, q_chain, H, P_eff), "physics")
 
+    def urdf_geometry(self) -> Any:
+        from calibration.urdf import UrdfGeometry
+
+        lost = tuple(f"the {e.kind} effect ({e.size} parameters)" for e in self.effects)
+        return UrdfGeometry(self.model, f"the fitted geometry of the {self.method} model", lost)
+
     def _body(self) -> dict[str, Any]:
         return {"geometry": poe_to_dict(self.model), "geometric_parameters": int(self.geometric_parameters),
                 "effects": [e.to_dict() for e in self.effects]}

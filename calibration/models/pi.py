@@ -79,6 +79,13 @@ class PhysicsInformedModel(KinematicModel):
             return (par.nominal,) + tuple(ca.DM(a) for a in par.geometry(self.theta[: par.size]))
         return (par.nominal,) + par.casadi_geometry(theta[: par.size])
 
+    def urdf_geometry(self) -> Any:
+        from calibration.urdf import UrdfGeometry
+
+        return UrdfGeometry(self.kinematics.constant_arm(self.theta),
+                            f"the {self.kinematics.par.size}-parameter geometry block and the tool rotation of the "
+                            f"{self.method} model", self.kinematics.lost_terms(self.theta))
+
     def _body(self) -> dict[str, Any]:
         return {"nominal": poe_to_dict(self.kinematics.par.nominal), "fit_tool": self.kinematics.par.fit_tool,
                 "rank": self.rank, "theta": self.theta.tolist(), "names": self.kinematics.names()}

@@ -158,6 +158,11 @@ class RebasedModel(KinematicModel):
     def effects_arm(self) -> PoeModel:
         raise ModelError("a rebased model cannot carry effects: add them to the inner model, then rebase it")
 
+    def urdf_geometry(self) -> Any:
+        geo = self.inner.urdf_geometry()
+        return replace(geo, exported=f"{geo.exported} with the rebase's base and tool-marker corrections",
+                       T_base=self.T_base_correction @ geo.T_base, T_tool=geo.T_tool @ self.T_tool_correction)
+
     def _body(self) -> dict[str, Any]:
         T_b, T_t = self.T_base_correction, self.T_tool_correction
         return {"inner": self.inner.to_dict(), "R_base_correction": T_b[:3, :3].tolist(),
