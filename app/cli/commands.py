@@ -151,7 +151,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
     from calibration.diagnosis import DiagnoseOptions
 
-    result = run_diagnose(args.robot, args.data, heldout=args.heldout, model=args.model, json_path=args.json,
+    result = run_diagnose(args.robot, args.train, heldout=args.test, model=args.model, json_path=args.json,
                           report_dir=args.report, model_out=args.out, cell=args.cell,
                           options=DiagnoseOptions(compliance_form=args.compliance_form))
     print(result.verdict)
@@ -221,9 +221,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--report", help="write Markdown tables and PNG plots into this folder")
     p = add("diagnose", cmd_diagnose, "find the physics the model in use left out, model it, show the fit improve")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
-    p.add_argument("--data", required=True, help="recording CSV or Welding_Motoman folder to fit on")
-    p.add_argument("--heldout", help="recording the selection never fits on (default: held-out clusters of --data)")
-    p.add_argument("--model", help="model in use (default: the geometric NLS fit of --data)")
+    p.add_argument("--train", "--data", dest="train", required=True,
+                   help="recording CSV or Welding_Motoman folder to fit on (--data: the old name)")
+    p.add_argument("--test", "--heldout", dest="test",
+                   help="recording the selection never fits on (default: held-out clusters of --train; --heldout: "
+                        "the old name)")
+    p.add_argument("--model", help="model in use (default: the geometric NLS fit of --train)")
     p.add_argument("--json", help="write the report (schema cellcal.diagnose/1)")
     p.add_argument("--report", help="write the report as Markdown with plots into this folder")
     p.add_argument("--out", help="save the refitted geometry + physics model")

@@ -197,3 +197,11 @@ def test_rebase_moves_a_model_onto_a_shifted_day_and_refuses_another_robots_mode
     assert_bad_input(capsys, ["rebase", "--robot", "R2", "--model", str(tmp_path / "m.yaml"), "--data",
                               str(tmp_path / "day.csv"), "--out", str(tmp_path / "x.yaml")], "R1")
     assert not (tmp_path / "x.yaml").exists()
+
+
+def test_diagnose_takes_train_and_test_like_every_command_and_the_old_names_still_work():
+    from app.cli.commands import build_parser
+
+    new = build_parser().parse_args(["diagnose", "--robot", "R1", "--train", "a.csv", "--test", "b.csv"])
+    old = build_parser().parse_args(["diagnose", "--robot", "R1", "--data", "a.csv", "--heldout", "b.csv"])
+    assert (new.train, new.test) == (old.train, old.test) == ("a.csv", "b.csv")
