@@ -3,6 +3,10 @@
 Reads the project's recording CSV (``../shared/spec/recording-format.md``) and the Welding_Motoman folder
 layout, validates every value, and writes recordings atomically. Errors name the file, the 1-based row
 (header = row 1) and the column.
+
+Beyond the spec's "non-numeric or non-finite" errors, a value is refused as physically absurd when
+|x|, |y| or |z| > ``MAX_ABS_POSITION_MM`` (1e5 mm = 100 m), |q_i| > ``MAX_ABS_ANGLE_RAD`` (100 rad, checked
+even when the joint limits are not known), or any other known column's |value| > ``MAX_ABS_OTHER`` (1e9).
 """
 
 from __future__ import annotations
@@ -30,6 +34,20 @@ QUAT_NORM_TOL = 1e-3
 CONTEXT_COLUMNS = ("t", "temp_c", "payload_kg") + tuple(f"dir{i}" for i in range(1, 7))
 SPEED_COLUMNS = tuple(f"qd{i}" for i in range(1, 7))
 DEFAULT_CLUSTER_SIZE = 7
+MAX_ABS_POSITION_MM = 1e5
+"""Largest |x|, |y|, |z| accepted [mm]: 100 m, far beyond any cell; larger values are typos or overflow."""
+MAX_ABS_ANGLE_RAD = 100.0
+"""Largest |q_i| accepted [rad] before the joint limits are known: ~16 turns, beyond any joint."""
+MAX_ABS_OTHER = 1e9
+"""Largest magnitude accepted in any other known column (t [s], temp_c, payload_kg, ...)."""
+
+
+def _max_abs(column: str) -> float:
+    if column in ("x", "y", "z"):
+        return MAX_ABS_POSITION_MM
+    if column in JOINT_COLUMNS:
+        return MAX_ABS_ANGLE_RAD
+    return MAX_ABS_OTHER
 
 
 @dataclass(frozen=True)
@@ -96,6 +114,9 @@ def _parse_float(text: str, path: Path, row: int, column: str) -> float:
         raise DataError(path, row, column, f"not a number: {text!r}") from None
     if not math.isfinite(value):
         raise DataError(path, row, column, f"not a finite number: {text!r}")
+    bound = _max_abs(column)
+    if abs(value) > bound:
+        raise DataError(path, row, column, f"{value:.6g} is physically absurd (|value| > {bound:g})")
     return value
 
 

@@ -94,3 +94,30 @@ def test_context_columns(tmp_path):
     ctx = read_recording(path).context()
     assert set(ctx) == {"t", "dir2", "qd", "payload_kg"}
     assert ctx["dir2"].tolist() == [-1.0] and ctx["qd"].shape == (1, 6) and ctx["t"].tolist() == [1.5]
+
+
+@pytest.mark.parametrize("text, row, column, reason", [
+    (HEADER + "\n" + ROW.replace("1000", "1e300"), 2, "x", "physically absurd"),
+    (HEADER + "\n" + ROW + "\n" + ROW.replace("0.1,", "-1e300,", 1), 3, "q1", "physically absurd"),
+])
+def test_absurd_values_are_named(tmp_path, text, row, column, reason):
+    path = write(tmp_path, text)
+    with pytest.raises(DataError) as e:
+        read_recording(path)
+    assert e.value.row == row and e.value.column == column
+    assert reason in str(e.value) and str(path) in str(e.value)
+    assert len(str(e.value)) < 200
+
+
+def test_absurd_values_in_welding_layout_and_joint_files(tmp_path):
+    folder = tmp_path / "run"
+    folder.mkdir()
+    (folder / "robot_q_align.csv").write_text("0.1,0.2,0.3,0.4,0.5,0.6\n")
+    (folder / "mocap_T_align.csv").write_text("1,2,1e300,1,0,0,0\n")
+    with pytest.raises(DataError, match="physically absurd") as e:
+        read_recording(folder)
+    assert e.value.row == 1 and e.value.column == "z"
+    joints = write(tmp_path, "0.1,0.2,0.3,0.4,0.5,1e300\n", "q.csv")
+    with pytest.raises(DataError, match="physically absurd") as e:
+        read_joints(joints)
+    assert e.value.row == 1 and e.value.column == "q6"
