@@ -108,7 +108,10 @@ class Recording:
 
 
 def _parse_float(text: str, path: Path, row: int, column: str) -> float:
+    # float() also accepts "1_000" (Python literal syntax); a CSV number has no underscores
     try:
+        if "_" in text:
+            raise ValueError(text)
         value = float(text)
     except ValueError:
         raise DataError(path, row, column, f"not a number: {text!r}") from None

@@ -121,3 +121,18 @@ def test_absurd_values_in_welding_layout_and_joint_files(tmp_path):
     with pytest.raises(DataError, match="physically absurd") as e:
         read_joints(joints)
     assert e.value.row == 1 and e.value.column == "q6"
+
+
+@pytest.mark.parametrize("text, row, column", [
+    (HEADER + "\n" + ROW.replace("1000", "1_000"), 2, "x"),
+    (HEADER + ",payload_kg\n" + ROW + ",1_0", 2, "payload_kg"),
+])
+def test_underscored_numbers_are_refused(tmp_path, text, row, column):
+    path = write(tmp_path, text)
+    with pytest.raises(DataError, match="not a number: '1_0") as e:
+        read_recording(path)
+    assert e.value.row == row and e.value.column == column and str(path) in str(e.value)
+    joints = write(tmp_path, "q1,q2,q3,q4,q5,q6\n0.1,0.2,0.3,0.4,1_5,0\n", "q.csv")
+    with pytest.raises(DataError, match="not a number") as e:
+        read_joints(joints)
+    assert e.value.row == 2 and e.value.column == "q5"
