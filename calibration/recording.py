@@ -123,15 +123,20 @@ def _parse_float(text: str, path: Path, row: int, column: str) -> float:
     return value
 
 
-def _read_table(path: Path, columns: tuple[str, ...] | None) -> tuple[list[str], np.ndarray, int]:
-    """Read a numeric CSV. ``columns`` given: headerless with those names. Returns names, data, first row no."""
+def _read_rows(path: Path) -> list[list[str]]:
+    """The non-blank CSV rows of ``path``; a UTF-8 byte-order mark (as Excel writes) is accepted."""
     try:
-        with open(path, newline="", encoding="utf-8") as f:
-            rows = [r for r in csv.reader(f) if r and any(c.strip() for c in r)]
+        with open(path, newline="", encoding="utf-8-sig") as f:
+            return [r for r in csv.reader(f) if r and any(c.strip() for c in r)]
     except FileNotFoundError:
         raise DataError(path, None, None, "file not found") from None
     except UnicodeDecodeError as e:
         raise DataError(path, None, None, f"not UTF-8 text ({e.reason})") from None
+
+
+def _read_table(path: Path, columns: tuple[str, ...] | None) -> tuple[list[str], np.ndarray, int]:
+    """Read a numeric CSV. ``columns`` given: headerless with those names. Returns names, data, first row no."""
+    rows = _read_rows(path)
     if columns is None:
         if not rows:
             raise DataError(path, None, None, "empty file, expected a header row")
@@ -218,18 +223,10 @@ def read_joints(path: str | Path) -> np.ndarray:
         shape (N, 6).
     """
     path = Path(path)
-    try:
-        with open(path, newline="", encoding="utf-8") as f:
-            first_line = next((r for r in csv.reader(f) if r), None)
-    except FileNotFoundError:
-        raise DataError(path, None, None, "file not found") from None
-    if first_line is None:
+    rows = _read_rows(path)
+    if not rows:
         raise DataError(path, None, None, "empty file")
-    try:
-        [float(c) for c in first_line]
-        headerless = True
-    except ValueError:
-        headerless = False
+    headerless = not any(c.strip() in JOINT_COLUMNS for c in rows[0])
     if headerless:
         _, data, _ = _read_table(path, JOINT_COLUMNS)
         return data

@@ -100,7 +100,7 @@ def read_plan(source: "str | Path | dict[str, Any] | Plan | PlanResult", kind: P
         return plan_from_data(source, "<plan>", kind)
     path = Path(source)
     try:
-        d = json.loads(path.read_text(encoding="utf-8"))
+        d = json.loads(path.read_text(encoding="utf-8-sig"))
     except FileNotFoundError:
         raise DataError(path, None, None, "plan file not found") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as e:

@@ -104,7 +104,7 @@ def _poses_from_text(text: str, where: str) -> list[Any]:
 def read_pose(spec: str) -> np.ndarray:
     """A relative pose (4, 4) [mm] from a file (JSON ``{p_mm, quat}`` or one CSV row) or inline 7 numbers."""
     path = Path(spec)
-    text = path.read_text(encoding="utf-8") if path.is_file() else spec
+    text = path.read_text(encoding="utf-8-sig") if path.is_file() else spec
     items = _poses_from_text(text, spec)
     if len(items) != 1:
         raise DataError(spec, None, None, f"expected one pose (x, y, z [mm], qw, qx, qy, qz), got {len(items)}")
@@ -122,7 +122,7 @@ def read_path(spec: str, planner: DualPlanner) -> np.ndarray:
     path = Path(spec)
     if not path.is_file():
         raise DataError(spec, None, None, "path file not found (or use sweep:N)")
-    items = _poses_from_text(path.read_text(encoding="utf-8"), spec)
+    items = _poses_from_text(path.read_text(encoding="utf-8-sig"), spec)
     if not items:
         raise DataError(spec, None, None, "the path has no poses")
     return np.array([pose_from_numbers(it, f"{spec} pose {i}") for i, it in enumerate(items)])

@@ -136,3 +136,14 @@ def test_underscored_numbers_are_refused(tmp_path, text, row, column):
     with pytest.raises(DataError, match="not a number") as e:
         read_joints(joints)
     assert e.value.row == 2 and e.value.column == "q5"
+
+
+def test_utf8_bom_is_accepted(tmp_path):
+    path = tmp_path / "rec.csv"
+    path.write_bytes(b"\xef\xbb\xbf" + (HEADER + "\n" + ROW + "\n").encode())
+    assert len(read_recording(path)) == 1
+    joints = tmp_path / "q.csv"
+    joints.write_bytes(b"\xef\xbb\xbfq1,q2,q3,q4,q5,q6\n0.1,0.2,0.3,0.4,0.5,0.6\n")
+    np.testing.assert_array_equal(read_joints(joints), [[0.1, 0.2, 0.3, 0.4, 0.5, 0.6]])
+    joints.write_bytes(b"\xef\xbb\xbf0.1,0.2,0.3,0.4,0.5,0.6\n")
+    np.testing.assert_array_equal(read_joints(joints), [[0.1, 0.2, 0.3, 0.4, 0.5, 0.6]])

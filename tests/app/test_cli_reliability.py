@@ -1,0 +1,47 @@
+"""Bad input found by a reliability pass (issue 12): each path refused in one line with exit 2, or accepted
+where the spec says it is valid."""
+
+import numpy as np
+import pytest
+
+from app.cli.commands import main
+from calibration.recording import write_recording
+from tests.conftest import assert_bad_input, cluster_design, measure
+
+BOM = b"\xef\xbb\xbf"
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory, synthetic_arm):
+    _, _, truth = synthetic_arm
+    root = tmp_path_factory.mktemp("data")
+    q, cluster = cluster_design(step_deg=45.0)
+    write_recording(measure(truth.fk, q, 0.02, 0.01, 1, cluster), root / "train.csv")
+    np.savetxt(root / "q.csv", np.random.default_rng(3).uniform(-0.8, 0.8, (5, 6)), delimiter=",")
+    assert main(["fit", "--robot", "R1", "--train", str(root / "train.csv"), "--method", "base",
+                 "--out", str(root / "m.json")]) == 0
+    assert main(["fit", "--robot", "R1", "--train", str(root / "train.csv"), "--method", "base",
+                 "--out", str(root / "m.yaml")]) == 0
+    return root
+
+
+def with_bom(src, dst):
+    dst.write_bytes(BOM + src.read_bytes())
+    return dst
+
+
+def test_utf8_bom_accepted_in_csv_model_and_plan_files(tmp_path, data):
+    train = with_bom(data / "train.csv", tmp_path / "train.csv")
+    assert main(["fit", "--robot", "R1", "--train", str(train), "--method", "base",
+                 "--out", str(tmp_path / "m.json")]) == 0
+    joints = with_bom(data / "q.csv", tmp_path / "q.csv")
+    for name in ("m.json", "m.yaml"):
+        model = with_bom(data / name, tmp_path / f"bom-{name}")
+        out = tmp_path / f"poses-{name}.csv"
+        assert main(["predict", "--model", str(model), "--joints", str(joints), "--out", str(out)]) == 0
+        assert len(out.read_text().splitlines()) == 6
+    plan = tmp_path / "plan.json"
+    assert main(["plan", "--robot", "R1", "--q2-step", "50", "--q3-step", "50", "--out", str(plan)]) == 0
+    from app.cell.plan_file import read_plan
+
+    read_plan(with_bom(plan, tmp_path / "bom-plan.json"))
