@@ -7,6 +7,8 @@ layout, validates every value, and writes recordings atomically. Errors name the
 Beyond the spec's "non-numeric or non-finite" errors, a value is refused as physically absurd when
 |x|, |y| or |z| > ``MAX_ABS_POSITION_MM`` (1e5 mm = 100 m), |q_i| > ``MAX_ABS_ANGLE_RAD`` (100 rad, checked
 even when the joint limits are not known), or any other known column's |value| > ``MAX_ABS_OTHER`` (1e9).
+Columns outside the spec's table are ignored: their content is never checked, and they are kept (for
+rewriting) only when every value is a finite number.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ QUAT_NORM_TOL = 1e-3
 CONTEXT_COLUMNS = ("t", "temp_c", "payload_kg") + tuple(f"dir{i}" for i in range(1, 7))
 SPEED_COLUMNS = tuple(f"qd{i}" for i in range(1, 7))
 DEFAULT_CLUSTER_SIZE = 7
+KNOWN_OPTIONAL_COLUMNS = ("cluster", "marker_err", "frames") + CONTEXT_COLUMNS + SPEED_COLUMNS
 MAX_ABS_POSITION_MM = 1e5
 """Largest |x|, |y|, |z| accepted [mm]: 100 m, far beyond any cell; larger values are typos or overflow."""
 MAX_ABS_ANGLE_RAD = 100.0
@@ -123,6 +126,13 @@ def _parse_float(text: str, path: Path, row: int, column: str) -> float:
     return value
 
 
+def _number_or_nan(text: str) -> float:
+    try:
+        return float(text) if "_" not in text else math.nan
+    except ValueError:
+        return math.nan
+
+
 def _read_rows(path: Path) -> list[list[str]]:
     """The non-blank CSV rows of ``path``; a UTF-8 byte-order mark (as Excel writes) is accepted."""
     try:
@@ -134,8 +144,13 @@ def _read_rows(path: Path) -> list[list[str]]:
         raise DataError(path, None, None, f"not UTF-8 text ({e.reason})") from None
 
 
-def _read_table(path: Path, columns: tuple[str, ...] | None) -> tuple[list[str], np.ndarray, int]:
-    """Read a numeric CSV. ``columns`` given: headerless with those names. Returns names, data, first row no."""
+def _read_table(path: Path, columns: tuple[str, ...] | None,
+                known: tuple[str, ...] | None = None) -> tuple[list[str], np.ndarray, int]:
+    """Read a numeric CSV. ``columns`` given: headerless with those names. Returns names, data, first row no.
+
+    ``known`` given: only those columns are validated; any other column's content is ignored (its values
+    are kept as numbers where they parse, NaN elsewhere).
+    """
     rows = _read_rows(path)
     if columns is None:
         if not rows:
@@ -152,7 +167,10 @@ def _read_table(path: Path, columns: tuple[str, ...] | None) -> tuple[list[str],
         if len(r) != len(names):
             raise DataError(path, row_no, None, f"expected {len(names)} fields, found {len(r)}")
         for j, text in enumerate(r):
-            data[i, j] = _parse_float(text.strip(), path, row_no, names[j])
+            if known is None or names[j] in known:
+                data[i, j] = _parse_float(text.strip(), path, row_no, names[j])
+            else:
+                data[i, j] = _number_or_nan(text.strip())
     return names, data, first
 
 
@@ -197,7 +215,7 @@ def read_recording(path: str | Path, lower: np.ndarray | None = None, upper: np.
                                  {}, str(path))
         raise DataError(path, None, None, "folder has neither robot_q_align.csv + mocap_T_align.csv nor the "
                                           "train_data_ variants")
-    names, data, first = _read_table(path, None)
+    names, data, first = _read_table(path, None, REQUIRED_COLUMNS + KNOWN_OPTIONAL_COLUMNS)
     missing = [c for c in REQUIRED_COLUMNS if c not in names]
     if missing:
         raise DataError(path, 1, missing[0], f"required column missing (required: {', '.join(REQUIRED_COLUMNS)})")
@@ -208,7 +226,9 @@ def read_recording(path: str | Path, lower: np.ndarray | None = None, upper: np.
     q = np.stack([col[c] for c in JOINT_COLUMNS], axis=1)
     quat = np.stack([col[c] for c in ("qw", "qx", "qy", "qz")], axis=1)
     _check_pose(path, q, quat, first, lower, upper)
-    extra = {n: v for n, v in col.items() if n not in REQUIRED_COLUMNS}
+    # unknown columns are ignored (spec); kept for rewriting only when every value is a finite number
+    extra = {n: v for n, v in col.items()
+             if n not in REQUIRED_COLUMNS and (n in KNOWN_OPTIONAL_COLUMNS or np.isfinite(v).all())}
     if "cluster" in extra and np.any(extra["cluster"] != np.round(extra["cluster"])):
         i = int(np.flatnonzero(extra["cluster"] != np.round(extra["cluster"]))[0])
         raise DataError(path, first + i, "cluster", "expected an integer cluster id")
@@ -230,7 +250,7 @@ def read_joints(path: str | Path) -> np.ndarray:
     if headerless:
         _, data, _ = _read_table(path, JOINT_COLUMNS)
         return data
-    names, data, _ = _read_table(path, None)
+    names, data, _ = _read_table(path, None, JOINT_COLUMNS)
     missing = [c for c in JOINT_COLUMNS if c not in names]
     if missing:
         raise DataError(path, 1, missing[0], "required column missing (need q1..q6 in rad, or no header and 6 columns)")

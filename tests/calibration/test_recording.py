@@ -147,3 +147,15 @@ def test_utf8_bom_is_accepted(tmp_path):
     np.testing.assert_array_equal(read_joints(joints), [[0.1, 0.2, 0.3, 0.4, 0.5, 0.6]])
     joints.write_bytes(b"\xef\xbb\xbf0.1,0.2,0.3,0.4,0.5,0.6\n")
     np.testing.assert_array_equal(read_joints(joints), [[0.1, 0.2, 0.3, 0.4, 0.5, 0.6]])
+
+
+def test_unknown_columns_are_ignored(tmp_path):
+    path = write(tmp_path, HEADER + ",operator,note,gain\n" + ROW + ",alice,1e300 and 1_000,2.5\n")
+    rec = read_recording(path)
+    assert len(rec) == 1 and "operator" not in rec.extra and "note" not in rec.extra
+    np.testing.assert_array_equal(rec.extra["gain"], [2.5])  # numeric unknown columns still round-trip
+    joints = write(tmp_path, "q1,q2,q3,q4,q5,q6,label\n0,0,0,0,0,0,home\n", "q.csv")
+    np.testing.assert_array_equal(read_joints(joints), np.zeros((1, 6)))
+    with pytest.raises(DataError, match="not a number") as e:  # known optional columns are still checked
+        read_recording(write(tmp_path, HEADER + ",temp_c\n" + ROW + ",warm\n"))
+    assert e.value.row == 2 and e.value.column == "temp_c"
