@@ -43,6 +43,9 @@ MAX_ABS_ANGLE_RAD = 100.0
 """Largest |q_i| accepted [rad] before the joint limits are known: ~16 turns, beyond any joint."""
 MAX_ABS_OTHER = 1e9
 """Largest magnitude accepted in any other known column (t [s], temp_c, payload_kg, ...)."""
+MAX_ROWS = 200_000
+"""Largest number of data rows read from one file: a calibration session holds a few thousand samples;
+a bigger file is refused while it is read, before any of it is parsed, so memory stays bounded."""
 
 
 def _max_abs(column: str) -> float:
@@ -134,14 +137,25 @@ def _number_or_nan(text: str) -> float:
 
 
 def _read_rows(path: Path) -> list[list[str]]:
-    """The non-blank CSV rows of ``path``; a UTF-8 byte-order mark (as Excel writes) is accepted."""
+    """The non-blank CSV rows of ``path``; a UTF-8 byte-order mark (as Excel writes) is accepted.
+
+    Raises:
+        DataError: more than ``MAX_ROWS`` data rows (counted while reading, so a huge file stops early).
+    """
+    rows: list[list[str]] = []
     try:
         with open(path, newline="", encoding="utf-8-sig") as f:
-            return [r for r in csv.reader(f) if r and any(c.strip() for c in r)]
+            for r in csv.reader(f):
+                if r and any(c.strip() for c in r):
+                    rows.append(r)
+                    if len(rows) > MAX_ROWS + 1:
+                        raise DataError(path, None, None, f"more than {MAX_ROWS} data rows (the limit bounds "
+                                                          f"memory; split the recording or subsample it)")
     except FileNotFoundError:
         raise DataError(path, None, None, "file not found") from None
     except UnicodeDecodeError as e:
         raise DataError(path, None, None, f"not UTF-8 text ({e.reason})") from None
+    return rows
 
 
 def _read_table(path: Path, columns: tuple[str, ...] | None,
@@ -161,6 +175,9 @@ def _read_table(path: Path, columns: tuple[str, ...] | None,
         names, body, first = list(columns), rows, 1
     if not body:
         raise DataError(path, None, None, "no data rows")
+    if len(body) > MAX_ROWS:  # a headerless file: _read_rows allowed one row for a header
+        raise DataError(path, None, None, f"more than {MAX_ROWS} data rows (the limit bounds "
+                                          f"memory; split the recording or subsample it)")
     data = np.empty((len(body), len(names)))
     for i, r in enumerate(body):
         row_no = first + i

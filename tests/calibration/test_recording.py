@@ -159,3 +159,22 @@ def test_unknown_columns_are_ignored(tmp_path):
     with pytest.raises(DataError, match="not a number") as e:  # known optional columns are still checked
         read_recording(write(tmp_path, HEADER + ",temp_c\n" + ROW + ",warm\n"))
     assert e.value.row == 2 and e.value.column == "temp_c"
+
+
+def test_row_limit_refused_while_reading(tmp_path, monkeypatch):
+    import calibration.recording as recording
+
+    assert recording.MAX_ROWS == 200_000
+    monkeypatch.setattr(recording, "MAX_ROWS", 3)
+    assert len(read_recording(write(tmp_path, HEADER + "\n" + "\n".join([ROW] * 3) + "\n"))) == 3
+    # the 5th row is never parsed: the file is refused as soon as the limit is passed
+    path = write(tmp_path, HEADER + "\n" + "\n".join([ROW] * 4 + ["not,parsed"]) + "\n")
+    with pytest.raises(DataError, match="more than 3 data rows") as e:
+        read_recording(path)
+    assert str(path) in str(e.value)
+    folder = tmp_path / "run"
+    folder.mkdir()
+    (folder / "robot_q_align.csv").write_text("0,0,0,0,0,0\n" * 4)
+    (folder / "mocap_T_align.csv").write_text("1,2,3,1,0,0,0\n" * 4)
+    with pytest.raises(DataError, match="more than 3 data rows"):
+        read_recording(folder)
