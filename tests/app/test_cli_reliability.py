@@ -50,8 +50,8 @@ def test_utf8_bom_accepted_in_csv_model_and_plan_files(tmp_path, data):
 def test_fit_refuses_a_recording_above_the_row_limit(tmp_path, data, capsys, monkeypatch):
     import calibration.recording as recording
 
-    monkeypatch.setattr(recording, "MAX_ROWS", 50)
+    monkeypatch.setattr(recording, "MAX_ROWS", 10)
     out = tmp_path / "m.yaml"
-    assert_bad_input(capsys, ["fit", "--robot", "R1", "--train", str(data / "train.csv"), "--method", "fbf13",
-                              "--out", str(out)], str(data / "train.csv"), "more than 50 data rows")
+    assert_bad_input(capsys, ["fit", "--robot", "R1", "--train", str(data / "train.csv"), "--method", "base",
+                              "--out", str(out)], str(data / "train.csv"), "more than 10 data rows")
     assert not out.exists()
