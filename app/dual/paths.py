@@ -23,6 +23,9 @@ from cell_config.loader import CellSpec
 
 #: Reference configuration of the cell [deg]: tools about 410 mm apart, facing, 300 mm arm clearance.
 Q_REF_DEG = np.array([0.0, 15.0, 5.0, 0.0, 30.0, 0.0, 0.0, 0.0, 0.0, 0.0, -30.0, 0.0])
+#: Most waypoints a path (``sweep:N`` or a path file) may have: each one is an IK solve and a stored
+#: waypoint, so a typo like sweep:100000000 would grow without limit; a real seam has a few thousand.
+MAX_WAYPOINTS = 100_000
 
 
 def tool_pose(planner: DualPlanner, name: str, q: np.ndarray) -> np.ndarray:
@@ -52,8 +55,8 @@ def sweep_path(planner: DualPlanner, n: int = 200, q_inward_deg: np.ndarray | No
     Returns:
         Workpiece target poses in the cell frame, shape (n, 4, 4) [mm].
     """
-    if n < 2:
-        raise ModelError(f"a sweep needs n >= 2 waypoints, got {n}")
+    if not 2 <= n <= MAX_WAYPOINTS:
+        raise ModelError(f"a sweep needs 2 <= n <= {MAX_WAYPOINTS} waypoints, got {n}")
     qa = np.radians([-5.0, -5.0, 5.0, -10.0, -35.0, 10.0] if q_inward_deg is None else q_inward_deg)
     qb = np.radians([10.0, 25.0, -5.0, 10.0, -20.0, -10.0] if q_outward_deg is None else q_outward_deg)
     s = 0.5 - 0.5 * np.cos(np.linspace(0.0, np.pi, n))  # rest-to-rest timing
@@ -118,6 +121,9 @@ def read_path(spec: str, planner: DualPlanner) -> np.ndarray:
             n = int(spec[6:])
         except ValueError:
             raise DataError(spec, None, None, "expected sweep:N with an integer N >= 2") from None
+        if n > MAX_WAYPOINTS:
+            raise DataError(spec, None, None, f"{n} waypoints is more than the limit of {MAX_WAYPOINTS}; "
+                                              f"use sweep:N with 2 <= N <= {MAX_WAYPOINTS}")
         return sweep_path(planner, n)
     path = Path(spec)
     if not path.is_file():
@@ -125,6 +131,9 @@ def read_path(spec: str, planner: DualPlanner) -> np.ndarray:
     items = _poses_from_text(path.read_text(encoding="utf-8-sig"), spec)
     if not items:
         raise DataError(spec, None, None, "the path has no poses")
+    if len(items) > MAX_WAYPOINTS:
+        raise DataError(spec, None, None, f"{len(items)} poses is more than the limit of {MAX_WAYPOINTS} "
+                                          f"waypoints; split the path")
     return np.array([pose_from_numbers(it, f"{spec} pose {i}") for i, it in enumerate(items)])
 
 

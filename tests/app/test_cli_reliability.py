@@ -55,3 +55,26 @@ def test_fit_refuses_a_recording_above_the_row_limit(tmp_path, data, capsys, mon
     assert_bad_input(capsys, ["fit", "--robot", "R1", "--train", str(data / "train.csv"), "--method", "base",
                               "--out", str(out)], str(data / "train.csv"), "more than 10 data rows")
     assert not out.exists()
+
+
+def test_plan_dual_refuses_a_sweep_above_the_waypoint_limit(tmp_path, capsys):
+    from app.dual.paths import MAX_WAYPOINTS
+
+    assert MAX_WAYPOINTS == 100_000
+    out = tmp_path / "plan.json"
+    for n in ("100000000", "100001"):
+        assert_bad_input(capsys, ["plan-dual", "--path", f"sweep:{n}", "--no-compile", "--out", str(out)],
+                         f"sweep:{n}", "more than the limit of 100000")
+    assert not out.exists()
+
+
+def test_plan_dual_refuses_a_path_file_above_the_waypoint_limit(tmp_path, capsys, monkeypatch):
+    import app.dual.paths as paths
+
+    monkeypatch.setattr(paths, "MAX_WAYPOINTS", 2)
+    path = tmp_path / "path.csv"
+    path.write_text("x,y,z,qw,qx,qy,qz\n" + "0,0,0,1,0,0,0\n" * 3)
+    out = tmp_path / "plan.json"
+    assert_bad_input(capsys, ["plan-dual", "--path", str(path), "--no-compile", "--out", str(out)],
+                     str(path), "3 poses is more than the limit of 2")
+    assert not out.exists()
