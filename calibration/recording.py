@@ -198,11 +198,16 @@ def _check_pose(path: Path, q: np.ndarray, quat: np.ndarray, first_row: int,
     if bad.size:
         i = int(bad[0])
         raise DataError(path, first_row + i, "qw..qz", f"quaternion norm {norms[i]:.6f} is not 1 (tolerance {QUAT_NORM_TOL})")
+    _check_limits(q_path or path, q, first_row, lower, upper)
+
+
+def _check_limits(path: Path, q: np.ndarray, first_row: int,
+                  lower: np.ndarray | None, upper: np.ndarray | None) -> None:
     if lower is not None and upper is not None:
         outside = (q < lower - 1e-9) | (q > upper + 1e-9)
         if outside.any():
             i, j = (int(v) for v in np.argwhere(outside)[0])
-            raise DataError(q_path or path, first_row + i, JOINT_COLUMNS[j],
+            raise DataError(path, first_row + i, JOINT_COLUMNS[j],
                             f"{math.degrees(q[i, j]):.3f} deg is outside the joint limits "
                             f"[{math.degrees(lower[j]):.1f}, {math.degrees(upper[j]):.1f}] deg")
 
@@ -253,8 +258,12 @@ def read_recording(path: str | Path, lower: np.ndarray | None = None, upper: np.
                      quat / np.linalg.norm(quat, axis=1, keepdims=True), extra, str(path))
 
 
-def read_joints(path: str | Path) -> np.ndarray:
+def read_joints(path: str | Path, lower: np.ndarray | None = None, upper: np.ndarray | None = None) -> np.ndarray:
     """Read joint angles [rad] for prediction: a header row with q1..q6, or a headerless 6-column file.
+
+    Args:
+        path: the joint file.
+        lower, upper: joint limits [rad], shape (6,); when given, a row outside them is an error.
 
     Returns:
         shape (N, 6).
@@ -265,13 +274,16 @@ def read_joints(path: str | Path) -> np.ndarray:
         raise DataError(path, None, None, "empty file")
     headerless = not any(c.strip() in JOINT_COLUMNS for c in rows[0])
     if headerless:
-        _, data, _ = _read_table(path, JOINT_COLUMNS)
-        return data
-    names, data, _ = _read_table(path, None, JOINT_COLUMNS)
-    missing = [c for c in JOINT_COLUMNS if c not in names]
-    if missing:
-        raise DataError(path, 1, missing[0], "required column missing (need q1..q6 in rad, or no header and 6 columns)")
-    return np.stack([data[:, names.index(c)] for c in JOINT_COLUMNS], axis=1)
+        _, q, first = _read_table(path, JOINT_COLUMNS)
+    else:
+        names, data, first = _read_table(path, None, JOINT_COLUMNS)
+        missing = [c for c in JOINT_COLUMNS if c not in names]
+        if missing:
+            raise DataError(path, 1, missing[0],
+                            "required column missing (need q1..q6 in rad, or no header and 6 columns)")
+        q = np.stack([data[:, names.index(c)] for c in JOINT_COLUMNS], axis=1)
+    _check_limits(path, q, first, lower, upper)
+    return q
 
 
 def write_table(path: str | Path, columns: dict[str, np.ndarray]) -> None:

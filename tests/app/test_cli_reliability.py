@@ -78,3 +78,23 @@ def test_plan_dual_refuses_a_path_file_above_the_waypoint_limit(tmp_path, capsys
     assert_bad_input(capsys, ["plan-dual", "--path", str(path), "--no-compile", "--out", str(out)],
                      str(path), "3 poses is more than the limit of 2")
     assert not out.exists()
+
+
+def test_predict_and_evaluate_check_the_model_robots_joint_limits(tmp_path, data, capsys):
+    # no --robot: the model file records R1, the cell gives its limits (q3 of R1 stops short of 3 rad)
+    joints = tmp_path / "q.csv"
+    joints.write_text("q1,q2,q3,q4,q5,q6\n0,0,0,0,0,0\n0,0,3.0,0,0,0\n")
+    out = tmp_path / "poses.csv"
+    for extra in ([], ["--robot", "R1"]):
+        assert_bad_input(capsys, ["predict", "--model", str(data / "m.json"), "--joints", str(joints),
+                                  "--out", str(out), *extra], str(joints), "row 3", "'q3'", "joint limits")
+    headerless = tmp_path / "q0.csv"
+    headerless.write_text("0,0,0,0,0,0\n0,0,0,0,0,-6\n")
+    assert_bad_input(capsys, ["predict", "--model", str(data / "m.yaml"), "--joints", str(headerless),
+                              "--out", str(out)], "row 2", "'q6'", "joint limits")
+    test = tmp_path / "test.csv"
+    test.write_text("q1,q2,q3,q4,q5,q6,x,y,z,qw,qx,qy,qz\n0,0,3.0,0,0,0,1,2,3,1,0,0,0\n")
+    js = tmp_path / "eval.json"
+    assert_bad_input(capsys, ["evaluate", "--model", str(data / "m.json"), "--test", str(test), "--json", str(js)],
+                     str(test), "row 2", "'q3'", "joint limits")
+    assert not out.exists() and not js.exists()
