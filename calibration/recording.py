@@ -208,7 +208,7 @@ def _check_limits(path: Path, q: np.ndarray, first_row: int,
         if outside.any():
             i, j = (int(v) for v in np.argwhere(outside)[0])
             raise DataError(path, first_row + i, JOINT_COLUMNS[j],
-                            f"{math.degrees(q[i, j]):.3f} deg is outside the joint limits "
+                            f"{math.degrees(q[i, j]):.6g} deg is outside the joint limits "
                             f"[{math.degrees(lower[j]):.1f}, {math.degrees(upper[j]):.1f}] deg")
 
 

@@ -178,3 +178,20 @@ def test_row_limit_refused_while_reading(tmp_path, monkeypatch):
     (folder / "mocap_T_align.csv").write_text("1,2,3,1,0,0,0\n" * 4)
     with pytest.raises(DataError, match="more than 3 data rows"):
         read_recording(folder)
+
+
+def test_out_of_limit_messages_print_numbers_with_a_sane_precision(tmp_path, monkeypatch):
+    import calibration.recording as recording
+    from calibration.errors import UnsafeTarget
+
+    monkeypatch.setattr(recording, "MAX_ABS_ANGLE_RAD", float("inf"))  # reach the limit check with 1e300
+    lower, upper = np.full(6, -3.0), np.full(6, 3.0)
+    path = write(tmp_path, HEADER + "\n" + ROW.replace("0.1,", "1e300,", 1))
+    with pytest.raises(DataError, match=r"5\.72958e\+301 deg is outside the joint limits") as e:
+        read_recording(path, lower, upper)
+    assert len(str(e.value)) < 200
+    with pytest.raises(DataError, match=r"-5\.72958e\+301 deg") as e:
+        read_joints(write(tmp_path, "0,0,-1e300,0,0,0\n", "q.csv"), lower, upper)
+    assert e.value.row == 1 and e.value.column == "q3" and len(str(e.value)) < 200
+    msg = str(UnsafeTarget("R1", 2, 1e300, 3.0))
+    assert "5.72958e+301 deg" in msg and "171.887 deg" in msg and len(msg) < 120
