@@ -153,8 +153,12 @@ def _read_rows(path: Path) -> list[list[str]]:
                                                           f"memory; split the recording or subsample it)")
     except FileNotFoundError:
         raise DataError(path, None, None, "file not found") from None
+    except IsADirectoryError:
+        raise DataError(path, None, None, "is a folder, expected a CSV file") from None
     except UnicodeDecodeError as e:
         raise DataError(path, None, None, f"not UTF-8 text ({e.reason})") from None
+    except OSError as e:
+        raise DataError(path, None, None, f"cannot read ({e.strerror or e})") from None
     return rows
 
 

@@ -98,3 +98,31 @@ def test_predict_and_evaluate_check_the_model_robots_joint_limits(tmp_path, data
     assert_bad_input(capsys, ["evaluate", "--model", str(data / "m.json"), "--test", str(test), "--json", str(js)],
                      str(test), "row 2", "'q3'", "joint limits")
     assert not out.exists() and not js.exists()
+
+
+def test_input_paths_that_are_folders_are_one_line_errors(tmp_path, data, capsys):
+    folder = tmp_path / "folder"
+    folder.mkdir()
+    out = tmp_path / "out"
+    out.mkdir()
+    m, train = str(data / "m.json"), str(data / "train.csv")
+    cases = [
+        (["predict", "--model", m, "--joints", str(folder), "--out", str(out / "p.csv")], "is a folder"),
+        (["predict", "--model", str(folder), "--joints", str(data / "q.csv"), "--out", str(out / "p.csv")],
+         "is a folder"),
+        (["evaluate", "--model", m, "--test", str(folder)], "folder has neither"),
+        (["fit", "--robot", "R1", "--train", str(folder), "--method", "base", "--out", str(out / "m.yaml")],
+         "folder has neither"),
+        (["fit", "--robot", "R1", "--train", train, "--cpa", str(folder), "--method", "base",
+          "--out", str(out / "m.yaml")], "folder has neither"),
+        (["export-targets", "--plan", str(folder), "--out", str(out / "t.csv")], "is a folder"),
+        (["preview", "--plan", str(folder), "--html", str(out / "p.html")], "is a folder"),
+        (["collect", "--robot", "R1", "--plan", str(folder), "--session", str(out / "s"), "--sim", "--dry-run"],
+         "is a folder"),
+        (["compensate-job", "--model", m, "--job", str(folder), "--out", str(out / "j.JBI")], "directory"),
+        (["--cell", str(folder), "fit", "--robot", "R1", "--train", train, "--method", "base",
+          "--out", str(out / "m.yaml")], "directory"),
+    ]
+    for argv, reason in cases:
+        assert_bad_input(capsys, argv, str(folder), reason)
+    assert list(out.iterdir()) == []
