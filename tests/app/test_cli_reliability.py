@@ -126,3 +126,19 @@ def test_input_paths_that_are_folders_are_one_line_errors(tmp_path, data, capsys
     for argv, reason in cases:
         assert_bad_input(capsys, argv, str(folder), reason)
     assert list(out.iterdir()) == []
+
+
+def test_a_robot_yaml_with_a_text_payload_is_a_one_line_error(tmp_path, data, capsys):
+    import shutil
+
+    from cell_config.loader import DEFAULT_CELL
+
+    cell = tmp_path / "cell"
+    shutil.copytree(DEFAULT_CELL.parent, cell)
+    robot = cell / "robots" / "MA1440.yaml"
+    robot.write_text(robot.read_text().replace("payload_kg: 6.0", "payload_kg: heavy"))
+    out = tmp_path / "m.yaml"
+    assert_bad_input(capsys, ["--cell", str(cell / "cell.yaml"), "fit", "--robot", "R1", "--train",
+                              str(data / "train.csv"), "--method", "base", "--out", str(out)],
+                     str(robot), "payload_kg", "'heavy'")
+    assert not out.exists()
