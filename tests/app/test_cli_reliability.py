@@ -142,3 +142,22 @@ def test_a_robot_yaml_with_a_text_payload_is_a_one_line_error(tmp_path, data, ca
                               str(data / "train.csv"), "--method", "base", "--out", str(out)],
                      str(robot), "payload_kg", "'heavy'")
     assert not out.exists()
+
+
+def test_absurd_and_underscored_numbers_are_refused_by_fit_and_predict(tmp_path, data, capsys):
+    lines = (data / "train.csv").read_text().splitlines()
+    header = lines[0].split(",")
+    out = tmp_path / "m.yaml"
+    for col, value, reason in (("x", "1e300", "physically absurd"), ("q2", "1_000", "not a number: '1_000'")):
+        row = lines[1].split(",")
+        row[header.index(col)] = value
+        train = tmp_path / f"train-{col}.csv"
+        train.write_text("\n".join([lines[0], ",".join(row)] + lines[2:]) + "\n")
+        assert_bad_input(capsys, ["fit", "--robot", "R1", "--train", str(train), "--method", "base",
+                                  "--out", str(out)], str(train), "row 2", f"'{col}'", reason)
+    joints = tmp_path / "q.csv"
+    joints.write_text("0,0,0,0,0,0\n1e300,0,0,0,0,0\n")
+    poses = tmp_path / "poses.csv"
+    assert_bad_input(capsys, ["predict", "--model", str(data / "m.json"), "--joints", str(joints),
+                              "--out", str(poses)], str(joints), "row 2", "'q1'", "physically absurd")
+    assert not out.exists() and not poses.exists()
