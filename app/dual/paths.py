@@ -18,6 +18,7 @@ from app.dual.plan_result import PlanResult
 from app.dual.planner import DualPlanner, PlannerOptions
 from calibration import so3
 from calibration.errors import DataError, ModelError
+from calibration.recording import MAX_ABS_POSITION_MM
 from cell_config.loader import CellSpec
 
 
@@ -70,11 +71,16 @@ def pose_from_numbers(v: Any, where: str) -> np.ndarray:
         DataError: not 7 finite numbers, or a quaternion whose norm is not 1 (within 1e-3).
     """
     try:
+        if any(isinstance(x, str) and "_" in x for x in (v if isinstance(v, (list, tuple)) else [v])):
+            raise ValueError("digit separators")  # float() and numpy accept "1_000"; a CSV number has none
         a = np.asarray(v, dtype=float).reshape(-1)
     except (TypeError, ValueError):
         a = np.full(0, np.nan)
     if a.shape != (7,) or not np.all(np.isfinite(a)):
         raise DataError(where, None, None, "expected a pose as 7 numbers: x, y, z [mm], qw, qx, qy, qz")
+    if np.any(np.abs(a[:3]) > MAX_ABS_POSITION_MM):
+        raise DataError(where, None, None, f"position {np.abs(a[:3]).max():.6g} mm is physically absurd "
+                                           f"(|x|, |y|, |z| <= {MAX_ABS_POSITION_MM:g} mm)")
     if abs(np.linalg.norm(a[3:]) - 1.0) > 1e-3:
         raise DataError(where, None, None, f"quaternion norm is {np.linalg.norm(a[3:]):.4g}, expected 1")
     T = np.eye(4)

@@ -161,3 +161,16 @@ def test_absurd_and_underscored_numbers_are_refused_by_fit_and_predict(tmp_path,
     assert_bad_input(capsys, ["predict", "--model", str(data / "m.json"), "--joints", str(joints),
                               "--out", str(poses)], str(joints), "row 2", "'q1'", "physically absurd")
     assert not out.exists() and not poses.exists()
+
+
+def test_plan_dual_poses_refuse_absurd_and_underscored_numbers(tmp_path, capsys):
+    out = tmp_path / "plan.json"
+    assert_bad_input(capsys, ["plan-dual", "--relative-pose", "0,0,1e300,1,0,0,0", "--no-compile",
+                              "--out", str(out)], "physically absurd")
+    assert_bad_input(capsys, ["plan-dual", "--relative-pose", "0,0,1_00,1,0,0,0", "--no-compile",
+                              "--out", str(out)], "7 numbers")
+    path = tmp_path / "path.csv"
+    path.write_text("x,y,z,qw,qx,qy,qz\n0,0,0,1,0,0,0\n1e300,0,0,1,0,0,0\n")
+    assert_bad_input(capsys, ["plan-dual", "--path", str(path), "--no-compile", "--out", str(out)],
+                     str(path), "pose 1", "physically absurd")
+    assert not out.exists()
