@@ -109,8 +109,8 @@ class UnsafeTarget(CellCalError):
         if joint is not None:
             import math
 
-            msg = (f"{robot} joint {joint}: target {math.degrees(value):.3f} deg is outside the limit "
-                   f"{math.degrees(limit):.3f} deg")
+            msg = (f"{robot} joint {joint}: target {math.degrees(value):.6g} deg is outside the limit "
+                   f"{math.degrees(limit):.6g} deg")
         else:
             msg = f"{robot}: {reason} (clearance {value:.1f} mm, required {limit:.1f} mm)"
         if reason and joint is not None:

@@ -3,6 +3,12 @@
 Reads the project's recording CSV (``../shared/spec/recording-format.md``) and the Welding_Motoman folder
 layout, validates every value, and writes recordings atomically. Errors name the file, the 1-based row
 (header = row 1) and the column.
+
+Beyond the spec's "non-numeric or non-finite" errors, a value is refused as physically absurd when
+|x|, |y| or |z| > ``MAX_ABS_POSITION_MM`` (1e5 mm = 100 m), |q_i| > ``MAX_ABS_ANGLE_RAD`` (100 rad, checked
+even when the joint limits are not known), or any other known column's |value| > ``MAX_ABS_OTHER`` (1e9).
+Columns outside the spec's table are ignored: their content is never checked, and they are kept (for
+rewriting) only when every value is a finite number.
 """
 
 from __future__ import annotations
@@ -30,6 +36,24 @@ QUAT_NORM_TOL = 1e-3
 CONTEXT_COLUMNS = ("t", "temp_c", "payload_kg") + tuple(f"dir{i}" for i in range(1, 7))
 SPEED_COLUMNS = tuple(f"qd{i}" for i in range(1, 7))
 DEFAULT_CLUSTER_SIZE = 7
+KNOWN_OPTIONAL_COLUMNS = ("cluster", "marker_err", "frames") + CONTEXT_COLUMNS + SPEED_COLUMNS
+MAX_ABS_POSITION_MM = 1e5
+"""Largest |x|, |y|, |z| accepted [mm]: 100 m, far beyond any cell; larger values are typos or overflow."""
+MAX_ABS_ANGLE_RAD = 100.0
+"""Largest |q_i| accepted [rad] before the joint limits are known: ~16 turns, beyond any joint."""
+MAX_ABS_OTHER = 1e9
+"""Largest magnitude accepted in any other known column (t [s], temp_c, payload_kg, ...)."""
+MAX_ROWS = 200_000
+"""Largest number of data rows read from one file: a calibration session holds a few thousand samples;
+a bigger file is refused while it is read, before any of it is parsed, so memory stays bounded."""
+
+
+def _max_abs(column: str) -> float:
+    if column in ("x", "y", "z"):
+        return MAX_ABS_POSITION_MM
+    if column in JOINT_COLUMNS:
+        return MAX_ABS_ANGLE_RAD
+    return MAX_ABS_OTHER
 
 
 @dataclass(frozen=True)
@@ -90,24 +114,62 @@ class Recording:
 
 
 def _parse_float(text: str, path: Path, row: int, column: str) -> float:
+    # float() also accepts "1_000" (Python literal syntax); a CSV number has no underscores
     try:
+        if "_" in text:
+            raise ValueError(text)
         value = float(text)
     except ValueError:
         raise DataError(path, row, column, f"not a number: {text!r}") from None
     if not math.isfinite(value):
         raise DataError(path, row, column, f"not a finite number: {text!r}")
+    bound = _max_abs(column)
+    if abs(value) > bound:
+        raise DataError(path, row, column, f"{value:.6g} is physically absurd (|value| > {bound:g})")
     return value
 
 
-def _read_table(path: Path, columns: tuple[str, ...] | None) -> tuple[list[str], np.ndarray, int]:
-    """Read a numeric CSV. ``columns`` given: headerless with those names. Returns names, data, first row no."""
+def _number_or_nan(text: str) -> float:
     try:
-        with open(path, newline="", encoding="utf-8") as f:
-            rows = [r for r in csv.reader(f) if r and any(c.strip() for c in r)]
+        return float(text) if "_" not in text else math.nan
+    except ValueError:
+        return math.nan
+
+
+def _read_rows(path: Path) -> list[list[str]]:
+    """The non-blank CSV rows of ``path``; a UTF-8 byte-order mark (as Excel writes) is accepted.
+
+    Raises:
+        DataError: more than ``MAX_ROWS`` data rows (counted while reading, so a huge file stops early).
+    """
+    rows: list[list[str]] = []
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as f:
+            for r in csv.reader(f):
+                if r and any(c.strip() for c in r):
+                    rows.append(r)
+                    if len(rows) > MAX_ROWS + 1:
+                        raise DataError(path, None, None, f"more than {MAX_ROWS} data rows (the limit bounds "
+                                                          f"memory; split the recording or subsample it)")
     except FileNotFoundError:
         raise DataError(path, None, None, "file not found") from None
+    except IsADirectoryError:
+        raise DataError(path, None, None, "is a folder, expected a CSV file") from None
     except UnicodeDecodeError as e:
         raise DataError(path, None, None, f"not UTF-8 text ({e.reason})") from None
+    except OSError as e:
+        raise DataError(path, None, None, f"cannot read ({e.strerror or e})") from None
+    return rows
+
+
+def _read_table(path: Path, columns: tuple[str, ...] | None,
+                known: tuple[str, ...] | None = None) -> tuple[list[str], np.ndarray, int]:
+    """Read a numeric CSV. ``columns`` given: headerless with those names. Returns names, data, first row no.
+
+    ``known`` given: only those columns are validated; any other column's content is ignored (its values
+    are kept as numbers where they parse, NaN elsewhere).
+    """
+    rows = _read_rows(path)
     if columns is None:
         if not rows:
             raise DataError(path, None, None, "empty file, expected a header row")
@@ -117,13 +179,19 @@ def _read_table(path: Path, columns: tuple[str, ...] | None) -> tuple[list[str],
         names, body, first = list(columns), rows, 1
     if not body:
         raise DataError(path, None, None, "no data rows")
+    if len(body) > MAX_ROWS:  # a headerless file: _read_rows allowed one row for a header
+        raise DataError(path, None, None, f"more than {MAX_ROWS} data rows (the limit bounds "
+                                          f"memory; split the recording or subsample it)")
     data = np.empty((len(body), len(names)))
     for i, r in enumerate(body):
         row_no = first + i
         if len(r) != len(names):
             raise DataError(path, row_no, None, f"expected {len(names)} fields, found {len(r)}")
         for j, text in enumerate(r):
-            data[i, j] = _parse_float(text.strip(), path, row_no, names[j])
+            if known is None or names[j] in known:
+                data[i, j] = _parse_float(text.strip(), path, row_no, names[j])
+            else:
+                data[i, j] = _number_or_nan(text.strip())
     return names, data, first
 
 
@@ -134,12 +202,17 @@ def _check_pose(path: Path, q: np.ndarray, quat: np.ndarray, first_row: int,
     if bad.size:
         i = int(bad[0])
         raise DataError(path, first_row + i, "qw..qz", f"quaternion norm {norms[i]:.6f} is not 1 (tolerance {QUAT_NORM_TOL})")
+    _check_limits(q_path or path, q, first_row, lower, upper)
+
+
+def _check_limits(path: Path, q: np.ndarray, first_row: int,
+                  lower: np.ndarray | None, upper: np.ndarray | None) -> None:
     if lower is not None and upper is not None:
         outside = (q < lower - 1e-9) | (q > upper + 1e-9)
         if outside.any():
             i, j = (int(v) for v in np.argwhere(outside)[0])
-            raise DataError(q_path or path, first_row + i, JOINT_COLUMNS[j],
-                            f"{math.degrees(q[i, j]):.3f} deg is outside the joint limits "
+            raise DataError(path, first_row + i, JOINT_COLUMNS[j],
+                            f"{math.degrees(q[i, j]):.6g} deg is outside the joint limits "
                             f"[{math.degrees(lower[j]):.1f}, {math.degrees(upper[j]):.1f}] deg")
 
 
@@ -168,7 +241,7 @@ def read_recording(path: str | Path, lower: np.ndarray | None = None, upper: np.
                                  {}, str(path))
         raise DataError(path, None, None, "folder has neither robot_q_align.csv + mocap_T_align.csv nor the "
                                           "train_data_ variants")
-    names, data, first = _read_table(path, None)
+    names, data, first = _read_table(path, None, REQUIRED_COLUMNS + KNOWN_OPTIONAL_COLUMNS)
     missing = [c for c in REQUIRED_COLUMNS if c not in names]
     if missing:
         raise DataError(path, 1, missing[0], f"required column missing (required: {', '.join(REQUIRED_COLUMNS)})")
@@ -179,7 +252,9 @@ def read_recording(path: str | Path, lower: np.ndarray | None = None, upper: np.
     q = np.stack([col[c] for c in JOINT_COLUMNS], axis=1)
     quat = np.stack([col[c] for c in ("qw", "qx", "qy", "qz")], axis=1)
     _check_pose(path, q, quat, first, lower, upper)
-    extra = {n: v for n, v in col.items() if n not in REQUIRED_COLUMNS}
+    # unknown columns are ignored (spec); kept for rewriting only when every value is a finite number
+    extra = {n: v for n, v in col.items()
+             if n not in REQUIRED_COLUMNS and (n in KNOWN_OPTIONAL_COLUMNS or np.isfinite(v).all())}
     if "cluster" in extra and np.any(extra["cluster"] != np.round(extra["cluster"])):
         i = int(np.flatnonzero(extra["cluster"] != np.round(extra["cluster"]))[0])
         raise DataError(path, first + i, "cluster", "expected an integer cluster id")
@@ -187,33 +262,32 @@ def read_recording(path: str | Path, lower: np.ndarray | None = None, upper: np.
                      quat / np.linalg.norm(quat, axis=1, keepdims=True), extra, str(path))
 
 
-def read_joints(path: str | Path) -> np.ndarray:
+def read_joints(path: str | Path, lower: np.ndarray | None = None, upper: np.ndarray | None = None) -> np.ndarray:
     """Read joint angles [rad] for prediction: a header row with q1..q6, or a headerless 6-column file.
+
+    Args:
+        path: the joint file.
+        lower, upper: joint limits [rad], shape (6,); when given, a row outside them is an error.
 
     Returns:
         shape (N, 6).
     """
     path = Path(path)
-    try:
-        with open(path, newline="", encoding="utf-8") as f:
-            first_line = next((r for r in csv.reader(f) if r), None)
-    except FileNotFoundError:
-        raise DataError(path, None, None, "file not found") from None
-    if first_line is None:
+    rows = _read_rows(path)
+    if not rows:
         raise DataError(path, None, None, "empty file")
-    try:
-        [float(c) for c in first_line]
-        headerless = True
-    except ValueError:
-        headerless = False
+    headerless = not any(c.strip() in JOINT_COLUMNS for c in rows[0])
     if headerless:
-        _, data, _ = _read_table(path, JOINT_COLUMNS)
-        return data
-    names, data, _ = _read_table(path, None)
-    missing = [c for c in JOINT_COLUMNS if c not in names]
-    if missing:
-        raise DataError(path, 1, missing[0], "required column missing (need q1..q6 in rad, or no header and 6 columns)")
-    return np.stack([data[:, names.index(c)] for c in JOINT_COLUMNS], axis=1)
+        _, q, first = _read_table(path, JOINT_COLUMNS)
+    else:
+        names, data, first = _read_table(path, None, JOINT_COLUMNS)
+        missing = [c for c in JOINT_COLUMNS if c not in names]
+        if missing:
+            raise DataError(path, 1, missing[0],
+                            "required column missing (need q1..q6 in rad, or no header and 6 columns)")
+        q = np.stack([data[:, names.index(c)] for c in JOINT_COLUMNS], axis=1)
+    _check_limits(path, q, first, lower, upper)
+    return q
 
 
 def write_table(path: str | Path, columns: dict[str, np.ndarray]) -> None:

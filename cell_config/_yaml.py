@@ -23,7 +23,7 @@ _REQUIRED: Any = ...
 def read_yaml(path: Path) -> Any:
     """Parse ``path`` with ``yaml.safe_load``; a missing file or bad YAML is a ConfigError."""
     try:
-        with open(path, encoding="utf-8") as f:
+        with open(path, encoding="utf-8-sig") as f:
             return yaml.safe_load(f)
     except FileNotFoundError as e:
         raise ConfigError(path, "", "file not found") from e

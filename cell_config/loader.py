@@ -186,7 +186,7 @@ def load_robot(path: str | Path) -> RobotSpec:
     pulse_zero = r.array("pulse_zero", (6,))
     if np.any(pulse_zero != np.rint(pulse_zero)):
         raise r.error("pulse_zero", f"expected whole pulses, got {pulse_zero.tolist()}")
-    payload = r.get("payload_kg", None)
+    payload = None if r.get("payload_kg", None) is None else r.number("payload_kg", lo=0.0)
     caps = r.child("capsules_mm")
     caps.only(CAPSULE_SEGMENTS)
     capsules = {s: caps.number(s, lo=0.0, lo_open=True) for s in CAPSULE_SEGMENTS}
@@ -194,7 +194,7 @@ def load_robot(path: str | Path) -> RobotSpec:
         name=r.string("name"), H=H, P=r.array("P", (7, 3)).T, R_flange=R_flange,
         lower_rad=np.radians(lower), upper_rad=np.radians(upper), max_speed_rad_s=np.radians(speeds),
         pulses_per_rad=pulses * 180.0 / np.pi, links=tuple(links),
-        payload_kg=None if payload is None else float(payload), capsules_mm=capsules,
+        payload_kg=payload, capsules_mm=capsules,
         pulse_sign=pulse_sign, pulse_zero=pulse_zero,
     )
 

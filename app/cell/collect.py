@@ -136,7 +136,7 @@ def _check_readback(q: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> None
     bad = np.flatnonzero((q < lower) | (q > upper))
     if bad.size:
         j = int(bad[0])
-        raise _MeasureFailed(f"joint readback q{j + 1} = {math.degrees(q[j]):.3f} deg is outside the limits")
+        raise _MeasureFailed(f"joint readback q{j + 1} = {math.degrees(q[j]):.6g} deg is outside the limits")
 
 
 class _Session:

@@ -100,9 +100,13 @@ def read_plan(source: "str | Path | dict[str, Any] | Plan | PlanResult", kind: P
         return plan_from_data(source, "<plan>", kind)
     path = Path(source)
     try:
-        d = json.loads(path.read_text(encoding="utf-8"))
+        d = json.loads(path.read_text(encoding="utf-8-sig"))
     except FileNotFoundError:
         raise DataError(path, None, None, "plan file not found") from None
+    except IsADirectoryError:
+        raise DataError(path, None, None, "is a folder, expected a plan file (JSON)") from None
+    except OSError as e:
+        raise DataError(path, None, None, f"cannot read the plan file ({e.strerror or e})") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise DataError(path, None, None, f"not valid JSON ({e})") from None
     return plan_from_data(d, path, kind)

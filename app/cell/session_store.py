@@ -325,7 +325,7 @@ class SessionStore:
             if bad.size:
                 j = int(bad[0])
                 raise DataError(self.path, None, f"target {s.target_index}",
-                                f"q{j + 1} = {math.degrees(s.q[j]):.3f} deg is outside the joint limits "
+                                f"q{j + 1} = {math.degrees(s.q[j]):.6g} deg is outside the joint limits "
                                 f"[{math.degrees(lower[j]):.1f}, {math.degrees(upper[j]):.1f}] deg")
         row = ([s.target_index, "ok", robot, kind, cluster] + [float(v) for v in s.q]
                + [float(v) for v in s.p] + [float(v) for v in s.quat]

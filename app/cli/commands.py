@@ -38,8 +38,8 @@ def cmd_predict(args: argparse.Namespace) -> int:
     from calibration import so3
     from calibration.recording import read_joints, write_table
 
-    model = _model_arg(args)
-    q = read_joints(args.joints)
+    model, robot = _model_arg(args)
+    q = read_joints(args.joints, *((robot.robot.lower_rad, robot.robot.upper_rad) if robot else ()))
     outside = model.out_of_range(q)
     if outside.any():
         print(f"warning: {int(outside.sum())} of {len(q)} configurations lie outside the region the "
@@ -52,20 +52,28 @@ def cmd_predict(args: argparse.Namespace) -> int:
     return 0
 
 
-def _model_arg(args: argparse.Namespace) -> Any:
-    """``--model``, checked (and checked to be ``--robot``'s when that is given)."""
+def _model_arg(args: argparse.Namespace) -> tuple[Any, Any]:
+    """``--model``, checked (and checked to be ``--robot``'s when that is given), and its robot's cell entry.
+
+    The robot is ``--robot``, else the one the model file records when the cell has it, so joints are always
+    checked against the limits when they are known (the recording spec calls a joint outside them an error);
+    a model of a robot the cell does not describe gets ``None`` and no limit check.
+    """
     from calibration.models import load_model
 
     if args.robot:
-        return load_model_for(args.model, cell_spec(args).robot(args.robot))
-    return load_model(args.model)
+        robot = cell_spec(args).robot(args.robot)
+        return load_model_for(args.model, robot), robot
+    model = load_model(args.model)
+    cell = cell_spec(args)
+    return model, cell.robots.get(model.robot)
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from calibration.metrics import error_stats, errors
 
-    model = _model_arg(args)
-    test = read_recording_arg(args.test, cell_spec(args).robot(args.robot) if args.robot else None)
+    model, robot = _model_arg(args)
+    test = read_recording_arg(args.test, robot)
     result = {"robot": model.robot, "method": model.method, "samples": len(test),
               "test": error_stats(errors(model, test))}
     pos, ori = result["test"]["position_mm"], result["test"]["orientation_deg"]
@@ -185,13 +193,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="model file (.yaml or .json)")
     p = add("predict", cmd_predict, "tool poses of a model for joint angles")
     p.add_argument("--model", required=True)
-    p.add_argument("--robot", help="the arm the model is for (R1, R2): refuse a model of another robot")
+    p.add_argument("--robot", help="the arm the model is for (R1, R2): refuse a model of another robot (joints "
+                                   "are checked against the limits of the model's robot either way)")
     p.add_argument("--joints", required=True, help="CSV with q1..q6 [rad] (header) or 6 headerless columns")
     p.add_argument("--out", required=True)
     p = add("evaluate", cmd_evaluate, "accuracy of a model on a recording")
     p.add_argument("--model", required=True)
-    p.add_argument("--robot", help="the arm the model is for (R1, R2): refuse a model of another robot and "
-                                   "joints outside its limits")
+    p.add_argument("--robot", help="the arm the model is for (R1, R2): refuse a model of another robot (joints "
+                                   "are checked against the limits of the model's robot either way)")
     p.add_argument("--test", required=True)
     p.add_argument("--json", help="write the statistics as JSON")
     p = add("rebase", cmd_rebase, "move a fitted model of any kind onto a new day: refit only its base and tool-marker "

@@ -18,11 +18,15 @@ from app.dual.plan_result import PlanResult
 from app.dual.planner import DualPlanner, PlannerOptions
 from calibration import so3
 from calibration.errors import DataError, ModelError
+from calibration.recording import MAX_ABS_POSITION_MM
 from cell_config.loader import CellSpec
 
 
 #: Reference configuration of the cell [deg]: tools about 410 mm apart, facing, 300 mm arm clearance.
 Q_REF_DEG = np.array([0.0, 15.0, 5.0, 0.0, 30.0, 0.0, 0.0, 0.0, 0.0, 0.0, -30.0, 0.0])
+#: Most waypoints a path (``sweep:N`` or a path file) may have: each one is an IK solve and a stored
+#: waypoint, so a typo like sweep:100000000 would grow without limit; a real seam has a few thousand.
+MAX_WAYPOINTS = 100_000
 
 
 def tool_pose(planner: DualPlanner, name: str, q: np.ndarray) -> np.ndarray:
@@ -52,8 +56,8 @@ def sweep_path(planner: DualPlanner, n: int = 200, q_inward_deg: np.ndarray | No
     Returns:
         Workpiece target poses in the cell frame, shape (n, 4, 4) [mm].
     """
-    if n < 2:
-        raise ModelError(f"a sweep needs n >= 2 waypoints, got {n}")
+    if not 2 <= n <= MAX_WAYPOINTS:
+        raise ModelError(f"a sweep needs 2 <= n <= {MAX_WAYPOINTS} waypoints, got {n}")
     qa = np.radians([-5.0, -5.0, 5.0, -10.0, -35.0, 10.0] if q_inward_deg is None else q_inward_deg)
     qb = np.radians([10.0, 25.0, -5.0, 10.0, -20.0, -10.0] if q_outward_deg is None else q_outward_deg)
     s = 0.5 - 0.5 * np.cos(np.linspace(0.0, np.pi, n))  # rest-to-rest timing
@@ -67,11 +71,16 @@ def pose_from_numbers(v: Any, where: str) -> np.ndarray:
         DataError: not 7 finite numbers, or a quaternion whose norm is not 1 (within 1e-3).
     """
     try:
+        if any(isinstance(x, str) and "_" in x for x in (v if isinstance(v, (list, tuple)) else [v])):
+            raise ValueError("digit separators")  # float() and numpy accept "1_000"; a CSV number has none
         a = np.asarray(v, dtype=float).reshape(-1)
     except (TypeError, ValueError):
         a = np.full(0, np.nan)
     if a.shape != (7,) or not np.all(np.isfinite(a)):
         raise DataError(where, None, None, "expected a pose as 7 numbers: x, y, z [mm], qw, qx, qy, qz")
+    if np.any(np.abs(a[:3]) > MAX_ABS_POSITION_MM):
+        raise DataError(where, None, None, f"position {np.abs(a[:3]).max():.6g} mm is physically absurd "
+                                           f"(|x|, |y|, |z| <= {MAX_ABS_POSITION_MM:g} mm)")
     if abs(np.linalg.norm(a[3:]) - 1.0) > 1e-3:
         raise DataError(where, None, None, f"quaternion norm is {np.linalg.norm(a[3:]):.4g}, expected 1")
     T = np.eye(4)
@@ -104,7 +113,7 @@ def _poses_from_text(text: str, where: str) -> list[Any]:
 def read_pose(spec: str) -> np.ndarray:
     """A relative pose (4, 4) [mm] from a file (JSON ``{p_mm, quat}`` or one CSV row) or inline 7 numbers."""
     path = Path(spec)
-    text = path.read_text(encoding="utf-8") if path.is_file() else spec
+    text = path.read_text(encoding="utf-8-sig") if path.is_file() else spec
     items = _poses_from_text(text, spec)
     if len(items) != 1:
         raise DataError(spec, None, None, f"expected one pose (x, y, z [mm], qw, qx, qy, qz), got {len(items)}")
@@ -118,13 +127,19 @@ def read_path(spec: str, planner: DualPlanner) -> np.ndarray:
             n = int(spec[6:])
         except ValueError:
             raise DataError(spec, None, None, "expected sweep:N with an integer N >= 2") from None
+        if n > MAX_WAYPOINTS:
+            raise DataError(spec, None, None, f"{n} waypoints is more than the limit of {MAX_WAYPOINTS}; "
+                                              f"use sweep:N with 2 <= N <= {MAX_WAYPOINTS}")
         return sweep_path(planner, n)
     path = Path(spec)
     if not path.is_file():
         raise DataError(spec, None, None, "path file not found (or use sweep:N)")
-    items = _poses_from_text(path.read_text(encoding="utf-8"), spec)
+    items = _poses_from_text(path.read_text(encoding="utf-8-sig"), spec)
     if not items:
         raise DataError(spec, None, None, "the path has no poses")
+    if len(items) > MAX_WAYPOINTS:
+        raise DataError(spec, None, None, f"{len(items)} poses is more than the limit of {MAX_WAYPOINTS} "
+                                          f"waypoints; split the path")
     return np.array([pose_from_numbers(it, f"{spec} pose {i}") for i, it in enumerate(items)])
 
 

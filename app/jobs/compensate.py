@@ -144,8 +144,8 @@ class JobCompensator:
         if bad.size:
             j = int(bad[0])
             lim = spec.lower_rad[j] if q[j] < spec.lower_rad[j] else spec.upper_rad[j]
-            raise JobError(job.path, pos.line, f"{pos.name}: {what} {robot} joint {j + 1} at {np.degrees(q[j]):.3f} "
-                                               f"deg is outside the limit {np.degrees(lim):.3f} deg")
+            raise JobError(job.path, pos.line, f"{pos.name}: {what} {robot} joint {j + 1} at {np.degrees(q[j]):.6g} "
+                                               f"deg is outside the limit {np.degrees(lim):.6g} deg")
 
     def _solve(self, job: Job, pos: JobPosition, robot: str, ik: ArmIk, R: np.ndarray, p: np.ndarray,
                q0: np.ndarray, what: str) -> IkResult:

@@ -222,7 +222,7 @@ def save_model(model: KinematicModel, path: str | Path) -> None:
 
 def _read_model_file(path: Path) -> dict[str, Any]:
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")
     except FileNotFoundError:
         raise DataError(path, None, None, "model file not found") from None
     except IsADirectoryError:

@@ -83,7 +83,8 @@ def test_the_safety_verdict_is_the_full_check(cell):
     unknown = summarize_plan(plan, safety, {}, Q_START)
     assert not unknown.safe and "pose of R2 unknown" in unknown.safety_error
     out_of_limits = build_plan([dataclasses.replace(plan.targets[0], q=np.radians([1, 0, 170, 1, 1, 1]))])
-    assert "limit 160.000 deg" in summarize_plan(out_of_limits, safety, OTHERS, Q_START).safety_error
+    error = summarize_plan(out_of_limits, safety, OTHERS, Q_START).safety_error
+    assert "target 170 deg is outside the limit 160 deg" in error
 
 
 @pytest.mark.parametrize("kwargs, words", [({"speed_fraction": 0.0}, "(0, 1]"), ({"speed_fraction": 1.5}, "(0, 1]"),

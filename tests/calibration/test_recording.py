@@ -94,3 +94,104 @@ def test_context_columns(tmp_path):
     ctx = read_recording(path).context()
     assert set(ctx) == {"t", "dir2", "qd", "payload_kg"}
     assert ctx["dir2"].tolist() == [-1.0] and ctx["qd"].shape == (1, 6) and ctx["t"].tolist() == [1.5]
+
+
+@pytest.mark.parametrize("text, row, column, reason", [
+    (HEADER + "\n" + ROW.replace("1000", "1e300"), 2, "x", "physically absurd"),
+    (HEADER + "\n" + ROW + "\n" + ROW.replace("0.1,", "-1e300,", 1), 3, "q1", "physically absurd"),
+])
+def test_absurd_values_are_named(tmp_path, text, row, column, reason):
+    path = write(tmp_path, text)
+    with pytest.raises(DataError) as e:
+        read_recording(path)
+    assert e.value.row == row and e.value.column == column
+    assert reason in str(e.value) and str(path) in str(e.value)
+    assert len(str(e.value)) < 200
+
+
+def test_absurd_values_in_welding_layout_and_joint_files(tmp_path):
+    folder = tmp_path / "run"
+    folder.mkdir()
+    (folder / "robot_q_align.csv").write_text("0.1,0.2,0.3,0.4,0.5,0.6\n")
+    (folder / "mocap_T_align.csv").write_text("1,2,1e300,1,0,0,0\n")
+    with pytest.raises(DataError, match="physically absurd") as e:
+        read_recording(folder)
+    assert e.value.row == 1 and e.value.column == "z"
+    joints = write(tmp_path, "0.1,0.2,0.3,0.4,0.5,1e300\n", "q.csv")
+    with pytest.raises(DataError, match="physically absurd") as e:
+        read_joints(joints)
+    assert e.value.row == 1 and e.value.column == "q6"
+
+
+@pytest.mark.parametrize("text, row, column", [
+    (HEADER + "\n" + ROW.replace("1000", "1_000"), 2, "x"),
+    (HEADER + ",payload_kg\n" + ROW + ",1_0", 2, "payload_kg"),
+])
+def test_underscored_numbers_are_refused(tmp_path, text, row, column):
+    path = write(tmp_path, text)
+    with pytest.raises(DataError, match="not a number: '1_0") as e:
+        read_recording(path)
+    assert e.value.row == row and e.value.column == column and str(path) in str(e.value)
+    joints = write(tmp_path, "q1,q2,q3,q4,q5,q6\n0.1,0.2,0.3,0.4,1_5,0\n", "q.csv")
+    with pytest.raises(DataError, match="not a number") as e:
+        read_joints(joints)
+    assert e.value.row == 2 and e.value.column == "q5"
+
+
+def test_utf8_bom_is_accepted(tmp_path):
+    path = tmp_path / "rec.csv"
+    path.write_bytes(b"\xef\xbb\xbf" + (HEADER + "\n" + ROW + "\n").encode())
+    assert len(read_recording(path)) == 1
+    joints = tmp_path / "q.csv"
+    joints.write_bytes(b"\xef\xbb\xbfq1,q2,q3,q4,q5,q6\n0.1,0.2,0.3,0.4,0.5,0.6\n")
+    np.testing.assert_array_equal(read_joints(joints), [[0.1, 0.2, 0.3, 0.4, 0.5, 0.6]])
+    joints.write_bytes(b"\xef\xbb\xbf0.1,0.2,0.3,0.4,0.5,0.6\n")
+    np.testing.assert_array_equal(read_joints(joints), [[0.1, 0.2, 0.3, 0.4, 0.5, 0.6]])
+
+
+def test_unknown_columns_are_ignored(tmp_path):
+    path = write(tmp_path, HEADER + ",operator,note,gain\n" + ROW + ",alice,1e300 and 1_000,2.5\n")
+    rec = read_recording(path)
+    assert len(rec) == 1 and "operator" not in rec.extra and "note" not in rec.extra
+    np.testing.assert_array_equal(rec.extra["gain"], [2.5])  # numeric unknown columns still round-trip
+    joints = write(tmp_path, "q1,q2,q3,q4,q5,q6,label\n0,0,0,0,0,0,home\n", "q.csv")
+    np.testing.assert_array_equal(read_joints(joints), np.zeros((1, 6)))
+    with pytest.raises(DataError, match="not a number") as e:  # known optional columns are still checked
+        read_recording(write(tmp_path, HEADER + ",temp_c\n" + ROW + ",warm\n"))
+    assert e.value.row == 2 and e.value.column == "temp_c"
+
+
+def test_row_limit_refused_while_reading(tmp_path, monkeypatch):
+    import calibration.recording as recording
+
+    assert recording.MAX_ROWS == 200_000
+    monkeypatch.setattr(recording, "MAX_ROWS", 3)
+    assert len(read_recording(write(tmp_path, HEADER + "\n" + "\n".join([ROW] * 3) + "\n"))) == 3
+    # the 5th row is never parsed: the file is refused as soon as the limit is passed
+    path = write(tmp_path, HEADER + "\n" + "\n".join([ROW] * 4 + ["not,parsed"]) + "\n")
+    with pytest.raises(DataError, match="more than 3 data rows") as e:
+        read_recording(path)
+    assert str(path) in str(e.value)
+    folder = tmp_path / "run"
+    folder.mkdir()
+    (folder / "robot_q_align.csv").write_text("0,0,0,0,0,0\n" * 4)
+    (folder / "mocap_T_align.csv").write_text("1,2,3,1,0,0,0\n" * 4)
+    with pytest.raises(DataError, match="more than 3 data rows"):
+        read_recording(folder)
+
+
+def test_out_of_limit_messages_print_numbers_with_a_sane_precision(tmp_path, monkeypatch):
+    import calibration.recording as recording
+    from calibration.errors import UnsafeTarget
+
+    monkeypatch.setattr(recording, "MAX_ABS_ANGLE_RAD", float("inf"))  # reach the limit check with 1e300
+    lower, upper = np.full(6, -3.0), np.full(6, 3.0)
+    path = write(tmp_path, HEADER + "\n" + ROW.replace("0.1,", "1e300,", 1))
+    with pytest.raises(DataError, match=r"5\.72958e\+301 deg is outside the joint limits") as e:
+        read_recording(path, lower, upper)
+    assert len(str(e.value)) < 200
+    with pytest.raises(DataError, match=r"-5\.72958e\+301 deg") as e:
+        read_joints(write(tmp_path, "0,0,-1e300,0,0,0\n", "q.csv"), lower, upper)
+    assert e.value.row == 1 and e.value.column == "q3" and len(str(e.value)) < 200
+    msg = str(UnsafeTarget("R1", 2, 1e300, 3.0))
+    assert "5.72958e+301 deg" in msg and "171.887 deg" in msg and len(msg) < 120

@@ -513,3 +513,18 @@ def test_malformed_pulse_convention_names_the_key(tmp_path, old, new, key, reaso
     with pytest.raises(ConfigError) as e:
         load_robot(bad)
     assert e.value.key == key and reason in e.value.reason and e.value.path == str(bad)
+
+
+@pytest.mark.parametrize("value", ["heavy", "'6'", "-1", ".nan", "true", "[6]"])
+def test_payload_must_be_a_non_negative_number(tmp_path, value):
+    text = (DEFAULT_CELL.parent / "robots" / "MA1440.yaml").read_text()
+    assert "payload_kg: 6.0" in text
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(text.replace("payload_kg: 6.0", f"payload_kg: {value}"))
+    with pytest.raises(ConfigError) as e:
+        load_robot(bad)
+    assert e.value.key == "payload_kg" and "expected a finite number >= 0" in e.value.reason
+    ok = tmp_path / "ok.yaml"
+    ok.write_text(text.replace("payload_kg: 6.0", "payload_kg: 3"))
+    assert load_robot(ok).payload_kg == 3.0
+    assert load_robot(DEFAULT_CELL.parent / "robots" / "MA2010.yaml").payload_kg is None
