@@ -4,6 +4,12 @@ All three pass exactly through the anchor values. Linear and cubic are defined o
 triangulation of the anchors; outside its convex hull scipy would return NaN, so there they return the
 nearest anchor's value instead, and ``out_of_range`` flags those queries.
 
+``casadi_predict`` (exact, checked against ``predict``): nearest is an argmin chain over the anchors (``if_else``,
+derivative zero), linear an ``if_else`` chain over the Delaunay simplices (barycentric weights from Qhull's own
+transforms, the same inside tolerance as scipy's point location) ending in the nearest-anchor fallback, so
+its size grows with the number of simplices times m. Cubic (Clough-Tocher: estimated gradients and a
+split into three Bernstein sub-triangles per simplex) has no casadi form here and stays frozen.
+
 Serialisation stores the anchors and values; loading rebuilds the triangulation (Qhull is deterministic
 for the same input), so prediction after a round trip is bit-identical.
 """
@@ -63,6 +69,24 @@ class AnchoredInterpolator(Interpolator):
     def _nearest_values(self, x: np.ndarray) -> np.ndarray:
         return self._values[self._hull().nearest(x)]  # type: ignore[index]
 
+    def _nearest_casadi(self, u: Any) -> Any:
+        """The nearest anchor's values (m, 1) as casadi: a strict-< argmin chain (the first anchor wins ties)."""
+        import casadi as ca
+
+        self._require_fitted()
+        A, V = self._anchors, self._values
+        best_d, best_v = None, None
+        for k in range(A.shape[0]):  # type: ignore[union-attr]
+            dk = ca.sumsqr(u - ca.DM(A[k]))  # type: ignore[index]
+            vk = ca.DM(V[k])  # type: ignore[index]
+            if best_d is None:
+                best_d, best_v = dk, vk
+            else:
+                closer = dk < best_d
+                best_v = ca.if_else(closer, vk, best_v)
+                best_d = ca.if_else(closer, dk, best_d)
+        return best_v
+
 
 class NearestInterpolator(AnchoredInterpolator):
     """Value of the nearest anchor (Euclidean distance in x); defined everywhere, flagged outside the hull."""
@@ -71,6 +95,10 @@ class NearestInterpolator(AnchoredInterpolator):
 
     def _predict(self, x: np.ndarray) -> np.ndarray:
         return self._nearest_values(x)
+
+    def casadi_predict(self, u: Any) -> Any:
+        """The nearest anchor's values as casadi (piecewise constant: zero derivative)."""
+        return self._nearest_casadi(u)
 
 
 class _TriangulatedInterpolator(AnchoredInterpolator):
@@ -103,6 +131,28 @@ class LinearInterpolator(_TriangulatedInterpolator):
         from scipy.interpolate import LinearNDInterpolator
 
         self._interp = LinearNDInterpolator(self._hull().tri, self._values)
+
+    def casadi_predict(self, u: Any) -> Any:
+        """Barycentric interpolation in the simplex containing u, else the nearest anchor's values, as casadi."""
+        import casadi as ca
+
+        self._require_fitted()
+        tri = self._hull().tri
+        eps = 100 * np.finfo(float).eps  # scipy's find_simplex tolerance on the barycentric coordinates
+        d = self.n_inputs
+        out = self._nearest_casadi(u)
+        for s in reversed(range(tri.nsimplex)):
+            T = tri.transform[s]
+            if not np.all(np.isfinite(T)):
+                continue  # a degenerate simplex scipy never locates a point in
+            c = ca.mtimes(ca.DM(T[:d]), u - ca.DM(T[d]))
+            bary = ca.vertcat(c, 1 - ca.sum1(c))
+            inside = bary[0] >= -eps
+            for j in range(1, d + 1):
+                inside = ca.logic_and(inside, bary[j] >= -eps)
+            value = ca.mtimes(ca.DM(self._values[tri.simplices[s]].T), bary)  # type: ignore[index]
+            out = ca.if_else(inside, value, out)
+        return out
 
 
 class CubicInterpolator(_TriangulatedInterpolator):
