@@ -37,12 +37,21 @@ class FourierStub:
     def predict(self, x: np.ndarray) -> np.ndarray:
         return self.basis(np.asarray(x, dtype=float)) @ self.C
 
+    def casadi_predict(self, u):
+        """The declared casadi form (``Interpolator.casadi_predict``): the same basis on casadi symbols."""
+        a, b = u[0], u[1]
+        cols = [1.0]
+        for k in (1, 2, 3):
+            cols += [ca.sin(k * a), ca.cos(k * a), ca.sin(k * b), ca.cos(k * b)]
+        return ca.mtimes(ca.DM(self.C.T), ca.vertcat(*cols))
+
     def out_of_range(self, x: np.ndarray) -> np.ndarray:
         return np.zeros(len(x), dtype=bool)
 
 
 class OpaqueStub(FourierStub):
-    """An interpolator casadi cannot see through (no basis): forces the frozen-parameter fallback."""
+    """An interpolator casadi cannot see through (no basis, a casadi_predict that declines like the base class's):
+    forces the frozen-parameter fallback."""
 
     kind = "opaque-stub"
     basis_ = FourierStub.basis
@@ -54,6 +63,9 @@ class OpaqueStub(FourierStub):
 
     def predict(self, x: np.ndarray) -> np.ndarray:
         return FourierStub.basis(self, np.asarray(x, dtype=float)) @ self.C
+
+    def casadi_predict(self, u):
+        raise ModelError(f"{self.kind}: no exact casadi form of this interpolator kind")
 
 
 def _eval(cfk, q):
