@@ -17,8 +17,8 @@ Every kind flags queries outside the anchors' convex hull with ``out_of_range``;
 and ae return the nearest anchor's value there (ae: its reconstruction), the others extrapolate.
 
 ``casadi_predict(u)`` (declared on ``Interpolator``) gives the same prediction as a casadi expression of one
-symbolic query, so planners differentiate through it exactly: every kind has one except ``cubic``
-(Clough-Tocher), whose method raises ModelError and whose CDC models plan with frozen parameters.
+symbolic query, so planners differentiate through it exactly; every kind here has one (a kind that does
+not override it raises ModelError, and its CDC models plan with frozen parameters).
 
 Example::
 

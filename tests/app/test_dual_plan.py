@@ -82,7 +82,7 @@ def test_cdc_fourier_model_exact(cell):
     _assert_exact(planner, plan, T_rel)
 
 
-@pytest.mark.parametrize("kind,options", [("nearest", {}), ("linear", {}), ("rbf", {}),
+@pytest.mark.parametrize("kind,options", [("nearest", {}), ("linear", {}), ("cubic", {}), ("rbf", {}),
                                           ("nn", {"hidden": (32, 32), "max_iter": 60}),
                                           ("ae", {"latent": 4, "hidden": (32,), "max_iter": 60})])
 def test_cdc_on_each_exact_interpolator_plans_through_its_own_expression(cell, kind, options):

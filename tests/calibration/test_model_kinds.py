@@ -14,7 +14,7 @@ import pytest
 from calibration import so3
 from calibration.cdc import CdcModel
 from calibration.diagnosis.model import DiagnosedModel
-from calibration.interpolation import make_interpolator
+from calibration.interpolation import Interpolator, LinearInterpolator, make_interpolator
 from calibration.interpolation.fourier import Fourier13Interpolator
 from calibration.models import ConstantModel
 from calibration.parameterisation import MinimalParameterisation
@@ -25,8 +25,8 @@ from calibration.physics_informed import ExtendedKinematics, PhysicsInformedMode
 from cell_config.loader import load_cell
 
 ca = pytest.importorskip("casadi")
-#: cdc on each interpolator kind with an exact casadi form (``cdc`` itself is fbf13); cubic stays frozen.
-CDC_INTERPOLATORS = {"nearest": {}, "linear": {}, "rbf": {}, "fbf7": {}, "nn": {"hidden": (32, 32), "max_iter": 60},
+#: cdc on every other interpolator kind (``cdc`` itself is fbf13): each has an exact casadi form.
+CDC_INTERPOLATORS = {"nearest": {}, "linear": {}, "cubic": {}, "rbf": {}, "fbf7": {}, "nn": {"hidden": (32, 32), "max_iter": 60},
                      "ae": {"latent": 4, "hidden": (32,), "max_iter": 60}}
 KINDS = ("constant", "pi", "cdc", *(f"cdc-{k}" for k in CDC_INTERPOLATORS), "cdc-rbf-bounded", "physics",
          "diagnosed-pi", "diagnosed-cdc", "diagnosed-cdc-nn")
@@ -136,13 +136,19 @@ def test_bounded_cdc_clips_in_both_forms(models):
     assert np.mean((raw < model.bounds[0]) | (raw > model.bounds[1])) > 0.3
 
 
-def test_cdc_on_cubic_keeps_frozen_parameters_and_matches_numpy_at_them(models):
-    """Clough-Tocher has no casadi form: the planner gets ``cdc-frozen`` with the geometric block as input."""
+class _NoCasadiForm(LinearInterpolator):
+    """An interpolator kind that keeps the base class's casadi_predict (declines)."""
+
+    casadi_predict = Interpolator.casadi_predict
+
+
+def test_cdc_on_a_kind_without_casadi_form_keeps_frozen_parameters_and_matches_numpy_at_them(models):
+    """A kind that declines ``casadi_predict``: the planner gets ``cdc-frozen`` with the geometric block as input."""
     from app.dual.casadi_kinematics import casadi_fk
 
     base = models["cdc-linear"]
-    model = CdcModel("R1", "cubic", base.kinematics, base.theta_ref,
-                     make_interpolator("cubic").fit(base.interpolator._anchors, base.interpolator._values))
+    model = CdcModel("R1", "linear", base.kinematics, base.theta_ref,
+                     _NoCasadiForm().fit(base.interpolator._anchors, base.interpolator._values))
     fk = casadi_fk(model)
     assert (fk.kind, fk.n_frozen) == ("cdc-frozen", model.kinematics.par.size) and fk.frozen
     q = _q(5, seed=4)
