@@ -13,7 +13,8 @@
 
 So outside the hull the value is the autoencoder's reconstruction of the nearest anchor's value (equal
 to that value up to the reconstruction error). Only the latent interpolator, the decoder weights and
-the output scaler are stored; ``casadi_predict`` chains the linear kind's casadi form and the decoder's; prediction is a numpy forward pass, bit-identical after a round trip.
+the output scaler are stored; prediction is a numpy forward pass, bit-identical after a round trip.
+``casadi_predict`` chains the linear kind's casadi form of the codes and the decoder's forward pass.
 """
 
 from __future__ import annotations
@@ -93,7 +94,8 @@ class AutoencoderInterpolator(Interpolator):
         """The latent codes' linear casadi form, decoded by the decoder's casadi forward pass (m, 1)."""
         self._require_fitted()
         z = self._latent().casadi_predict(u)
-        return scale_casadi(self._ys, forward_casadi(z, self._w, self._b, relu_in=True), invert=True)  # type: ignore[arg-type]
+        y = forward_casadi(z, self._w, self._b, relu_in=True)
+        return scale_casadi(self._ys, y, invert=True)  # type: ignore[arg-type]
 
     def _state(self) -> dict[str, Any]:
         return {"options": {"latent": self.latent, "hidden": list(self.hidden), "max_iter": self.max_iter,

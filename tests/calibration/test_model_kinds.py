@@ -26,8 +26,8 @@ from cell_config.loader import load_cell
 
 ca = pytest.importorskip("casadi")
 #: cdc on every other interpolator kind (``cdc`` itself is fbf13): each has an exact casadi form.
-CDC_INTERPOLATORS = {"nearest": {}, "linear": {}, "cubic": {}, "rbf": {}, "fbf7": {}, "nn": {"hidden": (32, 32), "max_iter": 60},
-                     "ae": {"latent": 4, "hidden": (32,), "max_iter": 60}}
+CDC_INTERPOLATORS = {"nearest": {}, "linear": {}, "cubic": {}, "rbf": {}, "fbf7": {},
+                     "nn": {"hidden": (32, 32), "max_iter": 60}, "ae": {"latent": 4, "hidden": (32,), "max_iter": 60}}
 KINDS = ("constant", "pi", "cdc", *(f"cdc-{k}" for k in CDC_INTERPOLATORS), "cdc-rbf-bounded", "physics",
          "diagnosed-pi", "diagnosed-cdc", "diagnosed-cdc-nn")
 
