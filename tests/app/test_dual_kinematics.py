@@ -177,3 +177,15 @@ def test_physics_informed_and_cdc_over_it_match_numpy(cell):
     fk = casadi_fk(cdc)
     assert (fk.kind, fk.n_frozen) == ("cdc", 0)
     _check(cdc, fk, seed=9)
+
+
+def test_compile_skips_functions_too_big_for_a_quick_build(tmp_path, monkeypatch):
+    """A function over MAX_COMPILE_INSTRUCTIONS comes back interpreted, without running the compiler at all."""
+    from app.dual import casadi_kinematics as ck
+
+    q = ca.SX.sym("q", 6)
+    F = ca.Function("big", [q], [ca.sum1(ca.sin(q) * ca.cos(q))])
+    monkeypatch.setattr(ck, "MAX_COMPILE_INSTRUCTIONS", F.n_instructions() - 1)
+    monkeypatch.setattr(ck.subprocess, "run", lambda *a, **k: pytest.fail("the compiler ran"))
+    assert ck.compile_function(ca, F, cache_dir=tmp_path) is F
+    assert list(tmp_path.iterdir()) == []
