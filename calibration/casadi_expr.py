@@ -152,26 +152,18 @@ def check_small_rotations(angle_bound_rad: float, what: str) -> None:
 def interpolator_sx(interp: Any, u: Any, m: int, check_seed: int = 0) -> Any | None:
     """The interpolator's prediction as a casadi expression of its inputs u (d,), or None if not expressible.
 
-    Tries ``interp.casadi_predict(u)``, then ``interp.basis(u) @ coefficients`` through numpy object arrays;
-    the result is compared with ``interp.predict`` at 5 random inputs (atol 1e-12) before it is accepted.
+    Calls the kind's declared ``interp.casadi_predict(u)`` (:meth:`Interpolator.casadi_predict`; a ModelError
+    from it means the kind has no exact form); the result is compared with ``interp.predict`` at 5 random
+    inputs (atol 1e-12) before it is accepted.
     """
     import casadi as ca
 
     d = u.shape[0]
-    expr = None
     try:
-        if hasattr(interp, "casadi_predict"):
-            expr = ca.reshape(interp.casadi_predict(u), m, 1)
-        elif hasattr(interp, "basis") and hasattr(interp, "coefficients"):
-            C = interp.coefficients() if callable(interp.coefficients) else interp.coefficients
-            uo = np.array([[u[i] for i in range(d)]], dtype=object)
-            B = np.asarray(interp.basis(uo), dtype=object) @ np.asarray(C, dtype=float)
-            expr = ca.vertcat(*[ca.SX(B[0, i]) for i in range(m)])
-    except Exception as e:  # any failure means "not expressible": the caller falls back to frozen parameters
+        expr = ca.reshape(interp.casadi_predict(u), m, 1)
+    except ModelError as e:  # the kind declares it has no casadi form: the caller freezes the parameters
         log.info("interpolator %s is not casadi-expressible (%s); using frozen parameters",
                  getattr(interp, "kind", type(interp).__name__), e)
-        return None
-    if expr is None:
         return None
     f = ca.Function("interp", [u], [expr])
     xs = np.random.default_rng(check_seed).uniform(-1.0, 1.0, (5, d))

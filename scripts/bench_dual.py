@@ -32,6 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from app.dual.paths import Q_REF_DEG, relative_pose, sweep_path  # noqa: E402
 from app.dual.planner import DualPlanner, PlannerOptions  # noqa: E402
 from calibration.cdc import CdcModel, geometric_cdc  # noqa: E402
+from calibration.errors import ModelError  # noqa: E402
 from calibration.parameterisation import MinimalParameterisation  # noqa: E402
 from cell_config.loader import load_cell  # noqa: E402
 
@@ -57,6 +58,16 @@ class SyntheticFbf13:
     def predict(self, x: np.ndarray) -> np.ndarray:
         return self.basis(np.asarray(x, dtype=float)) @ self.coefficients
 
+    def casadi_predict(self, u: object) -> object:
+        """The declared casadi form (``Interpolator.casadi_predict``): the same basis on casadi symbols."""
+        import casadi as ca
+
+        a, b = u[0], u[1]  # type: ignore[index]
+        cols = [1.0]
+        for k in (1, 2, 3):
+            cols += [ca.sin(k * a), ca.cos(k * a), ca.sin(k * b), ca.cos(k * b)]
+        return ca.mtimes(ca.DM(self.coefficients.T), ca.vertcat(*cols))
+
     def out_of_range(self, x: np.ndarray) -> np.ndarray:
         return np.zeros(len(x), dtype=bool)
 
@@ -68,6 +79,10 @@ class PredictOnly:
 
     def __init__(self, inner: SyntheticFbf13) -> None:
         self.predict, self.out_of_range = inner.predict, inner.out_of_range
+
+    def casadi_predict(self, u: object) -> object:
+        """Declines like ``Interpolator.casadi_predict`` of a kind without a casadi form."""
+        raise ModelError(f"{self.kind}: no exact casadi form (seen through predict only)")
 
 
 def fitted_fbf13(cell: object) -> dict[str, object]:

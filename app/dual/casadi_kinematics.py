@@ -86,12 +86,28 @@ def casadi_fk(model: Any, dq: Any = None) -> CasadiFk:
     return CasadiFk(f, int(x.numel()), e.frozen_at, e.kind + ("" if dq is None else "+dq"))
 
 
+#: Largest casadi function (SX instructions) :func:`compile_function` hands to gcc. CDC models on piecewise
+#: interpolators (linear, cubic: an if_else chain over every simplex) or big networks write functions of
+#: 1e5-1e6 instructions whose -O1 build takes minutes (measured: 56k ~10 s, 371k > 60 s on the 2-core box);
+#: interpreted they still evaluate in about a millisecond.
+MAX_COMPILE_INSTRUCTIONS = 100_000
+
+
 def compile_function(ca: Any, F: Any, cache_dir: str | Path | None = None) -> Any:
-    """F compiled to a shared library with gcc, cached by the hash of its C source; F itself on failure.
+    """F compiled to a shared library with gcc, cached by the hash of its C source; F itself on failure, or
+    when F has more than :data:`MAX_COMPILE_INSTRUCTIONS` instructions (the build would take minutes).
 
     The cache lives in ``$CELLCAL_CACHE`` or ``~/.cache/cellcal`` so only the first build of a given model pays
     the compile time (seconds); later builds load the library in milliseconds.
     """
+    try:
+        size = int(F.n_instructions())
+    except (AttributeError, RuntimeError, NotImplementedError):
+        size = 0
+    if size > MAX_COMPILE_INSTRUCTIONS:
+        logger.info("%s has %d instructions (> %d): using the interpreted casadi function rather than a "
+                    "minutes-long C build", F.name(), size, MAX_COMPILE_INSTRUCTIONS)
+        return F
     cc = shutil.which(os.environ.get("CC", "gcc"))
     if cc is None:
         logger.info("no C compiler found; using the interpreted casadi function (slower)")

@@ -16,6 +16,10 @@ parameters. Kinds (``KINDS``):
 Every kind flags queries outside the anchors' convex hull with ``out_of_range``; nearest, linear, cubic
 and ae return the nearest anchor's value there (ae: its reconstruction), the others extrapolate.
 
+``casadi_predict(u)`` (declared on ``Interpolator``) gives the same prediction as a casadi expression of one
+symbolic query, so planners differentiate through it exactly; every kind here has one (a kind that does
+not override it raises ModelError, and its CDC models plan with frozen parameters).
+
 Example::
 
     interp = make_interpolator("rbf", smoothing=0.0).fit(q23_anchors, params)   # (K, 2), (K, 24)

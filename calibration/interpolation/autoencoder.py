@@ -14,6 +14,7 @@
 So outside the hull the value is the autoencoder's reconstruction of the nearest anchor's value (equal
 to that value up to the reconstruction error). Only the latent interpolator, the decoder weights and
 the output scaler are stored; prediction is a numpy forward pass, bit-identical after a round trip.
+``casadi_predict`` chains the linear kind's casadi form of the codes and the decoder's forward pass.
 """
 
 from __future__ import annotations
@@ -24,8 +25,8 @@ import numpy as np
 
 from calibration.errors import ModelError
 from calibration.interpolation.base import Interpolator, field, from_options
-from calibration.interpolation.mlp import (Standardiser, check_training_options, forward, layers_from_dict,
-                                           layers_to_dict, train_mlp)
+from calibration.interpolation.mlp import (Standardiser, check_training_options, forward, forward_casadi,
+                                           layers_from_dict, layers_to_dict, scale_casadi, train_mlp)
 from calibration.interpolation.scattered import LinearInterpolator
 
 
@@ -88,6 +89,13 @@ class AutoencoderInterpolator(Interpolator):
     def _predict(self, x: np.ndarray) -> np.ndarray:
         z = self._latent().predict(x)
         return self._ys.invert(forward(z, self._w, self._b, relu_in=True))  # type: ignore[union-attr]
+
+    def casadi_predict(self, u: Any) -> Any:
+        """The latent codes' linear casadi form, decoded by the decoder's casadi forward pass (m, 1)."""
+        self._require_fitted()
+        z = self._latent().casadi_predict(u)
+        y = forward_casadi(z, self._w, self._b, relu_in=True)
+        return scale_casadi(self._ys, y, invert=True)  # type: ignore[arg-type]
 
     def _state(self) -> dict[str, Any]:
         return {"options": {"latent": self.latent, "hidden": list(self.hidden), "max_iter": self.max_iter,

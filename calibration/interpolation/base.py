@@ -91,6 +91,21 @@ class Interpolator(abc.ABC):
         x = self._check_query(x)
         return self._predict(x)
 
+    def casadi_predict(self, u: Any) -> Any:
+        """The prediction as a casadi expression of one symbolic query, equal to ``predict`` at numeric u.
+
+        Args:
+            u: casadi SX column (d,) (e.g. symbolic (q2, q3) [rad]).
+
+        Returns:
+            casadi column (m, 1).
+
+        Raises:
+            ModelError: this kind has no exact casadi form (the default; callers then freeze the values).
+        """
+        raise ModelError(f"{self.kind}: no exact casadi form of this interpolator kind "
+                         "(its values must be frozen at an iterate)")
+
     @abc.abstractmethod
     def out_of_range(self, x: np.ndarray) -> np.ndarray:
         """Whether each query lies outside the anchors' support.

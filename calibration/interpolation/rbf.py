@@ -5,6 +5,11 @@ that for a smoother surface (useful when the per-anchor parameters are noisy). T
 smoothly outside the anchors' convex hull, where ``out_of_range`` flags the queries but the values are
 the RBF's own (no nearest-anchor fallback).
 
+``casadi_predict`` writes scipy's evaluation out in casadi from the fitted object's own arrays: the kernel
+of ``|epsilon (x - y_k)|`` over the anchors y_k plus the monomial tail of ``(x - shift) / scale`` (scipy's
+``_shift``, ``_scale``, ``powers``, ``_coeffs``). Kernels are written on the squared distance, with the
+kernel's value at distance 0 taken explicitly where the closed form has a 0 * log 0 or sqrt'(0).
+
 Serialisation stores the anchors, values and options; loading refits (a deterministic (K + p)-square
 linear solve), so prediction after a round trip is bit-identical on the same machine and BLAS.
 """
@@ -70,7 +75,52 @@ class RbfInterpolator(AnchoredInterpolator):
         except (ValueError, np.linalg.LinAlgError) as e:
             raise ModelError(f"{self.kind}: scipy RBFInterpolator failed: {e}") from e
 
+    def casadi_predict(self, u: Any) -> Any:
+        """scipy's RBF evaluation (kernel sum plus polynomial tail) as a casadi column (m, 1)."""
+        import casadi as ca
+
+        self._require_fitted()
+        rbf = self._rbf
+        y, eps = np.asarray(rbf.y, dtype=float), float(rbf.epsilon)
+        coeffs = np.asarray(rbf._coeffs, dtype=float)
+        shift, scale = np.asarray(rbf._shift, dtype=float), np.asarray(rbf._scale, dtype=float)
+        powers = np.asarray(rbf.powers, dtype=int)
+        ue = u * eps
+        terms = [_kernel_sx(rbf.kernel, ca.sumsqr(ue - ca.DM(yk * eps))) for yk in y]
+        xhat = (u - ca.DM(shift)) / ca.DM(scale)
+        for pw in powers:
+            mono = ca.SX(1.0)
+            for i, e in enumerate(pw):
+                if e:
+                    mono = mono * xhat[i] ** int(e)
+            terms.append(mono)
+        return ca.mtimes(ca.DM(coeffs.T), ca.vertcat(*terms))
+
     def _predict(self, x: np.ndarray) -> np.ndarray:
         if x.shape[0] == 0:
             return np.zeros((0, self.n_outputs))
         return self._rbf(x)
+
+
+def _kernel_sx(kernel: str, r2: Any) -> Any:
+    """scipy's kernel ``phi(r)`` as casadi, of the squared scaled distance r2 = r^2."""
+    import casadi as ca
+
+    pos = r2 > 0
+    if kernel == "thin_plate_spline":
+        return ca.if_else(pos, 0.5 * r2 * ca.log(ca.if_else(pos, r2, 1.0)), 0.0)
+    if kernel == "linear":
+        return ca.if_else(pos, -ca.sqrt(ca.if_else(pos, r2, 1.0)), 0.0)
+    if kernel == "cubic":
+        return ca.if_else(pos, r2 * ca.sqrt(ca.if_else(pos, r2, 1.0)), 0.0)
+    if kernel == "quintic":
+        return ca.if_else(pos, -r2 * r2 * ca.sqrt(ca.if_else(pos, r2, 1.0)), 0.0)
+    if kernel == "multiquadric":
+        return -ca.sqrt(r2 + 1.0)
+    if kernel == "inverse_multiquadric":
+        return 1.0 / ca.sqrt(r2 + 1.0)
+    if kernel == "inverse_quadratic":
+        return 1.0 / (r2 + 1.0)
+    if kernel == "gaussian":
+        return ca.exp(-r2)
+    raise ModelError(f"rbf: no casadi form of kernel {kernel!r}")

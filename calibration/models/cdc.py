@@ -1,9 +1,10 @@
 """The ``cdc`` model kind: the ``pi`` layout with its geometric block interpolated over (q2, q3).
 
 Its blocks are the terms every configuration shares (tool rotation, compliance, deflection); the geometric
-block is the interpolator's. Its casadi expression writes the interpolator out in casadi when it can
-(:func:`calibration.casadi_expr.interpolator_sx`), so derivatives include the parameters' dependence on q;
-otherwise the geometric block is a frozen input (kind ``cdc-frozen``). The fits that build it are in
+block is the interpolator's. Its casadi expression writes the interpolator out in casadi through the kind's
+``casadi_predict`` (:func:`calibration.casadi_expr.interpolator_sx`; every built-in kind has one), clipped
+to ``bounds`` like the numpy path, so derivatives include the parameters' dependence on q; for an
+interpolator without one the geometric block is a frozen input (kind ``cdc-frozen``). The fits that build it are in
 :mod:`calibration.cdc`.
 """
 

@@ -37,12 +37,21 @@ class FourierStub:
     def predict(self, x: np.ndarray) -> np.ndarray:
         return self.basis(np.asarray(x, dtype=float)) @ self.C
 
+    def casadi_predict(self, u):
+        """The declared casadi form (``Interpolator.casadi_predict``): the same basis on casadi symbols."""
+        a, b = u[0], u[1]
+        cols = [1.0]
+        for k in (1, 2, 3):
+            cols += [ca.sin(k * a), ca.cos(k * a), ca.sin(k * b), ca.cos(k * b)]
+        return ca.mtimes(ca.DM(self.C.T), ca.vertcat(*cols))
+
     def out_of_range(self, x: np.ndarray) -> np.ndarray:
         return np.zeros(len(x), dtype=bool)
 
 
 class OpaqueStub(FourierStub):
-    """An interpolator casadi cannot see through (no basis): forces the frozen-parameter fallback."""
+    """An interpolator casadi cannot see through (no basis, a casadi_predict that declines like the base class's):
+    forces the frozen-parameter fallback."""
 
     kind = "opaque-stub"
     basis_ = FourierStub.basis
@@ -54,6 +63,9 @@ class OpaqueStub(FourierStub):
 
     def predict(self, x: np.ndarray) -> np.ndarray:
         return FourierStub.basis(self, np.asarray(x, dtype=float)) @ self.C
+
+    def casadi_predict(self, u):
+        raise ModelError(f"{self.kind}: no exact casadi form of this interpolator kind")
 
 
 def _eval(cfk, q):
@@ -165,3 +177,15 @@ def test_physics_informed_and_cdc_over_it_match_numpy(cell):
     fk = casadi_fk(cdc)
     assert (fk.kind, fk.n_frozen) == ("cdc", 0)
     _check(cdc, fk, seed=9)
+
+
+def test_compile_skips_functions_too_big_for_a_quick_build(tmp_path, monkeypatch):
+    """A function over MAX_COMPILE_INSTRUCTIONS comes back interpreted, without running the compiler at all."""
+    from app.dual import casadi_kinematics as ck
+
+    q = ca.SX.sym("q", 6)
+    F = ca.Function("big", [q], [ca.sum1(ca.sin(q) * ca.cos(q))])
+    monkeypatch.setattr(ck, "MAX_COMPILE_INSTRUCTIONS", F.n_instructions() - 1)
+    monkeypatch.setattr(ck.subprocess, "run", lambda *a, **k: pytest.fail("the compiler ran"))
+    assert ck.compile_function(ca, F, cache_dir=tmp_path) is F
+    assert list(tmp_path.iterdir()) == []

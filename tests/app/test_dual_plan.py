@@ -82,6 +82,25 @@ def test_cdc_fourier_model_exact(cell):
     _assert_exact(planner, plan, T_rel)
 
 
+@pytest.mark.parametrize("kind,options", [("nearest", {}), ("linear", {}), ("cubic", {}), ("rbf", {}),
+                                          ("nn", {"hidden": (32, 32), "max_iter": 60}),
+                                          ("ae", {"latent": 4, "hidden": (32,), "max_iter": 60})])
+def test_cdc_on_each_exact_interpolator_plans_through_its_own_expression(cell, kind, options):
+    """Issue 11: a CDC model on any interpolator with a casadi form is planned exactly (kind cdc, nothing
+    frozen), with anchors spread over (q2, q3) so the sweep crosses simplices / Voronoi cells."""
+    from calibration.interpolation import make_interpolator
+
+    par = MinimalParameterisation(cell.robot("R1").model())
+    rng = np.random.default_rng(7)
+    x = rng.uniform(-1.6, 1.6, (30, 2))
+    y = rng.normal(0.0, 2e-3, (30, par.size))
+    model = CdcModel("R1", kind, *geometric_cdc(par), make_interpolator(kind, **options).fit(x, y))
+    planner = DualPlanner(cell, model_R1=model, options=FAST)
+    assert (planner.fks["R1"].kind, planner.fks["R1"].n_frozen) == ("cdc", 0)
+    plan, T_rel = _plan(planner, 8)
+    _assert_exact(planner, plan, T_rel)
+
+
 def test_cdc_frozen_fallback_reaches_the_true_model(cell):
     par = MinimalParameterisation(cell.robot("R2").model())
     model = CdcModel("R2", "opaque", *geometric_cdc(par), OpaqueStub(par.size, scale=2e-3))

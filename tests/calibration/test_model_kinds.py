@@ -1,6 +1,7 @@
 """Every model kind, one set of properties: Jacobians against finite differences, casadi against numpy.
 
-Parameterised over all kinds (constant, pi, cdc, physics, diagnosed on pi and on cdc), like mink's Lie-group
+Parameterised over all kinds (constant, pi, cdc on every interpolator with a casadi form, physics, diagnosed on
+pi and on cdc), like mink's Lie-group
 axiom tests over every group: a kind that declares its blocks wrongly, or whose casadi expression drifts from
 its numpy pose, fails here.
 """
@@ -13,6 +14,7 @@ import pytest
 from calibration import so3
 from calibration.cdc import CdcModel
 from calibration.diagnosis.model import DiagnosedModel
+from calibration.interpolation import Interpolator, LinearInterpolator, make_interpolator
 from calibration.interpolation.fourier import Fourier13Interpolator
 from calibration.models import ConstantModel
 from calibration.parameterisation import MinimalParameterisation
@@ -23,7 +25,11 @@ from calibration.physics_informed import ExtendedKinematics, PhysicsInformedMode
 from cell_config.loader import load_cell
 
 ca = pytest.importorskip("casadi")
-KINDS = ("constant", "pi", "cdc", "physics", "diagnosed-pi", "diagnosed-cdc")
+#: cdc on every other interpolator kind (``cdc`` itself is fbf13): each has an exact casadi form.
+CDC_INTERPOLATORS = {"nearest": {}, "linear": {}, "cubic": {}, "rbf": {}, "fbf7": {},
+                     "nn": {"hidden": (32, 32), "max_iter": 60}, "ae": {"latent": 4, "hidden": (32,), "max_iter": 60}}
+KINDS = ("constant", "pi", "cdc", *(f"cdc-{k}" for k in CDC_INTERPOLATORS), "cdc-rbf-bounded", "physics",
+         "diagnosed-pi", "diagnosed-cdc", "diagnosed-cdc-nn")
 
 
 def _effects(gravity: GravityModel) -> tuple:
@@ -52,9 +58,15 @@ def models() -> dict:
     cdc = CdcModel("R1", "fbf13", kin, theta, Fourier13Interpolator().fit(x, y))
     physics = PhysicsModel("R1", "diagnose", geometry, _effects(gravity), par.size)
     effects = _effects(gravity)[:3] + (_effects(gravity)[-1],)
-    return {"constant": ConstantModel("R1", "nls1", geometry, par.size), "pi": pi, "cdc": cdc, "physics": physics,
-            "diagnosed-pi": DiagnosedModel("R1", "diagnose", pi, effects),
-            "diagnosed-cdc": DiagnosedModel("R1", "diagnose", cdc, effects)}
+    cdcs = {f"cdc-{k}": CdcModel("R1", k, kin, theta, make_interpolator(k, **o).fit(x, y))
+            for k, o in CDC_INTERPOLATORS.items()}
+    # bounds inside the values' range, so the clipping (np.clip / ca.fmin, ca.fmax) is active for many parameters
+    bounds = np.stack([np.quantile(y, 0.3, axis=0), np.quantile(y, 0.7, axis=0)])
+    cdcs["cdc-rbf-bounded"] = CdcModel("R1", "rbf", kin, theta, make_interpolator("rbf").fit(x, y), bounds=bounds)
+    return {"constant": ConstantModel("R1", "nls1", geometry, par.size), "pi": pi, "cdc": cdc, **cdcs,
+            "physics": physics, "diagnosed-pi": DiagnosedModel("R1", "diagnose", pi, effects),
+            "diagnosed-cdc": DiagnosedModel("R1", "diagnose", cdc, effects),
+            "diagnosed-cdc-nn": DiagnosedModel("R1", "diagnose", cdcs["cdc-nn"], effects)}
 
 
 def _q(n: int, seed: int) -> np.ndarray:
@@ -114,6 +126,36 @@ def test_casadi_expression_matches_numpy_pose(models, kind):
         Rc, pc, _, _ = fk.function(qi, np.zeros(0))
         np.testing.assert_allclose(np.asarray(pc).ravel(), p_np[i], atol=1e-9, rtol=0)
         np.testing.assert_allclose(np.asarray(Rc), R_np[i], atol=1e-12, rtol=0)
+
+
+def test_bounded_cdc_clips_in_both_forms(models):
+    """The bounded model's clipping is active at the test configurations (else the kind above proves nothing)."""
+    model = models["cdc-rbf-bounded"]
+    q = _q(20, seed=4)
+    raw = model.interpolator.predict(q[:, list(model.inputs)])
+    assert np.mean((raw < model.bounds[0]) | (raw > model.bounds[1])) > 0.3
+
+
+class _NoCasadiForm(LinearInterpolator):
+    """An interpolator kind that keeps the base class's casadi_predict (declines)."""
+
+    casadi_predict = Interpolator.casadi_predict
+
+
+def test_cdc_on_a_kind_without_casadi_form_keeps_frozen_parameters_and_matches_numpy_at_them(models):
+    """A kind that declines ``casadi_predict``: the planner gets ``cdc-frozen`` with the geometric block as input."""
+    from app.dual.casadi_kinematics import casadi_fk
+
+    base = models["cdc-linear"]
+    model = CdcModel("R1", "linear", base.kinematics, base.theta_ref,
+                     _NoCasadiForm().fit(base.interpolator._anchors, base.interpolator._values))
+    fk = casadi_fk(model)
+    assert (fk.kind, fk.n_frozen) == ("cdc-frozen", model.kinematics.par.size) and fk.frozen
+    q = _q(5, seed=4)
+    R_np, p_np = model.fk(q)
+    for i, qi in enumerate(q):
+        _, pc, _, _ = fk.function(qi, fk.params_at(qi))
+        np.testing.assert_allclose(np.asarray(pc).ravel(), p_np[i], atol=1e-9, rtol=0)
 
 
 def test_pi_analytic_jacobian_has_77_columns(models):
