@@ -9,17 +9,14 @@ agree on it; no workflow of cellcal reads it (they must find the frames by ``cel
 
 * :func:`hidden_frames`: per robot the mocap-world -> base transform and a small marker offset on the tool.
 * :func:`rehearsal_truths`: per robot the physics twin (planted geometry and gravity compliance).
-* :class:`StateReader`: a MotoROS state-port client that keeps the latest joint feedback per group.
+* :class:`StateReader`: the latest joint angles per group from the controller's state port (the driver's reader).
 * :class:`RehearsalMocap`: marker poses in the mocap world for the current joint angles.
 """
 
 from __future__ import annotations
 
-import logging
 import math
-import socket
 import threading
-import time
 from dataclasses import dataclass
 from typing import Any, Mapping
 
@@ -27,9 +24,8 @@ import numpy as np
 
 from calibration import so3
 from calibration.physics import PlantedErrors
-from drivers.errors import ProtocolError
+from drivers.errors import DriverError
 
-log = logging.getLogger("cellcal.drivers")
 
 
 def rigid(R: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -94,74 +90,38 @@ def rehearsal_truths(cell: Any, seed: int, errors: PlantedErrors = PlantedErrors
 
 
 class StateReader:
-    """Latest joint feedback per motion group, read from a MotoROS state port (50241) in a thread.
+    """Latest joint angles per motion group, read from the controller's MotoROS state port (50241).
 
-    A MotoROS controller serves several state connections, so this reader does not take the motion
-    connection the collector needs. It reconnects, with a capped back-off, when the controller goes away.
+    A thin view of the driver's own :class:`~drivers.motoros.state.StateStream` (the same reader, reconnection and
+    back-off), which does not take the motion connection the collector needs: MotoROS serves several state
+    connections.
 
     Args:
         host: controller address. state_port: its state port.
-        retry_s: delay between connection attempts [s].
     """
 
-    def __init__(self, host: str, state_port: int, retry_s: float = 0.2) -> None:
-        self.host, self.state_port, self.retry_s = host, state_port, retry_s
-        self.device = f"motoros-state@{host}:{state_port}"
-        self._latest: dict[int, tuple[np.ndarray, float]] = {}
-        self._lock = threading.Lock()
+    def __init__(self, host: str, state_port: int) -> None:
+        from drivers.motoros.state import StateStream
+
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="rehearsal-state", daemon=True)
+        self._stream = StateStream(host, state_port, f"motoros-state@{host}:{state_port}", self._stop,
+                                   connect_timeout_s=1.0, backoff_s=0.05, max_backoff_s=0.5, stale_after_s=0.5)
 
     def start(self) -> "StateReader":
-        self._thread.start()
+        self._stream.start()
         return self
 
     def close(self) -> None:
         self._stop.set()
-        self._thread.join(timeout=2.0)
+        self._stream.join()
 
-    def joints(self, group: int, max_age_s: float = 0.5) -> np.ndarray | None:
-        """Joint angles [rad] (6,) of ``group``, or None when none newer than ``max_age_s`` [s] arrived."""
-        with self._lock:
-            got = self._latest.get(group)
-        if got is None or time.monotonic() - got[1] > max_age_s:
+    def joints(self, group: int) -> np.ndarray | None:
+        """Joint angles [rad] (6,) of ``group``, or None while none fresh arrived (controller away or restarting)."""
+        try:
+            feedback, _ = self._stream.feedback(group)
+        except DriverError:
             return None
-        return got[0]
-
-    def _run(self) -> None:
-        from drivers.motoros.codec import JointFeedback, JointFeedbackEx, decode
-        from drivers.motoros.framing import Framer, recv_into_framer
-
-        while not self._stop.is_set():
-            try:
-                sock = socket.create_connection((self.host, self.state_port), timeout=1.0)
-            except OSError:
-                self._stop.wait(self.retry_s)
-                continue
-            sock.settimeout(0.1)
-            framer = Framer(self.device)
-            try:
-                while not self._stop.is_set():
-                    try:
-                        packets = recv_into_framer(sock, framer)
-                    except TimeoutError:
-                        continue
-                    for packet in packets:
-                        try:
-                            msg = decode(packet)
-                        except ProtocolError:
-                            continue
-                        groups = msg.groups if isinstance(msg, JointFeedbackEx) else (
-                            (msg,) if isinstance(msg, JointFeedback) else ())
-                        with self._lock:
-                            for fb in groups:
-                                self._latest[fb.group] = (np.asarray(fb.pos[:6], dtype=float).copy(),
-                                                          time.monotonic())
-            except (ProtocolError, OSError) as e:
-                log.info("%s: %s; reconnecting", self.device, e)
-            finally:
-                sock.close()
-            self._stop.wait(self.retry_s)
+        return np.asarray(feedback.pos[:6], dtype=float).copy()
 
 
 class RehearsalMocap:
