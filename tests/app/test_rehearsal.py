@@ -115,40 +115,38 @@ def collector(cell_path: Path, plan: Path, session: Path, *extra: str) -> Proces
                    "--speed", "1", "--no-progress", *extra)
 
 
-def test_bridge_killed_mid_collection_is_waited_for(tmp_path: Path) -> None:
+def restart_mid_collection(tmp_path: Path, process: str, down_s: float) -> tuple[str, float]:
+    """Kill one device process (SIGKILL) after 3 samples, restart it ``down_s`` later, let the collector finish.
+
+    Returns the collector's output and the recording's largest distance from the truth [mm] (every target once).
+    """
     cell_path = registered_cell(tmp_path)
     truths = rehearsal_truths(load_cell(cell_path), SEED, PlantedErrors(0.0, 0.0, 0.0))
     plan, session = small_plan(cell_path, "R1", tmp_path / "plan.json"), tmp_path / "s"
     with Rehearsal(cell_path, *PURE, seed=SEED) as r:
+        victim = getattr(r, process)
         c = collector(cell_path, plan, session).start(ready=False)
         try:
             wait_for_samples(session, 3)
-            r.bridge.kill()
-            time.sleep(2.0)
-            r.bridge.start()
+            victim.kill()
+            time.sleep(down_s)
+            victim.start()
             assert c.wait(120) == 0, c.output
         finally:
             c.kill()
-    assert "mocap stream silent" in c.output and "mocap stream is back" in c.output
-    assert check_recording(cell_path, session, tmp_path / "r1.csv", 14, "R1", truths) < 0.1
+    return c.output, check_recording(cell_path, session, tmp_path / "r1.csv", 14, "R1", truths)
+
+
+def test_bridge_killed_mid_collection_is_waited_for(tmp_path: Path) -> None:
+    output, worst_mm = restart_mid_collection(tmp_path, "bridge", 2.0)
+    assert "mocap stream silent" in output and "mocap stream is back" in output
+    assert worst_mm < 0.1
 
 
 def test_controller_killed_and_restarted_is_reconnected(tmp_path: Path) -> None:
-    cell_path = registered_cell(tmp_path)
-    truths = rehearsal_truths(load_cell(cell_path), SEED, PlantedErrors(0.0, 0.0, 0.0))
-    plan, session = small_plan(cell_path, "R1", tmp_path / "plan.json"), tmp_path / "s"
-    with Rehearsal(cell_path, *PURE, seed=SEED) as r:
-        c = collector(cell_path, plan, session).start(ready=False)
-        try:
-            wait_for_samples(session, 3)
-            r.controller.kill()
-            time.sleep(0.5)
-            r.controller.start()
-            assert c.wait(120) == 0, c.output
-        finally:
-            c.kill()
-    assert "connection-lost" in c.output  # recorded and printed
-    assert check_recording(cell_path, session, tmp_path / "r1.csv", 14, "R1", truths) < 0.1
+    output, worst_mm = restart_mid_collection(tmp_path, "controller", 0.5)
+    assert "connection-lost" in output  # recorded and printed
+    assert worst_mm < 0.1
 
 
 def test_alarm_during_a_move_stops_both_arms_and_the_session_resumes(tmp_path: Path) -> None:
