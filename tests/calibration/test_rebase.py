@@ -11,43 +11,21 @@ import numpy as np
 import pytest
 
 from calibration import so3
-from calibration.cdc import CdcModel
-from calibration.diagnosis.model import DiagnosedModel
-from calibration.interpolation.fourier import Fourier13Interpolator
-from calibration.models import ConstantModel, load_model, save_model
+from calibration.models import load_model, save_model
 from calibration.models.rebased import RebasedModel, make_T
-from calibration.parameterisation import MinimalParameterisation
-from calibration.physics import GravityModel, JointCompliance, JointOffset, PhysicsModel
-from calibration.physics_informed import ExtendedKinematics, PhysicsInformedModel
 from calibration.rebase import RebaseProblem, rebase
 from calibration.recording import Recording
 from cell_config.loader import load_cell
+from tests.calibration.kinds import T_BASE, T_TOOL, models_of_every_kind
 from tests.conftest import cluster_design
 
 KINDS = ("constant", "pi", "cdc", "physics", "diagnosed", "rebased")
-T_BASE = make_T(so3.exp(np.radians([0.3, -0.2, 0.5])), np.array([2.0, -1.5, 0.8]))
-T_TOOL = make_T(so3.exp(np.radians([-0.4, 0.25, 0.1])), np.array([-0.7, 1.2, 3.0]))
-
-
 @pytest.fixture(scope="module")
 def inner_models() -> dict:
     """A model of every kind, with non-trivial parameters."""
-    spec = load_cell().robot("R1")
-    par = MinimalParameterisation(spec.model(), fit_tool=True)
-    kin = ExtendedKinematics(par)
-    rng = np.random.default_rng(3)
-    theta = rng.normal(size=kin.size) * kin.scale() * 0.5
-    geometry = par.model(rng.normal(size=par.size) * par.scale() * 0.5)
-    gravity = GravityModel.from_spec(spec.robot, geometry)
-    effects = (JointCompliance(gravity, (2, 3), np.array([3e-6, 5e-6])), JointOffset((2, 6), np.array([1e-3, -2e-3])))
-    pi = PhysicsInformedModel("R1", "pi", kin, theta, kin.size)
-    x = rng.uniform(-1.5, 1.5, (40, 2))
-    cdc = CdcModel("R1", "fbf13", kin, theta, Fourier13Interpolator().fit(x, rng.normal(size=(40, par.size))
-                                                                           * par.scale() * 0.3))
-    constant = ConstantModel("R1", "nls1", geometry, par.size)
-    return {"constant": constant, "pi": pi, "cdc": cdc, "physics": PhysicsModel("R1", "diagnose", geometry, effects),
-            "diagnosed": DiagnosedModel("R1", "diagnose", pi, effects),
-            "rebased": RebasedModel("R1", "nls1", constant, T_TOOL, T_BASE, 12)}
+    k = models_of_every_kind()
+    return {"constant": k.constant, "pi": k.pi, "cdc": k.cdc, "physics": k.physics, "diagnosed": k.diagnosed,
+            "rebased": RebasedModel("R1", "nls1", k.constant, T_TOOL, T_BASE, 12)}
 
 
 @pytest.fixture(scope="module")

@@ -10,18 +10,17 @@ import numpy as np
 import pytest
 
 from calibration import so3
-from calibration.cdc import CdcModel
 from calibration.diagnosis.model import DiagnosedModel
 from calibration.errors import ModelError
-from calibration.interpolation.fourier import Fourier13Interpolator
 from calibration.models import ConstantModel
 from calibration.models.base import KinematicModel
-from calibration.models.rebased import RebasedModel, make_T, wrap_pose
+from calibration.models.rebased import RebasedModel, wrap_pose
 from calibration.parameterisation import MinimalParameterisation
-from calibration.physics import GravityModel, JointCompliance, JointOffset, PhysicsModel
-from calibration.physics_informed import ExtendedKinematics, PhysicsInformedModel
+from calibration.physics import PhysicsModel
+from calibration.physics_informed import PhysicsInformedModel
 from calibration.urdf import JointLimits, R_from_rpy, rpy_from_R, urdf_text, write_urdf
 from cell_config import load_cell
+from tests.calibration.kinds import T_BASE, T_TOOL, models_of_every_kind
 from tests.conftest import planted_parameters
 
 pin = pytest.importorskip("pinocchio")
@@ -92,21 +91,9 @@ def test_urdf_fk_matches_constant_model(robot, case, tmp_path):
 @pytest.fixture(scope="module")
 def kinds() -> dict:
     """A model of every kind with non-trivial parameters, and the constant pose its URDF must reproduce."""
-    spec = load_cell().robot("R1")
-    par = MinimalParameterisation(spec.model(), fit_tool=True)
-    kin = ExtendedKinematics(par)
-    rng = np.random.default_rng(3)
-    theta = rng.normal(size=kin.size) * kin.scale() * 0.5
-    geometry = par.model(rng.normal(size=par.size) * par.scale() * 0.5)
-    gravity = GravityModel.from_spec(spec.robot, geometry)
-    effects = (JointCompliance(gravity, (2, 3), np.array([3e-6, 5e-6])), JointOffset((2, 6), np.array([1e-3, -2e-3])))
-    pi = PhysicsInformedModel("R1", "pi", kin, theta, kin.size)
-    x = rng.uniform(-1.5, 1.5, (40, 2))
-    cdc = CdcModel("R1", "fbf13", kin, theta, Fourier13Interpolator().fit(x, rng.normal(size=(40, par.size))
-                                                                           * par.scale() * 0.3))
-    constant = ConstantModel("R1", "nls1", geometry, par.size)
-    T_base = make_T(so3.exp(np.radians([0.3, -0.2, 0.5])), np.array([2.0, -1.5, 0.8]))
-    T_tool = make_T(so3.exp(np.radians([-0.4, 0.25, 0.1])), np.array([-0.7, 1.2, 3.0]))
+    k = models_of_every_kind()
+    par, kin, theta, geometry, effects, pi, cdc = k.par, k.kin, k.theta, k.geometry, k.effects, k.pi, k.cdc
+    constant, T_base, T_tool = k.constant, T_BASE, T_TOOL
     geometric = theta.copy()  # theta with the compliance and the deflection at zero
     geometric[par.size + 3:] = 0.0
 
