@@ -28,6 +28,8 @@ class Comparison:
     test_errors: dict[str, Errors] = field(default_factory=dict)
     skipped: dict[str, str] = field(default_factory=dict)
     analysis: dict[str, Any] = field(default_factory=dict)
+    # The method to use, chosen without the test recording (see issue 10); None until a selection has been made.
+    recommended: str | None = None
 
     def add(self, name: str, model: KinematicModel, seconds: float | None, train: Recording, test: Recording) -> None:
         """A row: the model, its fit time (None: unknown) and its errors on the training and test data."""
@@ -42,7 +44,8 @@ class Comparison:
         for m, model in self.models.items():
             methods[m] = {"fit_seconds": self.fit_seconds[m], "n_parameters": model.n_parameters,
                           "train": error_stats(self.train_errors[m]), "test": error_stats(self.test_errors[m])}
-        return {"robot": self.robot, "methods": methods, "skipped": self.skipped, "analysis": self.analysis}
+        return {"robot": self.robot, "methods": methods, "recommended": self.recommended,
+                "skipped": self.skipped, "analysis": self.analysis}
 
 
 def parse_methods(text: str) -> list[str]:
