@@ -65,7 +65,10 @@ def run_diagnose(robot: str, data: str | Path, heldout: str | Path | None = None
         gravity = None
     result = diagnose(robot, nominal, rec, ho, used, gravity, limits, options)
     if model_out is not None:
-        save_model(result.model, model_out)
+        from app.provenance import provenance, with_provenance
+
+        inputs = [("data", data), ("heldout", heldout), ("model", model)]
+        save_model(with_provenance(result.model, provenance(inputs)), model_out)
     if json_path is not None:
         atomic_write_text(Path(json_path), json.dumps(result.to_json(), indent=1))
     if report_dir is not None:

@@ -151,6 +151,7 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     from app.cell.collect import export
     from app.demo.run import collect_arm
     from app.analysis.recalibrate import check_model_dir, decide_and_install, model_in_service
+    from app.provenance import provenance, with_provenance
     from app.cell.session_plan import validation_plan
     from calibration.recording import read_recording
 
@@ -194,6 +195,8 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     export(work / "validation", work / "validation.csv")
     fitter = fitter_for(robot, read(work / "train.csv"), cpa)
     model, _ = fitter.fit(args.method)
+    model = with_provenance(model, provenance([("train", work / "train.csv"), ("cpa", work / "cpa.csv" if cpa else None),
+                                               ("validation", work / "validation.csv")]))
     decision = decide_and_install(model_dir, model, read(work / "validation.csv"), robot.model())
     print(decision.summary())
     print(f"model in service: {decision.current_path}" + (f"; previous one archived as {decision.archived}"

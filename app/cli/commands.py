@@ -24,11 +24,13 @@ log = logging.getLogger("cellcal.app")
 def cmd_fit(args: argparse.Namespace) -> int:
     from calibration.models import save_model
 
+    from app.provenance import provenance, with_provenance
+
     fitter, _ = fitter_from_args(args)
     model, seconds = fitter.fit(args.method)
     if model.info.get("warning"):
         print(f"warning: {model.info['warning']}", file=sys.stderr)
-    save_model(model, args.out)
+    save_model(with_provenance(model, provenance([("train", args.train), ("cpa", args.cpa)])), args.out)
     print(f"{args.method}: {model.n_parameters} parameters fitted on {len(fitter.train)} samples in {seconds:.3f} s "
           f"-> {args.out}")
     return 0
@@ -94,7 +96,9 @@ def cmd_rebase(args: argparse.Namespace) -> int:
     if not result.converged:
         raise CellCalError(f"rebase of {args.model} on {args.data} did not converge ({result.reason.value}); "
                            "nothing written")
-    save_model(rebased, args.out)
+    from app.provenance import provenance, with_provenance
+
+    save_model(with_provenance(rebased, provenance([("model", args.model), ("data", args.data)])), args.out)
     print(result.summary())
     print(f"rebased {model.method} model -> {args.out}")
     write_json(args.json, {"robot": robot.name, "model": str(args.model), "data": str(args.data),
@@ -250,14 +254,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def version() -> str:
-    """The installed package's version (the source tree's pyproject when run uninstalled)."""
-    from importlib.metadata import PackageNotFoundError
-    from importlib.metadata import version as package_version
+    """The installed package's version (one definition: :func:`app.provenance.version`)."""
+    from app.provenance import version as cellcal_version
 
-    try:
-        return package_version("cellcal")
-    except PackageNotFoundError:
-        return "unknown (not installed)"
+    return cellcal_version()
 
 
 def main(argv: list[str] | None = None) -> int:
