@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from app.analysis.fitting import fitter_for
-from app.cli.common import cell_spec, log, write_json
+from app.cli.common import add_report_options, cell_spec, command_line, log, tolerance_from_args, write_json
 from calibration.errors import CellCalError
 
 
@@ -157,6 +157,7 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
 
     cell = cell_spec(args)
     robot = cell.robot(args.robot)
+    tolerance = tolerance_from_args(args)
     runtime = open_runtime(cell, args, robots=(args.robot,))  # a real cell's devices and registration: checked now
     model_dir = check_model_dir(args.model_dir)
     if args.validation < 1:
@@ -195,13 +196,28 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     export(work / "validation", work / "validation.csv")
     fitter = fitter_for(robot, read(work / "train.csv"), cpa)
     model, _ = fitter.fit(args.method)
-    model = with_provenance(model, provenance([("train", work / "train.csv"), ("cpa", work / "cpa.csv" if cpa else None),
-                                               ("validation", work / "validation.csv")]))
-    decision = decide_and_install(model_dir, model, read(work / "validation.csv"), robot.model())
+    inputs = [("train", work / "train.csv"), ("cpa", work / "cpa.csv" if cpa else None),
+              ("validation", work / "validation.csv")]
+    model = with_provenance(model, provenance(inputs))
+    validation = read(work / "validation.csv")
+    in_service = service.model
+    report_inputs = inputs + ([("model in service", model_dir / "current.yaml")] if in_service is not None else [])
+    report_record = provenance(report_inputs)  # before the decision moves the model in service to previous/
+    decision = decide_and_install(model_dir, model, validation, robot.model())
     print(decision.summary())
     print(f"model in service: {decision.current_path}" + (f"; previous one archived as {decision.archived}"
                                                            if decision.archived else ""))
     write_json(args.json, decision.to_json())
+    if args.report:
+        from app.analysis.report import Page, evaluation_section, write_html
+
+        models = {f"candidate {model.method}": model}
+        if in_service is not None:
+            models[f"in service {in_service.method}"] = in_service
+        section = evaluation_section(f"Recalibration of {args.robot}", models, validation, args.report, tolerance,
+                                     "the fresh validation poses", [decision.summary()])
+        page = write_html(Page(section.title, command_line(args), tolerance, report_record, [section]), args.report)
+        print(f"report: {page}")
     return 0
 
 
@@ -209,7 +225,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from app.demo.run import DemoConfig, run_demo, summary_table
 
     result = run_demo(args.out, cell_spec(args), DemoConfig(full=args.full, seed=args.seed,
-                                                        progress=not args.no_progress))
+                                                        progress=not args.no_progress,
+                                                        tolerance=tolerance_from_args(args),
+                                                        report_dir=Path(args.report) if args.report else None))
     print(summary_table(result.summary))
     print(f"demo finished in {result.seconds:.1f} s; {result.summary['mocap_frames_received']} mocap frames "
           f"received over zenoh")
@@ -255,6 +273,7 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--validation", type=int, default=30, help="fresh validation poses to measure")
     p.add_argument("--validation-seed", type=int, help="seed of the validation poses (default: from the clock)")
     p.add_argument("--json", help="write the decision with both figures as JSON")
+    add_report_options(p, "candidate and model in service on the validation poses")
     add_motion_options(p)
     p = add("demo", cmd_demo, "the main job on the simulated cell: collect both arms over zenoh, fit, evaluate, "
                               "report")
@@ -262,3 +281,4 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--full", action="store_true", help="the paper's 248-anchor design (5 deg steps; ~4x longer)")
     p.add_argument("--seed", type=int, default=0, help="seed of the planted errors, the noise and the validation poses")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    add_report_options(p, "per arm: every method's errors, tables and plots (default DIR: --out)")

@@ -11,8 +11,8 @@ import sys
 from typing import Any, Callable
 
 from app.cli.cell import add_cell_parsers
-from app.cli.common import (cell_spec, check_output_args, fitter_from_args, load_model_for, read_recording_arg,
-                             write_json)
+from app.cli.common import (add_report_options, cell_spec, check_output_args, command_line, fitter_from_args,
+                             load_model_for, read_recording_arg, tolerance_from_args, write_json)
 from app.cli.dual import add_dual_parsers
 from app.cli.real import add_real_parsers
 from app.jobs.cli import add_job_parsers
@@ -74,6 +74,7 @@ def _model_arg(args: argparse.Namespace) -> tuple[Any, Any]:
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from calibration.metrics import error_stats, errors
 
+    tolerance = tolerance_from_args(args)
     model, robot = _model_arg(args)
     test = read_recording_arg(args.test, robot)
     result = {"robot": model.robot, "method": model.method, "samples": len(test),
@@ -82,6 +83,13 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     print(f"{model.method} on {len(test)} samples: position mean {pos['mean']:.3f} std {pos['std']:.3f} "
           f"max {pos['max']:.3f} mm; orientation mean {ori['mean']:.3f} max {ori['max']:.3f} deg")
     write_json(args.json, result)
+    if args.report:
+        from app.analysis.report import write_evaluation_report
+
+        page = write_evaluation_report(f"Evaluation of {args.model} on {args.test}", command_line(args),
+                                       {model.method: model}, test, args.report, tolerance,
+                                       [("model", args.model), ("test", args.test)], "the test recording")
+        print(f"report: {page}")
     return 0
 
 
@@ -139,6 +147,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     methods = parse_methods(args.methods)
+    tolerance = tolerance_from_args(args)
     robot = cell_spec(args).robot(args.robot)
     files = {f"{Path(f).stem} (file)": load_model_for(f, robot) for f in args.model}
     fitter, robot = fitter_from_args(args)
@@ -150,7 +159,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     print(comparison_table(cmp, with_paper=args.robot == "R1"))
     write_json(args.json, cmp.to_json())
     if args.report:
-        files = write_report(cmp, test, args.report, with_paper=args.robot == "R1")
+        inputs = [("train", args.train), ("cpa", args.cpa), ("test", args.test)] + [("model", f) for f in args.model]
+        files = write_report(cmp, test, args.report, args.robot == "R1", tolerance, inputs, command_line(args))
         print(f"report: {files[-1]}")
     return 0
 
@@ -165,7 +175,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
     result = run_diagnose(args.robot, args.train, heldout=args.test, model=args.model, json_path=args.json,
                           report_dir=args.report, model_out=args.out, cell=args.cell,
-                          options=DiagnoseOptions(compliance_form=args.compliance_form))
+                          options=DiagnoseOptions(compliance_form=args.compliance_form),
+                          tolerance=tolerance_from_args(args))
     print(result.verdict)
     return 0
 
@@ -207,6 +218,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "are checked against the limits of the model's robot either way)")
     p.add_argument("--test", required=True)
     p.add_argument("--json", help="write the statistics as JSON")
+    add_report_options(p, "the model's errors and plots")
     p = add("rebase", cmd_rebase, "move a fitted model of any kind onto a new day: refit only its base and tool-marker "
                                   "frames on a few poses")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
@@ -231,7 +243,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", action="append", default=[], metavar="FILE",
                    help="a saved model (a diagnose result, ...) to add as a row of its own; repeatable")
     p.add_argument("--json", help="write the comparison as JSON")
-    p.add_argument("--report", help="write Markdown tables and PNG plots into this folder")
+    add_report_options(p, "every method's errors, tables and plots; also report.md and the PNGs")
     p = add("diagnose", cmd_diagnose, "find the physics the model in use left out, model it, show the fit improve")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
     p.add_argument("--train", "--data", dest="train", required=True,
@@ -241,7 +253,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "the old name)")
     p.add_argument("--model", help="model in use (default: the geometric NLS fit of --train)")
     p.add_argument("--json", help="write the report (schema cellcal.diagnose/1)")
-    p.add_argument("--report", help="write the report as Markdown with plots into this folder")
+    add_report_options(p, "the verdict, held-out accuracy before/after and plots; also report.md and the PNGs")
     p.add_argument("--out", help="save the refitted geometry + physics model")
     p.add_argument("--compliance-form", choices=("auto", "masses", "mass_free"), default="auto",
                    help="joint compliance from the robot YAML's link masses, or in the mass-free gravity form "
@@ -264,6 +276,7 @@ def main(argv: list[str] | None = None) -> int:
     """Run one subcommand: 0 on success, 2 on bad input or a refused action, 130 on Ctrl-C."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.argv = list(argv) if argv is not None else sys.argv[1:]
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
     try:
         check_output_args(args)

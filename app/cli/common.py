@@ -72,3 +72,40 @@ def write_json(path: str | None, data: dict[str, Any]) -> None:
         from calibration.files import atomic_write_text
 
         atomic_write_text(path, json.dumps(data, indent=1))
+
+
+def add_report_options(p: argparse.ArgumentParser, what: str) -> None:
+    """``--report DIR`` and the acceptance tolerance of its ``report.html`` (issue 12)."""
+    p.add_argument("--report", metavar="DIR", help=f"write report.html (self-contained: {what}, pass/fail against "
+                                                   "the tolerance, ISO 9283 where poses repeat, input hashes) here")
+    p.add_argument("--tolerance-mm", type=float, default=1.0,
+                   help="acceptance: largest position error allowed on the evaluation poses [mm] (cold spray: 1)")
+    p.add_argument("--tolerance-deg", type=float, default=1.0,
+                   help="acceptance: largest orientation error allowed on the evaluation poses [deg] (cold spray: 1)")
+
+
+def tolerance_from_args(args: argparse.Namespace) -> Any:
+    """The report's :class:`~app.analysis.report.Tolerance` from ``--tolerance-mm``/``--tolerance-deg``, with
+    ``--report`` checked to be a folder or a new path (call before any work, so bad input writes nothing).
+
+    Raises:
+        CellCalError: a tolerance that is not a positive finite number; ConfigError: ``--report`` is a file.
+    """
+    from pathlib import Path
+
+    from app.analysis.report import Tolerance
+    from calibration.errors import ConfigError
+
+    report = getattr(args, "report", None)
+    if report is not None and (report == "" or (Path(report).exists() and not Path(report).is_dir())):
+        raise ConfigError(Path(report), "", "--report must be a folder (report.html is written into it)")
+    return Tolerance(args.tolerance_mm, args.tolerance_deg)
+
+
+def command_line(args: argparse.Namespace) -> str:
+    """The command as run, for the report (``cellcal`` and the arguments given)."""
+    import shlex
+    import sys
+
+    argv = getattr(args, "argv", None)
+    return "cellcal " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))

@@ -61,6 +61,8 @@ class DemoConfig:
         sim: the simulated cell (its seed is replaced by ``seed``).
         collect: collection settings.
         progress: show progress bars.
+        tolerance: the acceptance :class:`~app.analysis.report.Tolerance` (None: 1 mm and 1 deg).
+        report_dir: where ``report.html`` goes (None: the output folder).
     """
 
     full: bool = False
@@ -71,6 +73,8 @@ class DemoConfig:
     sim: SimCellOptions = field(default_factory=SimCellOptions)
     collect: CollectConfig = DEMO_COLLECT
     progress: bool = True
+    tolerance: Any = None
+    report_dir: Path | None = None
 
     def chosen_methods(self) -> tuple[tuple[str, ...], dict[str, str]]:
         """(methods to fit, method -> reason for each one left out)."""
@@ -200,7 +204,7 @@ def run_demo(out_dir: str | Path, cell: CellSpec, config: DemoConfig = DemoConfi
         UnsafeTarget: a planned target is unsafe (nothing moves).
         SessionAborted: a collection session failed repeatedly.
     """
-    from app.demo.report import write_html
+    from app.analysis.report import write_demo_report
 
     t0 = time.monotonic()
     out = Path(out_dir)
@@ -239,7 +243,9 @@ def run_demo(out_dir: str | Path, cell: CellSpec, config: DemoConfig = DemoConfi
                "planted": {"origin_std_mm": sim_config.errors.offset_std_mm,
                            "tilt_std_deg": math.degrees(sim_config.errors.tilt_std_rad),
                            "compliance_rms_mm": sim_config.errors.compliance_mm, "mocap_noise_mm": sim_config.noise_pos_mm}}
-    report = write_html(out, comparisons, tests, summary)
+    inputs = [(f"{robot} {kind}", path) for robot in config.robots for kind in ("train", "cpa", "test")
+              if (path := out / robot / f"{kind}.csv").exists()]
+    report = write_demo_report(out, comparisons, tests, summary, config.tolerance, config.report_dir, inputs)
     seconds = time.monotonic() - t0
     summary["seconds"] = round(seconds, 3)
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=1))

@@ -5,9 +5,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import signal
-import shutil
-import subprocess
 
 import numpy as np
 import pytest
@@ -17,8 +14,7 @@ pytest.importorskip("meshcat")
 from app.dual.preview import plan_frames, preview  # noqa: E402
 from calibration.errors import DataError, ModelError  # noqa: E402
 from cell_config.loader import load_cell  # noqa: E402
-
-BROWSERS = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
+from tests.app.browser import browser_or_skip, run_headless  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -90,39 +86,13 @@ def test_static_page_is_self_contained(cell, tmp_path):
     assert urls <= {"http://www.w3.org/1999/xhtml"}, urls  # a namespace name, never fetched
 
 
-def _browser() -> str | None:
-    for name in BROWSERS:
-        path = shutil.which(name)
-        if path:
-            return path
-    return None
-
-
 def test_browser_renders_both_arms(cell, tmp_path):
-    browser = _browser()
-    if browser is None:
-        pytest.skip(f"no headless browser found (tried {', '.join(BROWSERS)}); apt-get install chromium")
     import matplotlib.image as mpimg
 
     out, png = tmp_path / "preview.html", tmp_path / "shot.png"
+    browser_or_skip()
     preview(cell, _dual_plan(), html_out=out)
-    # WebGL through SwiftShader: with --disable-gpu, headless Chromium now and then never exits after the shot.
-    cmd = [browser, "--headless", "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-           "--disable-quic", "--no-first-run", "--disable-background-networking", "--disable-component-update",
-           "--disable-sync", f"--user-data-dir={tmp_path / 'profile'}", f"--screenshot={png}",
-           "--window-size=1024,768", "--virtual-time-budget=5000", out.as_uri()]
-    log = tmp_path / "browser.log"
-    with open(log, "w") as err:  # no pipes: chromium's helpers would keep them open and block the wait
-        proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err,
-                                start_new_session=True)
-        try:
-            proc.wait(timeout=90)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)  # the browser we started, and its helpers
-            proc.wait()
-            if not png.exists():  # a browser that wrote the shot but hung on exit still rendered the page
-                pytest.fail(f"headless browser did not finish in 90 s: {log.read_text()[-1000:]}")
-    assert png.exists(), log.read_text()[-2000:]
+    run_headless(out, tmp_path, screenshot=png)
     img = mpimg.imread(png)[..., :3]
     assert img.shape == (768, 1024, 3)
     r, g, b = img[..., 0], img[..., 1], img[..., 2]
