@@ -165,6 +165,7 @@ class Section:
     paragraphs: list[str] = field(default_factory=list)
     tables: list[Table] = field(default_factory=list)
     images: list[Image] = field(default_factory=list)
+    details: list[Table] = field(default_factory=list)  # after the plots
 
     @property
     def recommended_acceptance(self) -> Acceptance | None:
@@ -288,7 +289,7 @@ def comparison_section(cmp: Comparison, test: Recording, out_dir: str | Path, to
     section = Section(title or f"Calibration comparison: {cmp.robot}",
                       [acceptance(m, e, tol) for m, e in cmp.test_errors.items()],
                       f"the {len(test)} poses of {test_label}", iso_table(cmp.models, test, test_label),
-                      cmp.recommended, list(paragraphs or []), tables, images)
+                      cmp.recommended, list(paragraphs or []), tables[:1], images, tables[1:])
     md = [f"# {section.title}", ""] + acceptance_markdown(section, tol)
     for t in tables:
         md += t.markdown()

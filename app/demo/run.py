@@ -156,13 +156,15 @@ def fit_and_compare(cell: CellSpec, robot: str, rec: Recordings, methods: tuple[
     """Fit ``methods`` on the training set, evaluate them on the test set, save every model as YAML."""
     from app.analysis.compare import run_comparison
     from app.analysis.fitting import fitter_for
+    from app.provenance import provenance, with_provenance
     from calibration.models import save_model
 
     fitter = fitter_for(cell.robot(robot), rec.train, rec.cpa)
     cmp = run_comparison(fitter, rec.test, methods, progress)
     model_dir.mkdir(parents=True, exist_ok=True)
+    record = provenance([("train", rec.train_csv), ("cpa", rec.cpa_csv)])
     for m, model in cmp.models.items():
-        save_model(model, model_dir / f"{m}.yaml")
+        save_model(with_provenance(model, record), model_dir / f"{m}.yaml")
     return cmp
 
 

@@ -192,6 +192,10 @@ def test_bad_report_options_exit_2_and_write_nothing(tmp_path, data, capsys):
     assert not report.exists()
     assert_bad_input(capsys, ["evaluate", "--model", str(model), "--test", str(data / "test.csv"), "--report", str(model)],
                      "--report must be a folder")
+    demo = tmp_path / "demo"
+    assert_bad_input(capsys, ["demo", "--out", str(demo), "--report", str(model)], "--report must be a folder")
+    assert_bad_input(capsys, ["demo", "--out", str(demo), "--tolerance-mm", "0"], "--tolerance-mm")
+    assert not demo.exists()
 
 
 def test_diagnose_report(tmp_path):
@@ -225,6 +229,14 @@ def test_recalibrate_report(tmp_path):
     page = _check_common(report / "report.html", [work / "train.csv", work / "validation.csv"])
     assert list(page.rows("acceptance")) == ["candidate nls1"]
     assert "installed candidate nls1" in page.all_text
+    in_service = (models / "current.yaml").read_bytes()
+    assert main(["recalibrate", "--robot", "R1", "--session", str(work / "train"), "--model-dir", str(models),
+                 "--method", "base", "--validation", "6", "--validation-seed", "3", "--sim", "--no-progress",
+                 "--report", str(report)]) == 0
+    page = _Page((report / "report.html").read_text())
+    assert list(page.rows("acceptance")) == ["candidate base", "in service nls1"]
+    served = [r for r in page.tables["provenance"][1:] if r[0] == "model in service"]
+    assert [r[2] for r in served] == [hashlib.sha256(in_service).hexdigest()]  # hashed before it was archived
 
 
 def test_demo_report_has_one_section_per_arm(tmp_path, data):
