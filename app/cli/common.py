@@ -78,9 +78,9 @@ def add_report_options(p: argparse.ArgumentParser, what: str) -> None:
     """``--report DIR`` and the acceptance tolerance of its ``report.html`` (issue 12)."""
     p.add_argument("--report", metavar="DIR", help=f"write report.html (self-contained: {what}, pass/fail against "
                                                    "the tolerance, ISO 9283 where poses repeat, input hashes) here")
-    p.add_argument("--tolerance-mm", type=float, default=1.0,
+    p.add_argument("--tolerance-mm", type=float, default=1.0, metavar="MM",
                    help="acceptance: largest position error allowed on the evaluation poses [mm] (cold spray: 1)")
-    p.add_argument("--tolerance-deg", type=float, default=1.0,
+    p.add_argument("--tolerance-deg", type=float, default=1.0, metavar="DEG",
                    help="acceptance: largest orientation error allowed on the evaluation poses [deg] (cold spray: 1)")
 
 
