@@ -124,6 +124,8 @@ def workspace_figure(errs: dict[str, Errors], p_mm: np.ndarray, tolerance_mm: fl
 
 def cdf_figure(errs: dict[str, Errors], tolerance_mm: float, tolerance_deg: float) -> Any:
     """Cumulative distribution of the position and orientation errors per row, with the tolerances."""
+    from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter
+
     plt = _pyplot()
     styles = styles_for(list(errs))
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 4.6))
@@ -137,6 +139,9 @@ def cdf_figure(errs: dict[str, Errors], tolerance_mm: float, tolerance_deg: floa
     for ax, tol, unit in ((a1, tolerance_mm, "position error [mm]"), (a2, tolerance_deg, "orientation error [deg]")):
         ax.axvline(tol, color="r", ls="--", lw=1.0, label=f"tolerance {tol:g}")
         ax.set_xscale("log")
+        ax.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))  # 0.01, 0.02, 0.05, 0.1 ...
+        ax.xaxis.set_major_formatter(FormatStrFormatter("%g"))
+        ax.xaxis.set_minor_formatter(NullFormatter())
         ax.set_xlabel(unit + " (log scale)")
         ax.set_ylabel("fraction of poses with a smaller error [-]")
         ax.set_ylim(0, 1.02)
