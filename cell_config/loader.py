@@ -253,12 +253,14 @@ def _tool_shapes(r: Node) -> tuple[ToolShape, ...]:
         if kind == "cylinder":
             e.only(("name", "shape", "from_mm", "to_mm", "radius_mm"))
             a, b = e.array("from_mm", (3,)), e.array("to_mm", (3,))
-            radius = e.get("radius_mm")
-            radii = (e.array("radius_mm", (2,)) if isinstance(radius, list) else
-                     np.full(2, e.number("radius_mm", lo=0.0, lo_open=True)))
-            if np.any(radii <= 0) or np.linalg.norm(b - a) == 0:
-                raise e.error("radius_mm" if np.any(radii <= 0) else "to_mm",
-                              "expected positive radii and from_mm != to_mm")
+            if isinstance(e.get("radius_mm"), list):  # [at from_mm, at to_mm]: a cone
+                radii = e.array("radius_mm", (2,))
+                if np.any(radii <= 0):
+                    raise e.error("radius_mm", f"expected radii > 0, got {radii.tolist()}")
+            else:
+                radii = np.full(2, e.number("radius_mm", lo=0.0, lo_open=True))
+            if np.linalg.norm(b - a) == 0:
+                raise e.error("to_mm", "expected an axis of non-zero length (to_mm != from_mm)")
             shapes.append(ToolShape(e.string("name"), kind, a, b, (float(radii[0]), float(radii[1]))))
         elif kind == "box":
             e.only(("name", "shape", "centre_mm", "size_mm"))

@@ -357,7 +357,9 @@ def _polyline(points_m: np.ndarray, color: int, point_size_m: float) -> tuple[An
     """A line through points (N, 3) [m] and a dot at each, as two meshcat objects."""
     import meshcat.geometry as g
 
-    pts = g.PointsGeometry(np.asarray(points_m, dtype=np.float32).T)
+    xyz = np.asarray(points_m, dtype=np.float32).T
+    rgb = np.array([(color >> 16) & 255, (color >> 8) & 255, color & 255], dtype=np.float32) / 255.0
+    pts = g.PointsGeometry(xyz, np.repeat(rgb[:, None], xyz.shape[1], axis=1))  # meshcat's points use vertex colours
     return (g.Line(pts, g.LineBasicMaterial(color=color)),
             g.Points(pts, g.PointsMaterial(size=point_size_m, color=color)))
 
@@ -372,7 +374,7 @@ def _draw_traces(vis: Any, plan: PreviewPlan, tools: dict[str, np.ndarray]) -> N
         tools: tool poses per robot in the cell frame, shape (F, 4, 4) [m].
     """
     for key, name in (("gun", "R1"), ("workpiece", "R2")):
-        line, dots = _polyline(tools[name][:, :3, 3], TRACE_COLORS[key], 0.012)
+        line, dots = _polyline(tools[name][:, :3, 3], TRACE_COLORS[key], 0.025)
         vis[f"trace/{key}/line"].set_object(line)
         vis[f"trace/{key}/points"].set_object(dots)
     if plan.T_wp_gun is not None:
