@@ -1,17 +1,28 @@
-"""meshcat preview of a plan: both arms drawn from their kinematic model, tool frames, floor, animation.
+"""meshcat preview of a plan: both arms, the gun and the workpiece, name plates, path traces, a waypoint readout.
 
 ``preview(cell, plan, html_out=...)`` writes one self-contained HTML page (meshcat's viewer JavaScript is
 inlined and every drawing command is an embedded ``data:`` URL, so it opens from disk with no server and no
 network). The commands are recorded in-process by a small window object that stands in for meshcat's
 zmq server, so no server process or port is needed; ``serve=True`` uses a real meshcat server instead (for
-a live view in the browser).
+a live view in the browser, bound to 127.0.0.1; :mod:`app.dual.meshcat_server`).
 
 Plans: any plan file (:func:`app.cell.plan_file.read_plan`): a dual plan draws both arms per waypoint; a
 single-robot collection plan moves its arm target by target while the other keeps its previous configuration
-(the home configuration q = 0 at the start).
-Arms are drawn as the cell's collision capsules (:mod:`app.cell.capsules`, the model the safety checks and the
-dual planner use, radii from the robot YAMLs): a cylinder and two end spheres per capsule, no meshes. Viewer
-units are metres.
+(the home configuration q = 0 at the start). A plan with a joint beyond its limit is refused, as
+export-targets refuses it.
+
+What is drawn (viewer units are metres):
+
+* the arms as the cell's collision capsules (:mod:`app.cell.capsules`, the model the safety checks and the
+  dual planner use, radii from the robot YAMLs): a cylinder and two end spheres per capsule, no meshes;
+* what each arm carries, R1's spray gun and R2's workpiece, from the tool YAML's ``geometry`` (flange frame;
+  :class:`cell_config.loader.ToolShape`), and the tool (marker) frame as a triad;
+* "R1 gun" / "R2 workpiece" name plates above the bases;
+* the path trace: the gun's and the workpiece's tool points over the plan (cell frame, a line with a dot per
+  waypoint) and, moving with the workpiece, the relative pose's target point and where the gun was in the
+  workpiece frame at each waypoint (on the target to the plan's residual);
+* on the static page, the waypoint readout (:mod:`app.dual.preview_readout`): index, joints of both arms [deg]
+  and the residual the plan records, with a slider, prev/next and play. The live viewer has none.
 """
 
 from __future__ import annotations
@@ -296,9 +307,9 @@ def _scene(window: Any, capsules: CellCapsules) -> tuple[Any, Any]:
     top["/Background"].set_property("bottom_color", [0.75, 0.75, 0.75])
     top["/Grid"].set_property("visible", False)
     top["/Axes"].set_property("visible", False)
-    top["/Cameras/default/rotated/<object>"].set_property("position", [0.0, 1.1, 2.7])
+    top["/Cameras/default/rotated/<object>"].set_property("position", [0.0, 0.8, 2.2])
     vis = top["cellcal"]  # the viewer orbits the origin: centre the cell on it
-    vis.set_transform(tf.translation_matrix([-1.35, 0.2, -0.1]))
+    vis.set_transform(tf.translation_matrix([-1.4, 0.2, -0.4]))
     vis["cell/floor"].set_object(g.Box([4.2, 2.4, 0.02]), g.MeshLambertMaterial(color=0x9E9E8E))
     vis["cell/floor"].set_transform(tf.translation_matrix([1.35, -0.2, capsules.floor_z_mm * 1e-3 - 0.01]))
     return top, vis
@@ -469,7 +480,8 @@ def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve
     if html_out is not None:
         path = Path(html_out)
         windows[0].overlay = readout_html(readout_data({n: np.degrees(p.q[n]) for n in ("R1", "R2")},
-                                                       p.residual_mm, p.residual_deg, p.converged, list(p.notes), fps))
+                                                       p.residual_mm, p.residual_deg, p.converged, list(p.notes), fps),
+                                           {**COLORS, **TRACE_COLORS})
         atomic_write_text(path, meshcat.Visualizer(window=windows[0]).static_html())
         logger.info("wrote preview of %d frames to %s", p.n_frames, path)
 

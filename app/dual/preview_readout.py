@@ -37,11 +37,14 @@ _BODY = """
  <div><button id="wp-prev">&#9664; prev</button> <button id="wp-next">next &#9654;</button>
   <button id="wp-play">play</button></div>
  <table><tr><th>joint [deg]</th><th>1</th><th>2</th><th>3</th><th>4</th><th>5</th><th>6</th></tr>
-  <tr><th style="color:#d95f02">R1</th><td id="q-R1-1"></td><td id="q-R1-2"></td><td id="q-R1-3"></td>
+  <tr><th style="color:{R1}">R1</th><td id="q-R1-1"></td><td id="q-R1-2"></td><td id="q-R1-3"></td>
    <td id="q-R1-4"></td><td id="q-R1-5"></td><td id="q-R1-6"></td></tr>
-  <tr><th style="color:#1f77b4">R2</th><td id="q-R2-1"></td><td id="q-R2-2"></td><td id="q-R2-3"></td>
+  <tr><th style="color:{R2}">R2</th><td id="q-R2-1"></td><td id="q-R2-2"></td><td id="q-R2-3"></td>
    <td id="q-R2-4"></td><td id="q-R2-5"></td><td id="q-R2-6"></td></tr></table>
  <div>relative-pose residual: <span id="res-mm"></span> mm, <span id="res-deg"></span> deg</div>
+ <div style="font-size:11px;color:#444">traces: <span style="color:{gun}">&#9679; gun tool point</span>
+  <span style="color:{workpiece}">&#9679; workpiece tool point</span> (cell frame);
+  <span style="color:{target}">&#9679; gun target</span> in the workpiece frame</div>
 </div>
 """
 
@@ -119,11 +122,18 @@ def readout_data(q_deg: dict[str, np.ndarray], residual_mm: np.ndarray, residual
             "converged": None if converged is None else [bool(c) for c in converged], "note": list(notes)}
 
 
-def readout_html(data: dict[str, Any]) -> str:
-    """The overlay (style, markup, embedded numbers, script) to place at the end of the page's body."""
+def readout_html(data: dict[str, Any], colors: dict[str, int]) -> str:
+    """The overlay (style, markup, embedded numbers, script) to place at the end of the page's body.
+
+    Args:
+        data: from :func:`readout_data`.
+        colors: the scene's colours (0xRRGGBB) of ``R1``, ``R2`` and the traces ``gun``, ``workpiece``, ``target``,
+            for the table's row heads and the legend.
+    """
     if data["converged"] is None:
         data = {**data, "converged": [None] * len(data["note"])}
     payload = json.dumps(data, allow_nan=False).replace("</", "<\\/")  # cannot close the script element
-    return (f"<style>{_STYLE}</style>{_BODY}"
+    body = _BODY.format(**{k: f"#{v:06x}" for k, v in colors.items()})
+    return (f"<style>{_STYLE}</style>{body}"
             f'<script type="application/json" id="cellcal-readout">{payload}</script>'
             f"<script>{_SCRIPT}</script>")

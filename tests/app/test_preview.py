@@ -26,6 +26,20 @@ def cell():
     return load_cell()
 
 
+@pytest.fixture(scope="module")
+def real_plan(cell, tmp_path_factory):
+    """A plan file written by the dual planner (8 waypoints of the default sweep, residuals recorded)."""
+    from app.dual.paths import plan_dual
+    from app.dual.plan_result import save_plan
+    from app.dual.planner import PlannerOptions
+
+    path = tmp_path_factory.mktemp("plan") / "plan.json"
+    plan = plan_dual(cell, n=8, options=PlannerOptions(compile=False))
+    assert plan.converged
+    save_plan(plan, path)
+    return path
+
+
 def _dual_plan(n: int = 12) -> dict:
     s = np.linspace(0.0, 1.0, n)[:, None]
     q1 = np.radians([0, 15, 5, 0, 30, 0]) + s * np.radians([-10, 10, -30, 10, 50, -15])
@@ -90,6 +104,142 @@ def test_static_page_is_self_contained(cell, tmp_path):
     assert urls <= {"http://www.w3.org/1999/xhtml"}, urls  # a namespace name, never fetched
 
 
+class _Recording:
+    """Draw into a recording window and keep it, to read back what the page holds."""
+
+    def __init__(self, monkeypatch):
+        import app.dual.preview as preview_mod
+
+        self.windows = []
+        outer = self
+
+        class Recording(preview_mod.RecordingWindow):
+            def __init__(self):
+                super().__init__()
+                outer.windows.append(self)
+
+        monkeypatch.setattr(preview_mod, "RecordingWindow", Recording)
+
+    def object(self, path: str) -> dict:
+        import umsgpack
+
+        return umsgpack.unpackb(self.windows[0].nodes[f"/meshcat/cellcal/{path}"]["object"])["object"]
+
+
+def _positions(obj: dict) -> np.ndarray:
+    """Vertex positions (N, 3) of a recorded Line/Points object."""
+    import umsgpack
+
+    attr = obj["geometries"][0]["data"]["attributes"]["position"]
+    array = attr["array"]
+    data = array.data if isinstance(array, umsgpack.Ext) else array
+    return np.frombuffer(data, dtype=np.float32).reshape(-1, 3)
+
+
+def test_gun_and_workpiece_are_drawn_from_the_tool_yaml(cell, tmp_path, monkeypatch):
+    """Issue 12: the carried geometry comes from the tool YAMLs' `geometry`, not from the preview's code."""
+    import dataclasses
+
+    from cell_config.loader import ToolShape
+
+    rec = _Recording(monkeypatch)
+    preview(cell, _dual_plan(2), html_out=tmp_path / "a.html")
+    for name in ("R1", "R2"):
+        for shape in cell.robot(name).tool.shapes:
+            geom = rec.object(f"{name}/flange/{shape.name}")["geometries"][0]
+            if shape.kind == "cylinder":
+                assert geom["type"] == "CylinderGeometry"
+                assert geom["height"] == pytest.approx(np.linalg.norm(shape.to_mm - shape.from_mm) * 1e-3)
+                assert (geom["radiusBottom"], geom["radiusTop"]) == pytest.approx(np.array(shape.radius_mm) * 1e-3)
+            else:
+                assert geom["type"] == "BoxGeometry"
+                assert [geom["width"], geom["height"], geom["depth"]] == pytest.approx(shape.size_mm * 1e-3)
+    # another tool file, another drawing
+    r1 = cell.robot("R1")
+    wide = ToolShape("can", "cylinder", np.zeros(3), np.array([0.0, 0.0, 500.0]), (80.0, 80.0))
+    other = dataclasses.replace(cell, robots={**cell.robots, "R1": dataclasses.replace(
+        r1, tool=dataclasses.replace(r1.tool, shapes=(wide,)))})
+    rec = _Recording(monkeypatch)
+    preview(other, _dual_plan(2), html_out=tmp_path / "b.html")
+    geom = rec.object("R1/flange/can")["geometries"][0]
+    assert geom["height"] == pytest.approx(0.5) and geom["radiusTop"] == pytest.approx(0.08)
+    assert "/meshcat/cellcal/R1/flange/barrel" not in rec.windows[0].nodes
+
+
+def test_labels_and_path_traces(cell, real_plan, tmp_path, monkeypatch):
+    """Issue 12: R1/R2 name plates; the gun's and the workpiece's tool-point paths over the plan (cell frame);
+    in the workpiece frame the relative pose's target, where the planner's gun sits to its residual."""
+    rec = _Recording(monkeypatch)
+    preview(cell, real_plan, html_out=tmp_path / "p.html")
+    for name, text in (("R1", "R1 gun"), ("R2", "R2 workpiece")):
+        textures = rec.object(f"labels/{name}")["textures"]
+        assert [t["text"] for t in textures] == [text] and textures[0]["type"] == "_text"
+    d = json.loads(real_plan.read_text())
+    for key, name in (("gun", "R1"), ("workpiece", "R2")):
+        q = np.array([w[name] for w in d["waypoints"]])
+        R, p = cell.robot(name).model().fk(q)
+        T = cell.robot(name).T_cell_base
+        p_cell_m = (p @ T[:3, :3].T + T[:3, 3]) * 1e-3
+        for part in ("line", "points"):
+            np.testing.assert_allclose(_positions(rec.object(f"trace/{key}/{part}")), p_cell_m, atol=1e-6)
+    target = _positions(rec.object("R2/tool/target"))
+    np.testing.assert_allclose(target, np.array(d["T_wp_gun"])[None, :3, 3] * 1e-3, atol=1e-7)
+    gun_in_wp = _positions(rec.object("R2/tool/gun_path/points"))
+    assert len(gun_in_wp) == len(d["waypoints"])
+    np.testing.assert_allclose(gun_in_wp, np.repeat(target, len(gun_in_wp), axis=0), atol=2e-6)  # float32 in m
+
+
+def _embedded_readout(html: str) -> dict:
+    m = re.search(r'<script type="application/json" id="cellcal-readout">(.*?)</script>', html, re.S)
+    assert m, "no readout data in the page"
+    return json.loads(m.group(1))
+
+
+def test_readout_embeds_the_plan_files_numbers(cell, real_plan, tmp_path):
+    out = tmp_path / "p.html"
+    preview(cell, real_plan, html_out=out, fps=5.0)
+    data, d = _embedded_readout(out.read_text()), json.loads(real_plan.read_text())
+    assert data["fps"] == 5.0 and data["converged"] == [True] * len(d["waypoints"])
+    for arm in ("R1", "R2"):
+        np.testing.assert_allclose(data["q_deg"][arm], np.degrees([w[arm] for w in d["waypoints"]]), rtol=1e-12)
+    assert data["residual_mm"] == [w["residual_mm"] for w in d["waypoints"]]
+    assert data["residual_deg"] == [w["residual_deg"] for w in d["waypoints"]]
+    assert 'id="wp-slider"' in out.read_text() and 'id="wp-next"' in out.read_text()
+
+
+def test_readout_of_a_plan_without_residuals_says_not_recorded(cell, tmp_path):
+    coll = {"schema": "cellcal.plan/1", "kind": "collection",
+            "targets": [_target("R1", [0.1] * 6), _target("R2", [0.2] * 6)]}
+    out = tmp_path / "p.html"
+    r = preview(cell, coll, html_out=out)
+    data = _embedded_readout(out.read_text())
+    assert data["residual_mm"] == [None, None] and data["converged"] == [None, None]
+    assert data["note"] == ["R1 target 0 (anchor, cluster 0)", "R2 target 1 (anchor, cluster 0)"]
+    np.testing.assert_allclose(data["q_deg"]["R1"][1], np.degrees([0.1] * 6))  # R1 stays where it was
+    assert r.kind == "collection" and r.max_residual_mm is None
+    assert "/meshcat/cellcal/R2/tool/target" not in out.read_text()  # no relative pose to show
+
+
+def test_cli_preview_json_summary(cell, real_plan, tmp_path, capsys):
+    from app.cli import main
+
+    out, summary = tmp_path / "p.html", tmp_path / "s.json"
+    assert main(["preview", "--plan", str(real_plan), "--html", str(out), "--json", str(summary)]) == 0
+    s, d = json.loads(summary.read_text()), json.loads(real_plan.read_text())
+    assert s["waypoints"] == len(d["waypoints"]) and s["kind"] == "dual" and s["files"] == [str(out)]
+    assert s["max_residual_mm"] == max(w["residual_mm"] for w in d["waypoints"])
+    assert s["max_residual_deg"] == max(w["residual_deg"] for w in d["waypoints"])
+    margins = []
+    for arm in ("R1", "R2"):
+        spec = cell.robot(arm).robot
+        q = np.array([w[arm] for w in d["waypoints"]])
+        margins.append(np.degrees(np.minimum(q - spec.lower_rad, spec.upper_rad - q)).min())
+    limits = s["joint_limits"]
+    assert limits["checked"] and limits["within"]
+    assert limits["min_margin_deg"] == pytest.approx(min(margins), abs=1e-9)
+    assert limits["at"]["robot"] == ("R1", "R2")[int(np.argmin(margins))]
+
+
 def _browser() -> str | None:
     for name in BROWSERS:
         path = shutil.which(name)
@@ -98,39 +248,113 @@ def _browser() -> str | None:
     return None
 
 
-def test_browser_renders_both_arms(cell, tmp_path):
+def _run_browser(tmp_path, url: str, *mode: str) -> str:
+    """Run headless Chromium on ``url`` with ``mode`` (``--screenshot=F`` or ``--dump-dom``); its stdout.
+
+    WebGL runs through SwiftShader (``--use-angle=swiftshader --enable-unsafe-swiftshader``); with
+    ``--disable-gpu`` headless Chromium now and then never exits after the shot.
+    """
     browser = _browser()
     if browser is None:
         pytest.skip(f"no headless browser found (tried {', '.join(BROWSERS)}); apt-get install chromium")
-    import matplotlib.image as mpimg
-
-    out, png = tmp_path / "preview.html", tmp_path / "shot.png"
-    preview(cell, _dual_plan(), html_out=out)
-    # WebGL through SwiftShader: with --disable-gpu, headless Chromium now and then never exits after the shot.
     cmd = [browser, "--headless", "--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
            "--disable-quic", "--no-first-run", "--disable-background-networking", "--disable-component-update",
-           "--disable-sync", f"--user-data-dir={tmp_path / 'profile'}", f"--screenshot={png}",
-           "--window-size=1024,768", "--virtual-time-budget=5000", out.as_uri()]
-    log = tmp_path / "browser.log"
-    with open(log, "w") as err:  # no pipes: chromium's helpers would keep them open and block the wait
-        proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err,
-                                start_new_session=True)
+           "--disable-sync", f"--user-data-dir={tmp_path / 'profile'}", *mode,
+           "--window-size=1024,768", "--virtual-time-budget=5000", url]
+    log, out = tmp_path / "browser.log", tmp_path / "browser.out"
+    with open(log, "w") as err, open(out, "w") as stdout:  # no pipes: chromium's helpers would keep them open
+        proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=stdout, stderr=err, start_new_session=True)
         try:
             proc.wait(timeout=90)
         except subprocess.TimeoutExpired:
             os.killpg(proc.pid, signal.SIGKILL)  # the browser we started, and its helpers
             proc.wait()
-            if not png.exists():  # a browser that wrote the shot but hung on exit still rendered the page
+            shot = [m[len("--screenshot="):] for m in mode if m.startswith("--screenshot=")]
+            if not (shot and os.path.exists(shot[0])):  # a browser that wrote the shot but hung on exit rendered
                 pytest.fail(f"headless browser did not finish in 90 s: {log.read_text()[-1000:]}")
-    assert png.exists(), log.read_text()[-2000:]
+    return out.read_text()
+
+
+def _screenshot(tmp_path, page, name: str, fragment: str = ""):
+    import matplotlib.image as mpimg
+
+    png = tmp_path / name
+    _run_browser(tmp_path, page.as_uri() + fragment, f"--screenshot={png}")
+    assert png.exists(), (tmp_path / "browser.log").read_text()[-2000:]
     img = mpimg.imread(png)[..., :3]
     assert img.shape == (768, 1024, 3)
+    return img
+
+
+def _masks(img) -> dict:
+    """Pixels of each colour the preview draws (the background, floor and overlay are grey or white)."""
     r, g, b = img[..., 0], img[..., 1], img[..., 2]
-    coloured = (img.max(-1) - img.min(-1)) > 0.25  # the background, floor and grid are grey
+    return {"R1 arm": (r > 0.7) & (g > 0.3) & (g < 0.65) & (b < 0.3),  # orange
+            "R2 arm": (b > 0.55) & (r < 0.3) & (g > 0.3) & (g < 0.65),  # blue
+            "gun": (r > 0.35) & (g < 0.4 * r) & (b < 0.4 * r),  # dark red
+            "workpiece": (g > 0.35) & (r < 0.45 * g) & (b < 0.45 * g),  # green
+            "gun trace": (r > 0.35) & (b > 0.5) & (g < 0.2),  # violet
+            "workpiece trace": (g > 0.4) & (b > 0.45) & (r < 0.2) & (np.abs(g - b) < 0.15)}  # teal
+
+
+def test_browser_renders_the_task(cell, real_plan, tmp_path):
+    """Issue 12: the page shows both arms, the gun, the workpiece and the path traces (pixels of each colour)."""
+    out = tmp_path / "preview.html"
+    preview(cell, real_plan, html_out=out)
+    img = _screenshot(tmp_path, out, "shot.png")
+    coloured = (img.max(-1) - img.min(-1)) > 0.25
     assert coloured.mean() > 0.01, f"only {coloured.mean():.2%} coloured pixels: the scene was not drawn"
-    orange = ((r > 0.7) & (g > 0.3) & (g < 0.65) & (b < 0.3)).sum()
-    blue = ((b > 0.55) & (r < 0.3) & (g > 0.3) & (g < 0.65)).sum()
-    assert orange > 1000 and blue > 1000, (orange, blue)  # R1 and R2 both drawn
+    counts = {k: int(m.sum()) for k, m in _masks(img).items()}
+    minimum = {"R1 arm": 1000, "R2 arm": 1000, "gun": 50, "workpiece": 50, "gun trace": 20, "workpiece trace": 20}
+    assert all(counts[k] > n for k, n in minimum.items()), counts
+
+
+def _readout(dom: str) -> dict:
+    """The overlay's texts by element id, from a dumped DOM."""
+    from html.parser import HTMLParser
+
+    texts: dict = {}
+
+    class Reader(HTMLParser):
+        current = None
+
+        def handle_starttag(self, tag, attrs):
+            self.current = dict(attrs).get("id")
+
+        def handle_data(self, data):
+            if self.current:
+                texts[self.current] = texts.get(self.current, "") + data
+
+        def handle_endtag(self, tag):
+            self.current = None
+
+    Reader().feed(dom)
+    return texts
+
+
+def _assert_readout_is_waypoint(texts: dict, plan_file, i: int):
+    wp = json.loads(plan_file.read_text())["waypoints"][i]
+    assert texts["wp-index"] == str(i) and texts["wp-status"] == "converged"
+    for arm in ("R1", "R2"):
+        shown = [float(texts[f"q-{arm}-{j}"]) for j in range(1, 7)]
+        np.testing.assert_allclose(shown, np.degrees(wp[arm]), atol=5e-4)  # printed to 0.001 deg
+    for key, unit in (("res-mm", "residual_mm"), ("res-deg", "residual_deg")):
+        assert float(texts[key]) == pytest.approx(wp[unit], rel=5e-3)  # three significant digits
+
+
+def test_browser_readout_shows_waypoint_0_and_steps_the_animation(cell, real_plan, tmp_path):
+    """Issue 12: the readout holds waypoint 0's index, joints [deg] and residual from the plan file; stepping
+    to another waypoint (the page's address names it, as the slider does) moves the arms and the numbers."""
+    out = tmp_path / "preview.html"
+    preview(cell, real_plan, html_out=out)
+    last = len(json.loads(real_plan.read_text())["waypoints"]) - 1
+    _assert_readout_is_waypoint(_readout(_run_browser(tmp_path, out.as_uri(), "--dump-dom")), real_plan, 0)
+    _assert_readout_is_waypoint(_readout(_run_browser(tmp_path, out.as_uri() + f"#waypoint={last}", "--dump-dom")),
+                                real_plan, last)
+    first = _masks(_screenshot(tmp_path, out, "first.png"))["R2 arm"]
+    moved = _masks(_screenshot(tmp_path, out, "last.png", f"#waypoint={last}"))["R2 arm"]
+    overlap = (first & moved).sum() / (first | moved).sum()
+    assert overlap < 0.8, f"R2 drawn in the same place at waypoints 0 and {last} (overlap {overlap:.2f})"
 
 
 def _listening(port: int) -> list[str]:
