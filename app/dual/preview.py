@@ -21,8 +21,8 @@ What is drawn (viewer units are metres):
 * the path trace: the gun's and the workpiece's tool points over the plan (cell frame, a line with a dot per
   waypoint) and, moving with the workpiece, the relative pose's target point and where the gun was in the
   workpiece frame at each waypoint (on the target to the plan's residual);
-* on the static page, the waypoint readout (:mod:`app.dual.preview_readout`): index, joints of both arms [deg]
-  and the residual the plan records, with a slider, prev/next and play. The live viewer has none.
+* the waypoint readout (:mod:`app.dual.preview_readout`): index, joints of both arms [deg]
+  and the residual the plan records, with a slider, prev/next and play, on the static page and the live one.
 """
 
 from __future__ import annotations
@@ -278,16 +278,22 @@ def _capsule_transforms(seg_m: np.ndarray) -> dict[str, np.ndarray]:
             "_end1": tf.translation_matrix(seg_m[1])}
 
 
-def _windows(static: bool, serve: bool) -> tuple[list[Any], str | None]:
-    """The windows to draw in: a recording window for the static page, a live meshcat server's; its URL."""
+def _windows(static: bool, serve: bool, overlay: str) -> tuple[list[Any], str | None]:
+    """The windows to draw in: a recording window for the static page, a live meshcat server's; its URL.
+
+    Both pages carry ``overlay`` (the waypoint readout) at the end of their body.
+    """
     import meshcat
 
-    windows: list[Any] = [RecordingWindow()] if static else []
+    windows: list[Any] = []
+    if static:
+        windows.append(RecordingWindow())
+        windows[0].overlay = overlay
     url = None
     if serve:
         from app.dual.meshcat_server import start
 
-        _, zmq_url, _ = start()  # web server on 127.0.0.1 only (meshcat's own listens on every interface)
+        _, zmq_url, _ = start(overlay)  # web server on 127.0.0.1 only (meshcat's own listens on every interface)
         with contextlib.redirect_stdout(io.StringIO()):  # meshcat prints the URL; we return and log it
             live = meshcat.Visualizer(zmq_url=zmq_url)
         url = live.url()
@@ -445,7 +451,7 @@ def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve
         html_out: write the self-contained static page here (with the waypoint readout).
         serve: also start a meshcat server (a subprocess on 127.0.0.1, alive while this process runs) and draw
             there; the URL is returned. The caller keeps the process alive (e.g. waits for Enter). The live
-            viewer has no waypoint readout (meshcat's page cannot be extended from here).
+            page carries the same waypoint readout.
         models: PoeModel per robot used for drawing (``chain``); the cell's nominal models when None.
         fps: animation frames (waypoints) per second.
 
@@ -468,20 +474,19 @@ def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve
     margin, margin_at = _limit_margin(cell, p)
     models = models or {n: cell.robot(n).model() for n in ("R1", "R2")}
     capsules = CellCapsules(cell)
-    windows, url = _windows(html_out is not None, serve)
+    overlay = readout_html(readout_data({n: np.degrees(p.q[n]) for n in ("R1", "R2")}, p.residual_mm,
+                                        p.residual_deg, p.converged, list(p.notes), fps), {**COLORS, **TRACE_COLORS})
+    windows, url = _windows(html_out is not None, serve, overlay)
     for window in windows:
         top, vis = _scene(window, capsules)
         anim = Animation(default_framerate=fps)
         tools = {name: _draw_arm(vis, anim, cell, capsules, name, p.q[name], models[name]) for name in ("R1", "R2")}
         _draw_traces(vis, p, tools)
         _draw_labels(vis, cell)
-        top.set_animation(anim, play=not isinstance(window, RecordingWindow), repetitions=1)
+        top.set_animation(anim, play=False, repetitions=1)  # the readout opens it at waypoint 0; "play" runs it
     path = None
     if html_out is not None:
         path = Path(html_out)
-        windows[0].overlay = readout_html(readout_data({n: np.degrees(p.q[n]) for n in ("R1", "R2")},
-                                                       p.residual_mm, p.residual_deg, p.converged, list(p.notes), fps),
-                                           {**COLORS, **TRACE_COLORS})
         atomic_write_text(path, meshcat.Visualizer(window=windows[0]).static_html())
         logger.info("wrote preview of %d frames to %s", p.n_frames, path)
 

@@ -392,3 +392,18 @@ def test_a_plan_beyond_the_joint_limits_is_refused_like_export_targets(cell, tmp
         preview(cell, plan, html_out=tmp_path / "p.html")
     assert e.value.robot == "R2" and e.value.joint == 4
     assert not (tmp_path / "p.html").exists()
+
+
+def test_the_live_viewer_carries_the_readout(cell, real_plan, tmp_path):
+    """--serve: the live page (our loopback server's) has the same readout, and it steps the live scene."""
+    import urllib.request
+
+    result = preview(cell, real_plan, serve=True)
+    with urllib.request.urlopen(result.url, timeout=10) as reply:
+        page = reply.read().decode()
+    data, d = _embedded_readout(page), json.loads(real_plan.read_text())
+    np.testing.assert_allclose(data["q_deg"]["R2"], np.degrees([w["R2"] for w in d["waypoints"]]), rtol=1e-12)
+    assert "MeshCat.Viewer" in page and "viewer.connect()" in page  # meshcat's own page, extended
+    last = len(d["waypoints"]) - 1
+    _assert_readout_is_waypoint(_readout(_run_browser(tmp_path, result.url + f"#waypoint={last}", "--dump-dom")),
+                                real_plan, last)
