@@ -240,6 +240,15 @@ def test_cli_preview_json_summary(cell, real_plan, tmp_path, capsys):
     assert limits["at"]["robot"] == ("R1", "R2")[int(np.argmin(margins))]
 
 
+def test_cli_preview_json_into_a_folder_writes_nothing(real_plan, tmp_path, capsys):
+    from tests.conftest import assert_bad_input
+
+    out = tmp_path / "p.html"
+    assert_bad_input(capsys, ["preview", "--plan", str(real_plan), "--html", str(out), "--json", str(tmp_path)],
+                     str(tmp_path), "is a folder")
+    assert not out.exists()
+
+
 def _browser() -> str | None:
     for name in BROWSERS:
         path = shutil.which(name)
