@@ -4,8 +4,7 @@ The overlay shows, for the selected waypoint, its index, both arms' joint values
 residual the planner recorded [mm, deg] (``residual_mm`` / ``residual_deg`` of the plan file; "not recorded"
 when the plan has none, e.g. a collection plan or a hand-written one). A slider and prev/next buttons pause the
 animation and seek it to the waypoint; "play" runs it from there and the readout follows the clip. The page
-opens at waypoint 0, or at the one its address names (``preview.html#waypoint=7``). Playing is not covered by
-the tests: headless Chromium hardly advances the clip's clock (0.05 s of clip in 5 s of virtual time).
+opens at waypoint 0, or at the one its address names (``preview.html#waypoint=7``).
 
 The numbers are embedded once as JSON (``<script type="application/json" id="cellcal-readout">``) and rendered by
 the page's script, so the DOM holds exactly the plan's values (joint angles to 0.001 deg, residuals to three
@@ -58,7 +57,7 @@ _SCRIPT = r"""
   const slider = $("wp-slider");
   slider.max = n - 1;
   $("wp-count").textContent = n;
-  let current = 0;
+  let current = 0, playing = false;
   const fmt = (v, f) => (v === null ? "not recorded" : f(v));
   function render(i) {
     current = i;
@@ -78,6 +77,7 @@ _SCRIPT = r"""
     render(i);
     const a = animator();
     if (!a) return;
+    playing = false;
     if (a.playing) a.pause();
     for (const act of a.actions) { act.paused = false; act.play(); }  // an action applies only while active
     a.seek(i / R.fps);
@@ -90,11 +90,14 @@ _SCRIPT = r"""
     if (!a) return;
     seek(current >= n - 1 ? 0 : current);
     a.play();
+    playing = true;
   }
   $("wp-play").addEventListener("click", play);
   setInterval(() => {  // the readout follows a playing clip
     const a = animator();
-    if (a && a.playing) render(Math.min(n - 1, Math.round(a.actions[0].time * R.fps)));
+    if (!a || !playing) return;
+    if (a.playing) render(Math.min(n - 1, Math.round(a.actions[0].time * R.fps)));
+    else seek(n - 1);  // the clip ran to its end (meshcat then rewinds its actions): stay on the last waypoint
   }, 100);
   // open at waypoint 0, or at the one the address names (preview.html#waypoint=7)
   const asked = /waypoint=(\d+)/.exec(location.hash);

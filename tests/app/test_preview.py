@@ -8,6 +8,7 @@ import re
 import signal
 import shutil
 import subprocess
+import time
 
 import numpy as np
 import pytest
@@ -364,6 +365,88 @@ def test_browser_readout_shows_waypoint_0_and_steps_the_animation(cell, real_pla
     moved = _masks(_screenshot(tmp_path, out, "last.png", f"#waypoint={last}"))["R2 arm"]
     overlap = (first & moved).sum() / (first | moved).sum()
     assert overlap < 0.8, f"R2 drawn in the same place at waypoints 0 and {last} (overlap {overlap:.2f})"
+
+
+def _devtools_eval(tmp_path, url: str, expression: str):
+    """Open ``url`` in headless Chromium, wait for the viewer, evaluate ``expression`` (awaited) over the DevTools
+    protocol (loopback websocket) and return its value. Real time, not virtual time: the clip's clock runs."""
+    import asyncio
+    import urllib.request
+
+    from tornado.websocket import websocket_connect
+
+    browser = _browser()
+    if browser is None:
+        pytest.skip(f"no headless browser found (tried {', '.join(BROWSERS)}); apt-get install chromium")
+    log = tmp_path / "devtools.log"
+    with open(log, "w") as err:
+        proc = subprocess.Popen([browser, "--headless", "--no-sandbox", "--use-angle=swiftshader",
+                                 "--enable-unsafe-swiftshader", "--no-first-run", "--disable-background-networking",
+                                 f"--user-data-dir={tmp_path / 'profile-devtools'}", "--remote-debugging-port=0",
+                                 "--window-size=1024,768", url],
+                                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err, start_new_session=True)
+    try:
+        found = None
+        for _ in range(600):  # 60 s
+            found = re.search(r"DevTools listening on ws://127\.0\.0\.1:(\d+)/", log.read_text())
+            if found or proc.poll() is not None:
+                break
+            time.sleep(0.1)
+        assert found, f"no DevTools endpoint: {log.read_text()[-1000:]}"
+        with urllib.request.urlopen(f"http://127.0.0.1:{found.group(1)}/json", timeout=10) as reply:
+            page = next(t for t in json.load(reply) if t["type"] == "page")
+
+        async def run():
+            ws = await websocket_connect(page["webSocketDebuggerUrl"])
+            ids = iter(range(1, 10_000))
+
+            async def evaluate(expr: str):
+                n = next(ids)
+                await ws.write_message(json.dumps({"id": n, "method": "Runtime.evaluate", "params": {
+                    "expression": expr, "awaitPromise": True, "returnByValue": True}}))
+                while True:
+                    msg = json.loads(await ws.read_message())
+                    if msg.get("id") == n:
+                        return msg["result"]
+
+            for _ in range(300):  # the page and its viewer loaded (30 s)
+                ready = await evaluate("document.readyState === 'complete' && typeof viewer !== 'undefined' && "
+                                       "viewer.animator.actions.length > 0")
+                if ready.get("result", {}).get("value") is True:
+                    break
+                await asyncio.sleep(0.1)
+            result = await asyncio.wait_for(evaluate(expression), 60)
+            ws.close()
+            assert "exceptionDetails" not in result, result
+            return result["result"]["value"]
+
+        return asyncio.run(run())
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)  # the browser we started, and its helpers
+        proc.wait()
+
+
+def test_browser_buttons_slider_and_play_step_the_animation(cell, real_plan, tmp_path):
+    """Issue 12: prev/next and the slider seek the clip to a waypoint and show its numbers; play runs the clip
+    to its end with the readout following."""
+    out = tmp_path / "preview.html"
+    preview(cell, real_plan, html_out=out, fps=10.0)
+    d = json.loads(real_plan.read_text())
+    last = len(d["waypoints"]) - 1
+    snaps = _devtools_eval(tmp_path, out.as_uri(), """(async () => {
+      const $ = (id) => document.getElementById(id), sleep = (ms) => new Promise(r => setTimeout(r, ms));
+      const out = [], snap = () => out.push({index: $("wp-index").textContent, slider: $("wp-slider").value,
+        q: [1, 2, 3, 4, 5, 6].map(j => $("q-R2-" + j).textContent), t: viewer.animator.actions[0].time});
+      snap(); $("wp-next").click(); snap(); $("wp-next").click(); snap(); $("wp-prev").click(); snap();
+      const s = $("wp-slider"); s.value = 5; s.dispatchEvent(new Event("input")); snap();
+      $("wp-play").click(); await sleep(2000); snap();
+      return out;
+    })()""")
+    expected = [0, 1, 2, 1, 5, last]
+    assert [int(x["index"]) for x in snaps] == expected and [int(x["slider"]) for x in snaps] == expected
+    for snap, i in zip(snaps, expected):
+        np.testing.assert_allclose([float(v) for v in snap["q"]], np.degrees(d["waypoints"][i]["R2"]), atol=5e-4)
+        assert snap["t"] == pytest.approx(i / 10.0, abs=1e-6)  # the clip sits on the waypoint shown
 
 
 def _listening(port: int) -> list[str]:
