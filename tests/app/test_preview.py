@@ -221,6 +221,18 @@ def test_readout_of_a_plan_without_residuals_says_not_recorded(cell, tmp_path):
     assert "/meshcat/cellcal/R2/tool/target" not in out.read_text()  # no relative pose to show
 
 
+def test_readout_flags_a_waypoint_the_planner_did_not_prove(cell, real_plan, tmp_path):
+    d = json.loads(real_plan.read_text())
+    d["waypoints"][2].update(converged=False, reason="clearance 31 mm < 50 mm")
+    del d["waypoints"][3]["converged"]  # not marked: unsolved, as every reader treats it
+    out = tmp_path / "p.html"
+    preview(cell, d, html_out=out)
+    data = _embedded_readout(out.read_text())
+    assert data["converged"][1:4] == [True, False, False]
+    assert data["note"][2] == "NOT converged: clearance 31 mm < 50 mm"
+    assert data["note"][3] == "NOT converged: not marked converged"
+
+
 def test_cli_preview_json_summary(cell, real_plan, tmp_path, capsys):
     from app.cli import main
 
@@ -291,6 +303,10 @@ def _screenshot(tmp_path, page, name: str, fragment: str = ""):
     png = tmp_path / name
     _run_browser(tmp_path, page.as_uri() + fragment, f"--screenshot={png}")
     assert png.exists(), (tmp_path / "browser.log").read_text()[-2000:]
+    keep = os.environ.get("CELLCAL_SCREENSHOT_DIR")  # to look at them: CELLCAL_SCREENSHOT_DIR=DIR pytest ...
+    if keep:
+        os.makedirs(keep, exist_ok=True)
+        shutil.copy(png, os.path.join(keep, name))
     img = mpimg.imread(png)[..., :3]
     assert img.shape == (768, 1024, 3)
     return img
