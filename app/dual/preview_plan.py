@@ -69,7 +69,7 @@ def read_preview_plan(plan: Any) -> PreviewPlan:
                            np.array([x.residual_mm for x in w]), np.array([x.residual_deg for x in w]),
                            np.array([x.converged for x in w]),
                            tuple("converged" if x.converged else f"NOT converged: {x.reason}" for x in w),
-                           np.asarray(plan.T_wp_gun, dtype=float))
+                           plan.T_wp_gun)
     current = {"R1": np.zeros(6), "R2": np.zeros(6)}
     q: dict[str, list[np.ndarray]] = {"R1": [], "R2": []}
     notes = []
