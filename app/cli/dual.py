@@ -154,6 +154,7 @@ def cmd_preview(args: argparse.Namespace) -> int:
     if not args.html and not args.serve:
         raise ModelError("preview needs --html OUT (a static page) or --serve (a live viewer)")
     result = preview(cell_spec(args), args.plan, html_out=args.html, serve=args.serve)
+    write_json(args.json, result.summary())
     if result.html_path:
         print(f"{result.n_frames} frames -> {result.html_path}")
     if result.url:
@@ -203,6 +204,7 @@ def add_dual_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--plan", required=True, help="plan file (dual or collection)")
     p.add_argument("--html", help="write a self-contained HTML page")
     p.add_argument("--serve", action="store_true", help="start a live meshcat viewer and wait for Enter")
+    p.add_argument("--json", help="write a summary as JSON (waypoints, largest residual, files, joint-limit check)")
     p = add("export-targets", cmd_export_targets, "controller targets (rad, pulses, poses) from a dual plan")
     cell_arg(p)
     p.add_argument("--plan", required=True, help="plan file written by plan-dual")
