@@ -278,12 +278,23 @@ class Fitter:
 
         local, pi = self.local_fits(), self.physics_informed()
         groups, _ = cluster_anchors(self.train, self.options.cluster_size)
-        scores = [robust.held_out(lambda: make_interpolator(method, **{**options, name: v}), pi.kinematics,
-                                  pi.theta, local.anchors, local.x, groups, self.train, CDC_INPUTS,
-                                  seed=self.options.seed) for v in grid]
-        chosen = grid[robust.one_se_choice(grid, scores)]
+        scores: list[robust.HeldOut | None] = []
+        for v in grid:
+            try:
+                scores.append(robust.held_out(lambda: make_interpolator(method, **{**options, name: v}),
+                                              pi.kinematics, pi.theta, local.anchors, local.x, groups, self.train,
+                                              CDC_INPUTS, seed=self.options.seed))
+            except ModelError as e:  # e.g. ridge 0 with fewer than 13 anchors in a fold: that strength is out
+                log.info("%s %s=%g cannot be fitted on the held-out folds: %s", method, name, v, e)
+                scores.append(None)
+        usable = [i for i, s in enumerate(scores) if s is not None]
+        if not usable:
+            raise ModelError(f"{method}: no {name} of {list(grid)} can be fitted on the held-out folds of "
+                             f"{len(local.anchors)} clusters")
+        chosen = grid[usable[robust.one_se_choice(tuple(grid[i] for i in usable), [scores[i] for i in usable])]]
         self._cache.setdefault("strengths", {})[method] = {
-            name: chosen, "grid": list(grid), "heldout_rms_mm": [round(s.rms_mm, 4) for s in scores]}
+            name: chosen, "grid": list(grid),
+            "heldout_rms_mm": [None if s is None else round(s.rms_mm, 4) for s in scores]}
         return chosen
 
     def _cdc_checks(self, method: str, options: dict[str, Any], model: Any) -> dict[str, Any]:
