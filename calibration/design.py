@@ -45,7 +45,7 @@ import numpy as np
 
 from calibration.errors import ModelError
 from calibration.identification.geometric import DEFAULT_ORIENTATION_WEIGHT
-from calibration.identification.observability import DEFAULT_REACH_MM, scaled_rows
+from calibration.identification.observability import DEFAULT_REACH_MM, DEFAULT_RELATIVE_TOLERANCE, scaled_rows
 from calibration.parameterisation import MinimalParameterisation
 from calibration.recording import Recording
 
@@ -87,9 +87,10 @@ class DesignFigures:
 
     Attributes:
         n_clusters, n_poses: size of the design.
-        rank: identifiable directions the design sees (relative singular value >= IDENTIFIABLE_TOLERANCE).
+        rank: identifiable directions the design lets the fits see: relative singular value at least the fits'
+            truncation tolerance (``DEFAULT_RELATIVE_TOLERANCE``, 1e-2; nls holds the others at their reference).
         n_identifiable: identifiable directions of the reference (rich) design.
-        condition_number: of the scaled Jacobian in the identifiable directions (inf when rank deficient).
+        condition_number: of the scaled Jacobian in the identifiable directions (inf when singular).
         log_det: ``(1/r) log det`` of the information in the identifiable directions.
         sigma: predicted standard deviation of each parameter [its unit], shape (m,) (inf where not seen).
         names: parameter names.
@@ -252,10 +253,12 @@ def figures(cands: Candidates, chosen: list[int] | np.ndarray, noise_mm: float, 
     M = cands.info[chosen].sum(axis=0)
     r = M.shape[0]
     eig = np.clip(np.linalg.eigvalsh(M), 0.0, None)
-    rank = int(np.sum(eig >= IDENTIFIABLE_TOLERANCE ** 2 * eig.max())) if eig.max() > 0 else 0
-    cond = float(np.sqrt(eig.max() / eig.min())) if eig.min() > 0 and rank == r else float("inf")
-    logdet = float(np.sum(np.log(eig)) / r) if rank == r else float("-inf")
-    if rank == r:
+    top = eig.max()
+    invertible = top > 0 and bool(np.all(eig >= IDENTIFIABLE_TOLERANCE ** 2 * top))
+    rank = int(np.sum(eig >= DEFAULT_RELATIVE_TOLERANCE ** 2 * top)) if top > 0 else 0
+    cond = float(np.sqrt(top / eig.min())) if invertible else float("inf")
+    logdet = float(np.sum(np.log(eig)) / r) if invertible else float("-inf")
+    if invertible:
         cov_scaled = cands.basis @ np.linalg.inv(M) @ cands.basis.T
         sigma = noise_mm * np.sqrt(np.clip(np.diag(cov_scaled), 0.0, None)) * cands.scale
     else:
