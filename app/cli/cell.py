@@ -37,15 +37,14 @@ def cmd_plan(args: argparse.Namespace) -> int:
     robot = cell.robot(args.robot)
     others = {n: park_q(n) for n in cell.robots if n != args.robot}
     safety = CellSafety(cell)
-    figs = None
+    spec = PlanSpec(q2_step_deg=args.q2_step, q3_step_deg=args.q3_step, cpa=args.cpa,
+                    n_validation=args.validation, seed=args.seed)
+    anchors, figs = None, None
     if args.design == "optimal":
-        plan, figs = _optimal_plan(args, robot, safety, others, park_q(args.robot))
-    else:
-        if args.budget is not None:
-            raise CellCalError("--budget applies to --design optimal only (the grid's size is set by its steps)")
-        spec = PlanSpec(q2_step_deg=args.q2_step, q3_step_deg=args.q3_step, cpa=args.cpa,
-                        n_validation=args.validation, seed=args.seed)
-        plan = session_plan(args.robot, safety, others, spec, park_q(args.robot))
+        anchors, figs = _optimal_anchors(args, robot, safety, others, park_q(args.robot))
+    elif args.budget is not None:
+        raise CellCalError("--budget applies to --design optimal only (the grid's size is set by its steps)")
+    plan = session_plan(args.robot, safety, others, spec, park_q(args.robot), anchors)
     plan.save(args.out)
     kinds: dict[str, int] = {}
     for t in plan.targets:
@@ -62,31 +61,23 @@ def cmd_plan(args: argparse.Namespace) -> int:
     return 0
 
 
-def _optimal_plan(args: argparse.Namespace, robot: Any, safety: Any, others: dict[str, Any], q_start: Any) -> Any:
-    """``plan --design optimal``: the D-optimal clusters (+ CPA sweeps and validation poses when asked)."""
+def _optimal_anchors(args: argparse.Namespace, robot: Any, safety: Any, others: dict[str, Any], q_start: Any) -> Any:
+    """``plan --design optimal``: the D-optimal clusters and their figures beside the paper's grid."""
     from app.cell.design_plan import DesignSpec, check_budget, optimal_plan
-    from app.cell.planning import build_plan
-    from app.cell.session_plan import CPA_BASE_DEG, CPA_RANGES_DEG, validation_plan
-    from app.cell.planning import plan_cpa_sweeps
     from calibration.parameterisation import MinimalParameterisation
 
     if args.budget is None:
         raise CellCalError("--design optimal needs --budget N (poses to measure, clusters of 7)")
     check_budget(args.budget)
+    _check_noise(args.noise_mm)
     spec = DesignSpec(budget=args.budget, noise_mm=args.noise_mm, seed=args.seed)
-    par = MinimalParameterisation(robot.model(), fit_tool=True)
-    plan, figs = optimal_plan(args.robot, par, safety, others, spec, q_start)
-    extra = []
-    if args.cpa:
-        extra += plan_cpa_sweeps(args.robot, CPA_RANGES_DEG, base_deg=CPA_BASE_DEG, step_deg=10.0,
-                                 first_cluster=spec.n_clusters)
-    if args.validation:
-        extra += list(validation_plan(args.robot, safety, others, args.validation, seed=args.seed).targets)
-    if extra:
-        plan = build_plan(plan.targets + tuple(extra), **{**plan.params, "cpa": args.cpa,
-                                                           "validation": args.validation})
-        safety.check_plan(args.robot, plan.q, others, q_start)
-    return plan, figs
+    return optimal_plan(args.robot, MinimalParameterisation(robot.model(), fit_tool=True), safety, others, spec,
+                        q_start)
+
+
+def _check_noise(noise_mm: float) -> None:
+    if not noise_mm > 0 or noise_mm == float("inf"):
+        raise CellCalError(f"--noise-mm must be a finite number > 0 [mm], got {noise_mm}")
 
 
 def cmd_select(args: argparse.Namespace) -> int:
@@ -100,6 +91,7 @@ def cmd_select(args: argparse.Namespace) -> int:
     rec = read_recording_arg(args.data, robot)
     n_clusters = len(set(rec.clusters().tolist()))
     check_budget(args.budget, n_clusters, unit="clusters")
+    _check_noise(args.noise_mm)
     par = MinimalParameterisation(robot.model(), fit_tool=True)
     sel = select_recording(par, rec, args.budget, args.noise_mm)
     write_recording(rec.subset(sel.rows), args.out)
