@@ -192,7 +192,7 @@ def _logdet(M: np.ndarray) -> np.ndarray:
 
 
 def select(cands: Candidates, budget: int, spread_weight: float = DEFAULT_SPREAD_WEIGHT,
-           exchange_passes: int = DEFAULT_EXCHANGE_PASSES, forced: tuple[int, ...] = ()) -> list[int]:
+           exchange_passes: int = DEFAULT_EXCHANGE_PASSES) -> list[int]:
     """Indices of ``budget`` clusters maximising the compound D + space-filling criterion (module docstring).
 
     Args:
@@ -200,7 +200,6 @@ def select(cands: Candidates, budget: int, spread_weight: float = DEFAULT_SPREAD
         budget: number of clusters to choose, 1..K.
         spread_weight: lambda (0: D-optimal alone).
         exchange_passes: Fedorov exchange passes after the greedy selection.
-        forced: clusters that must be in the design (kept through the exchange).
 
     Returns:
         Chosen cluster indices in the order they were chosen.
@@ -211,8 +210,8 @@ def select(cands: Candidates, budget: int, spread_weight: float = DEFAULT_SPREAD
     r = cands.info.shape[1]
     prior = PRIOR_FRACTION * float(np.trace(cands.info.mean(axis=0))) / max(r, 1) * np.eye(r)
     spread = _Spread(cands.anchors, int(budget))
-    chosen = list(forced)
-    M = prior + cands.info[chosen].sum(axis=0)
+    chosen: list[int] = []
+    M = prior.copy()
     while len(chosen) < budget:
         gain = _logdet(M[None] + cands.info) / r + spread_weight * spread.gains(chosen)
         gain[chosen] = -np.inf
@@ -226,7 +225,7 @@ def select(cands: Candidates, budget: int, spread_weight: float = DEFAULT_SPREAD
     current = criterion(chosen)
     for _ in range(exchange_passes):
         improved = False
-        for pos in range(len(forced), len(chosen)):
+        for pos in range(len(chosen)):
             rest = chosen[:pos] + chosen[pos + 1:]
             M_rest = prior + cands.info[rest].sum(axis=0)
             d_gain = _logdet(M_rest[None] + cands.info) / r
