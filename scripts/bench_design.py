@@ -219,7 +219,8 @@ def main(argv: list[str] | None = None) -> int:
               f"<= {GOAL['mean']}/{GOAL['max']}):")
         for label, row in result["days"]["units"].items():
             c = row["select"]["choice"]
-            print(f"  {label:12s} {c['method']:6s} {c['mean']:.3f}/{c['max']:.3f}  {'ok' if row['goal_met'] else 'MISSED'}")
+            verdict = "ok" if row["goal_met"] else "MISSED"
+            print(f"  {label:12s} {c['method']:6s} {c['mean']:.3f}/{c['max']:.3f}  {verdict}")
     if "sim" in result:
         s = result["sim"]
         print(f"sim: optimal ({s['optimal']['poses']} poses) {s['optimal']['choice']['mean']:.3f}/"

@@ -67,7 +67,8 @@ def check_budget(budget: int, limit: int | None = None, unit: str = "poses") -> 
     """ConfigError unless ``budget`` ([poses] in clusters of 7, or [clusters]) holds at least MIN_CLUSTERS clusters
     and at most ``limit``."""
     least = MIN_CLUSTERS * (CLUSTER_SIZE if unit == "poses" else 1)
-    ok = not isinstance(budget, bool) and isinstance(budget, int) and budget >= least and (limit is None or budget <= limit)
+    ok = (not isinstance(budget, bool) and isinstance(budget, int) and budget >= least
+          and (limit is None or budget <= limit))
     if not ok:
         what = f"{least} poses ({MIN_CLUSTERS} clusters of {CLUSTER_SIZE})" if unit == "poses" else f"{least} clusters"
         most = f" and at most {limit} (the recording's clusters)" if limit is not None else ""
@@ -186,8 +187,9 @@ def figures_table(figs: Mapping[str, design.DesignFigures]) -> str:
         row(f"sigma joint {j + 1} origin [mm]", [g(float(np.max(f.sigma[2 * j:2 * j + 2])), ".4f")
                                                  for f in figs.values()])
     for j in range(n):
-        row(f"sigma joint {j + 1} tilt [mdeg]", [g(1e3 * math.degrees(float(np.max(f.sigma[2 * n + 2 * j:2 * n + 2 * j + 2]))),
-                                                   ".3f") for f in figs.values()])
+        tilt = slice(2 * n + 2 * j, 2 * n + 2 * j + 2)
+        row(f"sigma joint {j + 1} tilt [mdeg]", [g(1e3 * math.degrees(float(np.max(f.sigma[tilt]))), ".3f")
+                                                 for f in figs.values()])
     if len(first.names) > 4 * n:
         row("sigma flange shift [mm]", [g(float(np.max(f.sigma[4 * n:])), ".4f") for f in figs.values()])
     lines.append(f"(sigma: predicted standard deviation for {first.noise_mm:g} mm of noise per measured coordinate)")
