@@ -1,14 +1,17 @@
 """An observability-optimal collection plan: a budget of pose clusters chosen by :mod:`calibration.design`.
 
 Candidates are anchors drawn (seeded) with q2 over the paper's q2 range and q3 inside its q2-dependent band (so the
-configuration-dependent fits interpolate where the paper's design does and the arm stays in the region the cell's
-safety model was checked on), while joints 1, 4, 5 and 6 move widely (``DesignSpec.wide_deg``, within the joint
+configuration-dependent fits interpolate over the region the paper's design covers), while joints 1, 4, 5 and 6 move
+widely (``DesignSpec.wide_deg``, within the joint
 limits): the paper's grid holds them within 2 deg and cannot identify their axes. Each candidate is the anchor and
 the anchor with ``perturb_deg`` on joint 1..6 in turn (the paper's cluster of 7, which the CDC local fits need);
 every one of its 7 poses must pass the cell's safety checks (limits, floor, the other arms parked) or the candidate is
 dropped. The D-optimal + space-filling selection (:func:`calibration.design.select`) picks ``budget // 7``
 clusters, they are visited in a short nearest-neighbour tour, and the whole plan (targets and the joint-space paths
 between them) is checked by :meth:`app.cell.safety.CellSafety.check_plan` before it is returned.
+
+Not modelled: whether the mocap cameras see the tool marker at the wide wrist angles (the safety model knows
+limits, the floor and the other arm only); check a new design with ``collect --dry-run`` and a short trial.
 
 :func:`compare_designs` gives the figures of the chosen design and of the paper's grid on the same identifiable
 directions (those of all candidates together), so the two are comparable.
