@@ -21,7 +21,10 @@ fitted with pi / fbf13 / the choice and validated on poses over the whole worksp
 beyond the grid's 2 deg; drawn wider than the design's own candidate box), each checked safe; and, for the
 record, on the demo's validation poses inside the grid's own region (wrist within 5 deg, ``grid_region``).
 
-    python scripts/bench_design.py [--json FILE] [--quick] [--days | --sim]
+Spread weight (``--spread-check``, training data only): pi on the 16 clusters selected with lambda = 0 (D alone),
+1 (the default) and 3, scored on the training clusters left out.
+
+    python scripts/bench_design.py [--json FILE] [--quick] [--days | --sim | --spread-check]
 """
 
 from __future__ import annotations
@@ -150,6 +153,27 @@ def bench_sparse(data: Path, log: Any) -> dict[str, Any]:
     return out
 
 
+def spread_check(data: Path, log: Any, weights: tuple[float, ...] = (0.0, 1.0, 3.0)) -> dict[str, Any]:
+    """Training data only: pi fitted on the 16 clusters selected with each spread weight, position error on the
+    training clusters left out (the evidence behind the default weight; no test recording is read)."""
+    robot = load_cell().robot("R1")
+    lim = (robot.robot.lower_rad, robot.robot.upper_rad)
+    par = MinimalParameterisation(robot.model(), fit_tool=True)
+    out: dict[str, Any] = {}
+    for unit in UNITS:
+        train = read_recording(data / "PH_grad_data" / unit.train, *lim)
+        row = {}
+        for w in weights:
+            sel = select_recording(par, train, BUDGET_CLUSTERS, NOISE_MM, spread_weight=w)
+            rest = train.subset(np.setdiff1d(np.arange(len(train)), sel.rows))
+            model, _ = make_fitter(robot, train.subset(sel.rows)).fit("pi")
+            row[f"{w:g}"] = mean_max(errors(model, rest).position_mm)
+        out[unit.name] = row
+        log(f"spread weight, {unit.name:12s} left-out training clusters: " + "  ".join(
+            f"{k}: {v['mean']:.3f}/{v['max']:.3f}" for k, v in row.items()))
+    return out
+
+
 def measure(truth: Any, q: np.ndarray, noise_mm: float, noise_deg: float, rng: np.random.Generator,
             extra: dict[str, np.ndarray] | None = None) -> Recording:
     """Noisy static samples of the twin at q (per-sample noise of the simulated mocap)."""
@@ -238,18 +262,22 @@ def main(argv: list[str] | None = None) -> int:
     only.add_argument("--days", action="store_true", help="only the real-data part")
     only.add_argument("--sim", action="store_true", help="only the simulated cell")
     parser.add_argument("--seed", type=int, default=0, help="seed of the simulated cell")
+    parser.add_argument("--spread-check", action="store_true",
+                        help="only the training-data check of the spread weight (0, 1, 3) on left-out clusters")
     args = parser.parse_args(argv)
     draws = args.draws or (5 if args.quick else 20)
     log = lambda s: print(s, flush=True)  # noqa: E731
     result: dict[str, Any] = {}
     start = time.perf_counter()
-    if not args.sim:
+    if args.spread_check:
+        result["spread_check"] = spread_check(args.data, log)
+    elif not args.sim:
         if args.data.exists():
             result["sparse_0801"] = bench_sparse(args.data, log)
             result["days"] = bench_days(args.data, draws, log)
         else:
             log(f"no data at {args.data}: real-data part skipped")
-    if not args.days:
+    if not (args.days or args.spread_check):
         result["sim"] = bench_sim(args.seed, log)
     result["seconds"] = round(time.perf_counter() - start, 1)
     if "days" in result:
