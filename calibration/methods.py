@@ -281,11 +281,12 @@ class Fitter:
         local, pi = self.local_fits(), self.physics_informed()
         groups, _ = cluster_anchors(self.train, self.options.cluster_size)
         scores: list[robust.HeldOut | None] = []
+        reference = robust.position_errors(pi.kinematics, pi.theta, self.train)
         for v in grid:
             try:
                 scores.append(robust.held_out(lambda: make_interpolator(method, **{**options, name: v}),
                                               pi.kinematics, pi.theta, local.anchors, local.x, groups, self.train,
-                                              CDC_INPUTS, seed=self.options.seed))
+                                              CDC_INPUTS, seed=self.options.seed, reference_mm=reference))
             except ModelError as e:  # e.g. ridge 0 with fewer than 13 anchors in a fold: that strength is out
                 log.info("%s %s=%g cannot be fitted on the held-out folds: %s", method, name, v, e)
                 scores.append(None)
