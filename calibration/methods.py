@@ -56,7 +56,9 @@ class FitOptions:
             the training poses (the strongest when none does). 0.1 was the fixed value before.
         local_prior_grid: candidate local priors.
         fourier_ridge_grid: candidate ridge strengths of fbf13/fbf7 (0 = the paper's least squares), chosen on
-            held-out clusters by the same rule.
+            held-out clusters by the same rule. It reaches 10 (times the basis Gram matrix's mean diagonal), where
+            the fit is nearly the anchors' mean, so sparse anchors can always fall back to a smooth fit; strengths a
+            fold cannot fit (ridge 0 with fewer than 13 anchors) are left out of the choice.
         nls0_clusters: number of clusters nearest q = 0 used by ``nls0``.
         fbf7_rank: rank of the SVD-reduced Fourier basis.
         cluster_size: samples per anchor when the recording has no cluster column.
@@ -68,7 +70,7 @@ class FitOptions:
     fit_tool: bool = True
     local_prior: float | None = None
     local_prior_grid: tuple[float, ...] = (0.1, 0.3, 1.0, 3.0, 10.0)
-    fourier_ridge_grid: tuple[float, ...] = (0.0, 1e-3, 1e-2, 1e-1)
+    fourier_ridge_grid: tuple[float, ...] = (0.0, 1e-3, 1e-2, 1e-1, 1.0, 10.0)
     nls0_clusters: int = 9
     fbf7_rank: int = 7
     cluster_size: int = 7
@@ -278,12 +280,24 @@ class Fitter:
 
         local, pi = self.local_fits(), self.physics_informed()
         groups, _ = cluster_anchors(self.train, self.options.cluster_size)
-        scores = [robust.held_out(lambda: make_interpolator(method, **{**options, name: v}), pi.kinematics,
-                                  pi.theta, local.anchors, local.x, groups, self.train, CDC_INPUTS,
-                                  seed=self.options.seed) for v in grid]
-        chosen = grid[robust.one_se_choice(grid, scores)]
+        scores: list[robust.HeldOut | None] = []
+        reference = robust.position_errors(pi.kinematics, pi.theta, self.train)
+        for v in grid:
+            try:
+                scores.append(robust.held_out(lambda: make_interpolator(method, **{**options, name: v}),
+                                              pi.kinematics, pi.theta, local.anchors, local.x, groups, self.train,
+                                              CDC_INPUTS, seed=self.options.seed, reference_mm=reference))
+            except ModelError as e:  # e.g. ridge 0 with fewer than 13 anchors in a fold: that strength is out
+                log.info("%s %s=%g cannot be fitted on the held-out folds: %s", method, name, v, e)
+                scores.append(None)
+        usable = [i for i, s in enumerate(scores) if s is not None]
+        if not usable:
+            raise ModelError(f"{method}: no {name} of {list(grid)} can be fitted on the held-out folds of "
+                             f"{len(local.anchors)} clusters")
+        chosen = grid[usable[robust.one_se_choice(tuple(grid[i] for i in usable), [scores[i] for i in usable])]]
         self._cache.setdefault("strengths", {})[method] = {
-            name: chosen, "grid": list(grid), "heldout_rms_mm": [round(s.rms_mm, 4) for s in scores]}
+            name: chosen, "grid": list(grid),
+            "heldout_rms_mm": [None if s is None else round(s.rms_mm, 4) for s in scores]}
         return chosen
 
     def _cdc_checks(self, method: str, options: dict[str, Any], model: Any) -> dict[str, Any]:

@@ -80,7 +80,8 @@ def position_errors(kin: ExtendedKinematics, theta: np.ndarray, rec: Recording) 
 
 def held_out(make: Callable[[], Interpolator], kin: ExtendedKinematics, theta_ref: np.ndarray,
              anchors: np.ndarray, x_local: np.ndarray, groups: np.ndarray, rec: Recording,
-             inputs: tuple[int, ...], clamp: bool = True, n_folds: int = N_FOLDS, seed: int = 0) -> HeldOut:
+             inputs: tuple[int, ...], clamp: bool = True, n_folds: int = N_FOLDS, seed: int = 0,
+             reference_mm: np.ndarray | None = None) -> HeldOut:
     """Held-out-cluster error of the interpolator ``make()`` over the local fits.
 
     Args:
@@ -91,6 +92,8 @@ def held_out(make: Callable[[], Interpolator], kin: ExtendedKinematics, theta_re
         rec: the training recording.
         inputs: joint indices the interpolator reads.
         clamp: clip predictions to the training folds' per-parameter range (as the fitted model does).
+        reference_mm: ``position_errors(kin, theta_ref, rec)`` when the caller already has it (it does not depend
+            on the interpolator, so a choice among strengths computes it once).
     """
     folds = cluster_folds(len(anchors), n_folds, seed)
     g = x_local.shape[1]
@@ -106,7 +109,7 @@ def held_out(make: Callable[[], Interpolator], kin: ExtendedKinematics, theta_re
         theta = np.array(np.broadcast_to(theta_ref, (len(idx), kin.size)))
         theta[:, :g] = x
         err[idx] = position_errors(kin, theta, rec.subset(idx))
-    ref = position_errors(kin, theta_ref, rec)
+    ref = position_errors(kin, theta_ref, rec) if reference_mm is None else reference_mm
     per_cluster = np.bincount(groups, err ** 2) / np.maximum(np.bincount(groups), 1)
     rms = float(np.sqrt(np.mean(err ** 2)))
     se = float(per_cluster.std(ddof=1) / np.sqrt(len(per_cluster)) / (2.0 * max(rms, 1e-12)))

@@ -34,17 +34,73 @@ def cmd_plan(args: argparse.Namespace) -> int:
     from app.cell.session_plan import PlanSpec, session_plan
 
     cell = cell_spec(args)
-    cell.robot(args.robot)
+    robot = cell.robot(args.robot)
     others = {n: park_q(n) for n in cell.robots if n != args.robot}
+    safety = CellSafety(cell)
     spec = PlanSpec(q2_step_deg=args.q2_step, q3_step_deg=args.q3_step, cpa=args.cpa,
                     n_validation=args.validation, seed=args.seed)
-    plan = session_plan(args.robot, CellSafety(cell), others, spec, park_q(args.robot))
+    anchors, figs = None, None
+    if args.design == "optimal":
+        anchors, figs = _optimal_anchors(args, robot, safety, others, park_q(args.robot))
+    elif args.budget is not None:
+        raise CellCalError("--budget applies to --design optimal only (the grid's size is set by its steps)")
+    plan = session_plan(args.robot, safety, others, spec, park_q(args.robot), anchors)
     plan.save(args.out)
     kinds: dict[str, int] = {}
     for t in plan.targets:
         kinds[t.kind] = kinds.get(t.kind, 0) + 1
     print(f"{args.robot}: {len(plan)} targets ({', '.join(f'{v} {k}' for k, v in kinds.items())}), checked safe "
           f"with the other arms parked -> {args.out}")
+    if figs is not None:
+        from app.cell.design_plan import figures_table
+
+        print(figures_table(figs))
+    write_json(args.json, {"robot": args.robot, "design": args.design, "targets": len(plan), "kinds": kinds,
+                           "out": str(args.out),
+                           **({"figures": {k: f.to_json() for k, f in figs.items()}} if figs else {})})
+    return 0
+
+
+def _optimal_anchors(args: argparse.Namespace, robot: Any, safety: Any, others: dict[str, Any], q_start: Any) -> Any:
+    """``plan --design optimal``: the D-optimal clusters and their figures beside the paper's grid."""
+    from app.cell.design_plan import DesignSpec, check_budget, optimal_plan
+    from calibration.parameterisation import MinimalParameterisation
+
+    if args.budget is None:
+        raise CellCalError("--design optimal needs --budget N (poses to measure, clusters of 7)")
+    check_budget(args.budget)
+    _check_noise(args.noise_mm)
+    spec = DesignSpec(budget=args.budget, noise_mm=args.noise_mm, seed=args.seed)
+    return optimal_plan(args.robot, MinimalParameterisation(robot.model(), fit_tool=True), safety, others, spec,
+                        q_start)
+
+
+def _check_noise(noise_mm: float) -> None:
+    if not noise_mm > 0 or noise_mm == float("inf"):
+        raise CellCalError(f"--noise-mm must be a finite number > 0 [mm], got {noise_mm}")
+
+
+def cmd_select(args: argparse.Namespace) -> int:
+    from app.cell.design_plan import check_budget, figures_table
+    from app.cli.common import read_recording_arg
+    from calibration.design import select_recording
+    from calibration.parameterisation import MinimalParameterisation
+    from calibration.recording import write_recording
+
+    robot = cell_spec(args).robot(args.robot)
+    rec = read_recording_arg(args.data, robot)
+    n_clusters = len(set(rec.clusters().tolist()))
+    check_budget(args.budget, n_clusters, unit="clusters")
+    _check_noise(args.noise_mm)
+    par = MinimalParameterisation(robot.model(), fit_tool=True)
+    sel = select_recording(par, rec, args.budget, args.noise_mm)
+    write_recording(rec.subset(sel.rows), args.out)
+    print(f"{args.robot}: {len(sel.clusters)} of {n_clusters} clusters ({len(sel.rows)} of {len(rec)} samples) "
+          f"-> {args.out}")
+    print(figures_table({"selected": sel.selected, "all clusters": sel.every}))
+    write_json(args.json, {"robot": args.robot, "data": str(args.data), "out": str(args.out), "budget": args.budget,
+                           "clusters": list(sel.clusters), "samples": int(len(sel.rows)),
+                           "figures": {"selected": sel.selected.to_json(), "all": sel.every.to_json()}})
     return 0
 
 
@@ -248,7 +304,25 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--q3-step", type=float, default=5.0, help="anchor grid q3 step [deg]")
     p.add_argument("--cpa", action="store_true", help="add single-joint sweeps (needed by the cpa method)")
     p.add_argument("--validation", type=int, default=0, help="random validation poses to add (the test set)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the validation poses")
+    p.add_argument("--seed", type=int, default=0, help="seed of the validation poses (and of the optimal design's "
+                                                        "candidates)")
+    p.add_argument("--design", choices=("grid", "optimal"), default="grid",
+                   help="grid: the paper's anchor grid (default); optimal: D-optimal clusters that move joints 1, 4, "
+                        "5, 6 widely and spread over (q2, q3), within the limits and the safety model")
+    p.add_argument("--budget", type=int, help="--design optimal: poses to measure (whole clusters of 7)")
+    p.add_argument("--noise-mm", type=float, default=0.05,
+                   help="measurement noise assumed for the predicted parameter uncertainty [mm]")
+    p.add_argument("--json", help="write the plan summary (and the design figures) as JSON")
+
+    p = add("select", cmd_select, "choose the most informative clusters of a recording (the plan --design optimal "
+                                  "criterion) and write them as a recording subset")
+    p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
+    p.add_argument("--data", required=True, help="training recording CSV or Welding_Motoman folder")
+    p.add_argument("--budget", required=True, type=int, help="clusters to keep (at least 3)")
+    p.add_argument("--out", required=True, help="the subset recording CSV")
+    p.add_argument("--noise-mm", type=float, default=0.05,
+                   help="measurement noise assumed for the predicted parameter uncertainty [mm]")
+    p.add_argument("--json", help="write the chosen clusters and the design figures as JSON")
 
     p = add("collect", cmd_collect, "guided collection session of one arm (durable, resumable)")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
