@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -41,6 +42,8 @@ DIRECTION_NAMES = tuple(f"{frame} {what}" for frame in ("base", "tool") for what
     "x shift", "y shift", "z shift", "rotation about x", "rotation about y", "rotation about z"))
 #: The rotation directions of ``delta`` (held when ``rotations=False``).
 ROTATION_INDEX = np.array([3, 4, 5, 9, 10, 11])
+#: The directions of each frame in ``delta`` (the others are held when ``frames`` leaves that frame out).
+FRAME_INDEX = {"base": np.arange(0, 6), "tool": np.arange(6, 12)}
 
 
 @dataclass(frozen=True)
@@ -129,14 +132,16 @@ class RebaseProblem:
         tolerance: relative singular value below which a direction is held at zero.
         reach_mm: length that turns rotation columns into millimetres for the SVD.
         rotations: False holds the six rotation directions (a translation-only rebase).
+        frames: the frames to fit, a subset of ``("base", "tool")`` (the other frame's six directions are held).
 
     Raises:
-        ModelError: shapes do not match or values are not finite.
+        ModelError: shapes do not match, values are not finite or a frame name is unknown.
     """
 
     def __init__(self, model: KinematicModel, q: np.ndarray, R_meas: np.ndarray, p_meas: np.ndarray,
                  a: float = DEFAULT_ORIENTATION_WEIGHT, tolerance: float = DEFAULT_RELATIVE_TOLERANCE,
-                 reach_mm: float = DEFAULT_REACH_MM, rotations: bool = True) -> None:
+                 reach_mm: float = DEFAULT_REACH_MM, rotations: bool = True,
+                 frames: tuple[str, ...] = ("base", "tool")) -> None:
         self.model = model
         self.q = np.atleast_2d(np.asarray(q, dtype=float))
         if self.q.ndim != 2 or self.q.shape[0] == 0:
@@ -146,7 +151,12 @@ class RebaseProblem:
                                                      check_motion=False)
         self.n_samples = self.frames.n_samples
         J = self.frames.jacobian(np.eye(4), np.eye(4), 1.0)
-        free = np.ones(12, dtype=bool)
+        unknown = [f for f in frames if f not in FRAME_INDEX]
+        if unknown or not frames:
+            raise ModelError(f"unknown frame {unknown[0] if unknown else frames!r}; valid: base, tool")
+        free = np.zeros(12, dtype=bool)
+        for frame in frames:
+            free[FRAME_INDEX[frame]] = True
         if not rotations:
             free[ROTATION_INDEX] = False
         scale = np.tile([1.0] * 3 + [1.0 / reach_mm] * 3, 2)
@@ -160,7 +170,7 @@ class RebaseProblem:
             _describe_free(self.observability, i, free) for i in range(self.observability.rank, int(free.sum())))
 
     @classmethod
-    def from_recording(cls, model: KinematicModel, rec: Recording, **options: float | bool) -> "RebaseProblem":
+    def from_recording(cls, model: KinematicModel, rec: Recording, **options: Any) -> "RebaseProblem":
         """The problem on a recording's poses (``options`` as in the constructor)."""
         return cls(model, rec.q, rec.R, rec.p, **options)  # type: ignore[arg-type]
 
@@ -215,7 +225,7 @@ def _describe_free(obs: Observability, index: int, free: np.ndarray) -> str:
     return f"{terms} together (relative singular value {rel:.1e})"
 
 
-def rebase(model: KinematicModel, rec: Recording, **options: float | bool) -> tuple[RebasedModel, RebaseResult]:
+def rebase(model: KinematicModel, rec: Recording, **options: Any) -> tuple[RebasedModel, RebaseResult]:
     """Refit ``model``'s base and tool-marker frames on ``rec`` (a few poses of the new day).
 
     Returns:

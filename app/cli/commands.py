@@ -79,8 +79,20 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     pos, ori = result["test"]["position_mm"], result["test"]["orientation_deg"]
     print(f"{model.method} on {len(test)} samples: position mean {pos['mean']:.3f} std {pos['std']:.3f} "
           f"max {pos['max']:.3f} mm; orientation mean {ori['mean']:.3f} max {ori['max']:.3f} deg")
+    result["frames"] = _test_frame_check(model, test, "recording, against the data the model was fitted on,")
     write_json(args.json, result)
     return 0
+
+
+def _test_frame_check(model: Any, test: Any, subject: str) -> dict[str, Any]:
+    """:func:`calibration.frames.check_test` of ``model`` on ``test``, its message printed as a warning; JSON."""
+    from calibration.frames import check_test
+
+    check = check_test(model, test, subject)
+    if check.found:
+        print(f"warning: {check.message()} No kinematic model can remove that; the errors reported are "
+              "without the frame fit.", file=sys.stderr)
+    return check.to_json()
 
 
 def cmd_rebase(args: argparse.Namespace) -> int:
@@ -140,6 +152,11 @@ def cmd_compare(args: argparse.Namespace) -> int:
     fitter, robot = fitter_from_args(args)
     test = read_recording_arg(args.test, robot)
     cmp = run_comparison(fitter, test, methods, files=files)
+    cmp.analysis["frames"] = {"training": args.frame_check.to_json()}
+    checked = next((m for m in (cmp.recommended, "pi", "nls1") if m in cmp.models), None)
+    if checked is not None:
+        cmp.analysis["frames"]["test"] = {"model": checked, **_test_frame_check(
+            cmp.models[checked], test, f"test recording, against the {checked} fit of the training recording,")}
     warning = cmp.analysis["observability"]["warning"]
     if warning:
         print(f"warning: {warning}", file=sys.stderr)
