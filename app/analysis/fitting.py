@@ -54,3 +54,16 @@ def checked_fitter_for(robot: Any, train: Any, cpa: Any | None = None, options: 
     if check.found:
         log.info("%s Fitting the base and tool frames first, then the kinematics.", check.message())
     return fitter, check
+
+
+def days_fitter_for(robot: Any, trains: list[Any], cpa: Any | None = None, options: Any | None = None) -> Any:
+    """Several training recordings in one fit: one arm, per-recording frames (:func:`calibration.multiday.fit_days`).
+
+    Returns:
+        The :class:`calibration.multiday.MultiDayFit` (its ``fitter`` fits any method).
+    """
+    from calibration.models import ConstantModel
+    from calibration.multiday import fit_days
+
+    nominal = ConstantModel(robot.name, "nominal", robot.model(), 0, {})
+    return fit_days(lambda rec: fitter_for(robot, rec, cpa, options), nominal, trains)

@@ -152,7 +152,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
     fitter, robot = fitter_from_args(args)
     test = read_recording_arg(args.test, robot)
     cmp = run_comparison(fitter, test, methods, files=files)
-    cmp.analysis["frames"] = {"training": args.frame_check.to_json()}
+    cmp.analysis["frames"] = {"training": None if args.frame_check is None else args.frame_check.to_json()}
+    if args.days is not None:
+        cmp.analysis["days"] = args.days.to_json()
     checked = next((m for m in (cmp.recommended, "pi", "nls1") if m in cmp.models), None)
     if checked is not None:
         cmp.analysis["frames"]["test"] = {"model": checked, **_test_frame_check(
@@ -185,7 +187,9 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
 def _add_fit_inputs(p: argparse.ArgumentParser) -> None:
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
-    p.add_argument("--train", required=True, help="training recording CSV or Welding_Motoman folder")
+    p.add_argument("--train", required=True, action="append",
+                   help="training recording CSV or Welding_Motoman folder; repeat it to fit several recordings "
+                        "(days) as one arm with a pair of frames per recording")
     p.add_argument("--cpa", help="single-joint sweep recording for circular point analysis")
     p.add_argument("--a", type=float, default=1641.0, help="orientation weight (1641: 1 mm ~ 1 deg)")
 

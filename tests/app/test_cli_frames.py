@@ -69,3 +69,19 @@ def test_compare_and_evaluate_say_when_the_test_recording_is_off_by_a_frame(tmp_
                  "--json", str(out)]) == 0
     assert "base frame (mocap-to-base registration)" in capsys.readouterr().err
     assert json.loads(out.read_text())["frames"]["frame"] == "base"
+
+
+def test_several_training_recordings_fit_one_arm_with_frames_each(tmp_path, data, capsys):
+    out = tmp_path / "cmp.json"
+    train_moved = tmp_path / "train_moved.csv"
+    from calibration.recording import read_recording
+
+    write_recording(put_in(read_recording(data / "train.csv"), T_BASE_ERR, np.eye(4)), train_moved)
+    assert main(["compare", "--robot", "R1", "--train", str(data / "train.csv"), "--train", str(train_moved),
+                 "--test", str(data / "test.csv"), "--methods", "nominal,nls1", "--json", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "2 recordings in one arm model" in err and "The frames explain the differences" in err
+    days = json.loads(out.read_text())["analysis"]["days"]
+    moved = days["days"][1]["frames"]
+    assert abs(moved["base_mm"] - np.linalg.norm(T_BASE_ERR[:3, 3])) < 0.1 and not days["kinematics_changed"]
+    assert json.loads(out.read_text())["methods"]["nls1"]["test"]["position_mm"]["mean"] < 0.1
