@@ -27,8 +27,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from calibration.errors import ModelError  # noqa: E402
-from calibration.methods import METHODS, FitOptions, Fitter  # noqa: E402
+from calibration.methods import METHODS, Fitter  # noqa: E402
 from calibration.metrics import errors  # noqa: E402
 from calibration.models.rebased import wrap_pose  # noqa: E402
 from calibration.poe import pose_error  # noqa: E402
@@ -69,14 +68,9 @@ UNITS = (
 
 def make_fitter(robot: Any, train: Recording) -> Fitter:
     """A Fitter for one arm of the cell (its nominal model, link masses, joint limits), as ``compare`` builds it."""
-    from calibration.physics.gravity import GravityModel
+    from app.analysis.fitting import fitter_for
 
-    nominal = robot.model()
-    try:
-        gravity = GravityModel.from_spec(robot.robot, nominal)
-    except ModelError:
-        gravity = None
-    return Fitter(robot.name, nominal, train, FitOptions(), None, gravity, (robot.robot.lower_rad, robot.robot.upper_rad))
+    return fitter_for(robot, train)
 
 
 def spread_clusters(rec: Recording, k: int = N_REBASE_CLUSTERS) -> list[int]:
