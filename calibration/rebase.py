@@ -233,3 +233,47 @@ def rebase(model: KinematicModel, rec: Recording, **options: Any) -> tuple[Rebas
     """
     result = RebaseProblem.from_recording(model, rec, **options).solve()
     return result.model(model), result
+
+
+#: The candidates of :func:`choose_directions`, fewest parameters first.
+CHOICES = ("translations", "frames")
+
+
+def choose_directions(model: KinematicModel, rec: Recording, cluster_size: int = 7, **options: Any
+                      ) -> tuple[str, dict[str, float]]:
+    """Both frames (12 directions) or their translations only (6), chosen on ``rec`` itself.
+
+    Each cluster is held out in turn from a rebase on the others; the translations win unless the full frames'
+    held-out mean position error is lower by more than its standard error over the held-out poses (the
+    fewest-parameters-within-one-standard-error rule). With fewer than 2 clusters: the full frames. On the shared
+    days' cross-day pairs, a translation-only rebase on 3 clusters is tied with the full one on the new day's other
+    training clusters (median 0.214 against 0.215 mm; ``scripts/bench_rebase_variants.py``).
+
+    Returns:
+        ``"translations"`` or ``"frames"``, and each candidate's held-out mean [mm] (empty with < 2 clusters).
+    """
+    cluster = rec.clusters(cluster_size)
+    ids = np.unique(cluster)
+    if ids.size < 2:
+        return "frames", {}
+    errs = {}
+    for choice in CHOICES:
+        parts = []
+        for c in ids:
+            fitted = RebaseProblem.from_recording(model, rec.subset(cluster != c), rotations=choice == "frames",
+                                                  **options).solve()
+            held = rec.subset(cluster == c)
+            parts.append(pose_error(held.R, held.p, *fitted.model(model).fk(held.q))[0])
+        errs[choice] = np.concatenate(parts)
+    means = {k: float(np.mean(v)) for k, v in errs.items()}
+    best = min(means, key=means.get)
+    limit = means[best] + float(np.std(errs[best], ddof=1) / np.sqrt(errs[best].size))
+    return next(k for k in CHOICES if means[k] <= limit), means
+
+
+def rebase_auto(model: KinematicModel, rec: Recording, cluster_size: int = 7, **options: Any
+                ) -> tuple[RebasedModel, RebaseResult, str]:
+    """:func:`rebase` along the directions :func:`choose_directions` picks; also returns the choice."""
+    choice, _ = choose_directions(model, rec, cluster_size, **options)
+    rebased, result = rebase(model, rec, rotations=choice == "frames", **options)
+    return rebased, result, choice

@@ -12,13 +12,15 @@ several ways of using the 21 poses:
   the 3 clusters (``inf`` = frames only is a candidate);
 - ``frames+refit`` (pi only): both frames, then the pi model's parameters refitted on the 21 poses with a ridge
   toward the old model (mm-scaled, as the CDC local fits), strength chosen the same way, then the frames again;
-- ``chosen``: the one of ``frames``, ``base`` and ``translations`` leave-one-cluster-out prefers.
+- ``chosen``: the one of ``frames``, ``base`` and ``translations`` leave-one-cluster-out prefers;
+- ``auto (cellcal rebase)``: :func:`calibration.rebase.rebase_auto`, the translations unless both frames do better
+  by more than a standard error on the clusters held out in turn.
 
 Every per-pair choice uses the 21 poses only (never B's test recording). The last column, each variant's mean error
 on the clusters of B's training recording outside the 21 poses, is what a default variant may be chosen on
 (training data only). Also printed: ``frames`` on all of B's training poses, a bound on what frames alone can do.
 
-    python scripts/bench_rebase_variants.py [--method pi] [--json FILE] [--skip-offsets]
+    python scripts/bench_rebase_variants.py [--method pi] [--json FILE] [--skip-offsets] [--skip-refit]
 """
 
 from __future__ import annotations
@@ -40,7 +42,7 @@ from calibration.frames import take_out  # noqa: E402
 from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, GeometricProblem  # noqa: E402
 from calibration.models.rebased import wrap_pose  # noqa: E402
 from calibration.poe import pose_error  # noqa: E402
-from calibration.rebase import RebaseProblem, corrections  # noqa: E402
+from calibration.rebase import RebaseProblem, corrections, rebase_auto  # noqa: E402
 from calibration.recording import Recording, read_recording  # noqa: E402
 from cell_config import load_cell  # noqa: E402
 from scripts.bench_days import CLUSTER_SIZE, DATA, GOAL_RATIO, UNITS, make_fitter, spread_clusters  # noqa: E402
@@ -94,18 +96,18 @@ def with_refit(model: Any, rec: Recording, prior: float) -> Predict:
     return RebaseProblem.from_recording(inner, rec).solve().model(inner).fk
 
 
-def loco(fit: Callable[[Recording], Predict], rec: Recording) -> float:
-    """Mean position error on each cluster held out from the fit on the others [mm]."""
+def loco_errors(fit: Callable[[Recording], Predict], rec: Recording) -> np.ndarray:
+    """Position error of every pose when its cluster is held out from the fit on the others [mm]."""
     cl = rec.clusters(CLUSTER_SIZE)
     errs = []
     for c in np.unique(cl):
         predict, held = fit(rec.subset(cl != c)), rec.subset(cl == c)
         errs.append(pose_error(held.R, held.p, *predict(held.q))[0])
-    return float(np.mean(np.concatenate(errs)))
+    return np.concatenate(errs)
 
 
 def chosen(fits: dict[Any, Callable[[Recording], Predict]], rec: Recording) -> Any:
-    scores = {k: loco(f, rec) for k, f in fits.items()}
+    scores = {k: float(np.mean(loco_errors(f, rec))) for k, f in fits.items()}
     return min(scores, key=scores.get)
 
 
@@ -114,6 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--method", default="pi")
     parser.add_argument("--json", help="write every ratio to this JSON file")
     parser.add_argument("--skip-offsets", action="store_true", help="leave out frames+offsets (the slowest)")
+    parser.add_argument("--skip-refit", action="store_true", help="leave out frames+refit")
     args = parser.parse_args(argv)
     if not DATA.exists():
         print(f"shared recordings not found at {DATA}", file=sys.stderr)
@@ -137,11 +140,13 @@ def main(argv: list[str] | None = None) -> int:
             predicts: dict[str, Predict] = {k: frames_only(m, rec, **o) for k, o in FRAME_VARIANTS.items()}
             pick = chosen({k: (lambda r, o=o: frames_only(m, r, **o)) for k, o in FRAME_VARIANTS.items()}, rec)
             predicts["chosen"] = predicts[pick]
-            extra: dict[str, Any] = {"chosen": pick}
+            auto, _, auto_choice = rebase_auto(m, rec)
+            predicts["auto (cellcal rebase)"] = auto.fk
+            extra: dict[str, Any] = {"chosen": pick, "auto": auto_choice}
             if not args.skip_offsets:
                 ridge = chosen({g: (lambda r, g=g: with_offsets(m, r, g)) for g in OFFSET_GRID}, rec)
                 predicts["frames+offsets"], extra["offsets_ridge"] = with_offsets(m, rec, ridge), ridge
-            if args.method == "pi":
+            if args.method == "pi" and not args.skip_refit:
                 prior = chosen({g: (lambda r, g=g: with_refit(m, r, g)) for g in REFIT_GRID}, rec)
                 predicts["frames+refit"], extra["refit_prior"] = with_refit(m, rec, prior), prior
             rest = train[b.name].subset(~np.isin(train[b.name].clusters(CLUSTER_SIZE),

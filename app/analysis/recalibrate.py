@@ -219,7 +219,8 @@ def model_to_rebase(model_dir: str | Path, service: InService) -> KinematicModel
 
 def rebase_candidate(model_dir: str | Path, service: InService, train: Recording) -> tuple[KinematicModel, Any]:
     """The candidate of ``recalibrate --rebase``: the model in service with only its base and tool-marker frames
-    refitted on ``train`` (a few clusters of the new day, :func:`calibration.rebase.rebase`).
+    refitted on ``train`` (a few clusters of the new day, :func:`calibration.rebase.rebase_auto`: the translations,
+    or the full frames when they do better on held-out clusters).
 
     Returns:
         The rebased model (kind ``rebased``) and the :class:`~calibration.rebase.RebaseResult`.
@@ -228,10 +229,10 @@ def rebase_candidate(model_dir: str | Path, service: InService, train: Recording
         DataError: there is no usable model in service to rebase.
         ModelError: the frame fit did not converge (nothing is installed).
     """
-    from calibration.rebase import rebase
+    from calibration.rebase import rebase_auto
 
     model = model_to_rebase(model_dir, service)
-    rebased, result = rebase(model, train)
+    rebased, result, _ = rebase_auto(model, train)
     if not result.converged:
         raise ModelError(f"the rebase of the model in service on {train.source} did not converge "
                          f"({result.reason.value}); nothing installed")

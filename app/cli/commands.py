@@ -97,12 +97,16 @@ def _test_frame_check(model: Any, test: Any, subject: str) -> dict[str, Any]:
 
 def cmd_rebase(args: argparse.Namespace) -> int:
     from calibration.models import save_model
-    from calibration.rebase import rebase
+    from calibration.rebase import rebase, rebase_auto
 
     robot = cell_spec(args).robot(args.robot)
     model = load_model_for(args.model, robot)
     data = read_recording_arg(args.data, robot)
-    rebased, result = rebase(model, data, tolerance=args.tolerance, rotations=not args.translation_only)
+    if args.translation_only or args.all_directions:
+        rebased, result = rebase(model, data, tolerance=args.tolerance, rotations=args.all_directions)
+        choice = "translations" if args.translation_only else "frames"
+    else:
+        rebased, result, choice = rebase_auto(model, data, tolerance=args.tolerance)
     if not result.converged:
         raise CellCalError(f"rebase of {args.model} on {args.data} did not converge ({result.reason.value}); "
                            "nothing written")
@@ -110,7 +114,8 @@ def cmd_rebase(args: argparse.Namespace) -> int:
     print(result.summary())
     print(f"rebased {model.method} model -> {args.out}")
     write_json(args.json, {"robot": robot.name, "model": str(args.model), "data": str(args.data),
-                           "samples": result.n_samples, "fitted_directions": result.fitted, "held": list(result.held),
+                           "samples": result.n_samples, "directions": choice, "fitted_directions": result.fitted,
+                           "held": list(result.held),
                            "position_mean_mm": {"before": result.mean_before_mm, "after": result.mean_after_mm},
                            "T_base_correction": result.T_base_correction.tolist(),
                            "T_tool_correction": result.T_tool_correction.tolist(), "out": str(args.out)})
@@ -233,7 +238,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", help="write the corrections and the error before/after as JSON")
     p.add_argument("--tolerance", type=float, default=1e-2,
                    help="frame directions below this fraction of the largest singular value are held at zero")
-    p.add_argument("--translation-only", action="store_true", help="fit only the two translations (6 parameters)")
+    which = p.add_mutually_exclusive_group()
+    which.add_argument("--translation-only", action="store_true", help="fit only the two translations (6 parameters)")
+    which.add_argument("--all-directions", action="store_true",
+                       help="fit both frames' translations and rotations (12); default: the translations unless "
+                            "the rotations do better on clusters held out in turn (by more than a standard error)")
     p = add("export-urdf", cmd_export_urdf, "write a model's calibrated geometry as a URDF (revolute chain, flange "
                                             "and tool-marker frames, joint limits; says what a URDF cannot hold)")
     p.add_argument("--model", required=True, help="the model file (constant, pi, cdc, physics, diagnosed, rebased)")
