@@ -37,7 +37,7 @@ from calibration.recording import Recording
 
 #: A nominal mean error [mm] beyond this is never kinematics alone (the shared days' nominal means are 1.2-1.8).
 NOMINAL_LIMIT_MM = 5.0
-#: Share of the nominal mean a single-frame fit must remove to count as a frame problem.
+#: Share of the nominal mean the fit of both frames must remove to count as a frame problem.
 REMOVED_SHARE = 0.5
 #: A frame fit must move its frame by more than this [mm] or [deg] to count: on the shared days' training
 #: recordings a base fit alone moves the base 1.0-1.7 mm and a tool fit the marker 1.1-1.8 mm / up to 0.32 deg, and
@@ -239,8 +239,8 @@ class FramedFit:
         model, seconds = self.inner.fit(method)
         if method == "nominal":
             return model, seconds
-        info = {"frames_first": {"frame": self.check.frame, "message": self.check.message(),
-                                 **FrameFit.of("base and tool", self.frames).to_json()}}
+        info = {**model.info, "frames_first": {"frame": self.check.frame, "message": self.check.message(),
+                                               **FrameFit.of("base and tool", self.frames).to_json()}}
         return RebasedModel(model.robot, model.method, model, self.frames.T_base_correction,
                             self.frames.T_tool_correction, 12, info), seconds
 

@@ -71,6 +71,7 @@ def test_framed_fit_wraps_the_kinematics_in_the_frames(arm, r1_nominal):
     assert fitter.train is rec and fitter.inner.train is not rec
     model, _ = fitter.fit("nls1")
     assert isinstance(model, RebasedModel) and model.info["frames_first"]["frame"] == "base"
+    assert model.info["train_samples"] == len(rec)  # the inner model's info is kept (its warnings too)
     assert float(np.mean(errors(model, rec_test).position_mm)) < 0.1
     raw, _ = fitter.fit("nominal")
     assert not isinstance(raw, RebasedModel)
