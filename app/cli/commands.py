@@ -26,6 +26,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
     fitter, _ = fitter_from_args(args)
     model, seconds = fitter.fit(args.method)
+    if args.days is not None:
+        model.info["days"] = args.days.to_json()  # the recordings' frames and figures, kept with the model
     if model.info.get("warning"):
         print(f"warning: {model.info['warning']}", file=sys.stderr)
     save_model(model, args.out)

@@ -85,3 +85,7 @@ def test_several_training_recordings_fit_one_arm_with_frames_each(tmp_path, data
     moved = days["days"][1]["frames"]
     assert abs(moved["base_mm"] - np.linalg.norm(T_BASE_ERR[:3, 3])) < 0.1 and not days["kinematics_changed"]
     assert json.loads(out.read_text())["methods"]["nls1"]["test"]["position_mm"]["mean"] < 0.1
+    model_file = tmp_path / "m.json"
+    assert main(["fit", "--robot", "R1", "--train", str(data / "train.csv"), "--train", str(train_moved),
+                 "--method", "nls1", "--out", str(model_file)]) == 0
+    assert load_model(model_file).info["days"]["days"][1]["frames"]["base_mm"] == moved["base_mm"]
