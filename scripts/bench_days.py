@@ -4,6 +4,9 @@ Same-day table: each training recording of ``../shared/data/welding_motoman`` ->
 (0620: both test files; 0627: before -> before, after -> after; 0524 has no test and is left out), position
 error mean / max [mm] per method.
 
+Each same-day test recording also gets the frame check ``compare`` runs (:func:`calibration.frames.check_test` with
+pi, else nls1); the ones found off their training recording by a frame are printed (0620 before).
+
 Cross-day matrix: the model fitted on recording A, tested on the test recording of B, (a) as is and (b) after
 :func:`calibration.rebase.rebase_auto` (what ``cellcal rebase`` does: the translations, or both frames when they do
 better on clusters held out in turn) on 21 poses of B: the 3 clusters of B's *training* recording spread widest
@@ -29,6 +32,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from calibration.methods import METHODS, Fitter  # noqa: E402
+from calibration.frames import check_test  # noqa: E402
 from calibration.metrics import errors  # noqa: E402
 from calibration.models.rebased import wrap_pose  # noqa: E402
 from calibration.poe import pose_error  # noqa: E402
@@ -147,6 +151,9 @@ def main(argv: list[str] | None = None) -> int:
         for label, _ in u.tests:
             target_unit[label] = u.name
             same_day[label] = {m: mean_max(errors(models[u.name][m], tests[label]).position_mm) for m in methods}
+    checked = next((m for m in ("pi", "nls1") if m in methods), None)  # as compare checks (its most accurate model)
+    frame_checks = {label: check_test(models[target_unit[label]][checked], tests[label]).to_json()
+                    for label in same_day} if checked else {}
     timings["same_day_eval_s"] = time.perf_counter() - t
 
     # -- cross-day: model of A on B's test, as is and rebased on 3 clusters of B's training recording --
@@ -188,8 +195,12 @@ def main(argv: list[str] | None = None) -> int:
     timings["total_s"] = time.perf_counter() - start
 
     report(methods, cross_methods, same_day, cross, rebase_clusters, train, timings)
+    for label, check in frame_checks.items():
+        if check["frame"] is not None:
+            print(f"\nFrame check, {label} ({checked}): {check['message']}")
     if args.json:
         out = {"methods": methods, "cross_methods": cross_methods, "same_day": same_day, "cross_day": cross,
+               "frame_checks": frame_checks,
                "fit_seconds": fit_seconds, "rebase_clusters": rebase_clusters, "goal_ratio": GOAL_RATIO,
                "timings": timings}
         Path(args.json).write_text(json.dumps(out, indent=1))
