@@ -32,8 +32,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from calibration.methods import METHODS, Fitter  # noqa: E402
-from calibration.frames import check_test  # noqa: E402
+from calibration.frames import check_recording, check_test  # noqa: E402
 from calibration.metrics import errors  # noqa: E402
+from calibration.models import ConstantModel  # noqa: E402
 from calibration.models.rebased import wrap_pose  # noqa: E402
 from calibration.poe import pose_error  # noqa: E402
 from calibration.rebase import RebaseProblem, choose_directions  # noqa: E402
@@ -151,6 +152,8 @@ def main(argv: list[str] | None = None) -> int:
         for label, _ in u.tests:
             target_unit[label] = u.name
             same_day[label] = {m: mean_max(errors(models[u.name][m], tests[label]).position_mm) for m in methods}
+    nominal = ConstantModel(robot.name, "nominal", robot.model(), 0, {})
+    train_checks = {name: check_recording(nominal, rec) for name, rec in train.items()}  # as fit and compare do
     checked = next((m for m in ("pi", "nls1") if m in methods), None)  # as compare checks (its most accurate model)
     frame_checks = {label: check_test(models[target_unit[label]][checked], tests[label]).to_json()
                     for label in same_day} if checked else {}
@@ -195,12 +198,20 @@ def main(argv: list[str] | None = None) -> int:
     timings["total_s"] = time.perf_counter() - start
 
     report(methods, cross_methods, same_day, cross, rebase_clusters, train, timings)
+    print("\n## Frame check of each training recording against the nominal arm (both frames fitted; the thresholds "
+          "of calibration/frames.py rest on these)\n")
+    print("| day | nominal mean mm | after the frame fit | base mm / deg | tool marker mm / deg | frame problem |")
+    print("|---|---|---|---|---|---|")
+    for name, c in train_checks.items():
+        f = c.fits["base and tool"]
+        print(f"| {name} | {c.mean_mm:.3f} | {f.mean_mm:.3f} | {f.base_mm:.2f} / {f.base_deg:.3f} | "
+              f"{f.tool_mm:.2f} / {f.tool_deg:.3f} | {c.frame or 'none'} |")
     for label, check in frame_checks.items():
         if check["frame"] is not None:
             print(f"\nFrame check, {label} ({checked}): {check['message']}")
     if args.json:
         out = {"methods": methods, "cross_methods": cross_methods, "same_day": same_day, "cross_day": cross,
-               "frame_checks": frame_checks,
+               "frame_checks": frame_checks, "training_frame_checks": {k: c.to_json() for k, c in train_checks.items()},
                "fit_seconds": fit_seconds, "rebase_clusters": rebase_clusters, "goal_ratio": GOAL_RATIO,
                "timings": timings}
         Path(args.json).write_text(json.dumps(out, indent=1))
