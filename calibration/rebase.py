@@ -245,13 +245,16 @@ def choose_directions(model: KinematicModel, rec: Recording, cluster_size: int =
 
     Each cluster is held out in turn from a rebase on the others; the translations win unless the full frames'
     held-out mean position error is lower by more than its standard error over the held-out poses (the
-    fewest-parameters-within-one-standard-error rule). With fewer than 2 clusters: the full frames. On the shared
+    fewest-parameters-within-one-standard-error rule). With fewer than 2 clusters (or poses without a cluster
+    column whose count is not a multiple of ``cluster_size``): the full frames. On the shared
     days' cross-day pairs, a translation-only rebase on 3 clusters is tied with the full one on the new day's other
     training clusters (median 0.214 against 0.215 mm; ``scripts/bench_rebase_variants.py``).
 
     Returns:
         ``"translations"`` or ``"frames"``, and each candidate's held-out mean [mm] (empty with < 2 clusters).
     """
+    if "cluster" not in rec.extra and len(rec) % cluster_size:
+        return "frames", {}  # no clusters to hold out (poses that are not the 7-pose design): as before the choice
     cluster = rec.clusters(cluster_size)
     ids = np.unique(cluster)
     if ids.size < 2:

@@ -33,3 +33,10 @@ def test_a_shifted_frame_keeps_to_the_translations(r1_nominal):
     rebased, result, choice = rebase_auto(model, rec)
     assert choice == "translations" and result.fitted <= 6
     assert result.mean_after_mm < 0.05 < result.mean_before_mm
+
+
+def test_poses_without_clusters_get_the_full_frames(r1_nominal):
+    model = ConstantModel("R1", "nls1", r1_nominal)
+    q = np.random.default_rng(5).uniform(-0.8, 0.8, (10, 6))
+    rec = measure(model.fk, q, 0.02, 0.01, 3)
+    assert choose_directions(model, rec) == ("frames", {})
