@@ -206,7 +206,8 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     from app.cli.cell_options import confirm_motion, motion_config, open_runtime, safety_for
     from app.cell.collect import export
     from app.demo.run import collect_arm
-    from app.analysis.recalibrate import check_model_dir, decide_and_install, model_in_service
+    from app.analysis.recalibrate import check_model_dir, decide_and_install, model_in_service, \
+        model_to_rebase, rebase_candidate
     from app.provenance import provenance, with_provenance
     from app.cell.session_plan import validation_plan
     from calibration.recording import read_recording
@@ -222,6 +223,8 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     if args.session:
         _require_session(args.session)
     service = model_in_service(model_dir, args.robot, robot.model())  # another robot's model: stop before motion
+    if args.rebase:
+        model_to_rebase(model_dir, service)  # nothing to rebase: stop before motion
     if service.problem:
         log.warning("the model in service %s is unusable (%s); a valid candidate will replace it",
                     model_dir / "current.yaml", service.problem)
@@ -250,10 +253,16 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         export(session, work / "cpa.csv", kinds=("cpa",))
         cpa = read(work / "cpa.csv")
     export(work / "validation", work / "validation.csv")
-    fitter = fitter_for(robot, read(work / "train.csv"), cpa)
-    model, _ = fitter.fit(args.method)
+    rebased = None
+    if args.rebase:
+        model, rebased = rebase_candidate(model_dir, service, read(work / "train.csv"))
+        print(rebased.summary())
+    else:
+        model, _ = fitter_for(robot, read(work / "train.csv"), cpa).fit(args.method)
     inputs = [("train", work / "train.csv"), ("cpa", work / "cpa.csv" if cpa else None),
               ("validation", work / "validation.csv")]
+    if args.rebase:
+        inputs.append(("model rebased", model_dir / "current.yaml"))
     model = with_provenance(model, provenance(inputs))
     validation = read(work / "validation.csv")
     in_service = service.model
@@ -263,7 +272,9 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     print(decision.summary())
     print(f"model in service: {decision.current_path}" + (f"; previous one archived as {decision.archived}"
                                                            if decision.archived else ""))
-    write_json(args.json, decision.to_json())
+    write_json(args.json, {**decision.to_json(), **({} if rebased is None else {"rebase": {
+        "samples": rebased.n_samples, "fitted_directions": rebased.fitted, "held": list(rebased.held),
+        "position_mean_mm": {"before": rebased.mean_before_mm, "after": rebased.mean_after_mm}}})})
     if args.report:
         from app.analysis.report import Page, evaluation_section, write_html
 
@@ -344,6 +355,9 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     src.add_argument("--plan", help="collect a new training session from this plan")
     p.add_argument("--model-dir", required=True, help="folder of the model in service (current.yaml, previous/)")
     p.add_argument("--method", default="fbf13", choices=METHODS)
+    p.add_argument("--rebase", action="store_true", help="refit only the base and tool-marker frames of the model in "
+                                                         "service on the training poses (a few clusters of a new day) "
+                                                         "instead of fitting a new model (--method is not used)")
     p.add_argument("--validation", type=int, default=30, help="fresh validation poses to measure")
     p.add_argument("--validation-seed", type=int, help="seed of the validation poses (default: from the clock)")
     p.add_argument("--json", help="write the decision with both figures as JSON")

@@ -28,6 +28,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
     fitter, _ = fitter_from_args(args)
     model, seconds = fitter.fit(args.method)
+    if args.days is not None:
+        model.info["days"] = args.days.to_json()  # the recordings' frames and figures, kept with the model
     if model.info.get("warning"):
         print(f"warning: {model.info['warning']}", file=sys.stderr)
     save_model(with_provenance(model, provenance([("train", args.train), ("cpa", args.cpa)])), args.out)
@@ -82,6 +84,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     pos, ori = result["test"]["position_mm"], result["test"]["orientation_deg"]
     print(f"{model.method} on {len(test)} samples: position mean {pos['mean']:.3f} std {pos['std']:.3f} "
           f"max {pos['max']:.3f} mm; orientation mean {ori['mean']:.3f} max {ori['max']:.3f} deg")
+    result["frames"] = _test_frame_check(model, test, "recording, against the data the model was fitted on,")
     write_json(args.json, result)
     if args.report:
         from app.analysis.report import write_evaluation_report
@@ -93,14 +96,29 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _test_frame_check(model: Any, test: Any, subject: str) -> dict[str, Any]:
+    """:func:`calibration.frames.check_test` of ``model`` on ``test``, its message printed as a warning; JSON."""
+    from calibration.frames import check_test
+
+    check = check_test(model, test, subject)
+    if check.found:
+        print(f"warning: {check.message()} No kinematic model can remove that; the errors reported are "
+              "without the frame fit.", file=sys.stderr)
+    return check.to_json()
+
+
 def cmd_rebase(args: argparse.Namespace) -> int:
     from calibration.models import save_model
-    from calibration.rebase import rebase
+    from calibration.rebase import rebase, rebase_auto
 
     robot = cell_spec(args).robot(args.robot)
     model = load_model_for(args.model, robot)
     data = read_recording_arg(args.data, robot)
-    rebased, result = rebase(model, data, tolerance=args.tolerance, rotations=not args.translation_only)
+    if args.translation_only or args.all_directions:
+        rebased, result = rebase(model, data, tolerance=args.tolerance, rotations=args.all_directions)
+        choice = "translations" if args.translation_only else "frames"
+    else:
+        rebased, result, choice = rebase_auto(model, data, tolerance=args.tolerance)
     if not result.converged:
         raise CellCalError(f"rebase of {args.model} on {args.data} did not converge ({result.reason.value}); "
                            "nothing written")
@@ -110,7 +128,8 @@ def cmd_rebase(args: argparse.Namespace) -> int:
     print(result.summary())
     print(f"rebased {model.method} model -> {args.out}")
     write_json(args.json, {"robot": robot.name, "model": str(args.model), "data": str(args.data),
-                           "samples": result.n_samples, "fitted_directions": result.fitted, "held": list(result.held),
+                           "samples": result.n_samples, "directions": choice, "fitted_directions": result.fitted,
+                           "held": list(result.held),
                            "position_mean_mm": {"before": result.mean_before_mm, "after": result.mean_after_mm},
                            "T_base_correction": result.T_base_correction.tolist(),
                            "T_tool_correction": result.T_tool_correction.tolist(), "out": str(args.out)})
@@ -153,6 +172,13 @@ def cmd_compare(args: argparse.Namespace) -> int:
     fitter, robot = fitter_from_args(args)
     test = read_recording_arg(args.test, robot)
     cmp = run_comparison(fitter, test, methods, files=files)
+    cmp.analysis["frames"] = {"training": None if args.frame_check is None else args.frame_check.to_json()}
+    if args.days is not None:
+        cmp.analysis["days"] = args.days.to_json()
+    checked = next((m for m in (cmp.recommended, "pi", "nls1") if m in cmp.models), None)
+    if checked is not None:
+        cmp.analysis["frames"]["test"] = {"model": checked, **_test_frame_check(
+            cmp.models[checked], test, f"test recording, against the {checked} fit of the training recording,")}
     warning = cmp.analysis["observability"]["warning"]
     if warning:
         print(f"warning: {warning}", file=sys.stderr)
@@ -183,7 +209,9 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
 def _add_fit_inputs(p: argparse.ArgumentParser) -> None:
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
-    p.add_argument("--train", required=True, help="training recording CSV or Welding_Motoman folder")
+    p.add_argument("--train", required=True, action="append",
+                   help="training recording CSV or Welding_Motoman folder; repeat it to fit several recordings "
+                        "(days) as one arm with a pair of frames per recording")
     p.add_argument("--cpa", help="single-joint sweep recording for circular point analysis")
     p.add_argument("--a", type=float, default=1641.0, help="orientation weight (1641: 1 mm ~ 1 deg)")
 
@@ -228,7 +256,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", help="write the corrections and the error before/after as JSON")
     p.add_argument("--tolerance", type=float, default=1e-2,
                    help="frame directions below this fraction of the largest singular value are held at zero")
-    p.add_argument("--translation-only", action="store_true", help="fit only the two translations (6 parameters)")
+    which = p.add_mutually_exclusive_group()
+    which.add_argument("--translation-only", action="store_true", help="fit only the two translations (6 parameters)")
+    which.add_argument("--all-directions", action="store_true",
+                       help="fit both frames' translations and rotations (12); default: the translations unless "
+                            "the rotations do better on clusters held out in turn (by more than a standard error)")
     p = add("export-urdf", cmd_export_urdf, "write a model's calibrated geometry as a URDF (revolute chain, flange "
                                             "and tool-marker frames, joint limits; says what a URDF cannot hold)")
     p.add_argument("--model", required=True, help="the model file (constant, pi, cdc, physics, diagnosed, rebased)")

@@ -38,14 +38,35 @@ def load_model_for(path: str, robot: Any) -> Any:
 
 
 def fitter_from_args(args: argparse.Namespace) -> Any:
-    """A Fitter for ``--robot``/``--train``/``--cpa``/``--a``, and the robot's cell entry."""
-    from app.analysis.fitting import fitter_for
+    """A Fitter for ``--robot``/``--train``/``--cpa``/``--a``, and the robot's cell entry.
+
+    The training recording's frames are checked first (:func:`app.analysis.fitting.checked_fitter_for`): a frame
+    problem is printed as a warning and the fitter fits the frames before the kinematics; the check is kept in
+    ``args.frame_check`` for the command's JSON. Several ``--train`` recordings make one arm with per-recording
+    frames (:func:`app.analysis.fitting.days_fitter_for`): what differs between them is printed and kept in
+    ``args.days``.
+    """
+    import sys
+
+    from app.analysis.fitting import checked_fitter_for
     from calibration.methods import FitOptions
 
     robot = cell_spec(args).robot(args.robot)
-    train = read_recording_arg(args.train, robot)
+    trains = [read_recording_arg(path, robot) for path in args.train]
     cpa = read_recording_arg(args.cpa, robot) if args.cpa else None
-    return fitter_for(robot, train, cpa, FitOptions(a=args.a)), robot
+    args.days = None
+    if len(trains) > 1:
+        from app.analysis.fitting import days_fitter_for
+
+        args.days = days_fitter_for(robot, trains, cpa, FitOptions(a=args.a))
+        print(args.days.summary(), file=sys.stderr)
+        args.frame_check = None
+        return args.days.fitter, robot
+    fitter, args.frame_check = checked_fitter_for(robot, trains[0], cpa, FitOptions(a=args.a))
+    if args.frame_check.found:
+        print(f"warning: {args.frame_check.message()} The base and tool frames are fitted first, then the "
+              "kinematics.", file=sys.stderr)
+    return fitter, robot
 
 
 #: File outputs every subcommand may take; ``demo --out`` is a folder and is left to the demo.
