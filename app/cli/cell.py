@@ -45,6 +45,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
         kinds[t.kind] = kinds.get(t.kind, 0) + 1
     print(f"{args.robot}: {len(plan)} targets ({', '.join(f'{v} {k}' for k, v in kinds.items())}), checked safe "
           f"with the other arms parked -> {args.out}")
+    write_json(args.json, {"robot": args.robot, "targets": len(plan), "kinds": kinds, "params": plan.params,
+                           "out": str(args.out)})
     return 0
 
 
@@ -141,6 +143,7 @@ def cmd_export(args: argparse.Namespace) -> int:
             raise CellCalError(f"unknown target kind {bad[0] if bad else args.kinds!r}; valid: {', '.join(KINDS)}")
     n = export(args.session, args.out, kinds)
     print(f"{n} samples -> {args.out}")
+    write_json(args.json, {"session": str(args.session), "samples": n, "kinds": kinds, "out": str(args.out)})
     return 0
 
 
@@ -205,14 +208,30 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
 def cmd_demo(args: argparse.Namespace) -> int:
     from app.demo.run import DemoConfig, run_demo, summary_table
 
-    result = run_demo(args.out, cell_spec(args), DemoConfig(full=args.full, seed=args.seed,
-                                                        progress=not args.no_progress))
+    if args.anchor_step is not None and not 0.5 <= args.anchor_step <= 90.0:
+        raise CellCalError(f"--anchor-step must be in [0.5, 90] deg, got {args.anchor_step:g}")
+    if args.validation < 1:
+        raise CellCalError(f"--validation must be at least 1, got {args.validation}")
+    config = DemoConfig(full=args.full, anchor_step_deg=args.anchor_step, seed=args.seed, n_validation=args.validation,
+                        methods=_demo_methods(args.methods), progress=not args.no_progress)
+    result = run_demo(args.out, cell_spec(args), config)
     print(summary_table(result.summary))
     print(f"demo finished in {result.seconds:.1f} s; {result.summary['mocap_frames_received']} mocap frames "
           f"received over zenoh")
     print(f"summary: {result.out_dir / 'summary.json'}")
     print(f"report: {result.report}")
+    write_json(args.json, {**result.summary, "summary": str(result.out_dir / "summary.json"),
+                           "report": str(result.report)})
     return 0
+
+
+def _demo_methods(text: str | None) -> tuple[str, ...] | None:
+    """``--methods`` of the demo: None (every method) or the parsed comma-separated list."""
+    if not text:
+        return None
+    from app.analysis.compare import parse_methods
+
+    return tuple(parse_methods(text))
 
 
 def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
@@ -228,6 +247,7 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--cpa", action="store_true", help="add single-joint sweeps (needed by the cpa method)")
     p.add_argument("--validation", type=int, default=0, help="random validation poses to add (the test set)")
     p.add_argument("--seed", type=int, default=0, help="seed of the validation poses")
+    p.add_argument("--json", help="write the target counts per kind as JSON")
 
     p = add("collect", cmd_collect, "guided collection session of one arm (durable, resumable)")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
@@ -241,6 +261,7 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--out", required=True, help="recording CSV")
     p.add_argument("--kinds", help="comma-separated target kinds to include (anchor, perturb, cpa, validation); all "
                                    "by default")
+    p.add_argument("--json", help="write the sample count as JSON")
     p = add("recalibrate", cmd_recalibrate, "fit a new model, compare it with the one in service on fresh validation "
                                             "poses, replace it only if better")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
@@ -248,7 +269,7 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     src.add_argument("--session", help="reuse the training samples of this session")
     src.add_argument("--plan", help="collect a new training session from this plan")
     p.add_argument("--model-dir", required=True, help="folder of the model in service (current.yaml, previous/)")
-    p.add_argument("--method", default="fbf13", choices=METHODS)
+    p.add_argument("--method", default="fbf13", choices=METHODS, help="the method of the new model (default fbf13)")
     p.add_argument("--validation", type=int, default=30, help="fresh validation poses to measure")
     p.add_argument("--validation-seed", type=int, help="seed of the validation poses (default: from the clock)")
     p.add_argument("--json", help="write the decision with both figures as JSON")
@@ -258,4 +279,9 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--out", default="demo_out", help="output folder (an earlier demo there is replaced)")
     p.add_argument("--full", action="store_true", help="the paper's 248-anchor design (5 deg steps; ~4x longer)")
     p.add_argument("--seed", type=int, default=0, help="seed of the planted errors, the noise and the validation poses")
+    p.add_argument("--anchor-step", type=float, help="anchor grid q2/q3 step [deg] (default 10, 5 with --full; a "
+                                                     "coarse grid, e.g. 40, makes a short demo)")
+    p.add_argument("--validation", type=int, default=50, help="random validation poses per arm (the test set)")
+    p.add_argument("--methods", help="comma-separated methods to fit (default: all)")
+    p.add_argument("--json", help="write the summary (per arm and method: test statistics) as JSON")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")

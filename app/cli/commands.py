@@ -31,6 +31,9 @@ def cmd_fit(args: argparse.Namespace) -> int:
     save_model(model, args.out)
     print(f"{args.method}: {model.n_parameters} parameters fitted on {len(fitter.train)} samples in {seconds:.3f} s "
           f"-> {args.out}")
+    write_json(args.json, {"robot": args.robot, "method": args.method, "n_parameters": model.n_parameters,
+                           "samples": len(fitter.train), "fit_seconds": seconds, "out": str(args.out),
+                           "warning": model.info.get("warning") or ""})
     return 0
 
 
@@ -49,6 +52,8 @@ def cmd_predict(args: argparse.Namespace) -> int:
     write_table(args.out, {"x": p[:, 0], "y": p[:, 1], "z": p[:, 2], "qw": quat[:, 0], "qx": quat[:, 1],
                            "qy": quat[:, 2], "qz": quat[:, 3]})
     print(f"{len(q)} poses -> {args.out}")
+    write_json(args.json, {"robot": model.robot, "method": model.method, "poses": len(q),
+                           "outside_fitted_region": int(outside.sum()), "out": str(args.out)})
     return 0
 
 
@@ -174,7 +179,8 @@ def _add_fit_inputs(p: argparse.ArgumentParser) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="cellcal", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="cellcal", description="Calibrate the arms of a robot cell from motion-capture "
+                                     "recordings, plan with the calibrated models and put them into service.")
     parser.add_argument("--cell", help="cell.yaml (default: the packaged Motoman cell)")
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
     parser.add_argument("--version", action="version", version=f"cellcal {version()}")
@@ -189,19 +195,21 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = add("fit", cmd_fit, "fit one method and save the model")
     _add_fit_inputs(p)
-    p.add_argument("--method", required=True, choices=METHODS)
+    p.add_argument("--method", required=True, choices=METHODS, help="the calibration method to fit")
     p.add_argument("--out", required=True, help="model file (.yaml or .json)")
+    p.add_argument("--json", help="write the method, parameter and sample counts and the fit time as JSON")
     p = add("predict", cmd_predict, "tool poses of a model for joint angles")
-    p.add_argument("--model", required=True)
+    p.add_argument("--model", required=True, help="the model file (fit --out)")
     p.add_argument("--robot", help="the arm the model is for (R1, R2): refuse a model of another robot (joints "
                                    "are checked against the limits of the model's robot either way)")
     p.add_argument("--joints", required=True, help="CSV with q1..q6 [rad] (header) or 6 headerless columns")
-    p.add_argument("--out", required=True)
+    p.add_argument("--out", required=True, help="poses CSV to write (x, y, z [mm], qw, qx, qy, qz)")
+    p.add_argument("--json", help="write the pose count and how many lie outside the fitted region as JSON")
     p = add("evaluate", cmd_evaluate, "accuracy of a model on a recording")
-    p.add_argument("--model", required=True)
+    p.add_argument("--model", required=True, help="the model file (fit --out)")
     p.add_argument("--robot", help="the arm the model is for (R1, R2): refuse a model of another robot (joints "
                                    "are checked against the limits of the model's robot either way)")
-    p.add_argument("--test", required=True)
+    p.add_argument("--test", required=True, help="recording CSV or Welding_Motoman folder to evaluate on")
     p.add_argument("--json", help="write the statistics as JSON")
     p = add("rebase", cmd_rebase, "move a fitted model of any kind onto a new day: refit only its base and tool-marker "
                                   "frames on a few poses")
@@ -222,7 +230,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", help="write what was exported and what was lost as JSON")
     p = add("compare", cmd_compare, "the paper's comparison table for every method")
     _add_fit_inputs(p)
-    p.add_argument("--test", required=True)
+    p.add_argument("--test", required=True, help="recording CSV or Welding_Motoman folder the methods never fit on")
     p.add_argument("--methods", default="all", help="all, or a comma-separated list")
     p.add_argument("--model", action="append", default=[], metavar="FILE",
                    help="a saved model (a diagnose result, ...) to add as a row of its own; repeatable")

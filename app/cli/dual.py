@@ -170,6 +170,7 @@ def cmd_export_targets(args: argparse.Namespace) -> int:
 
     n = export_targets(args.plan, cell_spec(args), args.out, args.frame, args.skip_failed)
     print(f"{n} targets ({args.frame} frame) -> {args.out}")
+    write_json(args.json, {"plan": str(args.plan), "targets": n, "frame": args.frame, "out": str(args.out)})
     return 0
 
 
@@ -209,3 +210,4 @@ def add_dual_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--out", required=True, help="targets file (.csv or .json)")
     p.add_argument("--frame", choices=("flange", "tool"), default="flange", help="pose frame of the targets")
     p.add_argument("--skip-failed", action="store_true", help="leave out unsolved waypoints instead of refusing")
+    p.add_argument("--json", help="write the target count and frame as JSON")

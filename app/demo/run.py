@@ -54,6 +54,8 @@ class DemoConfig:
 
     Attributes:
         full: the paper's 248-anchor design (5 deg steps) instead of the reduced 10 deg grid.
+        anchor_step_deg: the anchor grid's q2/q3 step [deg]; None: 5 with ``full``, else 10 (a coarser grid makes
+            a short demo, e.g. for tests).
         seed: seed of the planted errors, the mocap noise and the validation poses.
         n_validation: validation poses per arm (the test set).
         robots: the arms to calibrate, in order.
@@ -64,6 +66,7 @@ class DemoConfig:
     """
 
     full: bool = False
+    anchor_step_deg: float | None = None
     seed: int = 0
     n_validation: int = 50
     robots: tuple[str, ...] = ("R1", "R2")
@@ -78,7 +81,7 @@ class DemoConfig:
         return methods, {m: "not requested" for m in DEMO_METHODS if m not in methods}
 
     def plan_spec(self) -> PlanSpec:
-        step = 5.0 if self.full else 10.0
+        step = self.anchor_step_deg or (5.0 if self.full else 10.0)
         return PlanSpec(q2_step_deg=step, q3_step_deg=step, cpa=True, n_validation=self.n_validation, seed=self.seed)
 
 
