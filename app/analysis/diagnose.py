@@ -24,7 +24,7 @@ log = logging.getLogger("cellcal.app")
 def run_diagnose(robot: str, data: str | Path, heldout: str | Path | None = None, model: str | Path | None = None,
                  json_path: str | Path | None = None, report_dir: str | Path | None = None,
                  model_out: str | Path | None = None, cell: str | Path | None = None,
-                 options: DiagnoseOptions | None = None) -> Diagnosis:
+                 options: DiagnoseOptions | None = None, progress: bool = False) -> Diagnosis:
     """Diagnose one robot's model against recordings and write the requested outputs.
 
     Args:
@@ -39,6 +39,7 @@ def run_diagnose(robot: str, data: str | Path, heldout: str | Path | None = None
             :func:`calibration.diagnosis.result_model`) here (``.yaml``/``.json``).
         cell: cell YAML (default: the packaged Motoman cell).
         options: diagnosis settings.
+        progress: show a progress bar over the diagnosis steps.
 
     Returns:
         The diagnosis.
@@ -63,7 +64,16 @@ def run_diagnose(robot: str, data: str | Path, heldout: str | Path | None = None
     except ModelError as e:
         log.warning("joint compliance cannot be tested: %s", e)
         gravity = None
-    result = diagnose(robot, nominal, rec, ho, used, gravity, limits, options)
+    from app.progress import bar
+    from calibration.diagnosis.core import DIAGNOSE_STEPS
+
+    with bar(total=len(DIAGNOSE_STEPS), enabled=progress, desc=f"{robot} diagnose", unit="step") as steps:
+        def step(name: str) -> None:  # the bar counts the steps done; its label names the one running
+            steps.set_postfix_str(name, refresh=False)
+            steps.update(DIAGNOSE_STEPS.index(name) - steps.n)
+
+        result = diagnose(robot, nominal, rec, ho, used, gravity, limits, options, progress=step)
+        steps.update(steps.total - steps.n)
     if model_out is not None:
         save_model(result.model, model_out)
     if json_path is not None:

@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from app.analysis.fitting import fitter_for
-from app.cli.common import cell_spec, log, write_json
+from app.cli.common import cell_spec, epoch_bar, log, show_progress, write_json
 from calibration.errors import CellCalError
 
 
@@ -89,7 +89,7 @@ def cmd_collect(args: argparse.Namespace) -> int:
                              f"{config.speed_fraction:g} of full speed")
         try:
             result = collect_arm(rt, safety, args.robot, plan, Path(args.session), config,
-                                 resume=args.resume, progress=not args.no_progress)
+                                 resume=args.resume, progress=show_progress(args))
         except SessionAborted:
             _print_events(args.session)
             raise
@@ -186,8 +186,8 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         confirm_motion(args, f"{args.robot} will visit {len(plan) if plan is not None else 0} training and "
                              f"{len(val_plan)} validation targets at {config.speed_fraction:g} of full speed")
         if plan is not None:
-            collect_arm(rt, safety, args.robot, plan, session, config, progress=not args.no_progress)
-        collect_arm(rt, safety, args.robot, val_plan, work / "validation", config, progress=not args.no_progress)
+            collect_arm(rt, safety, args.robot, plan, session, config, progress=show_progress(args))
+        collect_arm(rt, safety, args.robot, val_plan, work / "validation", config, progress=show_progress(args))
     read = lambda p: read_recording(p, robot.robot.lower_rad, robot.robot.upper_rad)  # noqa: E731
     export(session, work / "train.csv", kinds=("anchor", "perturb"))
     cpa = None
@@ -195,7 +195,9 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         export(session, work / "cpa.csv", kinds=("cpa",))
         cpa = read(work / "cpa.csv")
     export(work / "validation", work / "validation.csv")
-    fitter = fitter_for(robot, read(work / "train.csv"), cpa)
+    from calibration.methods import FitOptions
+
+    fitter = fitter_for(robot, read(work / "train.csv"), cpa, FitOptions(epoch_progress=epoch_bar(args)))
     model, _ = fitter.fit(args.method)
     decision = decide_and_install(model_dir, model, read(work / "validation.csv"), robot.model())
     print(decision.summary())
@@ -213,7 +215,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     if args.validation < 1:
         raise CellCalError(f"--validation must be at least 1, got {args.validation}")
     config = DemoConfig(full=args.full, anchor_step_deg=args.anchor_step, seed=args.seed, n_validation=args.validation,
-                        methods=_demo_methods(args.methods), progress=not args.no_progress)
+                        methods=_demo_methods(args.methods), progress=show_progress(args))
     result = run_demo(args.out, cell_spec(args), config)
     print(summary_table(result.summary))
     print(f"demo finished in {result.seconds:.1f} s; {result.summary['mocap_frames_received']} mocap frames "

@@ -12,7 +12,7 @@ from typing import Any, Callable
 
 from app.cli.cell import add_cell_parsers
 from app.cli.common import (cell_spec, check_output_args, fitter_from_args, load_model_for, read_recording_arg,
-                             write_json)
+                             show_progress, write_json)
 from app.cli.dual import add_dual_parsers
 from app.cli.real import add_real_parsers
 from app.jobs.cli import add_job_parsers
@@ -144,7 +144,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     files = {f"{Path(f).stem} (file)": load_model_for(f, robot) for f in args.model}
     fitter, robot = fitter_from_args(args)
     test = read_recording_arg(args.test, robot)
-    cmp = run_comparison(fitter, test, methods, files=files)
+    cmp = run_comparison(fitter, test, methods, progress=show_progress(args), files=files)
     warning = cmp.analysis["observability"]["warning"]
     if warning:
         print(f"warning: {warning}", file=sys.stderr)
@@ -166,7 +166,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
     result = run_diagnose(args.robot, args.train, heldout=args.test, model=args.model, json_path=args.json,
                           report_dir=args.report, model_out=args.out, cell=args.cell,
-                          options=DiagnoseOptions(compliance_form=args.compliance_form))
+                          options=DiagnoseOptions(compliance_form=args.compliance_form), progress=show_progress(args))
     print(result.verdict)
     return 0
 
@@ -183,6 +183,8 @@ def build_parser() -> argparse.ArgumentParser:
                                      "recordings, plan with the calibrated models and put them into service.")
     parser.add_argument("--cell", help="cell.yaml (default: the packaged Motoman cell)")
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars (they are off anyway when "
+                                                                    "stderr is not a terminal)")
     parser.add_argument("--version", action="version", version=f"cellcal {version()}")
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -272,7 +274,10 @@ def main(argv: list[str] | None = None) -> int:
     """Run one subcommand: 0 on success, 2 on bad input or a refused action, 130 on Ctrl-C."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
+    from app.progress import configure, install_logging
+
+    install_logging(logging.INFO if args.verbose else logging.WARNING)  # log lines go through the bars
+    configure(quiet=args.quiet)
     try:
         check_output_args(args)
         return args.func(args)

@@ -45,7 +45,7 @@ def fitter_from_args(args: argparse.Namespace) -> Any:
     robot = cell_spec(args).robot(args.robot)
     train = read_recording_arg(args.train, robot)
     cpa = read_recording_arg(args.cpa, robot) if args.cpa else None
-    return fitter_for(robot, train, cpa, FitOptions(a=args.a)), robot
+    return fitter_for(robot, train, cpa, FitOptions(a=args.a, epoch_progress=epoch_bar(args))), robot
 
 
 #: File outputs every subcommand may take; ``demo --out`` is a folder and is left to the demo.
@@ -64,6 +64,23 @@ def check_output_args(args: argparse.Namespace) -> None:
         value = getattr(args, name, None)
         if isinstance(value, str) and not (name == "out" and args.command == "demo"):
             check_output_path(value)
+
+
+def show_progress(args: argparse.Namespace) -> bool:
+    """Whether this command shows progress bars: the CLI's policy (a terminal, no ``--quiet``) and no
+    ``--no-progress``."""
+    from app.progress import enabled
+
+    return enabled() and not getattr(args, "no_progress", False)
+
+
+def epoch_bar(args: argparse.Namespace) -> Any:
+    """The training-epoch bar of the neural interpolators (``FitOptions.epoch_progress``), or None without bars."""
+    if not show_progress(args):
+        return None
+    from app.progress import EpochBar
+
+    return EpochBar("nn/ae training")
 
 
 def write_json(path: str | None, data: dict[str, Any]) -> None:

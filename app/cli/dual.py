@@ -6,7 +6,7 @@ import argparse
 from typing import Any, Callable
 
 from app.cli.cell_options import add_motion_options
-from app.cli.common import cell_spec, write_json
+from app.cli.common import cell_spec, show_progress, write_json
 
 
 def _model_pair(spec: str | None, where: str, cell: Any) -> dict[str, Any]:
@@ -37,10 +37,14 @@ def cmd_plan_dual(args: argparse.Namespace) -> int:
     cell = cell_spec(args)
     models = _model_pair(args.models, "--models", cell)
     T_rel = read_pose(args.relative_pose) if args.relative_pose else None
+    from app.progress import bar
+
     planner = DualPlanner(cell, models.get("R1"), models.get("R2"), PlannerOptions(compile=not args.no_compile))
     path = read_path(args.path, planner)
     q0 = np.radians(Q_REF_DEG)
-    plan = planner.plan(path, relative_pose(planner, q0) if T_rel is None else T_rel, q0)
+    with bar(total=len(path), enabled=show_progress(args), desc="plan-dual", unit="waypoint") as waypoints:
+        plan = planner.plan(path, relative_pose(planner, q0) if T_rel is None else T_rel, q0,
+                            on_waypoint=lambda r: waypoints.update(1))
     ms = [w.solve_ms for w in plan.waypoints]
     summary = {"waypoints": len(plan.waypoints), "converged": plan.converged, "failed": plan.failed,
                "models": plan.models, "solve_ms_median": float(np.median(ms)),

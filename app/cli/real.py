@@ -15,7 +15,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from app.cli.common import cell_spec, write_json
+from app.cli.common import cell_spec, show_progress, write_json
 from calibration.errors import CellCalError
 
 log = logging.getLogger("cellcal.app")
@@ -158,7 +158,7 @@ def cmd_register(args: argparse.Namespace) -> int:
             return 0
         confirm_motion(args, f"{args.robot} will visit {len(q_plan)} registration poses (±{args.sweep:g} deg) at "
                              f"{config.speed_fraction:g} of full speed")
-        run = measure_registration(rt, safety, args.robot, q_plan, config, progress=not args.no_progress)
+        run = measure_registration(rt, safety, args.robot, q_plan, config, progress=show_progress(args))
     reg = run.registration()
     r = run.result
     out: dict[str, Any] = {"robot": args.robot, "poses": len(run.q), "skipped": [list(s) for s in run.skipped],

@@ -155,9 +155,12 @@ def fit_and_compare(cell: CellSpec, robot: str, rec: Recordings, methods: tuple[
     """Fit ``methods`` on the training set, evaluate them on the test set, save every model as YAML."""
     from app.analysis.compare import run_comparison
     from app.analysis.fitting import fitter_for
+    from app.progress import EpochBar
+    from calibration.methods import FitOptions
     from calibration.models import save_model
 
-    fitter = fitter_for(cell.robot(robot), rec.train, rec.cpa)
+    epochs = EpochBar(f"{robot} nn/ae training") if progress else None
+    fitter = fitter_for(cell.robot(robot), rec.train, rec.cpa, FitOptions(epoch_progress=epochs))
     cmp = run_comparison(fitter, rec.test, methods, progress)
     model_dir.mkdir(parents=True, exist_ok=True)
     for m, model in cmp.models.items():
