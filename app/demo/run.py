@@ -26,7 +26,7 @@ import math
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from app.cell.collect import CollectConfig, SessionResult, export, run_session
 from app.cell.planning import Plan
@@ -115,15 +115,18 @@ class Recordings:
 
 
 def collect_arm(sim: SimCell, safety: CellSafety, robot: str, plan: Plan | None, session_dir: Path,
-                config: CollectConfig, *, resume: bool = False, progress: bool = True) -> SessionResult:
+                config: CollectConfig, *, resume: bool = False, progress: bool = True,
+                clock: Callable[[], float] | None = None) -> SessionResult:
     """Collect one arm's session while the other arms stay parked, then park the arm again.
 
     The other arms' live poses (their drivers) feed every safety check. ``plan`` may be None on resume.
+    ``clock`` stamps the samples (default: wall time; the demo passes the simulated clock).
     """
     driver = sim.drivers[robot]
     others = sim.others(robot)
     result = run_session(session_dir, driver, sim.mocap_for(robot), safety, body_id=sim.body_ids[robot], plan=plan,
-                         other_drivers=others, config=config, resume=resume, progress=progress)
+                         other_drivers=others, config=config, resume=resume, progress=progress,
+                         **({} if clock is None else {"clock": clock}))
     move_safely(driver, sim.park_q(robot), safety, others, config.speed_fraction, config.settle_timeout_s)
     return result
 
@@ -217,7 +220,7 @@ def run_demo(out_dir: str | Path, cell: CellSpec, config: DemoConfig = DemoConfi
     clear_previous(out, tuple(cell.robots))
     methods, left_out = config.chosen_methods()
     safety = CellSafety(cell)
-    sim_config = replace(config.sim, seed=config.seed)
+    sim_config = replace(config.sim, seed=config.seed, deterministic=True)  # the same seed, the same numbers
     robots: dict[str, Any] = {}
     comparisons: dict[str, Any] = {}
     tests: dict[str, Any] = {}
@@ -230,7 +233,7 @@ def run_demo(out_dir: str | Path, cell: CellSpec, config: DemoConfig = DemoConfi
             plan.save(out / robot / "plan.json")
             log.info("%s: %d targets (%s)", robot, len(plan), plan.params)
             sessions[robot] = collect_arm(sim, safety, robot, plan, out / robot / "session", config.collect,
-                                          progress=config.progress)
+                                          progress=config.progress, clock=sim.clock.now)
         frames = sim.frames_received
     for robot in config.robots:
         rec = export_recordings(out / robot / "session", out / robot, cell, robot)
