@@ -78,3 +78,37 @@ def test_the_cli_installs_the_handler_and_takes_quiet(tmp_path):
                  "--q3-step", "50"]) == 0
     assert not progress.enabled()
     assert any(isinstance(h, progress.TqdmLoggingHandler) for h in logging.getLogger().handlers)
+
+
+def test_diagnose_reports_its_steps_in_order_and_the_result_is_unchanged():
+    from calibration.diagnosis import diagnose
+    from calibration.diagnosis.core import DIAGNOSE_STEPS
+    from calibration.diagnosis.synthetic import Design, make_case
+    from calibration.physics import GravityModel
+    from cell_config import load_cell
+
+    cr = load_cell().robot("R1")
+    nominal = cr.model()
+    gravity = GravityModel.from_spec(cr.robot, nominal)
+    _, fit, ho = make_case(nominal, gravity, {"backlash": 0.3}, 3, Design(n_q2=5, n_q3=4), n_heldout=60)
+    steps: list[str] = []
+    plain = diagnose("R1", nominal, fit, ho, gravity=gravity)
+    reported = diagnose("R1", nominal, fit, ho, gravity=gravity, progress=steps.append)
+    assert steps == list(DIAGNOSE_STEPS)
+    assert reported.verdict == plain.verdict and reported.to_json() == plain.to_json()
+
+
+def test_the_planner_reports_every_waypoint():
+    pytest.importorskip("casadi")
+    import numpy as np
+
+    from app.dual.paths import Q_REF_DEG, read_path, relative_pose
+    from app.dual.planner import DualPlanner, PlannerOptions
+    from cell_config import load_cell
+
+    planner = DualPlanner(load_cell(), options=PlannerOptions(compile=False))
+    path = read_path("sweep:4", planner)
+    q0 = np.radians(Q_REF_DEG)
+    seen = []
+    plan = planner.plan(path, relative_pose(planner, q0), q0, on_waypoint=seen.append)
+    assert seen == list(plan.waypoints) and len(seen) == 4
