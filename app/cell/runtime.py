@@ -140,7 +140,7 @@ class SettledFrames(MocapSource):
             frames = [f for f in self.inner.read(0.0) if f.capture_time >= self._not_before]
             if frames or self.clock.now() >= deadline:
                 return sorted(frames, key=lambda f: (f.frame_number, f.body_id))
-            self.clock.sleep(min(self.period_s, deadline - self.clock.now()))  # type: ignore[type-var]
+            self.clock.advance(min(self.period_s, deadline - self.clock.now()))  # type: ignore[type-var]
 
     def _wait_in_sync(self) -> None:
         from drivers.errors import DriverTimeout

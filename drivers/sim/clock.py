@@ -53,3 +53,15 @@ class SimClock:
             if self.stepped and threading.get_ident() == self._owner:
                 self._t += seconds
             time.sleep(seconds / self.time_scale)
+
+    def advance(self, seconds: float) -> None:
+        """Stepped clock, creating thread: move simulated time on by ``seconds`` at once, without the paced real
+        sleep (for a caller that waits in real time for something else, e.g. frames to come through Zenoh).
+
+        Raises:
+            InvalidArgument: a free-running clock, or another thread than the one that made the clock.
+        """
+        if not self.stepped or threading.get_ident() != self._owner:
+            raise InvalidArgument("sim:clock", "advance", seconds, "a stepped clock, from the thread that made it")
+        if seconds > 0:
+            self._t += seconds
