@@ -87,3 +87,29 @@ def test_export_targets_json_holds_the_printed_figures(tmp_path, capsys):
     line = capsys.readouterr().out.strip().splitlines()[-1]
     et = json.loads((tmp_path / "et.json").read_text())
     assert et["targets"] == numbers(line)[0] == 6 and et["frame"] == "tool" and f"({et['frame']} frame)" in line
+
+
+def test_the_rehearsal_processes_write_their_counters_at_stop(tmp_path):
+    """fake-controller, fake-motive and mocap-bridge as real processes: each --json holds its printed counters."""
+    import time
+
+    from app.cell.rehearsal import Process, write_rehearsal_cell
+
+    cell = write_rehearsal_cell(tmp_path)
+    procs = {name: Process(cell, name, *args, "--json", str(tmp_path / f"{name}.json"))
+             for name, args in (("fake-controller", ()), ("fake-motive", ("--seed", "5")), ("mocap-bridge", ()))}
+    try:
+        for p in procs.values():
+            p.start()
+        time.sleep(2.0)  # the bridge connects to the fake Motive and publishes
+    finally:
+        codes = {name: p.stop() for name, p in reversed(list(procs.items()))}
+    assert codes == dict.fromkeys(procs, 0), {n: procs[n].output[-1500:] for n in procs}
+    out = {name: json.loads((tmp_path / f"{name}.json").read_text()) for name in procs}
+    stopped = {name: next(line for line in p.lines if "stopped" in line) for name, p in procs.items()}
+    bridge = out["mocap-bridge"]
+    assert numbers(stopped["mocap-bridge"])[:3] == [bridge["frames_published"], bridge["connections"],
+                                                     bridge["handshakes"]]
+    assert bridge["frames_published"] > 0
+    assert numbers(stopped["fake-motive"])[0] == out["fake-motive"]["frames_sent"] > 0
+    assert numbers(stopped["fake-controller"])[0] == out["fake-controller"]["trajectory_points_received"] == 0
