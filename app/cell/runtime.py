@@ -36,6 +36,10 @@ PARK_DEG: dict[str, tuple[float, ...]] = {"R1": (-90.0, -20.0, -20.0, 0.0, 0.0, 
                                           "R2": (90.0, 0.0, 0.0, 0.0, 0.0, 0.0)}
 
 
+#: Mocap frame periods a stepped simulated clock moves on per wait for frames (see :class:`SettledFrames`).
+FRAMES_PER_STEP = 4
+
+
 def park_q(robot: str) -> np.ndarray:
     """Parking pose [rad] of ``robot`` (6,): turned away from the other arm (zeros for an unknown name)."""
     return np.radians(PARK_DEG.get(robot, (0.0,) * 6))
@@ -84,27 +88,29 @@ class SettledFrames(MocapSource):
     the simulated clock), which restores the real cell's timing.
 
     On a stepped clock (``SimClock(stepped=True)``) a read also waits, in real time, until every frame captured
-    up to the present simulated instant has come through Zenoh (``in_sync``), and moves the clock on one frame
-    period at a time while it waits for frames: what a read returns is then a function of simulated time only,
-    not of when the bridge thread or Zenoh happened to deliver (they are not faked, only waited for).
+    up to the present simulated instant has come through Zenoh (``in_sync``), and moves the clock on by ``step_s``
+    at a time while it waits for frames: what a read returns is then a function of simulated time only, not of
+    when the bridge thread or Zenoh happened to deliver (they are not faked, only waited for).
 
     Args:
         inner: the mocap source the collector would read (the Zenoh subscriber).
         clock: the simulated clock the frames are stamped with.
         latency_s: the simulated mocap's capture-to-delivery latency [s].
-        period_s: the simulated mocap's frame period [s] (the stepped clock's step while waiting for frames).
+        step_s: how far a stepped clock moves on per wait for frames [s]: a few frame periods, so a dwell window
+            costs a few round trips to the bridge thread; which frames a window holds is decided by their
+            stamps (:func:`~app.cell.mocap_window.collect_window`), not by how many each read returns.
         in_sync: whether every frame due by now has reached ``inner`` (needed with a stepped clock).
         sync_timeout_s: longest real wait for that [s]; then the read fails as a driver timeout.
     """
 
-    def __init__(self, inner: MocapSource, clock: Any, latency_s: float, period_s: float | None = None,
+    def __init__(self, inner: MocapSource, clock: Any, latency_s: float, step_s: float | None = None,
                  in_sync: Callable[[], bool] | None = None, sync_timeout_s: float = 10.0) -> None:
-        if clock.stepped and (in_sync is None or period_s is None):
-            raise ConfigError("SimCell", "mocap", "a stepped clock needs the frame period and an in-sync check")
+        if clock.stepped and (in_sync is None or step_s is None):
+            raise ConfigError("SimCell", "mocap", "a stepped clock needs a step and an in-sync check")
         self.inner = inner
         self.clock = clock
         self.latency_s = latency_s
-        self.period_s = period_s
+        self.step_s = step_s
         self.in_sync = in_sync
         self.sync_timeout_s = sync_timeout_s
         self._not_before = -math.inf
@@ -132,15 +138,14 @@ class SettledFrames(MocapSource):
                 return frames
 
     def _read_stepped(self, timeout_s: float) -> list[Any]:
-        """Every frame due by now, in capture order; while none, the clock steps one frame period (to the
-        deadline)."""
+        """Every frame due by now, in capture order; while none, the clock steps ``step_s`` (to the deadline)."""
         deadline = self.clock.now() + timeout_s
         while True:
             self._wait_in_sync()
             frames = [f for f in self.inner.read(0.0) if f.capture_time >= self._not_before]
             if frames or self.clock.now() >= deadline:
                 return sorted(frames, key=lambda f: (f.frame_number, f.body_id))
-            self.clock.advance(min(self.period_s, deadline - self.clock.now()))  # type: ignore[type-var]
+            self.clock.advance(min(self.step_s, deadline - self.clock.now()))  # type: ignore[type-var]
 
     def _wait_in_sync(self) -> None:
         from drivers.errors import DriverTimeout
@@ -265,7 +270,7 @@ class SimCell:
                                                rigid_bodies=list(names.values()), max_buffered_frames=100_000)
             self.subscriber.connect()
             self.mocap = SettledFrames(self.subscriber, clock, self._sim_mocap.config.latency_s,
-                                       1.0 / c.mocap_rate_hz, self._frames_in_sync)
+                                       FRAMES_PER_STEP / c.mocap_rate_hz, self._frames_in_sync)
             for body in names.values():
                 if not wait_for_subscriber(bridge_session, mocap_key(self.cell.name, body), 10.0):
                     raise DriverError("zenoh", f"the collector session never matched the bridge on "
