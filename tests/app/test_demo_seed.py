@@ -70,3 +70,14 @@ def test_the_json_holds_what_the_demo_prints(runs):
     assert set(rows) == {(r, m) for r in a["robots"] for m in ("nominal", "nls1")}
     assert f"{a['mocap_frames_received']} mocap frames" in printed
     assert f"report: {a['report']}" in printed
+
+
+@pytest.mark.parametrize("bad,fragment", [(["--anchor-step", "0"], "--anchor-step must be in [0.5, 90] deg"),
+                                          (["--validation", "0"], "--validation must be at least 1"),
+                                          (["--methods", "nls1,magic"], "unknown method 'magic'")])
+def test_bad_demo_options_exit_2_and_write_nothing(tmp_path, capsys, bad, fragment):
+    from tests.conftest import assert_bad_input
+
+    assert_bad_input(capsys, ["demo", "--out", str(tmp_path / "out"), "--json", str(tmp_path / "d.json"), *bad],
+                     fragment)
+    assert list(tmp_path.iterdir()) == []
