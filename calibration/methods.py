@@ -14,7 +14,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -63,6 +63,8 @@ class FitOptions:
         fbf7_rank: rank of the SVD-reduced Fourier basis.
         cluster_size: samples per anchor when the recording has no cluster column.
         seed: random seed of the neural interpolators.
+        epoch_progress: called as ``epoch_progress(epoch, n_epochs)`` after each training epoch of the neural
+            interpolators (nn, ae; a progress bar); no effect on any result.
     """
 
     a: float = DEFAULT_ORIENTATION_WEIGHT
@@ -75,6 +77,7 @@ class FitOptions:
     fbf7_rank: int = 7
     cluster_size: int = 7
     seed: int = 0
+    epoch_progress: Callable[[int, int], None] | None = field(default=None, compare=False)
 
 
 @dataclass
@@ -259,6 +262,7 @@ class Fitter:
             options["rank"] = self.options.fbf7_rank
         if method in ("nn", "ae"):
             options["random_state"] = self.options.seed
+            options["progress"] = self.options.epoch_progress
         if method in ("fbf13", "fbf7"):
             options["ridge"] = self._choose_strength(method, options, "ridge", self.options.fourier_ridge_grid)
         kin, local = self.physics_informed().kinematics, self.local_fits()

@@ -25,7 +25,7 @@ log = logging.getLogger("cellcal.app")
 def run_diagnose(robot: str, data: str | Path, heldout: str | Path | None = None, model: str | Path | None = None,
                  json_path: str | Path | None = None, report_dir: str | Path | None = None,
                  model_out: str | Path | None = None, cell: str | Path | None = None,
-                 options: DiagnoseOptions | None = None, tolerance: Any = None) -> Diagnosis:
+                 options: DiagnoseOptions | None = None, tolerance: Any = None, progress: bool = False) -> Diagnosis:
     """Diagnose one robot's model against recordings and write the requested outputs.
 
     Args:
@@ -41,6 +41,7 @@ def run_diagnose(robot: str, data: str | Path, heldout: str | Path | None = None
         cell: cell YAML (default: the packaged Motoman cell).
         options: diagnosis settings.
         tolerance: the report's acceptance :class:`~app.analysis.report.Tolerance` (None: 1 mm and 1 deg).
+        progress: show a progress bar over the diagnosis steps.
 
     Returns:
         The diagnosis.
@@ -65,7 +66,16 @@ def run_diagnose(robot: str, data: str | Path, heldout: str | Path | None = None
     except ModelError as e:
         log.warning("joint compliance cannot be tested: %s", e)
         gravity = None
-    result = diagnose(robot, nominal, rec, ho, used, gravity, limits, options)
+    from app.progress import bar
+    from calibration.diagnosis.core import DIAGNOSE_STEPS
+
+    with bar(total=len(DIAGNOSE_STEPS), enabled=progress, desc=f"{robot} diagnose", unit="step") as steps:
+        def step(name: str) -> None:  # the bar counts the steps done; its label names the one running
+            steps.set_postfix_str(name, refresh=False)
+            steps.update(DIAGNOSE_STEPS.index(name) - steps.n)
+
+        result = diagnose(robot, nominal, rec, ho, used, gravity, limits, options, progress=step)
+        steps.update(steps.total - steps.n)
     inputs = [("data", data), ("heldout", heldout), ("model", model)]
     if model_out is not None:
         from app.provenance import provenance, with_provenance

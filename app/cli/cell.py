@@ -7,7 +7,8 @@ from pathlib import Path
 from typing import Any, Callable
 
 from app.analysis.fitting import fitter_for
-from app.cli.common import add_report_options, cell_spec, command_line, log, tolerance_from_args, write_json
+from app.cli.common import add_report_options, cell_spec, command_line, epoch_bar, log, show_progress, \
+    tolerance_from_args, write_json
 from calibration.errors import CellCalError
 
 
@@ -56,7 +57,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
         print(figures_table(figs))
     write_json(args.json, {"robot": args.robot, "design": args.design, "targets": len(plan), "kinds": kinds,
-                           "out": str(args.out),
+                           "params": plan.params, "out": str(args.out),
                            **({"figures": {k: f.to_json() for k, f in figs.items()}} if figs else {})})
     return 0
 
@@ -143,7 +144,7 @@ def cmd_collect(args: argparse.Namespace) -> int:
                              f"{config.speed_fraction:g} of full speed")
         try:
             result = collect_arm(rt, safety, args.robot, plan, Path(args.session), config,
-                                 resume=args.resume, progress=not args.no_progress)
+                                 resume=args.resume, progress=show_progress(args))
         except SessionAborted:
             _print_events(args.session)
             raise
@@ -197,6 +198,7 @@ def cmd_export(args: argparse.Namespace) -> int:
             raise CellCalError(f"unknown target kind {bad[0] if bad else args.kinds!r}; valid: {', '.join(KINDS)}")
     n = export(args.session, args.out, kinds)
     print(f"{n} samples -> {args.out}")
+    write_json(args.json, {"session": str(args.session), "samples": n, "kinds": kinds, "out": str(args.out)})
     return 0
 
 
@@ -244,8 +246,8 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         confirm_motion(args, f"{args.robot} will visit {len(plan) if plan is not None else 0} training and "
                              f"{len(val_plan)} validation targets at {config.speed_fraction:g} of full speed")
         if plan is not None:
-            collect_arm(rt, safety, args.robot, plan, session, config, progress=not args.no_progress)
-        collect_arm(rt, safety, args.robot, val_plan, work / "validation", config, progress=not args.no_progress)
+            collect_arm(rt, safety, args.robot, plan, session, config, progress=show_progress(args))
+        collect_arm(rt, safety, args.robot, val_plan, work / "validation", config, progress=show_progress(args))
     read = lambda p: read_recording(p, robot.robot.lower_rad, robot.robot.upper_rad)  # noqa: E731
     export(session, work / "train.csv", kinds=("anchor", "perturb"))
     cpa = None
@@ -258,7 +260,10 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         model, rebased = rebase_candidate(model_dir, service, read(work / "train.csv"))
         print(rebased.summary())
     else:
-        model, _ = fitter_for(robot, read(work / "train.csv"), cpa).fit(args.method)
+        from calibration.methods import FitOptions
+
+        fitter = fitter_for(robot, read(work / "train.csv"), cpa, FitOptions(epoch_progress=epoch_bar(args)))
+        model, _ = fitter.fit(args.method)
     inputs = [("train", work / "train.csv"), ("cpa", work / "cpa.csv" if cpa else None),
               ("validation", work / "validation.csv")]
     if args.rebase:
@@ -291,16 +296,31 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
 def cmd_demo(args: argparse.Namespace) -> int:
     from app.demo.run import DemoConfig, run_demo, summary_table
 
-    result = run_demo(args.out, cell_spec(args), DemoConfig(full=args.full, seed=args.seed,
-                                                        progress=not args.no_progress,
-                                                        tolerance=tolerance_from_args(args),
-                                                        report_dir=Path(args.report) if args.report else None))
+    if args.anchor_step is not None and not 0.5 <= args.anchor_step <= 90.0:
+        raise CellCalError(f"--anchor-step must be in [0.5, 90] deg, got {args.anchor_step:g}")
+    if args.validation < 1:
+        raise CellCalError(f"--validation must be at least 1, got {args.validation}")
+    config = DemoConfig(full=args.full, anchor_step_deg=args.anchor_step, seed=args.seed, n_validation=args.validation,
+                        methods=_demo_methods(args.methods), progress=show_progress(args),
+                        tolerance=tolerance_from_args(args), report_dir=Path(args.report) if args.report else None)
+    result = run_demo(args.out, cell_spec(args), config)
     print(summary_table(result.summary))
     print(f"demo finished in {result.seconds:.1f} s; {result.summary['mocap_frames_received']} mocap frames "
           f"received over zenoh")
     print(f"summary: {result.out_dir / 'summary.json'}")
     print(f"report: {result.report}")
+    write_json(args.json, {**result.summary, "summary": str(result.out_dir / "summary.json"),
+                           "report": str(result.report)})
     return 0
+
+
+def _demo_methods(text: str | None) -> tuple[str, ...] | None:
+    """``--methods`` of the demo: None (every method) or the parsed comma-separated list."""
+    if not text:
+        return None
+    from app.analysis.compare import parse_methods
+
+    return tuple(parse_methods(text))
 
 
 def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
@@ -323,7 +343,7 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--budget", type=int, help="--design optimal: poses to measure (whole clusters of 7)")
     p.add_argument("--noise-mm", type=float, default=0.05,
                    help="measurement noise assumed for the predicted parameter uncertainty [mm]")
-    p.add_argument("--json", help="write the plan summary (and the design figures) as JSON")
+    p.add_argument("--json", help="write the plan summary (target counts per kind, and the design figures) as JSON")
 
     p = add("select", cmd_select, "choose the most informative clusters of a recording (the plan --design optimal "
                                   "criterion) and write them as a recording subset")
@@ -347,6 +367,7 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--out", required=True, help="recording CSV")
     p.add_argument("--kinds", help="comma-separated target kinds to include (anchor, perturb, cpa, validation); all "
                                    "by default")
+    p.add_argument("--json", help="write the sample count as JSON")
     p = add("recalibrate", cmd_recalibrate, "fit a new model, compare it with the one in service on fresh validation "
                                             "poses, replace it only if better")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
@@ -354,7 +375,7 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     src.add_argument("--session", help="reuse the training samples of this session")
     src.add_argument("--plan", help="collect a new training session from this plan")
     p.add_argument("--model-dir", required=True, help="folder of the model in service (current.yaml, previous/)")
-    p.add_argument("--method", default="fbf13", choices=METHODS)
+    p.add_argument("--method", default="fbf13", choices=METHODS, help="the method of the new model (default fbf13)")
     p.add_argument("--rebase", action="store_true", help="refit only the base and tool-marker frames of the model in "
                                                          "service on the training poses (a few clusters of a new day) "
                                                          "instead of fitting a new model (--method is not used)")
@@ -368,5 +389,10 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--out", default="demo_out", help="output folder (an earlier demo there is replaced)")
     p.add_argument("--full", action="store_true", help="the paper's 248-anchor design (5 deg steps; ~4x longer)")
     p.add_argument("--seed", type=int, default=0, help="seed of the planted errors, the noise and the validation poses")
+    p.add_argument("--anchor-step", type=float, help="anchor grid q2/q3 step [deg] (default 10, 5 with --full; a "
+                                                     "coarse grid, e.g. 40, makes a short demo)")
+    p.add_argument("--validation", type=int, default=50, help="random validation poses per arm (the test set)")
+    p.add_argument("--methods", help="comma-separated methods to fit (default: all)")
+    p.add_argument("--json", help="write the summary (per arm and method: test statistics) as JSON")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     add_report_options(p, "per arm: every method's errors, tables and plots (default DIR: --out)")

@@ -12,7 +12,7 @@ from typing import Any, Callable
 
 from app.cli.cell import add_cell_parsers
 from app.cli.common import (add_report_options, cell_spec, check_output_args, command_line, fitter_from_args,
-                             load_model_for, read_recording_arg, tolerance_from_args, write_json)
+                             load_model_for, read_recording_arg, show_progress, tolerance_from_args, write_json)
 from app.cli.dual import add_dual_parsers
 from app.cli.real import add_real_parsers
 from app.jobs.cli import add_job_parsers
@@ -35,6 +35,9 @@ def cmd_fit(args: argparse.Namespace) -> int:
     save_model(with_provenance(model, provenance([("train", args.train), ("cpa", args.cpa)])), args.out)
     print(f"{args.method}: {model.n_parameters} parameters fitted on {len(fitter.train)} samples in {seconds:.3f} s "
           f"-> {args.out}")
+    write_json(args.json, {"robot": args.robot, "method": args.method, "n_parameters": model.n_parameters,
+                           "samples": len(fitter.train), "fit_seconds": seconds, "out": str(args.out),
+                           "warning": model.info.get("warning") or ""})
     return 0
 
 
@@ -53,6 +56,8 @@ def cmd_predict(args: argparse.Namespace) -> int:
     write_table(args.out, {"x": p[:, 0], "y": p[:, 1], "z": p[:, 2], "qw": quat[:, 0], "qx": quat[:, 1],
                            "qy": quat[:, 2], "qz": quat[:, 3]})
     print(f"{len(q)} poses -> {args.out}")
+    write_json(args.json, {"robot": model.robot, "method": model.method, "poses": len(q),
+                           "outside_fitted_region": int(outside.sum()), "out": str(args.out)})
     return 0
 
 
@@ -171,7 +176,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     files = {f"{Path(f).stem} (file)": load_model_for(f, robot) for f in args.model}
     fitter, robot = fitter_from_args(args)
     test = read_recording_arg(args.test, robot)
-    cmp = run_comparison(fitter, test, methods, files=files)
+    cmp = run_comparison(fitter, test, methods, progress=show_progress(args), files=files)
     cmp.analysis["frames"] = {"training": None if args.frame_check is None else args.frame_check.to_json()}
     if args.days is not None:
         cmp.analysis["days"] = args.days.to_json()
@@ -202,7 +207,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     result = run_diagnose(args.robot, args.train, heldout=args.test, model=args.model, json_path=args.json,
                           report_dir=args.report, model_out=args.out, cell=args.cell,
                           options=DiagnoseOptions(compliance_form=args.compliance_form),
-                          tolerance=tolerance_from_args(args))
+                          tolerance=tolerance_from_args(args), progress=show_progress(args))
     print(result.verdict)
     return 0
 
@@ -217,9 +222,12 @@ def _add_fit_inputs(p: argparse.ArgumentParser) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="cellcal", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="cellcal", description="Calibrate the arms of a robot cell from motion-capture "
+                                     "recordings, plan with the calibrated models and put them into service.")
     parser.add_argument("--cell", help="cell.yaml (default: the packaged Motoman cell)")
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars (they are off anyway when "
+                                                                    "stderr is not a terminal)")
     parser.add_argument("--version", action="version", version=f"cellcal {version()}")
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -232,19 +240,21 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = add("fit", cmd_fit, "fit one method and save the model")
     _add_fit_inputs(p)
-    p.add_argument("--method", required=True, choices=METHODS)
+    p.add_argument("--method", required=True, choices=METHODS, help="the calibration method to fit")
     p.add_argument("--out", required=True, help="model file (.yaml or .json)")
+    p.add_argument("--json", help="write the method, parameter and sample counts and the fit time as JSON")
     p = add("predict", cmd_predict, "tool poses of a model for joint angles")
-    p.add_argument("--model", required=True)
+    p.add_argument("--model", required=True, help="the model file (fit --out)")
     p.add_argument("--robot", help="the arm the model is for (R1, R2): refuse a model of another robot (joints "
                                    "are checked against the limits of the model's robot either way)")
     p.add_argument("--joints", required=True, help="CSV with q1..q6 [rad] (header) or 6 headerless columns")
-    p.add_argument("--out", required=True)
+    p.add_argument("--out", required=True, help="poses CSV to write (x, y, z [mm], qw, qx, qy, qz)")
+    p.add_argument("--json", help="write the pose count and how many lie outside the fitted region as JSON")
     p = add("evaluate", cmd_evaluate, "accuracy of a model on a recording")
-    p.add_argument("--model", required=True)
+    p.add_argument("--model", required=True, help="the model file (fit --out)")
     p.add_argument("--robot", help="the arm the model is for (R1, R2): refuse a model of another robot (joints "
                                    "are checked against the limits of the model's robot either way)")
-    p.add_argument("--test", required=True)
+    p.add_argument("--test", required=True, help="recording CSV or Welding_Motoman folder to evaluate on")
     p.add_argument("--json", help="write the statistics as JSON")
     add_report_options(p, "the model's errors and plots")
     p = add("rebase", cmd_rebase, "move a fitted model of any kind onto a new day: refit only its base and tool-marker "
@@ -270,7 +280,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", help="write what was exported and what was lost as JSON")
     p = add("compare", cmd_compare, "the paper's comparison table for every method")
     _add_fit_inputs(p)
-    p.add_argument("--test", required=True)
+    p.add_argument("--test", required=True, help="recording CSV or Welding_Motoman folder the methods never fit on")
     p.add_argument("--methods", default="all", help="all, or a comma-separated list")
     p.add_argument("--model", action="append", default=[], metavar="FILE",
                    help="a saved model (a diagnose result, ...) to add as a row of its own; repeatable")
@@ -309,7 +319,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     args.argv = list(argv) if argv is not None else sys.argv[1:]
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
+    from app.progress import configure, install_logging
+
+    install_logging(logging.INFO if args.verbose else logging.WARNING)  # log lines go through the bars
+    configure(quiet=args.quiet)
     try:
         check_output_args(args)
         return args.func(args)

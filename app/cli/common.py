@@ -58,11 +58,12 @@ def fitter_from_args(args: argparse.Namespace) -> Any:
     if len(trains) > 1:
         from app.analysis.fitting import days_fitter_for
 
-        args.days = days_fitter_for(robot, trains, cpa, FitOptions(a=args.a))
+        args.days = days_fitter_for(robot, trains, cpa, FitOptions(a=args.a, epoch_progress=epoch_bar(args)))
         print(args.days.summary(), file=sys.stderr)
         args.frame_check = None
         return args.days.fitter, robot
-    fitter, args.frame_check = checked_fitter_for(robot, trains[0], cpa, FitOptions(a=args.a))
+    options = FitOptions(a=args.a, epoch_progress=epoch_bar(args))
+    fitter, args.frame_check = checked_fitter_for(robot, trains[0], cpa, options)
     if args.frame_check.found:
         print(f"warning: {args.frame_check.message()} The base and tool frames are fitted first, then the "
               "kinematics.", file=sys.stderr)
@@ -85,6 +86,23 @@ def check_output_args(args: argparse.Namespace) -> None:
         value = getattr(args, name, None)
         if isinstance(value, str) and not (name == "out" and args.command == "demo"):
             check_output_path(value)
+
+
+def show_progress(args: argparse.Namespace) -> bool:
+    """Whether this command shows progress bars: the CLI's policy (a terminal, no ``--quiet``) and no
+    ``--no-progress``."""
+    from app.progress import enabled
+
+    return enabled() and not getattr(args, "no_progress", False)
+
+
+def epoch_bar(args: argparse.Namespace) -> Any:
+    """The training-epoch bar of the neural interpolators (``FitOptions.epoch_progress``), or None without bars."""
+    if not show_progress(args):
+        return None
+    from app.progress import EpochBar
+
+    return EpochBar("nn/ae training")
 
 
 def write_json(path: str | None, data: dict[str, Any]) -> None:

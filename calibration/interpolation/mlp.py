@@ -22,7 +22,7 @@ import logging
 import time
 import warnings
 from dataclasses import dataclass
-from typing import Any, ClassVar, Iterator, Sequence
+from typing import Any, Callable, ClassVar, Iterator, Sequence
 
 import numpy as np
 
@@ -31,6 +31,9 @@ from calibration.interpolation.base import Interpolator, array_field, field, fro
 from calibration.interpolation.support import AnchorSupport
 
 logger = logging.getLogger("cellcal.calibration")
+
+#: ``progress(epoch, n_epochs)``, called after each training epoch (epoch counts from 1).
+EpochCallback = Callable[[int, int], None]
 
 
 @dataclass(frozen=True)
@@ -98,8 +101,29 @@ def one_blas_thread() -> Iterator[None]:
         yield
 
 
+def _reporting_regressor(progress: EpochCallback | None, **options: Any) -> Any:
+    """scikit-learn's ``MLPRegressor`` with ``options``; with ``progress``, one that calls it after each epoch.
+
+    The call hangs on the per-epoch bookkeeping step of scikit-learn's stochastic solver, after the epoch's
+    updates: the training itself (one ``fit`` call, the same random stream) is untouched, so the weights are
+    bit-identical with and without a callback.
+    """
+    from sklearn.neural_network import MLPRegressor
+
+    if progress is None:
+        return MLPRegressor(**options)
+
+    class ReportingMLPRegressor(MLPRegressor):
+        def _update_no_improvement_count(self, *args: Any, **kwargs: Any) -> None:
+            super()._update_no_improvement_count(*args, **kwargs)
+            progress(self.n_iter_, self.max_iter)
+
+    return ReportingMLPRegressor(**options)
+
+
 def train_mlp(x: np.ndarray, y: np.ndarray, hidden: Sequence[int], max_iter: int, learning_rate: float,
-              alpha: float, random_state: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
+              alpha: float, random_state: int,
+              progress: EpochCallback | None = None) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Train a ReLU MLP ``x -> y`` (identity output) with Adam, full budget of epochs.
 
     Args:
@@ -110,18 +134,20 @@ def train_mlp(x: np.ndarray, y: np.ndarray, hidden: Sequence[int], max_iter: int
         learning_rate: Adam step size.
         alpha: L2 penalty.
         random_state: seed of the weight initialisation and batch shuffling.
+        progress: called as ``progress(epoch, max_iter)`` after each epoch (a progress bar); no effect on the
+            result.
 
     Returns:
         Weights (list of (n_in, n_out) arrays) and biases (list of (n_out,) arrays), input layer first.
     """
     try:
         from sklearn.exceptions import ConvergenceWarning
-        from sklearn.neural_network import MLPRegressor
+        from sklearn.neural_network import MLPRegressor  # noqa: F401 - the import check
     except ImportError as e:
         raise ModelError("training the nn/ae interpolators needs scikit-learn: pip install scikit-learn") from e
-    net = MLPRegressor(hidden_layer_sizes=tuple(hidden), activation="relu", solver="adam", alpha=alpha,
-                       learning_rate_init=learning_rate, max_iter=max_iter, tol=0.0,
-                       n_iter_no_change=max_iter + 1, random_state=random_state, shuffle=True)
+    net = _reporting_regressor(progress, hidden_layer_sizes=tuple(hidden), activation="relu", solver="adam",
+                               alpha=alpha, learning_rate_init=learning_rate, max_iter=max_iter, tol=0.0,
+                               n_iter_no_change=max_iter + 1, random_state=random_state, shuffle=True)
     t0 = time.perf_counter()
     with warnings.catch_warnings(), one_blas_thread():
         warnings.simplefilter("ignore", ConvergenceWarning)  # we always run the full epoch budget
@@ -210,13 +236,17 @@ class MlpInterpolator(Interpolator):
         learning_rate: Adam step size.
         alpha: L2 weight penalty.
         random_state: seed; the same seed and data give the same network.
+        progress: called as ``progress(epoch, max_iter)`` after each training epoch; not part of the model
+            (not saved), no effect on the result.
     """
 
     kind: ClassVar[str] = "nn"
 
     def __init__(self, hidden: Sequence[int] = (200, 200, 200), max_iter: int = 300,
-                 learning_rate: float = 1e-3, alpha: float = 1e-4, random_state: int = 0) -> None:
+                 learning_rate: float = 1e-3, alpha: float = 1e-4, random_state: int = 0,
+                 progress: EpochCallback | None = None) -> None:
         super().__init__()
+        self.progress = progress
         self.hidden = check_training_options(self.kind, hidden, max_iter, learning_rate, alpha)
         self.max_iter, self.learning_rate, self.alpha = int(max_iter), float(learning_rate), float(alpha)
         self.random_state = int(random_state)
@@ -236,7 +266,7 @@ class MlpInterpolator(Interpolator):
         self._support, self._anchors = AnchorSupport(x), x
         self._xs, self._ys = Standardiser.fit(x), Standardiser.fit(y)
         self._w, self._b = train_mlp(self._xs.apply(x), self._ys.apply(y), self.hidden, self.max_iter,
-                                     self.learning_rate, self.alpha, self.random_state)
+                                     self.learning_rate, self.alpha, self.random_state, self.progress)
 
     def _predict(self, x: np.ndarray) -> np.ndarray:
         return self._ys.invert(forward(self._xs.apply(x), self._w, self._b))  # type: ignore[union-attr]
