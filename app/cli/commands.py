@@ -32,7 +32,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
         model.info["days"] = args.days.to_json()  # the recordings' frames and figures, kept with the model
     if model.info.get("warning"):
         print(f"warning: {model.info['warning']}", file=sys.stderr)
-    save_model(with_provenance(model, provenance([("train", args.train), ("cpa", args.cpa)])), args.out)
+    save_model(with_provenance(model, provenance([*(("train", t) for t in args.train), ("cpa", args.cpa)])), args.out)
     print(f"{args.method}: {model.n_parameters} parameters fitted on {len(fitter.train)} samples in {seconds:.3f} s "
           f"-> {args.out}")
     write_json(args.json, {"robot": args.robot, "method": args.method, "n_parameters": model.n_parameters,
@@ -190,7 +190,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     print(comparison_table(cmp, with_paper=args.robot == "R1"))
     write_json(args.json, cmp.to_json())
     if args.report:
-        inputs = [("train", args.train), ("cpa", args.cpa), ("test", args.test)] + [("model", f) for f in args.model]
+        inputs = [*(("train", t) for t in args.train), ("cpa", args.cpa), ("test", args.test)] + [("model", f) for f in args.model]
         files = write_report(cmp, test, args.report, args.robot == "R1", tolerance, inputs, command_line(args))
         print(f"report: {files[-1]}")
     return 0

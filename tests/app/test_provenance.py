@@ -110,3 +110,14 @@ def test_diagnose_and_recalibrate_record_their_inputs(tmp_path):
     assert [i["role"] for i in p["inputs"]] == ["train", "validation"]
     for item in p["inputs"]:
         assert item["path"].startswith(str(models / "sessions")) and item["sha256"] == _sha(type(models)(item["path"]))
+
+
+def test_a_fit_on_several_training_recordings_records_each_of_them(data, tmp_path, synthetic_arm):
+    q, cluster = cluster_design(step_deg=20.0)
+    write_recording(measure(synthetic_arm[2].fk, q, 0.02, 0.01, 2, cluster), tmp_path / "other_day.csv")
+    out = tmp_path / "two_days.yaml"
+    days = [data / "train.csv", tmp_path / "other_day.csv"]
+    assert main(["fit", "--robot", "R1", "--train", str(days[0]), "--train", str(days[1]),
+                 "--method", "nls1", "--out", str(out)]) == 0
+    inputs = model_provenance(load_model(out))["inputs"]
+    assert [(i["role"], i["path"], i["sha256"]) for i in inputs] == [("train", str(d), _sha(d)) for d in days]
