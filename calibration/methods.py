@@ -37,6 +37,8 @@ log = logging.getLogger("cellcal.calibration")
 CONSTANT_METHODS = ("nominal", "base", "cpa", "nls0", "nls1")
 CDC_METHODS = ("nearest", "linear", "cubic", "rbf", "fbf13", "fbf7", "nn", "ae")
 PHYSICS_METHODS = ("pi", "diagnosed")
+#: CDC kinds whose fit is a network training (seconds): their held-out folds train in parallel worker processes.
+NEURAL_METHODS = ("nn", "ae")
 METHODS = CONSTANT_METHODS + CDC_METHODS + PHYSICS_METHODS
 
 
@@ -260,9 +262,25 @@ class Fitter:
         if method in ("fbf13", "fbf7"):
             options["ridge"] = self._choose_strength(method, options, "ridge", self.options.fourier_ridge_grid)
         kin, local = self.physics_informed().kinematics, self.local_fits()
-        model = build_cdc(self.robot, method, kin, local, **options)
-        model.info.update(self._cdc_checks(method, options, model))
+        # The neural kinds' held-out check is 5 trainings: started in worker processes first, it runs while
+        # the final network trains here (same figures as in-process).
+        check = self._held_out_check(method, options, robust.default_workers() if method in NEURAL_METHODS else 1)
+        try:
+            model = build_cdc(self.robot, method, kin, local, **options)
+        except BaseException:
+            check.cancel()
+            raise
+        model.info.update(self._cdc_checks(method, model, check))
         return model
+
+    def _held_out_check(self, method: str, options: dict[str, Any], workers: int) -> robust.HeldOutCheck:
+        from calibration.interpolation import make_interpolator
+
+        local, pi = self.local_fits(), self.physics_informed()
+        groups, _ = cluster_anchors(self.train, self.options.cluster_size)
+        return robust.HeldOutCheck(lambda: make_interpolator(method, **options), pi.kinematics, pi.theta,
+                                   local.anchors, local.x, groups, self.train, CDC_INPUTS, seed=self.options.seed,
+                                   workers=workers)
 
     def _workspace_probes(self) -> np.ndarray:
         if "workspace_probes" not in self._cache:
@@ -286,14 +304,10 @@ class Fitter:
             name: chosen, "grid": list(grid), "heldout_rms_mm": [round(s.rms_mm, 4) for s in scores]}
         return chosen
 
-    def _cdc_checks(self, method: str, options: dict[str, Any], model: Any) -> dict[str, Any]:
+    def _cdc_checks(self, method: str, model: Any, check: robust.HeldOutCheck) -> dict[str, Any]:
         """Held-out-cluster and probe-range checks of a CDC fit (training data only); a warning when it fails."""
-        from calibration.interpolation import make_interpolator
-
         local, pi = self.local_fits(), self.physics_informed()
-        groups, _ = cluster_anchors(self.train, self.options.cluster_size)
-        h = robust.held_out(lambda: make_interpolator(method, **options), pi.kinematics, pi.theta, local.anchors,
-                            local.x, groups, self.train, CDC_INPUTS, seed=self.options.seed)
+        h = check.result()
         probes = robust.probe_grid(local.anchors)
         excess = robust.range_excess(model.interpolator.predict(probes), local.x, 0.01 * self.par.scale())
         ratio, probe_mm, train_mm = robust.workspace_ratio(model.fk, pi.fk, self.train.q, self._workspace_probes())

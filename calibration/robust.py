@@ -20,6 +20,8 @@ Two checks, both blind to any test recording:
 
 from __future__ import annotations
 
+import multiprocessing as mp
+import os
 from dataclasses import dataclass
 from typing import Callable
 
@@ -78,10 +80,34 @@ def position_errors(kin: ExtendedKinematics, theta: np.ndarray, rec: Recording) 
     return np.linalg.norm(rec.p - p, axis=1)
 
 
-def held_out(make: Callable[[], Interpolator], kin: ExtendedKinematics, theta_ref: np.ndarray,
-             anchors: np.ndarray, x_local: np.ndarray, groups: np.ndarray, rec: Recording,
-             inputs: tuple[int, ...], clamp: bool = True, n_folds: int = N_FOLDS, seed: int = 0) -> HeldOut:
-    """Held-out-cluster error of the interpolator ``make()`` over the local fits.
+def _fit_fold(f: int) -> np.ndarray:
+    """Worker job of :class:`HeldOutCheck`: fit fold f's training clusters, predict its held-out queries."""
+    make, anchors, x_local, folds, queries = _FOLD_STATE
+    train = folds != f
+    return make().fit(anchors[train], x_local[train]).predict(queries[f])
+
+
+#: What the forked fold workers read (set just before the pool forks, cleared after): (make, anchors, x_local,
+#: folds, queries per fold). Forking shares it without pickling ``make``, which is usually a lambda.
+_FOLD_STATE: tuple = ()
+
+
+def default_workers(n_jobs: int = N_FOLDS) -> int:
+    """Worker processes for an expensive held-out check: the usable cores, at most ``n_jobs``."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cores = os.cpu_count() or 1
+    return max(1, min(cores, n_jobs))
+
+
+class HeldOutCheck:
+    """Held-out-cluster error of the interpolator ``make()`` over the local fits, started on construction.
+
+    With ``workers > 1`` (and the ``fork`` start method, i.e. Linux) the folds are fitted in that many forked
+    worker processes, so the caller can fit the final model meanwhile and :meth:`result` collects them; the
+    figures are the same bits as with ``workers=1`` (every fold is the same deterministic fit, only elsewhere).
+    Worth it for the neural kinds, whose 5 fold trainings cost seconds; the cheap kinds stay in-process.
 
     Args:
         make: a new unfitted interpolator.
@@ -91,26 +117,78 @@ def held_out(make: Callable[[], Interpolator], kin: ExtendedKinematics, theta_re
         rec: the training recording.
         inputs: joint indices the interpolator reads.
         clamp: clip predictions to the training folds' per-parameter range (as the fitted model does).
+        n_folds, seed: the folds of :func:`cluster_folds`.
+        workers: processes fitting the folds (1: in this process, when the result is asked for).
     """
-    folds = cluster_folds(len(anchors), n_folds, seed)
-    g = x_local.shape[1]
-    err = np.empty(len(rec))
-    for f in range(n_folds):
-        train, test = folds != f, folds == f
-        interp = make().fit(anchors[train], x_local[train])
-        idx = np.flatnonzero(test[groups])
-        q = rec.q[idx]
-        x = interp.predict(q[:, list(inputs)])
-        if clamp:
-            x = np.clip(x, x_local[train].min(axis=0), x_local[train].max(axis=0))
-        theta = np.array(np.broadcast_to(theta_ref, (len(idx), kin.size)))
-        theta[:, :g] = x
-        err[idx] = position_errors(kin, theta, rec.subset(idx))
-    ref = position_errors(kin, theta_ref, rec)
-    per_cluster = np.bincount(groups, err ** 2) / np.maximum(np.bincount(groups), 1)
-    rms = float(np.sqrt(np.mean(err ** 2)))
-    se = float(per_cluster.std(ddof=1) / np.sqrt(len(per_cluster)) / (2.0 * max(rms, 1e-12)))
-    return HeldOut(rms, float(np.sqrt(np.mean(ref ** 2))), float(err.max()), float(ref.max()), se)
+
+    def __init__(self, make: Callable[[], Interpolator], kin: ExtendedKinematics, theta_ref: np.ndarray,
+                 anchors: np.ndarray, x_local: np.ndarray, groups: np.ndarray, rec: Recording,
+                 inputs: tuple[int, ...], clamp: bool = True, n_folds: int = N_FOLDS, seed: int = 0,
+                 workers: int = 1) -> None:
+        global _FOLD_STATE
+        self._kin, self._theta_ref, self._x_local, self._groups, self._rec = kin, theta_ref, x_local, groups, rec
+        self._clamp, self._n_folds = clamp, n_folds
+        self._folds = cluster_folds(len(anchors), n_folds, seed)
+        self._idx = [np.flatnonzero((self._folds == f)[groups]) for f in range(n_folds)]
+        queries = [rec.q[idx][:, list(inputs)] for idx in self._idx]
+        self._state = (make, anchors, x_local, self._folds, queries)
+        self._pool, self._pending = None, None
+        if workers > 1 and "fork" in mp.get_all_start_methods():
+            _FOLD_STATE = self._state
+            try:
+                self._pool = mp.get_context("fork").Pool(min(workers, n_folds))
+            finally:
+                _FOLD_STATE = ()
+            self._pending = self._pool.map_async(_fit_fold, range(n_folds), chunksize=1)
+
+    def _predictions(self) -> list[np.ndarray]:
+        global _FOLD_STATE
+        if self._pool is None:
+            _FOLD_STATE = self._state
+            try:
+                return [_fit_fold(f) for f in range(self._n_folds)]
+            finally:
+                _FOLD_STATE = ()
+        try:
+            return self._pending.get()  # type: ignore[union-attr]
+        finally:
+            self._pool.close()
+            self._pool.join()
+            self._pool = None
+
+    def cancel(self) -> None:
+        """Stop the workers (the caller failed before asking for the result)."""
+        if self._pool is not None:
+            self._pool.terminate()
+            self._pool.join()
+            self._pool = None
+
+    def result(self) -> HeldOut:
+        """The figures (waits for the workers)."""
+        kin, rec, groups, x_local = self._kin, self._rec, self._groups, self._x_local
+        g = x_local.shape[1]
+        err = np.empty(len(rec))
+        for f, (idx, x) in enumerate(zip(self._idx, self._predictions())):
+            if self._clamp:
+                train = self._folds != f
+                x = np.clip(x, x_local[train].min(axis=0), x_local[train].max(axis=0))
+            theta = np.array(np.broadcast_to(self._theta_ref, (len(idx), kin.size)))
+            theta[:, :g] = x
+            err[idx] = position_errors(kin, theta, rec.subset(idx))
+        ref = position_errors(kin, self._theta_ref, rec)
+        per_cluster = np.bincount(groups, err ** 2) / np.maximum(np.bincount(groups), 1)
+        rms = float(np.sqrt(np.mean(err ** 2)))
+        se = float(per_cluster.std(ddof=1) / np.sqrt(len(per_cluster)) / (2.0 * max(rms, 1e-12)))
+        return HeldOut(rms, float(np.sqrt(np.mean(ref ** 2))), float(err.max()), float(ref.max()), se)
+
+
+def held_out(make: Callable[[], Interpolator], kin: ExtendedKinematics, theta_ref: np.ndarray,
+             anchors: np.ndarray, x_local: np.ndarray, groups: np.ndarray, rec: Recording,
+             inputs: tuple[int, ...], clamp: bool = True, n_folds: int = N_FOLDS, seed: int = 0,
+             workers: int = 1) -> HeldOut:
+    """Held-out-cluster error of the interpolator ``make()`` over the local fits (see :class:`HeldOutCheck`)."""
+    return HeldOutCheck(make, kin, theta_ref, anchors, x_local, groups, rec, inputs, clamp, n_folds, seed,
+                        workers).result()
 
 
 def one_se_choice(strengths: tuple[float, ...], scores: list[HeldOut]) -> int:

@@ -110,3 +110,26 @@ def test_workspace_ratio_compares_corrections_on_probes_and_training_poses():
     q_probe[:, 3] = 1.0
     ratio, probe, train = robust.workspace_ratio(model, ref, q_train, q_probe)
     np.testing.assert_allclose([ratio, probe, train], [11.0, 1.1, 0.1])
+
+
+@pytest.mark.parametrize("kind", ["nn", "rbf"])
+def test_held_out_folds_in_worker_processes_give_the_same_bits(fitter, kind):
+    local, pi = fitter.local_fits(), fitter.physics_informed()
+    groups, _ = cluster_anchors(fitter.train)
+    options = {"hidden": (16, 16), "max_iter": 20} if kind == "nn" else {}
+
+    def check(workers):
+        return robust.held_out(lambda: make_interpolator(kind, **options), pi.kinematics, pi.theta,
+                               local.anchors, local.x, groups, fitter.train, CDC_INPUTS, workers=workers)
+
+    assert check(2) == check(1)
+
+
+def test_a_cancelled_held_out_check_stops_its_workers(fitter):
+    local, pi = fitter.local_fits(), fitter.physics_informed()
+    groups, _ = cluster_anchors(fitter.train)
+    check = robust.HeldOutCheck(lambda: make_interpolator("nn", hidden=(8,), max_iter=5), pi.kinematics,
+                                pi.theta, local.anchors, local.x, groups, fitter.train, CDC_INPUTS, workers=2)
+    workers = list(check._pool._pool)  # type: ignore[union-attr]
+    check.cancel()
+    assert check._pool is None and not any(p.is_alive() for p in workers)
