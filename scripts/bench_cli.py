@@ -9,8 +9,9 @@ The commands are the speed goals of issue 14 on the 0801 R1 recordings of ``../s
 - ``make-test`` (only with ``--make-test``, it takes minutes): ``python -m pytest -q`` over the whole suite.
 
 Each command runs ``--repeat`` times (after one untimed warm-up run for ``plan-dual``, which fills the cache); the
-figure is the median. The 1-minute load average before each run is printed beside it, since a busy machine
-stretches every figure.
+figure is the median wall time. The 1-minute load average before each run is printed beside it, since a busy
+machine stretches every figure, and so is the median CPU time of the command's process tree (user + system),
+which a busy machine stretches much less (but which counts the parallel workers of ``compare`` in full).
 
     python scripts/bench_cli.py [--json FILE] [--repeat N] [--only compare,diagnose] [--make-test]
 """
@@ -20,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -54,19 +56,25 @@ def load_1min() -> float:
     return os.getloadavg()[0]
 
 
-def run_once(argv: list[str], env: dict[str, str]) -> float:
-    """Wall time [s] of ``python -m argv`` from the repository root; raises when it fails."""
-    start = time.perf_counter()
+def children_cpu_s() -> float:
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def run_once(argv: list[str], env: dict[str, str]) -> tuple[float, float]:
+    """Wall time and CPU time (user + system, the command's whole process tree) [s] of ``python -m argv`` from
+    the repository root; raises when it fails."""
+    start, cpu = time.perf_counter(), children_cpu_s()
     proc = subprocess.run([sys.executable, "-m", *argv], cwd=ROOT, env=env, capture_output=True, text=True)
-    seconds = time.perf_counter() - start
+    seconds, cpu = time.perf_counter() - start, children_cpu_s() - cpu
     if proc.returncode != 0:
         tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
         raise RuntimeError(f"{' '.join(argv[:2])} exited {proc.returncode}: " + " | ".join(tail))
-    return seconds
+    return seconds, cpu
 
 
 def bench(name: str, argv: list[str], repeat: int, base_env: dict[str, str]) -> dict[str, Any]:
-    runs, loads = [], []
+    runs, cpus, loads = [], [], []
     env = dict(base_env)
     if name == "plan-dual":
         run_once(argv, env)  # fills the compile cache
@@ -75,8 +83,11 @@ def bench(name: str, argv: list[str], repeat: int, base_env: dict[str, str]) -> 
             if name == "plan-dual-cold":
                 env["CELLCAL_CACHE"] = cache
             loads.append(load_1min())
-            runs.append(run_once(argv, env))
+            wall, cpu = run_once(argv, env)
+            runs.append(wall)
+            cpus.append(cpu)
     return {"median_s": round(statistics.median(runs), 3), "runs_s": [round(r, 3) for r in runs],
+            "median_cpu_s": round(statistics.median(cpus), 3),
             "load_1min": [round(x, 2) for x in loads], "goal_s": GOALS_S[name],
             "command": "python -m " + " ".join(argv)}
 
@@ -105,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
         cmds = commands(args.data, Path(out))
         for name in names:
             r = results[name] = bench(name, cmds[name], args.repeat, env)
-            print(f"{name:15s} median {r['median_s']:7.2f} s (goal {r['goal_s']:g} s)  runs "
+            print(f"{name:15s} median {r['median_s']:7.2f} s (goal {r['goal_s']:g} s), CPU {r['median_cpu_s']:.2f} s  runs "
                   f"{', '.join(f'{x:.2f}' for x in r['runs_s'])}  load {', '.join(f'{x:.2f}' for x in r['load_1min'])}",
                   flush=True)
     summary = {"cores": os.cpu_count(), "repeat": args.repeat, "commands": results}
