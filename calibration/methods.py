@@ -262,9 +262,9 @@ class Fitter:
         if method in ("fbf13", "fbf7"):
             options["ridge"] = self._choose_strength(method, options, "ridge", self.options.fourier_ridge_grid)
         kin, local = self.physics_informed().kinematics, self.local_fits()
-        # The neural kinds' held-out check is 5 trainings: started in worker processes first, it runs while
-        # the final network trains here (same figures as in-process).
-        check = self._held_out_check(method, options, robust.default_workers() if method in NEURAL_METHODS else 1)
+        # The neural kinds' held-out check is network trainings: started in worker processes first, it runs
+        # while the final network trains here (same figures as in-process), on the first 2 of the 5 folds.
+        check = self._held_out_check(method, options, method in NEURAL_METHODS)
         try:
             model = build_cdc(self.robot, method, kin, local, **options)
         except BaseException:
@@ -273,14 +273,16 @@ class Fitter:
         model.info.update(self._cdc_checks(method, model, check))
         return model
 
-    def _held_out_check(self, method: str, options: dict[str, Any], workers: int) -> robust.HeldOutCheck:
+    def _held_out_check(self, method: str, options: dict[str, Any], neural: bool) -> robust.HeldOutCheck:
         from calibration.interpolation import make_interpolator
 
         local, pi = self.local_fits(), self.physics_informed()
         groups, _ = cluster_anchors(self.train, self.options.cluster_size)
+        n_evaluated = robust.NEURAL_EVALUATED_FOLDS if neural else None
         return robust.HeldOutCheck(lambda: make_interpolator(method, **options), pi.kinematics, pi.theta,
                                    local.anchors, local.x, groups, self.train, CDC_INPUTS, seed=self.options.seed,
-                                   workers=workers)
+                                   workers=robust.default_workers(n_evaluated or 1) if neural else 1,
+                                   n_evaluated=n_evaluated)
 
     def _workspace_probes(self) -> np.ndarray:
         if "workspace_probes" not in self._cache:

@@ -5,7 +5,7 @@ import pytest
 
 from calibration import robust
 from calibration.cdc import CDC_INPUTS, CdcModel, cluster_anchors, geometric_cdc
-from calibration.errors import ModelFileError
+from calibration.errors import ModelError, ModelFileError
 from calibration.interpolation import Fourier13Interpolator, make_interpolator
 from calibration.methods import FitOptions, Fitter
 from calibration.models import load_model, save_model
@@ -133,3 +133,18 @@ def test_a_cancelled_held_out_check_stops_its_workers(fitter):
     workers = list(check._pool._pool)  # type: ignore[union-attr]
     check.cancel()
     assert check._pool is None and not any(p.is_alive() for p in workers)
+
+
+def test_held_out_on_the_first_folds_scores_both_fits_on_those_clusters_only(fitter):
+    local, pi = fitter.local_fits(), fitter.physics_informed()
+    groups, _ = cluster_anchors(fitter.train)
+    args = (lambda: make_interpolator("rbf"), pi.kinematics, pi.theta, local.anchors, local.x, groups, fitter.train,
+            CDC_INPUTS)
+    full, two = robust.held_out(*args), robust.held_out(*args, n_evaluated=2)
+    assert robust.held_out(*args, n_evaluated=robust.N_FOLDS) == full
+    rows = np.isin(robust.cluster_folds(len(local.anchors))[groups], [0, 1])
+    ref = robust.position_errors(pi.kinematics, pi.theta, fitter.train)[rows]
+    np.testing.assert_allclose(two.reference_rms_mm, np.sqrt(np.mean(ref ** 2)), rtol=1e-12)
+    assert two.reference_max_mm == ref.max() and two != full
+    with pytest.raises(ModelError, match="n_evaluated"):
+        robust.held_out(*args, n_evaluated=robust.N_FOLDS + 1)
