@@ -116,7 +116,7 @@ def test_workspace_ratio_compares_corrections_on_probes_and_training_poses():
 def test_held_out_folds_in_worker_processes_give_the_same_bits(fitter, kind):
     local, pi = fitter.local_fits(), fitter.physics_informed()
     groups, _ = cluster_anchors(fitter.train)
-    options = {"hidden": (16, 16), "max_iter": 20} if kind == "nn" else {}
+    options = {"hidden": (8, 8), "max_iter": 10} if kind == "nn" else {}
 
     def check(workers):
         return robust.held_out(lambda: make_interpolator(kind, **options), pi.kinematics, pi.theta,
