@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
+from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass
 from typing import Callable
 
@@ -137,7 +138,7 @@ class HeldOutCheck:
                  workers: int = 1, n_evaluated: int | None = None) -> None:
         global _FOLD_STATE
         self._kin, self._theta_ref, self._x_local, self._groups, self._rec = kin, theta_ref, x_local, groups, rec
-        self._clamp = clamp
+        self._clamp, self._n_total = clamp, n_folds
         self._n_folds = n_folds if n_evaluated is None else int(n_evaluated)
         if not 1 <= self._n_folds <= n_folds:
             raise ModelError(f"n_evaluated must be 1..{n_folds}, got {n_evaluated!r}")
@@ -145,14 +146,15 @@ class HeldOutCheck:
         self._idx = [np.flatnonzero((self._folds == f)[groups]) for f in range(self._n_folds)]
         queries = [rec.q[idx][:, list(inputs)] for idx in self._idx]
         self._state = (make, anchors, x_local, self._folds, queries)
-        self._pool, self._pending = None, None
+        self._pool: ProcessPoolExecutor | None = None
+        self._pending: list[Future] = []
         if workers > 1 and "fork" in mp.get_all_start_methods():
-            _FOLD_STATE = self._state
+            _FOLD_STATE = self._state  # the workers fork during the submits below
             try:
-                self._pool = mp.get_context("fork").Pool(min(workers, self._n_folds))
+                self._pool = ProcessPoolExecutor(min(workers, self._n_folds), mp_context=mp.get_context("fork"))
+                self._pending = [self._pool.submit(_fit_fold, f) for f in range(self._n_folds)]
             finally:
                 _FOLD_STATE = ()
-            self._pending = self._pool.map_async(_fit_fold, range(self._n_folds), chunksize=1)
 
     def _predictions(self) -> list[np.ndarray]:
         global _FOLD_STATE
@@ -163,17 +165,15 @@ class HeldOutCheck:
             finally:
                 _FOLD_STATE = ()
         try:
-            return self._pending.get()  # type: ignore[union-attr]
+            return [f.result() for f in self._pending]  # a worker that died raises BrokenProcessPool
         finally:
-            self._pool.close()
-            self._pool.join()
-            self._pool = None
+            self.cancel()
 
     def cancel(self) -> None:
-        """Stop the workers (the caller failed before asking for the result)."""
+        """Drop the folds not started and wait for the workers to exit (the caller failed before asking for the
+        result, or has it)."""
         if self._pool is not None:
-            self._pool.terminate()
-            self._pool.join()
+            self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
 
     def result(self) -> HeldOut:
@@ -194,7 +194,7 @@ class HeldOutCheck:
             theta[:, :g] = x
             err[idx] = position_errors(kin, theta, rec.subset(idx))
         ref = position_errors(kin, self._theta_ref, rec)
-        if n < self._folds.max() + 1:  # only some clusters held out: both figures over their poses
+        if n < self._n_total:  # only some clusters held out: both figures over their poses
             rows = np.concatenate(self._idx[:n])
             err, ref, groups = err[rows], ref[rows], np.unique(self._groups[rows], return_inverse=True)[1]
         else:

@@ -1,5 +1,7 @@
 """The robustness checks of CDC fits: held-out clusters, probe ranges, bounded outputs, the chosen local prior."""
 
+import multiprocessing
+
 import numpy as np
 import pytest
 
@@ -130,9 +132,20 @@ def test_a_cancelled_held_out_check_stops_its_workers(fitter):
     groups, _ = cluster_anchors(fitter.train)
     check = robust.HeldOutCheck(lambda: make_interpolator("nn", hidden=(8,), max_iter=5), pi.kinematics,
                                 pi.theta, local.anchors, local.x, groups, fitter.train, CDC_INPUTS, workers=2)
-    workers = list(check._pool._pool)  # type: ignore[union-attr]
+    assert multiprocessing.active_children()  # the workers started with the check
     check.cancel()
-    assert check._pool is None and not any(p.is_alive() for p in workers)
+    assert multiprocessing.active_children() == []
+
+
+def test_a_held_out_worker_that_dies_is_an_error_not_a_hang(fitter):
+    import os
+    from concurrent.futures.process import BrokenProcessPool
+
+    local, pi = fitter.local_fits(), fitter.physics_informed()
+    groups, _ = cluster_anchors(fitter.train)
+    with pytest.raises(BrokenProcessPool):
+        robust.held_out(lambda: os._exit(3), pi.kinematics, pi.theta, local.anchors, local.x, groups,
+                        fitter.train, CDC_INPUTS, workers=2)
 
 
 def test_held_out_on_the_first_folds_scores_both_fits_on_those_clusters_only(fitter):
