@@ -88,15 +88,13 @@ def position_errors(kin: ExtendedKinematics, theta: np.ndarray, rec: Recording) 
 
 
 def _fit_fold(f: int) -> np.ndarray:
-    """Worker job of :class:`HeldOutCheck`: fit fold f's training clusters, predict its held-out queries."""
-    make, anchors, x_local, folds, queries = _FOLD_STATE
-    train = folds != f
-    return make().fit(anchors[train], x_local[train]).predict(queries[f])
+    """Worker job of :class:`HeldOutCheck`: its fold f."""
+    return _FOLD_STATE.fold_prediction(f)  # type: ignore[union-attr]
 
 
-#: What the forked fold workers read (set just before the pool forks, cleared after): (make, anchors, x_local,
-#: folds, queries per fold). Forking shares it without pickling ``make``, which is usually a lambda.
-_FOLD_STATE: tuple = ()
+#: The check the forked fold workers run (set while the pool forks, cleared after). Forking shares it without
+#: pickling its ``make``, which is usually a lambda.
+_FOLD_STATE: HeldOutCheck | None = None
 
 
 def default_workers(n_jobs: int = N_FOLDS) -> int:
@@ -145,25 +143,31 @@ class HeldOutCheck:
         self._folds = cluster_folds(len(anchors), n_folds, seed)
         self._idx = [np.flatnonzero((self._folds == f)[groups]) for f in range(self._n_folds)]
         queries = [rec.q[idx][:, list(inputs)] for idx in self._idx]
-        self._state = (make, anchors, x_local, self._folds, queries)
+        self._make, self._anchors, self._queries = make, anchors, queries
         self._pool: ProcessPoolExecutor | None = None
         self._pending: list[Future] = []
         if workers > 1 and "fork" in mp.get_all_start_methods():
-            _FOLD_STATE = self._state  # the workers fork during the submits below
+            _FOLD_STATE = self  # the workers fork during the submits below
             try:
                 self._pool = ProcessPoolExecutor(min(workers, self._n_folds), mp_context=mp.get_context("fork"))
                 self._pending = [self._pool.submit(_fit_fold, f) for f in range(self._n_folds)]
             finally:
-                _FOLD_STATE = ()
+                _FOLD_STATE = None
+
+    @property
+    def n_evaluated(self) -> int:
+        """Folds fitted and scored."""
+        return self._n_folds
+
+    def fold_prediction(self, f: int) -> np.ndarray:
+        """Fold f in this process: the interpolator fitted on the other folds' clusters, at fold f's held-out
+        queries, shape (n_f, g)."""
+        train = self._folds != f
+        return self._make().fit(self._anchors[train], self._x_local[train]).predict(self._queries[f])
 
     def _predictions(self) -> list[np.ndarray]:
-        global _FOLD_STATE
         if self._pool is None:
-            _FOLD_STATE = self._state
-            try:
-                return [_fit_fold(f) for f in range(self._n_folds)]
-            finally:
-                _FOLD_STATE = ()
+            return [self.fold_prediction(f) for f in range(self._n_folds)]
         try:
             return [f.result() for f in self._pending]  # a worker that died raises BrokenProcessPool
         finally:

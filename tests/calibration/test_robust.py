@@ -161,3 +161,17 @@ def test_held_out_on_the_first_folds_scores_both_fits_on_those_clusters_only(fit
     assert two.reference_max_mm == ref.max() and two != full
     with pytest.raises(ModelError, match="n_evaluated"):
         robust.held_out(*args, n_evaluated=robust.N_FOLDS + 1)
+
+
+def test_a_prefetched_neural_fit_is_the_fit_made_here(synthetic_arm, r1_nominal):
+    _, _, truth = synthetic_arm
+    q, cluster = cluster_design(step_deg=30.0)
+    train = measure(truth.fk, q, 0.02, 0.01, 1, cluster)
+    here, _ = Fitter("R1", r1_nominal, train, FitOptions(local_prior=0.1)).fit("nn")
+    fitter = Fitter("R1", r1_nominal, train, FitOptions(local_prior=0.1))
+    fitter.prefetch(["nominal", "nn"])
+    assert multiprocessing.active_children() or robust.default_workers() < 2
+    there, seconds = fitter.fit("nn")
+    assert np.array_equal(there.fk(train.q)[1], here.fk(train.q)[1]) and seconds > 0
+    assert there.info["heldout"] == here.info["heldout"]
+    assert multiprocessing.active_children() == []  # the pool is shut once every prefetched fit is collected
