@@ -12,14 +12,16 @@ the training data alone (effects chosen on set-aside training clusters), refitte
 from __future__ import annotations
 
 import logging
+import multiprocessing as mp
 import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable
 
 import numpy as np
 
 from calibration import robust
-from calibration.cdc import CDC_INPUTS, LocalFits, build_cdc, cluster_anchors, fit_local
+from calibration.cdc import CDC_INPUTS, CdcModel, LocalFits, build_cdc, cluster_anchors, fit_local
 from calibration.identification.cpa import identify_cpa, split_sweeps
 from calibration.errors import ModelError
 from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, GeometricProblem
@@ -37,6 +39,8 @@ log = logging.getLogger("cellcal.calibration")
 CONSTANT_METHODS = ("nominal", "base", "cpa", "nls0", "nls1")
 CDC_METHODS = ("nearest", "linear", "cubic", "rbf", "fbf13", "fbf7", "nn", "ae")
 PHYSICS_METHODS = ("pi", "diagnosed")
+#: CDC kinds whose fit is a network training (seconds): their held-out folds train in parallel worker processes.
+NEURAL_METHODS = ("nn", "ae")
 METHODS = CONSTANT_METHODS + CDC_METHODS + PHYSICS_METHODS
 
 
@@ -186,7 +190,8 @@ class Fitter:
         start = time.perf_counter()
         fit_one = getattr(self, f"_fit_{method}", None)
         model = fit_one() if fit_one is not None else self._fit_cdc(method)
-        seconds = time.perf_counter() - start + shared
+        # A prefetched fit ran in worker processes: its time is what its jobs took there, as if run here.
+        seconds = self._cache.get("worker_seconds", {}).pop(method, time.perf_counter() - start) + shared
         model.info.setdefault("fit_seconds", seconds)
         model.info.setdefault("train_samples", len(self.train))
         return model, seconds
@@ -256,7 +261,7 @@ class Fitter:
                          options=opts)
         return replace(found.model, method="diagnosed", info={**found.model.info, "verdict": found.verdict})
 
-    def _fit_cdc(self, method: str) -> KinematicModel:
+    def _cdc_options(self, method: str) -> dict[str, Any]:
         options: dict[str, Any] = {}
         if method == "fbf7":
             options["rank"] = self.options.fbf7_rank
@@ -265,10 +270,68 @@ class Fitter:
             options["progress"] = self.options.epoch_progress
         if method in ("fbf13", "fbf7"):
             options["ridge"] = self._choose_strength(method, options, "ridge", self.options.fourier_ridge_grid)
-        kin, local = self.physics_informed().kinematics, self.local_fits()
-        model = build_cdc(self.robot, method, kin, local, **options)
-        model.info.update(self._cdc_checks(method, options, model))
+        return options
+
+    def _build_cdc(self, method: str, options: dict[str, Any]) -> CdcModel:
+        return build_cdc(self.robot, method, self.physics_informed().kinematics, self.local_fits(), **options)
+
+    def _fit_cdc(self, method: str) -> KinematicModel:
+        options = self._cdc_options(method)
+        jobs = self._cache.get("prefetched", {}).pop(method, None)
+        if jobs is not None:  # final network and held-out folds trained in worker processes (see prefetch)
+            (model, final_s), folds = jobs[0].result(), [f.result() for f in jobs[1]]
+            self._cache.setdefault("worker_seconds", {})[method] = final_s + sum(s for _, s in folds)
+            h = self._held_out_check(method, options, neural=True, workers=1).figures([x for x, _ in folds])
+            if not self._cache["prefetched"]:
+                self._cache.pop("prefetch_pool").shutdown()
+        else:
+            # The neural kinds' held-out check is network trainings: started in worker processes first, it runs
+            # while the final network trains here (same figures as in-process), on the first 2 of the 5 folds.
+            neural = method in NEURAL_METHODS
+            check = self._held_out_check(method, options, neural, robust.default_workers(2) if neural else 1)
+            try:
+                model = self._build_cdc(method, options)
+            except BaseException:
+                check.cancel()
+                raise
+            h = check.result()
+        model.info.update(self._cdc_checks(method, model, h))
         return model
+
+    def _held_out_check(self, method: str, options: dict[str, Any], neural: bool, workers: int
+                        ) -> robust.HeldOutCheck:
+        from calibration.interpolation import make_interpolator
+
+        local, pi = self.local_fits(), self.physics_informed()
+        groups, _ = cluster_anchors(self.train, self.options.cluster_size)
+        return robust.HeldOutCheck(lambda: make_interpolator(method, **options), pi.kinematics, pi.theta,
+                                   local.anchors, local.x, groups, self.train, CDC_INPUTS, seed=self.options.seed,
+                                   workers=workers, n_evaluated=robust.NEURAL_EVALUATED_FOLDS if neural else None)
+
+    def prefetch(self, methods: list[str] | tuple[str, ...]) -> None:
+        """Start the neural CDC fits among ``methods`` (each final network and its held-out folds) in forked
+        worker processes, so that the methods fitted here in the meantime overlap them; :meth:`fit` collects
+        them (the same bits as fitted here: every training is deterministic on one BLAS thread).
+
+        A no-op without the ``fork`` start method or with one usable core. The shared fits run here first.
+        """
+        global _PREFETCH
+        neural = [m for m in ("ae", "nn") if m in methods and m not in self._cache.get("prefetched", {})]
+        workers = robust.default_workers()
+        if not neural or workers < 2 or "fork" not in mp.get_all_start_methods():
+            return
+        self._prepare_shared(neural[0])
+        jobs = {m: self._cdc_options(m) for m in neural}
+        _PREFETCH = self  # the workers fork during the submits below
+        try:
+            pool = self._cache["prefetch_pool"] = ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"))
+            prefetched = self._cache.setdefault("prefetched", {})
+            for m, options in jobs.items():  # the longest (ae's final training) first
+                prefetched[m] = (pool.submit(_prefetch_final, m, options),
+                                 [pool.submit(_prefetch_fold, m, options, f)
+                                  for f in range(robust.NEURAL_EVALUATED_FOLDS)])
+        finally:
+            _PREFETCH = None
 
     def _workspace_probes(self) -> np.ndarray:
         if "workspace_probes" not in self._cache:
@@ -304,14 +367,10 @@ class Fitter:
             "heldout_rms_mm": [None if s is None else round(s.rms_mm, 4) for s in scores]}
         return chosen
 
-    def _cdc_checks(self, method: str, options: dict[str, Any], model: Any) -> dict[str, Any]:
-        """Held-out-cluster and probe-range checks of a CDC fit (training data only); a warning when it fails."""
-        from calibration.interpolation import make_interpolator
-
+    def _cdc_checks(self, method: str, model: Any, h: robust.HeldOut) -> dict[str, Any]:
+        """Held-out-cluster (``h``) and probe-range checks of a CDC fit (training data only); a warning when
+        one fails."""
         local, pi = self.local_fits(), self.physics_informed()
-        groups, _ = cluster_anchors(self.train, self.options.cluster_size)
-        h = robust.held_out(lambda: make_interpolator(method, **options), pi.kinematics, pi.theta, local.anchors,
-                            local.x, groups, self.train, CDC_INPUTS, seed=self.options.seed)
         probes = robust.probe_grid(local.anchors)
         excess = robust.range_excess(model.interpolator.predict(probes), local.x, 0.01 * self.par.scale())
         ratio, probe_mm, train_mm = robust.workspace_ratio(model.fk, pi.fk, self.train.q, self._workspace_probes())
@@ -345,3 +404,21 @@ class Fitter:
             info["warning"] = f"{method} may be unstable: " + "; ".join(problems) + \
                 ". Prefer pi or a stronger local prior (FitOptions.local_prior), or check the fit."
         return info
+
+
+#: The Fitter whose :meth:`Fitter.prefetch` workers are forking (set during the submits, cleared after).
+_PREFETCH: Fitter | None = None
+
+
+def _prefetch_final(method: str, options: dict[str, Any]) -> tuple[CdcModel, float]:
+    """Worker job of :meth:`Fitter.prefetch`: the final model and its fit time [s]."""
+    start = time.perf_counter()
+    model = _PREFETCH._build_cdc(method, options)  # type: ignore[union-attr]
+    return model, time.perf_counter() - start
+
+
+def _prefetch_fold(method: str, options: dict[str, Any], fold: int) -> tuple[np.ndarray, float]:
+    """Worker job of :meth:`Fitter.prefetch`: one held-out fold's predictions and its time [s]."""
+    start = time.perf_counter()
+    x = _PREFETCH._held_out_check(method, options, neural=True, workers=1).fold_prediction(fold)  # type: ignore
+    return x, time.perf_counter() - start

@@ -1,10 +1,10 @@
 """Multilayer-perceptron interpolation (``nn``): a ReLU MLP from configuration to values.
 
 Inputs and outputs are standardised (per column: subtract the anchors' mean, divide by their standard
-deviation, 1 for constant columns), the network is trained with Adam by scikit-learn's ``MLPRegressor``
-(fixed ``random_state``, so training is repeatable), and only the weights, biases and scalers are kept:
-prediction is a numpy forward pass over the stored arrays, so it is fast, needs no scikit-learn and is
-bit-identical after a ``to_dict`` / ``from_dict`` round trip.
+deviation, 1 for constant columns), the network is trained with Adam (:func:`train_mlp`: scikit-learn's
+``MLPRegressor`` arithmetic in numpy, fixed ``random_state``, so training is repeatable), and only the weights,
+biases and scalers are kept: prediction is a numpy forward pass over the stored arrays, so it is fast and bit-identical after a
+``to_dict`` / ``from_dict`` round trip.
 
 The network extrapolates (piecewise linearly) outside the anchors' convex hull, where ``out_of_range``
 flags the queries but the values are the network's own.
@@ -20,7 +20,6 @@ from __future__ import annotations
 import contextlib
 import logging
 import time
-import warnings
 from dataclasses import dataclass
 from typing import Any, Callable, ClassVar, Iterator, Sequence
 
@@ -101,30 +100,22 @@ def one_blas_thread() -> Iterator[None]:
         yield
 
 
-def _reporting_regressor(progress: EpochCallback | None, **options: Any) -> Any:
-    """scikit-learn's ``MLPRegressor`` with ``options``; with ``progress``, one that calls it after each epoch.
-
-    The call hangs on the per-epoch bookkeeping step of scikit-learn's stochastic solver, after the epoch's
-    updates: the training itself (one ``fit`` call, the same random stream) is untouched, so the weights are
-    bit-identical with and without a callback.
-    """
-    from sklearn.neural_network import MLPRegressor
-
-    if progress is None:
-        return MLPRegressor(**options)
-
-    class ReportingMLPRegressor(MLPRegressor):
-        def _update_no_improvement_count(self, *args: Any, **kwargs: Any) -> None:
-            super()._update_no_improvement_count(*args, **kwargs)
-            progress(self.n_iter_, self.max_iter)
-
-    return ReportingMLPRegressor(**options)
+#: Adam settings of the training (scikit-learn's MLPRegressor defaults, which the networks were trained with).
+ADAM_BETA_1, ADAM_BETA_2, ADAM_EPSILON = 0.9, 0.999, 1e-8
+#: Mini-batch size (MLPRegressor's "auto": min(200, K)).
+BATCH_SIZE = 200
 
 
 def train_mlp(x: np.ndarray, y: np.ndarray, hidden: Sequence[int], max_iter: int, learning_rate: float,
               alpha: float, random_state: int,
               progress: EpochCallback | None = None) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """Train a ReLU MLP ``x -> y`` (identity output) with Adam, full budget of epochs.
+    """Train a ReLU MLP ``x -> y`` (identity output, squared loss) with Adam, full budget of epochs.
+
+    The same arithmetic, in the same order, as scikit-learn's ``MLPRegressor(activation="relu", solver="adam",
+    shuffle=True, tol=0)`` (Glorot-uniform initialisation and batch shuffles from ``RandomState(random_state)``,
+    batches of min(200, K)), so it gives the same bits as the networks trained with it before (checked by
+    tests/calibration/test_interpolation.py against scikit-learn), without scikit-learn and about a third faster:
+    no loss evaluated per batch, Adam's moments updated in place.
 
     Args:
         x: standardised inputs, shape (K, d).
@@ -140,22 +131,66 @@ def train_mlp(x: np.ndarray, y: np.ndarray, hidden: Sequence[int], max_iter: int
     Returns:
         Weights (list of (n_in, n_out) arrays) and biases (list of (n_out,) arrays), input layer first.
     """
-    try:
-        from sklearn.exceptions import ConvergenceWarning
-        from sklearn.neural_network import MLPRegressor  # noqa: F401 - the import check
-    except ImportError as e:
-        raise ModelError("training the nn/ae interpolators needs scikit-learn: pip install scikit-learn") from e
-    net = _reporting_regressor(progress, hidden_layer_sizes=tuple(hidden), activation="relu", solver="adam",
-                               alpha=alpha, learning_rate_init=learning_rate, max_iter=max_iter, tol=0.0,
-                               n_iter_no_change=max_iter + 1, random_state=random_state, shuffle=True)
+    x, y = np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(y, dtype=np.float64)
     t0 = time.perf_counter()
-    with warnings.catch_warnings(), one_blas_thread():
-        warnings.simplefilter("ignore", ConvergenceWarning)  # we always run the full epoch budget
-        net.fit(x, y)
-    logger.info("trained MLP %s: %d epochs, final loss %.3g, %.2f s", hidden, net.n_iter_, net.loss_,
-                time.perf_counter() - t0)
-    return [np.asarray(w, dtype=np.float64) for w in net.coefs_], \
-        [np.asarray(b, dtype=np.float64) for b in net.intercepts_]
+    rs = np.random.RandomState(random_state)
+    units = [x.shape[1], *hidden, y.shape[1]]
+    weights, biases = [], []
+    for fan_in, fan_out in zip(units[:-1], units[1:]):
+        bound = np.sqrt(6.0 / (fan_in + fan_out))
+        weights.append(rs.uniform(-bound, bound, (fan_in, fan_out)))
+        biases.append(rs.uniform(-bound, bound, fan_out))
+    n_layers, n = len(weights), x.shape[0]
+    params = weights + biases
+    m1, m2 = [np.zeros_like(p) for p in params], [np.zeros_like(p) for p in params]
+    scratch, step = [np.empty_like(p) for p in params], [np.empty_like(p) for p in params]
+    grads: list[np.ndarray] = [np.empty(0)] * len(params)
+    acts: list[np.ndarray] = [np.empty(0)] * (n_layers + 1)
+    batch, order, t = min(BATCH_SIZE, n), np.arange(n), 0
+    with one_blas_thread():
+        for epoch in range(max_iter):
+            perm = np.arange(n)
+            rs.shuffle(perm)
+            order = order[perm]
+            for start in range(0, n, batch):
+                idx = order[start:start + batch]
+                acts[0] = x[idx]
+                for i in range(n_layers):
+                    a = acts[i] @ weights[i]
+                    a += biases[i]
+                    if i < n_layers - 1:
+                        np.maximum(a, 0, out=a)
+                    acts[i + 1] = a
+                delta = acts[-1] - y[idx]
+                for i in range(n_layers - 1, -1, -1):
+                    g = acts[i].T @ delta
+                    g += alpha * weights[i]
+                    g /= len(idx)
+                    grads[i], grads[n_layers + i] = g, np.sum(delta, axis=0) / len(idx)
+                    if i > 0:
+                        delta = delta @ weights[i].T
+                        np.copyto(delta, 0.0, where=acts[i] == 0)  # ReLU derivative
+                t += 1
+                lr = learning_rate * np.sqrt(1 - ADAM_BETA_2 ** t) / (1 - ADAM_BETA_1 ** t)
+                for p, m, v, g, s, u in zip(params, m1, m2, grads, scratch, step):
+                    m *= ADAM_BETA_1
+                    np.multiply(g, 1 - ADAM_BETA_1, out=s)
+                    m += s
+                    v *= ADAM_BETA_2
+                    np.square(g, out=s)
+                    s *= 1 - ADAM_BETA_2
+                    v += s
+                    np.sqrt(v, out=s)
+                    s += ADAM_EPSILON
+                    np.multiply(m, -lr, out=u)
+                    u /= s
+                    p += u
+            if progress is not None:
+                progress(epoch + 1, max_iter)
+    if not all(np.isfinite(p).all() for p in params):
+        raise ModelError(f"MLP training diverged (non-finite weights) on {n} anchors; check the anchor values")
+    logger.info("trained MLP %s: %d epochs, %.2f s", tuple(hidden), max_iter, time.perf_counter() - t0)
+    return weights, biases
 
 
 def forward(z: np.ndarray, weights: Sequence[np.ndarray], biases: Sequence[np.ndarray],
