@@ -138,3 +138,37 @@ def make_case(nominal: "PoeModel", gravity: "GravityModel", magnitudes_mm: dict[
     fit = measure(twin, q, cols, design, rng, "synthetic fit")
     qh, colsh = heldout_design(design, n_heldout, seed + 1)
     return twin, fit, measure(twin, qh, colsh, design, rng, "synthetic held-out")
+
+
+def orientation_rms_deg(model: "PoeModel", effect: "Effect", q: np.ndarray, context: dict[str, np.ndarray]) -> float:
+    """RMS tool-rotation change [deg] that ``effect`` causes on its own at q (N, 6) under ``context``."""
+    from calibration.physics import apply_effects
+
+    R0, _ = model.fk(q)
+    R1, _ = apply_effects(model, [effect], q, context)
+    return float(np.degrees(np.sqrt(np.mean(np.sum(so3.log(R1 @ np.swapaxes(R0, -1, -2)) ** 2, axis=1)))))
+
+
+def make_wrist_case(nominal: "PoeModel", gravity: "GravityModel", orientation_deg: float, seed: int,
+                    design: Design = Design(), n_heldout: int = 300, joint: int = 6
+                    ) -> tuple[Twin, Recording, Recording]:
+    """A twin with a gear error on wrist ``joint`` seen mainly in the orientation: the tool marker sits a few
+    centimetres from that joint's axis (both cell tools are within 35 mm of the joint-6 axis), so the error is
+    planted by the RMS tool rotation it causes (``orientation_deg``) and barely moves the position.
+
+    Otherwise like :func:`make_case` (planted geometric errors, the same design, the same held-out recording).
+    """
+    from calibration.physics import GearTransmission
+
+    q, _, cols = design_and_context(design, seed)
+    ctx = context_of(cols)
+    template = GearTransmission(((joint, (1, 2)),), np.zeros(4))
+    twin = Twin.random(nominal, {"gear_transmission": 0.01}, seed, gravity=gravity, offset_std_mm=0.5,
+                       tilt_std_rad=5e-4, templates={"gear_transmission": template}, q_ref=q, context=ctx)
+    e = twin.effect("gear_transmission")
+    e = e.with_values(e.values * orientation_deg / orientation_rms_deg(twin.geometry, e, q, ctx))  # linear in the values
+    twin = Twin(twin.geometry, (e,), {**twin.info, "orientation_deg": {"gear_transmission": float(orientation_deg)}})
+    rng = np.random.default_rng(seed + 100_000)
+    fit = measure(twin, q, cols, design, rng, "synthetic fit")
+    qh, colsh = heldout_design(design, n_heldout, seed + 1)
+    return twin, fit, measure(twin, qh, colsh, design, rng, "synthetic held-out")
