@@ -43,6 +43,7 @@ from calibration.diagnosis.selection import (Evidence, LinearSelection, Selectio
 from calibration.errors import DataError, ModelError
 from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, rotation_residual_scale, weighted_residuals
 from calibration.models import KinematicModel
+from calibration.models.guard import REGION_KEY, Region
 from calibration.observability import DEFAULT_RELATIVE_TOLERANCE, Observability, analyse
 from calibration.physics.base import Context, Effect
 from calibration.physics.gravity import GravityModel
@@ -500,7 +501,7 @@ def refit_model(robot: str, model: KinematicModel | None, base: FittedInUse, spl
                     f"and the {len(split.heldout)} set-aside ones); the held-out figures are those of the fit on "
                     f"{len(fit)}.")
     info = {"baseline": base.name, "fit_samples": len(saved_on), "effects_found": confirmed.kinds,
-            "orientation_weight_a": options.a}
+            "orientation_weight_a": options.a, REGION_KEY: Region.of(saved_on.q).to_dict()}
     physics, refit_note = result_model(robot, base.inuse, model, base.theta_at(saved.x), saved.effects,
                                        base.refit_basis.shape[1], info)
     obs = base.observability
