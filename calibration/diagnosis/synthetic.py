@@ -172,3 +172,17 @@ def make_wrist_case(nominal: "PoeModel", gravity: "GravityModel", orientation_de
     fit = measure(twin, q, cols, design, rng, "synthetic fit")
     qh, colsh = heldout_design(design, n_heldout, seed + 1)
     return twin, fit, measure(twin, qh, colsh, design, rng, "synthetic held-out")
+
+
+def perturbed_gravity(gravity: "GravityModel", model: "PoeModel", relative: float, seed: int) -> "GravityModel":
+    """Link masses and centres of mass that differ from ``gravity`` by ``relative`` (0.3: 30 %): each mass and
+    each component of each centre of mass (relative to its joint's axis point) scaled by ``1 +- relative``, the
+    signs drawn with ``seed``. The truth of a twin whose real loading is not the YAML's."""
+    from calibration.physics.gravity import GravityModel, joint_origins
+
+    rng = np.random.default_rng(seed + 7_000)
+    m, com = gravity.masses_coms(model)
+    o = joint_origins(model)
+    m = m * (1 + relative * rng.choice([-1.0, 1.0], m.shape))
+    s = (com - o) * (1 + relative * rng.choice([-1.0, 1.0], com.shape))
+    return GravityModel.from_links(model, m, o + s, gravity.g)
