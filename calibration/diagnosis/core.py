@@ -28,6 +28,7 @@ import logging
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy import stats
 from scipy.linalg import block_diag
 
 from calibration.diagnosis import explain
@@ -47,6 +48,7 @@ from calibration.models.guard import REGION_KEY, Region
 from calibration.observability import DEFAULT_RELATIVE_TOLERANCE, Observability, analyse
 from calibration.physics.base import Context, Effect
 from calibration.physics.gravity import GravityModel
+from calibration.physics.compliance import JointCompliance
 from calibration.physics.joint_effects import JointOffset
 from calibration.poe import PoeModel, pose_error
 from calibration.recording import Recording
@@ -176,6 +178,9 @@ class Hypotheses:
         hidden: candidates the data cannot identify, with the reason.
         untested: candidates the data cannot test (missing columns), with the reason.
         signature: the signatures on the fitted model in use.
+        flexible: per kind, the further form it takes at its most flexible, with its visible parameter basis
+            (``joint_compliance``: the mass-free form of joints 2-3, whose gravity shape the data fix rather than
+            the robot YAML's inertias), when the data identify it.
     """
 
     problem: LinearSelection
@@ -184,6 +189,7 @@ class Hypotheses:
     hidden: list[Untested]
     untested: list[Untested]
     signature: Signatures
+    flexible: dict[str, tuple[Effect, np.ndarray]] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -376,12 +382,18 @@ def candidate_signatures(base: FittedInUse, split: Split, residual: ResidualDriv
     cands, untested = library(inuse.geometry(inuse.theta), fit.q, ctx, gravity, kinds, options.compliance_form)
     q_ref, ctx_ref = _reference(None if split.source == "split" else split.heldout, fit.q, ctx, joint_limits, options)
     pool, hidden, bases = _screen(cands, A, sig, q_ref, ctx_ref, options.selection.visible_min)
+    flexible = {}
+    if "joint_compliance" in kinds and gravity is not None and options.compliance_form == "auto":
+        free = library(inuse.geometry(inuse.theta), fit.q, ctx, gravity, ("joint_compliance",), "mass_free")[0]
+        seen, _, free_bases = _screen(free, A, sig, q_ref, ctx_ref, options.selection.visible_min)
+        if seen:
+            flexible["joint_compliance"] = (free[0].effect, free_bases[free[0].key()])
     problem = LinearSelection(A, residual.residual, split.groups, options.selection)
     pool = tune_warmup(pool, problem, sig)
     pool = [(c, problem.add(S)) for c, S in pool]
     hidden = dedupe(hidden, {c.label for c, _ in pool})
     log.info("diagnose: %d candidates testable, %d not identifiable, %d untested", len(pool), len(hidden), len(untested))
-    return Hypotheses(problem, pool, bases, hidden, untested, sig)
+    return Hypotheses(problem, pool, bases, hidden, untested, sig, flexible)
 
 
 def _present_kinds(base: FittedInUse) -> set[str]:
@@ -439,21 +451,119 @@ def confirm_on_heldout(base: FittedInUse, split: Split, hypotheses: Hypotheses, 
     found, rejected = [], []
     for kind, (e0, B) in zip(kinds, merged):
         trial = joint_fit(base, kept + [(e0, B)], split.fit, options)
+        while (wrong := _wrong_sign(trial.effects[-1], trial.effect_std[-1])) and len(wrong) < len(e0.joints):
+            # a compliance or a backlash fitted significantly negative is not physics: those joints go
+            log.info("diagnose: %s on joints %s fitted with the unphysical sign; refitted without them", kind, wrong)
+            e0, B = _subset_joints(e0, B, [i for i, j in enumerate(e0.joints) if j not in wrong])
+            trial = joint_fit(base, kept + [(e0, B)], split.fit, options)
+        if wrong:  # every joint of it has the unphysical sign
+            rejected.append(explain.found(trial.effects[-1], trial.effect_std[-1], _heldout_evidence(
+                hypotheses.problem, selection, kind, kept_kinds, (acc, loss), (acc, loss))[1]))
+            continue
         t_acc, t_dp, t_loss = _accuracy("+".join([base.name] + kept_kinds + [kind]), base.inuse, base.theta_at(trial.x),
                                         trial.effects, split.heldout, split.heldout_context, options)
         rule, reported = _heldout_evidence(hypotheses.problem, selection, kind, kept_kinds, (acc, loss), (t_acc, t_loss))
         item = explain.found(trial.effects[-1], trial.effect_std[-1], reported)
-        if rule.accepted(options.selection):
+        if rule.accepted(options.selection) and _beyond_flexible(base, split, hypotheses, kept, (e0, B), options):
             kept.append((e0, B))
             kept_kinds.append(kind)
             found.append(item)
             final, acc, dp, loss = trial, t_acc, t_dp, t_loss
         else:
             rejected.append(item)
+    if "joint_compliance" in kept_kinds and "joint_compliance" in hypotheses.flexible:
+        # The mass-free form replaces the YAML-shaped one on joints 2-3 when the data show a shape it cannot.
+        flex = _flexible(kept, hypotheses)
+        trial = joint_fit(base, flex, split.fit, options)
+        name = "+".join([base.name] + kept_kinds)
+        t_acc, t_dp, t_loss = _accuracy(name, base.inuse, base.theta_at(trial.x), trial.effects, split.heldout,
+                                        split.heldout_context, options)
+        if _joint_evidence(final, trial, split, (acc, loss), (t_acc, t_loss)).accepted(options.selection, extends=True):
+            log.info("diagnose: the mass-free compliance explains what the YAML inertias' shape cannot; it replaces it")
+            kept, final, acc, dp, loss = flex, trial, t_acc, t_dp, t_loss
+            kept_kinds = [e.kind for e, _ in kept]
+            found = [found[[i.kind for i in found].index(k)] for k in kept_kinds]
     # Parameters and uncertainties of the kept effects from the final joint fit.
     n = len(base.effects)
     found = [explain.found(final.effects[n + i], final.effect_std[n + i], item.evidence) for i, item in enumerate(found)]
     return Confirmed(kept, kept_kinds, final, acc, dp, loss, found, rejected)
+
+
+#: Kinds whose per-joint values are physically non-negative (a joint sags under load, lost motion is a width).
+ONE_SIGNED = ("joint_compliance", "payload_compliance", "backlash")
+
+
+def _wrong_sign(effect: Effect, std: np.ndarray) -> list[int]:
+    """Joints of a one-signed per-joint effect whose fitted value is negative by more than two standard
+    deviations."""
+    joints = tuple(getattr(effect, "joints", ()))
+    if effect.kind not in ONE_SIGNED or effect.size != len(joints):
+        return []
+    return [j for j, v, sd in zip(joints, effect.values, std) if v < -2.0 * sd]
+
+
+def _subset_joints(effect: Effect, B: np.ndarray, keep: list[int]) -> tuple[Effect, np.ndarray]:
+    """A per-joint effect restricted to the joints at indices ``keep``, with its parameter basis."""
+    joints = tuple(effect.joints[i] for i in keep)  # type: ignore[attr-defined]
+    rows = B[keep]
+    cols = np.flatnonzero(np.any(rows != 0, axis=0))
+    values = np.zeros(len(joints))
+    e = (JointCompliance(effect.gravity, joints, values) if isinstance(effect, JointCompliance)  # type: ignore[attr-defined]
+         else type(effect)(joints=joints, values=values))  # type: ignore[call-arg]
+    return e, rows[:, cols]
+
+
+def _flexible(kept: list[tuple[Effect, np.ndarray]], hypotheses: Hypotheses) -> list[tuple[Effect, np.ndarray]]:
+    """The kept effects in their most flexible form: a joint compliance from the YAML's inertias becomes the
+    mass-free form on joints 2-3 (its other joints keep the YAML's form)."""
+    out = []
+    for e, B in kept:
+        flex = hypotheses.flexible.get(e.kind)
+        if flex is None or e is flex[0] or not isinstance(e, JointCompliance):
+            out.append((e, B))
+            continue
+        out.append(flex)
+        rest = [i for i, j in enumerate(e.joints) if j not in flex[0].joints]
+        if rest:
+            out.append(_subset_joints(e, B, rest))
+    return out
+
+
+def _beyond_flexible(base: FittedInUse, split: Split, hypotheses: Hypotheses, kept: list[tuple[Effect, np.ndarray]],
+                     new: tuple[Effect, np.ndarray], options: DiagnoseOptions) -> bool:
+    """Whether ``new`` explains what the kinds kept cannot even in their most flexible form (True when they
+    have no further form): a shape mismatch of the YAML's inertias is not a second kind."""
+    flex = _flexible(kept, hypotheses)
+    if len(flex) == len(kept) and all(a is b for (a, _), (b, _) in zip(flex, kept)):
+        return True
+    fits, held = [], []
+    for chosen in (flex, flex + [new]):
+        f = joint_fit(base, chosen, split.fit, options)
+        fits.append(f)
+        held.append(_accuracy("+".join([base.name] + [e.kind for e, _ in chosen]), base.inuse, base.theta_at(f.x),
+                              f.effects, split.heldout, split.heldout_context, options))
+    ok = _joint_evidence(fits[0], fits[1], split, (held[0][0], held[0][2]), (held[1][0], held[1][2])
+                         ).accepted(options.selection)
+    if not ok:
+        log.info("diagnose: %s is explained by the flexible form of %s; not added", new[0].kind,
+                 ", ".join(e.kind for e, _ in kept))
+    return ok
+
+
+def _joint_evidence(before: JointFit, after: JointFit, split: Split, ho_before: tuple[Accuracy, np.ndarray],
+                    ho_after: tuple[Accuracy, np.ndarray]) -> Evidence:
+    """The rule's evidence from two joint fits on the fit data (BIC, F-test of their weighted RSS) and their
+    held-out errors."""
+    n_res = 6 * len(split.fit)
+    rss = [f.residual_variance * max(n_res - f.n_parameters, 1) for f in (before, after)]
+    p = [before.n_parameters, after.n_parameters]
+    bic = [n_res * np.log(r / n_res) + k * np.log(n_res) for r, k in zip(rss, p)]
+    m, dof2 = max(p[1] - p[0], 1), max(n_res - p[1], 1)
+    F = ((rss[0] - rss[1]) / m) / max(rss[1] / dof2, 1e-300)
+    pval = float(stats.f.sf(F, m, dof2)) if rss[1] < rss[0] else 1.0
+    z = _paired_z(ho_before[1] - ho_after[1])
+    return Evidence(float(bic[1] - bic[0]), pval, z, ho_before[0].rms_mm, ho_after[0].rms_mm,
+                    float(np.mean(ho_before[1])), float(np.mean(ho_after[1])))
 
 
 def _heldout_evidence(problem: LinearSelection, selection: Selection, kind: str, kept_kinds: list[str],
