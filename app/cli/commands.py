@@ -178,7 +178,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
     result = run_diagnose(args.robot, args.train, heldout=args.test, model=args.model, json_path=args.json,
                           report_dir=args.report, model_out=args.out, cell=args.cell,
-                          options=DiagnoseOptions(compliance_form=args.compliance_form))
+                          options=DiagnoseOptions(compliance_form=args.compliance_form, weighting=args.weighting))
     print(result.verdict)
     return 0
 
@@ -259,7 +259,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="save the refitted geometry + physics model")
     p.add_argument("--compliance-form", choices=("auto", "masses", "mass_free"), default="auto",
                    help="joint compliance from the robot YAML's link masses, or in the mass-free gravity form "
-                        "(auto: masses when the YAML has them)")
+                        "(auto: masses when the YAML has them, the mass-free form when the data show another shape)")
+    p.add_argument("--weighting", choices=("noise", "fixed"), default="noise",
+                   help="weigh position and orientation by their noise floors estimated from the data (noise), or "
+                        "by the fixed a = 1641 (1 mm ~ 1 deg)")
     add_dual_parsers(add)
     add_cell_parsers(add)
     add_real_parsers(add)
