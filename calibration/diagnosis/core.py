@@ -451,15 +451,6 @@ def confirm_on_heldout(base: FittedInUse, split: Split, hypotheses: Hypotheses, 
     found, rejected = [], []
     for kind, (e0, B) in zip(kinds, merged):
         trial = joint_fit(base, kept + [(e0, B)], split.fit, options)
-        while (wrong := _wrong_sign(trial.effects[-1], trial.effect_std[-1])) and len(wrong) < len(e0.joints):
-            # a compliance or a backlash fitted significantly negative is not physics: those joints go
-            log.info("diagnose: %s on joints %s fitted with the unphysical sign; refitted without them", kind, wrong)
-            e0, B = _subset_joints(e0, B, [i for i, j in enumerate(e0.joints) if j not in wrong])
-            trial = joint_fit(base, kept + [(e0, B)], split.fit, options)
-        if wrong:  # every joint of it has the unphysical sign
-            rejected.append(explain.found(trial.effects[-1], trial.effect_std[-1], _heldout_evidence(
-                hypotheses.problem, selection, kind, kept_kinds, (acc, loss), (acc, loss))[1]))
-            continue
         t_acc, t_dp, t_loss = _accuracy("+".join([base.name] + kept_kinds + [kind]), base.inuse, base.theta_at(trial.x),
                                         trial.effects, split.heldout, split.heldout_context, options)
         rule, reported = _heldout_evidence(hypotheses.problem, selection, kind, kept_kinds, (acc, loss), (t_acc, t_loss))
@@ -483,8 +474,20 @@ def confirm_on_heldout(base: FittedInUse, split: Split, hypotheses: Hypotheses, 
             kept, final, acc, dp, loss = flex, trial, t_acc, t_dp, t_loss
             kept_kinds = [e.kind for e, _ in kept]
             found = [found[[i.kind for i in found].index(k)] for k in kept_kinds]
-    # Parameters and uncertainties of the kept effects from the final joint fit.
     n = len(base.effects)
+    # A compliance or a backlash fitted significantly negative with every kind in is not physics: those joints go.
+    while any(wrong := [_wrong_sign(e, sd) for e, sd in zip(final.effects[n:], final.effect_std[n:])]):
+        log.info("diagnose: joints %s fitted with the unphysical sign; refitted without them", wrong)
+        keep = [i for i, w in enumerate(wrong) if not w or len(w) < len(getattr(kept[i][0], "joints", ()))]
+        rejected += [explain.found(final.effects[n + i], final.effect_std[n + i], found[i].evidence)
+                     for i in range(len(kept)) if i not in keep]
+        kept = [_subset_joints(*kept[i], [k for k, j in enumerate(kept[i][0].joints) if j not in wrong[i]])  # type: ignore[attr-defined]
+                if wrong[i] else kept[i] for i in keep]
+        found, kept_kinds = [found[i] for i in keep], [kept_kinds[i] for i in keep]
+        final = joint_fit(base, kept, split.fit, options)
+        acc, dp, loss = _accuracy("+".join([base.name] + kept_kinds), base.inuse, base.theta_at(final.x), final.effects,
+                                  split.heldout, split.heldout_context, options)
+    # Parameters and uncertainties of the kept effects from the final joint fit.
     found = [explain.found(final.effects[n + i], final.effect_std[n + i], item.evidence) for i, item in enumerate(found)]
     return Confirmed(kept, kept_kinds, final, acc, dp, loss, found, rejected)
 

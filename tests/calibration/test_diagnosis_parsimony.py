@@ -68,3 +68,12 @@ def test_unphysical_sign_is_found_per_joint_and_the_joint_removed():
     e, B = _subset_joints(c, np.eye(3), [0, 1])
     assert isinstance(e, JointCompliance) and e.joints == (2, 3) and e.gravity is gravity
     np.testing.assert_array_equal(B, np.eye(2))
+
+
+def test_unphysical_sign_rule_drops_only_the_wrong_joints_and_keeps_other_kinds():
+    """Planted backlash on joints 1-3 plus a gear error: nothing is dropped (each value has the physical sign)."""
+    cr, nominal, gravity = arm("R1")
+    twin, fit, ho = make_case(nominal, gravity, {"backlash": 0.3, "gear_transmission": 0.3}, 1, DESIGN)
+    res = diagnose("R1", nominal, fit, ho, gravity=gravity, joint_limits=(cr.robot.lower_rad, cr.robot.upper_rad))
+    assert sorted(e.kind for e in res.effects) == ["backlash", "gear_transmission"]
+    assert all(v > 0 for e in res.effects if e.kind == "backlash" for v in e.parameters.values())
