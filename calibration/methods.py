@@ -26,6 +26,7 @@ from calibration.identification.cpa import identify_cpa, split_sweeps
 from calibration.errors import ModelError
 from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, GeometricProblem
 from calibration.models import ConstantModel, KinematicModel
+from calibration.models.guard import REGION_KEY, Region
 from calibration.identification.observability import DEFAULT_RELATIVE_TOLERANCE, Observability, analyse, filter_weights
 from calibration.parameterisation import MinimalParameterisation
 from calibration.physics.gravity import GravityModel
@@ -194,6 +195,7 @@ class Fitter:
         seconds = self._cache.get("worker_seconds", {}).pop(method, time.perf_counter() - start) + shared
         model.info.setdefault("fit_seconds", seconds)
         model.info.setdefault("train_samples", len(self.train))
+        model.info.setdefault(REGION_KEY, Region.of(self.train.q).to_dict())  # the extrapolation guard's region
         return model, seconds
 
     def _prepare_shared(self, method: str) -> float:

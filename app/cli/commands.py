@@ -43,6 +43,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
 def cmd_predict(args: argparse.Namespace) -> int:
     from calibration import so3
+    from calibration.models.guard import extrapolation
     from calibration.recording import read_joints, write_table
 
     model, robot = _model_arg(args)
@@ -51,14 +52,25 @@ def cmd_predict(args: argparse.Namespace) -> int:
     if outside.any():
         print(f"warning: {int(outside.sum())} of {len(q)} configurations lie outside the region the "
               f"{model.method} model was fitted on; its parameters there are extrapolated", file=sys.stderr)
+    ex = extrapolation(model, q)
+    _warn_extrapolation(model, ex)
     R, p = model.fk(q)
     quat = so3.R_to_quat(R)
     write_table(args.out, {"x": p[:, 0], "y": p[:, 1], "z": p[:, 2], "qw": quat[:, 0], "qx": quat[:, 1],
                            "qy": quat[:, 2], "qz": quat[:, 3]})
     print(f"{len(q)} poses -> {args.out}")
     write_json(args.json, {"robot": model.robot, "method": model.method, "poses": len(q),
-                           "outside_fitted_region": int(outside.sum()), "out": str(args.out)})
+                           "outside_fitted_region": int(outside.sum()), "out": str(args.out),
+                           "extrapolation": ex})
     return 0
+
+
+def _warn_extrapolation(model: Any, ex: dict[str, Any]) -> None:
+    """One stderr line when poses leave the model's training range (see :mod:`calibration.models.guard`)."""
+    if ex["outside_training_range"]:
+        print(f"warning: {ex['outside_training_range']} of {ex['poses']} poses lie outside the joint range of the "
+              f"{model.method} model's training data (by up to {ex['max_excess_deg']:.1f} deg); its "
+              "configuration-dependent effects are held at the edge of that range there", file=sys.stderr)
 
 
 def _model_arg(args: argparse.Namespace) -> tuple[Any, Any]:
@@ -82,10 +94,14 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from calibration.metrics import error_stats, errors
 
     tolerance = tolerance_from_args(args)
+    from calibration.models.guard import extrapolation
+
     model, robot = _model_arg(args)
     test = read_recording_arg(args.test, robot)
+    ex = extrapolation(model, test.q)
+    _warn_extrapolation(model, ex)
     result = {"robot": model.robot, "method": model.method, "samples": len(test),
-              "test": error_stats(errors(model, test))}
+              "test": error_stats(errors(model, test)), "extrapolation": ex}
     pos, ori = result["test"]["position_mm"], result["test"]["orientation_deg"]
     print(f"{model.method} on {len(test)} samples: position mean {pos['mean']:.3f} std {pos['std']:.3f} "
           f"max {pos['max']:.3f} mm; orientation mean {ori['mean']:.3f} max {ori['max']:.3f} deg")
@@ -206,7 +222,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
     result = run_diagnose(args.robot, args.train, heldout=args.test, model=args.model, json_path=args.json,
                           report_dir=args.report, model_out=args.out, cell=args.cell,
-                          options=DiagnoseOptions(compliance_form=args.compliance_form),
+                          options=DiagnoseOptions(compliance_form=args.compliance_form, weighting=args.weighting),
                           tolerance=tolerance_from_args(args), progress=show_progress(args))
     print(result.verdict)
     return 0
@@ -249,7 +265,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "are checked against the limits of the model's robot either way)")
     p.add_argument("--joints", required=True, help="CSV with q1..q6 [rad] (header) or 6 headerless columns")
     p.add_argument("--out", required=True, help="poses CSV to write (x, y, z [mm], qw, qx, qy, qz)")
-    p.add_argument("--json", help="write the pose count and how many lie outside the fitted region as JSON")
+    p.add_argument("--json", help="write the pose count, how many lie outside the interpolation region and the "
+                                  "extrapolation beyond the training joint range as JSON")
     p = add("evaluate", cmd_evaluate, "accuracy of a model on a recording")
     p.add_argument("--model", required=True, help="the model file (fit --out)")
     p.add_argument("--robot", help="the arm the model is for (R1, R2): refuse a model of another robot (joints "
@@ -299,7 +316,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="save the refitted geometry + physics model")
     p.add_argument("--compliance-form", choices=("auto", "masses", "mass_free"), default="auto",
                    help="joint compliance from the robot YAML's link masses, or in the mass-free gravity form "
-                        "(auto: masses when the YAML has them)")
+                        "(auto: masses when the YAML has them, the mass-free form when the data show another shape)")
+    p.add_argument("--weighting", choices=("noise", "fixed"), default="noise",
+                   help="weigh position and orientation by their noise floors estimated from the data (noise), or "
+                        "by the fixed a = 1641 (1 mm ~ 1 deg)")
     add_dual_parsers(add)
     add_cell_parsers(add)
     add_real_parsers(add)

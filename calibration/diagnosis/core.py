@@ -25,10 +25,11 @@ Every acceptance (selection, its backward confirmation, the held-out confirmatio
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
+from scipy import stats
 from scipy.linalg import block_diag
 
 from calibration.diagnosis import explain
@@ -36,17 +37,19 @@ from calibration.diagnosis.candidates import KINDS, Candidate, Signatures, Untes
 from calibration.diagnosis.drivers import Driver, Mismatch, drivers, locate_mismatch
 from calibration.diagnosis.inuse import InUse
 from calibration.diagnosis.model import result_model
-from calibration.diagnosis.noise import NoiseFloor, noise_floor
+from calibration.diagnosis.noise import NoiseFloor, channel_weight, noise_floor
 from calibration.diagnosis.refit import JointFit, JointProblem, filter_prior
 from calibration.diagnosis.report import Accuracy, Diagnosis, EffectEvidence, FoundEffect, PlotData
 from calibration.diagnosis.selection import (Evidence, LinearSelection, Selection, SelectionOptions, blocked_folds,
                                              forward_select, tune_warmup)
-from calibration.errors import DataError
+from calibration.errors import DataError, ModelError
 from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, rotation_residual_scale, weighted_residuals
 from calibration.models import KinematicModel
+from calibration.models.guard import REGION_KEY, Region
 from calibration.observability import DEFAULT_RELATIVE_TOLERANCE, Observability, analyse
 from calibration.physics.base import Context, Effect
 from calibration.physics.gravity import GravityModel
+from calibration.physics.compliance import JointCompliance
 from calibration.physics.joint_effects import JointOffset
 from calibration.poe import PoeModel, pose_error
 from calibration.recording import Recording
@@ -59,7 +62,10 @@ class DiagnoseOptions:
     """Settings of a diagnosis.
 
     Attributes:
-        a: orientation weight (1641: 1 mm ~ 1 deg).
+        a: orientation weight (1641: 1 mm ~ 1 deg): the weight of the pilot fit that estimates the noise floors,
+            and the weight throughout when ``weighting`` is ``fixed``.
+        weighting: ``noise`` (each channel weighed by its own noise floor estimated from the data, see
+            :func:`.noise.channel_weight`: a Gaussian likelihood with per-channel variances) or ``fixed`` (``a``).
         tolerance: relative singular value below which a geometric direction is held at its reference.
         selection: selection thresholds.
         kinds: effect kinds to consider.
@@ -77,6 +83,7 @@ class DiagnoseOptions:
     """
 
     a: float = DEFAULT_ORIENTATION_WEIGHT
+    weighting: str = "noise"
     tolerance: float = DEFAULT_RELATIVE_TOLERANCE
     selection: SelectionOptions = field(default_factory=SelectionOptions)
     kinds: tuple[str, ...] = KINDS
@@ -87,6 +94,9 @@ class DiagnoseOptions:
     n_reference: int = 1000
     seed: int = 0
 
+
+#: How the orientation channel is weighed against the position channel.
+WEIGHTINGS = ("noise", "fixed")
 
 #: Kinds acting on one joint's angle: each is tested beyond what a zero offset of that joint explains.
 ONE_JOINT_KINDS = ("joint_compliance", "payload_compliance", "gear_transmission", "backlash")
@@ -128,6 +138,7 @@ class FittedInUse:
         observability: the observability of its geometry, when analysed.
         accuracy: its held-out accuracy (the baseline).
         heldout_mm: its held-out position errors [mm] (M,).
+        heldout_loss: its held-out squared errors of both channels, weighed by their noise [mm^2] (M,).
     """
 
     inuse: InUse
@@ -139,6 +150,7 @@ class FittedInUse:
     observability: Observability | None
     accuracy: Accuracy
     heldout_mm: np.ndarray
+    heldout_loss: np.ndarray
 
     def theta_at(self, x: np.ndarray) -> np.ndarray:
         """The fitted parameters with the geometric block ``x``."""
@@ -167,6 +179,9 @@ class Hypotheses:
         hidden: candidates the data cannot identify, with the reason.
         untested: candidates the data cannot test (missing columns), with the reason.
         signature: the signatures on the fitted model in use.
+        flexible: per kind, the further form it takes at its most flexible, with its visible parameter basis
+            (``joint_compliance``: the mass-free form of joints 2-3, whose gravity shape the data fix rather than
+            the robot YAML's inertias), when the data identify it.
     """
 
     problem: LinearSelection
@@ -175,6 +190,7 @@ class Hypotheses:
     hidden: list[Untested]
     untested: list[Untested]
     signature: Signatures
+    flexible: dict[str, tuple[Effect, np.ndarray]] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -187,6 +203,7 @@ class Confirmed:
         fit: the joint fit of the model in use with the kept effects on the fit data.
         accuracy: its held-out accuracy.
         heldout_mm: its held-out position errors [mm] (M,).
+        heldout_loss: its held-out squared errors of both channels, weighed by their noise [mm^2] (M,).
         effects: the report entries of the kept effects (parameters from ``fit``).
         rejected: the report entries of the selected kinds the held-out data did not confirm.
     """
@@ -196,17 +213,20 @@ class Confirmed:
     fit: JointFit
     accuracy: Accuracy
     heldout_mm: np.ndarray
+    heldout_loss: np.ndarray
     effects: list[FoundEffect]
     rejected: list[FoundEffect]
 
 
 @dataclass(frozen=True)
 class Refitted:
-    """The noise floor after the final fit, the model file and the notes on how it was refitted."""
+    """The noise floors after the final fit, the model file and the notes on how it was refitted."""
 
     noise: NoiseFloor
     model: KinematicModel
     notes: tuple[str, ...]
+    orientation_weight_a: float
+    weighting: str
 
 
 def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording | None = None,
@@ -231,19 +251,60 @@ def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording 
         ModelError: a model kind diagnose does not know.
     """
     opts = options or DiagnoseOptions()
+    if opts.weighting not in WEIGHTINGS:
+        raise ModelError(f"unknown weighting {opts.weighting!r}; valid: {', '.join(WEIGHTINGS)}")
     step = progress or (lambda name: None)
     step(DIAGNOSE_STEPS[0])
     split = split_data(data, heldout, opts)
     base = fit_model_in_use(model, nominal, split, opts)
+    if opts.weighting == "fixed":
+        return _diagnose_weighed(robot, nominal, model, split, gravity, joint_limits, opts, base,
+                                 f"Orientation weighed by the fixed a = {opts.a:g}.", step)
+    # The pilot's floors are inflated by whatever it leaves out (backlash scatters within clusters): the floors
+    # of the final model weigh a second pass when they move the weight by more than WEIGHT_STEP.
+    a, problem = channel_weight(_pilot_noise(base, split, opts), opts.a)
+    for n_pass in range(1, 3):
+        weighed = replace(opts, a=a)
+        result = _diagnose_weighed(robot, nominal, model, split, gravity, joint_limits, weighed,
+                                   fit_model_in_use(model, nominal, split, weighed), problem, step)
+        a_final, problem = channel_weight(result.noise, opts.a)
+        if abs(np.log(a_final / a)) <= np.log(WEIGHT_STEP) or n_pass == 2:
+            break
+        log.info("diagnose: the final floors move the orientation weight from %.4g to %.4g; second pass", a, a_final)
+        a = a_final
+    return result
+
+
+#: The final model's noise floors trigger a second pass when they move the orientation weight by more than this factor.
+WEIGHT_STEP = 1.5
+
+
+def _pilot_noise(base: FittedInUse, split: Split, options: DiagnoseOptions) -> NoiseFloor:
+    """The noise floors of both channels on the model in use (before any effect is added)."""
+    fit, inuse, w = split.fit, base.inuse, rotation_residual_scale(options.a)
+    R, p = inuse.pose(fit.q, base.effects, split.context, inuse.theta)
+    r, _ = weighted_residuals(fit.R, fit.p, R, p, w)
+    return noise_floor(r, split.groups, base.basis.shape[1] + sum(e.size for e in base.effects), w)
+
+
+def _diagnose_weighed(robot: str, nominal: PoeModel, model: KinematicModel | None, split: Split,
+                      gravity: GravityModel | None, joint_limits: tuple[np.ndarray, np.ndarray] | None,
+                      options: DiagnoseOptions, base: FittedInUse, weight_note: str,
+                      step: Callable[[str], None] = lambda name: None) -> Diagnosis:
+    """Steps 3-8 at one orientation weight ``options.a`` (the model in use ``base`` fitted with it); ``step`` is
+    told each step's name as it starts (a progress bar)."""
     step(DIAGNOSE_STEPS[1])
-    residual = residual_drivers(base, split, gravity, opts)
-    hypotheses = candidate_signatures(base, split, residual, gravity, joint_limits, opts)
+    residual = residual_drivers(base, split, gravity, options)
+    hypotheses = candidate_signatures(base, split, residual, gravity, joint_limits, options)
     step(DIAGNOSE_STEPS[2])
     selection = select_effects(hypotheses)
     step(DIAGNOSE_STEPS[3])
-    confirmed = confirm_on_heldout(base, split, hypotheses, selection, opts)
+    confirmed = confirm_on_heldout(base, split, hypotheses, selection, options)
     step(DIAGNOSE_STEPS[4])
-    refitted = refit_model(robot, model, base, split, confirmed, opts)
+    if not weight_note:
+        weight_note = (f"Each channel weighed by its own noise (a Gaussian likelihood with per-channel variances): "
+                       f"orientation weight a = {options.a:.4g}.")
+    refitted = refit_model(robot, model, base, split, confirmed, options, weight_note)
     return report(robot, split, base, residual, hypotheses, confirmed, refitted)
 
 
@@ -272,8 +333,9 @@ def fit_model_in_use(model: KinematicModel | None, nominal: PoeModel, split: Spl
         inuse, effects, basis, obs, name = _refit_given(model, nominal, split, options)
     prior = model is None  # the geometric model and the effects are fitted with the Tikhonov filter
     refit_basis = np.eye(inuse.n_geometric) if prior else basis  # with the filter every direction moves, damped
-    accuracy, heldout_mm = _accuracy(name, inuse, inuse.theta, effects, split.heldout, split.heldout_context)
-    return FittedInUse(inuse, effects, name, basis, refit_basis, prior, obs, accuracy, heldout_mm)
+    accuracy, heldout_mm, loss = _accuracy(name, inuse, inuse.theta, effects, split.heldout, split.heldout_context,
+                                           options)
+    return FittedInUse(inuse, effects, name, basis, refit_basis, prior, obs, accuracy, heldout_mm, loss)
 
 
 def _fit_geometric(nominal: PoeModel, split: Split, options: DiagnoseOptions
@@ -334,12 +396,18 @@ def candidate_signatures(base: FittedInUse, split: Split, residual: ResidualDriv
     cands, untested = library(inuse.geometry(inuse.theta), fit.q, ctx, gravity, kinds, options.compliance_form)
     q_ref, ctx_ref = _reference(None if split.source == "split" else split.heldout, fit.q, ctx, joint_limits, options)
     pool, hidden, bases = _screen(cands, A, sig, q_ref, ctx_ref, options.selection.visible_min)
+    flexible = {}
+    if "joint_compliance" in kinds and gravity is not None and options.compliance_form == "auto":
+        free = library(inuse.geometry(inuse.theta), fit.q, ctx, gravity, ("joint_compliance",), "mass_free")[0]
+        seen, _, free_bases = _screen(free, A, sig, q_ref, ctx_ref, options.selection.visible_min)
+        if seen:
+            flexible["joint_compliance"] = (free[0].effect, free_bases[free[0].key()])
     problem = LinearSelection(A, residual.residual, split.groups, options.selection)
     pool = tune_warmup(pool, problem, sig)
     pool = [(c, problem.add(S)) for c, S in pool]
     hidden = dedupe(hidden, {c.label for c, _ in pool})
     log.info("diagnose: %d candidates testable, %d not identifiable, %d untested", len(pool), len(hidden), len(untested))
-    return Hypotheses(problem, pool, bases, hidden, untested, sig)
+    return Hypotheses(problem, pool, bases, hidden, untested, sig, flexible)
 
 
 def _present_kinds(base: FittedInUse) -> set[str]:
@@ -393,36 +461,139 @@ def confirm_on_heldout(base: FittedInUse, split: Split, hypotheses: Hypotheses, 
     merged = [merge(k, selection.of_kind(k), hypotheses.bases) for k in kinds]
     kept: list[tuple[Effect, np.ndarray]] = []
     kept_kinds: list[str] = []
-    final, acc, dp = joint_fit(base, [], split.fit, options), base.accuracy, base.heldout_mm
+    final, acc, dp, loss = joint_fit(base, [], split.fit, options), base.accuracy, base.heldout_mm, base.heldout_loss
     found, rejected = [], []
     for kind, (e0, B) in zip(kinds, merged):
         trial = joint_fit(base, kept + [(e0, B)], split.fit, options)
-        t_acc, t_dp = _accuracy("+".join([base.name] + kept_kinds + [kind]), base.inuse, base.theta_at(trial.x),
-                                trial.effects, split.heldout, split.heldout_context)
-        rule, reported = _heldout_evidence(hypotheses.problem, selection, kind, kept_kinds, (acc, dp), (t_acc, t_dp))
+        t_acc, t_dp, t_loss = _accuracy("+".join([base.name] + kept_kinds + [kind]), base.inuse, base.theta_at(trial.x),
+                                        trial.effects, split.heldout, split.heldout_context, options)
+        rule, reported = _heldout_evidence(hypotheses.problem, selection, kind, kept_kinds, (acc, loss), (t_acc, t_loss))
         item = explain.found(trial.effects[-1], trial.effect_std[-1], reported)
-        if rule.accepted(options.selection):
+        if rule.accepted(options.selection) and _beyond_flexible(base, split, hypotheses, kept, (e0, B), options):
             kept.append((e0, B))
             kept_kinds.append(kind)
             found.append(item)
-            final, acc, dp = trial, t_acc, t_dp
+            final, acc, dp, loss = trial, t_acc, t_dp, t_loss
         else:
             rejected.append(item)
-    # Parameters and uncertainties of the kept effects from the final joint fit.
+    if "joint_compliance" in kept_kinds and "joint_compliance" in hypotheses.flexible:
+        # The mass-free form replaces the YAML-shaped one on joints 2-3 when the data show a shape it cannot.
+        flex = _flexible(kept, hypotheses)
+        trial = joint_fit(base, flex, split.fit, options)
+        name = "+".join([base.name] + kept_kinds)
+        t_acc, t_dp, t_loss = _accuracy(name, base.inuse, base.theta_at(trial.x), trial.effects, split.heldout,
+                                        split.heldout_context, options)
+        if _joint_evidence(final, trial, split, (acc, loss), (t_acc, t_loss)).accepted(options.selection, extends=True):
+            log.info("diagnose: the mass-free compliance explains what the YAML inertias' shape cannot; it replaces it")
+            kept, final, acc, dp, loss = flex, trial, t_acc, t_dp, t_loss
+            kept_kinds = [e.kind for e, _ in kept]
+            found = [found[[i.kind for i in found].index(k)] for k in kept_kinds]
     n = len(base.effects)
+    # A compliance or a backlash fitted significantly negative with every kind in is not physics: those joints go.
+    while any(wrong := [_wrong_sign(e, sd) for e, sd in zip(final.effects[n:], final.effect_std[n:])]):
+        log.info("diagnose: joints %s fitted with the unphysical sign; refitted without them", wrong)
+        keep = [i for i, w in enumerate(wrong) if not w or len(w) < len(getattr(kept[i][0], "joints", ()))]
+        rejected += [explain.found(final.effects[n + i], final.effect_std[n + i], found[i].evidence)
+                     for i in range(len(kept)) if i not in keep]
+        kept = [_subset_joints(*kept[i], [k for k, j in enumerate(kept[i][0].joints) if j not in wrong[i]])  # type: ignore[attr-defined]
+                if wrong[i] else kept[i] for i in keep]
+        found, kept_kinds = [found[i] for i in keep], [kept_kinds[i] for i in keep]
+        final = joint_fit(base, kept, split.fit, options)
+        acc, dp, loss = _accuracy("+".join([base.name] + kept_kinds), base.inuse, base.theta_at(final.x), final.effects,
+                                  split.heldout, split.heldout_context, options)
+    # Parameters and uncertainties of the kept effects from the final joint fit.
     found = [explain.found(final.effects[n + i], final.effect_std[n + i], item.evidence) for i, item in enumerate(found)]
-    return Confirmed(kept, kept_kinds, final, acc, dp, found, rejected)
+    return Confirmed(kept, kept_kinds, final, acc, dp, loss, found, rejected)
+
+
+#: Kinds whose per-joint values are physically non-negative (a joint sags under load, lost motion is a width).
+ONE_SIGNED = ("joint_compliance", "payload_compliance", "backlash")
+
+
+def _wrong_sign(effect: Effect, std: np.ndarray) -> list[int]:
+    """Joints of a one-signed per-joint effect whose fitted value is negative by more than two standard
+    deviations."""
+    joints = tuple(getattr(effect, "joints", ()))
+    if effect.kind not in ONE_SIGNED or effect.size != len(joints):
+        return []
+    return [j for j, v, sd in zip(joints, effect.values, std) if v < -2.0 * sd]
+
+
+def _subset_joints(effect: Effect, B: np.ndarray, keep: list[int]) -> tuple[Effect, np.ndarray]:
+    """A per-joint effect restricted to the joints at indices ``keep``, with its parameter basis."""
+    joints = tuple(effect.joints[i] for i in keep)  # type: ignore[attr-defined]
+    rows = B[keep]
+    cols = np.flatnonzero(np.any(rows != 0, axis=0))
+    values = np.zeros(len(joints))
+    e = (JointCompliance(effect.gravity, joints, values) if isinstance(effect, JointCompliance)  # type: ignore[attr-defined]
+         else type(effect)(joints=joints, values=values))  # type: ignore[call-arg]
+    return e, rows[:, cols]
+
+
+def _flexible(kept: list[tuple[Effect, np.ndarray]], hypotheses: Hypotheses) -> list[tuple[Effect, np.ndarray]]:
+    """The kept effects in their most flexible form: a joint compliance from the YAML's inertias becomes the
+    mass-free form on joints 2-3 (its other joints keep the YAML's form)."""
+    out = []
+    for e, B in kept:
+        flex = hypotheses.flexible.get(e.kind)
+        if flex is None or e is flex[0] or not isinstance(e, JointCompliance):
+            out.append((e, B))
+            continue
+        out.append(flex)
+        rest = [i for i, j in enumerate(e.joints) if j not in flex[0].joints]
+        if rest:
+            out.append(_subset_joints(e, B, rest))
+    return out
+
+
+def _beyond_flexible(base: FittedInUse, split: Split, hypotheses: Hypotheses, kept: list[tuple[Effect, np.ndarray]],
+                     new: tuple[Effect, np.ndarray], options: DiagnoseOptions) -> bool:
+    """Whether ``new`` explains what the kinds kept cannot even in their most flexible form (True when they
+    have no further form): a shape mismatch of the YAML's inertias is not a second kind."""
+    flex = _flexible(kept, hypotheses)
+    if len(flex) == len(kept) and all(a is b for (a, _), (b, _) in zip(flex, kept)):
+        return True
+    fits, held = [], []
+    for chosen in (flex, flex + [new]):
+        f = joint_fit(base, chosen, split.fit, options)
+        fits.append(f)
+        held.append(_accuracy("+".join([base.name] + [e.kind for e, _ in chosen]), base.inuse, base.theta_at(f.x),
+                              f.effects, split.heldout, split.heldout_context, options))
+    ok = _joint_evidence(fits[0], fits[1], split, (held[0][0], held[0][2]), (held[1][0], held[1][2])
+                         ).accepted(options.selection)
+    if not ok:
+        log.info("diagnose: %s is explained by the flexible form of %s; not added", new[0].kind,
+                 ", ".join(e.kind for e, _ in kept))
+    return ok
+
+
+def _joint_evidence(before: JointFit, after: JointFit, split: Split, ho_before: tuple[Accuracy, np.ndarray],
+                    ho_after: tuple[Accuracy, np.ndarray]) -> Evidence:
+    """The rule's evidence from two joint fits on the fit data (BIC, F-test of their weighted RSS) and their
+    held-out errors."""
+    n_res = 6 * len(split.fit)
+    rss = [f.residual_variance * max(n_res - f.n_parameters, 1) for f in (before, after)]
+    p = [before.n_parameters, after.n_parameters]
+    bic = [n_res * np.log(r / n_res) + k * np.log(n_res) for r, k in zip(rss, p)]
+    m, dof2 = max(p[1] - p[0], 1), max(n_res - p[1], 1)
+    F = ((rss[0] - rss[1]) / m) / max(rss[1] / dof2, 1e-300)
+    pval = float(stats.f.sf(F, m, dof2)) if rss[1] < rss[0] else 1.0
+    z = _paired_z(ho_before[1] - ho_after[1])
+    return Evidence(float(bic[1] - bic[0]), pval, z, ho_before[0].rms_mm, ho_after[0].rms_mm,
+                    float(np.mean(ho_before[1])), float(np.mean(ho_after[1])))
 
 
 def _heldout_evidence(problem: LinearSelection, selection: Selection, kind: str, kept_kinds: list[str],
                       before: tuple[Accuracy, np.ndarray], after: tuple[Accuracy, np.ndarray]
                       ) -> tuple[Evidence, EffectEvidence]:
-    """The evidence for adding ``kind`` to the kinds kept (fit-data tests and the held-out improvement), and
+    """The evidence for adding ``kind`` to the kinds kept (fit-data tests and the held-out improvement of both
+    channels, each weighed by its noise: ``before``/``after`` carry the per-sample weighed squared errors), and
     its report form."""
     fit = selection.fit_evidence(problem, kind, kept_kinds)
-    z = _paired_z(before[1] ** 2 - after[1] ** 2)
+    z = _paired_z(before[1] - after[1])
     cv_z = next(s.evidence.heldout_z for s in selection.steps if s.candidate.kind == kind)
-    rule = Evidence(fit.delta_bic, fit.f_pvalue, z, before[0].rms_mm, after[0].rms_mm)
+    rule = Evidence(fit.delta_bic, fit.f_pvalue, z, before[0].rms_mm, after[0].rms_mm, float(np.mean(before[1])),
+                    float(np.mean(after[1])))
     return rule, EffectEvidence(fit.delta_bic, fit.f_pvalue, cv_z, before[0], after[0], z)  # type: ignore[arg-type]
 
 
@@ -442,25 +613,28 @@ def joint_fit(base: FittedInUse, chosen: list[tuple[Effect, np.ndarray]], rec: R
 
 
 def refit_model(robot: str, model: KinematicModel | None, base: FittedInUse, split: Split, confirmed: Confirmed,
-                options: DiagnoseOptions) -> Refitted:
+                options: DiagnoseOptions, weight_note: str = "") -> Refitted:
     """The noise floor after the final fit and the model file; when the held-out share was set aside from the
     data, the saved model is refitted on all of it (the held-out figures stay those of the fit data)."""
     fit, final = split.fit, confirmed.fit
     R, p = base.inuse.pose(fit.q, final.effects, split.context, base.theta_at(final.x))
-    r_final, _ = weighted_residuals(fit.R, fit.p, R, p, rotation_residual_scale(options.a))
-    noise = noise_floor(r_final, split.groups, final.n_parameters)
+    w_rot = rotation_residual_scale(options.a)
+    r_final, _ = weighted_residuals(fit.R, fit.p, R, p, w_rot)
+    noise = noise_floor(r_final, split.groups, final.n_parameters, w_rot)
     saved, saved_on, all_note = final, fit, ""
     if split.source == "split":  # the set-aside clusters chose the effects; the saved model learns from them too
         saved, saved_on = joint_fit(base, confirmed.kept, split.everything, options), split.everything
         all_note = (f"The saved model is refitted on all {len(split.everything)} samples (the {len(fit)} fit samples "
                     f"and the {len(split.heldout)} set-aside ones); the held-out figures are those of the fit on "
                     f"{len(fit)}.")
-    info = {"baseline": base.name, "fit_samples": len(saved_on), "effects_found": confirmed.kinds}
+    info = {"baseline": base.name, "fit_samples": len(saved_on), "effects_found": confirmed.kinds,
+            "orientation_weight_a": options.a, REGION_KEY: Region.of(saved_on.q).to_dict()}
     physics, refit_note = result_model(robot, base.inuse, model, base.theta_at(saved.x), saved.effects,
                                        base.refit_basis.shape[1], info)
     obs = base.observability
-    notes = tuple(n for n in [obs.summary(damped=base.prior) if obs is not None else "", refit_note, all_note] if n)
-    return Refitted(noise, physics, notes)
+    notes = tuple(n for n in [weight_note, obs.summary(damped=base.prior) if obs is not None else "", refit_note,
+                              all_note] if n)
+    return Refitted(noise, physics, notes, options.a, options.weighting)
 
 
 def report(robot: str, split: Split, base: FittedInUse, residual: ResidualDrivers, hypotheses: Hypotheses,
@@ -472,7 +646,8 @@ def report(robot: str, split: Split, base: FittedInUse, residual: ResidualDriver
     plots = PlotData(np.linalg.norm(residual.residual[:, :3], axis=1), residual.drivers, base.heldout_mm, c.heldout_mm)
     return Diagnosis(robot, len(split.fit), len(split.heldout), split.source, refitted.noise, base.accuracy,
                      c.accuracy, residual.mismatch, tuple(c.effects), tuple(hypotheses.hidden),
-                     tuple(hypotheses.untested), verdict, refitted.model, refitted.notes, plots, tuple(c.rejected))
+                     tuple(hypotheses.untested), verdict, refitted.model, refitted.notes, plots, tuple(c.rejected),
+                     refitted.orientation_weight_a, refitted.weighting)
 
 
 def _groups(rec: Recording, size: int) -> np.ndarray:
@@ -482,11 +657,14 @@ def _groups(rec: Recording, size: int) -> np.ndarray:
         return np.arange(len(rec)) // size
 
 
-def _accuracy(name: str, inuse: InUse, theta: np.ndarray, effects: tuple[Effect, ...], rec: Recording, ctx: Context
-              ) -> tuple[Accuracy, np.ndarray]:
+def _accuracy(name: str, inuse: InUse, theta: np.ndarray, effects: tuple[Effect, ...], rec: Recording, ctx: Context,
+              options: DiagnoseOptions) -> tuple[Accuracy, np.ndarray, np.ndarray]:
+    """Held-out accuracy, position errors [mm] (M,) and squared errors of both channels weighed by their noise
+    [mm^2] (M,)."""
     R, p = inuse.pose(rec.q, effects, ctx, theta)
     dp, dR = pose_error(rec.R, rec.p, R, p)
-    return Accuracy.of(name, dp, dR), dp
+    loss = np.sum(weighted_residuals(rec.R, rec.p, R, p, rotation_residual_scale(options.a))[0] ** 2, axis=1)
+    return Accuracy.of(name, dp, dR), dp, loss
 
 
 def _reference(heldout: Recording | None, fit_q: np.ndarray, ctx: Context, limits: tuple[np.ndarray, np.ndarray] | None,

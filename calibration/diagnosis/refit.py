@@ -22,7 +22,7 @@ from calibration import so3
 from calibration.diagnosis.extended import ExtendedEffect
 from calibration.diagnosis.inuse import InUse
 from calibration.errors import ModelError
-from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, lm, weighted_residuals
+from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, lm, rotation_residual_scale, weighted_residuals
 from calibration.identification.lm import Groups, Linearisation, LMSettings, Residuals, StopReason
 from calibration.identification.observability import DEFAULT_RELATIVE_TOLERANCE, analyse_jacobian, filter_weights
 from calibration.parameterisation import MinimalParameterisation
@@ -69,7 +69,8 @@ def filter_prior(inuse: InUse, q: np.ndarray, context: Context | None, effects: 
 
     The rule of the ``pi`` fit (:func:`calibration.identification.observability.filter_weights`) applied to the joint
     Jacobian. Each parameter is scaled to millimetres of tool motion: geometry and extended blocks by their
-    kinematics' scale, a physics effect by the change that moves the tool 1 mm RMS over the data.
+    kinematics' scale, a physics effect by the change that moves the weighted residual (position and
+    ``sqrt(2a)`` x rotation) 1 mm RMS over the data.
     """
     theta = np.zeros(inuse.kin.size)
     J = [inuse.jacobian_geometry(q, theta)]
@@ -81,8 +82,9 @@ def filter_prior(inuse: InUse, q: np.ndarray, context: Context | None, effects: 
         J.append(Je)
         if isinstance(e, ExtendedEffect):
             scale.append(full_scale[e.block(inuse.n_geometric)])
-        else:
-            rms = np.sqrt(np.mean(np.sum(Je[:, :3] ** 2, axis=1), axis=0))
+        else:  # both channels, weighed as in the fit: an effect seen mainly in the orientation is not inflated
+            w = rotation_residual_scale(a)
+            rms = np.sqrt(np.mean(np.sum(Je[:, :3] ** 2, axis=1) + w**2 * np.sum(Je[:, 3:] ** 2, axis=1), axis=0))
             scale.append(1.0 / np.maximum(rms, 1e-12))
         names += [f"{e.kind}:{n}" for n in e.names]
     obs = analyse_jacobian(np.concatenate(J, axis=-1), np.concatenate(scale), tuple(names), a, tolerance)

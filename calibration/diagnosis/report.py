@@ -3,7 +3,8 @@
 The JSON keys follow ``shared/spec/diagnose-report.md``; keys are added for what the data could not
 show: ``not_identifiable`` (candidates the geometric fit absorbs or the data barely excite),
 ``untested`` (candidates whose driving column is missing from the data) and ``rejected_on_heldout``
-(selected on the fit data, not confirmed on the held-out data), plus ``noise_estimates_mm`` and ``notes``.
+(selected on the fit data, not confirmed on the held-out data), plus ``noise_estimates_mm`` and ``notes``; the orientation channel's floor (``noise_floor_deg``,
+``noise_estimates_deg``) and the weight both channels were weighed with (``orientation_weight``).
 """
 
 from __future__ import annotations
@@ -141,6 +142,8 @@ class Diagnosis:
         plots: arrays for plots.
         rejected: effects the fit data selected but the held-out data did not confirm (they would not
             extrapolate), with their figures; they are not in ``model``.
+        orientation_weight_a: the orientation weight the evidence was weighed with.
+        weighting: ``noise`` (from the per-channel noise floors) or ``fixed``.
     """
 
     robot: str
@@ -159,6 +162,8 @@ class Diagnosis:
     notes: tuple[str, ...] = ()
     plots: PlotData | None = field(default=None, repr=False)
     rejected: tuple[FoundEffect, ...] = ()
+    orientation_weight_a: float = float("nan")
+    weighting: str = "fixed"
 
     def to_json(self) -> dict[str, Any]:
         """The ``cellcal.diagnose/1`` report as plain Python (finite floats; NaN becomes None)."""
@@ -168,6 +173,10 @@ class Diagnosis:
             "noise_floor_mm": self.noise.floor_mm,
             "noise_estimates_mm": {"within_cluster": self.noise.within_cluster_mm,
                                    "fit_residual": self.noise.fit_residual_mm},
+            "noise_floor_deg": self.noise.floor_deg,
+            "noise_estimates_deg": {"within_cluster": self.noise.within_cluster_deg,
+                                    "fit_residual": self.noise.fit_residual_deg},
+            "orientation_weight": {"a": self.orientation_weight_a, "source": self.weighting},
             "baseline": self.baseline.to_json(),
             "mismatch": [{"regressor": m.regressor, "correlation": m.correlation, "where": m.where}
                          for m in self.mismatch],

@@ -70,6 +70,9 @@ class Evidence:
             selection; the held-out recording in the diagnosis's confirmation); None judges the fit data alone
             (the backward confirmation of the selection).
         rms_mm_before, rms_mm_after: position RMS on that unseen data without and with the effects [mm].
+        loss_before, loss_after: mean squared error of both channels on that unseen data, each weighed by its
+            noise (the residual's own units, mm^2), without and with the effects; when given, the rule reads
+            them instead of the position RMS, so an effect seen mainly in the orientation can be confirmed.
     """
 
     delta_bic: float
@@ -77,17 +80,22 @@ class Evidence:
     heldout_z: float | None = None
     rms_mm_before: float = float("nan")
     rms_mm_after: float = float("nan")
+    loss_before: float = float("nan")
+    loss_after: float = float("nan")
 
     def accepted(self, options: SelectionOptions, extends: bool = False) -> bool:
         """The one acceptance rule: the BIC drops by more than ``-bic_threshold``, the F-test rejects at
         ``f_alpha`` and, unless only the fit data are judged, the unseen data improve: ``heldout_z`` above
         ``z_min`` (``z_extend`` when ``extends``: one more joint or link of a kind already selected) and a lower
-        RMS."""
+        weighed loss of both channels (the position RMS when no loss is given)."""
         fits = self.delta_bic < options.bic_threshold and self.f_pvalue < options.f_alpha
         if self.heldout_z is None or not fits:
             return fits
-        return (self.heldout_z > (options.z_extend if extends else options.z_min)
-                and self.rms_mm_after < self.rms_mm_before)
+        if np.isfinite(self.loss_before) and np.isfinite(self.loss_after):
+            lower = self.loss_after < self.loss_before
+        else:
+            lower = self.rms_mm_after < self.rms_mm_before
+        return self.heldout_z > (options.z_extend if extends else options.z_min) and lower
 
 
 @dataclass(frozen=True)
@@ -266,7 +274,7 @@ class LinearSelection:
         se = d.std(ddof=1) / np.sqrt(d.size) if d.size > 1 else np.inf
         z = float(d.mean() / se) if se > 0 else 0.0
         return Evidence(fit.delta_bic, fit.f_pvalue, z, float(np.sqrt(ssp0.sum() / self.N)),
-                        float(np.sqrt(ssp1.sum() / self.N)))
+                        float(np.sqrt(ssp1.sum() / self.N)), float(ss0.sum() / self.N), float(ss1.sum() / self.N))
 
 
 #: The first-order residual signature (6N, m) of an effect on the fit data.

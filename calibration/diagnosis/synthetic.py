@@ -166,3 +166,51 @@ def tool_error_case(nominal: "PoeModel", gravity: "GravityModel", shift_mm: floa
     test = measure(twin, q, cols, test_design, np.random.default_rng(seed + 200_000), "synthetic held-out")
     T_tool = make_T(so3.exp(np.radians(angle_deg) * TOOL_ERROR_AXIS), shift_mm * TOOL_ERROR_SHIFT)
     return put_in(train, np.eye(4), T_tool), put_in(test, np.eye(4), T_tool), T_tool
+
+
+def orientation_rms_deg(model: "PoeModel", effect: "Effect", q: np.ndarray, context: dict[str, np.ndarray]) -> float:
+    """RMS tool-rotation change [deg] that ``effect`` causes on its own at q (N, 6) under ``context``."""
+    from calibration.physics import apply_effects
+
+    R0, _ = model.fk(q)
+    R1, _ = apply_effects(model, [effect], q, context)
+    return float(np.degrees(np.sqrt(np.mean(np.sum(so3.log(R1 @ np.swapaxes(R0, -1, -2)) ** 2, axis=1)))))
+
+
+def make_wrist_case(nominal: "PoeModel", gravity: "GravityModel", orientation_deg: float, seed: int,
+                    design: Design = Design(), n_heldout: int = 300, joint: int = 6
+                    ) -> tuple[Twin, Recording, Recording]:
+    """A twin with a gear error on wrist ``joint`` seen mainly in the orientation: the tool marker sits a few
+    centimetres from that joint's axis (both cell tools are within 35 mm of the joint-6 axis), so the error is
+    planted by the RMS tool rotation it causes (``orientation_deg``) and barely moves the position.
+
+    Otherwise like :func:`make_case` (planted geometric errors, the same design, the same held-out recording).
+    """
+    from calibration.physics import GearTransmission
+
+    q, _, cols = design_and_context(design, seed)
+    ctx = context_of(cols)
+    template = GearTransmission(((joint, (1, 2)),), np.zeros(4))
+    twin = Twin.random(nominal, {"gear_transmission": 0.01}, seed, gravity=gravity, offset_std_mm=0.5,
+                       tilt_std_rad=5e-4, templates={"gear_transmission": template}, q_ref=q, context=ctx)
+    e = twin.effect("gear_transmission")
+    e = e.with_values(e.values * orientation_deg / orientation_rms_deg(twin.geometry, e, q, ctx))  # linear in the values
+    twin = Twin(twin.geometry, (e,), {**twin.info, "orientation_deg": {"gear_transmission": float(orientation_deg)}})
+    rng = np.random.default_rng(seed + 100_000)
+    fit = measure(twin, q, cols, design, rng, "synthetic fit")
+    qh, colsh = heldout_design(design, n_heldout, seed + 1)
+    return twin, fit, measure(twin, qh, colsh, design, rng, "synthetic held-out")
+
+
+def perturbed_gravity(gravity: "GravityModel", model: "PoeModel", relative: float, seed: int) -> "GravityModel":
+    """Link masses and centres of mass that differ from ``gravity`` by ``relative`` (0.3: 30 %): each mass and
+    each component of each centre of mass (relative to its joint's axis point) scaled by ``1 +- relative``, the
+    signs drawn with ``seed``. The truth of a twin whose real loading is not the YAML's."""
+    from calibration.physics.gravity import GravityModel, joint_origins
+
+    rng = np.random.default_rng(seed + 7_000)
+    m, com = gravity.masses_coms(model)
+    o = joint_origins(model)
+    m = m * (1 + relative * rng.choice([-1.0, 1.0], m.shape))
+    s = (com - o) * (1 + relative * rng.choice([-1.0, 1.0], com.shape))
+    return GravityModel.from_links(model, m, o + s, gravity.g)

@@ -84,6 +84,13 @@ class KinematicModel(abc.ABC):
         """Boolean mask (N,) of configurations outside the region the model was fitted on."""
         return np.zeros(np.atleast_2d(q).shape[0], dtype=bool)
 
+    def region(self) -> Any:
+        """The per-joint range of the training data (a :class:`calibration.models.guard.Region`), or None when
+        the model was saved without it."""
+        from calibration.models.guard import region_of
+
+        return region_of(self.info)
+
     def pose(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Tool pose for joint angles q [rad] (N, 6): ``(R (N, 3, 3), p (N, 3) [mm])`` (same as :meth:`fk`)."""
         return self.fk(q)

@@ -50,13 +50,16 @@ class DiagnosedModel(KinematicModel):
     def fk_context(self, q: np.ndarray, context: Context | None) -> tuple[np.ndarray, np.ndarray]:
         """Pose ``(R (N, 3, 3), p (N, 3) [mm])`` for joint angles q [rad] (N, 6) and a per-sample context.
 
-        The same steps as :meth:`casadi`: the joint effects deflect the joints on the base model's arm, the
+        The same steps as :meth:`casadi`: the joint effects (evaluated inside the training region, see
+        :mod:`calibration.models.guard`) deflect the joints on the base model's arm, the
         base model runs at the deflected joints (its configuration-dependent parameters at the reading q),
         and geometry effects add the pose change their grown links cause on that arm.
         """
         q = np.atleast_2d(np.asarray(q, dtype=float))
         geo = self.base.effects_arm()
-        dq = sum((e.delta_q(geo, q, context) for e in self.effects if e.target == "joints"), np.zeros_like(q))
+        region = self.region()
+        q_eff = q if region is None else region.clamp(q)  # the extrapolation guard
+        dq = sum((e.delta_q(geo, q_eff, context) for e in self.effects if e.target == "joints"), np.zeros_like(q))
         R, p = self.base.pose_at(q + dq, q)
         geometric = [e for e in self.effects if e.target == "geometry"]
         if geometric:
@@ -99,7 +102,7 @@ class DiagnosedModel(KinematicModel):
         base_theta = None if theta is None else theta[:k]
         values = split_values(self.effects, self.vector()[k:] if theta is None else theta[k:])
         geo, H, P = self.base.effects_geometry(base_theta)
-        q_chain, P_eff = casadi_effects(self.effects, values, geo, q, H, P)
+        q_chain, P_eff = casadi_effects(self.effects, values, geo, q, H, P, self.region())
         pose = self.base.casadi(q_chain, base_theta, q if q_at is None else q_at)
         if any(e.target == "geometry" for e in self.effects):  # the pose change the grown links cause
             c0, c1 = poe_chain(geo, q_chain, H, P), poe_chain(geo, q_chain, H, P_eff)

@@ -14,6 +14,7 @@ import numpy as np
 
 from calibration.casadi_expr import CasadiPose, casadi_ops, chain_pose, poe_chain
 from calibration.models.base import Block, KinematicModel, poe_from_dict, poe_to_dict
+from calibration.models.guard import Region
 from calibration.physics.base import Context, Effect, apply_effects, effect_from_dict
 from calibration.poe import PoeModel
 
@@ -32,18 +33,20 @@ def split_values(effects: tuple[Effect, ...], theta: Any) -> list[Any]:
     return out
 
 
-def casadi_effects(effects: tuple[Effect, ...], values: list[Any], geo: PoeModel, q: Any, H: Any, P: Any
-                   ) -> tuple[Any, Any]:
+def casadi_effects(effects: tuple[Effect, ...], values: list[Any], geo: PoeModel, q: Any, H: Any, P: Any,
+                   region: Region | None = None) -> tuple[Any, Any]:
     """Effects on the arm ``geo`` with axes/link vectors ``H``, ``P`` (casadi) at joint symbols q, the default
-    context: ``(q + delta_q (6,), P changed by the geometry effects (3, n+1))``."""
+    context: ``(q + delta_q (6,), P changed by the geometry effects (3, n+1))``; with a training ``region`` the
+    deflections are evaluated at q softly clamped into it (the extrapolation guard)."""
     import casadi as ca
 
     ops = casadi_ops()
     cache: list[Any] = []
+    q_eff = q if region is None else region.clamp_casadi(q)
 
-    def chain() -> Any:  # the chain of the effects' arm at q, built once when an effect needs it
+    def chain() -> Any:  # the chain of the effects' arm at the effects' q, built once when an effect needs it
         if not cache:
-            cache.append(poe_chain(geo, q, H, P))
+            cache.append(poe_chain(geo, q_eff, H, P))
         return cache[0]
 
     dq: Any = ca.SX.zeros(q.shape[0])
@@ -52,7 +55,7 @@ def casadi_effects(effects: tuple[Effect, ...], values: list[Any], geo: PoeModel
         if e.target == "geometry":
             cols = e.grow(cols, v, 1, None, geo)
         else:
-            dq = dq + ca.vertcat(*e.casadi_dq(ops, q, chain, v))
+            dq = dq + ca.vertcat(*e.casadi_dq(ops, q_eff, chain, v))
     return q + dq, ca.horzcat(*cols)
 
 
@@ -82,8 +85,10 @@ class PhysicsModel(KinematicModel):
         return self.fk_context(q, None)
 
     def fk_context(self, q: np.ndarray, context: Context | None) -> tuple[np.ndarray, np.ndarray]:
-        """Pose ``(R (N, 3, 3), p (N, 3) [mm])`` for joint angles q [rad] (N, 6) and a per-sample context."""
-        return apply_effects(self.model, self.effects, q, context)
+        """Pose ``(R (N, 3, 3), p (N, 3) [mm])`` for joint angles q [rad] (N, 6) and a per-sample context; the
+        joint effects evaluated inside the training region (:mod:`calibration.models.guard`)."""
+        region = self.region()
+        return apply_effects(self.model, self.effects, q, context, None if region is None else region.clamp(q))
 
     @property
     def n_parameters(self) -> int:
@@ -106,7 +111,7 @@ class PhysicsModel(KinematicModel):
 
         values = split_values(self.effects, self.vector() if theta is None else theta)
         H, P = ca.DM(self.model.H), ca.DM(self.model.P)
-        q_chain, P_eff = casadi_effects(self.effects, values, self.model, q, H, P)
+        q_chain, P_eff = casadi_effects(self.effects, values, self.model, q, H, P, self.region())
         return chain_pose(poe_chain(self.model, q_chain, H, P_eff), "physics")
 
     def urdf_geometry(self) -> Any:

@@ -245,7 +245,7 @@ def effect_from_dict(d: Mapping[str, Any]) -> Effect:
 
 
 def apply_effects(model: PoeModel, effects: tuple[Effect, ...] | list[Effect], q: np.ndarray,
-                  context: Context | None = None) -> tuple[np.ndarray, np.ndarray]:
+                  context: Context | None = None, q_effects: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Tool pose of a POE model with effects: geometry effects change P, joint effects add to q.
 
     Args:
@@ -253,11 +253,14 @@ def apply_effects(model: PoeModel, effects: tuple[Effect, ...] | list[Effect], q
         effects: the effects, applied together (joint perturbations summed, geometry effects chained).
         q: commanded/measured joint angles [rad], shape (N, n).
         context: per-sample context, see the module docstring.
+        q_effects: the joint angles the joint effects' deflections are evaluated at (default ``q``; a model's
+            extrapolation guard passes ``q`` clamped into its training range, see :mod:`calibration.models.guard`).
 
     Returns:
         ``(R_base_tool (N, 3, 3), p_base_tool (N, 3) [mm])``.
     """
     q = check_q(model, q)
+    q_eff = q if q_effects is None else check_q(model, q_effects)
     N = q.shape[0]
     dq = np.zeros_like(q)
     P = None
@@ -267,7 +270,7 @@ def apply_effects(model: PoeModel, effects: tuple[Effect, ...] | list[Effect], q
         if e.target == "geometry":
             P = e.geometry(model, N, context, P)
         else:
-            dq = dq + e.delta_q(model, q, context)
+            dq = dq + e.delta_q(model, q_eff, context)
     return model.fk(q + dq, P=P)
 
 

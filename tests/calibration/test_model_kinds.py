@@ -17,6 +17,7 @@ from calibration.diagnosis.model import DiagnosedModel
 from calibration.interpolation import Interpolator, LinearInterpolator, make_interpolator
 from calibration.interpolation.fourier import Fourier13Interpolator
 from calibration.models import ConstantModel
+from calibration.models.guard import REGION_KEY, Region
 from calibration.parameterisation import MinimalParameterisation
 from calibration.physics import (Backlash, GearTransmission, GravityModel, JointCompliance, JointOffset,
                                  MocapLatency, PayloadCompliance, PhysicsModel, ThermalDrift)
@@ -29,7 +30,9 @@ ca = pytest.importorskip("casadi")
 CDC_INTERPOLATORS = {"nearest": {}, "linear": {}, "cubic": {}, "rbf": {}, "fbf7": {},
                      "nn": {"hidden": (32, 32), "max_iter": 60}, "ae": {"latent": 4, "hidden": (32,), "max_iter": 60}}
 KINDS = ("constant", "pi", "cdc", *(f"cdc-{k}" for k in CDC_INTERPOLATORS), "cdc-rbf-bounded", "physics",
-         "diagnosed-pi", "diagnosed-cdc", "diagnosed-cdc-nn")
+         "diagnosed-pi", "diagnosed-cdc", "diagnosed-cdc-nn", "physics-guarded", "diagnosed-pi-guarded")
+#: A training region narrower than the test configurations (+-1.5 rad), so the extrapolation guard's clamp is active.
+GUARD = {REGION_KEY: Region(np.full(6, -0.6), np.full(6, 0.4), 0.2).to_dict()}
 
 
 def _effects(gravity: GravityModel) -> tuple:
@@ -66,7 +69,9 @@ def models() -> dict:
     return {"constant": ConstantModel("R1", "nls1", geometry, par.size), "pi": pi, "cdc": cdc, **cdcs,
             "physics": physics, "diagnosed-pi": DiagnosedModel("R1", "diagnose", pi, effects),
             "diagnosed-cdc": DiagnosedModel("R1", "diagnose", cdc, effects),
-            "diagnosed-cdc-nn": DiagnosedModel("R1", "diagnose", cdcs["cdc-nn"], effects)}
+            "diagnosed-cdc-nn": DiagnosedModel("R1", "diagnose", cdcs["cdc-nn"], effects),
+            "physics-guarded": PhysicsModel("R1", "diagnose", geometry, _effects(gravity), par.size, dict(GUARD)),
+            "diagnosed-pi-guarded": DiagnosedModel("R1", "diagnose", pi, effects, dict(GUARD))}
 
 
 def _q(n: int, seed: int) -> np.ndarray:

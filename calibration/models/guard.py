@@ -1,0 +1,128 @@
+"""The extrapolation guard: where a model's poses leave what its training data identified, and what it does there.
+
+A :class:`Region` is the per-joint range of the training recording. A model's configuration-dependent parts
+(the physics effects' joint deflections of ``physics`` and ``diagnosed`` models) are evaluated at the joint
+angles softly clamped into it (:meth:`Region.clamp`): inside, unchanged; outside, held near their value at
+the edge (the clamp saturates within ``margin_rad``, C1-continuous, so Jacobians and the casadi expression stay
+smooth). A gear error fitted inside a 2 deg band of its joint is then not swung through its full period 40 deg
+away; the rigid geometry still moves with q everywhere. :func:`extrapolation` says how many poses lie outside
+the region and by how much (``evaluate`` and ``predict`` report it).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from calibration.errors import ModelError
+
+#: Width over which the clamp saturates outside the training range [rad].
+DEFAULT_MARGIN_RAD = math.radians(2.0)
+
+
+@dataclass(frozen=True)
+class Region:
+    """Per-joint range of the training data.
+
+    Attributes:
+        lower_rad, upper_rad: smallest and largest training angle per joint [rad] (n,).
+        margin_rad: the clamp's saturation width outside the range [rad].
+    """
+
+    lower_rad: np.ndarray
+    upper_rad: np.ndarray
+    margin_rad: float = DEFAULT_MARGIN_RAD
+
+    def __post_init__(self) -> None:
+        lo, hi = np.asarray(self.lower_rad, dtype=float), np.asarray(self.upper_rad, dtype=float)
+        if lo.shape != hi.shape or lo.ndim != 1 or np.any(hi < lo) or not np.all(np.isfinite(np.r_[lo, hi])):
+            raise ModelError(f"a training region needs finite lower <= upper per joint, got {lo} and {hi}")
+        if not self.margin_rad > 0:
+            raise ModelError(f"the clamp margin must be positive, got {self.margin_rad}")
+        object.__setattr__(self, "lower_rad", lo)
+        object.__setattr__(self, "upper_rad", hi)
+
+    @classmethod
+    def of(cls, q: np.ndarray, margin_rad: float = DEFAULT_MARGIN_RAD) -> "Region":
+        """The range of joint angles q [rad] (N, n)."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        return cls(q.min(axis=0), q.max(axis=0), margin_rad)
+
+    def excess(self, q: np.ndarray) -> np.ndarray:
+        """How far each joint lies outside the range [rad] (N, n), zero inside."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        return np.maximum(self.lower_rad - q, 0.0) + np.maximum(q - self.upper_rad, 0.0)
+
+    def clamp(self, q: np.ndarray) -> np.ndarray:
+        """q (N, n) softly clamped into the range: ``edge + m tanh(excess / m)`` outside, unchanged inside."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        m = self.margin_rad
+        above = self.upper_rad + m * np.tanh(np.maximum(q - self.upper_rad, 0.0) / m)
+        below = self.lower_rad - m * np.tanh(np.maximum(self.lower_rad - q, 0.0) / m)
+        return np.where(q > self.upper_rad, above, np.where(q < self.lower_rad, below, q))
+
+    def clamp_casadi(self, q: Any) -> Any:
+        """:meth:`clamp` of casadi joint symbols (n,)."""
+        import casadi as ca
+
+        m = self.margin_rad
+        out = []
+        for i in range(q.shape[0]):
+            lo, hi = float(self.lower_rad[i]), float(self.upper_rad[i])
+            out.append(ca.if_else(q[i] > hi, hi + m * ca.tanh((q[i] - hi) / m),
+                                  ca.if_else(q[i] < lo, lo - m * ca.tanh((lo - q[i]) / m), q[i])))
+        return ca.vertcat(*out)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"lower_rad": self.lower_rad.tolist(), "upper_rad": self.upper_rad.tolist(),
+                "margin_rad": float(self.margin_rad)}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "Region":
+        try:
+            return cls(np.asarray(d["lower_rad"], dtype=float), np.asarray(d["upper_rad"], dtype=float),
+                       float(d.get("margin_rad", DEFAULT_MARGIN_RAD)))
+        except (KeyError, TypeError, ValueError) as e:
+            raise ModelError(f"bad training_region {d!r}: {e}") from e
+
+
+#: Key of a model's ``info`` holding its training region.
+REGION_KEY = "training_region"
+
+
+def region_of(info: dict[str, Any]) -> Region | None:
+    """The training region recorded in a model's ``info``, or None (a model fitted before the guard)."""
+    d = info.get(REGION_KEY)
+    return None if d is None else Region.from_dict(d)
+
+
+def extrapolation(model: Any, q: np.ndarray) -> dict[str, Any]:
+    """How many poses lie outside what the model's training data identified, and by how much.
+
+    Args:
+        model: a :class:`~calibration.models.base.KinematicModel`.
+        q: joint angles [rad] (N, n).
+
+    Returns:
+        ``poses``, ``outside_training_range`` (poses with a joint outside the training range),
+        ``max_excess_deg`` and ``rms_excess_deg`` (over the outside poses, the largest joint excess),
+        ``max_excess_deg_per_joint`` (n,), ``outside_model_region`` (the model's own region test, e.g. a cdc
+        interpolator's), and ``region_known`` (False for a model saved without its training region).
+    """
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    region = model.region()
+    own = int(np.count_nonzero(model.out_of_range(q)))
+    out: dict[str, Any] = {"poses": int(q.shape[0]), "region_known": region is not None, "outside_model_region": own}
+    if region is None:
+        return {**out, "outside_training_range": None, "max_excess_deg": None, "rms_excess_deg": None,
+                "max_excess_deg_per_joint": None}
+    ex = np.degrees(region.excess(q))
+    worst = ex.max(axis=1)
+    outside = worst > 0
+    return {**out, "outside_training_range": int(np.count_nonzero(outside)),
+            "max_excess_deg": float(worst.max(initial=0.0)),
+            "rms_excess_deg": float(np.sqrt(np.mean(worst[outside] ** 2))) if outside.any() else 0.0,
+            "max_excess_deg_per_joint": ex.max(axis=0).tolist()}

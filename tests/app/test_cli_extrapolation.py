@@ -1,0 +1,35 @@
+"""``predict`` and ``evaluate`` say how many poses lie outside the model's training range, and by how much."""
+
+import json
+
+import numpy as np
+
+from app.cli.commands import main
+from calibration.recording import read_recording, write_recording
+from tests.conftest import cluster_design, measure
+
+
+def test_predict_and_evaluate_report_poses_outside_the_training_range(tmp_path, synthetic_arm, capsys):
+    _, _, truth = synthetic_arm
+    q, cluster = cluster_design(step_deg=15.0)
+    write_recording(measure(truth.fk, q, 0.02, 0.01, 1, cluster), tmp_path / "train.csv")
+    lo, hi = read_recording(tmp_path / "train.csv").q.min(axis=0), read_recording(tmp_path / "train.csv").q.max(axis=0)
+    q_test = np.tile((lo + hi) / 2, (12, 1))
+    q_test[:3, 0] = hi[0] + np.radians([5.0, 10.0, 20.0])  # three poses beyond q1's training range
+    write_recording(measure(truth.fk, q_test, 0.02, 0.01, 2), tmp_path / "test.csv")
+    np.savetxt(tmp_path / "q.csv", q_test, delimiter=",")
+    model = tmp_path / "m.yaml"
+    assert main(["fit", "--robot", "R1", "--train", str(tmp_path / "train.csv"), "--method", "nls1",
+                 "--out", str(model)]) == 0
+    capsys.readouterr()
+    assert main(["predict", "--model", str(model), "--joints", str(tmp_path / "q.csv"), "--out",
+                 str(tmp_path / "p.csv"), "--json", str(tmp_path / "p.json")]) == 0
+    assert "3 of 12 poses lie outside the joint range" in capsys.readouterr().err
+    ex = json.loads((tmp_path / "p.json").read_text())["extrapolation"]
+    assert ex["region_known"] and ex["poses"] == 12 and ex["outside_training_range"] == 3
+    np.testing.assert_allclose(ex["max_excess_deg"], 20.0, atol=1e-6)
+    np.testing.assert_allclose(ex["max_excess_deg_per_joint"][0], 20.0, atol=1e-6)
+    assert main(["evaluate", "--model", str(model), "--test", str(tmp_path / "test.csv"), "--json",
+                 str(tmp_path / "e.json")]) == 0
+    ev = json.loads((tmp_path / "e.json").read_text())["extrapolation"]
+    assert ev["outside_training_range"] == 3 and ev["max_excess_deg"] == ex["max_excess_deg"]

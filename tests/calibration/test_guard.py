@@ -1,0 +1,95 @@
+"""The extrapolation guard: the training region, its soft clamp, the count of poses outside it, and physics
+effects held at the edge of what the training data identified."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from calibration.errors import ModelError
+from calibration.models import load_model, save_model
+from calibration.models.guard import REGION_KEY, Region, extrapolation
+from calibration.physics import GearTransmission, PhysicsModel
+from cell_config import load_cell
+
+ca = pytest.importorskip("casadi")
+
+
+@pytest.fixture(scope="module")
+def region():
+    return Region(np.radians([-1, -50, -40, -1, -1, -1.0]), np.radians([1, 50, 30, 1, 1, 1.0]), math.radians(2))
+
+
+def test_clamp_is_the_identity_inside_and_saturates_within_the_margin_outside(region):
+    rng = np.random.default_rng(0)
+    inside = rng.uniform(region.lower_rad, region.upper_rad, (50, 6))
+    np.testing.assert_array_equal(region.clamp(inside), inside)
+    far = np.radians(rng.uniform(-170, 170, (200, 6)))
+    c = region.clamp(far)
+    assert np.all(c >= region.lower_rad - region.margin_rad) and np.all(c <= region.upper_rad + region.margin_rad)
+    # continuous with slope 1 at the edge, monotone beyond it
+    h = 1e-7
+    edge = region.upper_rad[None] + np.array([[-h], [h]])
+    np.testing.assert_allclose(np.diff(region.clamp(edge), axis=0), 2 * h, rtol=1e-5)
+    ramp = region.upper_rad[None] + np.linspace(0, 1, 50)[:, None]
+    assert np.all(np.diff(region.clamp(ramp), axis=0) >= 0)
+
+
+def test_casadi_clamp_matches_numpy(region):
+    qs = ca.SX.sym("q", 6)
+    f = ca.Function("c", [qs], [region.clamp_casadi(qs)])
+    q = np.radians(np.random.default_rng(1).uniform(-120, 120, (30, 6)))
+    np.testing.assert_allclose(np.vstack([np.asarray(f(x)).ravel() for x in q]), region.clamp(q), atol=1e-12)
+
+
+def test_bad_region_is_refused():
+    with pytest.raises(ModelError, match="lower <= upper"):
+        Region(np.zeros(6), -np.ones(6))
+    with pytest.raises(ModelError, match="bad training_region"):
+        Region.from_dict({"lower_rad": [0.0]})
+
+
+def test_extrapolation_counts_poses_outside_and_by_how_much(region):
+    spec = load_cell().robot("R1")
+    model = PhysicsModel("R1", "t", spec.model(), (), 0, {REGION_KEY: region.to_dict()})
+    q = np.zeros((4, 6))
+    q[1, 0] = math.radians(11.0)  # 10 deg beyond q1's range
+    q[2, 5] = math.radians(-31.0)  # 30 deg beyond q6's range
+    ex = extrapolation(model, q)
+    assert ex["poses"] == 4 and ex["outside_training_range"] == 2 and ex["region_known"]
+    assert ex["max_excess_deg"] == pytest.approx(30.0)
+    assert ex["rms_excess_deg"] == pytest.approx(math.sqrt((10.0**2 + 30.0**2) / 2))
+    np.testing.assert_allclose(ex["max_excess_deg_per_joint"], [10, 0, 0, 0, 0, 30], atol=1e-9)
+    unknown = extrapolation(PhysicsModel("R1", "t", spec.model()), q)
+    assert not unknown["region_known"] and unknown["outside_training_range"] is None
+
+
+def test_effect_fitted_in_a_narrow_band_is_held_at_its_edge_outside(region, tmp_path):
+    """A joint-6 gear error identified within +-1 deg does not swing through its period 40-120 deg away."""
+    from calibration import so3
+
+    arm = load_cell().robot("R1").model()
+    gear = GearTransmission(((6, (1, 2)),), np.array([3e-3, 0.0, 2e-3, 0.0]))  # sines: small near q6 = 0
+    guarded = PhysicsModel("R1", "diagnose", arm, (gear,), 0, {REGION_KEY: region.to_dict()})
+    plain = PhysicsModel("R1", "diagnose", arm, (gear,), 0)
+    rng = np.random.default_rng(2)
+    inside = rng.uniform(region.lower_rad, region.upper_rad, (20, 6))
+    for a, b in zip(guarded.fk(inside), plain.fk(inside)):
+        np.testing.assert_array_equal(a, b)
+    far = inside.copy()
+    far[:, 5] = np.radians(rng.uniform(40, 120, 20))
+
+    def deflection(model, q):  # a joint-6 error rotates the tool by |dq6|
+        return np.linalg.norm(so3.log(model.fk(q)[0] @ np.swapaxes(arm.fk(q)[0], 1, 2)), axis=1)
+
+    q_band = np.zeros((400, 6))
+    q_band[:, 5] = np.linspace(region.lower_rad[5] - region.margin_rad, region.upper_rad[5] + region.margin_rad, 400)
+    reach = deflection(plain, q_band).max()  # what the effect does within the training range and the clamp band
+    assert deflection(guarded, far).max() <= reach * (1 + 1e-6)
+    assert deflection(plain, far).max() > 2 * reach  # unguarded, it swings far beyond
+    save_model(guarded, tmp_path / "m.json")
+    back = load_model(tmp_path / "m.json")
+    for a, b in zip(back.fk(far), guarded.fk(far)):
+        np.testing.assert_allclose(a, b, atol=1e-12)
