@@ -266,7 +266,8 @@ def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording 
     for n_pass in range(1, 3):
         weighed = replace(opts, a=a)
         result = _diagnose_weighed(robot, nominal, model, split, gravity, joint_limits, weighed,
-                                   fit_model_in_use(model, nominal, split, weighed), problem, step)
+                                   fit_model_in_use(model, nominal, split, weighed), problem,
+                                   step if n_pass == 1 else (lambda name: None))  # a second pass is not re-counted
         a_final, problem = channel_weight(result.noise, opts.a)
         if abs(np.log(a_final / a)) <= np.log(WEIGHT_STEP) or n_pass == 2:
             break
