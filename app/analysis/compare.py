@@ -3,16 +3,18 @@
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
+from calibration.cdc import cluster_anchors
 from calibration.errors import ModelError
 from calibration.methods import CDC_METHODS, METHODS, Fitter
 from calibration.metrics import Errors, error_stats, errors, joint_correlation, paired_tests, parameter_spread
 from calibration.models import KinematicModel
 from calibration.recording import Recording
+from calibration.selection import Recommendation, recommend
 
 log = logging.getLogger("cellcal.app")
 
@@ -87,7 +89,31 @@ def run_comparison(fitter: Fitter, test: Recording, methods: list[str] | tuple[s
     for name, model in (files or {}).items():
         out.add(name, model, model.info.get("fit_seconds"), fitter.train, test)
     out.analysis = _analysis(fitter, test, out)
+    recommendation = _recommend(fitter, out, files or {})
+    out.recommended = recommendation.method
+    out.analysis["recommendation"] = recommendation.to_json()
     return out
+
+
+def recommendation_line(cmp: Comparison) -> str:
+    """One line naming the recommended method and why (for the CLI)."""
+    rec = cmp.analysis["recommendation"]
+    c, b = rec["candidates"][rec["method"]], rec["candidates"][rec["best"]]
+    why = (f"the best on clusters held out from training ({c['heldout_rms_mm']:.3f} mm RMS)" if rec["method"] == rec["best"]
+           else f"{c['heldout_rms_mm']:.3f} mm RMS on clusters held out from training, tied with the best, "
+                f"{rec['best']} ({b['heldout_rms_mm']:.3f} mm, {b['n_parameters']} parameters; p = "
+                f"{c['p_worse_than_best']:.2f})")
+    return f"recommended: {rec['method']} ({c['n_parameters']} parameters): {why}"
+
+
+def _recommend(fitter: Fitter, cmp: Comparison, files: dict[str, KinematicModel]) -> Recommendation:
+    """The model to use (:mod:`calibration.selection`): training data only, the test recording never enters."""
+    fitted = [m for m in cmp.models if m not in files]
+    held_out = {m: fitter.held_out_errors(m) for m in fitted}
+    groups, _ = cluster_anchors(fitter.train, fitter.options.cluster_size)
+    rec = recommend(held_out, {m: cmp.models[m].n_parameters for m in fitted}, groups)
+    return replace(rec, not_candidates={**rec.not_candidates, **{
+        name: "a saved model: not fitted here, so no held-out figure" for name in files}})
 
 
 def _analysis(fitter: Fitter, test: Recording, cmp: Comparison) -> dict[str, Any]:
