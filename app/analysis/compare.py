@@ -106,12 +106,16 @@ def recommendation_line(cmp: Comparison) -> str:
     return f"recommended: {rec['method']} ({c['n_parameters']} parameters): {why}"
 
 
-def _recommend(fitter: Fitter, cmp: Comparison, files: dict[str, KinematicModel]) -> Recommendation:
-    """The model to use (:mod:`calibration.selection`): training data only, the test recording never enters."""
-    fitted = [m for m in cmp.models if m not in files]
-    held_out = {m: fitter.held_out_errors(m) for m in fitted}
+def recommend_fitted(fitter: Fitter, models: dict[str, KinematicModel]) -> Recommendation:
+    """The model to use among methods ``fitter`` fitted (:mod:`calibration.selection`): its training data only,
+    no test recording enters."""
+    held_out = {m: fitter.held_out_errors(m) for m in models}
     groups, _ = cluster_anchors(fitter.train, fitter.options.cluster_size)
-    rec = recommend(held_out, {m: cmp.models[m].n_parameters for m in fitted}, groups)
+    return recommend(held_out, {m: model.n_parameters for m, model in models.items()}, groups)
+
+
+def _recommend(fitter: Fitter, cmp: Comparison, files: dict[str, KinematicModel]) -> Recommendation:
+    rec = recommend_fitted(fitter, {m: model for m, model in cmp.models.items() if m not in files})
     return replace(rec, not_candidates={**rec.not_candidates, **{
         name: "a saved model: not fitted here, so no held-out figure" for name in files}})
 

@@ -248,7 +248,7 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     src.add_argument("--session", help="reuse the training samples of this session")
     src.add_argument("--plan", help="collect a new training session from this plan")
     p.add_argument("--model-dir", required=True, help="folder of the model in service (current.yaml, previous/)")
-    p.add_argument("--method", default="fbf13", choices=METHODS)
+    p.add_argument("--method", default="pi+fbf13", choices=METHODS)
     p.add_argument("--validation", type=int, default=30, help="fresh validation poses to measure")
     p.add_argument("--validation-seed", type=int, help="seed of the validation poses (default: from the clock)")
     p.add_argument("--json", help="write the decision with both figures as JSON")
