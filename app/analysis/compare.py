@@ -10,7 +10,7 @@ import numpy as np
 
 from calibration.cdc import cluster_anchors
 from calibration.errors import ModelError
-from calibration.methods import CDC_METHODS, METHODS, Fitter
+from calibration.methods import CDC_METHODS, METHODS, Fitter, cdc_method
 from calibration.metrics import Errors, error_stats, errors, joint_correlation, paired_tests, parameter_spread
 from calibration.models import KinematicModel
 from calibration.recording import Recording
@@ -139,8 +139,12 @@ def _analysis(fitter: Fitter, test: Recording, cmp: Comparison) -> dict[str, Any
                                  "parameters": len(obs.singular_values),
                                  "relative_singular_values": (obs.singular_values / obs.singular_values[0]).tolist(),
                                  "hidden_directions": obs.unobservable(), "warning": obs.summary()}
-    if any(m in CDC_METHODS for m in cmp.models):
-        local = fitter.local_fits()
+    references = {cdc_method(m)[0] for m in cmp.models if m in CDC_METHODS}
+    if references:
+        # Table V is the paper's: the local fits of its construction when one of its methods ran, else pi's
+        reference = "geometric" if "geometric" in references else "pi"
+        local = fitter.local_fits(reference)
+        analysis["local_reference"] = reference
         analysis["local_parameter_spread"] = parameter_spread(local.x, fitter.par.names())
         analysis["local_fit_seconds"] = local.seconds
         analysis["local_fit_rms_mm"] = {"mean": float(np.mean(local.rms_mm)), "max": float(np.max(local.rms_mm))}
