@@ -363,10 +363,16 @@ class Fitter:
             return None
         if method in ("nominal", "cpa"):
             return errors(self.fit(method)[0], self.train).position_mm
+        if method not in self._cache.get("fitted", ()):
+            self.fit(method)  # chooses the strengths the fold refits reuse
+        return self._fold_errors(method)
+
+    def _fold_errors(self, method: str) -> np.ndarray:
+        """:meth:`held_out_errors` of a method whose strengths are chosen (cached)."""
+        from calibration.metrics import errors
+
         cache = self._cache.setdefault("held_out_errors", {})
         if method not in cache:
-            if method not in self._cache.get("fitted", ()):
-                self.fit(method)  # chooses the strengths the fold refits reuse
             err = np.empty(len(self.train))
             for held, sub in self._fold_fitters():
                 err[held] = errors(sub.fit(method)[0], self.train.subset(held)).position_mm
@@ -421,7 +427,10 @@ class Fitter:
         """Held-out-cluster and probe-range checks of a CDC fit (training data only); a warning when it fails."""
         reference = cdc_method(method)[0]
         local = self.local_fits(reference)
-        h = self._held_out(method, options)
+        groups, _ = cluster_anchors(self.train, self.options.cluster_size)
+        # fold refits of the method and of its constant reference (nls1 is the geometric reference's fit)
+        h = robust.summarise(self._fold_errors(method), self._fold_errors("pi" if reference == "pi" else "nls1"),
+                             groups)
         probes = robust.probe_grid(local.anchors)
         excess = robust.range_excess(model.interpolator.predict(probes), local.x, 0.01 * self.par.scale())
         ratio, probe_mm, train_mm = robust.workspace_ratio(model.fk, self._reference_fk(reference), self.train.q,

@@ -5,9 +5,11 @@ Two checks, both blind to any test recording:
 - **Held-out clusters.** The anchors are split into folds of whole clusters (the 7-pose groups); for each
   fold the interpolator is refitted on the other clusters' local parameters and the CDC model predicts the
   held-out clusters' poses. The figure is the position RMS over all held-out poses [mm], next to the same
-  figure for the constant reference (the global fit the local fits are pulled toward). It chooses the
-  strengths of :mod:`calibration.methods` (local prior, ridge, smoothing, weight decay) and flags an
-  interpolator that does worse than the constant fit on clusters it has not seen.
+  figure for the constant reference (the global fit the local fits are pulled toward). :func:`held_out` keeps
+  the reference fitted on every cluster and chooses the strengths of :mod:`calibration.methods` (local prior,
+  ridge); the check that flags an interpolator worse than the constant fit on clusters it has not seen
+  summarises (:func:`summarise`) fold refits of the whole method and of its reference
+  (:meth:`calibration.methods.Fitter.held_out_errors`, which the model selection of ``compare`` reuses).
 - **Corrections over the workspace.** The CDC model's position correction over the reference at probe
   configurations spread over the joint limits (wrist and base joints anywhere, (q2, q3) at the anchors, so the
   interpolation itself stays in range) should be about as large as on the training poses: local fits that
@@ -106,11 +108,16 @@ def held_out(make: Callable[[], Interpolator], kin: ExtendedKinematics, theta_re
         theta = np.array(np.broadcast_to(theta_ref, (len(idx), kin.size)))
         theta[:, :g] = x
         err[idx] = position_errors(kin, theta, rec.subset(idx))
-    ref = position_errors(kin, theta_ref, rec)
+    return summarise(err, position_errors(kin, theta_ref, rec), groups)
+
+
+def summarise(err: np.ndarray, reference_err: np.ndarray, groups: np.ndarray) -> HeldOut:
+    """:class:`HeldOut` of per-sample held-out position errors err (N,) [mm] against the reference's (N,), with
+    the cluster index (0..K-1) of each sample."""
     per_cluster = np.bincount(groups, err ** 2) / np.maximum(np.bincount(groups), 1)
     rms = float(np.sqrt(np.mean(err ** 2)))
     se = float(per_cluster.std(ddof=1) / np.sqrt(len(per_cluster)) / (2.0 * max(rms, 1e-12)))
-    return HeldOut(rms, float(np.sqrt(np.mean(ref ** 2))), float(err.max()), float(ref.max()), se)
+    return HeldOut(rms, float(np.sqrt(np.mean(reference_err ** 2))), float(err.max()), float(reference_err.max()), se)
 
 
 def one_se_choice(strengths: tuple[float, ...], scores: list[HeldOut]) -> int:

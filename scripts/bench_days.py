@@ -143,7 +143,9 @@ def main(argv: list[str] | None = None) -> int:
     models: dict[str, dict[str, Any]] = {}
     fit_seconds: dict[str, dict[str, float]] = {}
     recommended: dict[str, dict[str, Any]] = {}
-    select_s = 0.0
+    same_day: dict[str, dict[str, dict[str, Any]]] = {}
+    target_unit: dict[str, str] = {}
+    select_s = eval_s = 0.0
     for u in UNITS:
         fitter = make_fitter(robot, train[u.name])
         models[u.name], fit_seconds[u.name] = {}, {}
@@ -154,18 +156,18 @@ def main(argv: list[str] | None = None) -> int:
         select_s += time.perf_counter() - t_select
         print(f"fitted {u.name}: {sum(fit_seconds[u.name].values()):.1f} s; recommended "
               f"{recommended[u.name]['method']}", file=sys.stderr, flush=True)
-    timings["fit_s"] = time.perf_counter() - t - select_s
-    timings["recommend_s"] = select_s
-    t = time.perf_counter()
-    same_day: dict[str, dict[str, dict[str, float]]] = {}
-    target_unit: dict[str, str] = {}
-    for u in UNITS:
-        for label, _ in u.tests:
+        t_eval = time.perf_counter()
+        for label, _ in u.tests:  # the day's rows at once, so a long run shows them as it goes
             target_unit[label] = u.name
             same_day[label] = {m: mean_max(errors(models[u.name][m], tests[label]).position_mm) for m in methods}
             same_day[label]["recommended"] = {"method": recommended[u.name]["method"],
                                               **same_day[label][recommended[u.name]["method"]]}
-    timings["same_day_eval_s"] = time.perf_counter() - t
+            print(f"  {label}: " + ", ".join(f"{m} {cell(v)}" for m, v in same_day[label].items()),
+                  file=sys.stderr, flush=True)
+        eval_s += time.perf_counter() - t_eval
+    timings["fit_s"] = time.perf_counter() - t - select_s - eval_s
+    timings["recommend_s"] = select_s
+    timings["same_day_eval_s"] = eval_s
 
     # -- cross-day: model of A on B's test, as is and rebased on 3 clusters of B's training recording --
     t = time.perf_counter()
