@@ -110,8 +110,12 @@ def recommend_fitted(fitter: Fitter, models: dict[str, KinematicModel]) -> Recom
     """The model to use among methods ``fitter`` fitted (:mod:`calibration.selection`): its training data only,
     no test recording enters."""
     held_out = {m: fitter.held_out_errors(m) for m in models}
+    constant_fit = {"geometric": "nls1", "pi": "pi"}  # the constant fit each CDC reference is
+    references = {m: constant_fit[cdc_method(m)[0]] for m in models if m in CDC_METHODS}
+    cdc_references = {m: (ref, fitter.held_out_errors(ref)) for m, ref in references.items()}
     groups, _ = cluster_anchors(fitter.train, fitter.options.cluster_size)
-    return recommend(held_out, {m: model.n_parameters for m, model in models.items()}, groups)
+    return recommend(held_out, {m: model.n_parameters for m, model in models.items()}, groups,
+                     cdc_references=cdc_references)
 
 
 def _recommend(fitter: Fitter, cmp: Comparison, files: dict[str, KinematicModel]) -> Recommendation:

@@ -28,7 +28,9 @@ def test_recommended_is_set_and_is_a_fitted_method(constant_truth):
     assert cmp.recommended in cmp.models
     assert cmp.to_json()["recommended"] == cmp.recommended
     rec = cmp.analysis["recommendation"]
-    assert rec["method"] == cmp.recommended and set(rec["candidates"]) == set(METHODS)
+    assert rec["method"] == cmp.recommended and cmp.recommended in rec["candidates"]
+    assert set(rec["candidates"]) | set(rec["not_candidates"]) == set(METHODS)
+    assert not set(rec["candidates"]) & set(rec["not_candidates"])
 
 
 def test_constant_truth_gives_a_constant_recommendation(constant_truth):

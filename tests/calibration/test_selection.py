@@ -46,3 +46,17 @@ def test_methods_without_held_out_errors_are_not_candidates():
     assert set(rec.not_candidates) == {"diagnosed", "broken"}
     with pytest.raises(ModelError, match="no method has held-out errors"):
         recommend({"diagnosed": None}, {"diagnosed": 1}, GROUPS)
+
+
+def test_cdc_methods_around_the_worse_reference_are_not_candidates():
+    nls1, pi = errors(0.28, 3), errors(0.16, 4)
+    geometric_cdc, pi_cdc = errors(0.12, 5), errors(0.14, 6)  # the geometric one best on held-out clusters
+    held_out = {"nls1": nls1, "pi": pi, "rbf": geometric_cdc, "pi+rbf": pi_cdc}
+    n = {"nls1": 11, "pi": 77, "rbf": 6746, "pi+rbf": 6746}
+    references = {"rbf": ("nls1", nls1), "pi+rbf": ("pi", pi)}
+    rec = recommend(held_out, n, GROUPS, cdc_references=references)
+    assert "rbf" in rec.not_candidates and "rbf" not in rec.candidates
+    assert rec.method == rec.best == "pi+rbf"
+    # one reference only: no such step, the held-out figures alone decide
+    assert recommend(held_out, n, GROUPS, cdc_references={"rbf": ("nls1", nls1)}).method == "rbf"
+    assert recommend(held_out, n, GROUPS).method == "rbf"
