@@ -5,8 +5,8 @@ from one batched identification of all clusters at once. The clusters share a gl
 purely geometric global fit (the paper's construction) or the physics-informed fit (geometry, tool rotation,
 gravity compliance, structural deflection; methods ``pi+...``); only the geometric block varies per cluster,
 pulled toward the global values by a weak ridge prior (in millimetre-equivalent units) so directions a 7-sample
-cluster cannot see stay at the global values instead of absorbing noise. The local geometric parameters are then interpolated over the anchors' shoulder and
-elbow angles (q2, q3).
+cluster cannot see stay at the global values instead of absorbing noise. The local geometric parameters are then
+interpolated over the anchors' shoulder and elbow angles (q2, q3).
 """
 
 from __future__ import annotations

@@ -345,7 +345,7 @@ class Fitter:
         kin, local = self.reference(reference)[0], self.local_fits(reference)
         model = build_cdc(self.robot, method, kin, local, interpolator=kind, **options)
         if self.warm is None:  # a fold refit is not checked: the fit on every cluster was
-            model.info.update(self._cdc_checks(method, options, model))
+            model.info.update(self._cdc_checks(method, model))
         return model
 
     def held_out_errors(self, method: str) -> np.ndarray | None:
@@ -423,8 +423,9 @@ class Fitter:
             name: chosen, "grid": list(grid), "heldout_rms_mm": [round(s.rms_mm, 4) for s in scores]}
         return chosen
 
-    def _cdc_checks(self, method: str, options: dict[str, Any], model: Any) -> dict[str, Any]:
-        """Held-out-cluster and probe-range checks of a CDC fit (training data only); a warning when it fails."""
+    def _cdc_checks(self, method: str, model: Any) -> dict[str, Any]:
+        """Held-out-cluster (fold refits, see :meth:`held_out_errors`) and probe-range checks of a CDC fit (training
+        data only); a warning when it fails."""
         reference = cdc_method(method)[0]
         local = self.local_fits(reference)
         groups, _ = cluster_anchors(self.train, self.options.cluster_size)

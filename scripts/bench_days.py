@@ -207,7 +207,8 @@ def main(argv: list[str] | None = None) -> int:
     report(methods, cross_methods, same_day, cross, rebase_clusters, train, timings)
     if args.json:
         out = {"methods": methods, "cross_methods": cross_methods, "same_day": same_day, "cross_day": cross,
-               "recommendation": recommended, "fit_seconds": fit_seconds, "rebase_clusters": rebase_clusters, "goal_ratio": GOAL_RATIO,
+               "recommendation": recommended, "fit_seconds": fit_seconds, "rebase_clusters": rebase_clusters,
+               "goal_ratio": GOAL_RATIO,
                "timings": timings}
         Path(args.json).write_text(json.dumps(out, indent=1))
     return 0

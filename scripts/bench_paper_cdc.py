@@ -95,7 +95,8 @@ def main(argv: list[str] | None = None) -> int:
                   "+ tool, compliance": damped_global(fitter, kin, ("tool", "compliance")),
                   "pi (pi+fbf13's)": fitter.physics_informed().theta}
     column_sets = {"all 27": list(range(g)), "joints 1-3 + flange": columns_of(names, {1, 2, 3}, True),
-                   "joints 2-3": columns_of(names, {2, 3}, False), "joints 2-6 + flange": columns_of(names, {2, 3, 4, 5, 6}, True)}
+                   "joints 2-3": columns_of(names, {2, 3}, False),
+                   "joints 2-6 + flange": columns_of(names, {2, 3, 4, 5, 6}, True)}
     rows = []
 
     def run(reference: str, prior: float, columns: str, a: float) -> None:
@@ -110,7 +111,8 @@ def main(argv: list[str] | None = None) -> int:
                      "test_max_mm": float(e.max()), "reference_test_mean_mm": float(ref.mean()),
                      "reference_test_max_mm": float(ref.max())})
         r = rows[-1]
-        print(f"| {reference} | {prior:g} | {columns} | {a:g} | {r['heldout_rms_mm']:.3f} ± {r['heldout_se_mm']:.3f} | "
+        print(f"| {reference} | {prior:g} | {columns} | {a:g} | "
+              f"{r['heldout_rms_mm']:.3f} ± {r['heldout_se_mm']:.3f} | "
               f"{r['reference_test_mean_mm']:.3f}/{r['reference_test_max_mm']:.3f} | "
               f"{r['test_mean_mm']:.3f}/{r['test_max_mm']:.3f} |", flush=True)
 

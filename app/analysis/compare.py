@@ -99,7 +99,8 @@ def recommendation_line(cmp: Comparison) -> str:
     """One line naming the recommended method and why (for the CLI)."""
     rec = cmp.analysis["recommendation"]
     c, b = rec["candidates"][rec["method"]], rec["candidates"][rec["best"]]
-    why = (f"the best on clusters held out from training ({c['heldout_rms_mm']:.3f} mm RMS)" if rec["method"] == rec["best"]
+    best = rec["method"] == rec["best"]
+    why = (f"the best on clusters held out from training ({c['heldout_rms_mm']:.3f} mm RMS)" if best
            else f"{c['heldout_rms_mm']:.3f} mm RMS on clusters held out from training, tied with the best, "
                 f"{rec['best']} ({b['heldout_rms_mm']:.3f} mm, {b['n_parameters']} parameters; p = "
                 f"{c['p_worse_than_best']:.2f})")

@@ -148,8 +148,9 @@ class CdcModel(KinematicModel):
         kin = ExtendedKinematics(MinimalParameterisation(poe_from_dict(body["nominal"]), bool(body["fit_tool"])))
         theta_ref = _vector(body["theta_ref"], kin.size, "theta_ref")
         if "reference" in body and body["reference"] != _reference(theta_ref, kin.par.size):
+            implied = _reference(theta_ref, kin.par.size)
             raise ModelFileError("", "reference", f"{body['reference']!r} does not match theta_ref, whose terms beyond "
-                                                  f"the geometric block make it {_reference(theta_ref, kin.par.size)!r}")
+                                                  f"the geometric block make it {implied!r}")
         interpolator = interpolator_from_dict(body["interpolator"])
         inputs = _inputs(body["inputs"], kin.par.n_joints, interpolator.n_inputs)
         if interpolator.n_outputs != kin.par.size:
