@@ -123,7 +123,7 @@ class Fitter:
     cpa_data: Recording | None = None
     gravity: GravityModel | None = None
     joint_limits: tuple[np.ndarray, np.ndarray] | None = None
-    warm: "Fitter | None" = None
+    warm: "Fitter | None" = field(default=None, repr=False)
     _cache: dict[str, Any] = field(default_factory=dict, repr=False)
 
     @property
