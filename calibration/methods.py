@@ -21,14 +21,16 @@ clusters), refitted on all of it.
 from __future__ import annotations
 
 import logging
+import multiprocessing as mp
 import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
 from calibration import robust
-from calibration.cdc import CDC_INPUTS, LocalFits, build_cdc, cluster_anchors, fit_local
+from calibration.cdc import CDC_INPUTS, CdcModel, LocalFits, build_cdc, cluster_anchors, fit_local
 from calibration.identification.cpa import identify_cpa, split_sweeps
 from calibration.errors import ModelError
 from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, GeometricProblem
@@ -52,6 +54,8 @@ PAPER_CDC_METHODS = CDC_INTERPOLATORS
 PI_CDC_METHODS = tuple(f"pi+{k}" for k in CDC_INTERPOLATORS)
 CDC_METHODS = PAPER_CDC_METHODS + PI_CDC_METHODS
 PHYSICS_METHODS = ("pi", "diagnosed")
+#: CDC methods whose fit is a network training (seconds): their held-out folds train in parallel worker processes.
+NEURAL_METHODS = ("nn", "ae", "pi+nn", "pi+ae")
 METHODS = CONSTANT_METHODS + PAPER_CDC_METHODS + PHYSICS_METHODS + PI_CDC_METHODS
 
 
@@ -85,11 +89,15 @@ class FitOptions:
             the training poses (the strongest when none does). 0.1 was the fixed value before.
         local_prior_grid: candidate local priors.
         fourier_ridge_grid: candidate ridge strengths of fbf13/fbf7 (0 = the paper's least squares), chosen on
-            held-out clusters by the same rule.
+            held-out clusters by the same rule. It reaches 10 (times the basis Gram matrix's mean diagonal), where
+            the fit is nearly the anchors' mean, so sparse anchors can always fall back to a smooth fit; strengths a
+            fold cannot fit (ridge 0 with fewer than 13 anchors) are left out of the choice.
         nls0_clusters: number of clusters nearest q = 0 used by ``nls0``.
         fbf7_rank: rank of the SVD-reduced Fourier basis.
         cluster_size: samples per anchor when the recording has no cluster column.
         seed: random seed of the neural interpolators.
+        epoch_progress: called as ``epoch_progress(epoch, n_epochs)`` after each training epoch of the neural
+            interpolators (nn, ae; a progress bar); no effect on any result.
     """
 
     a: float = DEFAULT_ORIENTATION_WEIGHT
@@ -97,11 +105,12 @@ class FitOptions:
     fit_tool: bool = True
     local_prior: float | None = None
     local_prior_grid: tuple[float, ...] = (0.1, 0.3, 1.0, 3.0, 10.0)
-    fourier_ridge_grid: tuple[float, ...] = (0.0, 1e-3, 1e-2, 1e-1)
+    fourier_ridge_grid: tuple[float, ...] = (0.0, 1e-3, 1e-2, 1e-1, 1.0, 10.0)
     nls0_clusters: int = 9
     fbf7_rank: int = 7
     cluster_size: int = 7
     seed: int = 0
+    epoch_progress: Callable[[int, int], None] | None = field(default=None, compare=False)
 
 
 @dataclass
@@ -258,7 +267,8 @@ class Fitter:
         start = time.perf_counter()
         fit_one = getattr(self, f"_fit_{method}", None)
         model = fit_one() if fit_one is not None else self._fit_cdc(method)
-        seconds = time.perf_counter() - start + shared
+        # A prefetched fit ran in worker processes: its time is what its jobs took there, as if run here.
+        seconds = self._cache.get("worker_seconds", {}).pop(method, time.perf_counter() - start) + shared
         self._cache.setdefault("fitted", set()).add(method)
         model.info.setdefault("fit_seconds", seconds)
         model.info.setdefault("train_samples", len(self.train))
@@ -333,20 +343,85 @@ class Fitter:
                          options=opts)
         return replace(found.model, method="diagnosed", info={**found.model.info, "verdict": found.verdict})
 
-    def _fit_cdc(self, method: str) -> KinematicModel:
-        reference, kind = cdc_method(method)
+    def _cdc_options(self, method: str) -> dict[str, Any]:
+        kind = cdc_method(method)[1]
         options: dict[str, Any] = {}
         if kind == "fbf7":
             options["rank"] = self.options.fbf7_rank
         if kind in ("nn", "ae"):
             options["random_state"] = self.options.seed
+            options["progress"] = self.options.epoch_progress
         if kind in ("fbf13", "fbf7"):
             options["ridge"] = self._choose_strength(method, options, "ridge", self.options.fourier_ridge_grid)
-        kin, local = self.reference(reference)[0], self.local_fits(reference)
-        model = build_cdc(self.robot, method, kin, local, interpolator=kind, **options)
-        if self.warm is None:  # a fold refit is not checked: the fit on every cluster was
-            model.info.update(self._cdc_checks(method, model))
+        return options
+
+    def _build_cdc(self, method: str, options: dict[str, Any]) -> CdcModel:
+        reference, kind = cdc_method(method)
+        return build_cdc(self.robot, method, self.reference(reference)[0], self.local_fits(reference),
+                         interpolator=kind, **options)
+
+    def _fit_cdc(self, method: str) -> KinematicModel:
+        options = self._cdc_options(method)
+        if self.warm is not None:  # a fold refit is not checked: the fit on every cluster was
+            return self._build_cdc(method, options)
+        jobs = self._cache.get("prefetched", {}).pop(method, None)
+        if jobs is not None:  # final network and held-out folds trained in worker processes (see prefetch)
+            (model, final_s), folds = jobs[0].result(), [f.result() for f in jobs[1]]
+            self._cache.setdefault("worker_seconds", {})[method] = final_s + sum(s for _, s in folds)
+            h = self._held_out_check(method, options, neural=True, workers=1).figures([x for x, _ in folds])
+            if not self._cache["prefetched"]:
+                self._cache.pop("prefetch_pool").shutdown()
+        else:
+            # The neural kinds' held-out check is network trainings: started in worker processes first, it runs
+            # while the final network trains here (same figures as in-process), on the first 2 of the 5 folds.
+            neural = method in NEURAL_METHODS
+            check = self._held_out_check(method, options, neural, robust.default_workers(2) if neural else 1)
+            try:
+                model = self._build_cdc(method, options)
+            except BaseException:
+                check.cancel()
+                raise
+            h = check.result()
+        model.info.update(self._cdc_checks(method, model, h))
         return model
+
+    def _held_out_check(self, method: str, options: dict[str, Any], neural: bool, workers: int
+                        ) -> robust.HeldOutCheck:
+        from calibration.interpolation import make_interpolator
+
+        reference, kind = cdc_method(method)
+        (kin, theta), local = self.reference(reference), self.local_fits(reference)
+        groups, _ = cluster_anchors(self.train, self.options.cluster_size)
+        return robust.HeldOutCheck(lambda: make_interpolator(kind, **options), kin, theta,
+                                   local.anchors, local.x, groups, self.train, CDC_INPUTS, seed=self.options.seed,
+                                   workers=workers, n_evaluated=robust.NEURAL_EVALUATED_FOLDS if neural else None)
+
+    def prefetch(self, methods: list[str] | tuple[str, ...]) -> None:
+        """Start the neural CDC fits among ``methods`` (each final network and its held-out folds) in forked
+        worker processes, so that the methods fitted here in the meantime overlap them; :meth:`fit` collects
+        them (the same bits as fitted here: every training is deterministic on one BLAS thread).
+
+        A no-op without the ``fork`` start method or with one usable core. The shared fits run here first.
+        """
+        global _PREFETCH
+        prefetched = self._cache.get("prefetched", {})
+        neural = [m for m in ("ae", "pi+ae", "nn", "pi+nn") if m in methods and m not in prefetched]
+        workers = robust.default_workers()
+        if not neural or workers < 2 or "fork" not in mp.get_all_start_methods():
+            return
+        for m in neural:  # the shared fits of each reference, once, before the workers fork
+            self._prepare_shared(m)
+        jobs = {m: self._cdc_options(m) for m in neural}
+        _PREFETCH = self  # the workers fork during the submits below
+        try:
+            pool = self._cache["prefetch_pool"] = ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"))
+            prefetched = self._cache.setdefault("prefetched", {})
+            for m, options in jobs.items():  # the longest (ae's final training) first
+                prefetched[m] = (pool.submit(_prefetch_final, m, options),
+                                 [pool.submit(_prefetch_fold, m, options, f)
+                                  for f in range(robust.NEURAL_EVALUATED_FOLDS)])
+        finally:
+            _PREFETCH = None
 
     def held_out_errors(self, method: str) -> np.ndarray | None:
         """Position error [mm] of every training pose as predicted by ``method`` fitted without that pose's
@@ -396,42 +471,43 @@ class Fitter:
                 seed=self.options.seed)
         return self._cache["workspace_probes"]
 
-    def _held_out(self, method: str, options: dict[str, Any]) -> robust.HeldOut:
-        """Held-out-cluster figures of CDC ``method`` with interpolator ``options`` (cached per method/options)."""
-        from calibration.interpolation import make_interpolator
-
-        key = (method, tuple(sorted(options.items())))
-        cache = self._cache.setdefault("held_out", {})
-        if key not in cache:
-            reference, kind = cdc_method(method)
-            (kin, theta), local = self.reference(reference), self.local_fits(reference)
-            groups, _ = cluster_anchors(self.train, self.options.cluster_size)
-            cache[key] = robust.held_out(lambda: make_interpolator(kind, **options), kin, theta, local.anchors,
-                                         local.x, groups, self.train, CDC_INPUTS, seed=self.options.seed)
-        return cache[key]
-
     def _choose_strength(self, method: str, options: dict[str, Any], name: str, grid: tuple[float, ...]) -> float:
         """Option ``name`` of CDC ``method``'s interpolator from ``grid``, on held-out training clusters (1-SE rule);
         a fold refit takes the :attr:`warm` Fitter's choice."""
+        from calibration.interpolation import make_interpolator
+
         if self.warm is not None:
             if method not in self.warm._cache.get("strengths", {}):
                 self.warm.fit(method)
             return self.warm._cache["strengths"][method][name]
-        scores = [self._held_out(method, {**options, name: v}) for v in grid]
-        chosen = grid[robust.one_se_choice(grid, scores)]
+        ref_name, kind = cdc_method(method)
+        (kin, theta), local = self.reference(ref_name), self.local_fits(ref_name)
+        groups, _ = cluster_anchors(self.train, self.options.cluster_size)
+        scores: list[robust.HeldOut | None] = []
+        reference = robust.position_errors(kin, theta, self.train)
+        for v in grid:
+            try:
+                scores.append(robust.held_out(lambda: make_interpolator(kind, **{**options, name: v}),
+                                              kin, theta, local.anchors, local.x, groups, self.train,
+                                              CDC_INPUTS, seed=self.options.seed, reference_mm=reference))
+            except ModelError as e:  # e.g. ridge 0 with fewer than 13 anchors in a fold: that strength is out
+                log.info("%s %s=%g cannot be fitted on the held-out folds: %s", method, name, v, e)
+                scores.append(None)
+        usable = [i for i, s in enumerate(scores) if s is not None]
+        if not usable:
+            raise ModelError(f"{method}: no {name} of {list(grid)} can be fitted on the held-out folds of "
+                             f"{len(local.anchors)} clusters")
+        chosen = grid[usable[robust.one_se_choice(tuple(grid[i] for i in usable), [scores[i] for i in usable])]]
         self._cache.setdefault("strengths", {})[method] = {
-            name: chosen, "grid": list(grid), "heldout_rms_mm": [round(s.rms_mm, 4) for s in scores]}
+            name: chosen, "grid": list(grid),
+            "heldout_rms_mm": [None if s is None else round(s.rms_mm, 4) for s in scores]}
         return chosen
 
-    def _cdc_checks(self, method: str, model: Any) -> dict[str, Any]:
-        """Held-out-cluster (fold refits, see :meth:`held_out_errors`) and probe-range checks of a CDC fit (training
-        data only); a warning when it fails."""
+    def _cdc_checks(self, method: str, model: Any, h: robust.HeldOut) -> dict[str, Any]:
+        """Held-out-cluster (``h``) and probe-range checks of a CDC fit (training data only); a warning when
+        one fails."""
         reference = cdc_method(method)[0]
         local = self.local_fits(reference)
-        groups, _ = cluster_anchors(self.train, self.options.cluster_size)
-        # fold refits of the method and of its constant reference (nls1 is the geometric reference's fit)
-        h = robust.summarise(self._fold_errors(method), self._fold_errors("pi" if reference == "pi" else "nls1"),
-                             groups)
         probes = robust.probe_grid(local.anchors)
         excess = robust.range_excess(model.interpolator.predict(probes), local.x, 0.01 * self.par.scale())
         ratio, probe_mm, train_mm = robust.workspace_ratio(model.fk, self._reference_fk(reference), self.train.q,
@@ -467,3 +543,21 @@ class Fitter:
             info["warning"] = f"{method} may be unstable: " + "; ".join(problems) + \
                 ". Prefer pi or a stronger local prior (FitOptions.local_prior), or check the fit."
         return info
+
+
+#: The Fitter whose :meth:`Fitter.prefetch` workers are forking (set during the submits, cleared after).
+_PREFETCH: Fitter | None = None
+
+
+def _prefetch_final(method: str, options: dict[str, Any]) -> tuple[CdcModel, float]:
+    """Worker job of :meth:`Fitter.prefetch`: the final model and its fit time [s]."""
+    start = time.perf_counter()
+    model = _PREFETCH._build_cdc(method, options)  # type: ignore[union-attr]
+    return model, time.perf_counter() - start
+
+
+def _prefetch_fold(method: str, options: dict[str, Any], fold: int) -> tuple[np.ndarray, float]:
+    """Worker job of :meth:`Fitter.prefetch`: one held-out fold's predictions and its time [s]."""
+    start = time.perf_counter()
+    x = _PREFETCH._held_out_check(method, options, neural=True, workers=1).fold_prediction(fold)  # type: ignore
+    return x, time.perf_counter() - start

@@ -26,14 +26,18 @@ class Errors:
     orientation_deg: np.ndarray
 
 
-def errors(model: KinematicModel, rec: Recording) -> Errors:
-    """Errors of ``model`` on ``rec``; models whose effects depend on the sample's context (time, approach
-    direction, payload...) are evaluated with the recording's context columns."""
+def predict(model: KinematicModel, rec: Recording) -> tuple[np.ndarray, np.ndarray]:
+    """The poses ``model`` predicts for ``rec``'s samples, (R (N, 3, 3), p (N, 3) [mm]); models whose effects
+    depend on the sample's context (time, approach direction, payload...) get the recording's context columns."""
     fk_context = getattr(model, "fk_context", None)
     if fk_context is not None:
-        R, p = fk_context(rec.q, rec.context())
-    else:
-        R, p = model.fk(rec.q)
+        return fk_context(rec.q, rec.context())
+    return model.fk(rec.q)
+
+
+def errors(model: KinematicModel, rec: Recording) -> Errors:
+    """Errors of ``model`` on ``rec`` (the measured pose against :func:`predict`)."""
+    R, p = predict(model, rec)
     dp, dR = pose_error(rec.R, rec.p, R, p)
     return Errors(dp, dR)
 

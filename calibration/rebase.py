@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -41,6 +42,8 @@ DIRECTION_NAMES = tuple(f"{frame} {what}" for frame in ("base", "tool") for what
     "x shift", "y shift", "z shift", "rotation about x", "rotation about y", "rotation about z"))
 #: The rotation directions of ``delta`` (held when ``rotations=False``).
 ROTATION_INDEX = np.array([3, 4, 5, 9, 10, 11])
+#: The directions of each frame in ``delta`` (the others are held when ``frames`` leaves that frame out).
+FRAME_INDEX = {"base": np.arange(0, 6), "tool": np.arange(6, 12)}
 
 
 @dataclass(frozen=True)
@@ -129,14 +132,16 @@ class RebaseProblem:
         tolerance: relative singular value below which a direction is held at zero.
         reach_mm: length that turns rotation columns into millimetres for the SVD.
         rotations: False holds the six rotation directions (a translation-only rebase).
+        frames: the frames to fit, a subset of ``("base", "tool")`` (the other frame's six directions are held).
 
     Raises:
-        ModelError: shapes do not match or values are not finite.
+        ModelError: shapes do not match, values are not finite or a frame name is unknown.
     """
 
     def __init__(self, model: KinematicModel, q: np.ndarray, R_meas: np.ndarray, p_meas: np.ndarray,
                  a: float = DEFAULT_ORIENTATION_WEIGHT, tolerance: float = DEFAULT_RELATIVE_TOLERANCE,
-                 reach_mm: float = DEFAULT_REACH_MM, rotations: bool = True) -> None:
+                 reach_mm: float = DEFAULT_REACH_MM, rotations: bool = True,
+                 frames: tuple[str, ...] = ("base", "tool")) -> None:
         self.model = model
         self.q = np.atleast_2d(np.asarray(q, dtype=float))
         if self.q.ndim != 2 or self.q.shape[0] == 0:
@@ -146,7 +151,12 @@ class RebaseProblem:
                                                      check_motion=False)
         self.n_samples = self.frames.n_samples
         J = self.frames.jacobian(np.eye(4), np.eye(4), 1.0)
-        free = np.ones(12, dtype=bool)
+        unknown = [f for f in frames if f not in FRAME_INDEX]
+        if unknown or not frames:
+            raise ModelError(f"unknown frame {unknown[0] if unknown else frames!r}; valid: base, tool")
+        free = np.zeros(12, dtype=bool)
+        for frame in frames:
+            free[FRAME_INDEX[frame]] = True
         if not rotations:
             free[ROTATION_INDEX] = False
         scale = np.tile([1.0] * 3 + [1.0 / reach_mm] * 3, 2)
@@ -160,7 +170,7 @@ class RebaseProblem:
             _describe_free(self.observability, i, free) for i in range(self.observability.rank, int(free.sum())))
 
     @classmethod
-    def from_recording(cls, model: KinematicModel, rec: Recording, **options: float | bool) -> "RebaseProblem":
+    def from_recording(cls, model: KinematicModel, rec: Recording, **options: Any) -> "RebaseProblem":
         """The problem on a recording's poses (``options`` as in the constructor)."""
         return cls(model, rec.q, rec.R, rec.p, **options)  # type: ignore[arg-type]
 
@@ -215,7 +225,7 @@ def _describe_free(obs: Observability, index: int, free: np.ndarray) -> str:
     return f"{terms} together (relative singular value {rel:.1e})"
 
 
-def rebase(model: KinematicModel, rec: Recording, **options: float | bool) -> tuple[RebasedModel, RebaseResult]:
+def rebase(model: KinematicModel, rec: Recording, **options: Any) -> tuple[RebasedModel, RebaseResult]:
     """Refit ``model``'s base and tool-marker frames on ``rec`` (a few poses of the new day).
 
     Returns:
@@ -223,3 +233,50 @@ def rebase(model: KinematicModel, rec: Recording, **options: float | bool) -> tu
     """
     result = RebaseProblem.from_recording(model, rec, **options).solve()
     return result.model(model), result
+
+
+#: The candidates of :func:`choose_directions`, fewest parameters first.
+CHOICES = ("translations", "frames")
+
+
+def choose_directions(model: KinematicModel, rec: Recording, cluster_size: int = 7, **options: Any
+                      ) -> tuple[str, dict[str, float]]:
+    """Both frames (12 directions) or their translations only (6), chosen on ``rec`` itself.
+
+    Each cluster is held out in turn from a rebase on the others; the translations win unless the full frames'
+    held-out mean position error is lower by more than its standard error over the held-out poses (the
+    fewest-parameters-within-one-standard-error rule). With fewer than 2 clusters (or poses without a cluster
+    column whose count is not a multiple of ``cluster_size``): the full frames. On the shared
+    days' cross-day pairs, a translation-only rebase on 3 clusters is tied with the full one on the new day's other
+    training clusters (median 0.214 against 0.215 mm; ``scripts/bench_rebase_variants.py``).
+
+    Returns:
+        ``"translations"`` or ``"frames"``, and each candidate's held-out mean [mm] (empty with < 2 clusters).
+    """
+    if "cluster" not in rec.extra and len(rec) % cluster_size:
+        return "frames", {}  # no clusters to hold out (poses that are not the 7-pose design): as before the choice
+    cluster = rec.clusters(cluster_size)
+    ids = np.unique(cluster)
+    if ids.size < 2:
+        return "frames", {}
+    errs = {}
+    for choice in CHOICES:
+        parts = []
+        for c in ids:
+            fitted = RebaseProblem.from_recording(model, rec.subset(cluster != c), rotations=choice == "frames",
+                                                  **options).solve()
+            held = rec.subset(cluster == c)
+            parts.append(pose_error(held.R, held.p, *fitted.model(model).fk(held.q))[0])
+        errs[choice] = np.concatenate(parts)
+    means = {k: float(np.mean(v)) for k, v in errs.items()}
+    best = min(means, key=means.get)
+    limit = means[best] + float(np.std(errs[best], ddof=1) / np.sqrt(errs[best].size))
+    return next(k for k in CHOICES if means[k] <= limit), means
+
+
+def rebase_auto(model: KinematicModel, rec: Recording, cluster_size: int = 7, **options: Any
+                ) -> tuple[RebasedModel, RebaseResult, str]:
+    """:func:`rebase` along the directions :func:`choose_directions` picks; also returns the choice."""
+    choice, _ = choose_directions(model, rec, cluster_size, **options)
+    rebased, result = rebase(model, rec, rotations=choice == "frames", **options)
+    return rebased, result, choice

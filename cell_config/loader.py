@@ -25,7 +25,8 @@ from cell_config.registration import RobotRegistration, load_registration, regis
 
 __all__ = [
     "CAPSULE_SEGMENTS", "DEFAULT_CELL", "REHEARSAL_CELL", "ZENOH_MODES", "ZENOH_ROLES", "CellRobot", "CellSpec",
-    "ControllerConfig", "LinkInertia", "MocapConfig", "ProbeConfig", "RobotRegistration", "RobotSpec", "ToolSpec",
+    "ControllerConfig", "LinkInertia", "MocapConfig", "ProbeConfig", "RobotRegistration", "RobotSpec", "TOOL_SHAPES",
+    "ToolShape", "ToolSpec",
     "ZenohConfig", "ZenohRole", "load_cell", "load_registration", "load_robot", "load_tool", "save_registration",
 ]
 
@@ -87,14 +88,43 @@ class RobotSpec:
         return PoeModel(self.H, self.P, self.R_flange, tool.R_flange_tool, tool.p_flange_tool)
 
 
+#: Drawing primitives a tool YAML's ``geometry`` list may hold.
+TOOL_SHAPES: tuple[str, ...] = ("cylinder", "box")
+
+
+@dataclass(frozen=True)
+class ToolShape:
+    """One drawing primitive of what an arm carries (gun, workpiece), in the flange frame [mm].
+
+    Only the preview draws these; the safety checks and the planner use the robot YAML's ``capsules_mm``.
+
+    Attributes:
+        name: what the primitive is (``nozzle``, ``plate``).
+        kind: ``cylinder`` (axis ``from_mm`` -> ``to_mm``, radius at each end) or ``box`` (``centre_mm``, edge
+            lengths ``size_mm`` along the flange axes).
+        from_mm, to_mm: cylinder axis end points, shape (3,); None for a box.
+        radius_mm: cylinder radius at ``from_mm`` and at ``to_mm`` (a cone when they differ); None for a box.
+        centre_mm, size_mm: box centre and edge lengths, shape (3,); None for a cylinder.
+    """
+
+    name: str
+    kind: str
+    from_mm: np.ndarray | None = None
+    to_mm: np.ndarray | None = None
+    radius_mm: tuple[float, float] | None = None
+    centre_mm: np.ndarray | None = None
+    size_mm: np.ndarray | None = None
+
+
 @dataclass(frozen=True)
 class ToolSpec:
-    """A tool (marker rigid body) expressed in the flange frame."""
+    """A tool (marker rigid body) expressed in the flange frame, and the drawing geometry of what it is fixed to."""
 
     name: str
     rigid_body: str
     R_flange_tool: np.ndarray  # (3, 3)
     p_flange_tool: np.ndarray  # (3,) [mm]
+    shapes: tuple[ToolShape, ...] = ()  # the tool YAML's ``geometry`` (flange frame), for the preview
 
 
 @dataclass(frozen=True)
@@ -205,7 +235,42 @@ def load_tool(path: str | Path) -> ToolSpec:
     quat = r.array("quaternion_wxyz", (4,))
     if abs(np.linalg.norm(quat) - 1.0) > 1e-3:
         raise r.error("quaternion_wxyz", f"expected a unit quaternion, norm is {np.linalg.norm(quat):.6f}")
-    return ToolSpec(r.string("name"), r.string("rigid_body"), so3.quat_to_R(quat), r.array("position_mm", (3,)))
+    return ToolSpec(r.string("name"), r.string("rigid_body"), so3.quat_to_R(quat), r.array("position_mm", (3,)),
+                    _tool_shapes(r))
+
+
+def _tool_shapes(r: Node) -> tuple[ToolShape, ...]:
+    """The optional ``geometry`` list of a tool YAML: drawing primitives in the flange frame [mm]."""
+    raw = r.get("geometry", [])
+    if not isinstance(raw, list):
+        raise r.error("geometry", f"expected a list of shapes ({', '.join(TOOL_SHAPES)})")
+    shapes = []
+    for i, item in enumerate(raw):
+        if not isinstance(item, dict):
+            raise r.error(f"geometry[{i}]", "expected a mapping with name and shape")
+        e = Node(r.path, item, f"geometry[{i}]")
+        kind = e.string("shape")
+        if kind == "cylinder":
+            e.only(("name", "shape", "from_mm", "to_mm", "radius_mm"))
+            a, b = e.array("from_mm", (3,)), e.array("to_mm", (3,))
+            if isinstance(e.get("radius_mm"), list):  # [at from_mm, at to_mm]: a cone
+                radii = e.array("radius_mm", (2,))
+                if np.any(radii <= 0):
+                    raise e.error("radius_mm", f"expected radii > 0, got {radii.tolist()}")
+            else:
+                radii = np.full(2, e.number("radius_mm", lo=0.0, lo_open=True))
+            if np.linalg.norm(b - a) == 0:
+                raise e.error("to_mm", "expected an axis of non-zero length (to_mm != from_mm)")
+            shapes.append(ToolShape(e.string("name"), kind, a, b, (float(radii[0]), float(radii[1]))))
+        elif kind == "box":
+            e.only(("name", "shape", "centre_mm", "size_mm"))
+            size = e.array("size_mm", (3,))
+            if np.any(size <= 0):
+                raise e.error("size_mm", f"expected positive edge lengths, got {size.tolist()}")
+            shapes.append(ToolShape(e.string("name"), kind, centre_mm=e.array("centre_mm", (3,)), size_mm=size))
+        else:
+            raise e.error("shape", f"unknown shape {kind!r}; valid: {', '.join(TOOL_SHAPES)}")
+    return tuple(shapes)
 
 
 def load_cell(path: str | Path = DEFAULT_CELL) -> CellSpec:

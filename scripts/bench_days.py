@@ -7,8 +7,12 @@ from the training recording, :mod:`calibration.selection`). CDC methods come in 
 (``fbf13``: local geometric fits around the geometric global fit) and built on pi (``pi+fbf13``); a second
 table sets the two side by side for every interpolator run in both.
 
+Each same-day test recording also gets the frame check ``compare`` runs (:func:`calibration.frames.check_test` with
+pi, else nls1); the ones found off their training recording by a frame are printed (0620 before).
+
 Cross-day matrix: the model fitted on recording A, tested on the test recording of B, (a) as is and (b) after
-:func:`calibration.rebase.rebase` on 21 poses of B: the 3 clusters of B's *training* recording spread widest
+:func:`calibration.rebase.rebase_auto` (what ``cellcal rebase`` does: the translations, or both frames when they do
+better on clusters held out in turn) on 21 poses of B: the 3 clusters of B's *training* recording spread widest
 over the (q2, q3) grid (never B's test data), against (c) B's own same-day full calibration with the same
 method; the ratio (b) / (c) of test means is the issue's goal (<= 1.25).
 
@@ -31,12 +35,13 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from app.analysis.compare import recommend_fitted  # noqa: E402
-from calibration.errors import ModelError  # noqa: E402
-from calibration.methods import CDC_INTERPOLATORS, METHODS, FitOptions, Fitter  # noqa: E402
+from calibration.methods import CDC_INTERPOLATORS, METHODS, Fitter  # noqa: E402
+from calibration.frames import check_recording, check_test  # noqa: E402
 from calibration.metrics import errors  # noqa: E402
+from calibration.models import ConstantModel  # noqa: E402
 from calibration.models.rebased import wrap_pose  # noqa: E402
 from calibration.poe import pose_error  # noqa: E402
-from calibration.rebase import RebaseProblem  # noqa: E402
+from calibration.rebase import RebaseProblem, choose_directions  # noqa: E402
 from calibration.recording import Recording, read_recording  # noqa: E402
 from cell_config import load_cell  # noqa: E402
 
@@ -73,14 +78,9 @@ UNITS = (
 
 def make_fitter(robot: Any, train: Recording) -> Fitter:
     """A Fitter for one arm of the cell (its nominal model, link masses, joint limits), as ``compare`` builds it."""
-    from calibration.physics.gravity import GravityModel
+    from app.analysis.fitting import fitter_for
 
-    nominal = robot.model()
-    try:
-        gravity = GravityModel.from_spec(robot.robot, nominal)
-    except ModelError:
-        gravity = None
-    return Fitter(robot.name, nominal, train, FitOptions(), None, gravity, (robot.robot.lower_rad, robot.robot.upper_rad))
+    return fitter_for(robot, train)
 
 
 def spread_clusters(rec: Recording, k: int = N_REBASE_CLUSTERS) -> list[int]:
@@ -168,6 +168,11 @@ def main(argv: list[str] | None = None) -> int:
     timings["fit_s"] = time.perf_counter() - t - select_s - eval_s
     timings["recommend_s"] = select_s
     timings["same_day_eval_s"] = eval_s
+    nominal = ConstantModel(robot.name, "nominal", robot.model(), 0, {})
+    train_checks = {name: check_recording(nominal, rec) for name, rec in train.items()}  # as fit and compare do
+    checked = next((m for m in ("pi", "nls1") if m in methods), None)  # as compare checks (its most accurate model)
+    frame_checks = {label: check_test(models[target_unit[label]][checked], tests[label]).to_json()
+                    for label in same_day} if checked else {}
 
     # -- cross-day: model of A on B's test, as is and rebased on 3 clusters of B's training recording --
     t = time.perf_counter()
@@ -181,7 +186,9 @@ def main(argv: list[str] | None = None) -> int:
             rebases, bounds = {}, {}
             for b in UNITS:
                 if b.name != a.name:
-                    rebases[b.name] = RebaseProblem.from_recording(models[a.name][m], rebase_data[b.name]).solve()
+                    choice, _ = choose_directions(models[a.name][m], rebase_data[b.name])  # as cellcal rebase
+                    rebases[b.name] = RebaseProblem.from_recording(models[a.name][m], rebase_data[b.name],
+                                                                   rotations=choice == "frames").solve()
                     bounds[b.name] = RebaseProblem.from_recording(models[a.name][m], train[b.name]).solve()
             for label, test in tests.items():
                 b_name = target_unit[label]
@@ -199,16 +206,29 @@ def main(argv: list[str] | None = None) -> int:
                 cross[m][a.name][label] = {
                     "as_is": as_is, "rebased": rebased, "same_day": ref, "ratio": rebased["mean"] / ref["mean"],
                     "rebased_all_clusters": rebased_all, "ratio_all_clusters": rebased_all["mean"] / ref["mean"],
+                    "directions": "frames" if res.fitted > 6 else "translations",
                     "fitted_directions": res.fitted, "held": list(res.held), "converged": res.converged,
                     "rebase_mean_mm": {"before": res.mean_before_mm, "after": res.mean_after_mm}}
     timings["cross_day_s"] = time.perf_counter() - t
     timings["total_s"] = time.perf_counter() - start
 
     report(methods, cross_methods, same_day, cross, rebase_clusters, train, timings)
+    print("\n## Frame check of each training recording against the nominal arm (both frames fitted; the thresholds "
+          "of calibration/frames.py rest on these)\n")
+    print("| day | nominal mean mm | after the frame fit | base mm / deg | tool marker mm / deg | frame problem |")
+    print("|---|---|---|---|---|---|")
+    for name, c in train_checks.items():
+        f = c.fits["base and tool"]
+        print(f"| {name} | {c.mean_mm:.3f} | {f.mean_mm:.3f} | {f.base_mm:.2f} / {f.base_deg:.3f} | "
+              f"{f.tool_mm:.2f} / {f.tool_deg:.3f} | {c.frame or 'none'} |")
+    for label, check in frame_checks.items():
+        if check["frame"] is not None:
+            print(f"\nFrame check, {label} ({checked}): {check['message']}")
     if args.json:
         out = {"methods": methods, "cross_methods": cross_methods, "same_day": same_day, "cross_day": cross,
-               "recommendation": recommended, "fit_seconds": fit_seconds, "rebase_clusters": rebase_clusters,
-               "goal_ratio": GOAL_RATIO,
+               "recommendation": recommended, "frame_checks": frame_checks,
+               "training_frame_checks": {k: c.to_json() for k, c in train_checks.items()},
+               "fit_seconds": fit_seconds, "rebase_clusters": rebase_clusters, "goal_ratio": GOAL_RATIO,
                "timings": timings}
         Path(args.json).write_text(json.dumps(out, indent=1))
     return 0

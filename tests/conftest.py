@@ -2,9 +2,16 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
-import numpy as np
+# One BLAS thread, as the CLI runs (app/cli/__init__.py), for these tests and the commands they start: the
+# suite's products are small, and on a shared 2-core machine threaded BLAS calls stall and spin (measured on
+# the Jacobian and round-trip tests: 33 s of CPU with two threads, 19 s with one).
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import numpy as np  # noqa: E402
 import pytest
 
 from calibration import so3

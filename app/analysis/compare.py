@@ -10,7 +10,7 @@ import numpy as np
 
 from calibration.cdc import cluster_anchors
 from calibration.errors import ModelError
-from calibration.methods import CDC_METHODS, METHODS, Fitter, cdc_method
+from calibration.methods import CDC_METHODS, METHODS, NEURAL_METHODS, Fitter, cdc_method
 from calibration.metrics import Errors, error_stats, errors, joint_correlation, paired_tests, parameter_spread
 from calibration.models import KinematicModel
 from calibration.recording import Recording
@@ -77,7 +77,11 @@ def run_comparison(fitter: Fitter, test: Recording, methods: list[str] | tuple[s
     for name, model in (files or {}).items():
         if model.robot != fitter.robot:
             raise ModelError(f"model {name} is for robot {model.robot!r}, not {fitter.robot!r}")
-    bar = tqdm(methods, desc=f"{fitter.robot} fit", unit="method", disable=not progress)
+    # The neural fits train in worker processes while the other methods are fitted here, and are collected last;
+    # the rows keep the order asked for.
+    fitter.prefetch(methods)
+    order = [m for m in methods if m not in NEURAL_METHODS] + [m for m in methods if m in NEURAL_METHODS]
+    bar = tqdm(order, desc=f"{fitter.robot} fit", unit="method", disable=not progress)
     for method in bar:
         bar.set_postfix_str(method)
         if method == "cpa" and fitter.cpa_data is None:
@@ -86,6 +90,10 @@ def run_comparison(fitter: Fitter, test: Recording, methods: list[str] | tuple[s
         model, seconds = fitter.fit(method)
         log.info("%s fitted in %.3f s", method, seconds)
         out.add(method, model, seconds, fitter.train, test)
+    for rows in (out.models, out.fit_seconds, out.train_errors, out.test_errors):
+        fitted = dict(rows)
+        rows.clear()
+        rows.update({m: fitted[m] for m in methods if m in fitted})
     for name, model in (files or {}).items():
         out.add(name, model, model.info.get("fit_seconds"), fitter.train, test)
     out.analysis = _analysis(fitter, test, out)

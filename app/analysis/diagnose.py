@@ -10,10 +10,11 @@ from __future__ import annotations
 import json
 import logging
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from app.analysis.report import save_figure
+from app.analysis.plots import save_figure
 from calibration.diagnosis import DiagnoseOptions, Diagnosis, diagnose
 from calibration.errors import ModelError
 from calibration.files import atomic_write_text
@@ -24,7 +25,7 @@ log = logging.getLogger("cellcal.app")
 def run_diagnose(robot: str, data: str | Path, heldout: str | Path | None = None, model: str | Path | None = None,
                  json_path: str | Path | None = None, report_dir: str | Path | None = None,
                  model_out: str | Path | None = None, cell: str | Path | None = None,
-                 options: DiagnoseOptions | None = None) -> Diagnosis:
+                 options: DiagnoseOptions | None = None, tolerance: Any = None, progress: bool = False) -> Diagnosis:
     """Diagnose one robot's model against recordings and write the requested outputs.
 
     Args:
@@ -34,11 +35,13 @@ def run_diagnose(robot: str, data: str | Path, heldout: str | Path | None = None
         model: model file in use (constant, physics, pi or cdc; a diagnosed file is refused: give its base); None fits the
             geometric NLS (``nls1``) on ``data``.
         json_path: write the ``cellcal.diagnose/1`` JSON report here.
-        report_dir: write ``report.md`` and PNG plots into this folder.
+        report_dir: write ``report.html``, ``report.md`` and PNG plots into this folder.
         model_out: write the refitted model (physics, pi, cdc or diagnosed, see
             :func:`calibration.diagnosis.result_model`) here (``.yaml``/``.json``).
         cell: cell YAML (default: the packaged Motoman cell).
         options: diagnosis settings.
+        tolerance: the report's acceptance :class:`~app.analysis.report.Tolerance` (None: 1 mm and 1 deg).
+        progress: show a progress bar over the diagnosis steps.
 
     Returns:
         The diagnosis.
@@ -63,13 +66,28 @@ def run_diagnose(robot: str, data: str | Path, heldout: str | Path | None = None
     except ModelError as e:
         log.warning("joint compliance cannot be tested: %s", e)
         gravity = None
-    result = diagnose(robot, nominal, rec, ho, used, gravity, limits, options)
+    from app.progress import bar
+    from calibration.diagnosis.core import DIAGNOSE_STEPS
+
+    with bar(total=len(DIAGNOSE_STEPS), enabled=progress, desc=f"{robot} diagnose", unit="step") as steps:
+        def step(name: str) -> None:  # the bar counts the steps done; its label names the one running
+            steps.set_postfix_str(name, refresh=False)
+            steps.update(DIAGNOSE_STEPS.index(name) - steps.n)
+
+        result = diagnose(robot, nominal, rec, ho, used, gravity, limits, options, progress=step)
+        steps.update(steps.total - steps.n)
+    inputs = [("data", data), ("heldout", heldout), ("model", model)]
     if model_out is not None:
-        save_model(result.model, model_out)
+        from app.provenance import provenance, with_provenance
+
+        save_model(with_provenance(result.model, provenance(inputs)), model_out)
     if json_path is not None:
         atomic_write_text(Path(json_path), json.dumps(result.to_json(), indent=1))
     if report_dir is not None:
-        write_report(result, report_dir)
+        models = {f"{result.final.model} (after)": result.model}
+        if used is not None:
+            models = {f"{result.baseline.model} (before)": used, **models}
+        write_report(result, report_dir, tolerance, ho, models, inputs)
     return result
 
 
@@ -114,16 +132,29 @@ def markdown(result: Diagnosis) -> str:
     return "\n".join(lines)
 
 
-def write_report(result: Diagnosis, out_dir: str | Path) -> list[Path]:
-    """Write ``report.md``, ``mismatch.png`` and ``heldout.png`` into ``out_dir``; returns the files."""
-    import matplotlib
+def write_report(result: Diagnosis, out_dir: str | Path, tolerance: Any = None, heldout: Any = None,
+                 models: dict[str, Any] | None = None, inputs: list[tuple[str, Any]] | tuple = (),
+                 command: str = "cellcal diagnose") -> list[Path]:
+    """Write ``report.md``, ``mismatch.png``, ``heldout.png`` and ``report.html`` into ``out_dir``; returns the files.
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    Args:
+        result: the diagnosis.
+        out_dir: the report folder (created).
+        tolerance: the acceptance :class:`~app.analysis.report.Tolerance` (None: 1 mm and 1 deg).
+        heldout: the held-out recording when one was given (ISO 9283 needs its repeated poses), else None.
+        models: the models to give ISO 9283 AP_p for (name -> model).
+        inputs: (role, path) of the input files, for the provenance.
+        command: the command line shown in the report.
+    """
+    from app.analysis.report import (Image, Page, Section, Table, Tolerance, acceptance_from_max, iso_table,
+                                     iso_unavailable, write_html)
+    from app.provenance import provenance
 
+    plt = _pyplot()
+    tol = tolerance or Tolerance()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    files = []
+    files, images = [], []
     pd = result.plots
     if pd is not None:
         names = [m.regressor for m in result.mismatch][:4]
@@ -136,20 +167,53 @@ def write_report(result: Diagnosis, out_dir: str | Path) -> list[Path]:
             ax.set_ylabel("baseline position residual [mm]")
             ax.grid(alpha=0.3)
         files.append(save_figure(fig, out / "mismatch.png"))
+        images.append(Image.from_file("baseline residual against its strongest drivers", files[-1]))
         fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 3.8))
-        a1.plot(pd.heldout_before_mm, lw=0.8, label=f"before ({result.baseline.model})")
-        a1.plot(pd.heldout_after_mm, lw=0.8, label=f"after ({result.final.model})")
-        a1.axhline(result.noise.floor_mm, color="k", ls="--", lw=0.8, label="noise floor (RMS)")
-        a1.set_xlabel("held-out sample")
-        a1.set_ylabel("position error [mm]")
+        for values, label, style in ((pd.heldout_before_mm, f"before ({result.baseline.model})", "-"),
+                                     (pd.heldout_after_mm, f"after ({result.final.model})", "--")):
+            v = np.sort(values)
+            a1.step(v, np.arange(1, len(v) + 1) / len(v), where="post", ls=style, lw=1.4, label=label)
+        a1.axvline(result.noise.floor_mm, color="k", ls=":", lw=0.8, label="noise floor (RMS)")
+        a1.axvline(tol.position_mm, color="r", ls="--", lw=0.8, label=f"tolerance {tol.position_mm:g} mm")
+        a1.set_xlabel("held-out position error [mm]")
+        a1.set_ylabel("fraction of held-out poses with a smaller error [-]")
         a1.legend(fontsize=7)
         bins = np.linspace(0, max(pd.heldout_before_mm.max(), pd.heldout_after_mm.max()), 40)
         a2.hist(pd.heldout_before_mm, bins, alpha=0.6, label="before")
         a2.hist(pd.heldout_after_mm, bins, alpha=0.6, label="after")
-        a2.set_xlabel("position error [mm]")
+        a2.set_xlabel("held-out position error [mm]")
+        a2.set_ylabel("held-out poses [count]")
         a2.legend(fontsize=7)
         files.append(save_figure(fig, out / "heldout.png"))
+        images.append(Image.from_file("held-out position error before and after (CDF and histogram)", files[-1]))
     md = out / "report.md"
     atomic_write_text(md, markdown(result))
     files.append(md)
+    b, f = result.baseline, result.final
+    rows = [[f"{fit.model} ({when})", f"{fit.rms_mm:.4f}", f"{fit.max_mm:.4f}", f"{fit.rms_deg:.4f}", f"{fit.max_deg:.4f}"]
+            for fit, when in ((b, "before"), (f, "after"))]
+    effects = [[e.kind, ", ".join(e.links) or ", ".join(map(str, e.joints)) or "-", f"{e.evidence.delta_bic:.1f}",
+                f"{e.evidence.before.rms_mm:.4f} -> {e.evidence.after.rms_mm:.4f}"] for e in result.effects]
+    label = "the held-out recording"
+    iso = iso_table(models or {}, heldout, label) if heldout is not None else iso_unavailable(
+        label, "the held-out poses are clusters set aside from the data (no --test recording to look for repeats in)")
+    section = Section(f"Diagnosis: {result.robot}",
+                      [acceptance_from_max(f"{fit.model} ({when})", result.n_heldout, fit.max_mm, fit.max_deg, tol)
+                       for fit, when in ((b, "before"), (f, "after"))],
+                      f"the {result.n_heldout} held-out poses ({result.heldout_source})", iso, None,
+                      [result.verdict, f"Samples: {result.n_fit} fit, {result.n_heldout} held out. Noise floor "
+                                       f"{result.noise.floor_mm:.3f} mm. Details in report.md."],
+                      [Table("Held-out accuracy", ["model", "RMS mm", "max mm", "RMS deg", "max deg"], rows),
+                       Table("Effects found", ["kind", "on", "delta BIC", "held-out RMS before -> after mm"], effects,
+                             [] if effects else ["None confirmed on the held-out data."])], images)
+    files.append(write_html(Page(section.title, command, tol, provenance(inputs), [section]), out))
     return files
+
+
+def _pyplot() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt

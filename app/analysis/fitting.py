@@ -34,3 +34,36 @@ def fitter_for(robot: Any, train: Any, cpa: Any | None = None, options: Any | No
         gravity = None
     return Fitter(robot.name, nominal, train, options or FitOptions(), cpa, gravity,
                   (robot.robot.lower_rad, robot.robot.upper_rad))
+
+
+def checked_fitter_for(robot: Any, train: Any, cpa: Any | None = None, options: Any | None = None
+                       ) -> tuple[Any, Any]:
+    """:func:`fitter_for` after a frame check of the training recording against the nominal arm.
+
+    When the check finds a frame or tool-registration problem, the fitter fits both frames first and the
+    kinematics after (:class:`calibration.frames.FramedFit`), and the check's message is logged.
+
+    Returns:
+        The fitter and the :class:`calibration.frames.FrameCheck`.
+    """
+    from calibration.frames import framed
+    from calibration.models import ConstantModel
+
+    nominal = ConstantModel(robot.name, "nominal", robot.model(), 0, {})
+    fitter, check = framed(lambda rec: fitter_for(robot, rec, cpa, options), nominal, train)
+    if check.found:
+        log.info("%s Fitting the base and tool frames first, then the kinematics.", check.message())
+    return fitter, check
+
+
+def days_fitter_for(robot: Any, trains: list[Any], cpa: Any | None = None, options: Any | None = None) -> Any:
+    """Several training recordings in one fit: one arm, per-recording frames (:func:`calibration.multiday.fit_days`).
+
+    Returns:
+        The :class:`calibration.multiday.MultiDayFit` (its ``fitter`` fits any method).
+    """
+    from calibration.models import ConstantModel
+    from calibration.multiday import fit_days
+
+    nominal = ConstantModel(robot.name, "nominal", robot.model(), 0, {})
+    return fit_days(lambda rec: fitter_for(robot, rec, cpa, options), nominal, trains)

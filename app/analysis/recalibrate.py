@@ -201,3 +201,39 @@ def check_model_dir(model_dir: str | Path) -> Path:
     if path.exists() and not path.is_dir():
         raise ConfigError(path, "", "the model folder is a file; give a folder (current.yaml lives in it)")
     return path
+
+
+def model_to_rebase(model_dir: str | Path, service: InService) -> KinematicModel:
+    """The model in service, which ``recalibrate --rebase`` needs (checked before any motion).
+
+    Raises:
+        DataError: there is no usable model in service.
+    """
+    if service.model is None:
+        reason = f"it is unusable ({service.problem})" if service.problem else "there is none"
+        raise DataError(str(Path(model_dir) / CURRENT), None, None,
+                        f"--rebase refits the frames of the model in service, but {reason}; fit one first "
+                        "(recalibrate without --rebase)")
+    return service.model
+
+
+def rebase_candidate(model_dir: str | Path, service: InService, train: Recording) -> tuple[KinematicModel, Any]:
+    """The candidate of ``recalibrate --rebase``: the model in service with only its base and tool-marker frames
+    refitted on ``train`` (a few clusters of the new day, :func:`calibration.rebase.rebase_auto`: the translations,
+    or the full frames when they do better on held-out clusters).
+
+    Returns:
+        The rebased model (kind ``rebased``) and the :class:`~calibration.rebase.RebaseResult`.
+
+    Raises:
+        DataError: there is no usable model in service to rebase.
+        ModelError: the frame fit did not converge (nothing is installed).
+    """
+    from calibration.rebase import rebase_auto
+
+    model = model_to_rebase(model_dir, service)
+    rebased, result, _ = rebase_auto(model, train)
+    if not result.converged:
+        raise ModelError(f"the rebase of the model in service on {train.source} did not converge "
+                         f"({result.reason.value}); nothing installed")
+    return rebased, result

@@ -1,13 +1,34 @@
-"""Markdown tables and PNG plots of a comparison (``compare --report DIR``)."""
+"""The acceptance report: one self-contained ``report.html`` per run (and ``report.md`` + PNGs for compare).
+
+``compare``, ``evaluate``, ``diagnose``, ``recalibrate`` and ``demo`` write ``report.html`` into ``--report DIR``
+from the jinja2 template ``templates/report.html.j2``. A page holds, for each arm or question:
+
+- the tolerance (default 1 mm and 1 deg, cold spray) and pass/fail per model: a model passes when its largest
+  position error and its largest orientation error on the evaluation poses are within the tolerance; the
+  fraction of poses within both is shown next to it;
+- ISO 9283 AP_p / RP_l per repeated pose (:mod:`calibration.iso9283`), or "not available" and why;
+- the recommended model when one was chosen (:attr:`app.analysis.compare.Comparison.recommended`; this module
+  never picks one);
+- the date, the cellcal version and the sha256 of every input file (:func:`app.provenance.provenance`);
+- tables, and the plots (:mod:`app.analysis.plots`) embedded as base64 PNG so the single file can be mailed.
+"""
 
 from __future__ import annotations
 
+import base64
+import math
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from app.analysis import plots
 from app.analysis.compare import Comparison
-from calibration.files import atomic_open, atomic_write_text
+from calibration.errors import CellCalError
+from calibration.files import atomic_write_text
+from calibration.iso9283 import RepeatedPose, accuracy_per_pose, repeated_poses
+from calibration.metrics import Errors, errors, predict
 from calibration.recording import Recording
 
 PAPER_R1_TEST = {  # the paper's Table IV (R1 test set, position mean / std / max mm)
@@ -17,105 +38,350 @@ PAPER_R1_TEST = {  # the paper's Table IV (R1 test set, position mean / std / ma
     "fbf13": (0.31, 0.14, 0.74), "fbf7": (0.32, 0.16, 0.81), "nn": (0.34, 0.13, 0.78), "ae": (0.31, 0.14, 0.73),
 }
 
+REPORT_HTML = "report.html"
+
+
+@dataclass(frozen=True)
+class Tolerance:
+    """The acceptance tolerance: largest position error [mm] and largest orientation error [deg]."""
+
+    position_mm: float = 1.0
+    orientation_deg: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name, v in (("--tolerance-mm", self.position_mm), ("--tolerance-deg", self.orientation_deg)):
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise CellCalError(f"{name}: expected a positive finite number, got {v!r}")
+
+
+@dataclass(frozen=True)
+class Acceptance:
+    """Pass/fail of one model on the evaluation poses.
+
+    Attributes:
+        model: row name.
+        n_poses: evaluation poses.
+        max_position_mm, max_orientation_deg: largest errors on them.
+        within: fraction of poses with both errors within the tolerance; None when per-pose errors are not kept.
+        passed: both largest errors within the tolerance.
+    """
+
+    model: str
+    n_poses: int
+    max_position_mm: float
+    max_orientation_deg: float
+    within: float | None
+    passed: bool
+
+
+def acceptance(name: str, e: Errors, tol: Tolerance) -> Acceptance:
+    """Pass/fail of one model from its per-pose errors."""
+    pos, ori = np.asarray(e.position_mm), np.asarray(e.orientation_deg)
+    ok = (pos <= tol.position_mm) & (ori <= tol.orientation_deg)
+    max_p, max_o = float(np.max(pos)), float(np.max(ori))
+    return Acceptance(name, len(pos), max_p, max_o, float(np.mean(ok)),
+                      bool(max_p <= tol.position_mm and max_o <= tol.orientation_deg))
+
+
+def acceptance_from_max(name: str, n: int, max_mm: float, max_deg: float, tol: Tolerance) -> Acceptance:
+    """Pass/fail from the largest errors alone (the fraction within is then not available)."""
+    return Acceptance(name, n, float(max_mm), float(max_deg), None,
+                      bool(max_mm <= tol.position_mm and max_deg <= tol.orientation_deg))
+
+
+@dataclass(frozen=True)
+class IsoTable:
+    """ISO 9283 figures of one recording: the repeated poses with RP_l, and AP_p per model (or why not)."""
+
+    source: str
+    poses: list[RepeatedPose] = field(default_factory=list)
+    ap_mm: dict[str, np.ndarray] = field(default_factory=dict)
+    reason: str | None = None
+
+    @property
+    def min_visits(self) -> int:
+        return min(r.n for r in self.poses)
+
+    @property
+    def max_visits(self) -> int:
+        return max(r.n for r in self.poses)
+
+
+def iso_table(models: dict[str, Any], rec: Recording, label: str) -> IsoTable:
+    """ISO 9283 AP_p (per model) and RP_l on the poses ``rec`` repeats; ``label`` names the recording."""
+    poses = repeated_poses(rec.q, rec.p)
+    if not poses:
+        return IsoTable(label, reason=f"no repeated poses (no two rows of {label} have identical joint values)")
+    return IsoTable(label, poses, {n: accuracy_per_pose(poses, rec.p, predict(m, rec)[1]) for n, m in models.items()})
+
+
+def iso_unavailable(label: str, reason: str) -> IsoTable:
+    return IsoTable(label, reason=reason)
+
+
+@dataclass(frozen=True)
+class Table:
+    """A captioned table (cells already formatted); rendered both in HTML and Markdown."""
+
+    caption: str
+    header: list[str]
+    rows: list[list[str]]
+    paragraphs: list[str] = field(default_factory=list)
+
+    def markdown(self) -> list[str]:
+        lines = [f"## {self.caption}", ""] + self.paragraphs + ([""] if self.paragraphs else [])
+        if self.rows:
+            lines += ["| " + " | ".join(self.header) + " |", "|" + "---|" * len(self.header)]
+            lines += ["| " + " | ".join(r) + " |" for r in self.rows]
+        return lines + [""]
+
+
+@dataclass(frozen=True)
+class Image:
+    """A PNG plot embedded in the page."""
+
+    caption: str
+    png: bytes
+    file: str = ""
+
+    @property
+    def data_uri(self) -> str:
+        return "data:image/png;base64," + base64.b64encode(self.png).decode("ascii")
+
+    @classmethod
+    def from_file(cls, caption: str, path: Path) -> "Image":
+        return cls(caption, Path(path).read_bytes(), Path(path).name)
+
+
+@dataclass
+class Section:
+    """One part of a page (one arm, or the one question a command answers)."""
+
+    title: str
+    acceptance: list[Acceptance]
+    acceptance_data: str
+    iso: IsoTable
+    recommended: str | None = None
+    paragraphs: list[str] = field(default_factory=list)
+    tables: list[Table] = field(default_factory=list)
+    images: list[Image] = field(default_factory=list)
+    details: list[Table] = field(default_factory=list)  # after the plots
+
+    @property
+    def recommended_acceptance(self) -> Acceptance | None:
+        return next((a for a in self.acceptance if a.model == self.recommended), None)
+
+
+@dataclass
+class Page:
+    """A whole ``report.html``."""
+
+    title: str
+    command: str
+    tolerance: Tolerance
+    provenance: dict[str, Any]
+    sections: list[Section]
+    notes: list[str] = field(default_factory=list)
+
+
+def render_html(page: Page) -> str:
+    """The page as one self-contained HTML document (jinja2, autoescaped)."""
+    import jinja2
+
+    env = jinja2.Environment(loader=jinja2.PackageLoader("app.analysis", "templates"),
+                             autoescape=jinja2.select_autoescape(["html", "j2"]), undefined=jinja2.StrictUndefined,
+                             trim_blocks=False)
+    return env.get_template("report.html.j2").render(page=page)
+
+
+def write_html(page: Page, out_dir: str | Path) -> Path:
+    """Write ``out_dir/report.html`` atomically (the folder is created); returns its path."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / REPORT_HTML
+    atomic_write_text(path, render_html(page))
+    return path
+
+
+# -- what each command puts on the page ------------------------------------------------------------------------
+
+
+def _f(v: float | None, fmt: str) -> str:
+    return "–" if v is None else format(v, fmt)
+
 
 def comparison_table(cmp: Comparison, with_paper: bool = False) -> str:
     """Table IV as Markdown: test and train position/orientation statistics and fit time per method."""
-    head = "| method | params | fit s | test pos mean / std / max mm | test ori mean / max deg | train pos mean / max mm |"
-    sep = "|---|---:|---:|---|---|---|"
-    if with_paper:
-        head += " paper test mean / std / max |"
-        sep += "---|"
-    rows = [head, sep]
+    return "\n".join(comparison_rows(cmp, with_paper).markdown()[2:]).rstrip()
+
+
+def comparison_rows(cmp: Comparison, with_paper: bool = False) -> Table:
+    """Table IV: per method, parameters, fit time, test and train statistics (the paper's figures for R1)."""
+    header = ["method", "params", "fit s", "test pos mean / std / max mm", "test ori mean / max deg",
+              "train pos mean / max mm"] + (["paper test mean / std / max"] if with_paper else [])
+    rows = []
     for m, model in cmp.models.items():
         te, tr = cmp.test_errors[m], cmp.train_errors[m]
-        seconds = cmp.fit_seconds[m]
-        row = (f"| {m} | {model.n_parameters} | {'–' if seconds is None else f'{seconds:.3f}'} | "
-               f"{te.position_mm.mean():.3f} / {te.position_mm.std():.3f} / {te.position_mm.max():.3f} | "
-               f"{te.orientation_deg.mean():.3f} / {te.orientation_deg.max():.3f} | "
-               f"{tr.position_mm.mean():.3f} / {tr.position_mm.max():.3f} |")
+        row = [m, str(model.n_parameters), _f(cmp.fit_seconds[m], ".3f"),
+               f"{te.position_mm.mean():.3f} / {te.position_mm.std():.3f} / {te.position_mm.max():.3f}",
+               f"{te.orientation_deg.mean():.3f} / {te.orientation_deg.max():.3f}",
+               f"{tr.position_mm.mean():.3f} / {tr.position_mm.max():.3f}"]
         if with_paper:
             paper = PAPER_R1_TEST.get(m)
-            row += f" {' / '.join(f'{v:.2f}' for v in paper)} |" if paper else " – |"
+            row.append(" / ".join(f"{v:.2f}" for v in paper) if paper else "–")
         rows.append(row)
     for m, reason in cmp.skipped.items():
-        rows.append(f"| {m} | – | – | skipped: {reason} | | |" + (" |" if with_paper else ""))
-    return "\n".join(rows)
+        rows.append([m, "–", "–", f"skipped: {reason}", "", ""] + ([""] if with_paper else []))
+    return Table("Test and training errors per method (Table IV)", header, rows)
 
 
-def write_report(cmp: Comparison, test: Recording, out_dir: str | Path, with_paper: bool = False) -> list[Path]:
-    """Write ``report.md`` and the PNG plots into ``out_dir``; returns the files written."""
-    import matplotlib
+def analysis_tables(cmp: Comparison) -> list[Table]:
+    """Observability, joint correlation (Table II), paired tests and the local parameter spread (Table V)."""
+    a, tables = cmp.analysis, []
+    if "observability" in a:
+        o = a["observability"]
+        tables.append(Table("Observability of the training set", [], [], [
+            f"Condition number {o['condition_number']:.3g}; {o['rank']} of {o['parameters']} directions kept.",
+            o["warning"] or "Every parameter direction is observable."] + [f"- {d}" for d in o["hidden_directions"]]))
+    if "nominal_error_joint_correlation_test" in a:
+        corr = a["nominal_error_joint_correlation_test"]
+        tables.append(Table("Correlation of the nominal position error with each joint (test set, Table II)",
+                            [f"q{j + 1}" for j in range(len(corr))], [[f"{c:.3f}" for c in corr]]))
+    for key, title in (("paired_tests_vs_nominal", "the nominal model"), ("paired_tests_vs_fbf13", "the Fourier CDC")):
+        if key in a:
+            tables.append(Table(f"Paired tests against {title} (test position error, method minus reference)",
+                                ["method", "mean difference mm", "t-test p", "Wilcoxon p"],
+                                [[m, f"{t['mean_difference']:.3f}", f"{t['t_pvalue']:.2e}", f"{t['wilcoxon_pvalue']:.2e}"]
+                                 for m, t in a[key].items()]))
+    if "local_parameter_spread" in a:
+        tables.append(Table("Spread of local parameters over clusters (Table V)", ["parameter", "mean", "std", "min", "max"],
+                            [[n, f"{s['mean']:.4g}", f"{s['std']:.4g}", f"{s['min']:.4g}", f"{s['max']:.4g}"]
+                             for n, s in a["local_parameter_spread"].items()]))
+    return tables
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+
+def error_plots(errs: dict[str, Errors], rec: Recording, out: Path, tol: Tolerance) -> list[Image]:
+    """Workspace map and CDFs of ``errs`` on ``rec``, saved as PNG in ``out`` and returned for embedding."""
+    files = [(plots.save_figure(plots.workspace_figure(errs, rec.p, tol.position_mm), out / "error_workspace.png"),
+              "position error over the workspace: measured tool x against height, coloured by error"),
+             (plots.save_figure(plots.cdf_figure(errs, tol.position_mm, tol.orientation_deg), out / "error_cdf.png"),
+              "cumulative distribution of the position and orientation errors per model, with the tolerance")]
+    return [Image.from_file(caption, path) for path, caption in files]
+
+
+def comparison_section(cmp: Comparison, test: Recording, out_dir: str | Path, tol: Tolerance,
+                       with_paper: bool = False, title: str | None = None, test_label: str = "the test set",
+                       paragraphs: list[str] | None = None) -> Section:
+    """One arm's comparison: writes ``report.md`` and the PNG plots into ``out_dir`` and returns the section."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    images = error_plots(cmp.test_errors, test, out, tol)
+    if "fbf13" in cmp.models:
+        interp = cmp.models["fbf13"].interpolator  # type: ignore[attr-defined]
+        path = plots.save_figure(plots.singular_values_figure(np.asarray(interp.singular_values())),
+                                 out / "fourier_singular_values.png")
+        images.append(Image.from_file("singular values of the fbf13 coefficient matrix", path))
+        if "nominal" in cmp.models:
+            path = plots.save_figure(plots.correction_map_figure(cmp.models["fbf13"], cmp.models["nominal"], test.q,
+                                                                 "fbf13 - nominal"), out / "fourier_correction_map.png")
+            images.append(Image.from_file("position correction of the Fourier CDC over (q2, q3)", path))
+    tables = [comparison_rows(cmp, with_paper)] + analysis_tables(cmp)
+    section = Section(title or f"Calibration comparison: {cmp.robot}",
+                      [acceptance(m, e, tol) for m, e in cmp.test_errors.items()],
+                      f"the {len(test)} poses of {test_label}", iso_table(cmp.models, test, test_label),
+                      cmp.recommended, list(paragraphs or []), tables[:1], images, tables[1:])
+    md = [f"# {section.title}", ""] + acceptance_markdown(section, tol)
+    for t in tables:
+        md += t.markdown()
+    md += ["## Plots", ""] + [f"![{im.caption}]({im.file})" for im in images] + [""]
+    atomic_write_text(out / "report.md", "\n".join(md))
+    return section
+
+
+def acceptance_markdown(section: Section, tol: Tolerance) -> list[str]:
+    """The pass/fail table and the recommendation as Markdown."""
+    lines = [f"## Acceptance: max position error <= {tol.position_mm:g} mm and max orientation error <= "
+             f"{tol.orientation_deg:g} deg on {section.acceptance_data}", "",
+             "| model | max pos mm | max ori deg | within tolerance | result |", "|---|---:|---:|---:|---|"]
+    lines += [f"| {a.model} | {a.max_position_mm:.3f} | {a.max_orientation_deg:.4f} | "
+              f"{'–' if a.within is None else f'{100 * a.within:.1f} %'} | {'PASS' if a.passed else 'FAIL'} |"
+              for a in section.acceptance]
+    rec = f"Recommended model: {section.recommended}" if section.recommended else "No recommendation made."
+    iso = f"ISO 9283: not available: {section.iso.reason}." if section.iso.reason else \
+        f"ISO 9283: {len(section.iso.poses)} repeated poses (see report.html)."
+    return lines + ["", rec, "", iso, ""]
+
+
+def write_report(cmp: Comparison, test: Recording, out_dir: str | Path, with_paper: bool = False,
+                 tolerance: Tolerance = Tolerance(), inputs: list[tuple[str, Any]] | tuple = (),
+                 command: str = "cellcal compare") -> list[Path]:
+    """``compare --report``: ``report.md``, the PNG plots and ``report.html``; returns the files (html last)."""
+    from app.provenance import provenance
+
+    out = Path(out_dir)
+    section = comparison_section(cmp, test, out, tolerance, with_paper)
+    html = write_html(Page(section.title, command, tolerance, provenance(inputs), [section]), out)
+    return sorted(out.glob("*.png")) + [out / "report.md", html]
+
+
+def evaluation_section(title: str, models: dict[str, Any], rec: Recording, out_dir: str | Path, tol: Tolerance,
+                       label: str, paragraphs: list[str] | None = None) -> Section:
+    """Models evaluated on one recording (``evaluate``, ``recalibrate``): statistics, pass/fail, ISO, plots."""
+    from calibration.metrics import error_stats
+
+    errs = {n: errors(m, rec) for n, m in models.items()}
+    rows = []
+    for n, e in errs.items():
+        s = error_stats(e)
+        p, o = s["position_mm"], s["orientation_deg"]
+        rows.append([n, models[n].method, str(models[n].n_parameters), f"{p['mean']:.3f}", f"{p['std']:.3f}",
+                     f"{p['rms']:.3f}", f"{p['max']:.3f}", f"{o['mean']:.4f}", f"{o['max']:.4f}"])
+    table = Table(f"Errors on {label}", ["model", "method", "params", "pos mean mm", "pos std mm", "pos RMS mm",
+                                         "pos max mm", "ori mean deg", "ori max deg"], rows)
+    return Section(title, [acceptance(n, e, tol) for n, e in errs.items()], f"the {len(rec)} poses of {label}",
+                   iso_table(models, rec, label), None, list(paragraphs or []), [table],
+                   error_plots(errs, rec, Path(out_dir), tol))
+
+
+def write_evaluation_report(title: str, command: str, models: dict[str, Any], rec: Recording, out_dir: str | Path,
+                            tol: Tolerance, inputs: list[tuple[str, Any]], label: str,
+                            paragraphs: list[str] | None = None) -> Path:
+    """``evaluate``/``recalibrate --report``: ``report.html`` (+ its PNGs) in ``out_dir``; returns the page."""
+    from app.provenance import provenance
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    files = []
-    lines = [f"# Calibration comparison: {cmp.robot}", "", comparison_table(cmp, with_paper), ""]
-    a = cmp.analysis
-    if "observability" in a:
-        o = a["observability"]
-        lines += ["## Observability of the training set", "",
-                  f"Condition number {o['condition_number']:.3g}; {o['rank']} of {o['parameters']} directions kept.",
-                  "", o["warning"] or "Every parameter direction is observable.", ""]
-        lines += [f"- {d}" for d in o["hidden_directions"]] + [""]
-    if "nominal_error_joint_correlation_test" in a:
-        corr = a["nominal_error_joint_correlation_test"]
-        lines += ["## Correlation of the nominal position error with each joint (test set, Table II)", "",
-                  "| " + " | ".join(f"q{j + 1}" for j in range(len(corr))) + " |",
-                  "|" + "---:|" * len(corr), "| " + " | ".join(f"{c:.3f}" for c in corr) + " |", ""]
-    for key, title in (("paired_tests_vs_nominal", "the nominal model"), ("paired_tests_vs_fbf13", "the Fourier CDC")):
-        if key in a:
-            lines += [f"## Paired tests against {title} (test position error, method minus reference)", "",
-                      "| method | mean difference mm | t-test p | Wilcoxon p |", "|---|---:|---:|---:|"]
-            lines += [f"| {m} | {t['mean_difference']:.3f} | {t['t_pvalue']:.2e} | {t['wilcoxon_pvalue']:.2e} |"
-                      for m, t in a[key].items()] + [""]
-    if "local_parameter_spread" in a:
-        lines += ["## Spread of local parameters over clusters (Table V)", "",
-                  "| parameter | mean | std | min | max |", "|---|---:|---:|---:|---:|"]
-        lines += [f"| {n} | {s['mean']:.4g} | {s['std']:.4g} | {s['min']:.4g} | {s['max']:.4g} |"
-                  for n, s in a["local_parameter_spread"].items()] + [""]
-    # Fig. 8: error along the test path (stop-and-go poses along Cartesian lines) per method.
-    fig, ax = plt.subplots(figsize=(11, 4.5))
-    for m, e in cmp.test_errors.items():
-        ax.plot(e.position_mm, lw=0.8, label=m)
-    ax.set_xlabel("test pose (along the approach lines)")
-    ax.set_ylabel("position error [mm]")
-    ax.legend(ncol=5, fontsize=7)
-    ax.grid(alpha=0.3)
-    files.append(save_figure(fig, out / "error_along_path.png"))
-    lines += ["## Plots", "", "![error along the test path](error_along_path.png)", ""]
-    if "fbf13" in cmp.models:
-        interp = cmp.models["fbf13"].interpolator  # type: ignore[attr-defined]
-        s = np.asarray(interp.singular_values())
-        fig, ax = plt.subplots(figsize=(6, 4))
-        ax.semilogy(np.arange(1, len(s) + 1), s, "o-")
-        ax.set_xlabel("singular value index")
-        ax.set_ylabel("singular value of the Fourier coefficient matrix")
-        ax.grid(alpha=0.3)
-        files.append(save_figure(fig, out / "fourier_singular_values.png"))
-        fig, ax = plt.subplots(figsize=(6, 5))
-        im = ax.imshow(np.abs(interp.right_singular_vectors().T), cmap="viridis")
-        ax.set_title("|V^T| of the Fourier coefficient matrix")
-        fig.colorbar(im)
-        files.append(save_figure(fig, out / "fourier_v_heatmap.png"))
-        lines += ["![Fourier singular values](fourier_singular_values.png)", "",
-                  "![Fourier V heat map](fourier_v_heatmap.png)", ""]
-    md = out / "report.md"
-    atomic_write_text(md, "\n".join(lines))
-    files.append(md)
-    return files
+    record = provenance(inputs)
+    section = evaluation_section(title, models, rec, out, tol, label, paragraphs)
+    return write_html(Page(title, command, tol, record, [section]), out)
 
 
-def save_figure(fig: object, path: Path) -> Path:
-    """Save a matplotlib figure as PNG (tight layout, 110 dpi), atomically, and close it."""
-    import matplotlib.pyplot as plt
+def write_demo_report(out_dir: Path, comparisons: dict[str, Comparison], tests: dict[str, Recording],
+                      summary: dict[str, Any], tolerance: Tolerance | None = None, report_dir: Path | None = None,
+                      inputs: list[tuple[str, Any]] | tuple = ()) -> Path:
+    """The demo's ``report.html`` (in ``report_dir``, default ``out_dir``): one section per arm.
 
-    try:
-        fig.tight_layout()  # type: ignore[attr-defined]
-        with atomic_open(path, binary=True) as f:
-            fig.savefig(f, format="png", dpi=110)  # type: ignore[attr-defined]
-    finally:
-        plt.close(fig)  # type: ignore[arg-type]
-    return path
+    Each arm's ``report.md`` and PNG plots go to ``out_dir/<robot>/``.
+    """
+    from app.provenance import provenance
+
+    tolerance = tolerance or Tolerance()
+    cfg, planted = summary["config"], summary["planted"]
+    intro = (f"Both arms simulated with planted geometric errors (joint origins sigma {planted['origin_std_mm']} mm, "
+             f"axis tilts sigma {planted['tilt_std_deg']} deg) and a gravity joint compliance "
+             f"({planted['compliance_rms_mm']} mm RMS); mocap noise {planted['mocap_noise_mm']} mm per axis per frame, "
+             f"{cfg['mocap_rate_hz']:g} Hz, carried over Zenoh on loopback ({summary['mocap_frames_received']} frames "
+             f"received). Anchor grid step {cfg['anchor_step_deg']:g} deg, {cfg['validation_poses']} random validation "
+             f"poses per arm as the test set. Seed {cfg['seed']}, simulated time x{cfg['time_scale']:g}.")
+    sections = []
+    for robot, cmp in comparisons.items():
+        r = summary["robots"][robot]
+        text = (f"{r['samples']} samples measured of {r['targets']} targets ({r['skipped_targets']} skipped): "
+                f"{r['train_samples']} training, {r['cpa_samples']} CPA sweep, {r['test_samples']} test; collection "
+                f"took {r['collect_seconds']:.1f} s. Recordings {robot}/train.csv, {robot}/cpa.csv, {robot}/test.csv; "
+                f"models in {robot}/models/.")
+        sections.append(comparison_section(cmp, tests[robot], Path(out_dir) / robot, tolerance, False, robot,
+                                           f"{robot}'s validation poses", [text]))
+    page = Page("cellcal demo: calibration of the simulated cell", f"cellcal demo --seed {cfg['seed']}"
+                + (" --full" if cfg["full"] else ""), tolerance, provenance(inputs), sections, [intro])
+    return write_html(page, report_dir or out_dir)

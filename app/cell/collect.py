@@ -23,7 +23,7 @@ from collections.abc import Mapping, Sequence
 import sqlite3
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 from tqdm import tqdm
@@ -144,7 +144,7 @@ class _Session:
 
     def __init__(self, store: SessionStore, plan: Plan, driver: RobotDriver, mocap: MocapSource, body_id: int,
                  safety: CellSafety, others: Mapping[str, np.ndarray], other_drivers: Mapping[str, RobotDriver],
-                 config: CollectConfig) -> None:
+                 config: CollectConfig, clock: Callable[[], float] = time.monotonic) -> None:
         self.store, self.plan, self.driver, self.mocap = store, plan, driver, mocap
         self.body_id, self.safety, self.config = body_id, safety, config
         self.static_others = {k: np.asarray(v, dtype=float) for k, v in others.items()}
@@ -153,8 +153,10 @@ class _Session:
         self.lower, self.upper = spec.lower_rad, spec.upper_rad
         self.dirs = np.zeros(6, dtype=int)
         self.index: int | None = None  # the target being visited
-        self.t_offset = time.time() - store.created_wall()
-        self.t_start = time.monotonic()
+        # sample stamps: seconds since the session was created (0 for the first run: it was created just now)
+        self.t_offset = time.time() - store.created_wall() if store.done() else 0.0
+        self.clock = clock
+        self.t_start = clock()
         self.moved = False  # no move commanded yet in this run
 
     def all_drivers(self) -> dict[str, RobotDriver]:
@@ -231,7 +233,7 @@ class _Session:
             raise _MeasureFailed(f"the arm moved {math.degrees(drift):.4f} deg during the dwell")
         p, quat, std_p, std_r, err = average_frames(frames)
         return Sample(index, q_before, p, quat, std_p, std_r, err, len(frames),
-                      self.t_offset + time.monotonic() - self.t_start, self.dirs.copy(), attempts)
+                      self.t_offset + self.clock() - self.t_start, self.dirs.copy(), attempts)
 
     def visit(self, index: int) -> str | None:
         """Measure and store one target; returns the skip reason, or None when measured.
@@ -388,7 +390,8 @@ def _open_store(session_dir: Path, driver: RobotDriver, plan: Plan | None, info:
 def run_session(session_dir: str | Path, driver: RobotDriver, mocap: MocapSource, safety: CellSafety, *,
                 body_id: int, plan: Plan | None = None, others: Mapping[str, np.ndarray] | None = None,
                 other_drivers: Mapping[str, RobotDriver] | None = None, config: CollectConfig = CollectConfig(),
-                resume: bool = False, retry_skipped: bool = False, progress: bool = True) -> SessionResult:
+                resume: bool = False, retry_skipped: bool = False, progress: bool = True,
+                clock: Callable[[], float] = time.monotonic) -> SessionResult:
     """Run (or resume) a guided collection session. Devices must be connected.
 
     Args:
@@ -405,6 +408,8 @@ def run_session(session_dir: str | Path, driver: RobotDriver, mocap: MocapSource
         resume: continue an existing session at the first target not yet recorded.
         retry_skipped: on resume, also try the targets recorded as skipped again.
         progress: show a progress bar with an ETA.
+        clock: time source of the sample stamps [s] (a simulated cell passes its simulated clock, so a seeded
+            run stamps the same times).
 
     Raises:
         SessionLocked: another process uses the folder (refused before anything is read or moved).
@@ -423,7 +428,8 @@ def run_session(session_dir: str | Path, driver: RobotDriver, mocap: MocapSource
             store.forget_skipped()
         done = store.done()
         pending = [i for i in range(len(plan)) if i not in done]
-        session = _Session(store, plan, driver, mocap, body_id, safety, others or {}, other_drivers or {}, config)
+        session = _Session(store, plan, driver, mocap, body_id, safety, others or {}, other_drivers or {}, config,
+                           clock)
         try:
             n_new = session.run(pending, len(done), progress)
         except _Halt as h:

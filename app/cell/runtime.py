@@ -17,8 +17,9 @@ from __future__ import annotations
 import logging
 import math
 import socket
+import time
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -33,6 +34,10 @@ log = logging.getLogger("cellcal.app")
 #: Parking poses [deg]: each arm turned away from the other, so the other arm can sweep its workspace.
 PARK_DEG: dict[str, tuple[float, ...]] = {"R1": (-90.0, -20.0, -20.0, 0.0, 0.0, 0.0),
                                           "R2": (90.0, 0.0, 0.0, 0.0, 0.0, 0.0)}
+
+
+#: Mocap frame periods a stepped simulated clock moves on per wait for frames (see :class:`SettledFrames`).
+FRAMES_PER_STEP = 4
 
 
 def park_q(robot: str) -> np.ndarray:
@@ -55,6 +60,10 @@ class SimCellOptions:
         seed: seed of everything planted or random; each robot gets its own derived seed.
         mocap_world: report the markers in a hidden mocap world frame derived from ``seed`` (as a real Motive
             does; what ``cellcal register --sim`` registers) instead of each arm's base frame.
+        deterministic: run the simulated clock in steps of the workflow thread (``SimClock(stepped=True)``) and
+            hand the collector every frame due by then before it reads on (``SettledFrames``): each dwell
+            window then holds the same frames on every run, so the same seed measures the same values. The
+            workflow must run in the thread that opens the cell.
     """
 
     time_scale: float = 20.0
@@ -65,6 +74,7 @@ class SimCellOptions:
     settle_time_s: float = 0.15
     seed: int = 0
     mocap_world: bool = False
+    deterministic: bool = False
 
 
 class SettledFrames(MocapSource):
@@ -77,16 +87,32 @@ class SettledFrames(MocapSource):
     arrive after the flush. This wrapper drops them by capture time (the simulated mocap stamps frames with
     the simulated clock), which restores the real cell's timing.
 
+    On a stepped clock (``SimClock(stepped=True)``) a read also waits, in real time, until every frame captured
+    up to the present simulated instant has come through Zenoh (``in_sync``), and moves the clock on by ``step_s``
+    at a time while it waits for frames: what a read returns is then a function of simulated time only, not of
+    when the bridge thread or Zenoh happened to deliver (they are not faked, only waited for).
+
     Args:
         inner: the mocap source the collector would read (the Zenoh subscriber).
         clock: the simulated clock the frames are stamped with.
         latency_s: the simulated mocap's capture-to-delivery latency [s].
+        step_s: how far a stepped clock moves on per wait for frames [s]: a few frame periods, so a dwell window
+            costs a few round trips to the bridge thread; which frames a window holds is decided by their
+            stamps (:func:`~app.cell.mocap_window.collect_window`), not by how many each read returns.
+        in_sync: whether every frame due by now has reached ``inner`` (needed with a stepped clock).
+        sync_timeout_s: longest real wait for that [s]; then the read fails as a driver timeout.
     """
 
-    def __init__(self, inner: MocapSource, clock: Any, latency_s: float) -> None:
+    def __init__(self, inner: MocapSource, clock: Any, latency_s: float, step_s: float | None = None,
+                 in_sync: Callable[[], bool] | None = None, sync_timeout_s: float = 10.0) -> None:
+        if clock.stepped and (in_sync is None or step_s is None):
+            raise ConfigError("SimCell", "mocap", "a stepped clock needs a step and an in-sync check")
         self.inner = inner
         self.clock = clock
         self.latency_s = latency_s
+        self.step_s = step_s
+        self.in_sync = in_sync
+        self.sync_timeout_s = sync_timeout_s
         self._not_before = -math.inf
 
     @property
@@ -101,6 +127,8 @@ class SettledFrames(MocapSource):
         """Frames captured since the last flush, waiting up to ``timeout_s`` simulated seconds for one."""
         if timeout_s == 0.0:
             self._not_before = self.clock.now() - self.latency_s
+        if self.clock.stepped:
+            return self._read_stepped(timeout_s)
         deadline = self.clock.now() + timeout_s
         while True:
             remaining = max(0.0, deadline - self.clock.now())
@@ -108,6 +136,25 @@ class SettledFrames(MocapSource):
             frames = [f for f in got if f.capture_time >= self._not_before]
             if frames or remaining <= 0.0:
                 return frames
+
+    def _read_stepped(self, timeout_s: float) -> list[Any]:
+        """Every frame due by now, in capture order; while none, the clock steps ``step_s`` (to the deadline)."""
+        deadline = self.clock.now() + timeout_s
+        while True:
+            self._wait_in_sync()
+            frames = [f for f in self.inner.read(0.0) if f.capture_time >= self._not_before]
+            if frames or self.clock.now() >= deadline:
+                return sorted(frames, key=lambda f: (f.frame_number, f.body_id))
+            self.clock.advance(min(self.step_s, deadline - self.clock.now()))  # type: ignore[type-var]
+
+    def _wait_in_sync(self) -> None:
+        from drivers.errors import DriverTimeout
+
+        limit = time.monotonic() + self.sync_timeout_s
+        while not self.in_sync():  # type: ignore[misc]
+            if time.monotonic() > limit:
+                raise DriverTimeout("sim:mocap", "the frames due by now to come through zenoh", self.sync_timeout_s)
+            time.sleep(2e-4)
 
     def close(self) -> None:
         self.inner.close()
@@ -178,6 +225,7 @@ class SimCell:
         self.subscriber: Any = None
         self.bridge: Any = None
         self._sim_mocap: Any = None
+        self.clock: Any = None
         self._sessions: list[Any] = []
 
     def park_q(self, robot: str) -> np.ndarray:
@@ -193,7 +241,7 @@ class SimCell:
 
         c = self.config
         try:
-            clock = SimClock(c.time_scale)
+            self.clock = clock = SimClock(c.time_scale, stepped=c.deterministic)
             for name, truth in cell_truths(self.cell, c.seed, c.errors, self.robots).items():
                 r = self.cell.robot(name)
                 driver = SimRobotDriver(name, r.robot, truth, q0=self.park_q(name), clock=clock,
@@ -221,7 +269,8 @@ class SimCell:
             self.subscriber = ZenohMocapSource(self.cell.name, session=collector_session,
                                                rigid_bodies=list(names.values()), max_buffered_frames=100_000)
             self.subscriber.connect()
-            self.mocap = SettledFrames(self.subscriber, clock, self._sim_mocap.config.latency_s)
+            self.mocap = SettledFrames(self.subscriber, clock, self._sim_mocap.config.latency_s,
+                                       FRAMES_PER_STEP / c.mocap_rate_hz, self._frames_in_sync)
             for body in names.values():
                 if not wait_for_subscriber(bridge_session, mocap_key(self.cell.name, body), 10.0):
                     raise DriverError("zenoh", f"the collector session never matched the bridge on "
@@ -236,6 +285,14 @@ class SimCell:
             self.close()
             raise
         return self
+
+    def _frames_in_sync(self) -> bool:
+        """Whether every frame the simulated mocap had due by now went through the bridge and reached the collector."""
+        sim, bridge, sub = self._sim_mocap, self.bridge, self.subscriber
+        if sim is None or bridge is None or sub is None:
+            return False
+        published = bridge.published
+        return sim.delivered_all_due() and published == sim.delivered and sub.stats.received >= published
 
     @property
     def frames_received(self) -> int:

@@ -79,7 +79,7 @@ def validation_plan(robot: str, safety: CellSafety, others: Mapping[str, np.ndar
 
 
 def session_plan(robot: str, safety: CellSafety, others: Mapping[str, np.ndarray], spec: PlanSpec = PlanSpec(),
-                 q_start: np.ndarray | None = None) -> Plan:
+                 q_start: np.ndarray | None = None, anchors: Plan | None = None) -> Plan:
     """Anchors (+1 deg perturbations), optional CPA sweeps, validation poses; checked safe as a whole.
 
     Args:
@@ -88,6 +88,8 @@ def session_plan(robot: str, safety: CellSafety, others: Mapping[str, np.ndarray
         others: joint angles [rad] of the other arms during the session (their parking poses).
         spec: what to include.
         q_start: where the arm starts; the move from there to the first target is checked too.
+        anchors: the anchor clusters to use instead of the grid of ``spec``'s steps (e.g. the optimal design of
+            :mod:`app.cell.design_plan`); its params are kept in the plan's.
 
     Raises:
         ConfigError: bad steps.
@@ -95,8 +97,11 @@ def session_plan(robot: str, safety: CellSafety, others: Mapping[str, np.ndarray
     """
     if spec.n_validation < 0:
         raise ConfigError("plan", "validation", f"expected a number >= 0 of validation poses, got {spec.n_validation}")
-    targets = plan_anchor_grid(robot, q2_range_deg=Q2_RANGE_DEG, q2_step_deg=spec.q2_step_deg,
-                               q3_step_deg=spec.q3_step_deg)
+    if anchors is None:
+        targets = plan_anchor_grid(robot, q2_range_deg=Q2_RANGE_DEG, q2_step_deg=spec.q2_step_deg,
+                                   q3_step_deg=spec.q3_step_deg)
+    else:
+        targets = list(anchors.targets)
     n_anchors = len({t.cluster for t in targets})
     if spec.cpa:
         targets += plan_cpa_sweeps(robot, CPA_RANGES_DEG, step_deg=spec.cpa_step_deg, base_deg=CPA_BASE_DEG,
@@ -104,8 +109,9 @@ def session_plan(robot: str, safety: CellSafety, others: Mapping[str, np.ndarray
     if spec.n_validation:
         targets += list(validation_plan(robot, safety, others, spec.n_validation, seed=spec.seed,
                                         wrist_range_deg=spec.wrist_range_deg).targets)
-    plan = build_plan(targets, robot=robot, q2_step_deg=spec.q2_step_deg, q3_step_deg=spec.q3_step_deg,
-                      anchors=n_anchors, cpa=spec.cpa, cpa_step_deg=spec.cpa_step_deg,
-                      validation=spec.n_validation, seed=spec.seed)
+    grid = {"q2_step_deg": spec.q2_step_deg, "q3_step_deg": spec.q3_step_deg} if anchors is None else anchors.params
+    plan = build_plan(targets, **{**grid, "robot": robot, "anchors": n_anchors, "cpa": spec.cpa,
+                                  "cpa_step_deg": spec.cpa_step_deg, "validation": spec.n_validation,
+                                  "seed": spec.seed})
     safety.check_plan(robot, plan.q, others, q_start)
     return plan

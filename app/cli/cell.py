@@ -7,7 +7,8 @@ from pathlib import Path
 from typing import Any, Callable
 
 from app.analysis.fitting import fitter_for
-from app.cli.common import cell_spec, log, write_json
+from app.cli.common import add_report_options, cell_spec, command_line, epoch_bar, log, show_progress, \
+    tolerance_from_args, write_json
 from calibration.errors import CellCalError
 
 
@@ -34,17 +35,73 @@ def cmd_plan(args: argparse.Namespace) -> int:
     from app.cell.session_plan import PlanSpec, session_plan
 
     cell = cell_spec(args)
-    cell.robot(args.robot)
+    robot = cell.robot(args.robot)
     others = {n: park_q(n) for n in cell.robots if n != args.robot}
+    safety = CellSafety(cell)
     spec = PlanSpec(q2_step_deg=args.q2_step, q3_step_deg=args.q3_step, cpa=args.cpa,
                     n_validation=args.validation, seed=args.seed)
-    plan = session_plan(args.robot, CellSafety(cell), others, spec, park_q(args.robot))
+    anchors, figs = None, None
+    if args.design == "optimal":
+        anchors, figs = _optimal_anchors(args, robot, safety, others, park_q(args.robot))
+    elif args.budget is not None:
+        raise CellCalError("--budget applies to --design optimal only (the grid's size is set by its steps)")
+    plan = session_plan(args.robot, safety, others, spec, park_q(args.robot), anchors)
     plan.save(args.out)
     kinds: dict[str, int] = {}
     for t in plan.targets:
         kinds[t.kind] = kinds.get(t.kind, 0) + 1
     print(f"{args.robot}: {len(plan)} targets ({', '.join(f'{v} {k}' for k, v in kinds.items())}), checked safe "
           f"with the other arms parked -> {args.out}")
+    if figs is not None:
+        from app.cell.design_plan import figures_table
+
+        print(figures_table(figs))
+    write_json(args.json, {"robot": args.robot, "design": args.design, "targets": len(plan), "kinds": kinds,
+                           "params": plan.params, "out": str(args.out),
+                           **({"figures": {k: f.to_json() for k, f in figs.items()}} if figs else {})})
+    return 0
+
+
+def _optimal_anchors(args: argparse.Namespace, robot: Any, safety: Any, others: dict[str, Any], q_start: Any) -> Any:
+    """``plan --design optimal``: the D-optimal clusters and their figures beside the paper's grid."""
+    from app.cell.design_plan import DesignSpec, check_budget, optimal_plan
+    from calibration.parameterisation import MinimalParameterisation
+
+    if args.budget is None:
+        raise CellCalError("--design optimal needs --budget N (poses to measure, clusters of 7)")
+    check_budget(args.budget)
+    _check_noise(args.noise_mm)
+    spec = DesignSpec(budget=args.budget, noise_mm=args.noise_mm, seed=args.seed)
+    return optimal_plan(args.robot, MinimalParameterisation(robot.model(), fit_tool=True), safety, others, spec,
+                        q_start)
+
+
+def _check_noise(noise_mm: float) -> None:
+    if not noise_mm > 0 or noise_mm == float("inf"):
+        raise CellCalError(f"--noise-mm must be a finite number > 0 [mm], got {noise_mm}")
+
+
+def cmd_select(args: argparse.Namespace) -> int:
+    from app.cell.design_plan import check_budget, figures_table
+    from app.cli.common import read_recording_arg
+    from calibration.design import select_recording
+    from calibration.parameterisation import MinimalParameterisation
+    from calibration.recording import write_recording
+
+    robot = cell_spec(args).robot(args.robot)
+    rec = read_recording_arg(args.data, robot)
+    n_clusters = len(set(rec.clusters().tolist()))
+    check_budget(args.budget, n_clusters, unit="clusters")
+    _check_noise(args.noise_mm)
+    par = MinimalParameterisation(robot.model(), fit_tool=True)
+    sel = select_recording(par, rec, args.budget, args.noise_mm)
+    write_recording(rec.subset(sel.rows), args.out)
+    print(f"{args.robot}: {len(sel.clusters)} of {n_clusters} clusters ({len(sel.rows)} of {len(rec)} samples) "
+          f"-> {args.out}")
+    print(figures_table({"selected": sel.selected, "all clusters": sel.every}))
+    write_json(args.json, {"robot": args.robot, "data": str(args.data), "out": str(args.out), "budget": args.budget,
+                           "clusters": list(sel.clusters), "samples": int(len(sel.rows)),
+                           "figures": {"selected": sel.selected.to_json(), "all": sel.every.to_json()}})
     return 0
 
 
@@ -87,7 +144,7 @@ def cmd_collect(args: argparse.Namespace) -> int:
                              f"{config.speed_fraction:g} of full speed")
         try:
             result = collect_arm(rt, safety, args.robot, plan, Path(args.session), config,
-                                 resume=args.resume, progress=not args.no_progress)
+                                 resume=args.resume, progress=show_progress(args))
         except SessionAborted:
             _print_events(args.session)
             raise
@@ -141,6 +198,7 @@ def cmd_export(args: argparse.Namespace) -> int:
             raise CellCalError(f"unknown target kind {bad[0] if bad else args.kinds!r}; valid: {', '.join(KINDS)}")
     n = export(args.session, args.out, kinds)
     print(f"{n} samples -> {args.out}")
+    write_json(args.json, {"session": str(args.session), "samples": n, "kinds": kinds, "out": str(args.out)})
     return 0
 
 
@@ -150,12 +208,15 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     from app.cli.cell_options import confirm_motion, motion_config, open_runtime, safety_for
     from app.cell.collect import export
     from app.demo.run import collect_arm
-    from app.analysis.recalibrate import check_model_dir, decide_and_install, model_in_service
+    from app.analysis.recalibrate import check_model_dir, decide_and_install, model_in_service, \
+        model_to_rebase, rebase_candidate
+    from app.provenance import provenance, with_provenance
     from app.cell.session_plan import validation_plan
     from calibration.recording import read_recording
 
     cell = cell_spec(args)
     robot = cell.robot(args.robot)
+    tolerance = tolerance_from_args(args)
     runtime = open_runtime(cell, args, robots=(args.robot,))  # a real cell's devices and registration: checked now
     model_dir = check_model_dir(args.model_dir)
     if args.validation < 1:
@@ -164,6 +225,8 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     if args.session:
         _require_session(args.session)
     service = model_in_service(model_dir, args.robot, robot.model())  # another robot's model: stop before motion
+    if args.rebase:
+        model_to_rebase(model_dir, service)  # nothing to rebase: stop before motion
     if service.problem:
         log.warning("the model in service %s is unusable (%s); a valid candidate will replace it",
                     model_dir / "current.yaml", service.problem)
@@ -183,8 +246,8 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         confirm_motion(args, f"{args.robot} will visit {len(plan) if plan is not None else 0} training and "
                              f"{len(val_plan)} validation targets at {config.speed_fraction:g} of full speed")
         if plan is not None:
-            collect_arm(rt, safety, args.robot, plan, session, config, progress=not args.no_progress)
-        collect_arm(rt, safety, args.robot, val_plan, work / "validation", config, progress=not args.no_progress)
+            collect_arm(rt, safety, args.robot, plan, session, config, progress=show_progress(args))
+        collect_arm(rt, safety, args.robot, val_plan, work / "validation", config, progress=show_progress(args))
     read = lambda p: read_recording(p, robot.robot.lower_rad, robot.robot.upper_rad)  # noqa: E731
     export(session, work / "train.csv", kinds=("anchor", "perturb"))
     cpa = None
@@ -192,27 +255,72 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         export(session, work / "cpa.csv", kinds=("cpa",))
         cpa = read(work / "cpa.csv")
     export(work / "validation", work / "validation.csv")
-    fitter = fitter_for(robot, read(work / "train.csv"), cpa)
-    model, _ = fitter.fit(args.method)
-    decision = decide_and_install(model_dir, model, read(work / "validation.csv"), robot.model())
+    rebased = None
+    if args.rebase:
+        model, rebased = rebase_candidate(model_dir, service, read(work / "train.csv"))
+        print(rebased.summary())
+    else:
+        from calibration.methods import FitOptions
+
+        fitter = fitter_for(robot, read(work / "train.csv"), cpa, FitOptions(epoch_progress=epoch_bar(args)))
+        model, _ = fitter.fit(args.method)
+    inputs = [("train", work / "train.csv"), ("cpa", work / "cpa.csv" if cpa else None),
+              ("validation", work / "validation.csv")]
+    if args.rebase:
+        inputs.append(("model rebased", model_dir / "current.yaml"))
+    model = with_provenance(model, provenance(inputs))
+    validation = read(work / "validation.csv")
+    in_service = service.model
+    report_inputs = inputs + ([("model in service", model_dir / "current.yaml")] if in_service is not None else [])
+    report_record = provenance(report_inputs)  # before the decision moves the model in service to previous/
+    decision = decide_and_install(model_dir, model, validation, robot.model())
     print(decision.summary())
     print(f"model in service: {decision.current_path}" + (f"; previous one archived as {decision.archived}"
                                                            if decision.archived else ""))
-    write_json(args.json, decision.to_json())
+    write_json(args.json, {**decision.to_json(), **({} if rebased is None else {"rebase": {
+        "samples": rebased.n_samples, "fitted_directions": rebased.fitted, "held": list(rebased.held),
+        "position_mean_mm": {"before": rebased.mean_before_mm, "after": rebased.mean_after_mm}}})})
+    if args.report:
+        from app.analysis.report import Page, evaluation_section, write_html
+
+        models = {f"candidate {model.method}": model}
+        if in_service is not None:
+            models[f"in service {in_service.method}"] = in_service
+        section = evaluation_section(f"Recalibration of {args.robot}", models, validation, args.report, tolerance,
+                                     "the fresh validation poses", [decision.summary()])
+        page = write_html(Page(section.title, command_line(args), tolerance, report_record, [section]), args.report)
+        print(f"report: {page}")
     return 0
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
     from app.demo.run import DemoConfig, run_demo, summary_table
 
-    result = run_demo(args.out, cell_spec(args), DemoConfig(full=args.full, seed=args.seed,
-                                                        progress=not args.no_progress))
+    if args.anchor_step is not None and not 0.5 <= args.anchor_step <= 90.0:
+        raise CellCalError(f"--anchor-step must be in [0.5, 90] deg, got {args.anchor_step:g}")
+    if args.validation < 1:
+        raise CellCalError(f"--validation must be at least 1, got {args.validation}")
+    config = DemoConfig(full=args.full, anchor_step_deg=args.anchor_step, seed=args.seed, n_validation=args.validation,
+                        methods=_demo_methods(args.methods), progress=show_progress(args),
+                        tolerance=tolerance_from_args(args), report_dir=Path(args.report) if args.report else None)
+    result = run_demo(args.out, cell_spec(args), config)
     print(summary_table(result.summary))
     print(f"demo finished in {result.seconds:.1f} s; {result.summary['mocap_frames_received']} mocap frames "
           f"received over zenoh")
     print(f"summary: {result.out_dir / 'summary.json'}")
     print(f"report: {result.report}")
+    write_json(args.json, {**result.summary, "summary": str(result.out_dir / "summary.json"),
+                           "report": str(result.report)})
     return 0
+
+
+def _demo_methods(text: str | None) -> tuple[str, ...] | None:
+    """``--methods`` of the demo: None (every method) or the parsed comma-separated list."""
+    if not text:
+        return None
+    from app.analysis.compare import parse_methods
+
+    return tuple(parse_methods(text))
 
 
 def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
@@ -227,7 +335,25 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--q3-step", type=float, default=5.0, help="anchor grid q3 step [deg]")
     p.add_argument("--cpa", action="store_true", help="add single-joint sweeps (needed by the cpa method)")
     p.add_argument("--validation", type=int, default=0, help="random validation poses to add (the test set)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the validation poses")
+    p.add_argument("--seed", type=int, default=0, help="seed of the validation poses (and of the optimal design's "
+                                                        "candidates)")
+    p.add_argument("--design", choices=("grid", "optimal"), default="grid",
+                   help="grid: the paper's anchor grid (default); optimal: D-optimal clusters that move joints 1, 4, "
+                        "5, 6 widely and spread over (q2, q3), within the limits and the safety model")
+    p.add_argument("--budget", type=int, help="--design optimal: poses to measure (whole clusters of 7)")
+    p.add_argument("--noise-mm", type=float, default=0.05,
+                   help="measurement noise assumed for the predicted parameter uncertainty [mm]")
+    p.add_argument("--json", help="write the plan summary (target counts per kind, and the design figures) as JSON")
+
+    p = add("select", cmd_select, "choose the most informative clusters of a recording (the plan --design optimal "
+                                  "criterion) and write them as a recording subset")
+    p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
+    p.add_argument("--data", required=True, help="training recording CSV or Welding_Motoman folder")
+    p.add_argument("--budget", required=True, type=int, help="clusters to keep (at least 3)")
+    p.add_argument("--out", required=True, help="the subset recording CSV")
+    p.add_argument("--noise-mm", type=float, default=0.05,
+                   help="measurement noise assumed for the predicted parameter uncertainty [mm]")
+    p.add_argument("--json", help="write the chosen clusters and the design figures as JSON")
 
     p = add("collect", cmd_collect, "guided collection session of one arm (durable, resumable)")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
@@ -241,6 +367,7 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--out", required=True, help="recording CSV")
     p.add_argument("--kinds", help="comma-separated target kinds to include (anchor, perturb, cpa, validation); all "
                                    "by default")
+    p.add_argument("--json", help="write the sample count as JSON")
     p = add("recalibrate", cmd_recalibrate, "fit a new model, compare it with the one in service on fresh validation "
                                             "poses, replace it only if better")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
@@ -248,14 +375,25 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     src.add_argument("--session", help="reuse the training samples of this session")
     src.add_argument("--plan", help="collect a new training session from this plan")
     p.add_argument("--model-dir", required=True, help="folder of the model in service (current.yaml, previous/)")
-    p.add_argument("--method", default="pi+fbf13", choices=METHODS)
+    p.add_argument("--method", default="pi+fbf13", choices=METHODS,
+                   help="the method of the new model (default pi+fbf13)")
+    p.add_argument("--rebase", action="store_true", help="refit only the base and tool-marker frames of the model in "
+                                                         "service on the training poses (a few clusters of a new day) "
+                                                         "instead of fitting a new model (--method is not used)")
     p.add_argument("--validation", type=int, default=30, help="fresh validation poses to measure")
     p.add_argument("--validation-seed", type=int, help="seed of the validation poses (default: from the clock)")
     p.add_argument("--json", help="write the decision with both figures as JSON")
+    add_report_options(p, "candidate and model in service on the validation poses")
     add_motion_options(p)
     p = add("demo", cmd_demo, "the main job on the simulated cell: collect both arms over zenoh, fit, evaluate, "
                               "report")
     p.add_argument("--out", default="demo_out", help="output folder (an earlier demo there is replaced)")
     p.add_argument("--full", action="store_true", help="the paper's 248-anchor design (5 deg steps; ~4x longer)")
     p.add_argument("--seed", type=int, default=0, help="seed of the planted errors, the noise and the validation poses")
+    p.add_argument("--anchor-step", type=float, help="anchor grid q2/q3 step [deg] (default 10, 5 with --full; a "
+                                                     "coarse grid, e.g. 40, makes a short demo)")
+    p.add_argument("--validation", type=int, default=50, help="random validation poses per arm (the test set)")
+    p.add_argument("--methods", help="comma-separated methods to fit (default: all)")
+    p.add_argument("--json", help="write the summary (per arm and method: test statistics) as JSON")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    add_report_options(p, "per arm: every method's errors, tables and plots (default DIR: --out)")

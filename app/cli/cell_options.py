@@ -114,7 +114,8 @@ def open_runtime(cell: Any, args: argparse.Namespace, robots: Sequence[str] | No
     if args.sim:
         from app.cell.runtime import SimCell, SimCellOptions
 
-        return SimCell(cell, SimCellOptions(time_scale=args.time_scale, seed=args.seed, mocap_world=not registered))
+        return SimCell(cell, SimCellOptions(time_scale=args.time_scale, seed=args.seed, mocap_world=not registered,
+                                            deterministic=True))  # the same --seed measures the same values
     from app.cell.real_cell import RealCell
 
     return RealCell(cell, robots, registered=registered, reset_alarms=args.reset_alarms)

@@ -11,8 +11,8 @@ import sys
 from typing import Any, Callable
 
 from app.cli.cell import add_cell_parsers
-from app.cli.common import (cell_spec, check_output_args, fitter_from_args, load_model_for, read_recording_arg,
-                             write_json)
+from app.cli.common import (add_report_options, cell_spec, check_output_args, command_line, fitter_from_args,
+                             load_model_for, read_recording_arg, show_progress, tolerance_from_args, write_json)
 from app.cli.dual import add_dual_parsers
 from app.cli.real import add_real_parsers
 from app.jobs.cli import add_job_parsers
@@ -24,13 +24,20 @@ log = logging.getLogger("cellcal.app")
 def cmd_fit(args: argparse.Namespace) -> int:
     from calibration.models import save_model
 
+    from app.provenance import provenance, with_provenance
+
     fitter, _ = fitter_from_args(args)
     model, seconds = fitter.fit(args.method)
+    if args.days is not None:
+        model.info["days"] = args.days.to_json()  # the recordings' frames and figures, kept with the model
     if model.info.get("warning"):
         print(f"warning: {model.info['warning']}", file=sys.stderr)
-    save_model(model, args.out)
+    save_model(with_provenance(model, provenance([*(("train", t) for t in args.train), ("cpa", args.cpa)])), args.out)
     print(f"{args.method}: {model.n_parameters} parameters fitted on {len(fitter.train)} samples in {seconds:.3f} s "
           f"-> {args.out}")
+    write_json(args.json, {"robot": args.robot, "method": args.method, "n_parameters": model.n_parameters,
+                           "samples": len(fitter.train), "fit_seconds": seconds, "out": str(args.out),
+                           "warning": model.info.get("warning") or ""})
     return 0
 
 
@@ -49,6 +56,8 @@ def cmd_predict(args: argparse.Namespace) -> int:
     write_table(args.out, {"x": p[:, 0], "y": p[:, 1], "z": p[:, 2], "qw": quat[:, 0], "qx": quat[:, 1],
                            "qy": quat[:, 2], "qz": quat[:, 3]})
     print(f"{len(q)} poses -> {args.out}")
+    write_json(args.json, {"robot": model.robot, "method": model.method, "poses": len(q),
+                           "outside_fitted_region": int(outside.sum()), "out": str(args.out)})
     return 0
 
 
@@ -72,6 +81,7 @@ def _model_arg(args: argparse.Namespace) -> tuple[Any, Any]:
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from calibration.metrics import error_stats, errors
 
+    tolerance = tolerance_from_args(args)
     model, robot = _model_arg(args)
     test = read_recording_arg(args.test, robot)
     result = {"robot": model.robot, "method": model.method, "samples": len(test),
@@ -79,26 +89,52 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     pos, ori = result["test"]["position_mm"], result["test"]["orientation_deg"]
     print(f"{model.method} on {len(test)} samples: position mean {pos['mean']:.3f} std {pos['std']:.3f} "
           f"max {pos['max']:.3f} mm; orientation mean {ori['mean']:.3f} max {ori['max']:.3f} deg")
+    result["frames"] = _test_frame_check(model, test, "recording, against the data the model was fitted on,")
     write_json(args.json, result)
+    if args.report:
+        from app.analysis.report import write_evaluation_report
+
+        page = write_evaluation_report(f"Evaluation of {args.model} on {args.test}", command_line(args),
+                                       {model.method: model}, test, args.report, tolerance,
+                                       [("model", args.model), ("test", args.test)], "the test recording")
+        print(f"report: {page}")
     return 0
+
+
+def _test_frame_check(model: Any, test: Any, subject: str) -> dict[str, Any]:
+    """:func:`calibration.frames.check_test` of ``model`` on ``test``, its message printed as a warning; JSON."""
+    from calibration.frames import check_test
+
+    check = check_test(model, test, subject)
+    if check.found:
+        print(f"warning: {check.message()} No kinematic model can remove that; the errors reported are "
+              "without the frame fit.", file=sys.stderr)
+    return check.to_json()
 
 
 def cmd_rebase(args: argparse.Namespace) -> int:
     from calibration.models import save_model
-    from calibration.rebase import rebase
+    from calibration.rebase import rebase, rebase_auto
 
     robot = cell_spec(args).robot(args.robot)
     model = load_model_for(args.model, robot)
     data = read_recording_arg(args.data, robot)
-    rebased, result = rebase(model, data, tolerance=args.tolerance, rotations=not args.translation_only)
+    if args.translation_only or args.all_directions:
+        rebased, result = rebase(model, data, tolerance=args.tolerance, rotations=args.all_directions)
+        choice = "translations" if args.translation_only else "frames"
+    else:
+        rebased, result, choice = rebase_auto(model, data, tolerance=args.tolerance)
     if not result.converged:
         raise CellCalError(f"rebase of {args.model} on {args.data} did not converge ({result.reason.value}); "
                            "nothing written")
-    save_model(rebased, args.out)
+    from app.provenance import provenance, with_provenance
+
+    save_model(with_provenance(rebased, provenance([("model", args.model), ("data", args.data)])), args.out)
     print(result.summary())
     print(f"rebased {model.method} model -> {args.out}")
     write_json(args.json, {"robot": robot.name, "model": str(args.model), "data": str(args.data),
-                           "samples": result.n_samples, "fitted_directions": result.fitted, "held": list(result.held),
+                           "samples": result.n_samples, "directions": choice, "fitted_directions": result.fitted,
+                           "held": list(result.held),
                            "position_mean_mm": {"before": result.mean_before_mm, "after": result.mean_after_mm},
                            "T_base_correction": result.T_base_correction.tolist(),
                            "T_tool_correction": result.T_tool_correction.tolist(), "out": str(args.out)})
@@ -135,11 +171,19 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     methods = parse_methods(args.methods)
+    tolerance = tolerance_from_args(args)
     robot = cell_spec(args).robot(args.robot)
     files = {f"{Path(f).stem} (file)": load_model_for(f, robot) for f in args.model}
     fitter, robot = fitter_from_args(args)
     test = read_recording_arg(args.test, robot)
-    cmp = run_comparison(fitter, test, methods, files=files)
+    cmp = run_comparison(fitter, test, methods, progress=show_progress(args), files=files)
+    cmp.analysis["frames"] = {"training": None if args.frame_check is None else args.frame_check.to_json()}
+    if args.days is not None:
+        cmp.analysis["days"] = args.days.to_json()
+    checked = next((m for m in (cmp.recommended, "pi", "nls1") if m in cmp.models), None)
+    if checked is not None:
+        cmp.analysis["frames"]["test"] = {"model": checked, **_test_frame_check(
+            cmp.models[checked], test, f"test recording, against the {checked} fit of the training recording,")}
     warning = cmp.analysis["observability"]["warning"]
     if warning:
         print(f"warning: {warning}", file=sys.stderr)
@@ -147,7 +191,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     print(recommendation_line(cmp))
     write_json(args.json, cmp.to_json())
     if args.report:
-        files = write_report(cmp, test, args.report, with_paper=args.robot == "R1")
+        inputs = [*(("train", t) for t in args.train), ("cpa", args.cpa), ("test", args.test)] + [("model", f) for f in args.model]
+        files = write_report(cmp, test, args.report, args.robot == "R1", tolerance, inputs, command_line(args))
         print(f"report: {files[-1]}")
     return 0
 
@@ -162,22 +207,28 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
     result = run_diagnose(args.robot, args.train, heldout=args.test, model=args.model, json_path=args.json,
                           report_dir=args.report, model_out=args.out, cell=args.cell,
-                          options=DiagnoseOptions(compliance_form=args.compliance_form))
+                          options=DiagnoseOptions(compliance_form=args.compliance_form),
+                          tolerance=tolerance_from_args(args), progress=show_progress(args))
     print(result.verdict)
     return 0
 
 
 def _add_fit_inputs(p: argparse.ArgumentParser) -> None:
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
-    p.add_argument("--train", required=True, help="training recording CSV or Welding_Motoman folder")
+    p.add_argument("--train", required=True, action="append",
+                   help="training recording CSV or Welding_Motoman folder; repeat it to fit several recordings "
+                        "(days) as one arm with a pair of frames per recording")
     p.add_argument("--cpa", help="single-joint sweep recording for circular point analysis")
     p.add_argument("--a", type=float, default=1641.0, help="orientation weight (1641: 1 mm ~ 1 deg)")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="cellcal", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="cellcal", description="Calibrate the arms of a robot cell from motion-capture "
+                                     "recordings, plan with the calibrated models and put them into service.")
     parser.add_argument("--cell", help="cell.yaml (default: the packaged Motoman cell)")
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars (they are off anyway when "
+                                                                    "stderr is not a terminal)")
     parser.add_argument("--version", action="version", version=f"cellcal {version()}")
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -190,20 +241,23 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = add("fit", cmd_fit, "fit one method and save the model")
     _add_fit_inputs(p)
-    p.add_argument("--method", required=True, choices=METHODS)
+    p.add_argument("--method", required=True, choices=METHODS, help="the calibration method to fit")
     p.add_argument("--out", required=True, help="model file (.yaml or .json)")
+    p.add_argument("--json", help="write the method, parameter and sample counts and the fit time as JSON")
     p = add("predict", cmd_predict, "tool poses of a model for joint angles")
-    p.add_argument("--model", required=True)
+    p.add_argument("--model", required=True, help="the model file (fit --out)")
     p.add_argument("--robot", help="the arm the model is for (R1, R2): refuse a model of another robot (joints "
                                    "are checked against the limits of the model's robot either way)")
     p.add_argument("--joints", required=True, help="CSV with q1..q6 [rad] (header) or 6 headerless columns")
-    p.add_argument("--out", required=True)
+    p.add_argument("--out", required=True, help="poses CSV to write (x, y, z [mm], qw, qx, qy, qz)")
+    p.add_argument("--json", help="write the pose count and how many lie outside the fitted region as JSON")
     p = add("evaluate", cmd_evaluate, "accuracy of a model on a recording")
-    p.add_argument("--model", required=True)
+    p.add_argument("--model", required=True, help="the model file (fit --out)")
     p.add_argument("--robot", help="the arm the model is for (R1, R2): refuse a model of another robot (joints "
                                    "are checked against the limits of the model's robot either way)")
-    p.add_argument("--test", required=True)
+    p.add_argument("--test", required=True, help="recording CSV or Welding_Motoman folder to evaluate on")
     p.add_argument("--json", help="write the statistics as JSON")
+    add_report_options(p, "the model's errors and plots")
     p = add("rebase", cmd_rebase, "move a fitted model of any kind onto a new day: refit only its base and tool-marker "
                                   "frames on a few poses")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
@@ -213,7 +267,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", help="write the corrections and the error before/after as JSON")
     p.add_argument("--tolerance", type=float, default=1e-2,
                    help="frame directions below this fraction of the largest singular value are held at zero")
-    p.add_argument("--translation-only", action="store_true", help="fit only the two translations (6 parameters)")
+    which = p.add_mutually_exclusive_group()
+    which.add_argument("--translation-only", action="store_true", help="fit only the two translations (6 parameters)")
+    which.add_argument("--all-directions", action="store_true",
+                       help="fit both frames' translations and rotations (12); default: the translations unless "
+                            "the rotations do better on clusters held out in turn (by more than a standard error)")
     p = add("export-urdf", cmd_export_urdf, "write a model's calibrated geometry as a URDF (revolute chain, flange "
                                             "and tool-marker frames, joint limits; says what a URDF cannot hold)")
     p.add_argument("--model", required=True, help="the model file (constant, pi, cdc, physics, diagnosed, rebased)")
@@ -223,12 +281,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", help="write what was exported and what was lost as JSON")
     p = add("compare", cmd_compare, "the paper's comparison table for every method")
     _add_fit_inputs(p)
-    p.add_argument("--test", required=True)
+    p.add_argument("--test", required=True, help="recording CSV or Welding_Motoman folder the methods never fit on")
     p.add_argument("--methods", default="all", help="all, or a comma-separated list")
     p.add_argument("--model", action="append", default=[], metavar="FILE",
                    help="a saved model (a diagnose result, ...) to add as a row of its own; repeatable")
     p.add_argument("--json", help="write the comparison as JSON")
-    p.add_argument("--report", help="write Markdown tables and PNG plots into this folder")
+    add_report_options(p, "every method's errors, tables and plots; also report.md and the PNGs")
     p = add("diagnose", cmd_diagnose, "find the physics the model in use left out, model it, show the fit improve")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
     p.add_argument("--train", "--data", dest="train", required=True,
@@ -238,7 +296,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "the old name)")
     p.add_argument("--model", help="model in use (default: the geometric NLS fit of --train)")
     p.add_argument("--json", help="write the report (schema cellcal.diagnose/1)")
-    p.add_argument("--report", help="write the report as Markdown with plots into this folder")
+    add_report_options(p, "the verdict, held-out accuracy before/after and plots; also report.md and the PNGs")
     p.add_argument("--out", help="save the refitted geometry + physics model")
     p.add_argument("--compliance-form", choices=("auto", "masses", "mass_free"), default="auto",
                    help="joint compliance from the robot YAML's link masses, or in the mass-free gravity form "
@@ -251,21 +309,21 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def version() -> str:
-    """The installed package's version (the source tree's pyproject when run uninstalled)."""
-    from importlib.metadata import PackageNotFoundError
-    from importlib.metadata import version as package_version
+    """The installed package's version (one definition: :func:`app.provenance.version`)."""
+    from app.provenance import version as cellcal_version
 
-    try:
-        return package_version("cellcal")
-    except PackageNotFoundError:
-        return "unknown (not installed)"
+    return cellcal_version()
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run one subcommand: 0 on success, 2 on bad input or a refused action, 130 on Ctrl-C."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
+    args.argv = list(argv) if argv is not None else sys.argv[1:]
+    from app.progress import configure, install_logging
+
+    install_logging(logging.INFO if args.verbose else logging.WARNING)  # log lines go through the bars
+    configure(quiet=args.quiet)
     try:
         check_output_args(args)
         return args.func(args)

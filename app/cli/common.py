@@ -38,14 +38,36 @@ def load_model_for(path: str, robot: Any) -> Any:
 
 
 def fitter_from_args(args: argparse.Namespace) -> Any:
-    """A Fitter for ``--robot``/``--train``/``--cpa``/``--a``, and the robot's cell entry."""
-    from app.analysis.fitting import fitter_for
+    """A Fitter for ``--robot``/``--train``/``--cpa``/``--a``, and the robot's cell entry.
+
+    The training recording's frames are checked first (:func:`app.analysis.fitting.checked_fitter_for`): a frame
+    problem is printed as a warning and the fitter fits the frames before the kinematics; the check is kept in
+    ``args.frame_check`` for the command's JSON. Several ``--train`` recordings make one arm with per-recording
+    frames (:func:`app.analysis.fitting.days_fitter_for`): what differs between them is printed and kept in
+    ``args.days``.
+    """
+    import sys
+
+    from app.analysis.fitting import checked_fitter_for
     from calibration.methods import FitOptions
 
     robot = cell_spec(args).robot(args.robot)
-    train = read_recording_arg(args.train, robot)
+    trains = [read_recording_arg(path, robot) for path in args.train]
     cpa = read_recording_arg(args.cpa, robot) if args.cpa else None
-    return fitter_for(robot, train, cpa, FitOptions(a=args.a)), robot
+    args.days = None
+    if len(trains) > 1:
+        from app.analysis.fitting import days_fitter_for
+
+        args.days = days_fitter_for(robot, trains, cpa, FitOptions(a=args.a, epoch_progress=epoch_bar(args)))
+        print(args.days.summary(), file=sys.stderr)
+        args.frame_check = None
+        return args.days.fitter, robot
+    options = FitOptions(a=args.a, epoch_progress=epoch_bar(args))
+    fitter, args.frame_check = checked_fitter_for(robot, trains[0], cpa, options)
+    if args.frame_check.found:
+        print(f"warning: {args.frame_check.message()} The base and tool frames are fitted first, then the "
+              "kinematics.", file=sys.stderr)
+    return fitter, robot
 
 
 #: File outputs every subcommand may take; ``demo --out`` is a folder and is left to the demo.
@@ -66,9 +88,63 @@ def check_output_args(args: argparse.Namespace) -> None:
             check_output_path(value)
 
 
+def show_progress(args: argparse.Namespace) -> bool:
+    """Whether this command shows progress bars: the CLI's policy (a terminal, no ``--quiet``) and no
+    ``--no-progress``."""
+    from app.progress import enabled
+
+    return enabled() and not getattr(args, "no_progress", False)
+
+
+def epoch_bar(args: argparse.Namespace) -> Any:
+    """The training-epoch bar of the neural interpolators (``FitOptions.epoch_progress``), or None without bars."""
+    if not show_progress(args):
+        return None
+    from app.progress import EpochBar
+
+    return EpochBar("nn/ae training")
+
+
 def write_json(path: str | None, data: dict[str, Any]) -> None:
     """Write ``data`` as JSON to ``path`` atomically; nothing when ``path`` is None."""
     if path:
         from calibration.files import atomic_write_text
 
         atomic_write_text(path, json.dumps(data, indent=1))
+
+
+def add_report_options(p: argparse.ArgumentParser, what: str) -> None:
+    """``--report DIR`` and the acceptance tolerance of its ``report.html`` (issue 12)."""
+    p.add_argument("--report", metavar="DIR", help=f"write report.html (self-contained: {what}, pass/fail against "
+                                                   "the tolerance, ISO 9283 where poses repeat, input hashes) here")
+    p.add_argument("--tolerance-mm", type=float, default=1.0, metavar="MM",
+                   help="acceptance: largest position error allowed on the evaluation poses [mm] (cold spray: 1)")
+    p.add_argument("--tolerance-deg", type=float, default=1.0, metavar="DEG",
+                   help="acceptance: largest orientation error allowed on the evaluation poses [deg] (cold spray: 1)")
+
+
+def tolerance_from_args(args: argparse.Namespace) -> Any:
+    """The report's :class:`~app.analysis.report.Tolerance` from ``--tolerance-mm``/``--tolerance-deg``, with
+    ``--report`` checked to be a folder or a new path (call before any work, so bad input writes nothing).
+
+    Raises:
+        CellCalError: a tolerance that is not a positive finite number; ConfigError: ``--report`` is a file.
+    """
+    from pathlib import Path
+
+    from app.analysis.report import Tolerance
+    from calibration.errors import ConfigError
+
+    report = getattr(args, "report", None)
+    if report is not None and (report == "" or (Path(report).exists() and not Path(report).is_dir())):
+        raise ConfigError(Path(report), "", "--report must be a folder (report.html is written into it)")
+    return Tolerance(args.tolerance_mm, args.tolerance_deg)
+
+
+def command_line(args: argparse.Namespace) -> str:
+    """The command as run, for the report (``cellcal`` and the arguments given)."""
+    import shlex
+    import sys
+
+    argv = getattr(args, "argv", None)
+    return "cellcal " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))

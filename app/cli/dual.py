@@ -6,7 +6,7 @@ import argparse
 from typing import Any, Callable
 
 from app.cli.cell_options import add_motion_options
-from app.cli.common import cell_spec, write_json
+from app.cli.common import cell_spec, show_progress, write_json
 
 
 def _model_pair(spec: str | None, where: str, cell: Any) -> dict[str, Any]:
@@ -37,10 +37,14 @@ def cmd_plan_dual(args: argparse.Namespace) -> int:
     cell = cell_spec(args)
     models = _model_pair(args.models, "--models", cell)
     T_rel = read_pose(args.relative_pose) if args.relative_pose else None
+    from app.progress import bar
+
     planner = DualPlanner(cell, models.get("R1"), models.get("R2"), PlannerOptions(compile=not args.no_compile))
     path = read_path(args.path, planner)
     q0 = np.radians(Q_REF_DEG)
-    plan = planner.plan(path, relative_pose(planner, q0) if T_rel is None else T_rel, q0)
+    with bar(total=len(path), enabled=show_progress(args), desc="plan-dual", unit="waypoint") as waypoints:
+        plan = planner.plan(path, relative_pose(planner, q0) if T_rel is None else T_rel, q0,
+                            on_waypoint=lambda r: waypoints.update(1))
     ms = [w.solve_ms for w in plan.waypoints]
     summary = {"waypoints": len(plan.waypoints), "converged": plan.converged, "failed": plan.failed,
                "models": plan.models, "solve_ms_median": float(np.median(ms)),
@@ -154,6 +158,7 @@ def cmd_preview(args: argparse.Namespace) -> int:
     if not args.html and not args.serve:
         raise ModelError("preview needs --html OUT (a static page) or --serve (a live viewer)")
     result = preview(cell_spec(args), args.plan, html_out=args.html, serve=args.serve)
+    write_json(args.json, result.summary())
     if result.html_path:
         print(f"{result.n_frames} frames -> {result.html_path}")
     if result.url:
@@ -170,6 +175,7 @@ def cmd_export_targets(args: argparse.Namespace) -> int:
 
     n = export_targets(args.plan, cell_spec(args), args.out, args.frame, args.skip_failed)
     print(f"{n} targets ({args.frame} frame) -> {args.out}")
+    write_json(args.json, {"plan": str(args.plan), "targets": n, "frame": args.frame, "out": str(args.out)})
     return 0
 
 
@@ -203,9 +209,11 @@ def add_dual_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--plan", required=True, help="plan file (dual or collection)")
     p.add_argument("--html", help="write a self-contained HTML page")
     p.add_argument("--serve", action="store_true", help="start a live meshcat viewer and wait for Enter")
+    p.add_argument("--json", help="write a summary as JSON (waypoints, largest residual, files, joint-limit check)")
     p = add("export-targets", cmd_export_targets, "controller targets (rad, pulses, poses) from a dual plan")
     cell_arg(p)
     p.add_argument("--plan", required=True, help="plan file written by plan-dual")
     p.add_argument("--out", required=True, help="targets file (.csv or .json)")
     p.add_argument("--frame", choices=("flange", "tool"), default="flange", help="pose frame of the targets")
     p.add_argument("--skip-failed", action="store_true", help="leave out unsolved waypoints instead of refusing")
+    p.add_argument("--json", help="write the target count and frame as JSON")

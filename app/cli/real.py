@@ -15,7 +15,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from app.cli.common import cell_spec, write_json
+from app.cli.common import cell_spec, show_progress, write_json
 from calibration.errors import CellCalError
 
 log = logging.getLogger("cellcal.app")
@@ -51,6 +51,8 @@ def cmd_mocap_bridge(args: argparse.Namespace) -> int:
     h = service.health()
     print(f"mocap-bridge stopped: {h.frames_published} frames published, {h.connections} connection(s) and "
           f"{h.handshakes} handshake(s) with Motive")
+    write_json(args.json, {"frames_published": h.frames_published, "connections": h.connections,
+                           "handshakes": h.handshakes})
     return 0
 
 
@@ -64,10 +66,12 @@ def cmd_router(args: argparse.Namespace) -> int:
     stop = stop_on_signals()
     session = open_session(config)
     try:
-        _ready(f"router: zenoh router {session.info.zid()} listening on {list(config.listen)}; stop with Ctrl-C")
+        zid = str(session.info.zid())
+        _ready(f"router: zenoh router {zid} listening on {list(config.listen)}; stop with Ctrl-C")
         stop.wait()
     finally:
         session.close()
+    write_json(args.json, {"zid": zid, "listen": list(config.listen)})
     return 0
 
 
@@ -89,9 +93,11 @@ def cmd_fake_controller(args: argparse.Namespace) -> int:
 
     run_fake_controller(cell, stop, initial_q={name: park_q(name) for name in cell.controller.groups},
                         servo_on_delay_s=args.servo_on_delay, on_ready=ready)
+    points = 0
     if served:
         points = sum(isinstance(m, (JointTrajPtFull, JointTrajPtFullEx)) for m in served[0].received)
         print(f"fake-controller stopped: trajectory points received: {points}", flush=True)
+    write_json(args.json, {"served": bool(served), "trajectory_points_received": points})
     return 0
 
 
@@ -124,6 +130,7 @@ def cmd_fake_motive(args: argparse.Namespace) -> int:
         print(f"fake-motive stopped: {motive.frames_sent} frames sent", flush=True)
     finally:
         reader.close()
+    write_json(args.json, {"frames_sent": motive.frames_sent, "bodies": bodies, "seed": args.seed})
     return 0
 
 
@@ -151,7 +158,7 @@ def cmd_register(args: argparse.Namespace) -> int:
             return 0
         confirm_motion(args, f"{args.robot} will visit {len(q_plan)} registration poses (±{args.sweep:g} deg) at "
                              f"{config.speed_fraction:g} of full speed")
-        run = measure_registration(rt, safety, args.robot, q_plan, config, progress=not args.no_progress)
+        run = measure_registration(rt, safety, args.robot, q_plan, config, progress=show_progress(args))
     reg = run.registration()
     r = run.result
     out: dict[str, Any] = {"robot": args.robot, "poses": len(run.q), "skipped": [list(s) for s in run.skipped],
@@ -193,11 +200,14 @@ def add_real_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p = add("mocap-bridge", cmd_mocap_bridge, "on the mocap PC: Motive (NatNet) -> Zenoh until stopped")
     p.add_argument("--frame-timeout", type=float, default=2.0,
                    help="seconds without a frame after which Motive counts as gone and is reconnected")
-    add("router", cmd_router, "a Zenoh router (eclipse-zenoh's router mode) for cells with more than two machines")
+    p.add_argument("--json", help="write the counters at stop (frames published, connections) as JSON")
+    p = add("router", cmd_router, "a Zenoh router (eclipse-zenoh's router mode) for cells with more than two machines")
+    p.add_argument("--json", help="write the router's id and endpoints at stop as JSON")
     p = add("fake-controller", cmd_fake_controller,
             "rehearsal: a fake MotoROS controller serving every motion group of the cell with simulated arms")
     p.add_argument("--servo-on-delay", type=float, default=1.0,
                    help="seconds START_TRAJ_MODE takes to turn the servos on (a real controller: up to ~10)")
+    p.add_argument("--json", help="write the trajectory points received, at stop, as JSON")
     p = add("fake-motive", cmd_fake_motive,
             "rehearsal: a fake Motive streaming the fake controller's arms at 240 Hz in a hidden world frame")
     p.add_argument("--seed", type=int, default=0, help="seed of the hidden world frame, markers and twins")
@@ -207,6 +217,7 @@ def add_real_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--origin-std-mm", type=float, default=0.5, help="twins' planted joint-origin errors [mm]")
     p.add_argument("--tilt-std-deg", type=float, default=0.05, help="twins' planted joint-axis tilts [deg]")
     p.add_argument("--compliance-mm", type=float, default=1.0, help="twins' gravity compliance, RMS [mm]")
+    p.add_argument("--json", help="write the frames sent and the body ids, at stop, as JSON")
     p = add("register", cmd_register, "register the mocap world to an arm's base and its marker to the flange")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
     p.add_argument("--center", help="centre pose of the registration plan, 6 comma-separated angles [deg] "

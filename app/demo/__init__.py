@@ -1,2 +1,2 @@
-"""``cellcal demo``: the whole workflow on the simulated cell (:mod:`~app.demo.run`) and its HTML report
-(:mod:`~app.demo.report`)."""
+"""``cellcal demo``: the whole workflow on the simulated cell (:mod:`~app.demo.run`); its HTML report is
+:func:`app.analysis.report.write_demo_report`."""

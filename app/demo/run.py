@@ -26,7 +26,7 @@ import math
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from app.cell.collect import CollectConfig, SessionResult, export, run_session
 from app.cell.planning import Plan
@@ -54,6 +54,8 @@ class DemoConfig:
 
     Attributes:
         full: the paper's 248-anchor design (5 deg steps) instead of the reduced 10 deg grid.
+        anchor_step_deg: the anchor grid's q2/q3 step [deg]; None: 5 with ``full``, else 10 (a coarser grid makes
+            a short demo, e.g. for tests).
         seed: seed of the planted errors, the mocap noise and the validation poses.
         n_validation: validation poses per arm (the test set).
         robots: the arms to calibrate, in order.
@@ -61,9 +63,12 @@ class DemoConfig:
         sim: the simulated cell (its seed is replaced by ``seed``).
         collect: collection settings.
         progress: show progress bars.
+        tolerance: the acceptance :class:`~app.analysis.report.Tolerance` (None: 1 mm and 1 deg).
+        report_dir: where ``report.html`` goes (None: the output folder).
     """
 
     full: bool = False
+    anchor_step_deg: float | None = None
     seed: int = 0
     n_validation: int = 50
     robots: tuple[str, ...] = ("R1", "R2")
@@ -71,6 +76,8 @@ class DemoConfig:
     sim: SimCellOptions = field(default_factory=SimCellOptions)
     collect: CollectConfig = DEMO_COLLECT
     progress: bool = True
+    tolerance: Any = None
+    report_dir: Path | None = None
 
     def chosen_methods(self) -> tuple[tuple[str, ...], dict[str, str]]:
         """(methods to fit, method -> reason for each one left out)."""
@@ -78,7 +85,7 @@ class DemoConfig:
         return methods, {m: "not requested" for m in DEMO_METHODS if m not in methods}
 
     def plan_spec(self) -> PlanSpec:
-        step = 5.0 if self.full else 10.0
+        step = self.anchor_step_deg or (5.0 if self.full else 10.0)
         return PlanSpec(q2_step_deg=step, q3_step_deg=step, cpa=True, n_validation=self.n_validation, seed=self.seed)
 
 
@@ -112,15 +119,18 @@ class Recordings:
 
 
 def collect_arm(sim: SimCell, safety: CellSafety, robot: str, plan: Plan | None, session_dir: Path,
-                config: CollectConfig, *, resume: bool = False, progress: bool = True) -> SessionResult:
+                config: CollectConfig, *, resume: bool = False, progress: bool = True,
+                clock: Callable[[], float] | None = None) -> SessionResult:
     """Collect one arm's session while the other arms stay parked, then park the arm again.
 
     The other arms' live poses (their drivers) feed every safety check. ``plan`` may be None on resume.
+    ``clock`` stamps the samples (default: wall time; the demo passes the simulated clock).
     """
     driver = sim.drivers[robot]
     others = sim.others(robot)
     result = run_session(session_dir, driver, sim.mocap_for(robot), safety, body_id=sim.body_ids[robot], plan=plan,
-                         other_drivers=others, config=config, resume=resume, progress=progress)
+                         other_drivers=others, config=config, resume=resume, progress=progress,
+                         **({} if clock is None else {"clock": clock}))
     move_safely(driver, sim.park_q(robot), safety, others, config.speed_fraction, config.settle_timeout_s)
     return result
 
@@ -152,13 +162,18 @@ def fit_and_compare(cell: CellSpec, robot: str, rec: Recordings, methods: tuple[
     """Fit ``methods`` on the training set, evaluate them on the test set, save every model as YAML."""
     from app.analysis.compare import run_comparison
     from app.analysis.fitting import fitter_for
+    from app.provenance import provenance, with_provenance
+    from app.progress import EpochBar
+    from calibration.methods import FitOptions
     from calibration.models import save_model
 
-    fitter = fitter_for(cell.robot(robot), rec.train, rec.cpa)
+    epochs = EpochBar(f"{robot} nn/ae training") if progress else None
+    fitter = fitter_for(cell.robot(robot), rec.train, rec.cpa, FitOptions(epoch_progress=epochs))
     cmp = run_comparison(fitter, rec.test, methods, progress)
     model_dir.mkdir(parents=True, exist_ok=True)
+    record = provenance([("train", rec.train_csv), ("cpa", rec.cpa_csv)])
     for m, model in cmp.models.items():
-        save_model(model, model_dir / f"{m}.yaml")
+        save_model(with_provenance(model, record), model_dir / f"{m}.yaml")
     return cmp
 
 
@@ -200,7 +215,7 @@ def run_demo(out_dir: str | Path, cell: CellSpec, config: DemoConfig = DemoConfi
         UnsafeTarget: a planned target is unsafe (nothing moves).
         SessionAborted: a collection session failed repeatedly.
     """
-    from app.demo.report import write_html
+    from app.analysis.report import write_demo_report
 
     t0 = time.monotonic()
     out = Path(out_dir)
@@ -211,7 +226,7 @@ def run_demo(out_dir: str | Path, cell: CellSpec, config: DemoConfig = DemoConfi
     clear_previous(out, tuple(cell.robots))
     methods, left_out = config.chosen_methods()
     safety = CellSafety(cell)
-    sim_config = replace(config.sim, seed=config.seed)
+    sim_config = replace(config.sim, seed=config.seed, deterministic=True)  # the same seed, the same numbers
     robots: dict[str, Any] = {}
     comparisons: dict[str, Any] = {}
     tests: dict[str, Any] = {}
@@ -224,7 +239,7 @@ def run_demo(out_dir: str | Path, cell: CellSpec, config: DemoConfig = DemoConfi
             plan.save(out / robot / "plan.json")
             log.info("%s: %d targets (%s)", robot, len(plan), plan.params)
             sessions[robot] = collect_arm(sim, safety, robot, plan, out / robot / "session", config.collect,
-                                          progress=config.progress)
+                                          progress=config.progress, clock=sim.clock.now)
         frames = sim.frames_received
     for robot in config.robots:
         rec = export_recordings(out / robot / "session", out / robot, cell, robot)
@@ -239,7 +254,9 @@ def run_demo(out_dir: str | Path, cell: CellSpec, config: DemoConfig = DemoConfi
                "planted": {"origin_std_mm": sim_config.errors.offset_std_mm,
                            "tilt_std_deg": math.degrees(sim_config.errors.tilt_std_rad),
                            "compliance_rms_mm": sim_config.errors.compliance_mm, "mocap_noise_mm": sim_config.noise_pos_mm}}
-    report = write_html(out, comparisons, tests, summary)
+    inputs = [(f"{robot} {kind}", path) for robot in config.robots for kind in ("train", "cpa", "test")
+              if (path := out / robot / f"{kind}.csv").exists()]
+    report = write_demo_report(out, comparisons, tests, summary, config.tolerance, config.report_dir, inputs)
     seconds = time.monotonic() - t0
     summary["seconds"] = round(seconds, 3)
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=1))

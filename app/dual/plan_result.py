@@ -57,12 +57,13 @@ class PlanResult:
 
     Attributes:
         waypoints: per-waypoint results in path order.
-        T_wp_gun: the relative pose that was held, shape (4, 4) [mm].
+        T_wp_gun: the relative pose that was held, shape (4, 4) [mm]; None for a hand-written plan that records none
+            (nothing is then drawn or checked as the target).
         models: model kind per robot, e.g. ``{"R1": "cdc", "R2": "constant"}``.
     """
 
     waypoints: tuple[WaypointResult, ...]
-    T_wp_gun: np.ndarray
+    T_wp_gun: np.ndarray | None
     models: dict[str, str]
 
     @property
@@ -85,7 +86,7 @@ class PlanResult:
             wps.append({"R1": w.q_R1.tolist(), "R2": w.q_R2.tolist(), "converged": w.converged, "reason": w.reason,
                         "residual_mm": w.residual_mm, "residual_deg": w.residual_deg, "track_mm": w.track_mm,
                         "clearance_mm": w.clearance_mm, "solve_ms": w.solve_ms})
-        return {"schema": PLAN_SCHEMA, "kind": "dual", "models": self.models, "T_wp_gun": self.T_wp_gun.tolist(),
+        return {"schema": PLAN_SCHEMA, "kind": "dual", "models": self.models, "T_wp_gun": None if self.T_wp_gun is None else self.T_wp_gun.tolist(),
                 "converged": self.converged, "waypoints": wps}
 
     @classmethod
@@ -114,7 +115,15 @@ class PlanResult:
                                       float(w.get("track_mm", nan)), nan, float(w.get("clearance_mm", nan)), nan,
                                       float(w.get("solve_ms", nan)), 0, ok,
                                       w.get("reason", "") if ok else (w.get("reason") or "not marked converged")))
-        return cls(tuple(out), np.asarray(d.get("T_wp_gun", np.eye(4)), dtype=float), dict(d.get("models", {})))
+        if d.get("T_wp_gun") is None:
+            return cls(tuple(out), None, dict(d.get("models", {})))
+        try:
+            T = np.asarray(d["T_wp_gun"], dtype=float)
+        except (TypeError, ValueError):
+            T = np.full(0, np.nan)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)) or not np.allclose(T[3], [0, 0, 0, 1]):
+            raise DataError(source, None, "T_wp_gun", "expected a 4x4 homogeneous transform of finite numbers [mm]")
+        return cls(tuple(out), T, dict(d.get("models", {})))
 
 
 def save_plan(plan: PlanResult, path: str | Path) -> None:

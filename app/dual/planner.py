@@ -22,7 +22,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -296,7 +296,8 @@ class DualPlanner:
         return WaypointResult(q[:6].copy(), q[6:].copy(), res_mm, res_deg, trk_mm, trk_deg, clear, sing, ms, it,
                               not reasons, "; ".join(reasons))
 
-    def plan(self, path: np.ndarray, T_wp_gun: np.ndarray, q_start: np.ndarray, warm: bool = True) -> PlanResult:
+    def plan(self, path: np.ndarray, T_wp_gun: np.ndarray, q_start: np.ndarray, warm: bool = True,
+             on_waypoint: Callable[[WaypointResult], None] | None = None) -> PlanResult:
         """Solve a path, each waypoint warm-started from the previous solution.
 
         Args:
@@ -305,6 +306,7 @@ class DualPlanner:
             q_start: guess for the first waypoint [rad], shape (12,).
             warm: start each waypoint from the previous solution (a failed one restarts from the last good one);
                 when False every waypoint starts from ``q_start`` (the cold benchmark).
+            on_waypoint: called with each waypoint's result as it is solved (a progress bar).
         """
         path = np.asarray(path, dtype=float)
         if path.ndim != 3 or path.shape[1:] != (4, 4) or path.shape[0] == 0:
@@ -316,6 +318,8 @@ class DualPlanner:
             if r.converged and warm:
                 q = np.concatenate([r.q_R1, r.q_R2])
             out.append(r)
+            if on_waypoint is not None:
+                on_waypoint(r)
         n_bad = sum(not r.converged for r in out)
         if n_bad:
             logger.info("%d of %d waypoints not solved; first: %s", n_bad, len(out),

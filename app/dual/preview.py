@@ -1,17 +1,28 @@
-"""meshcat preview of a plan: both arms drawn from their kinematic model, tool frames, floor, animation.
+"""meshcat preview of a plan: both arms, the gun and the workpiece, name plates, path traces, a waypoint readout.
 
 ``preview(cell, plan, html_out=...)`` writes one self-contained HTML page (meshcat's viewer JavaScript is
 inlined and every drawing command is an embedded ``data:`` URL, so it opens from disk with no server and no
 network). The commands are recorded in-process by a small window object that stands in for meshcat's
 zmq server, so no server process or port is needed; ``serve=True`` uses a real meshcat server instead (for
-a live view in the browser).
+a live view in the browser, bound to 127.0.0.1; :mod:`app.dual.meshcat_server`).
 
 Plans: any plan file (:func:`app.cell.plan_file.read_plan`): a dual plan draws both arms per waypoint; a
 single-robot collection plan moves its arm target by target while the other keeps its previous configuration
-(the home configuration q = 0 at the start).
-Arms are drawn as the cell's collision capsules (:mod:`app.cell.capsules`, the model the safety checks and the
-dual planner use, radii from the robot YAMLs): a cylinder and two end spheres per capsule, no meshes. Viewer
-units are metres.
+(the home configuration q = 0 at the start). A plan with a joint beyond its limit is refused, as
+export-targets refuses it.
+
+What is drawn (viewer units are metres):
+
+* the arms as the cell's collision capsules (:mod:`app.cell.capsules`, the model the safety checks and the
+  dual planner use, radii from the robot YAMLs): a cylinder and two end spheres per capsule, no meshes;
+* what each arm carries, R1's spray gun and R2's workpiece, from the tool YAML's ``geometry`` (flange frame;
+  :class:`cell_config.loader.ToolShape`), and the tool (marker) frame as a triad;
+* "R1 gun" / "R2 workpiece" name plates above the bases;
+* the path trace: the gun's and the workpiece's tool points over the plan (cell frame, a line with a dot per
+  waypoint) and, moving with the workpiece, the relative pose's target point and where the gun was in the
+  workpiece frame at each waypoint (on the target to the plan's residual);
+* the waypoint readout (:mod:`app.dual.preview_readout`): index, joints of both arms [deg]
+  and the residual the plan records, with a slider, prev/next and play, on the static page and the live one.
 """
 
 from __future__ import annotations
@@ -26,13 +37,14 @@ from typing import Any
 
 import numpy as np
 
-from app.cell.capsules import SEGMENTS, CellCapsules
-from calibration.errors import DataError
+from app.cell.capsules import CellCapsules
+from app.dual.preview_plan import PreviewPlan, limit_margin, plan_frames, read_preview_plan
 from calibration.files import atomic_write_text
 from cell_config.loader import CellSpec
 
+__all__ = ["PreviewPlan", "PreviewResult", "RecordingWindow", "plan_frames", "preview", "read_preview_plan"]
+
 logger = logging.getLogger("cellcal.app")
-COLORS = {"R1": 0xFF7F0E, "R2": 0x1F77B4}  # R1 orange (gun), R2 blue (workpiece)
 
 
 @dataclass(frozen=True)
@@ -43,67 +55,43 @@ class PreviewResult:
         n_frames: animation frames (plan waypoints).
         html_path: the static page, or None.
         url: the live viewer's address when served, or None.
+        kind: the plan's kind, ``dual`` or ``collection``.
+        max_residual_mm, max_residual_deg: largest relative-pose residual the plan records [mm], [deg]; None when
+            it records none (a collection plan, a hand-written plan).
+        min_limit_margin_deg: smallest distance of any joint from its limit over the plan [deg] (the plan was
+            refused when negative), with ``limit_margin_at`` = (waypoint, robot, joint 1..6) where it occurs.
     """
 
     n_frames: int
     html_path: Path | None = None
     url: str | None = None
+    kind: str = "dual"
+    max_residual_mm: float | None = None
+    max_residual_deg: float | None = None
+    min_limit_margin_deg: float = float("nan")
+    limit_margin_at: tuple[int, str, int] | None = None
 
-
-def plan_frames(plan: Any) -> list[dict[str, np.ndarray]]:
-    """Frames of a dual or collection plan: one ``{"R1": q (6,), "R2": q (6,)}`` per waypoint [rad].
-
-    Args:
-        plan: a plan file path, its parsed content, a :class:`~app.cell.planning.Plan` or a
-            :class:`~app.dual.plan_result.PlanResult` (read with :func:`app.cell.plan_file.read_plan`).
-
-    Raises:
-        DataError: unreadable or malformed plan, a robot other than R1/R2, or no waypoints.
-    """
-    from app.cell.plan_file import read_plan
-    from app.dual.plan_result import PlanResult
-
-    plan = read_plan(plan)
-    if isinstance(plan, PlanResult):
-        frames = [{"R1": w.q_R1.copy(), "R2": w.q_R2.copy()} for w in plan.waypoints]
-    else:
-        current = {"R1": np.zeros(6), "R2": np.zeros(6)}
-        frames = []
-        for i, t in enumerate(plan.targets):
-            if t.robot not in current:
-                raise DataError("<plan>", None, None, f"entry {i}: unknown robot {t.robot!r}; valid: R1, R2")
-            current[t.robot] = np.asarray(t.q, dtype=float)
-            frames.append({k: v.copy() for k, v in current.items()})
-    if not frames:
-        raise DataError("<plan>", None, None, "the plan has no waypoints")
-    return frames
-
-
-def _check_limits(cell: CellSpec, frames: list[dict[str, np.ndarray]]) -> None:
-    """Refuse a plan with a joint beyond its limit, as export-targets does (a preview must not show what the
-    controller would never be sent).
-
-    Raises:
-        UnsafeTarget: naming the waypoint, robot, joint, value and limit.
-    """
-    from calibration.errors import UnsafeTarget
-
-    for name in ("R1", "R2"):
-        spec = cell.robot(name).robot
-        q = np.array([f[name] for f in frames])
-        bad = (q < spec.lower_rad) | (q > spec.upper_rad)
-        if bad.any():
-            i, j = (int(v) for v in np.argwhere(bad)[0])
-            limit = spec.lower_rad[j] if q[i, j] < spec.lower_rad[j] else spec.upper_rad[j]
-            raise UnsafeTarget(name, j + 1, float(q[i, j]), float(limit), f"waypoint {i} of the plan is beyond the "
-                                                                          "joint limits; not drawn")
+    def summary(self) -> dict[str, Any]:
+        """The ``preview --json`` summary: waypoints, largest residual, files written, joint-limit check."""
+        at = self.limit_margin_at
+        return {"waypoints": self.n_frames, "kind": self.kind, "max_residual_mm": self.max_residual_mm,
+                "max_residual_deg": self.max_residual_deg,
+                "files": [str(self.html_path)] if self.html_path else [], "url": self.url,
+                "joint_limits": {"checked": True, "within": True, "min_margin_deg": self.min_limit_margin_deg,
+                                 "at": None if at is None else {"waypoint": at[0], "robot": at[1], "joint": at[2]}}}
 
 
 class RecordingWindow:
-    """Stands in for meshcat's zmq server: keeps the scene and renders it as one static page."""
+    """Stands in for meshcat's zmq server: keeps the scene and renders it as one static page.
+
+    Attributes:
+        nodes: the scene's commands per path.
+        overlay: HTML placed after the viewer at the end of the page's body (the waypoint readout).
+    """
 
     def __init__(self) -> None:
         self.nodes: dict[str, dict[str, Any]] = {}
+        self.overlay = ""
 
     def send(self, command: Any) -> None:
         import umsgpack
@@ -139,106 +127,31 @@ class RecordingWindow:
                 "<style>body{margin:0}#meshcat-pane{width:100vw;height:100vh;overflow:hidden}</style></head>"
                 f"<body><div id=\"meshcat-pane\"></div><script>{js}</script><script>"
                 "var viewer = new MeshCat.Viewer(document.getElementById(\"meshcat-pane\"));\n"
-                + "\n".join(cmds) + "</script></body></html>")
+                + "\n".join(cmds) + f"</script>{self.overlay}</body></html>")
 
 
-def _segment_transform(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Pose of a meshcat cylinder (axis y, centred) spanning a -> b [m]."""
-    d = b - a
-    n = np.linalg.norm(d)
-    y = d / n if n > 1e-12 else np.array([0.0, 1.0, 0.0])
-    helper = np.array([1.0, 0, 0]) if abs(y[0]) < 0.9 else np.array([0, 0, 1.0])
-    x = np.cross(y, helper)
-    x /= np.linalg.norm(x)
-    T = np.eye(4)
-    T[:3, :3] = np.column_stack([x, y, np.cross(x, y)])
-    T[:3, 3] = 0.5 * (a + b)
-    return T
+def _windows(static: bool, serve: bool, overlay: str) -> tuple[list[Any], str | None]:
+    """The windows to draw in: a recording window for the static page, a live meshcat server's; its URL.
 
-
-def _tool_poses(cell: CellSpec, model: Any, name: str, q: np.ndarray) -> np.ndarray:
-    """Tool poses in the cell frame for joint angles q (F, 6) [rad], shape (F, 4, 4) [m]."""
-    c = model.chain(q)
-    T = cell.robot(name).T_cell_base
-    out = np.tile(np.eye(4), (len(q), 1, 1))
-    out[:, :3, :3] = T[:3, :3] @ c.R_base_tool
-    out[:, :3, 3] = (c.p_base_tool @ T[:3, :3].T + T[:3, 3]) * 1e-3
-    return out
-
-
-def _capsule_transforms(seg_m: np.ndarray) -> dict[str, np.ndarray]:
-    """meshcat transforms of one capsule (cylinder + two end spheres) spanning seg_m (2, 3) [m]."""
-    import meshcat.transformations as tf
-
-    return {"": _segment_transform(seg_m[0], seg_m[1]), "_end0": tf.translation_matrix(seg_m[0]),
-            "_end1": tf.translation_matrix(seg_m[1])}
-
-
-def _windows(static: bool, serve: bool) -> tuple[list[Any], str | None]:
-    """The windows to draw in: a recording window for the static page, a live meshcat server's; its URL."""
+    Both pages carry ``overlay`` (the waypoint readout) at the end of their body.
+    """
     import meshcat
 
-    windows: list[Any] = [RecordingWindow()] if static else []
+    windows: list[Any] = []
+    if static:
+        windows.append(RecordingWindow())
+        windows[0].overlay = overlay
     url = None
     if serve:
         from app.dual.meshcat_server import start
 
-        _, zmq_url, _ = start()  # web server on 127.0.0.1 only (meshcat's own listens on every interface)
+        _, zmq_url, _ = start(overlay)  # web server on 127.0.0.1 only (meshcat's own listens on every interface)
         with contextlib.redirect_stdout(io.StringIO()):  # meshcat prints the URL; we return and log it
             live = meshcat.Visualizer(zmq_url=zmq_url)
         url = live.url()
         logger.info("meshcat viewer at %s (the server lives as long as this process)", url)
         windows.append(live.window)
     return windows, url
-
-
-def _scene(window: Any, capsules: CellCapsules) -> tuple[Any, Any]:
-    """Background, camera and floor in ``window``: ``(viewer, the cellcal node the arms are drawn under)``."""
-    import meshcat
-    import meshcat.geometry as g
-    import meshcat.transformations as tf
-
-    top = meshcat.Visualizer(window=window)
-    top["/Background"].set_property("top_color", [0.93, 0.93, 0.93])
-    top["/Background"].set_property("bottom_color", [0.75, 0.75, 0.75])
-    top["/Grid"].set_property("visible", False)
-    top["/Axes"].set_property("visible", False)
-    top["/Cameras/default/rotated/<object>"].set_property("position", [0.0, 1.4, 3.4])
-    vis = top["cellcal"]  # the viewer orbits the origin: centre the cell on it
-    vis.set_transform(tf.translation_matrix([-1.35, 0.2, -0.1]))
-    vis["cell/floor"].set_object(g.Box([4.2, 2.4, 0.02]), g.MeshLambertMaterial(color=0x9E9E8E))
-    vis["cell/floor"].set_transform(tf.translation_matrix([1.35, -0.2, capsules.floor_z_mm * 1e-3 - 0.01]))
-    return top, vis
-
-
-def _draw_arm(vis: Any, anim: Any, cell: CellSpec, capsules: CellCapsules, name: str, q: np.ndarray,
-              model: Any) -> None:
-    """One arm's capsules and tool triad, animated over its joint angles q [rad] (F, 6)."""
-    import meshcat.geometry as g
-
-    segs = capsules.segments(name, q, model) * 1e-3  # (F, 6, 2, 3) [m]
-    tools = _tool_poses(cell, model, name, q)
-    mat = g.MeshPhongMaterial(color=COLORS[name])
-    for k, seg in enumerate(SEGMENTS):
-        r = float(capsules.radii(name)[k]) * 1e-3
-        length = float(np.linalg.norm(segs[0, k, 1] - segs[0, k, 0]))
-        vis[f"{name}/capsules/{seg}"].set_object(g.Cylinder(length, r), mat)
-        vis[f"{name}/capsules/{seg}_end0"].set_object(g.Sphere(r), mat)
-        vis[f"{name}/capsules/{seg}_end1"].set_object(g.Sphere(r), mat)
-    vis[f"{name}/tool"].set_object(g.triad(0.25))
-    if name == "R2":
-        vis["R2/tool/workpiece"].set_object(g.Box([0.12, 0.12, 0.01]), g.MeshLambertMaterial(color=0xD0D0D0))
-    for f in range(len(q)):
-        with anim.at_frame(vis, f) as af:
-            for k, seg in enumerate(SEGMENTS):
-                for suffix, T in _capsule_transforms(segs[f, k]).items():
-                    af[f"{name}/capsules/{seg}{suffix}"].set_transform(T)
-            af[f"{name}/tool"].set_transform(tools[f])
-    # the first frame as static transforms too, so the page shows the arms before the clip starts
-    for k, seg in enumerate(SEGMENTS):
-        for suffix, T in _capsule_transforms(segs[0, k]).items():
-            vis[f"{name}/capsules/{seg}{suffix}"].set_transform(T)
-    vis[f"{name}/tool"].set_transform(tools[0])
 
 
 def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve: bool = False,
@@ -248,9 +161,10 @@ def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve
     Args:
         cell: the loaded cell.
         plan: plan file path, its parsed dict, a ``Plan`` or a ``PlanResult``.
-        html_out: write the self-contained static page here.
+        html_out: write the self-contained static page here (with the waypoint readout).
         serve: also start a meshcat server (a subprocess on 127.0.0.1, alive while this process runs) and draw
-            there; the URL is returned. The caller keeps the process alive (e.g. waits for Enter).
+            there; the URL is returned. The caller keeps the process alive (e.g. waits for Enter). The live
+            page carries the same waypoint readout.
         models: PoeModel per robot used for drawing (``chain``); the cell's nominal models when None.
         fps: animation frames (waypoints) per second.
 
@@ -258,29 +172,41 @@ def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve
         The :class:`PreviewResult`.
 
     Raises:
-        DataError: the plan is malformed. ModelError: neither ``html_out`` nor ``serve`` was asked for.
+        DataError: the plan is malformed. UnsafeTarget: a joint beyond its limit. ModelError: neither
+        ``html_out`` nor ``serve`` was asked for.
     """
     import meshcat
     from meshcat.animation import Animation
 
+    from app.dual import preview_scene as scene
+    from app.dual.preview_readout import readout_data, readout_html
     from calibration.errors import ModelError
 
     if html_out is None and not serve:
         raise ModelError("preview needs html_out (a static page) or serve=True (a live viewer)")
-    frames = plan_frames(plan)
-    _check_limits(cell, frames)
+    p = read_preview_plan(plan)
+    margin, margin_at = limit_margin(cell, p)
     models = models or {n: cell.robot(n).model() for n in ("R1", "R2")}
     capsules = CellCapsules(cell)
-    windows, url = _windows(html_out is not None, serve)
+    q_deg = {n: np.degrees(p.q[n]) for n in ("R1", "R2")}
+    overlay = readout_html(readout_data(q_deg, p.residual_mm, p.residual_deg, p.converged, list(p.notes), fps),
+                           {**scene.COLORS, **scene.TRACE_COLORS})
+    windows, url = _windows(html_out is not None, serve, overlay)
     for window in windows:
-        top, vis = _scene(window, capsules)
+        top, vis = scene.scene(window, capsules)
         anim = Animation(default_framerate=fps)
-        for name in ("R1", "R2"):
-            _draw_arm(vis, anim, cell, capsules, name, np.array([frame[name] for frame in frames]), models[name])
-        top.set_animation(anim, play=True, repetitions=1)
+        tools = {n: scene.draw_arm(vis, anim, cell, capsules, n, p.q[n], models[n]) for n in ("R1", "R2")}
+        scene.draw_traces(vis, p, tools)
+        scene.draw_labels(vis, cell)
+        top.set_animation(anim, play=False, repetitions=1)  # the readout opens it at waypoint 0; "play" runs it
     path = None
     if html_out is not None:
         path = Path(html_out)
         atomic_write_text(path, meshcat.Visualizer(window=windows[0]).static_html())
-        logger.info("wrote preview of %d frames to %s", len(frames), path)
-    return PreviewResult(len(frames), path, url)
+        logger.info("wrote preview of %d frames to %s", p.n_frames, path)
+
+    def worst(a: np.ndarray) -> float | None:
+        return float(np.nanmax(a)) if np.isfinite(a).any() else None
+
+    return PreviewResult(p.n_frames, path, url, p.kind, worst(p.residual_mm), worst(p.residual_deg), margin,
+                         margin_at)

@@ -17,7 +17,7 @@ import numpy as np
 
 from app.dual.validate import (ContactValidation, DeviationStats, check_contact_sequence, collect_contacts,
                                evaluate_models)
-from calibration.errors import CellCalError, ModelError
+from calibration.errors import CellCalError, DataError, ModelError
 
 log = logging.getLogger("cellcal.app")
 
@@ -38,7 +38,10 @@ def contact_configurations(plan_path: str | Path) -> tuple[np.ndarray, np.ndarra
     q = plan.q()
     if len(q) < 2:
         raise ModelError(f"{plan_path}: a contact validation needs at least 2 configurations, got {len(q)}")
-    return q, np.asarray(plan.T_wp_gun, dtype=float)[:3, 3].copy()
+    if plan.T_wp_gun is None:
+        raise DataError(plan_path, None, "T_wp_gun", "missing: a contact validation needs the relative pose the plan "
+                                                     "held")
+    return q, plan.T_wp_gun[:3, 3].copy()
 
 
 def open_probe(cell: Any) -> Any:

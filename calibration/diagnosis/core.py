@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 from scipy.linalg import block_diag
@@ -211,7 +212,7 @@ class Refitted:
 def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording | None = None,
              model: KinematicModel | None = None, gravity: GravityModel | None = None,
              joint_limits: tuple[np.ndarray, np.ndarray] | None = None,
-             options: DiagnoseOptions | None = None) -> Diagnosis:
+             options: DiagnoseOptions | None = None, progress: Callable[[str], None] | None = None) -> Diagnosis:
     """Find, model and quantify the physics a kinematic model leaves out.
 
     Args:
@@ -224,19 +225,30 @@ def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording 
         gravity: link masses for gravity torques (``joint_compliance``); None leaves that kind untested.
         joint_limits: ``(lower, upper)`` [rad] (6,), the reference workspace when no held-out data is given.
         options: settings.
+        progress: called with each step's name (``DIAGNOSE_STEPS``) as it starts (a progress bar).
 
     Raises:
         ModelError: a model kind diagnose does not know.
     """
     opts = options or DiagnoseOptions()
+    step = progress or (lambda name: None)
+    step(DIAGNOSE_STEPS[0])
     split = split_data(data, heldout, opts)
     base = fit_model_in_use(model, nominal, split, opts)
+    step(DIAGNOSE_STEPS[1])
     residual = residual_drivers(base, split, gravity, opts)
     hypotheses = candidate_signatures(base, split, residual, gravity, joint_limits, opts)
+    step(DIAGNOSE_STEPS[2])
     selection = select_effects(hypotheses)
+    step(DIAGNOSE_STEPS[3])
     confirmed = confirm_on_heldout(base, split, hypotheses, selection, opts)
+    step(DIAGNOSE_STEPS[4])
     refitted = refit_model(robot, model, base, split, confirmed, opts)
     return report(robot, split, base, residual, hypotheses, confirmed, refitted)
+
+
+#: The steps of :func:`diagnose`, in order, as its ``progress`` callback names them.
+DIAGNOSE_STEPS = ("fit the model in use", "candidate effects", "selection", "held-out check", "refit")
 
 
 def split_data(data: Recording, heldout: Recording | None, options: DiagnoseOptions) -> Split:

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from typing import Callable, Collection
 
 import numpy as np
-from scipy import stats
+from scipy import special
 from scipy.optimize import minimize_scalar
 
 from calibration.diagnosis.candidates import Candidate
@@ -252,7 +252,7 @@ class LinearSelection:
         d_bic = self.bic(rss1, p1) - self.bic(rss0, p0)
         dof2 = self.n_res - p1
         F = ((rss0 - rss1) / max(m, 1)) / max(rss1 / dof2, 1e-300)
-        pval = float(stats.f.sf(F, max(m, 1), dof2)) if rss1 < rss0 else 1.0
+        pval = float(special.fdtrc(max(m, 1), dof2, F))  # F survival function if rss1 < rss0 else 1.0
         return Evidence(float(d_bic), pval)
 
     def compare(self, base: list[np.ndarray], base_dof: int, extra: list[np.ndarray], extra_dof: int,

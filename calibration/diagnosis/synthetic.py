@@ -138,3 +138,31 @@ def make_case(nominal: "PoeModel", gravity: "GravityModel", magnitudes_mm: dict[
     fit = measure(twin, q, cols, design, rng, "synthetic fit")
     qh, colsh = heldout_design(design, n_heldout, seed + 1)
     return twin, fit, measure(twin, qh, colsh, design, rng, "synthetic held-out")
+
+
+#: A tool-marker registration error's direction: a shift along (1, -2, 2)/3 and a rotation about (2, 1, -2)/3.
+TOOL_ERROR_SHIFT = np.array([1.0, -2.0, 2.0]) / 3.0
+TOOL_ERROR_AXIS = np.array([2.0, 1.0, -2.0]) / 3.0
+#: Like the shared days' training recordings: joints 1, 4, 5, 6 within a few degrees of zero...
+NARROW_DESIGN = Design(spread_deg=3.0)
+#: ...and held-out poses that move every joint widely, like their test recordings.
+WIDE_DESIGN = Design(spread_deg=60.0)
+
+
+def tool_error_case(nominal: "PoeModel", gravity: "GravityModel", shift_mm: float = 18.0, angle_deg: float = 0.5,
+                    seed: int = 0, train_design: Design = NARROW_DESIGN, test_design: Design = WIDE_DESIGN,
+                    n_heldout: int = 300) -> tuple[Recording, Recording, np.ndarray]:
+    """Training and held-out recordings whose tool-marker registration is off by ``shift_mm`` and ``angle_deg``.
+
+    The arm: planted geometry (0.5 mm, 0.5 mrad) and 0.3 mm of joint compliance (:func:`make_case`); training on
+    ``train_design``'s clusters, held-out on random poses of ``test_design``; both measured through the same wrong
+    marker frame ``T_tool`` (marker in flange, returned (4, 4) [mm]): ``T_meas = T_true @ T_tool``.
+    """
+    from calibration.frames import put_in
+    from calibration.models.rebased import make_T
+
+    twin, train, _ = make_case(nominal, gravity, {"joint_compliance": 0.3}, seed, train_design, 1)
+    q, cols = heldout_design(test_design, n_heldout, seed + 1)
+    test = measure(twin, q, cols, test_design, np.random.default_rng(seed + 200_000), "synthetic held-out")
+    T_tool = make_T(so3.exp(np.radians(angle_deg) * TOOL_ERROR_AXIS), shift_mm * TOOL_ERROR_SHIFT)
+    return put_in(train, np.eye(4), T_tool), put_in(test, np.eye(4), T_tool), T_tool

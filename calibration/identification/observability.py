@@ -99,13 +99,19 @@ def analyse(kin: Kinematics, q: np.ndarray, x: np.ndarray | None = None,
 def analyse_jacobian(J: np.ndarray, scale: np.ndarray, names: tuple[str, ...], a: float = DEFAULT_ORIENTATION_WEIGHT,
                      tolerance: float = DEFAULT_RELATIVE_TOLERANCE) -> Observability:
     """Observability from a pose Jacobian ``d[p; theta] / d params`` (N, 6, m) and the column scaling (m,)."""
-    J = np.array(J, dtype=float)
-    J[:, 3:] *= rotation_residual_scale(a)
-    Js = J.reshape(-1, J.shape[-1]) * scale
+    Js = scaled_rows(J, scale, a).reshape(-1, np.shape(J)[-1])
     _, s, Vt = np.linalg.svd(Js, full_matrices=False)
     rank = int(np.sum(s >= tolerance * s[0]))
     cond = float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
     return Observability(s, cond, np.asarray(scale, dtype=float), Vt.T, rank, tolerance, tuple(names))
+
+
+def scaled_rows(J: np.ndarray, scale: np.ndarray, a: float = DEFAULT_ORIENTATION_WEIGHT) -> np.ndarray:
+    """The pose Jacobian (N, 6, m) as the fits weight it: rotation rows times ``sqrt(2 a)``, columns in
+    millimetre-equivalent units (times ``scale``), shape (N, 6, m)."""
+    J = np.array(J, dtype=float)
+    J[:, 3:] *= rotation_residual_scale(a)
+    return J * np.asarray(scale, dtype=float)
 
 
 def filter_weights(obs: Observability) -> np.ndarray:

@@ -25,8 +25,8 @@ import numpy as np
 
 from calibration.errors import ModelError
 from calibration.interpolation.base import Interpolator, field, from_options
-from calibration.interpolation.mlp import (Standardiser, check_training_options, forward, forward_casadi,
-                                           layers_from_dict, layers_to_dict, scale_casadi, train_mlp)
+from calibration.interpolation.mlp import (EpochCallback, Standardiser, check_training_options, forward,
+                                           forward_casadi, layers_from_dict, layers_to_dict, scale_casadi, train_mlp)
 from calibration.interpolation.scattered import LinearInterpolator
 
 
@@ -40,13 +40,17 @@ class AutoencoderInterpolator(Interpolator):
         learning_rate: Adam step size.
         alpha: L2 weight penalty.
         random_state: seed; the same seed and data give the same network.
+        progress: called as ``progress(epoch, max_iter)`` after each training epoch; not part of the model
+            (not saved), no effect on the result.
     """
 
     kind: ClassVar[str] = "ae"
 
     def __init__(self, latent: int = 6, hidden: Sequence[int] = (200, 200, 200), max_iter: int = 300,
-                 learning_rate: float = 1e-3, alpha: float = 1e-4, random_state: int = 0) -> None:
+                 learning_rate: float = 1e-3, alpha: float = 1e-4, random_state: int = 0,
+                 progress: EpochCallback | None = None) -> None:
         super().__init__()
+        self.progress = progress
         if isinstance(latent, bool) or not isinstance(latent, (int, np.integer)) or latent < 1:
             raise ModelError(f"{self.kind}: latent must be a positive int, got {latent!r}")
         self.latent = int(latent)
@@ -80,7 +84,8 @@ class AutoencoderInterpolator(Interpolator):
         self._ys = Standardiser.fit(y)
         yz = self._ys.apply(y)
         sizes = (*self.hidden, self.latent, *self.hidden[::-1])
-        w, b = train_mlp(yz, yz, sizes, self.max_iter, self.learning_rate, self.alpha, self.random_state)
+        w, b = train_mlp(yz, yz, sizes, self.max_iter, self.learning_rate, self.alpha, self.random_state,
+                         self.progress)
         cut = len(self.hidden) + 1  # layers up to and including the bottleneck
         z = forward(yz, w[:cut], b[:cut])  # identity on the last of these: pre-activation codes
         self._codes = LinearInterpolator().fit(x, z)

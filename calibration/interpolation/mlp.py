@@ -1,10 +1,10 @@
 """Multilayer-perceptron interpolation (``nn``): a ReLU MLP from configuration to values.
 
 Inputs and outputs are standardised (per column: subtract the anchors' mean, divide by their standard
-deviation, 1 for constant columns), the network is trained with Adam by scikit-learn's ``MLPRegressor``
-(fixed ``random_state``, so training is repeatable), and only the weights, biases and scalers are kept:
-prediction is a numpy forward pass over the stored arrays, so it is fast, needs no scikit-learn and is
-bit-identical after a ``to_dict`` / ``from_dict`` round trip.
+deviation, 1 for constant columns), the network is trained with Adam (:func:`train_mlp`: scikit-learn's
+``MLPRegressor`` arithmetic in numpy, fixed ``random_state``, so training is repeatable), and only the weights,
+biases and scalers are kept: prediction is a numpy forward pass over the stored arrays, so it is fast and bit-identical after a
+``to_dict`` / ``from_dict`` round trip.
 
 The network extrapolates (piecewise linearly) outside the anchors' convex hull, where ``out_of_range``
 flags the queries but the values are the network's own.
@@ -20,9 +20,8 @@ from __future__ import annotations
 import contextlib
 import logging
 import time
-import warnings
 from dataclasses import dataclass
-from typing import Any, ClassVar, Iterator, Sequence
+from typing import Any, Callable, ClassVar, Iterator, Sequence
 
 import numpy as np
 
@@ -31,6 +30,9 @@ from calibration.interpolation.base import Interpolator, array_field, field, fro
 from calibration.interpolation.support import AnchorSupport
 
 logger = logging.getLogger("cellcal.calibration")
+
+#: ``progress(epoch, n_epochs)``, called after each training epoch (epoch counts from 1).
+EpochCallback = Callable[[int, int], None]
 
 
 @dataclass(frozen=True)
@@ -98,9 +100,22 @@ def one_blas_thread() -> Iterator[None]:
         yield
 
 
+#: Adam settings of the training (scikit-learn's MLPRegressor defaults, which the networks were trained with).
+ADAM_BETA_1, ADAM_BETA_2, ADAM_EPSILON = 0.9, 0.999, 1e-8
+#: Mini-batch size (MLPRegressor's "auto": min(200, K)).
+BATCH_SIZE = 200
+
+
 def train_mlp(x: np.ndarray, y: np.ndarray, hidden: Sequence[int], max_iter: int, learning_rate: float,
-              alpha: float, random_state: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """Train a ReLU MLP ``x -> y`` (identity output) with Adam, full budget of epochs.
+              alpha: float, random_state: int,
+              progress: EpochCallback | None = None) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Train a ReLU MLP ``x -> y`` (identity output, squared loss) with Adam, full budget of epochs.
+
+    The same arithmetic, in the same order, as scikit-learn's ``MLPRegressor(activation="relu", solver="adam",
+    shuffle=True, tol=0)`` (Glorot-uniform initialisation and batch shuffles from ``RandomState(random_state)``,
+    batches of min(200, K)), so it gives the same bits as the networks trained with it before (checked by
+    tests/calibration/test_interpolation.py against scikit-learn), without scikit-learn and about a third faster:
+    no loss evaluated per batch, Adam's moments updated in place.
 
     Args:
         x: standardised inputs, shape (K, d).
@@ -110,26 +125,72 @@ def train_mlp(x: np.ndarray, y: np.ndarray, hidden: Sequence[int], max_iter: int
         learning_rate: Adam step size.
         alpha: L2 penalty.
         random_state: seed of the weight initialisation and batch shuffling.
+        progress: called as ``progress(epoch, max_iter)`` after each epoch (a progress bar); no effect on the
+            result.
 
     Returns:
         Weights (list of (n_in, n_out) arrays) and biases (list of (n_out,) arrays), input layer first.
     """
-    try:
-        from sklearn.exceptions import ConvergenceWarning
-        from sklearn.neural_network import MLPRegressor
-    except ImportError as e:
-        raise ModelError("training the nn/ae interpolators needs scikit-learn: pip install scikit-learn") from e
-    net = MLPRegressor(hidden_layer_sizes=tuple(hidden), activation="relu", solver="adam", alpha=alpha,
-                       learning_rate_init=learning_rate, max_iter=max_iter, tol=0.0,
-                       n_iter_no_change=max_iter + 1, random_state=random_state, shuffle=True)
+    x, y = np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(y, dtype=np.float64)
     t0 = time.perf_counter()
-    with warnings.catch_warnings(), one_blas_thread():
-        warnings.simplefilter("ignore", ConvergenceWarning)  # we always run the full epoch budget
-        net.fit(x, y)
-    logger.info("trained MLP %s: %d epochs, final loss %.3g, %.2f s", hidden, net.n_iter_, net.loss_,
-                time.perf_counter() - t0)
-    return [np.asarray(w, dtype=np.float64) for w in net.coefs_], \
-        [np.asarray(b, dtype=np.float64) for b in net.intercepts_]
+    rs = np.random.RandomState(random_state)
+    units = [x.shape[1], *hidden, y.shape[1]]
+    weights, biases = [], []
+    for fan_in, fan_out in zip(units[:-1], units[1:]):
+        bound = np.sqrt(6.0 / (fan_in + fan_out))
+        weights.append(rs.uniform(-bound, bound, (fan_in, fan_out)))
+        biases.append(rs.uniform(-bound, bound, fan_out))
+    n_layers, n = len(weights), x.shape[0]
+    params = weights + biases
+    m1, m2 = [np.zeros_like(p) for p in params], [np.zeros_like(p) for p in params]
+    scratch, step = [np.empty_like(p) for p in params], [np.empty_like(p) for p in params]
+    grads: list[np.ndarray] = [np.empty(0)] * len(params)
+    acts: list[np.ndarray] = [np.empty(0)] * (n_layers + 1)
+    batch, order, t = min(BATCH_SIZE, n), np.arange(n), 0
+    with one_blas_thread():
+        for epoch in range(max_iter):
+            perm = np.arange(n)
+            rs.shuffle(perm)
+            order = order[perm]
+            for start in range(0, n, batch):
+                idx = order[start:start + batch]
+                acts[0] = x[idx]
+                for i in range(n_layers):
+                    a = acts[i] @ weights[i]
+                    a += biases[i]
+                    if i < n_layers - 1:
+                        np.maximum(a, 0, out=a)
+                    acts[i + 1] = a
+                delta = acts[-1] - y[idx]
+                for i in range(n_layers - 1, -1, -1):
+                    g = acts[i].T @ delta
+                    g += alpha * weights[i]
+                    g /= len(idx)
+                    grads[i], grads[n_layers + i] = g, np.sum(delta, axis=0) / len(idx)
+                    if i > 0:
+                        delta = delta @ weights[i].T
+                        np.copyto(delta, 0.0, where=acts[i] == 0)  # ReLU derivative
+                t += 1
+                lr = learning_rate * np.sqrt(1 - ADAM_BETA_2 ** t) / (1 - ADAM_BETA_1 ** t)
+                for p, m, v, g, s, u in zip(params, m1, m2, grads, scratch, step):
+                    m *= ADAM_BETA_1
+                    np.multiply(g, 1 - ADAM_BETA_1, out=s)
+                    m += s
+                    v *= ADAM_BETA_2
+                    np.square(g, out=s)
+                    s *= 1 - ADAM_BETA_2
+                    v += s
+                    np.sqrt(v, out=s)
+                    s += ADAM_EPSILON
+                    np.multiply(m, -lr, out=u)
+                    u /= s
+                    p += u
+            if progress is not None:
+                progress(epoch + 1, max_iter)
+    if not all(np.isfinite(p).all() for p in params):
+        raise ModelError(f"MLP training diverged (non-finite weights) on {n} anchors; check the anchor values")
+    logger.info("trained MLP %s: %d epochs, %.2f s", tuple(hidden), max_iter, time.perf_counter() - t0)
+    return weights, biases
 
 
 def forward(z: np.ndarray, weights: Sequence[np.ndarray], biases: Sequence[np.ndarray],
@@ -210,13 +271,17 @@ class MlpInterpolator(Interpolator):
         learning_rate: Adam step size.
         alpha: L2 weight penalty.
         random_state: seed; the same seed and data give the same network.
+        progress: called as ``progress(epoch, max_iter)`` after each training epoch; not part of the model
+            (not saved), no effect on the result.
     """
 
     kind: ClassVar[str] = "nn"
 
     def __init__(self, hidden: Sequence[int] = (200, 200, 200), max_iter: int = 300,
-                 learning_rate: float = 1e-3, alpha: float = 1e-4, random_state: int = 0) -> None:
+                 learning_rate: float = 1e-3, alpha: float = 1e-4, random_state: int = 0,
+                 progress: EpochCallback | None = None) -> None:
         super().__init__()
+        self.progress = progress
         self.hidden = check_training_options(self.kind, hidden, max_iter, learning_rate, alpha)
         self.max_iter, self.learning_rate, self.alpha = int(max_iter), float(learning_rate), float(alpha)
         self.random_state = int(random_state)
@@ -236,7 +301,7 @@ class MlpInterpolator(Interpolator):
         self._support, self._anchors = AnchorSupport(x), x
         self._xs, self._ys = Standardiser.fit(x), Standardiser.fit(y)
         self._w, self._b = train_mlp(self._xs.apply(x), self._ys.apply(y), self.hidden, self.max_iter,
-                                     self.learning_rate, self.alpha, self.random_state)
+                                     self.learning_rate, self.alpha, self.random_state, self.progress)
 
     def _predict(self, x: np.ndarray) -> np.ndarray:
         return self._ys.invert(forward(self._xs.apply(x), self._w, self._b))  # type: ignore[union-attr]

@@ -91,6 +91,7 @@ class SimMocapSource(MocapSource):
         self._lock = threading.Lock()
         self._connected = False
         self._next_frame = 0
+        self.delivered = 0  # frames handed to readers so far
         self._blackouts: list[tuple[float, float, bool]] = []
 
     @property
@@ -126,6 +127,11 @@ class SimMocapSource(MocapSource):
         """Index one past the last frame delivered by now."""
         return int(math.floor((self.clock.now() - self.config.latency_s) * self.config.rate_hz)) + 1
 
+    def delivered_all_due(self) -> bool:
+        """Whether every frame due by now (captured up to ``now - latency_s``) has been handed to a reader."""
+        with self._lock:
+            return self._next_frame >= self._due_frame()
+
     def read(self, timeout_s: float) -> list[RigidBodyFrame]:
         """Frames delivered since the last call, waiting up to ``timeout_s`` simulated seconds for at least one."""
         waited = 0.0
@@ -138,6 +144,7 @@ class SimMocapSource(MocapSource):
                 first = max(self._next_frame, due - self.config.buffer_frames)
                 self._next_frame = max(self._next_frame, due)
                 frames = self._make_frames(first, due) if due > first else []
+                self.delivered += len(frames)
             if frames or waited >= timeout_s:
                 return frames
             step = min(period, timeout_s - waited)

@@ -54,7 +54,8 @@ def test_compare_json_shape_and_report(tmp_path, data, capsys):
             for kind in ("position_mm", "orientation_deg"):
                 assert set(entry[split][kind]) >= {"mean", "std", "max", "rms"}
     assert cmp["methods"]["nls1"]["test"]["position_mm"]["mean"] < cmp["methods"]["nominal"]["test"]["position_mm"]["mean"]
-    for name in ("report.md", "error_along_path.png", "fourier_singular_values.png", "fourier_v_heatmap.png"):
+    for name in ("report.md", "report.html", "error_workspace.png", "error_cdf.png", "fourier_singular_values.png",
+                 "fourier_correction_map.png"):
         assert (report / name).stat().st_size > 0
 
 

@@ -189,3 +189,42 @@ def test_compile_skips_functions_too_big_for_a_quick_build(tmp_path, monkeypatch
     monkeypatch.setattr(ck.subprocess, "run", lambda *a, **k: pytest.fail("the compiler ran"))
     assert ck.compile_function(ca, F, cache_dir=tmp_path) is F
     assert list(tmp_path.iterdir()) == []
+
+
+def _small_function(scale: float):
+    q = ca.SX.sym("q", 6)
+    return ca.Function("small", [q], [scale * ca.sum1(ca.sin(q))])
+
+
+def test_compile_cache_is_keyed_by_the_expression_content(tmp_path):
+    """A changed model parameter (here a constant in the expression) builds a new library; the same one reuses it."""
+    from app.dual import casadi_kinematics as ck
+
+    q = np.linspace(0.1, 0.6, 6)
+    a = ck.compile_function(ca, _small_function(2.0), cache_dir=tmp_path)
+    libs = sorted(tmp_path.glob("*.so"))
+    assert len(libs) == 1 and float(a(q)) == pytest.approx(2.0 * np.sin(q).sum(), abs=1e-12)
+    ck.compile_function(ca, _small_function(2.0), cache_dir=tmp_path)
+    assert sorted(tmp_path.glob("*.so")) == libs
+    b = ck.compile_function(ca, _small_function(3.0), cache_dir=tmp_path)
+    assert len(list(tmp_path.glob("*.so"))) == 2 and float(b(q)) == pytest.approx(3.0 * np.sin(q).sum(), abs=1e-12)
+
+
+@pytest.mark.parametrize("damage", ["truncate", "garbage", "no stamp"])
+def test_a_corrupt_cached_library_is_rebuilt_not_loaded(tmp_path, damage):
+    from app.dual import casadi_kinematics as ck
+
+    ck.compile_function(ca, _small_function(2.0), cache_dir=tmp_path)
+    (lib,) = tmp_path.glob("*.so")
+    good = lib.read_bytes()
+    if damage == "truncate":  # loading this one would kill the process with a bus error
+        lib.write_bytes(good[: len(good) // 2])
+    elif damage == "garbage":
+        lib.write_bytes(b"not a library")
+    else:
+        lib.with_name(lib.name + ".sha256").unlink()
+    F = ck.compile_function(ca, _small_function(2.0), cache_dir=tmp_path)
+    q = np.linspace(0.1, 0.6, 6)
+    assert F.name() == "small" and float(F(q)) == pytest.approx(2.0 * np.sin(q).sum(), abs=1e-12)
+    assert F.class_name() != "SXFunction"  # the compiled library, not the interpreted fallback
+    assert ck._cached(lib) and lib.stat().st_size == len(good)

@@ -49,3 +49,23 @@ def test_a_file_without_kind_is_told_by_its_layout():
 def test_the_wrong_kind_is_refused(plan, kind, message):
     with pytest.raises(DataError, match=message):
         read_plan(plan, kind)
+
+
+@pytest.mark.parametrize("value, message", [
+    ([[1, 0, 0], [0, 1, 0], [0, 0, 1]], "T_wp_gun.*4x4"),
+    (np.where(np.eye(4) == 1, np.nan, 0).tolist(), "T_wp_gun.*finite"),
+    ([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 1, 1]], "T_wp_gun.*homogeneous"),
+])
+def test_a_dual_plan_with_a_malformed_relative_pose_is_refused(value, message):
+    d = _dual().to_dict()
+    d["T_wp_gun"] = value
+    with pytest.raises(DataError, match=message):
+        read_plan(d)
+
+
+def test_a_hand_written_plan_without_a_relative_pose_has_none_not_the_identity():
+    """The held pose is what the preview draws as the target: it is never guessed."""
+    d = _dual().to_dict()
+    d.pop("T_wp_gun")
+    plan = read_plan(d)
+    assert plan.T_wp_gun is None and plan.to_dict()["T_wp_gun"] is None

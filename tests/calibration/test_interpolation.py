@@ -312,3 +312,25 @@ def test_other_bad_inputs(fitted: dict, anchors: np.ndarray, values: np.ndarray)
     del broken["coefficients"]
     with pytest.raises(ModelError, match="missing key 'coefficients'"):
         interpolator_from_dict(broken)
+
+
+@pytest.mark.parametrize("n, hidden, epochs", [(230, (12, 12), 15), (40, (8, 3, 8), 30)])
+def test_mlp_training_gives_the_bits_of_scikit_learns_adam(n: int, hidden: tuple[int, ...], epochs: int) -> None:
+    """train_mlp replays MLPRegressor's Adam (init, shuffles, batches of 200 then the rest) to the last bit, so
+    models trained before it keep their figures."""
+    import warnings
+
+    neural = pytest.importorskip("sklearn.neural_network")
+    from calibration.interpolation.mlp import train_mlp
+
+    rng = np.random.default_rng(n)
+    x, y = rng.normal(size=(n, 3)), rng.normal(size=(n, 4))
+    net = neural.MLPRegressor(hidden_layer_sizes=hidden, activation="relu", solver="adam", alpha=1e-3,
+                              learning_rate_init=3e-3, max_iter=epochs, tol=0.0, n_iter_no_change=epochs + 1,
+                              random_state=7, shuffle=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the full epoch budget always "fails to converge"
+        net.fit(x, y)
+    weights, biases = train_mlp(x, y, hidden, epochs, 3e-3, 1e-3, 7)
+    for ours, theirs in zip(weights + biases, net.coefs_ + net.intercepts_):
+        assert np.array_equal(ours, theirs)

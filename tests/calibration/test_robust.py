@@ -1,11 +1,13 @@
 """The robustness checks of CDC fits: held-out clusters, probe ranges, bounded outputs, the chosen local prior."""
 
+import multiprocessing
+
 import numpy as np
 import pytest
 
 from calibration import robust
 from calibration.cdc import CDC_INPUTS, CdcModel, cluster_anchors, geometric_cdc
-from calibration.errors import ModelFileError
+from calibration.errors import ModelError, ModelFileError
 from calibration.interpolation import Fourier13Interpolator, make_interpolator
 from calibration.methods import FitOptions, Fitter
 from calibration.models import load_model, save_model
@@ -110,3 +112,66 @@ def test_workspace_ratio_compares_corrections_on_probes_and_training_poses():
     q_probe[:, 3] = 1.0
     ratio, probe, train = robust.workspace_ratio(model, ref, q_train, q_probe)
     np.testing.assert_allclose([ratio, probe, train], [11.0, 1.1, 0.1])
+
+
+@pytest.mark.parametrize("kind", ["nn", "rbf"])
+def test_held_out_folds_in_worker_processes_give_the_same_bits(fitter, kind):
+    local, pi = fitter.local_fits(), fitter.physics_informed()
+    groups, _ = cluster_anchors(fitter.train)
+    options = {"hidden": (8, 8), "max_iter": 10} if kind == "nn" else {}
+
+    def check(workers):
+        return robust.held_out(lambda: make_interpolator(kind, **options), pi.kinematics, pi.theta,
+                               local.anchors, local.x, groups, fitter.train, CDC_INPUTS, workers=workers)
+
+    assert check(2) == check(1)
+
+
+def test_a_cancelled_held_out_check_stops_its_workers(fitter):
+    local, pi = fitter.local_fits(), fitter.physics_informed()
+    groups, _ = cluster_anchors(fitter.train)
+    check = robust.HeldOutCheck(lambda: make_interpolator("nn", hidden=(8,), max_iter=5), pi.kinematics,
+                                pi.theta, local.anchors, local.x, groups, fitter.train, CDC_INPUTS, workers=2)
+    assert multiprocessing.active_children()  # the workers started with the check
+    check.cancel()
+    assert multiprocessing.active_children() == []
+
+
+def test_a_held_out_worker_that_dies_is_an_error_not_a_hang(fitter):
+    import os
+    from concurrent.futures.process import BrokenProcessPool
+
+    local, pi = fitter.local_fits(), fitter.physics_informed()
+    groups, _ = cluster_anchors(fitter.train)
+    with pytest.raises(BrokenProcessPool):
+        robust.held_out(lambda: os._exit(3), pi.kinematics, pi.theta, local.anchors, local.x, groups,
+                        fitter.train, CDC_INPUTS, workers=2)
+
+
+def test_held_out_on_the_first_folds_scores_both_fits_on_those_clusters_only(fitter):
+    local, pi = fitter.local_fits(), fitter.physics_informed()
+    groups, _ = cluster_anchors(fitter.train)
+    args = (lambda: make_interpolator("rbf"), pi.kinematics, pi.theta, local.anchors, local.x, groups, fitter.train,
+            CDC_INPUTS)
+    full, two = robust.held_out(*args), robust.held_out(*args, n_evaluated=2)
+    assert robust.held_out(*args, n_evaluated=robust.N_FOLDS) == full
+    rows = np.isin(robust.cluster_folds(len(local.anchors))[groups], [0, 1])
+    ref = robust.position_errors(pi.kinematics, pi.theta, fitter.train)[rows]
+    np.testing.assert_allclose(two.reference_rms_mm, np.sqrt(np.mean(ref ** 2)), rtol=1e-12)
+    assert two.reference_max_mm == ref.max() and two != full
+    with pytest.raises(ModelError, match="n_evaluated"):
+        robust.held_out(*args, n_evaluated=robust.N_FOLDS + 1)
+
+
+def test_a_prefetched_neural_fit_is_the_fit_made_here(synthetic_arm, r1_nominal):
+    _, _, truth = synthetic_arm
+    q, cluster = cluster_design(step_deg=30.0)
+    train = measure(truth.fk, q, 0.02, 0.01, 1, cluster)
+    here, _ = Fitter("R1", r1_nominal, train, FitOptions(local_prior=0.1)).fit("nn")
+    fitter = Fitter("R1", r1_nominal, train, FitOptions(local_prior=0.1))
+    fitter.prefetch(["nominal", "nn"])
+    assert multiprocessing.active_children() or robust.default_workers() < 2
+    there, seconds = fitter.fit("nn")
+    assert np.array_equal(there.fk(train.q)[1], here.fk(train.q)[1]) and seconds > 0
+    assert there.info["heldout"] == here.info["heldout"]
+    assert multiprocessing.active_children() == []  # the pool is shut once every prefetched fit is collected

@@ -528,3 +528,43 @@ def test_payload_must_be_a_non_negative_number(tmp_path, value):
     ok.write_text(text.replace("payload_kg: 6.0", "payload_kg: 3"))
     assert load_robot(ok).payload_kg == 3.0
     assert load_robot(DEFAULT_CELL.parent / "robots" / "MA2010.yaml").payload_kg is None
+
+
+# --- drawing geometry of what an arm carries (tool YAML `geometry`) ----------------------------------------------
+
+_GEOM_LINE = "  - {name: barrel, shape: cylinder, from_mm: [0, 0, 40], to_mm: [0, 0, 230], radius_mm: 30}"
+
+
+def test_tool_yaml_carries_its_drawing_geometry():
+    from cell_config import load_tool
+
+    gun = load_tool(DEFAULT_CELL.parent / "tools" / "weldgun_marker.yaml")
+    barrel = {s.name: s for s in gun.shapes}["barrel"]
+    assert barrel.kind == "cylinder" and barrel.radius_mm == (30.0, 30.0)
+    np.testing.assert_array_equal(barrel.to_mm, [0, 0, 230])
+    plate = {s.name: s for s in load_tool(DEFAULT_CELL.parent / "tools" / "mti_marker.yaml").shapes}["plate"]
+    assert plate.kind == "box"
+    np.testing.assert_array_equal(plate.size_mm, [250, 160, 8])
+
+
+@pytest.mark.parametrize("line, key, reason", [
+    (_GEOM_LINE.replace("cylinder", "cone"), "geometry[1].shape", "unknown shape 'cone'; valid: cylinder, box"),
+    (_GEOM_LINE.replace("radius_mm: 30", "radius_mm: -30"), "geometry[1].radius_mm", "expected a finite number > 0"),
+    (_GEOM_LINE.replace("radius_mm: 30", "radius_mm: [30, 0]"), "geometry[1].radius_mm", "expected radii > 0"),
+    (_GEOM_LINE.replace("[0, 0, 230]", "[0, 0, 40]"), "geometry[1].to_mm", "non-zero length"),
+    (_GEOM_LINE.replace("radius_mm: 30", "radius_mm: 30, colour: red"), "geometry[1].colour", "unknown key"),
+    (_GEOM_LINE.replace("to_mm: [0, 0, 230]", "to_mm: [0, 230]"), "geometry[1].to_mm", "expected shape (3,)"),
+    ("  - {name: plate, shape: box, centre_mm: [0, 0, 1], size_mm: [1, 0, 1]}", "geometry[1].size_mm",
+     "expected positive edge lengths"),
+    ("  - barrel", "geometry[1]", "expected a mapping"),
+])
+def test_malformed_tool_geometry_names_the_key(tmp_path, line, key, reason):
+    from cell_config import load_tool
+
+    text = (DEFAULT_CELL.parent / "tools" / "weldgun_marker.yaml").read_text()
+    assert _GEOM_LINE in text
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(text.replace(_GEOM_LINE, line))
+    with pytest.raises(ConfigError) as e:
+        load_tool(bad)
+    assert e.value.key == key and reason in e.value.reason and e.value.path == str(bad)

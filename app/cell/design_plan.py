@@ -1,0 +1,199 @@
+"""An observability-optimal collection plan: a budget of pose clusters chosen by :mod:`calibration.design`.
+
+Candidates are anchors drawn (seeded) with q2 over the paper's q2 range and q3 inside its q2-dependent band (so the
+configuration-dependent fits interpolate over the region the paper's design covers), while joints 1, 4, 5 and 6 move
+widely (``DesignSpec.wide_deg``, within the joint
+limits): the paper's grid holds them within 2 deg and cannot identify their axes. Each candidate is the anchor and
+the anchor with ``perturb_deg`` on joint 1..6 in turn (the paper's cluster of 7, which the CDC local fits need);
+every one of its 7 poses must pass the cell's safety checks (limits, floor, the other arms parked) or the candidate is
+dropped. The D-optimal + space-filling selection (:func:`calibration.design.select`) picks ``budget // 7``
+clusters, they are visited in a short nearest-neighbour tour, and the whole plan (targets and the joint-space paths
+between them) is checked by :meth:`app.cell.safety.CellSafety.check_plan` before it is returned.
+
+Not modelled: whether the mocap cameras see the tool marker at the wide wrist angles (the safety model knows
+limits, the floor and the other arm only); check a new design with ``collect --dry-run`` and a short trial.
+
+:func:`compare_designs` gives the figures of the chosen design and of the paper's grid on the same identifiable
+directions (those of all candidates together), so the two are comparable.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from app.cell.planning import Plan, Target, build_plan, paper_q3_bounds, plan_anchor_grid
+from app.cell.safety import CellSafety
+from app.cell.session_plan import Q2_RANGE_DEG
+from calibration import design
+from calibration.cdc import expand_anchors
+from calibration.errors import CellCalError, ConfigError
+from calibration.parameterisation import MinimalParameterisation
+
+CLUSTER_SIZE = 7
+#: Smallest number of clusters: a CDC interpolation over (q2, q3) needs d + 1 = 3 anchors.
+MIN_CLUSTERS = 3
+
+
+@dataclass(frozen=True)
+class DesignSpec:
+    """How the optimal design is drawn and chosen.
+
+    Attributes:
+        budget: poses to measure; ``budget // 7`` clusters of 7.
+        n_candidates: candidate anchors drawn.
+        wide_deg: half-range [deg] of q1, q4, q5, q6 around 0 in which candidate anchors are drawn (clipped to the
+            joint limits minus ``perturb_deg``).
+        perturb_deg: the per-joint step of a cluster [deg].
+        spread_weight: lambda of the space-filling term (see :mod:`calibration.design`).
+        noise_mm: measurement noise assumed for the predicted uncertainty [mm].
+        seed: seed of the candidates.
+    """
+
+    budget: int = 196
+    n_candidates: int = 1500
+    wide_deg: tuple[float, float, float, float] = (45.0, 90.0, 60.0, 90.0)
+    perturb_deg: float = 1.0
+    spread_weight: float = design.DEFAULT_SPREAD_WEIGHT
+    noise_mm: float = 0.05
+    seed: int = 0
+
+    @property
+    def n_clusters(self) -> int:
+        return self.budget // CLUSTER_SIZE
+
+
+def check_budget(budget: int, limit: int | None = None, unit: str = "poses") -> None:
+    """ConfigError unless ``budget`` ([poses] in clusters of 7, or [clusters]) holds at least MIN_CLUSTERS clusters
+    and at most ``limit``."""
+    least = MIN_CLUSTERS * (CLUSTER_SIZE if unit == "poses" else 1)
+    ok = (not isinstance(budget, bool) and isinstance(budget, int) and budget >= least
+          and (limit is None or budget <= limit))
+    if not ok:
+        what = f"{least} poses ({MIN_CLUSTERS} clusters of {CLUSTER_SIZE})" if unit == "poses" else f"{least} clusters"
+        most = f" and at most {limit} (the recording's clusters)" if limit is not None else ""
+        raise ConfigError("plan" if unit == "poses" else "select", "budget",
+                          f"expected an integer of at least {what}{most}, got {budget!r}")
+
+
+def candidate_anchors(robot: str, safety: CellSafety, others: Mapping[str, np.ndarray], spec: DesignSpec
+                      ) -> np.ndarray:
+    """Safe candidate anchors [rad], shape (K, 6): every pose of each one's cluster passes the safety checks."""
+    rng = np.random.default_rng(spec.seed)
+    lo, hi = safety.limits(robot)
+    step = math.radians(spec.perturb_deg)
+    n = spec.n_candidates
+    q = np.zeros((n, 6))
+    q[:, 1] = np.radians(rng.uniform(*Q2_RANGE_DEG, n))
+    for i in range(n):
+        lo3, hi3 = paper_q3_bounds(math.degrees(q[i, 1]))
+        q[i, 2] = math.radians(rng.uniform(lo3, hi3))
+    for j, w in zip((0, 3, 4, 5), spec.wide_deg):
+        a, b = max(-math.radians(w), lo[j]), min(math.radians(w), hi[j] - step)
+        q[:, j] = rng.uniform(a, b, n)
+    keep = _safe(robot, safety, others, q, step, np.arange(n))
+    if len(keep) < spec.n_clusters:
+        raise CellCalError(f"only {len(keep)} of {n} candidate clusters are safe, fewer than the "
+                           f"{spec.n_clusters} the budget asks for; widen DesignSpec.wide_deg or lower the budget")
+    return q[keep]
+
+
+def _safe(robot: str, safety: CellSafety, others: Mapping[str, np.ndarray], anchors_q: np.ndarray, step_rad: float,
+          index: np.ndarray) -> list[int]:
+    """The anchors of ``index`` whose whole cluster passes ``safety.check_configs`` (bisecting failing batches)."""
+    cluster_q, _ = expand_anchors(anchors_q[index], step_rad)
+    try:
+        safety.check_configs(robot, cluster_q, others)
+        return [int(i) for i in index]
+    except CellCalError:
+        if len(index) == 1:
+            return []
+    half = len(index) // 2
+    return (_safe(robot, safety, others, anchors_q, step_rad, index[:half])
+            + _safe(robot, safety, others, anchors_q, step_rad, index[half:]))
+
+
+def _candidates(par: MinimalParameterisation, anchors_q: np.ndarray, perturb_deg: float,
+                reference_q: np.ndarray | None = None) -> design.Candidates:
+    q, cluster = expand_anchors(anchors_q, math.radians(perturb_deg))
+    return design.candidates(par, q, cluster, anchors_q[:, 1:3], reference_q=reference_q)
+
+
+def optimal_plan(robot: str, par: MinimalParameterisation, safety: CellSafety, others: Mapping[str, np.ndarray],
+                 spec: DesignSpec = DesignSpec(), q_start: np.ndarray | None = None
+                 ) -> tuple[Plan, dict[str, design.DesignFigures]]:
+    """The optimal design as a plan, and the figures of it and of the paper's grid (``optimal``, ``paper_grid``).
+
+    Raises:
+        ConfigError: a budget below 3 clusters.
+        CellCalError: too few safe candidates, or the chosen design does not see every identifiable direction.
+        UnsafeTarget: the plan's targets or paths fail the whole-plan check.
+    """
+    check_budget(spec.budget)
+    anchors_q = candidate_anchors(robot, safety, others, spec)
+    cands = _candidates(par, anchors_q, spec.perturb_deg)
+    chosen = design.select(cands, spec.n_clusters, spread_weight=spec.spread_weight)
+    figs = design.figures(cands, chosen, spec.noise_mm, CLUSTER_SIZE)
+    if figs.rank < figs.n_identifiable:
+        raise CellCalError(f"{spec.n_clusters} clusters see {figs.rank} of {figs.n_identifiable} identifiable "
+                           "parameter directions; raise the budget")
+    picked = anchors_q[chosen]
+    order = design.visiting_order(picked, q_start)
+    targets = []
+    for k, i in enumerate(order):
+        cluster_q, _ = expand_anchors(picked[i:i + 1], math.radians(spec.perturb_deg))
+        targets.append(Target(robot, cluster_q[0], k, "anchor"))
+        targets += [Target(robot, qq, k, "perturb") for qq in cluster_q[1:]]
+    plan = build_plan(targets, robot=robot, design="optimal", budget=spec.budget, clusters=spec.n_clusters,
+                      candidates=len(anchors_q), wide_deg=list(spec.wide_deg), spread_weight=spec.spread_weight,
+                      seed=spec.seed)
+    safety.check_plan(robot, plan.q, others, q_start)
+    grid = paper_grid_figures(par, spec, anchors_q)
+    return plan, {"optimal": figs, "paper_grid": grid}
+
+
+def paper_grid_figures(par: MinimalParameterisation, spec: DesignSpec, anchors_q: np.ndarray | None = None
+                       ) -> design.DesignFigures:
+    """Figures of the paper's 248-anchor grid (the default ``plan``), on the identifiable directions of
+    ``anchors_q``'s clusters when given (else its own)."""
+    grid = plan_anchor_grid("grid", perturb_deg=spec.perturb_deg)
+    anchors = np.array([t.q for t in grid if t.kind == "anchor"])
+    ref = None
+    if anchors_q is not None:
+        ref, _ = expand_anchors(anchors_q, math.radians(spec.perturb_deg))
+    cands = _candidates(par, anchors, spec.perturb_deg, reference_q=ref)
+    return design.figures(cands, list(range(len(cands))), spec.noise_mm, CLUSTER_SIZE)
+
+
+def figures_table(figs: Mapping[str, design.DesignFigures]) -> str:
+    """Designs side by side: size, rank, condition number and the predicted uncertainty per joint."""
+    names = list(figs)
+    first = figs[names[0]]
+    n = len(first.names) // 4  # 4 per joint, plus at most 3 for the flange shift
+    width = max(12, *(len(k) for k in names)) + 2
+    head = f"{'':34s}" + "".join(f"{k:>{width}s}" for k in names)
+    lines = [head]
+
+    def row(label: str, values: list[str]) -> None:
+        lines.append(f"{label:34s}" + "".join(f"{v:>{width}s}" for v in values))
+
+    def g(v: float, fmt: str) -> str:
+        return format(v, fmt) if np.isfinite(v) else "inf"
+
+    row("clusters / poses", [f"{f.n_clusters} / {f.n_poses}" for f in figs.values()])
+    row("directions seen / identifiable", [f"{f.rank} / {f.n_identifiable}" for f in figs.values()])
+    row("condition number", [g(f.condition_number, ".4g") for f in figs.values()])
+    for j in range(n):
+        row(f"sigma joint {j + 1} origin [mm]", [g(float(np.max(f.sigma[2 * j:2 * j + 2])), ".4f")
+                                                 for f in figs.values()])
+    for j in range(n):
+        tilt = slice(2 * n + 2 * j, 2 * n + 2 * j + 2)
+        row(f"sigma joint {j + 1} tilt [mdeg]", [g(1e3 * math.degrees(float(np.max(f.sigma[tilt]))), ".3f")
+                                                 for f in figs.values()])
+    if len(first.names) > 4 * n:
+        row("sigma flange shift [mm]", [g(float(np.max(f.sigma[4 * n:])), ".4f") for f in figs.values()])
+    lines.append(f"(sigma: predicted standard deviation for {first.noise_mm:g} mm of noise per measured coordinate)")
+    return "\n".join(lines)

@@ -1,0 +1,88 @@
+"""``cellcal select`` and ``cellcal plan --design optimal``: valid outputs, the safety model, bad budgets."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from app.cell.plan_file import read_plan
+from app.cell.runtime import park_q
+from app.cell.safety import CellSafety
+from app.cli.commands import main
+from calibration.recording import read_recording, write_recording
+from cell_config import load_cell
+from tests.conftest import assert_bad_input, cluster_design, measure
+
+
+@pytest.fixture(scope="module")
+def train(tmp_path_factory, synthetic_arm):
+    """A 7-rows-per-cluster recording without a cluster column (the loader groups consecutive rows)."""
+    _, _, truth = synthetic_arm
+    q, _ = cluster_design(step_deg=15.0, spread_wrist=True, seed=2)
+    path = tmp_path_factory.mktemp("design") / "train.csv"
+    write_recording(measure(truth.fk, q, 0.02, 0.01, 1), path)
+    return path
+
+
+def test_select_writes_whole_clusters_as_a_valid_recording(tmp_path, train, capsys):
+    out, js = tmp_path / "subset.csv", tmp_path / "select.json"
+    assert main(["select", "--robot", "R1", "--data", str(train), "--budget", "5", "--out", str(out),
+                 "--json", str(js)]) == 0
+    full, sub = read_recording(train), read_recording(out)
+    report = json.loads(js.read_text())
+    assert len(sub) == 35 and report["samples"] == 35 and len(report["clusters"]) == 5
+    rows = np.concatenate([np.arange(7 * c, 7 * c + 7) for c in sorted(report["clusters"])])
+    np.testing.assert_array_equal(sub.q, full.q[rows])  # whole clusters, in the recording's order
+    np.testing.assert_allclose(sub.p, full.p[rows])
+    assert np.all(np.diff(sub.clusters()) >= 0) and len(set(sub.clusters().tolist())) == 5
+    assert report["figures"]["selected"]["clusters"] == 5 and "condition_number" in report["figures"]["all"]
+    assert "condition number" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("budget", ["2", "1000", "x"])
+def test_select_refuses_a_bad_budget_and_writes_nothing(tmp_path, train, capsys, budget):
+    out = tmp_path / "subset.csv"
+    argv = ["select", "--robot", "R1", "--data", str(train), "--budget", budget, "--out", str(out)]
+    if budget == "x":
+        with pytest.raises(SystemExit) as e:  # argparse's own type check
+            main(argv)
+        assert e.value.code == 2
+    else:
+        assert_bad_input(capsys, argv, "budget", budget)
+    assert not out.exists()
+
+
+def test_plan_optimal_respects_limits_and_safety_and_moves_joints_1_4_5_6(tmp_path, capsys):
+    out, js = tmp_path / "plan.json", tmp_path / "plan_summary.json"
+    assert main(["plan", "--robot", "R1", "--design", "optimal", "--budget", "63", "--out", str(out),
+                 "--json", str(js)]) == 0
+    plan = read_plan(out, "collection")
+    cell = load_cell()
+    spec = cell.robot("R1").robot
+    assert len(plan) == 63 and sum(t.kind == "anchor" for t in plan.targets) == 9
+    q = plan.q
+    assert np.all(q >= spec.lower_rad) and np.all(q <= spec.upper_rad)
+    CellSafety(cell).check_plan("R1", q, {"R2": park_q("R2")}, park_q("R1"))  # raises if any target/path is unsafe
+    span = np.degrees(np.ptp(q, axis=0))
+    assert np.all(span[[0, 3, 4, 5]] > 20.0), span  # the paper's grid keeps them within 2 deg
+    figs = json.loads(js.read_text())["figures"]
+    assert figs["optimal"]["rank"] == figs["optimal"]["identifiable"]
+    assert figs["paper_grid"]["rank"] < figs["paper_grid"]["identifiable"]
+    assert figs["optimal"]["condition_number"] < figs["paper_grid"]["condition_number"]
+    assert "paper_grid" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("extra, fragment", [(["--budget", "10"], "at least 21 poses"),
+                                             ([], "needs --budget")])
+def test_plan_optimal_refuses_a_bad_budget_and_writes_nothing(tmp_path, capsys, extra, fragment):
+    out = tmp_path / "plan.json"
+    assert_bad_input(capsys, ["plan", "--robot", "R1", "--design", "optimal", *extra, "--out", str(out)], fragment)
+    assert not out.exists()
+
+
+def test_budget_belongs_to_the_optimal_design(tmp_path, capsys):
+    out = tmp_path / "plan.json"
+    assert_bad_input(capsys, ["plan", "--robot", "R1", "--budget", "70", "--out", str(out)], "--design optimal")
+    assert not out.exists()

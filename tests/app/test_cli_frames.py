@@ -1,0 +1,91 @@
+"""Frame checks on the command line: fit and compare name a planted tool-marker error and fit the frames first;
+compare and evaluate say when a test recording is off its training recording by a frame."""
+
+import json
+
+import numpy as np
+import pytest
+
+from app.cli.commands import main
+from calibration import so3
+from calibration.frames import put_in
+from calibration.models import load_model
+from calibration.models.rebased import make_T
+from calibration.recording import write_recording
+from tests.conftest import cluster_design, measure
+
+T_TOOL_ERR = make_T(so3.exp(np.radians(0.5) * np.array([0.6, 0.0, 0.8])), np.array([12.0, 12.0, -6.0]))
+T_BASE_ERR = make_T(so3.exp(np.radians(0.3) * np.array([0.0, 0.6, 0.8])), np.array([2.0, -1.5, 1.0]))
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory, synthetic_arm):
+    _, _, truth = synthetic_arm
+    root = tmp_path_factory.mktemp("frames")
+    q, cluster = cluster_design(step_deg=15.0)
+    train = measure(truth.fk, q, 0.02, 0.01, 1, cluster)
+    test = measure(truth.fk, np.random.default_rng(3).uniform(-0.8, 0.8, (200, 6)), 0.02, 0.01, 2)
+    write_recording(train, root / "train.csv")
+    write_recording(test, root / "test.csv")
+    write_recording(put_in(train, np.eye(4), T_TOOL_ERR), root / "train_tool.csv")
+    write_recording(put_in(test, np.eye(4), T_TOOL_ERR), root / "test_tool.csv")
+    write_recording(put_in(test, T_BASE_ERR, np.eye(4)), root / "test_moved.csv")
+    return root
+
+
+def test_fit_names_the_tool_frame_and_fits_it_first(tmp_path, data, capsys):
+    out = tmp_path / "m.json"
+    assert main(["fit", "--robot", "R1", "--train", str(data / "train_tool.csv"), "--method", "nls1",
+                 "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "tool frame (tool-marker-to-flange registration) is off" in err and "fitted first" in err
+    model = load_model(out)
+    assert model.kind == "rebased" and model.info["frames_first"]["frame"] == "tool"
+    result = tmp_path / "e.json"
+    assert main(["evaluate", "--model", str(out), "--test", str(data / "test_tool.csv"), "--json", str(result)]) == 0
+    assert json.loads(result.read_text())["test"]["position_mm"]["mean"] < 0.1
+
+
+def test_clean_fit_says_nothing_about_frames(tmp_path, data, capsys):
+    assert main(["fit", "--robot", "R1", "--train", str(data / "train.csv"), "--method", "nls1",
+                 "--out", str(tmp_path / "m.json")]) == 0
+    assert "frame" not in capsys.readouterr().err
+    assert load_model(tmp_path / "m.json").kind == "constant"
+
+
+def test_compare_and_evaluate_say_when_the_test_recording_is_off_by_a_frame(tmp_path, data, capsys):
+    out = tmp_path / "cmp.json"
+    for test, found in (("test.csv", False), ("test_moved.csv", True)):
+        assert main(["compare", "--robot", "R1", "--train", str(data / "train.csv"), "--test", str(data / test),
+                     "--methods", "nominal,nls1", "--json", str(out)]) == 0
+        frames = json.loads(out.read_text())["analysis"]["frames"]
+        assert frames["training"]["frame"] is None and frames["test"]["model"] == "nls1"
+        assert (frames["test"]["frame"] is not None) == found
+        err = capsys.readouterr().err
+        assert ("test recording, against the nls1 fit of the training recording, is off by a frame" in err) == found
+    assert main(["fit", "--robot", "R1", "--train", str(data / "train.csv"), "--method", "nls1",
+                 "--out", str(tmp_path / "m.json")]) == 0
+    assert main(["evaluate", "--model", str(tmp_path / "m.json"), "--test", str(data / "test_moved.csv"),
+                 "--json", str(out)]) == 0
+    assert "base frame (mocap-to-base registration)" in capsys.readouterr().err
+    assert json.loads(out.read_text())["frames"]["frame"] == "base"
+
+
+def test_several_training_recordings_fit_one_arm_with_frames_each(tmp_path, data, capsys):
+    out = tmp_path / "cmp.json"
+    train_moved = tmp_path / "train_moved.csv"
+    from calibration.recording import read_recording
+
+    write_recording(put_in(read_recording(data / "train.csv"), T_BASE_ERR, np.eye(4)), train_moved)
+    assert main(["compare", "--robot", "R1", "--train", str(data / "train.csv"), "--train", str(train_moved),
+                 "--test", str(data / "test.csv"), "--methods", "nominal,nls1", "--json", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "2 recordings in one arm model" in err and "The frames explain the differences" in err
+    days = json.loads(out.read_text())["analysis"]["days"]
+    moved = days["days"][1]["frames"]
+    assert abs(moved["base_mm"] - np.linalg.norm(T_BASE_ERR[:3, 3])) < 0.1 and not days["kinematics_changed"]
+    assert json.loads(out.read_text())["methods"]["nls1"]["test"]["position_mm"]["mean"] < 0.1
+    model_file = tmp_path / "m.json"
+    assert main(["fit", "--robot", "R1", "--train", str(data / "train.csv"), "--train", str(train_moved),
+                 "--method", "nls1", "--out", str(model_file)]) == 0
+    assert load_model(model_file).info["days"]["days"][1]["frames"]["base_mm"] == moved["base_mm"]

@@ -1,0 +1,68 @@
+"""Several recordings in one fit: per-recording frames are recovered, a day whose arm changed is flagged, and the
+pooled recording keeps the clusters of each recording apart."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from calibration import so3
+from calibration.errors import ModelError
+from calibration.frames import put_in
+from calibration.methods import FitOptions, Fitter
+from calibration.models import ConstantModel
+from calibration.models.rebased import make_T
+from calibration.multiday import KINEMATICS_RATIO_LIMIT, fit_days, pool
+from calibration.parameterisation import MinimalParameterisation
+from tests.conftest import cluster_design, measure, planted_parameters
+
+T_BASE = make_T(so3.exp(np.radians(0.1) * np.array([0.0, 0.6, 0.8])), np.array([1.5, -1.0, 0.8]))
+
+
+@pytest.fixture(scope="module")
+def days(r1_nominal):
+    """Three recordings: day 0, day 1 = the same arm in a moved mocap frame, day 2 = an arm whose joint 2 moved."""
+    par = MinimalParameterisation(r1_nominal, fit_tool=True)
+    x = planted_parameters(par, 1, 0.5, 5e-4)
+    changed = x.copy()
+    changed[2:4] += 0.6  # joint 2's origin moved by 0.85 mm
+    q, cluster = cluster_design(step_deg=15.0)
+    recs = [measure(par.model(x).fk, q, 0.02, 0.01, 1, cluster),
+            put_in(measure(par.model(x).fk, q, 0.02, 0.01, 2, cluster), T_BASE, np.eye(4)),
+            measure(par.model(changed).fk, q, 0.02, 0.01, 3, cluster)]
+    return [type(r)(r.q, r.p, r.quat, r.extra, f"day{i}") for i, r in enumerate(recs)]
+
+
+def test_pool_keeps_clusters_apart(days):
+    pooled = pool(days[:2])
+    assert len(pooled) == 2 * len(days[0])
+    assert len(np.unique(pooled.clusters())) == 2 * len(np.unique(days[0].clusters()))
+
+
+def _fit(days, r1_nominal):
+    nominal = ConstantModel("R1", "nominal", r1_nominal, 0, {})
+    return fit_days(lambda r: Fitter("R1", r1_nominal, r, FitOptions()), nominal, days, reference="nls1")
+
+
+def test_the_frames_of_a_moved_mocap_are_recovered(days, r1_nominal):
+    fit = _fit(days[:2], r1_nominal)
+    d0, d1 = fit.days
+    assert d0.frames is None
+    np.testing.assert_allclose(d1.frames.result.T_base_correction[:3, 3], T_BASE[:3, 3], atol=0.05)
+    assert abs(d1.frames.base_deg - 0.1) < 0.01
+    assert d1.ratio < 1.1 and not fit.kinematics_changed
+    model, _ = fit.fitter.fit("nls1")
+    assert len(fit.fitter.train) == 2 * len(days[0]) and model.method == "nls1"
+
+
+def test_a_day_whose_arm_changed_is_flagged(days, r1_nominal):
+    fit = _fit(days, r1_nominal)
+    assert fit.kinematics_changed and fit.worst == "day2"
+    assert max(d.ratio for d in fit.days) > KINEMATICS_RATIO_LIMIT
+    assert "day2 differs most" in fit.summary()
+
+
+def test_one_recording_is_refused(days, r1_nominal):
+    with pytest.raises(ModelError, match="at least two recordings"):
+        fit_days(lambda r: Fitter("R1", r1_nominal, r, FitOptions()), ConstantModel("R1", "nominal", r1_nominal, 0, {}),
+                 days[:1])
