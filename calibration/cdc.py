@@ -1,12 +1,12 @@
 """Configuration-dependent calibration: local identification per cluster, then interpolation.
 
 Every cluster (an anchor pose and its +1 deg neighbours) gets its own minimal geometric parameter vector
-from one batched identification of all clusters at once. The clusters share a global reference model (the
-physics-informed fit: geometry, tool rotation, gravity compliance, structural deflection); only the
-geometric block varies per cluster, pulled toward the global values by a weak ridge prior (in
-millimetre-equivalent units) so directions a 7-sample cluster cannot see stay at the global values instead
-of absorbing noise. The local geometric parameters are then interpolated over the anchors' shoulder and
-elbow angles (q2, q3).
+from one batched identification of all clusters at once. The clusters share a global reference model: the
+purely geometric global fit (the paper's construction) or the physics-informed fit (geometry, tool rotation,
+gravity compliance, structural deflection; methods ``pi+...``); only the geometric block varies per cluster,
+pulled toward the global values by a weak ridge prior (in millimetre-equivalent units) so directions a 7-sample
+cluster cannot see stay at the global values instead of absorbing noise. The local geometric parameters are then
+interpolated over the anchors' shoulder and elbow angles (q2, q3).
 """
 
 from __future__ import annotations
@@ -103,15 +103,17 @@ def geometric_cdc(par: MinimalParameterisation) -> tuple[ExtendedKinematics, np.
     return kin, np.zeros(kin.size)
 
 
-def build_cdc(robot: str, method: str, kin: ExtendedKinematics, local: LocalFits, **options: object) -> CdcModel:
-    """Fit interpolator ``method`` (nearest, linear, cubic, rbf, fbf13, fbf7, nn, ae) to the local parameters.
+def build_cdc(robot: str, method: str, kin: ExtendedKinematics, local: LocalFits, interpolator: str | None = None,
+              **options: object) -> CdcModel:
+    """Fit ``interpolator`` (nearest, linear, cubic, rbf, fbf13, fbf7, nn, ae; default: ``method``) to the local
+    parameters; the model is named ``method`` (``pi+fbf13``: the fbf13 interpolator around the pi reference).
 
     The model clips the interpolated parameters to the local fits' per-parameter range, so a kind that
     extrapolates (rbf, Fourier, nn) or overshoots between anchors (cubic, ae decoding) stays within what the
     clusters measured."""
     from calibration.interpolation import make_interpolator
 
-    interp = make_interpolator(method, **options).fit(local.anchors, local.x)
+    interp = make_interpolator(interpolator or method, **options).fit(local.anchors, local.x)
     g = local.x.shape[1]
     n_params = g * _effective_terms(interp, local.x.shape[0]) + kin.size - g
     bounds = np.stack([local.x.min(axis=0), local.x.max(axis=0)])

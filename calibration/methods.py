@@ -2,11 +2,20 @@
 
 Constant-parameter methods: ``nominal``, ``base`` (3 base-position parameters), ``cpa`` (circular point
 analysis, needs single-joint sweeps), ``nls0`` (NLS on the clusters nearest q = 0), ``nls1`` (one NLS over
-all training data). Configuration-dependent methods interpolate local cluster fits over (q2, q3):
-``nearest``, ``linear``, ``cubic``, ``rbf``, ``fbf13``, ``fbf7``, ``nn``, ``ae``. Beyond the paper, ``pi`` is
-the physics-informed model (geometry + tool rotation + gravity compliance + smooth structural deflection, see
-:mod:`calibration.physics_informed`), and ``diagnosed`` is what :func:`calibration.diagnosis.diagnose` finds on
-the training data alone (effects chosen on set-aside training clusters), refitted on all of it.
+all training data). Configuration-dependent (CDC) methods interpolate local cluster fits over (q2, q3) with one
+of the interpolators ``nearest``, ``linear``, ``cubic``, ``rbf``, ``fbf13``, ``fbf7``, ``nn``, ``ae``, in two
+constructions (:data:`CDC_REFERENCES`):
+
+- the paper's, under the interpolator's bare name (``fbf13``): local minimal POE fits of the geometry alone,
+  pulled toward the purely geometric global fit (``nls1``'s geometry; no tool rotation, compliance or
+  deflection);
+- built on ``pi``, prefixed ``pi+`` (``pi+fbf13``): the local fits vary the geometric block of the
+  physics-informed model, its other terms held at the global ``pi`` fit.
+
+Beyond the paper, ``pi`` is the physics-informed model (geometry + tool rotation + gravity compliance + smooth
+structural deflection, see :mod:`calibration.physics_informed`), and ``diagnosed`` is what
+:func:`calibration.diagnosis.diagnose` finds on the training data alone (effects chosen on set-aside training
+clusters), refitted on all of it.
 """
 
 from __future__ import annotations
@@ -38,11 +47,31 @@ from calibration.recording import Recording
 log = logging.getLogger("cellcal.calibration")
 
 CONSTANT_METHODS = ("nominal", "base", "cpa", "nls0", "nls1")
-CDC_METHODS = ("nearest", "linear", "cubic", "rbf", "fbf13", "fbf7", "nn", "ae")
+#: The interpolators of the CDC methods (calibration.interpolation).
+CDC_INTERPOLATORS = ("nearest", "linear", "cubic", "rbf", "fbf13", "fbf7", "nn", "ae")
+#: What the local fits of a CDC method vary around: the paper's purely geometric reference, or the pi model.
+CDC_REFERENCES = ("geometric", "pi")
+PAPER_CDC_METHODS = CDC_INTERPOLATORS
+PI_CDC_METHODS = tuple(f"pi+{k}" for k in CDC_INTERPOLATORS)
+CDC_METHODS = PAPER_CDC_METHODS + PI_CDC_METHODS
 PHYSICS_METHODS = ("pi", "diagnosed")
-#: CDC kinds whose fit is a network training (seconds): their held-out folds train in parallel worker processes.
-NEURAL_METHODS = ("nn", "ae")
-METHODS = CONSTANT_METHODS + CDC_METHODS + PHYSICS_METHODS
+#: CDC methods whose fit is a network training (seconds): their held-out folds train in parallel worker processes.
+NEURAL_METHODS = ("nn", "ae", "pi+nn", "pi+ae")
+METHODS = CONSTANT_METHODS + PAPER_CDC_METHODS + PHYSICS_METHODS + PI_CDC_METHODS
+
+
+def cdc_method(method: str) -> tuple[str, str]:
+    """``(reference, interpolator)`` of a CDC method: ``fbf13`` -> ``("geometric", "fbf13")``, ``pi+fbf13`` ->
+    ``("pi", "fbf13")``.
+
+    Raises:
+        ModelError: not a CDC method.
+    """
+    reference, _, kind = method.rpartition("+")
+    reference = reference or "geometric"
+    if reference not in CDC_REFERENCES or kind not in CDC_INTERPOLATORS:
+        raise ModelError(f"{method!r} is not a CDC method; valid: {', '.join(CDC_METHODS)}")
+    return reference, kind
 
 
 @dataclass(frozen=True)
@@ -91,6 +120,10 @@ class Fitter:
 
     ``gravity`` (link masses) and ``joint_limits`` serve ``diagnosed``: without masses its joint compliance
     takes the mass-free form; without limits the training poses stand in for the workspace.
+
+    ``warm``: a Fitter on a superset of this one's training data (the whole recording, when this one fits the
+    clusters outside a held-out fold): its global fits start this one's solver and its observability analyses
+    (hidden directions, Tikhonov damping) are reused, so a fold refit takes a few iterations.
     """
 
     robot: str
@@ -100,6 +133,7 @@ class Fitter:
     cpa_data: Recording | None = None
     gravity: GravityModel | None = None
     joint_limits: tuple[np.ndarray, np.ndarray] | None = None
+    warm: "Fitter | None" = field(default=None, repr=False)
     _cache: dict[str, Any] = field(default_factory=dict, repr=False)
 
     @property
@@ -110,12 +144,20 @@ class Fitter:
 
     def observability(self) -> Observability:
         if "obs" not in self._cache:
-            self._cache["obs"] = analyse(self.par, self.train.q, a=self.options.a, tolerance=self.options.tolerance)
+            self._cache["obs"] = self.warm.observability() if self.warm is not None else \
+                analyse(self.par, self.train.q, a=self.options.a, tolerance=self.options.tolerance)
         return self._cache["obs"]
 
-    def _global(self, rec: Recording, obs: Observability) -> np.ndarray:
+    def _pi_observability(self) -> Observability:
+        if "pi_obs" not in self._cache:
+            self._cache["pi_obs"] = self.warm._pi_observability() if self.warm is not None else \
+                analyse(ExtendedKinematics(self.par), self.train.q, a=self.options.a, tolerance=self.options.tolerance)
+        return self._cache["pi_obs"]
+
+    def _global(self, rec: Recording, obs: Observability, x0: np.ndarray | None = None) -> np.ndarray:
         problem = GeometricProblem(self.par, rec.q, rec.R, rec.p, a=self.options.a, basis=obs.basis)
-        res = problem.solve()
+        # x = basis z with basis = scale * V_r: a start x0 in that span is z0 = V_r^T (x0 / scale)
+        res = problem.solve(None if x0 is None else (obs.V[:, : obs.rank].T @ (x0 / obs.scale))[None])
         if not res.converged.all():
             log.warning("global NLS stopped after %d iterations without converging (%s)", res.iterations,
                         res.reason[0].value)
@@ -123,16 +165,18 @@ class Fitter:
 
     def global_fit(self) -> np.ndarray:
         if "x_global" not in self._cache:
-            self._cache["x_global"] = self._global(self.train, self.observability())
+            x0 = None if self.warm is None else self.warm.global_fit()
+            self._cache["x_global"] = self._global(self.train, self.observability(), x0)
         return self._cache["x_global"]
 
     def physics_informed(self) -> PhysicsInformedModel:
         """The global physics-informed fit (cached): method ``pi`` and the reference of the CDC local fits."""
         if "pi" not in self._cache:
             kin = ExtendedKinematics(self.par)
-            obs = analyse(kin, self.train.q, a=self.options.a, tolerance=self.options.tolerance)
+            obs = self._pi_observability()
+            z0 = None if self.warm is None else self.warm.physics_informed().theta[None]
             res = GeometricProblem(kin, self.train.q, self.train.R, self.train.p, a=self.options.a,
-                                   prior_weight=filter_weights(obs)).solve()
+                                   prior_weight=filter_weights(obs)).solve(z0)
             if not res.converged.all():
                 log.warning("physics-informed fit stopped after %d iterations without converging (%s)",
                             res.iterations, res.reason[0].value)
@@ -140,47 +184,80 @@ class Fitter:
                                                      {"hidden_directions": len(obs.singular_values) - obs.rank})
         return self._cache["pi"]
 
-    def local_fits(self) -> LocalFits:
-        if "local" not in self._cache:
-            prior = self.options.local_prior
-            if prior is None:
-                prior = self._choose_local_prior()
-            self._cache["local"] = self._local_at(prior)
-        return self._cache["local"]
+    def reference(self, reference: str = "pi") -> tuple[ExtendedKinematics, np.ndarray]:
+        """Kinematics and global parameters the local fits of a CDC construction vary around (cached).
 
-    def _local_at(self, prior: float) -> LocalFits:
-        fits = self._cache.setdefault("local_by_prior", {})
-        if prior not in fits:
+        ``pi``: the physics-informed fit. ``geometric`` (the paper's): the same layout with only the geometric
+        block, at the global geometric fit (``nls1``'s), every other term zero.
+        """
+        if reference == "pi":
             pi = self.physics_informed()
-            fits[prior] = fit_local(pi.kinematics, self.train, pi.theta, self.options.a, prior,
-                                    self.options.cluster_size)
-        return fits[prior]
+            return pi.kinematics, pi.theta
+        if reference != "geometric":
+            raise ModelError(f"unknown CDC reference {reference!r}; valid: {', '.join(CDC_REFERENCES)}")
+        if "geometric_reference" not in self._cache:
+            kin = ExtendedKinematics(self.par)
+            theta = np.zeros(kin.size)
+            theta[: self.par.size] = self.global_fit()
+            self._cache["geometric_reference"] = (kin, theta)
+        return self._cache["geometric_reference"]
 
-    def _choose_local_prior(self) -> float:
+    def _reference_fk(self, reference: str) -> Any:
+        kin, theta = self.reference(reference)
+        return lambda q: kin.pose(q, theta)
+
+    def local_fits(self, reference: str = "pi") -> LocalFits:
+        """The local cluster fits around ``reference`` at the local prior of FitOptions (or chosen, see there)."""
+        cache = self._cache.setdefault("local", {})
+        if reference not in cache:
+            prior = self.options.local_prior
+            if prior is None and self.warm is not None:
+                prior = self.warm.local_prior(reference)
+            if prior is None:
+                prior = self._choose_local_prior(reference)
+            cache[reference] = self._local_at(prior, reference)
+        return cache[reference]
+
+    def local_prior(self, reference: str = "pi") -> float:
+        """The local prior the local fits around ``reference`` use (FitOptions.local_prior or the chosen one)."""
+        if self.options.local_prior is not None:
+            return self.options.local_prior
+        self.local_fits(reference)
+        return self._cache["local_prior_cv"][reference]["chosen"]
+
+    def _local_at(self, prior: float, reference: str) -> LocalFits:
+        fits = self._cache.setdefault("local_by_prior", {})
+        if (reference, prior) not in fits:
+            kin, theta = self.reference(reference)
+            fits[reference, prior] = fit_local(kin, self.train, theta, self.options.a, prior,
+                                               self.options.cluster_size)
+        return fits[reference, prior]
+
+    def _choose_local_prior(self, reference: str) -> float:
         """The local prior of ``local_prior_grid`` chosen on held-out training clusters (see FitOptions)."""
         from calibration.interpolation import make_interpolator
 
         grid = tuple(self.options.local_prior_grid)
-        pi = self.physics_informed()
+        kin, theta = self.reference(reference)
         groups, _ = cluster_anchors(self.train, self.options.cluster_size)
         scores, ratios = [], []
         for prior in grid:
-            local = self._local_at(prior)
-            scores.append(robust.held_out(lambda: make_interpolator("linear"), pi.kinematics, pi.theta,
-                                          local.anchors, local.x, groups, self.train, CDC_INPUTS,
-                                          seed=self.options.seed))
-            model = build_cdc(self.robot, "linear", pi.kinematics, local)
-            ratios.append(robust.workspace_ratio(model.fk, pi.fk, self.train.q, self._workspace_probes())[0])
+            local = self._local_at(prior, reference)
+            scores.append(robust.held_out(lambda: make_interpolator("linear"), kin, theta, local.anchors, local.x,
+                                          groups, self.train, CDC_INPUTS, seed=self.options.seed))
+            model = build_cdc(self.robot, "linear", kin, local)
+            ratios.append(robust.workspace_ratio(model.fk, self._reference_fk(reference), self.train.q,
+                                                 self._workspace_probes())[0])
         ok = [i for i, r in enumerate(ratios) if r <= robust.WORKSPACE_RATIO_LIMIT]
         if ok:
             chosen = grid[ok[robust.one_se_choice(tuple(grid[i] for i in ok), [scores[i] for i in ok])]]
         else:
             chosen = max(grid)
-        self._cache["local_prior_cv"] = {"chosen": chosen, "grid": list(grid),
-                                         "heldout_rms_mm": [round(s.rms_mm, 4) for s in scores],
-                                         "se_mm": [round(s.se_rms_mm, 4) for s in scores],
-                                         "workspace_ratio": [round(r, 2) for r in ratios]}
-        log.info("local prior %g chosen on held-out clusters: %s", chosen, self._cache["local_prior_cv"])
+        self._cache.setdefault("local_prior_cv", {})[reference] = {
+            "chosen": chosen, "grid": list(grid), "heldout_rms_mm": [round(s.rms_mm, 4) for s in scores],
+            "se_mm": [round(s.se_rms_mm, 4) for s in scores], "workspace_ratio": [round(r, 2) for r in ratios]}
+        log.info("local prior %g (%s reference) chosen on held-out clusters: %s", chosen, reference,
+                 self._cache["local_prior_cv"][reference])
         return chosen
 
     def fit(self, method: str) -> tuple[KinematicModel, float]:
@@ -193,6 +270,7 @@ class Fitter:
         model = fit_one() if fit_one is not None else self._fit_cdc(method)
         # A prefetched fit ran in worker processes: its time is what its jobs took there, as if run here.
         seconds = self._cache.get("worker_seconds", {}).pop(method, time.perf_counter() - start) + shared
+        self._cache.setdefault("fitted", set()).add(method)
         model.info.setdefault("fit_seconds", seconds)
         model.info.setdefault("train_samples", len(self.train))
         model.info.setdefault(REGION_KEY, Region.of(self.train.q).to_dict())  # the extrapolation guard's region
@@ -200,8 +278,12 @@ class Fitter:
 
     def _prepare_shared(self, method: str) -> float:
         """Run (once) the shared fits ``method`` builds on; returns their wall time [s], charged to each user."""
-        needs = {"nls1": ("global",), "pi": ("pi",)}.get(method, ("pi", "local") if method in CDC_METHODS else ())
-        steps = {"global": self.global_fit, "pi": self.physics_informed, "local": self.local_fits}
+        needs = {"nls1": ("global",), "pi": ("pi",)}.get(method, ())
+        if method in CDC_METHODS:
+            reference = cdc_method(method)[0]
+            needs = ("pi", "local pi") if reference == "pi" else ("global", "local geometric")
+        steps = {"global": self.global_fit, "pi": self.physics_informed,
+                 "local pi": lambda: self.local_fits("pi"), "local geometric": lambda: self.local_fits("geometric")}
         seconds = self._cache.setdefault("seconds", {})
         for step in needs:
             if step not in seconds:
@@ -264,21 +346,26 @@ class Fitter:
         return replace(found.model, method="diagnosed", info={**found.model.info, "verdict": found.verdict})
 
     def _cdc_options(self, method: str) -> dict[str, Any]:
+        kind = cdc_method(method)[1]
         options: dict[str, Any] = {}
-        if method == "fbf7":
+        if kind == "fbf7":
             options["rank"] = self.options.fbf7_rank
-        if method in ("nn", "ae"):
+        if kind in ("nn", "ae"):
             options["random_state"] = self.options.seed
             options["progress"] = self.options.epoch_progress
-        if method in ("fbf13", "fbf7"):
+        if kind in ("fbf13", "fbf7"):
             options["ridge"] = self._choose_strength(method, options, "ridge", self.options.fourier_ridge_grid)
         return options
 
     def _build_cdc(self, method: str, options: dict[str, Any]) -> CdcModel:
-        return build_cdc(self.robot, method, self.physics_informed().kinematics, self.local_fits(), **options)
+        reference, kind = cdc_method(method)
+        return build_cdc(self.robot, method, self.reference(reference)[0], self.local_fits(reference),
+                         interpolator=kind, **options)
 
     def _fit_cdc(self, method: str) -> KinematicModel:
         options = self._cdc_options(method)
+        if self.warm is not None:  # a fold refit is not checked: the fit on every cluster was
+            return self._build_cdc(method, options)
         jobs = self._cache.get("prefetched", {}).pop(method, None)
         if jobs is not None:  # final network and held-out folds trained in worker processes (see prefetch)
             (model, final_s), folds = jobs[0].result(), [f.result() for f in jobs[1]]
@@ -304,9 +391,10 @@ class Fitter:
                         ) -> robust.HeldOutCheck:
         from calibration.interpolation import make_interpolator
 
-        local, pi = self.local_fits(), self.physics_informed()
+        reference, kind = cdc_method(method)
+        (kin, theta), local = self.reference(reference), self.local_fits(reference)
         groups, _ = cluster_anchors(self.train, self.options.cluster_size)
-        return robust.HeldOutCheck(lambda: make_interpolator(method, **options), pi.kinematics, pi.theta,
+        return robust.HeldOutCheck(lambda: make_interpolator(kind, **options), kin, theta,
                                    local.anchors, local.x, groups, self.train, CDC_INPUTS, seed=self.options.seed,
                                    workers=workers, n_evaluated=robust.NEURAL_EVALUATED_FOLDS if neural else None)
 
@@ -318,11 +406,13 @@ class Fitter:
         A no-op without the ``fork`` start method or with one usable core. The shared fits run here first.
         """
         global _PREFETCH
-        neural = [m for m in ("ae", "nn") if m in methods and m not in self._cache.get("prefetched", {})]
+        prefetched = self._cache.get("prefetched", {})
+        neural = [m for m in ("ae", "pi+ae", "nn", "pi+nn") if m in methods and m not in prefetched]
         workers = robust.default_workers()
         if not neural or workers < 2 or "fork" not in mp.get_all_start_methods():
             return
-        self._prepare_shared(neural[0])
+        for m in neural:  # the shared fits of each reference, once, before the workers fork
+            self._prepare_shared(m)
         jobs = {m: self._cdc_options(m) for m in neural}
         _PREFETCH = self  # the workers fork during the submits below
         try:
@@ -335,6 +425,46 @@ class Fitter:
         finally:
             _PREFETCH = None
 
+    def held_out_errors(self, method: str) -> np.ndarray | None:
+        """Position error [mm] of every training pose as predicted by ``method`` fitted without that pose's
+        cluster: k-fold over whole clusters (:func:`robust.cluster_folds`, the folds of the CDC checks), shape (N,).
+
+        ``nominal`` and ``cpa`` never see the training poses: their training errors are held-out errors. Every
+        other method is refitted on each fold's other clusters by a :attr:`warm` Fitter (global fits started
+        from, and the local prior and Fourier ridge taken from, this one's fit on every cluster; so the method
+        is fitted here first). None for ``diagnosed`` (a fold refit would rerun the whole diagnosis).
+        """
+        from calibration.metrics import errors
+
+        if method == "diagnosed":
+            return None
+        if method in ("nominal", "cpa"):
+            return errors(self.fit(method)[0], self.train).position_mm
+        if method not in self._cache.get("fitted", ()):
+            self.fit(method)  # chooses the strengths the fold refits reuse
+        return self._fold_errors(method)
+
+    def _fold_errors(self, method: str) -> np.ndarray:
+        """:meth:`held_out_errors` of a method whose strengths are chosen (cached)."""
+        from calibration.metrics import errors
+
+        cache = self._cache.setdefault("held_out_errors", {})
+        if method not in cache:
+            err = np.empty(len(self.train))
+            for held, sub in self._fold_fitters():
+                err[held] = errors(sub.fit(method)[0], self.train.subset(held)).position_mm
+            cache[method] = err
+        return cache[method]
+
+    def _fold_fitters(self) -> list[tuple[np.ndarray, "Fitter"]]:
+        """``(held-out mask, Fitter on the other clusters)`` per fold, shared by every method (cached)."""
+        if "folds" not in self._cache:
+            groups, anchors = cluster_anchors(self.train, self.options.cluster_size)
+            folds = robust.cluster_folds(len(anchors), robust.N_FOLDS, self.options.seed)[groups]
+            self._cache["folds"] = [(folds == f, replace(self, train=self.train.subset(folds != f), warm=self,
+                                                         _cache={})) for f in range(robust.N_FOLDS)]
+        return self._cache["folds"]
+
     def _workspace_probes(self) -> np.ndarray:
         if "workspace_probes" not in self._cache:
             _, anchor_q = cluster_anchors(self.train, self.options.cluster_size)
@@ -344,17 +474,23 @@ class Fitter:
         return self._cache["workspace_probes"]
 
     def _choose_strength(self, method: str, options: dict[str, Any], name: str, grid: tuple[float, ...]) -> float:
-        """Option ``name`` of interpolator ``method`` from ``grid``, on held-out training clusters (1-SE rule)."""
+        """Option ``name`` of CDC ``method``'s interpolator from ``grid``, on held-out training clusters (1-SE rule);
+        a fold refit takes the :attr:`warm` Fitter's choice."""
         from calibration.interpolation import make_interpolator
 
-        local, pi = self.local_fits(), self.physics_informed()
+        if self.warm is not None:
+            if method not in self.warm._cache.get("strengths", {}):
+                self.warm.fit(method)
+            return self.warm._cache["strengths"][method][name]
+        ref_name, kind = cdc_method(method)
+        (kin, theta), local = self.reference(ref_name), self.local_fits(ref_name)
         groups, _ = cluster_anchors(self.train, self.options.cluster_size)
         scores: list[robust.HeldOut | None] = []
-        reference = robust.position_errors(pi.kinematics, pi.theta, self.train)
+        reference = robust.position_errors(kin, theta, self.train)
         for v in grid:
             try:
-                scores.append(robust.held_out(lambda: make_interpolator(method, **{**options, name: v}),
-                                              pi.kinematics, pi.theta, local.anchors, local.x, groups, self.train,
+                scores.append(robust.held_out(lambda: make_interpolator(kind, **{**options, name: v}),
+                                              kin, theta, local.anchors, local.x, groups, self.train,
                                               CDC_INPUTS, seed=self.options.seed, reference_mm=reference))
             except ModelError as e:  # e.g. ridge 0 with fewer than 13 anchors in a fold: that strength is out
                 log.info("%s %s=%g cannot be fitted on the held-out folds: %s", method, name, v, e)
@@ -372,10 +508,12 @@ class Fitter:
     def _cdc_checks(self, method: str, model: Any, h: robust.HeldOut) -> dict[str, Any]:
         """Held-out-cluster (``h``) and probe-range checks of a CDC fit (training data only); a warning when
         one fails."""
-        local, pi = self.local_fits(), self.physics_informed()
+        reference = cdc_method(method)[0]
+        local = self.local_fits(reference)
         probes = robust.probe_grid(local.anchors)
         excess = robust.range_excess(model.interpolator.predict(probes), local.x, 0.01 * self.par.scale())
-        ratio, probe_mm, train_mm = robust.workspace_ratio(model.fk, pi.fk, self.train.q, self._workspace_probes())
+        ratio, probe_mm, train_mm = robust.workspace_ratio(model.fk, self._reference_fk(reference), self.train.q,
+                                                           self._workspace_probes())
         info: dict[str, Any] = {
             "heldout": {"rms_mm": round(h.rms_mm, 4), "max_mm": round(h.max_mm, 4),
                         "reference_rms_mm": round(h.reference_rms_mm, 4),
@@ -384,7 +522,8 @@ class Fitter:
                                    "share_over_limit": round(float(np.mean(excess > robust.RANGE_EXCESS_LIMIT)), 3)},
             "workspace_correction": {"ratio": round(ratio, 2), "probe_p99_mm": round(probe_mm, 4),
                                      "train_p99_mm": round(train_mm, 4)},
-            "local_prior": self._cache.get("local_prior_cv", {"chosen": self.options.local_prior}),
+            "reference": reference,
+            "local_prior": self._cache.get("local_prior_cv", {}).get(reference, {"chosen": self.options.local_prior}),
         }
         if method in self._cache.get("strengths", {}):
             info["strength"] = self._cache["strengths"][method]
@@ -392,7 +531,7 @@ class Fitter:
         if h.ratio > robust.HELDOUT_RATIO_LIMIT:
             problems.append(f"on training clusters held out from it, its position RMS is {h.rms_mm:.3f} mm (max "
                             f"{h.max_mm:.3f}) against {h.reference_rms_mm:.3f} mm (max {h.reference_max_mm:.3f}) "
-                            f"for the constant reference fit (x{h.ratio:.2f})")
+                            f"for the constant {reference} reference fit (x{h.ratio:.2f})")
         if ratio > robust.WORKSPACE_RATIO_LIMIT:
             problems.append(f"its correction over the constant reference reaches {probe_mm:.3f} mm (99th "
                             f"percentile) at configurations spread over the joint limits against {train_mm:.3f} mm "

@@ -2,7 +2,10 @@
 
 Same-day table: each training recording of ``../shared/data/welding_motoman`` -> that day's test recording(s)
 (0620: both test files; 0627: before -> before, after -> after; 0524 has no test and is left out), position
-error mean / max [mm] per method.
+error mean / max [mm] per method, and the model ``compare`` recommends among them (chosen on clusters held out
+from the training recording, :mod:`calibration.selection`). CDC methods come in the paper's construction
+(``fbf13``: local geometric fits around the geometric global fit) and built on pi (``pi+fbf13``); a second
+table sets the two side by side for every interpolator run in both.
 
 Each same-day test recording also gets the frame check ``compare`` runs (:func:`calibration.frames.check_test` with
 pi, else nls1); the ones found off their training recording by a frame are printed (0620 before).
@@ -31,7 +34,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from calibration.methods import METHODS, Fitter  # noqa: E402
+from app.analysis.compare import recommend_fitted  # noqa: E402
+from calibration.methods import CDC_INTERPOLATORS, METHODS, Fitter  # noqa: E402
 from calibration.frames import check_recording, check_test  # noqa: E402
 from calibration.metrics import errors  # noqa: E402
 from calibration.models import ConstantModel  # noqa: E402
@@ -46,7 +50,7 @@ DATA = next((d / "shared" / "data" / "welding_motoman" for d in ROOT.parents
              if (d / "shared" / "data" / "welding_motoman").exists()), ROOT.parent / "shared" / "data" / "welding_motoman")
 #: Default methods: all but cpa (the recordings hold no single-joint sweeps).
 DEFAULT_METHODS = tuple(m for m in METHODS if m != "cpa")
-QUICK_METHODS = ("nominal", "nls1", "pi", "fbf13")
+QUICK_METHODS = ("nominal", "nls1", "pi", "fbf13", "pi+fbf13", "pi+linear")
 GOAL_RATIO = 1.25
 N_REBASE_CLUSTERS = 3
 CLUSTER_SIZE = 7
@@ -138,26 +142,37 @@ def main(argv: list[str] | None = None) -> int:
     t = time.perf_counter()
     models: dict[str, dict[str, Any]] = {}
     fit_seconds: dict[str, dict[str, float]] = {}
+    recommended: dict[str, dict[str, Any]] = {}
+    same_day: dict[str, dict[str, dict[str, Any]]] = {}
+    target_unit: dict[str, str] = {}
+    select_s = eval_s = 0.0
     for u in UNITS:
         fitter = make_fitter(robot, train[u.name])
         models[u.name], fit_seconds[u.name] = {}, {}
         for m in methods:
             models[u.name][m], fit_seconds[u.name][m] = fitter.fit(m)
-        print(f"fitted {u.name}: {sum(fit_seconds[u.name].values()):.1f} s", file=sys.stderr, flush=True)
-    timings["fit_s"] = time.perf_counter() - t
-    t = time.perf_counter()
-    same_day: dict[str, dict[str, dict[str, float]]] = {}
-    target_unit: dict[str, str] = {}
-    for u in UNITS:
-        for label, _ in u.tests:
+        t_select = time.perf_counter()
+        recommended[u.name] = recommend_fitted(fitter, models[u.name]).to_json()
+        select_s += time.perf_counter() - t_select
+        print(f"fitted {u.name}: {sum(fit_seconds[u.name].values()):.1f} s; recommended "
+              f"{recommended[u.name]['method']}", file=sys.stderr, flush=True)
+        t_eval = time.perf_counter()
+        for label, _ in u.tests:  # the day's rows at once, so a long run shows them as it goes
             target_unit[label] = u.name
             same_day[label] = {m: mean_max(errors(models[u.name][m], tests[label]).position_mm) for m in methods}
+            same_day[label]["recommended"] = {"method": recommended[u.name]["method"],
+                                              **same_day[label][recommended[u.name]["method"]]}
+            print(f"  {label}: " + ", ".join(f"{m} {cell(v)}" for m, v in same_day[label].items()),
+                  file=sys.stderr, flush=True)
+        eval_s += time.perf_counter() - t_eval
+    timings["fit_s"] = time.perf_counter() - t - select_s - eval_s
+    timings["recommend_s"] = select_s
+    timings["same_day_eval_s"] = eval_s
     nominal = ConstantModel(robot.name, "nominal", robot.model(), 0, {})
     train_checks = {name: check_recording(nominal, rec) for name, rec in train.items()}  # as fit and compare do
     checked = next((m for m in ("pi", "nls1") if m in methods), None)  # as compare checks (its most accurate model)
     frame_checks = {label: check_test(models[target_unit[label]][checked], tests[label]).to_json()
                     for label in same_day} if checked else {}
-    timings["same_day_eval_s"] = time.perf_counter() - t
 
     # -- cross-day: model of A on B's test, as is and rebased on 3 clusters of B's training recording --
     t = time.perf_counter()
@@ -211,7 +226,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"\nFrame check, {label} ({checked}): {check['message']}")
     if args.json:
         out = {"methods": methods, "cross_methods": cross_methods, "same_day": same_day, "cross_day": cross,
-               "frame_checks": frame_checks, "training_frame_checks": {k: c.to_json() for k, c in train_checks.items()},
+               "recommendation": recommended, "frame_checks": frame_checks,
+               "training_frame_checks": {k: c.to_json() for k, c in train_checks.items()},
                "fit_seconds": fit_seconds, "rebase_clusters": rebase_clusters, "goal_ratio": GOAL_RATIO,
                "timings": timings}
         Path(args.json).write_text(json.dumps(out, indent=1))
@@ -222,11 +238,23 @@ def report(methods: list[str], cross_methods: list[str], same_day: dict, cross: 
            train: dict, timings: dict) -> None:
     """Markdown tables: same day, rebase poses, per-method cross-day matrices and the goal summary."""
     print("## Same day: position error mean/max [mm] on the day's test recording\n")
-    print("| training → test | " + " | ".join(methods) + " |")
-    print("|---|" + "---|" * len(methods))
+    print("| training → test | " + " | ".join(methods) + " | recommended (held-out clusters of training) |")
+    print("|---|" + "---|" * (len(methods) + 1))
     for label, row in same_day.items():
         unit = label if label in train else label.split()[0]
-        print(f"| {unit} → {label} | " + " | ".join(cell(row[m]) for m in methods) + " |")
+        print(f"| {unit} → {label} | " + " | ".join(cell(row[m]) for m in methods) +
+              f" | {row['recommended']['method']}: {cell(row['recommended'])} |")
+    both = [k for k in CDC_INTERPOLATORS if k in methods and f"pi+{k}" in methods]
+    if both:
+        print("\n## CDC: the paper's construction (local geometric fits around the geometric global fit) → built on "
+              "pi, test mean/max [mm]\n")
+        print("| training → test | nls1 | pi | " + " | ".join(f"{k} → pi+{k}" for k in both) + " |")
+        print("|---|---|---|" + "---|" * len(both))
+        for label, row in same_day.items():
+            unit = label if label in train else label.split()[0]
+            base = " | ".join(cell(row.get(m)) for m in ("nls1", "pi"))
+            print(f"| {unit} → {label} | {base} | " + " | ".join(f"{cell(row[k])} → {cell(row[f'pi+{k}'])}"
+                                                                  for k in both) + " |")
     print("\n## Rebase poses: 3 clusters of each day's training recording (anchor q2, q3 in deg)\n")
     print("| day | clusters |")
     print("|---|---|")

@@ -42,7 +42,7 @@ DAYS = {
     "0801": ("test0801_R1", "test0801_R1"),
 }
 REFERENCES = ("nominal", "nls1")
-METHODS = ("linear", "cubic", "rbf", "fbf13", "fbf7", "nn", "ae")
+METHODS = tuple(f"pi+{k}" for k in ("linear", "cubic", "rbf", "fbf13", "fbf7", "nn", "ae"))  # built on pi, as measured
 
 
 def fitter_for(robot, train) -> Fitter:

@@ -3,16 +3,18 @@
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
+from calibration.cdc import cluster_anchors
 from calibration.errors import ModelError
-from calibration.methods import CDC_METHODS, METHODS, NEURAL_METHODS, Fitter
+from calibration.methods import CDC_METHODS, METHODS, NEURAL_METHODS, Fitter, cdc_method
 from calibration.metrics import Errors, error_stats, errors, joint_correlation, paired_tests, parameter_spread
 from calibration.models import KinematicModel
 from calibration.recording import Recording
+from calibration.selection import Recommendation, recommend
 
 log = logging.getLogger("cellcal.app")
 
@@ -95,7 +97,40 @@ def run_comparison(fitter: Fitter, test: Recording, methods: list[str] | tuple[s
     for name, model in (files or {}).items():
         out.add(name, model, model.info.get("fit_seconds"), fitter.train, test)
     out.analysis = _analysis(fitter, test, out)
+    recommendation = _recommend(fitter, out, files or {})
+    out.recommended = recommendation.method
+    out.analysis["recommendation"] = recommendation.to_json()
     return out
+
+
+def recommendation_line(cmp: Comparison) -> str:
+    """One line naming the recommended method and why (for the CLI)."""
+    rec = cmp.analysis["recommendation"]
+    c, b = rec["candidates"][rec["method"]], rec["candidates"][rec["best"]]
+    best = rec["method"] == rec["best"]
+    why = (f"the best on clusters held out from training ({c['heldout_rms_mm']:.3f} mm RMS)" if best
+           else f"{c['heldout_rms_mm']:.3f} mm RMS on clusters held out from training, tied with the best, "
+                f"{rec['best']} ({b['heldout_rms_mm']:.3f} mm, {b['n_parameters']} parameters; p = "
+                f"{c['p_worse_than_best']:.2f})")
+    return f"recommended: {rec['method']} ({c['n_parameters']} parameters): {why}"
+
+
+def recommend_fitted(fitter: Fitter, models: dict[str, KinematicModel]) -> Recommendation:
+    """The model to use among methods ``fitter`` fitted (:mod:`calibration.selection`): its training data only,
+    no test recording enters."""
+    held_out = {m: fitter.held_out_errors(m) for m in models}
+    constant_fit = {"geometric": "nls1", "pi": "pi"}  # the constant fit each CDC reference is
+    references = {m: constant_fit[cdc_method(m)[0]] for m in models if m in CDC_METHODS}
+    cdc_references = {m: (ref, fitter.held_out_errors(ref)) for m, ref in references.items()}
+    groups, _ = cluster_anchors(fitter.train, fitter.options.cluster_size)
+    return recommend(held_out, {m: model.n_parameters for m, model in models.items()}, groups,
+                     cdc_references=cdc_references)
+
+
+def _recommend(fitter: Fitter, cmp: Comparison, files: dict[str, KinematicModel]) -> Recommendation:
+    rec = recommend_fitted(fitter, {m: model for m, model in cmp.models.items() if m not in files})
+    return replace(rec, not_candidates={**rec.not_candidates, **{
+        name: "a saved model: not fitted here, so no held-out figure" for name in files}})
 
 
 def _analysis(fitter: Fitter, test: Recording, cmp: Comparison) -> dict[str, Any]:
@@ -117,8 +152,12 @@ def _analysis(fitter: Fitter, test: Recording, cmp: Comparison) -> dict[str, Any
                                  "parameters": len(obs.singular_values),
                                  "relative_singular_values": (obs.singular_values / obs.singular_values[0]).tolist(),
                                  "hidden_directions": obs.unobservable(), "warning": obs.summary()}
-    if any(m in CDC_METHODS for m in cmp.models):
-        local = fitter.local_fits()
+    references = {cdc_method(m)[0] for m in cmp.models if m in CDC_METHODS}
+    if references:
+        # Table V is the paper's: the local fits of its construction when one of its methods ran, else pi's
+        reference = "geometric" if "geometric" in references else "pi"
+        local = fitter.local_fits(reference)
+        analysis["local_reference"] = reference
         analysis["local_parameter_spread"] = parameter_spread(local.x, fitter.par.names())
         analysis["local_fit_seconds"] = local.seconds
         analysis["local_fit_rms_mm"] = {"mean": float(np.mean(local.rms_mm)), "max": float(np.max(local.rms_mm))}

@@ -38,6 +38,11 @@ METHOD_STYLES: dict[str, Style] = {
     "ae": Style("#e377c2", ":", "d"), "pi": Style("#74c476", "--", "8"),
     "diagnosed": Style("#393b79", "-.", "H"),
 }
+# The CDC methods built on pi: the marker of the paper's construction of the same interpolator, a short dash and
+# a colour of their own.
+METHOD_STYLES.update({f"pi+{k}": Style(c, (0, (2, 2)), METHOD_STYLES[k].marker) for k, c in zip(
+    ("nearest", "linear", "cubic", "rbf", "fbf13", "fbf7", "nn", "ae"),
+    ("#843c39", "#ad494a", "#d6616b", "#7b4173", "#a55194", "#ce6dbd", "#637939", "#8ca252"))})
 _EXTRA_STYLES = (Style("#636363", (0, (5, 1, 1, 1)), "x"), Style("#e6550d", (0, (1, 1)), "+"),
                  Style("#3182bd", (0, (3, 1, 1, 1, 1, 1)), "1"), Style("#31a354", (0, (6, 2)), "2"))
 

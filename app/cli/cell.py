@@ -375,7 +375,8 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     src.add_argument("--session", help="reuse the training samples of this session")
     src.add_argument("--plan", help="collect a new training session from this plan")
     p.add_argument("--model-dir", required=True, help="folder of the model in service (current.yaml, previous/)")
-    p.add_argument("--method", default="fbf13", choices=METHODS, help="the method of the new model (default fbf13)")
+    p.add_argument("--method", default="pi+fbf13", choices=METHODS,
+                   help="the method of the new model (default pi+fbf13)")
     p.add_argument("--rebase", action="store_true", help="refit only the base and tool-marker frames of the model in "
                                                          "service on the training poses (a few clusters of a new day) "
                                                          "instead of fitting a new model (--method is not used)")

@@ -181,7 +181,7 @@ def cmd_export_urdf(args: argparse.Namespace) -> int:
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    from app.analysis.compare import parse_methods, run_comparison
+    from app.analysis.compare import parse_methods, recommendation_line, run_comparison
     from app.analysis.report import comparison_table, write_report
 
     from pathlib import Path
@@ -204,6 +204,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if warning:
         print(f"warning: {warning}", file=sys.stderr)
     print(comparison_table(cmp, with_paper=args.robot == "R1"))
+    print(recommendation_line(cmp))
     write_json(args.json, cmp.to_json())
     if args.report:
         inputs = [*(("train", t) for t in args.train), ("cpa", args.cpa), ("test", args.test)] + [("model", f) for f in args.model]

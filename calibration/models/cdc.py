@@ -6,6 +6,12 @@ block is the interpolator's. Its casadi expression writes the interpolator out i
 to ``bounds`` like the numpy path, so derivatives include the parameters' dependence on q; for an
 interpolator without one the geometric block is a frozen input (kind ``cdc-frozen``). The fits that build it are in
 :mod:`calibration.cdc`.
+
+Its reference (:attr:`CdcModel.reference`) is ``geometric`` when every term beyond the geometric block is zero
+(the paper's construction: methods ``fbf13``, ``linear``, ...) and ``pi`` otherwise (``pi+fbf13``, ...). The file
+records it as ``reference``, checked against ``theta_ref`` on load; files written before the key existed carry
+no such key and load with the reference their ``theta_ref`` implies (they were all built on pi, whatever their
+method name says).
 """
 
 from __future__ import annotations
@@ -40,6 +46,11 @@ class CdcModel(KinematicModel):
     #: per-parameter [min, max] of the geometric block, shape (2, g), or None: the interpolated parameters are
     #: clipped to it (the local fits' range), so no kind extrapolates beyond what the anchors span.
     bounds: np.ndarray | None = None
+
+    @property
+    def reference(self) -> str:
+        """``geometric`` (every non-geometric term of ``theta_ref`` is zero: the paper's construction) or ``pi``."""
+        return _reference(self.theta_ref, self.kinematics.par.size)
 
     def _clip(self, x: np.ndarray) -> np.ndarray:
         return x if self.bounds is None else np.clip(x, self.bounds[0], self.bounds[1])
@@ -126,7 +137,7 @@ class CdcModel(KinematicModel):
 
     def _body(self) -> dict[str, Any]:
         return {"nominal": poe_to_dict(self.kinematics.par.nominal), "fit_tool": self.kinematics.par.fit_tool,
-                "theta_ref": self.theta_ref.tolist(), "inputs": list(self.inputs),
+                "reference": self.reference, "theta_ref": self.theta_ref.tolist(), "inputs": list(self.inputs),
                 "interpolator": self.interpolator.to_dict(),
                 **({} if self.bounds is None else {"bounds": self.bounds.tolist()})}
 
@@ -136,6 +147,10 @@ class CdcModel(KinematicModel):
 
         kin = ExtendedKinematics(MinimalParameterisation(poe_from_dict(body["nominal"]), bool(body["fit_tool"])))
         theta_ref = _vector(body["theta_ref"], kin.size, "theta_ref")
+        if "reference" in body and body["reference"] != _reference(theta_ref, kin.par.size):
+            implied = _reference(theta_ref, kin.par.size)
+            raise ModelFileError("", "reference", f"{body['reference']!r} does not match theta_ref, whose terms beyond "
+                                                  f"the geometric block make it {implied!r}")
         interpolator = interpolator_from_dict(body["interpolator"])
         inputs = _inputs(body["inputs"], kin.par.n_joints, interpolator.n_inputs)
         if interpolator.n_outputs != kin.par.size:
@@ -148,6 +163,10 @@ class CdcModel(KinematicModel):
                 raise ModelFileError("", "bounds", f"expected [min list, max list], got {lo_hi!r}")
             bounds = np.stack([_vector(lo_hi[0], kin.par.size, "bounds"), _vector(lo_hi[1], kin.par.size, "bounds")])
         return cls(robot, method, kin, theta_ref, interpolator, inputs, info, bounds)
+
+
+def _reference(theta_ref: np.ndarray, n_geometric: int) -> str:
+    return "pi" if np.any(theta_ref[n_geometric:]) else "geometric"
 
 
 def _vector(value: Any, size: int, key: str) -> np.ndarray:

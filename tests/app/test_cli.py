@@ -37,13 +37,16 @@ def test_fit_predict_evaluate(tmp_path, data, capsys):
     assert result["test"]["position_mm"]["mean"] < 0.1  # planted errors recovered, noise 0.02 mm per axis
 
 
-def test_compare_json_shape_and_report(tmp_path, data):
+def test_compare_json_shape_and_report(tmp_path, data, capsys):
     out = tmp_path / "cmp.json"
     report = tmp_path / "report"
     assert main(["compare", "--robot", "R1", "--train", str(data / "train.csv"), "--test", str(data / "test.csv"),
                  "--methods", "nominal,base,nls1,fbf13,fbf7", "--json", str(out), "--report", str(report)]) == 0
     cmp = json.loads(out.read_text())
     assert cmp["robot"] == "R1"
+    assert cmp["recommended"] in ("nominal", "base", "nls1", "fbf13", "fbf7")
+    assert cmp["analysis"]["recommendation"]["method"] == cmp["recommended"]
+    assert f"recommended: {cmp['recommended']} (" in capsys.readouterr().out
     for m in ("nominal", "base", "nls1", "fbf13", "fbf7"):
         entry = cmp["methods"][m]
         assert entry["fit_seconds"] >= 0

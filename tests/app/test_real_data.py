@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from app.analysis.fitting import fitter_for
-from calibration.methods import CDC_METHODS, FitOptions, Fitter
+from calibration.methods import PI_CDC_METHODS, FitOptions, Fitter
 from calibration.metrics import errors
 from calibration.recording import read_recording
 from cell_config import load_cell
@@ -26,7 +26,7 @@ def table(data):
     nominal, train, test = data
     fitter = fitter_for(load_cell().robot("R1"), train)
     out = {}
-    for method in ("nominal", "base", "nls0", "nls1", "pi") + CDC_METHODS:
+    for method in ("nominal", "base", "nls0", "nls1", "pi") + PI_CDC_METHODS:
         e = errors(fitter.fit(method)[0], test).position_mm
         out[method] = (e.mean(), e.std(), e.max())
     return out
@@ -37,13 +37,15 @@ def test_nominal_row_matches_the_published_figures(table):
 
 
 def test_fourier_cdc_at_least_as_good_as_the_paper(table):
-    mean, _, worst = table["fbf13"]
-    assert mean <= 0.31 and worst <= 0.74, table["fbf13"]
+    # The Fourier CDC built on pi (named fbf13 before the paper's construction took that name, see
+    # calibration.methods); the paper's construction itself does not reach its figure (issue 10).
+    mean, _, worst = table["pi+fbf13"]
+    assert mean <= 0.31 and worst <= 0.74, table["pi+fbf13"]
 
 
 def test_configuration_dependent_methods_beat_every_constant_method_on_max(table):
     best_constant = min(table[m][2] for m in ("nominal", "base", "nls0", "nls1"))
-    for m in CDC_METHODS + ("pi",):
+    for m in PI_CDC_METHODS + ("pi",):
         assert table[m][2] < best_constant, (m, table[m], best_constant)
 
 

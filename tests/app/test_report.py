@@ -134,7 +134,11 @@ def test_compare_report_pass_fail_iso_and_provenance(tmp_path, data):
     iso = page.tables["iso"][1:]
     assert [r[1] for r in iso] == ["3"] * 10  # the 10 configurations visited three times
     assert set(page.rows("iso-ap")) == {"nominal", "nls1", "fbf13"}
-    assert "No recommendation made." in page.all_text  # Comparison.recommended is None: nothing chosen here
+    # compare now recommends a model (chosen on held-out training clusters): the report names it and its verdict
+    assert cmp["recommended"] in acc
+    verdict = "passes" if acc[cmp["recommended"]][-1] == "PASS" else "does not pass"
+    assert f"Recommended: {cmp['recommended']} — {verdict} the tolerance." in page.all_text
+    assert "No recommendation made." not in page.all_text
     for name in ("report.md", "error_workspace.png", "error_cdf.png", "fourier_singular_values.png",
                  "fourier_correction_map.png"):
         assert (report / name).stat().st_size > 0
