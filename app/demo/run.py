@@ -187,7 +187,7 @@ def robot_summary(session: SessionResult, rec: Recordings, cmp: Any, left_out: d
     return {"samples": session.n_ok, "targets": session.n_targets, "skipped_targets": session.n_skipped,
             "train_samples": len(rec.train), "cpa_samples": 0 if rec.cpa is None else len(rec.cpa),
             "test_samples": len(rec.test), "collect_seconds": session.elapsed_s, "methods": methods,
-            "skipped_methods": skipped,
+            "skipped_methods": skipped, "recommended": full["recommended"],
             "observability_warning": full["analysis"].get("observability", {}).get("warning") or ""}
 
 
@@ -265,13 +265,15 @@ def run_demo(out_dir: str | Path, cell: CellSpec, config: DemoConfig = DemoConfi
 
 def summary_table(summary: dict[str, Any]) -> str:
     """Plain-text table: per robot and method, test position mean / max [mm] and orientation mean [deg]."""
-    lines = [f"{'robot':<5} {'method':<8} {'pos mean mm':>11} {'pos max mm':>10} {'ori mean deg':>12}"]
+    width = max([6] + [len(m) for r in summary["robots"].values() for m in (*r["methods"], *r["skipped_methods"])])
+    lines = [f"{'robot':<5} {'method':<{width}} {'pos mean mm':>11} {'pos max mm':>10} {'ori mean deg':>12}"]
     for robot, r in summary["robots"].items():
         for m, v in r["methods"].items():
             p, o = v["test"]["position_mm"], v["test"]["orientation_deg"]
-            lines.append(f"{robot:<5} {m:<8} {p['mean']:>11.3f} {p['max']:>10.3f} {o['mean']:>12.4f}")
+            lines.append(f"{robot:<5} {m:<{width}} {p['mean']:>11.3f} {p['max']:>10.3f} {o['mean']:>12.4f}")
         for m, reason in r["skipped_methods"].items():
-            lines.append(f"{robot:<5} {m:<8} skipped: {reason}")
+            lines.append(f"{robot:<5} {m:<{width}} skipped: {reason}")
+        lines.append(f"{robot:<5} recommended (chosen on clusters held out from training): {r['recommended']}")
     return "\n".join(lines)
 
 

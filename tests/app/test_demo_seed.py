@@ -68,6 +68,9 @@ def test_the_json_holds_what_the_demo_prints(runs):
             p, o = v["test"]["position_mm"], v["test"]["orientation_deg"]
             assert rows[(robot, method)] == [f"{p['mean']:.3f}", f"{p['max']:.3f}", f"{o['mean']:.4f}"]
     assert set(rows) == {(r, m) for r in a["robots"] for m in ("nominal", "nls1")}
+    for robot, r in a["robots"].items():
+        assert r["recommended"] in r["methods"]
+        assert f"{robot:<5} recommended (chosen on clusters held out from training): {r['recommended']}" in printed
     assert f"{a['mocap_frames_received']} mocap frames" in printed
     assert f"report: {a['report']}" in printed
 
