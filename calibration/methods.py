@@ -425,6 +425,40 @@ class Fitter:
         finally:
             _PREFETCH = None
 
+    def prefetch_held_out_errors(self, methods: list[str] | tuple[str, ...]) -> None:
+        """:meth:`held_out_errors` of the neural CDC methods among ``methods``, their fold refits (a network
+        trained per method and fold, the bulk of a recommendation's cost) run in forked worker processes; the same
+        bits as refitted here (every training is deterministic on one BLAS thread).
+
+        The fold Fitters' shared fits (reference, local fits) are made here first, so no worker repeats them.
+        A no-op without the ``fork`` start method or with one usable core.
+        """
+        global _FOLDS
+        cache = self._cache.setdefault("held_out_errors", {})
+        neural = [m for m in methods if m in NEURAL_METHODS and m not in cache]
+        workers = robust.default_workers(len(neural) * robust.N_FOLDS)
+        if not neural or workers < 2 or "fork" not in mp.get_all_start_methods():
+            return
+        for m in neural:
+            if m not in self._cache.get("fitted", ()):
+                self.fit(m)  # chooses the strengths the fold refits reuse
+        folds = self._fold_fitters()
+        for _, sub in folds:
+            for reference in dict.fromkeys(cdc_method(m)[0] for m in neural):
+                sub.reference(reference)
+                sub.local_fits(reference)
+        _FOLDS = self  # the workers fork during the submits below
+        try:
+            with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork")) as pool:
+                jobs = {(m, f): pool.submit(_fold_error_job, m, f) for m in neural for f in range(len(folds))}
+                for m in neural:
+                    err = np.empty(len(self.train))
+                    for f, (held, _) in enumerate(folds):
+                        err[held] = jobs[(m, f)].result()  # a worker that died raises BrokenProcessPool
+                    cache[m] = err
+        finally:
+            _FOLDS = None
+
     def held_out_errors(self, method: str) -> np.ndarray | None:
         """Position error [mm] of every training pose as predicted by ``method`` fitted without that pose's
         cluster: k-fold over whole clusters (:func:`robust.cluster_folds`, the folds of the CDC checks), shape (N,).
@@ -549,6 +583,17 @@ class Fitter:
 
 #: The Fitter whose :meth:`Fitter.prefetch` workers are forking (set during the submits, cleared after).
 _PREFETCH: Fitter | None = None
+#: The Fitter whose fold refits :meth:`Fitter.prefetch_held_out_errors`'s forked workers run (set while they fork).
+_FOLDS: Fitter | None = None
+
+
+def _fold_error_job(method: str, fold: int) -> np.ndarray:
+    """Worker job of :meth:`Fitter.prefetch_held_out_errors`: ``method`` refitted without fold ``fold``'s
+    clusters, its position errors [mm] on them."""
+    from calibration.metrics import errors
+
+    held, sub = _FOLDS._fold_fitters()[fold]  # type: ignore[union-attr]
+    return errors(sub.fit(method)[0], _FOLDS.train.subset(held)).position_mm  # type: ignore[union-attr]
 
 
 def _prefetch_final(method: str, options: dict[str, Any]) -> tuple[CdcModel, float]:

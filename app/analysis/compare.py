@@ -118,7 +118,10 @@ def recommendation_line(cmp: Comparison) -> str:
 def recommend_fitted(fitter: Fitter, models: dict[str, KinematicModel]) -> Recommendation:
     """The model to use among methods ``fitter`` fitted (:mod:`calibration.selection`): its training data only,
     no test recording enters."""
-    held_out = {m: fitter.held_out_errors(m) for m in models}
+    neural = [m for m in models if m in NEURAL_METHODS]
+    held_out = {m: fitter.held_out_errors(m) for m in models if m not in neural}  # fills the fold fits' caches
+    fitter.prefetch_held_out_errors(neural)  # the costly network refits, on every usable core
+    held_out = {m: held_out[m] if m in held_out else fitter.held_out_errors(m) for m in models}
     constant_fit = {"geometric": "nls1", "pi": "pi"}  # the constant fit each CDC reference is
     references = {m: constant_fit[cdc_method(m)[0]] for m in models if m in CDC_METHODS}
     cdc_references = {m: (ref, fitter.held_out_errors(ref)) for m, ref in references.items()}

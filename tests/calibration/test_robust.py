@@ -175,3 +175,18 @@ def test_a_prefetched_neural_fit_is_the_fit_made_here(synthetic_arm, r1_nominal)
     assert np.array_equal(there.fk(train.q)[1], here.fk(train.q)[1]) and seconds > 0
     assert there.info["heldout"] == here.info["heldout"]
     assert multiprocessing.active_children() == []  # the pool is shut once every prefetched fit is collected
+
+
+def test_held_out_errors_refitted_in_workers_are_those_refitted_here(synthetic_arm, r1_nominal):
+    """The recommendation's fold refits of the networks run in forked workers: the same bits as in-process."""
+    _, _, truth = synthetic_arm
+    q, cluster = cluster_design(step_deg=30.0)
+    train = measure(truth.fk, q, 0.02, 0.01, 1, cluster)
+    here = Fitter("R1", r1_nominal, train, FitOptions(local_prior=0.1)).held_out_errors("nn")
+    fitter = Fitter("R1", r1_nominal, train, FitOptions(local_prior=0.1))
+    fitter.prefetch_held_out_errors(["nominal", "nn"])
+    assert "nn" in fitter._cache.get("held_out_errors", {}) or robust.default_workers() < 2
+    there = fitter.held_out_errors("nn")
+    assert there.shape == (len(train),) and np.all(np.isfinite(there))
+    assert np.array_equal(there, here)
+    assert multiprocessing.active_children() == []
