@@ -85,3 +85,26 @@ def assert_bad_input(capsys: pytest.CaptureFixture, argv: list[str], *fragments:
     assert len(err) == 1, err
     for f in fragments:
         assert f in err[0], err[0]
+
+
+def backlash_case(n_q2: int = 5, n_q3: int = 4, n_heldout: int = 60):
+    """A small diagnose case on R1 with planted backlash (seed 3): ``(nominal, gravity, fit, held-out)``."""
+    from calibration.diagnosis.synthetic import Design, make_case
+    from calibration.physics import GravityModel
+    from cell_config import load_cell
+
+    cr = load_cell().robot("R1")
+    nominal = cr.model()
+    gravity = GravityModel.from_spec(cr.robot, nominal)
+    _, fit, ho = make_case(nominal, gravity, {"backlash": 0.3}, 3, Design(n_q2=n_q2, n_q3=n_q3), n_heldout=n_heldout)
+    return nominal, gravity, fit, ho
+
+
+def write_backlash_case(folder: Path, **sizes: int) -> tuple[Path, Path]:
+    """:func:`backlash_case`'s fit and held-out recordings written as ``folder/fit.csv`` and ``folder/ho.csv``."""
+    from calibration.recording import write_recording
+
+    _, _, fit, ho = backlash_case(**sizes)
+    write_recording(fit, folder / "fit.csv")
+    write_recording(ho, folder / "ho.csv")
+    return folder / "fit.csv", folder / "ho.csv"

@@ -9,12 +9,9 @@ import numpy as np
 import pytest
 
 from app.analysis.diagnose import run_diagnose
-from calibration.diagnosis.synthetic import Design, make_case
 from calibration.errors import CellCalError, DataError
 from calibration.models import load_model
-from calibration.physics import GravityModel
-from calibration.recording import write_recording
-from cell_config import load_cell
+from tests.conftest import write_backlash_case
 
 SHARED = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "welding_motoman"
 R1_TRAIN = SHARED / "PH_grad_data" / "test0801_R1"
@@ -23,13 +20,8 @@ R1_TEST = SHARED / "kinematic_raw_data" / "test0801_R1"
 
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
-    cr = load_cell().robot("R1")
-    nominal = cr.model()
-    _, fit, ho = make_case(nominal, GravityModel.from_spec(cr.robot, nominal), {"backlash": 0.3}, 3,
-                           Design(n_q2=6, n_q3=5), n_heldout=150)
     d = tmp_path_factory.mktemp("diag")
-    write_recording(fit, d / "fit.csv")
-    write_recording(ho, d / "ho.csv")
+    write_backlash_case(d, n_q2=6, n_q3=5, n_heldout=150)
     return d
 
 

@@ -6,6 +6,7 @@ import logging
 import pytest
 
 from app import progress
+from tests.conftest import backlash_case
 
 
 class FakeTTY(io.StringIO):
@@ -83,14 +84,8 @@ def test_the_cli_installs_the_handler_and_takes_quiet(tmp_path):
 def test_diagnose_reports_its_steps_in_order_and_the_result_is_unchanged():
     from calibration.diagnosis import diagnose
     from calibration.diagnosis.core import DIAGNOSE_STEPS
-    from calibration.diagnosis.synthetic import Design, make_case
-    from calibration.physics import GravityModel
-    from cell_config import load_cell
 
-    cr = load_cell().robot("R1")
-    nominal = cr.model()
-    gravity = GravityModel.from_spec(cr.robot, nominal)
-    _, fit, ho = make_case(nominal, gravity, {"backlash": 0.3}, 3, Design(n_q2=5, n_q3=4), n_heldout=60)
+    nominal, gravity, fit, ho = backlash_case()
     steps: list[str] = []
     plain = diagnose("R1", nominal, fit, ho, gravity=gravity)
     reported = diagnose("R1", nominal, fit, ho, gravity=gravity, progress=steps.append)

@@ -13,7 +13,7 @@ from app.cli.commands import main
 from app.provenance import input_files, model_provenance, provenance, version
 from calibration.models import load_model, save_model
 from calibration.recording import write_recording
-from tests.conftest import cluster_design, measure
+from tests.conftest import cluster_design, measure, write_backlash_case
 
 
 @pytest.fixture(scope="module")
@@ -87,16 +87,8 @@ def test_a_model_file_without_provenance_still_loads(tmp_path, data):
 
 def test_diagnose_and_recalibrate_record_their_inputs(tmp_path):
     from app.analysis.diagnose import run_diagnose
-    from calibration.diagnosis.synthetic import Design, make_case
-    from calibration.physics import GravityModel
-    from cell_config import load_cell
 
-    cr = load_cell().robot("R1")
-    nominal = cr.model()
-    _, fit, ho = make_case(nominal, GravityModel.from_spec(cr.robot, nominal), {"backlash": 0.3}, 3,
-                           Design(n_q2=5, n_q3=4), n_heldout=60)
-    write_recording(fit, tmp_path / "fit.csv")
-    write_recording(ho, tmp_path / "ho.csv")
+    write_backlash_case(tmp_path)
     run_diagnose("R1", tmp_path / "fit.csv", tmp_path / "ho.csv", model_out=tmp_path / "d.yaml")
     p = model_provenance(load_model(tmp_path / "d.yaml"))
     assert [(i["role"], i["sha256"]) for i in p["inputs"]] == [("data", _sha(tmp_path / "fit.csv")),

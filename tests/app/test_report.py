@@ -20,7 +20,8 @@ from calibration.methods import METHODS
 from calibration.metrics import Errors
 from calibration.recording import write_recording
 from tests.app.browser import browser_or_skip, run_browser, screenshot
-from tests.conftest import assert_bad_input, cluster_design, measure, needs_shared_data, R1_TEST, R1_TRAIN
+from tests.conftest import (assert_bad_input, cluster_design, measure, needs_shared_data, R1_TEST, R1_TRAIN,
+                            write_backlash_case)
 
 
 @pytest.fixture(scope="module")
@@ -204,16 +205,8 @@ def test_bad_report_options_exit_2_and_write_nothing(tmp_path, data, capsys):
 
 def test_diagnose_report(tmp_path):
     from app.analysis.diagnose import run_diagnose
-    from calibration.diagnosis.synthetic import Design, make_case
-    from calibration.physics import GravityModel
-    from cell_config import load_cell
 
-    cr = load_cell().robot("R1")
-    nominal = cr.model()
-    _, fit, ho = make_case(nominal, GravityModel.from_spec(cr.robot, nominal), {"backlash": 0.3}, 3,
-                           Design(n_q2=5, n_q3=4), n_heldout=60)
-    write_recording(fit, tmp_path / "fit.csv")
-    write_recording(ho, tmp_path / "ho.csv")
+    write_backlash_case(tmp_path)
     res = run_diagnose("R1", tmp_path / "fit.csv", tmp_path / "ho.csv", report_dir=tmp_path / "rep")
     page = _check_common(tmp_path / "rep" / "report.html", [tmp_path / "fit.csv", tmp_path / "ho.csv"])
     acc = page.rows("acceptance")
