@@ -26,7 +26,7 @@ from calibration.diagnosis.extended import ExtendedEffect
 from calibration.errors import ModelError
 from calibration.models import ConstantModel, KinematicModel
 from calibration.parameterisation import MinimalParameterisation
-from calibration.physics.base import Context, Effect, apply_effects
+from calibration.physics.base import Context, Effect, apply_effects, geometry_on_top
 from calibration.physics_informed import ExtendedKinematics
 from calibration.poe import PoeModel
 
@@ -134,14 +134,7 @@ class InUse:
         q = np.atleast_2d(np.asarray(q, dtype=float))
         dq = sum((e.delta_q(geo, q, context) for e in rest if e.target != "geometry"), np.zeros_like(q))
         R, p = self.kin.pose(q + dq, self.thetas(q, theta))
-        geometric = [e for e in rest if e.target == "geometry"]
-        if geometric:
-            P = None
-            for e in geometric:
-                P = e.geometry(geo, q.shape[0], context, P)
-            R0, p0 = geo.fk(q + dq)
-            R1, p1 = geo.fk(q + dq, P=P)
-            R, p = R1 @ np.swapaxes(R0, 1, 2) @ R, p + p1 - p0
+        R, p = geometry_on_top(geo, rest, q + dq, context, R, p)
         return R, p
 
     def jacobian_q(self, q: np.ndarray, theta: np.ndarray) -> np.ndarray:

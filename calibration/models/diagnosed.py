@@ -16,7 +16,7 @@ from calibration.casadi_expr import CasadiPose, poe_chain
 from calibration.errors import ModelError
 from calibration.models.base import Block, KinematicModel
 from calibration.models.physics import casadi_effects, effect_blocks, split_values
-from calibration.physics.base import Context, Effect, effect_from_dict
+from calibration.physics.base import Context, Effect, effect_from_dict, geometry_on_top
 
 
 @dataclass
@@ -61,14 +61,7 @@ class DiagnosedModel(KinematicModel):
         q_eff = q if region is None else region.clamp(q)  # the extrapolation guard
         dq = sum((e.delta_q(geo, q_eff, context) for e in self.effects if e.target == "joints"), np.zeros_like(q))
         R, p = self.base.pose_at(q + dq, q)
-        geometric = [e for e in self.effects if e.target == "geometry"]
-        if geometric:
-            P = None
-            for e in geometric:
-                P = e.geometry(geo, q.shape[0], context, P)
-            R0, p0 = geo.fk(q + dq)
-            R1, p1 = geo.fk(q + dq, P=P)
-            R, p = R1 @ np.swapaxes(R0, 1, 2) @ R, p + p1 - p0
+        R, p = geometry_on_top(geo, self.effects, q + dq, context, R, p)
         return R, p
 
     def out_of_range(self, q: np.ndarray) -> np.ndarray:

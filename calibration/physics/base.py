@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import abc
 from dataclasses import dataclass, fields, replace
-from typing import Any, Callable, ClassVar, Literal, Mapping
+from typing import Any, Callable, ClassVar, Literal, Mapping, Sequence
 
 import numpy as np
 
@@ -272,6 +272,22 @@ def apply_effects(model: PoeModel, effects: tuple[Effect, ...] | list[Effect], q
         else:
             dq = dq + e.delta_q(model, q_eff, context)
     return model.fk(q + dq, P=P)
+
+
+def geometry_on_top(model: PoeModel, effects: Sequence[Effect], q: np.ndarray, context: Context | None,
+                    R: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(R, p)`` (a pose at ``q`` from any kinematics) with the geometry effects among ``effects`` applied on top:
+    each moves the tool by the change it makes to ``model``'s forward kinematics at ``q`` (joint effects' deflections
+    already added to ``q``)."""
+    geometric = [e for e in effects if e.target == "geometry"]
+    if not geometric:
+        return R, p
+    P = None
+    for e in geometric:
+        P = e.geometry(model, q.shape[0], context, P)
+    R0, p0 = model.fk(q)
+    R1, p1 = model.fk(q, P=P)
+    return R1 @ np.swapaxes(R0, 1, 2) @ R, p + p1 - p0
 
 
 @dataclass(frozen=True, eq=False)
