@@ -105,13 +105,16 @@ def cell(s: dict[str, float] | None) -> str:
 
 
 def parse(text: str | None, default: tuple[str, ...]) -> list[str]:
+    """``--methods``: compare's own parser (``all`` or a validated list); ``default`` when not given."""
+    from app.analysis.compare import parse_methods
+    from calibration.errors import ModelError
+
     if not text:
         return list(default)
-    chosen = [m.strip() for m in text.split(",") if m.strip()]
-    unknown = [m for m in chosen if m not in METHODS]
-    if unknown or not chosen:
-        raise SystemExit(f"unknown method {unknown[0] if unknown else text!r}; valid: {', '.join(METHODS)}")
-    return chosen
+    try:
+        return parse_methods(text)
+    except ModelError as e:
+        raise SystemExit(str(e)) from None
 
 
 def main(argv: list[str] | None = None) -> int:
