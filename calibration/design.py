@@ -334,12 +334,24 @@ class RecordingSelection:
 
 def select_recording(par: MinimalParameterisation, rec: Recording, budget: int, noise_mm: float,
                      cluster_size: int = 7, a: float = DEFAULT_ORIENTATION_WEIGHT,
-                     spread_weight: float = DEFAULT_SPREAD_WEIGHT) -> RecordingSelection:
+                     spread_weight: float = DEFAULT_SPREAD_WEIGHT, rebase_offsets: tuple[int, ...] | None = None
+                     ) -> RecordingSelection:
     """The ``budget`` clusters of ``rec`` (as :meth:`Recording.clusters` defines them) the compound criterion
-    picks; identifiable directions are those of the whole recording."""
+    picks; identifiable directions are those of the whole recording.
+
+    With ``rebase_offsets`` (a tuple, ``()`` for the frames alone): the clusters for a rebase instead (D on the
+    rebase's frame directions and those joint offsets at the nominal arm ``par.nominal``, no spread term;
+    ``spread_weight`` is ignored)."""
     ids = rec.clusters(cluster_size)
     uniq, first, index = np.unique(ids, return_index=True, return_inverse=True)
-    cands = candidates(par, rec.q, index, rec.q[first][:, 1:3], a=a)
+    if rebase_offsets is None:
+        cands = candidates(par, rec.q, index, rec.q[first][:, 1:3], a=a)
+    else:
+        from calibration.models import ConstantModel
+
+        nominal = ConstantModel("nominal", "nominal", par.nominal)  # its robot name is a label only here
+        cands = rebase_candidates(nominal, rec.q, index, rec.q[first][:, 1:3], tuple(rebase_offsets), a=a)
+        spread_weight = 0.0
     chosen = select(cands, budget, spread_weight=spread_weight)
     rows = np.flatnonzero(np.isin(index, chosen))
     sizes = np.bincount(index)

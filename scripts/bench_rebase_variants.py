@@ -50,13 +50,13 @@ from calibration import so3  # noqa: E402
 from calibration.design import REBASE_OFFSETS  # noqa: E402
 from calibration.frames import take_out  # noqa: E402
 from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, GeometricProblem  # noqa: E402
-from calibration.models import ConstantModel  # noqa: E402
 from calibration.models.rebased import wrap_pose  # noqa: E402
 from calibration.poe import pose_error  # noqa: E402
 from calibration.rebase import RebaseProblem, corrections, rebase_auto  # noqa: E402
 from calibration.recording import Recording, read_recording  # noqa: E402
 from cell_config import load_cell  # noqa: E402
-from scripts.bench_days import CLUSTER_SIZE, DATA, GOAL_RATIO, UNITS, make_fitter, spread_clusters  # noqa: E402
+from scripts.bench_days import (CLUSTER_SIZE, DATA, GOAL_RATIO, UNITS, design_clusters, make_fitter,  # noqa: E402
+                                spread_clusters)  # noqa: E402
 
 Predict = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 FRAME_VARIANTS = {"frames": {}, "base": {"frames": ("base",)}, "translations": {"rotations": False}}
@@ -137,16 +137,6 @@ def day_prior(full: dict[tuple[str, str], np.ndarray], a: str, b: str) -> tuple[
     return d.mean(axis=0), np.linalg.inv(np.linalg.cholesky(cov))
 
 
-def design_clusters(nominal: Any, rec: Recording, k: int = 3) -> list[int]:
-    """The ``k`` clusters of ``rec`` the rebase design criterion (D on the 12 frame directions) picks."""
-    from calibration.design import rebase_candidates, select
-
-    ids = rec.clusters(CLUSTER_SIZE)
-    uniq, first, index = np.unique(ids, return_index=True, return_inverse=True)
-    cands = rebase_candidates(nominal, rec.q, index, rec.q[first][:, 1:3], offsets=())
-    return [int(uniq[c]) for c in select(cands, k, spread_weight=0.0)]
-
-
 def loco_errors(fit: Callable[[Recording], Predict], rec: Recording) -> np.ndarray:
     """Position error of every pose when its cluster is held out from the fit on the others [mm]."""
     cl = rec.clusters(CLUSTER_SIZE)
@@ -182,8 +172,7 @@ def main(argv: list[str] | None = None) -> int:
     models = {u.name: make_fitter(robot, train[u.name]).fit(args.method)[0] for u in UNITS}
     same = {lb: float(np.mean(pose_error(t.R, t.p, *models[unit_of[lb]].fk(t.q))[0])) for lb, t in tests.items()}
     poses = {n: r.subset(np.isin(r.clusters(CLUSTER_SIZE), spread_clusters(r))) for n, r in train.items()}
-    nominal = ConstantModel("R1", "nominal", robot.model())
-    picked = {n: design_clusters(nominal, r) for n, r in train.items()}
+    picked = {n: design_clusters(robot, r) for n, r in train.items()}
     full = {} if args.skip_prior else {
         (a.name, b.name): RebaseProblem.from_recording(models[a.name], train[b.name]).solve().delta
         for a in UNITS for b in UNITS if a.name != b.name}

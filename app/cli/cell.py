@@ -97,7 +97,8 @@ def cmd_select(args: argparse.Namespace) -> int:
     check_budget(args.budget, n_clusters, unit="clusters")
     _check_noise(args.noise_mm)
     par = MinimalParameterisation(robot.model(), fit_tool=True)
-    sel = select_recording(par, rec, args.budget, args.noise_mm)
+    sel = select_recording(par, rec, args.budget, args.noise_mm,
+                           rebase_offsets=() if args.target == "rebase" else None)
     write_recording(rec.subset(sel.rows), args.out)
     print(f"{args.robot}: {len(sel.clusters)} of {n_clusters} clusters ({len(sel.rows)} of {len(rec)} samples) "
           f"-> {args.out}")
@@ -358,6 +359,9 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--data", required=True, help="training recording CSV or Welding_Motoman folder")
     p.add_argument("--budget", required=True, type=int, help="clusters to keep (at least 3)")
     p.add_argument("--out", required=True, help="the subset recording CSV")
+    p.add_argument("--for", dest="target", choices=("identification", "rebase"), default="identification",
+                   help="what the clusters are for: identifying the geometry (default) or rebasing a fitted model "
+                        "(D-optimal on the 12 frame directions `cellcal rebase` fits, no spread term)")
     p.add_argument("--noise-mm", type=float, default=0.05,
                    help="measurement noise assumed for the predicted parameter uncertainty [mm]")
     p.add_argument("--json", help="write the chosen clusters and the design figures as JSON")

@@ -80,3 +80,24 @@ def test_simulated_cross_day_rebase_design_meets_the_goal_and_the_grid_does_not(
     for k in ("(a) grid, 3 clusters: frames", "(a) grid, 3 clusters: frames + offsets 4, 5",
               "(b) rebase design: frames"):
         assert rows[k]["ratio"] > GOAL_RATIO, k
+
+
+def test_select_for_rebase_keeps_the_clusters_most_informative_about_the_frames(tmp_path):
+    from calibration.design import figures, rebase_candidates
+    from tests.conftest import cluster_design, measure
+
+    nominal = load_cell().robot("R1").model()
+    q, _ = cluster_design(step_deg=15.0, spread_wrist=False)
+    write_recording(measure(nominal.fk, q, 0.02, 0.01, 1), tmp_path / "train.csv")
+    js = tmp_path / "select.json"
+    assert main(["select", "--robot", "R1", "--data", str(tmp_path / "train.csv"), "--budget", "3", "--for",
+                 "rebase", "--out", str(tmp_path / "few.csv"), "--json", str(js)]) == 0
+    report = json.loads(js.read_text())
+    assert report["samples"] == 21 and set(report["figures"]["selected"]["sigma"]) == {
+        f"{f} {w}" for f in ("base", "tool") for w in ("x shift", "y shift", "z shift", "rotation about x",
+                                                         "rotation about y", "rotation about z")}
+    n = len(q) // 7
+    cands = rebase_candidates(ConstantModel("R1", "nominal", nominal), q, np.repeat(np.arange(n), 7), q[::7, 1:3],
+                              offsets=())
+    chosen = figures(cands, report["clusters"], 0.05).log_det
+    assert all(chosen >= figures(cands, [i, i + 1, i + 2], 0.05).log_det for i in range(0, n - 2, 3))
