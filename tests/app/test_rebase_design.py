@@ -67,37 +67,15 @@ def test_rebase_offsets_recovers_a_moved_wrist_zero_on_the_rebase_design(tmp_pat
 
 
 def test_simulated_cross_day_rebase_design_meets_the_goal_and_the_grid_does_not():
-    """Issue 10 in the simulated cell (seed 2 of ``scripts/bench_rebase_design.py``, 150 validation poses over
-    the whole workspace): the rebase design with the wrist offsets is within 1.25 x day B's own full calibration;
-    3 grid clusters are not, with or without the offsets, and neither are frames alone. The margin varies with the
-    seed: over seeds 0-4 (500 validation poses) the bench meets the goal on 4 (ratios 0.78-1.22) and misses on
-    seed 1 (1.28); the grid misses on all 5 (3.7-18)."""
+    """Issue 10 in the simulated cell (seed 0 of ``scripts/bench_rebase_design.py``, 150 validation poses over the
+    whole workspace, 3 noise draws of the 21 poses): the rebase design with the wrist offsets is within 1.25 x day
+    B's own full calibration on every draw; 3 grid clusters are not on any, with or without the offsets, and
+    neither are frames alone on the rebase design."""
     from scripts.bench_days import GOAL_RATIO
     from scripts.bench_rebase_design import run
 
-    rows = run(2, True, lambda m: None)["rows"]
-    assert rows["(b) rebase design: frames + offsets 4, 5"]["ratio"] <= GOAL_RATIO
+    rows = run(0, True, lambda m: None, draws=3)["rows"]
+    assert max(rows["(b) rebase design: frames + offsets 4, 5"]["ratios"]) <= GOAL_RATIO
     for k in ("(a) grid, 3 clusters: frames", "(a) grid, 3 clusters: frames + offsets 4, 5",
               "(b) rebase design: frames"):
-        assert rows[k]["ratio"] > GOAL_RATIO, k
-
-
-def test_select_for_rebase_keeps_the_clusters_most_informative_about_the_frames(tmp_path):
-    from calibration.design import figures, rebase_candidates
-    from tests.conftest import cluster_design, measure
-
-    nominal = load_cell().robot("R1").model()
-    q, _ = cluster_design(step_deg=15.0, spread_wrist=False)
-    write_recording(measure(nominal.fk, q, 0.02, 0.01, 1), tmp_path / "train.csv")
-    js = tmp_path / "select.json"
-    assert main(["select", "--robot", "R1", "--data", str(tmp_path / "train.csv"), "--budget", "3", "--for",
-                 "rebase", "--out", str(tmp_path / "few.csv"), "--json", str(js)]) == 0
-    report = json.loads(js.read_text())
-    assert report["samples"] == 21 and set(report["figures"]["selected"]["sigma"]) == {
-        f"{f} {w}" for f in ("base", "tool") for w in ("x shift", "y shift", "z shift", "rotation about x",
-                                                         "rotation about y", "rotation about z")}
-    n = len(q) // 7
-    cands = rebase_candidates(ConstantModel("R1", "nominal", nominal), q, np.repeat(np.arange(n), 7), q[::7, 1:3],
-                              offsets=())
-    chosen = figures(cands, report["clusters"], 0.05).log_det
-    assert all(chosen >= figures(cands, [i, i + 1, i + 2], 0.05).log_det for i in range(0, n - 2, 3))
+        assert min(rows[k]["ratios"]) > GOAL_RATIO, k
