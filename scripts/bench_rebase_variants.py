@@ -207,7 +207,12 @@ def main(argv: list[str] | None = None) -> int:
             d_rec, d_rest = train[b.name].subset(np.isin(cl, picked[b.name])), \
                 train[b.name].subset(~np.isin(cl, picked[b.name]))
             d_auto, _, extra["design_auto"] = rebase_auto(m, d_rec)
-            for k, pr in (("design clusters: frames", frames_only(m, d_rec)), ("design clusters: auto", d_auto.fk)):
+            extra["design_chosen"] = chosen({k: (lambda r, o=o: frames_only(m, r, **o))
+                                             for k, o in FRAME_VARIANTS.items()}, d_rec)
+            for k, pr in (("design clusters: frames", frames_only(m, d_rec)),
+                          ("design clusters: translations", frames_only(m, d_rec, rotations=False)),
+                          ("design clusters: chosen", frames_only(m, d_rec, **FRAME_VARIANTS[extra["design_chosen"]])),
+                          ("design clusters: auto", d_auto.fk)):
                 predicts[k] = pr
                 heldout[k] = float(np.mean(pose_error(d_rest.R, d_rest.p, *pr(d_rest.q))[0]))
             predicts["frames, all training poses"] = frames_only(m, train[b.name])

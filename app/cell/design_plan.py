@@ -38,7 +38,7 @@ import numpy as np
 from app.cell.planning import Plan, Target, build_plan, paper_q3_bounds, plan_anchor_grid
 from app.cell.safety import CellSafety
 from app.cell.session_plan import Q2_RANGE_DEG
-from calibration import design
+from calibration import design, rebase
 from calibration.cdc import expand_anchors
 from calibration.errors import CellCalError, ConfigError
 from calibration.parameterisation import MinimalParameterisation
@@ -208,7 +208,8 @@ def figures_table(figs: Mapping[str, design.DesignFigures]) -> str:
     """Designs side by side: size, rank, condition number and the predicted uncertainty per joint."""
     names = list(figs)
     first = figs[names[0]]
-    n = len(first.names) // 4  # 4 per joint, plus at most 3 for the flange shift
+    for_rebase = first.names[:12] == rebase.DIRECTION_NAMES  # one row per frame direction and joint offset
+    n = 0 if for_rebase else len(first.names) // 4  # 4 per joint, plus at most 3 for the flange shift
     width = max(12, *(len(k) for k in names)) + 2
     head = f"{'':34s}" + "".join(f"{k:>{width}s}" for k in names)
     lines = [head]
@@ -222,13 +223,12 @@ def figures_table(figs: Mapping[str, design.DesignFigures]) -> str:
     row("clusters / poses", [f"{f.n_clusters} / {f.n_poses}" for f in figs.values()])
     row("directions seen / identifiable", [f"{f.rank} / {f.n_identifiable}" for f in figs.values()])
     row("condition number", [g(f.condition_number, ".4g") for f in figs.values()])
-    if first.names[0] == "base x shift":  # a rebase design: one row per frame direction and joint offset
+    if for_rebase:
         for i, name in enumerate(first.names):
             angle = "rotation" in name or "offset" in name
             row(f"sigma {name} [{'mdeg' if angle else 'mm'}]",
-                [g(1e3 * math.degrees(float(f.sigma[i])) if angle else float(f.sigma[i]), ".4f") for f in figs.values()])
-        lines.append(f"(sigma: predicted standard deviation for {first.noise_mm:g} mm of noise per measured coordinate)")
-        return "\n".join(lines)
+                [g(1e3 * math.degrees(float(f.sigma[i])) if angle else float(f.sigma[i]), ".4f")
+                 for f in figs.values()])
     for j in range(n):
         row(f"sigma joint {j + 1} origin [mm]", [g(float(np.max(f.sigma[2 * j:2 * j + 2])), ".4f")
                                                  for f in figs.values()])
@@ -236,7 +236,7 @@ def figures_table(figs: Mapping[str, design.DesignFigures]) -> str:
         tilt = slice(2 * n + 2 * j, 2 * n + 2 * j + 2)
         row(f"sigma joint {j + 1} tilt [mdeg]", [g(1e3 * math.degrees(float(np.max(f.sigma[tilt]))), ".3f")
                                                  for f in figs.values()])
-    if len(first.names) > 4 * n:
+    if n and len(first.names) > 4 * n:
         row("sigma flange shift [mm]", [g(float(np.max(f.sigma[4 * n:])), ".4f") for f in figs.values()])
     lines.append(f"(sigma: predicted standard deviation for {first.noise_mm:g} mm of noise per measured coordinate)")
     return "\n".join(lines)

@@ -297,8 +297,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="fit both frames' translations and rotations (12); default: the translations unless "
                             "the rotations do better on clusters held out in turn (by more than a standard error)")
     which.add_argument("--offsets", action="store_true",
-                       help="fit both frames and the joint offsets of joints 4 and 5 (14): for poses that move the wrist "
-                            "widely (cellcal plan --design optimal --for rebase); a still wrist cannot see them")
+                       help="fit both frames and the joint offsets of joints 4 and 5 (14): for poses that move the "
+                            "wrist widely (cellcal plan --design optimal --for rebase); a still wrist cannot see "
+                            "them")
     p = add("export-urdf", cmd_export_urdf, "write a model's calibrated geometry as a URDF (revolute chain, flange "
                                             "and tool-marker frames, joint limits; says what a URDF cannot hold)")
     p.add_argument("--model", required=True, help="the model file (constant, pi, cdc, physics, diagnosed, rebased)")
