@@ -70,7 +70,7 @@ def test_simulated_cross_day_rebase_design_meets_the_goal_and_the_grid_does_not(
     """Issue 10 in the simulated cell (seed 0 of ``scripts/bench_rebase_design.py``, 150 validation poses over the
     whole workspace, 3 noise draws of the 21 poses): the rebase design with the wrist offsets is within 1.25 x day
     B's own full calibration on every draw; 3 grid clusters are not on any, with or without the offsets, and
-    neither are frames alone on the rebase design."""
+    neither are frames alone on the rebase design (the bench: 40 of 40 runs over 5 seeds x 8 draws, the grid 0)."""
     from scripts.bench_days import GOAL_RATIO
     from scripts.bench_rebase_design import run
 
