@@ -211,11 +211,10 @@ def workspace_validation(safety: Any, others: dict[str, np.ndarray], seed: int, 
 
 def bench_sim(seed: int, log: Any) -> dict[str, Any]:
     from app.cell.design_plan import DesignSpec, optimal_plan, paper_grid_figures
-    from app.cell.planning import plan_anchor_grid, plan_validation
+    from app.cell.planning import plan_anchor_grid
     from app.cell.runtime import SimCellOptions, park_q
     from app.cell.session_plan import validation_plan
     from app.cell.safety import CellSafety
-    from calibration.errors import CellCalError
     from drivers.sim.truth import cell_truths
 
     cell = load_cell()
