@@ -169,9 +169,9 @@ def rebase_candidates(model: Any, q: np.ndarray, cluster: np.ndarray, anchors: n
                       reach_mm: float = DEFAULT_REACH_MM, reference_q: np.ndarray | None = None) -> Candidates:
     """The candidate clusters' information about a rebase of ``model`` (a fitted or nominal
     :class:`~calibration.models.base.KinematicModel`): its 12 frame directions and the ``offsets`` (1-based)."""
-    from calibration.rebase import _scale, direction_names, rebase_rows
+    from calibration.rebase import delta_scale, direction_names, rebase_rows
 
-    scale = _scale(len(offsets), reach_mm)
+    scale = delta_scale(len(offsets), reach_mm)
     rows = scaled_rows(rebase_rows(model, np.asarray(q, dtype=float), offsets), scale, a)
     ref = None if reference_q is None else scaled_rows(rebase_rows(model, reference_q, offsets), scale, a)
     return candidates_from_rows(rows, cluster, anchors, scale, direction_names(offsets), ref)

@@ -72,7 +72,7 @@ def rebase_rows(model: KinematicModel, q: np.ndarray, offsets: tuple[int, ...] =
     return RebasedModel(model.robot, model.method, model).rebase_jacobian(q, offsets)[2]
 
 
-def _scale(n_offsets: int, reach_mm: float) -> np.ndarray:
+def delta_scale(n_offsets: int, reach_mm: float) -> np.ndarray:
     """Column scaling of ``delta`` to millimetres of tool motion (rotations and offsets times the reach)."""
     return np.concatenate([np.tile([1.0] * 3 + [1.0 / reach_mm] * 3, 2), np.full(n_offsets, 1.0 / reach_mm)])
 
@@ -200,7 +200,7 @@ class RebaseProblem:
         free[12:] = True
         if not rotations:
             free[ROTATION_INDEX] = False
-        scale = _scale(len(self.offsets), reach_mm)
+        scale = delta_scale(len(self.offsets), reach_mm)
         self.free = free
         self.observability = analyse_jacobian(J[:, :, free], scale[free],
                                               tuple(n for n, f in zip(self.names, free) if f), a, tolerance)

@@ -34,12 +34,12 @@ def test_rebase_candidates_see_the_wrist_offsets_only_where_the_wrist_moves():
 def test_rebase_candidates_information_is_the_rebase_jacobians():
     """Each cluster's information is J^T J of the rebase's own (scaled) pose Jacobian rows, summed over its poses."""
     from calibration.identification.observability import scaled_rows
-    from calibration.rebase import _scale
+    from calibration.rebase import delta_scale
 
     anchors = np.random.default_rng(2).uniform(-1.0, 1.0, (3, 6))
     q, cluster = expand_anchors(anchors, math.radians(20.0))
     cands = design.rebase_candidates(_nominal(), q, cluster, anchors[:, 1:3])
-    rows = scaled_rows(rebase_rows(_nominal(), q, design.REBASE_OFFSETS), _scale(2, 1000.0)).reshape(len(q), 6, -1)
+    rows = scaled_rows(rebase_rows(_nominal(), q, design.REBASE_OFFSETS), delta_scale(2, 1000.0))
     for c in range(3):
         J = rows[cluster == c].reshape(-1, 14) @ cands.basis
         np.testing.assert_allclose(cands.info[c], J.T @ J, rtol=1e-10, atol=1e-9)
