@@ -348,7 +348,7 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--for", dest="target", choices=("identification", "rebase"), default="identification",
                    help="--design optimal: what the poses are for: identifying the geometry (default) or rebasing a "
                         "fitted model onto a new day (its frames and the joint offsets of joints 4 and 5; "
-                        "`cellcal rebase --offsets`)")
+                        "cellcal rebase --offsets)")
     p.add_argument("--noise-mm", type=float, default=0.05,
                    help="measurement noise assumed for the predicted parameter uncertainty [mm]")
     p.add_argument("--json", help="write the plan summary (target counts per kind, and the design figures) as JSON")
@@ -361,7 +361,7 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--out", required=True, help="the subset recording CSV")
     p.add_argument("--for", dest="target", choices=("identification", "rebase"), default="identification",
                    help="what the clusters are for: identifying the geometry (default) or rebasing a fitted model "
-                        "(D-optimal on the 12 frame directions `cellcal rebase` fits, no spread term)")
+                        "(D-optimal on the 12 frame directions cellcal rebase fits, no spread term)")
     p.add_argument("--noise-mm", type=float, default=0.05,
                    help="measurement noise assumed for the predicted parameter uncertainty [mm]")
     p.add_argument("--json", help="write the chosen clusters and the design figures as JSON")
