@@ -35,6 +35,10 @@ Selection is greedy (each step adds the cluster with the largest compound gain; 
 one batched ``slogdet``) followed by Fedorov exchange passes (swap a chosen cluster for an unchosen one while the
 criterion improves), both exact.
 
+A **rebase design** (:func:`rebase_candidates`) applies the same D criterion to the parameters a rebase refits
+(:mod:`calibration.rebase`: the base and tool-marker frames and the joint offsets ``REBASE_OFFSETS``) instead of the
+geometry; it needs no spread over (q2, q3) (a rebase interpolates nothing), so it is chosen with ``lambda = 0``.
+
 Predicted parameter uncertainty: ``sigma = noise * sqrt(diag(B (B^T M B)^-1 B^T))`` with B the identifiable
 directions, in each parameter's own unit (mm, rad), for a measurement noise ``noise`` [mm, mm-equivalent for
 orientation] on every row.
@@ -43,6 +47,7 @@ orientation] on every row.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -147,21 +152,47 @@ def candidates(par: MinimalParameterisation, q: np.ndarray, cluster: np.ndarray,
         a, reach_mm: see :func:`cluster_rows`.
         reference_q: poses whose Jacobian defines the identifiable directions (default: all candidates).
     """
-    q = np.asarray(q, dtype=float)
+    rows = cluster_rows(par, np.asarray(q, dtype=float), a, reach_mm)
+    ref = None if reference_q is None else cluster_rows(par, reference_q, a, reach_mm)
+    return candidates_from_rows(rows, cluster, anchors, par.scale(reach_mm), tuple(par.names()), ref)
+
+
+#: The joint offsets a rebase refits with the frames: the wrist's 4 and 5. Joint 1's and 6's are rotations of the
+#: base and tool frames; 2 and 3 are left out because what changes between the shared days appears to lie along
+#: joints 1 and 4-6 (issue 10), and in the simulated cell (``scripts/bench_rebase_design.py``, 6 noise draws of one
+#: day) refitting 2-5 instead of 4-5 costs 0.055 against 0.048 mm mean over the workspace.
+REBASE_OFFSETS = (4, 5)
+
+
+def rebase_candidates(model: Any, q: np.ndarray, cluster: np.ndarray, anchors: np.ndarray,
+                      offsets: tuple[int, ...] = REBASE_OFFSETS, a: float = DEFAULT_ORIENTATION_WEIGHT,
+                      reach_mm: float = DEFAULT_REACH_MM, reference_q: np.ndarray | None = None) -> Candidates:
+    """The candidate clusters' information about a rebase of ``model`` (a fitted or nominal
+    :class:`~calibration.models.base.KinematicModel`): its 12 frame directions and the ``offsets`` (1-based)."""
+    from calibration.rebase import delta_scale, direction_names, rebase_rows
+
+    scale = delta_scale(len(offsets), reach_mm)
+    rows = scaled_rows(rebase_rows(model, np.asarray(q, dtype=float), offsets), scale, a)
+    ref = None if reference_q is None else scaled_rows(rebase_rows(model, reference_q, offsets), scale, a)
+    return candidates_from_rows(rows, cluster, anchors, scale, direction_names(offsets), ref)
+
+
+def candidates_from_rows(rows: np.ndarray, cluster: np.ndarray, anchors: np.ndarray, scale: np.ndarray,
+                         names: tuple[str, ...], reference_rows: np.ndarray | None = None) -> Candidates:
+    """Candidates from scaled Jacobian rows (N, 6, m) of any parameter set (see :func:`candidates`)."""
     cluster = np.asarray(cluster, dtype=int)
     K = len(anchors)
-    if len(q) != len(cluster) or cluster.min(initial=0) < 0 or cluster.max(initial=-1) >= K:
-        raise ModelError(f"design: {len(q)} poses need {len(q)} cluster indices in 0..{K - 1}")
-    rows = cluster_rows(par, q, a, reach_mm)
-    ref = rows if reference_q is None else cluster_rows(par, reference_q, a, reach_mm)
-    flat = ref.reshape(-1, par.size)
+    if len(rows) != len(cluster) or cluster.min(initial=0) < 0 or cluster.max(initial=-1) >= K:
+        raise ModelError(f"design: {len(rows)} poses need {len(rows)} cluster indices in 0..{K - 1}")
+    m = rows.shape[-1]
+    flat = (rows if reference_rows is None else reference_rows).reshape(-1, m)
     eig, V = np.linalg.eigh(flat.T @ flat)  # ascending; singular values squared
     basis = V[:, eig >= IDENTIFIABLE_TOLERANCE ** 2 * eig[-1]][:, ::-1]
     proj = rows @ basis  # (N, 6, r)
     per_pose = np.matmul(proj.transpose(0, 2, 1), proj)
     info = np.zeros((K, basis.shape[1], basis.shape[1]))
     np.add.at(info, cluster, per_pose)
-    return Candidates(info, np.asarray(anchors, dtype=float), basis, par.scale(reach_mm), tuple(par.names()))
+    return Candidates(info, np.asarray(anchors, dtype=float), basis, np.asarray(scale, dtype=float), tuple(names))
 
 
 class _Spread:
@@ -303,12 +334,24 @@ class RecordingSelection:
 
 def select_recording(par: MinimalParameterisation, rec: Recording, budget: int, noise_mm: float,
                      cluster_size: int = 7, a: float = DEFAULT_ORIENTATION_WEIGHT,
-                     spread_weight: float = DEFAULT_SPREAD_WEIGHT) -> RecordingSelection:
+                     spread_weight: float = DEFAULT_SPREAD_WEIGHT, rebase_offsets: tuple[int, ...] | None = None
+                     ) -> RecordingSelection:
     """The ``budget`` clusters of ``rec`` (as :meth:`Recording.clusters` defines them) the compound criterion
-    picks; identifiable directions are those of the whole recording."""
+    picks; identifiable directions are those of the whole recording.
+
+    With ``rebase_offsets`` (a tuple, ``()`` for the frames alone): the clusters for a rebase instead (D on the
+    rebase's frame directions and those joint offsets at the nominal arm ``par.nominal``, no spread term;
+    ``spread_weight`` is ignored)."""
     ids = rec.clusters(cluster_size)
     uniq, first, index = np.unique(ids, return_index=True, return_inverse=True)
-    cands = candidates(par, rec.q, index, rec.q[first][:, 1:3], a=a)
+    if rebase_offsets is None:
+        cands = candidates(par, rec.q, index, rec.q[first][:, 1:3], a=a)
+    else:
+        from calibration.models import ConstantModel
+
+        nominal = ConstantModel("nominal", "nominal", par.nominal)  # its robot name is a label only here
+        cands = rebase_candidates(nominal, rec.q, index, rec.q[first][:, 1:3], tuple(rebase_offsets), a=a)
+        spread_weight = 0.0
     chosen = select(cands, budget, spread_weight=spread_weight)
     rows = np.flatnonzero(np.isin(index, chosen))
     sizes = np.bincount(index)

@@ -15,12 +15,19 @@ tool translation look alike). The weighted Jacobian at ``delta = 0`` is scaled (
 1 m reach) and decomposed by SVD, as :mod:`calibration.identification.observability` does for the geometry;
 directions whose singular value is below ``tolerance`` times the largest are held at zero and reported in
 plain words, and Levenberg-Marquardt (:mod:`calibration.identification.lm`) fits the rest.
+
+Optionally (``offsets``: 1-based joints) the rebase also refits constant joint-angle offsets ``dq`` of the new
+day, ``T_meas_i ~= T_base @ T_model(q_i + dq) @ T_tool`` (``delta`` then ends in the offsets [rad], scaled like the
+rotations). Joint 1's and joint 6's offsets are frame rotations (base about axis 1, tool about axis 6) and are
+held as such; the wrist's (4, 5) differ from a tool-frame change only where the wrist moves, so poses that hold
+the wrist still (the paper's grid) cannot see them and the SVD holds them, while a design that moves the wrist
+(``cellcal plan --design optimal --for rebase``, :func:`calibration.design.rebase_candidates`) fits them.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -46,6 +53,30 @@ ROTATION_INDEX = np.array([3, 4, 5, 9, 10, 11])
 FRAME_INDEX = {"base": np.arange(0, 6), "tool": np.arange(6, 12)}
 
 
+def direction_names(offsets: tuple[int, ...] = ()) -> tuple[str, ...]:
+    """Plain-word names of ``delta``: the 12 frame directions, then the offsets of the 1-based ``offsets``."""
+    return DIRECTION_NAMES + tuple(f"joint {j} offset" for j in offsets)
+
+
+def check_offsets(offsets: Any) -> tuple[int, ...]:
+    """The 1-based joints of ``offsets`` as a sorted tuple; ModelError naming the bad entry otherwise."""
+    joints = tuple(offsets)
+    bad = [j for j in joints if isinstance(j, bool) or not isinstance(j, (int, np.integer)) or not 1 <= j <= 6]
+    if bad or len(set(joints)) != len(joints):
+        raise ModelError(f"offsets: expected distinct joints in 1..6, got {list(joints)!r}")
+    return tuple(sorted(int(j) for j in joints))
+
+
+def rebase_rows(model: KinematicModel, q: np.ndarray, offsets: tuple[int, ...] = ()) -> np.ndarray:
+    """Pose Jacobian of a rebase of ``model`` at the identity, ``d[p; rot] / d delta`` (N, 6, 12 + k)."""
+    return RebasedModel(model.robot, model.method, model).rebase_jacobian(q, offsets)[2]
+
+
+def delta_scale(n_offsets: int, reach_mm: float) -> np.ndarray:
+    """Column scaling of ``delta`` to millimetres of tool motion (rotations and offsets times the reach)."""
+    return np.concatenate([np.tile([1.0] * 3 + [1.0 / reach_mm] * 3, 2), np.full(n_offsets, 1.0 / reach_mm)])
+
+
 @dataclass(frozen=True)
 class RebaseResult:
     """Outcome of :meth:`RebaseProblem.solve`.
@@ -64,6 +95,7 @@ class RebaseResult:
         iterations: LM iterations.
         seconds: wall time of the solve.
         n_samples: N.
+        joint_offsets: the fitted joint offsets [rad], shape (6,) (zeros for joints not refitted).
     """
 
     T_base_correction: np.ndarray
@@ -81,6 +113,7 @@ class RebaseResult:
     iterations: int
     seconds: float
     n_samples: int
+    joint_offsets: np.ndarray = field(default_factory=lambda: np.zeros(6))
 
     @property
     def mean_before_mm(self) -> float:
@@ -97,8 +130,13 @@ class RebaseResult:
         text = (f"Rebased on {self.n_samples} poses: base moved {dp_b:.3f} mm / {th_b:.4f} deg, tool marker "
                 f"{dp_t:.3f} mm / {th_t:.4f} deg; position error mean {self.mean_before_mm:.3f} -> "
                 f"{self.mean_after_mm:.3f} mm.")
+        total = self.delta.size
+        if total > 12 and self.joint_offsets.any():
+            text += " Joint offsets: " + ", ".join(f"joint {j + 1} {np.degrees(v):+.4f} deg"
+                                                   for j, v in enumerate(self.joint_offsets) if v) + "."
         if self.held:
-            text += (f" {12 - self.fitted} of 12 frame directions were held at zero (the poses cannot see them, "
+            what = "frame directions" if total == 12 else "directions (frames and joint offsets)"
+            text += (f" {total - self.fitted} of {total} {what} were held at zero (the poses cannot see them, "
                      f"or they were excluded): {'; '.join(self.held)}. Collect poses that rotate the tool more "
                      "widely to determine them.")
         if not self.converged:
@@ -111,7 +149,7 @@ class RebaseResult:
                            "mean_before_mm": self.mean_before_mm, "mean_after_mm": self.mean_after_mm,
                            "converged": self.converged}}
         return RebasedModel(inner.robot, inner.method, inner, self.T_base_correction, self.T_tool_correction,
-                            self.fitted, info)
+                            self.fitted, info, self.joint_offsets)
 
 
 def corrections(delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -133,41 +171,73 @@ class RebaseProblem:
         reach_mm: length that turns rotation columns into millimetres for the SVD.
         rotations: False holds the six rotation directions (a translation-only rebase).
         frames: the frames to fit, a subset of ``("base", "tool")`` (the other frame's six directions are held).
+        offsets: 1-based joints whose constant angle offsets are refitted too (default none: frames only).
 
     Raises:
-        ModelError: shapes do not match, values are not finite or a frame name is unknown.
+        ModelError: shapes do not match, values are not finite, a frame name or an offset joint is unknown.
     """
 
     def __init__(self, model: KinematicModel, q: np.ndarray, R_meas: np.ndarray, p_meas: np.ndarray,
                  a: float = DEFAULT_ORIENTATION_WEIGHT, tolerance: float = DEFAULT_RELATIVE_TOLERANCE,
                  reach_mm: float = DEFAULT_REACH_MM, rotations: bool = True,
-                 frames: tuple[str, ...] = ("base", "tool")) -> None:
+                 frames: tuple[str, ...] = ("base", "tool"), offsets: tuple[int, ...] = ()) -> None:
         self.model = model
         self.q = np.atleast_2d(np.asarray(q, dtype=float))
         if self.q.ndim != 2 or self.q.shape[0] == 0:
             raise ModelError(f"q must be (N, 6) with N >= 1, got {self.q.shape}")
-        R_model, p_model = model.fk(self.q)
-        self.frames = RegistrationProblem.from_poses(R_model, p_model, R_meas, p_meas, np.eye(4), a,
-                                                     check_motion=False)
+        self.offsets = check_offsets(offsets)
+        self.names = direction_names(self.offsets)
+        self.R_meas, self.p_meas, self.a = R_meas, p_meas, a
+        self.frames = self._frames_at(np.zeros(6))
         self.n_samples = self.frames.n_samples
-        J = self.frames.jacobian(np.eye(4), np.eye(4), 1.0)
+        J = self._residual_jacobian(self.frames, np.zeros(len(self.names)), 1.0)
         unknown = [f for f in frames if f not in FRAME_INDEX]
         if unknown or not frames:
             raise ModelError(f"unknown frame {unknown[0] if unknown else frames!r}; valid: base, tool")
-        free = np.zeros(12, dtype=bool)
+        free = np.zeros(len(self.names), dtype=bool)
         for frame in frames:
             free[FRAME_INDEX[frame]] = True
+        free[12:] = True
         if not rotations:
             free[ROTATION_INDEX] = False
-        scale = np.tile([1.0] * 3 + [1.0 / reach_mm] * 3, 2)
+        scale = delta_scale(len(self.offsets), reach_mm)
         self.free = free
         self.observability = analyse_jacobian(J[:, :, free], scale[free],
-                                              tuple(n for n, f in zip(DIRECTION_NAMES, free) if f), a, tolerance)
-        basis = np.zeros((12, self.observability.rank))
+                                              tuple(n for n, f in zip(self.names, free) if f), a, tolerance)
+        basis = np.zeros((len(self.names), self.observability.rank))
         basis[free] = self.observability.basis
         self.basis = basis
-        self.held = tuple(f"{name} (excluded)" for name, f in zip(DIRECTION_NAMES, free) if not f) + tuple(
-            _describe_free(self.observability, i, free) for i in range(self.observability.rank, int(free.sum())))
+        self.held = tuple(f"{name} (excluded)" for name, f in zip(self.names, free) if not f) + tuple(
+            _describe_free(self.observability, i, free, self.names)
+            for i in range(self.observability.rank, int(free.sum())))
+
+    def _joint_offsets(self, delta: np.ndarray) -> np.ndarray:
+        dq = np.zeros(6)
+        dq[[j - 1 for j in self.offsets]] = delta[12:]
+        return dq
+
+    def _frames_at(self, dq: np.ndarray) -> RegistrationProblem:
+        """The frames' registration problem around the model's poses at ``q + dq``."""
+        R_model, p_model = self.model.fk(self.q + dq if dq.any() else self.q)
+        return RegistrationProblem.from_poses(R_model, p_model, self.R_meas, self.p_meas, np.eye(4), self.a,
+                                              check_motion=False)
+
+    def _residual_jacobian(self, frames: RegistrationProblem, delta: np.ndarray, w_rot: float | None = None
+                           ) -> np.ndarray:
+        """``d residuals / d delta`` (N, 6, 12 + k) at ``delta`` (rotation vectors as the parameters, exact)."""
+        T_b, T_t = corrections(delta)
+        chart = np.eye(12)
+        chart[3:6, 3:6] = so3.left_jacobian(delta[3:6])
+        chart[9:12, 9:12] = so3.left_jacobian(delta[9:12])
+        J = frames.jacobian(T_b, T_t, w_rot) @ chart
+        if not self.offsets:
+            return J
+        pose = RebasedModel(self.model.robot, self.model.method, self.model, T_b, T_t,
+                            joint_offsets=self._joint_offsets(delta)).jacobian_q(self.q)[:, :, [j - 1 for j in
+                                                                                             self.offsets]]
+        # a world-frame pose change (dp, drot) moves the residuals by (-dp, the base rotation column's -Jr^-1 drot)
+        J_off = np.concatenate([-pose[:, :3], frames.jacobian(T_b, T_t, w_rot)[:, 3:, 3:6] @ pose[:, 3:]], axis=1)
+        return np.concatenate([J, J_off], axis=2)
 
     @classmethod
     def from_recording(cls, model: KinematicModel, rec: Recording, **options: Any) -> "RebaseProblem":
@@ -184,20 +254,23 @@ class RebaseProblem:
     def groups(self) -> Groups:
         return Groups.single(self.n_samples)
 
+    def _frames_for(self, delta: np.ndarray) -> RegistrationProblem:
+        return self._frames_at(self._joint_offsets(delta)) if self.offsets else self.frames
+
     def residuals(self, z: np.ndarray) -> Residuals:
-        T_b, T_t = corrections(self.basis @ z[0])
-        return Residuals(self.frames.residuals(T_b, T_t))
+        delta = self.basis @ z[0]
+        T_b, T_t = corrections(delta)
+        return Residuals(self._frames_for(delta).residuals(T_b, T_t))
 
     def linearise(self, z: np.ndarray, at: Residuals | None) -> Linearisation:
         """Exact Jacobian in z: the registration's (left perturbations) times the left Jacobians of the
-        rotation vectors, times the basis."""
+        rotation vectors, then the offsets' columns (the model's joint Jacobian through the frames), times the
+        basis."""
         delta = self.basis @ z[0]
+        frames = self._frames_for(delta)
+        J = self._residual_jacobian(frames, delta) @ self.basis
         T_b, T_t = corrections(delta)
-        chart = np.eye(12)
-        chart[3:6, 3:6] = so3.left_jacobian(delta[3:6])
-        chart[9:12, 9:12] = so3.left_jacobian(delta[9:12])
-        J = self.frames.jacobian(T_b, T_t) @ (chart @ self.basis)
-        return Linearisation(at if at is not None else Residuals(self.frames.residuals(T_b, T_t)), J)
+        return Linearisation(at if at is not None else Residuals(frames.residuals(T_b, T_t)), J)
 
     def solve(self, settings: LMSettings = LMSettings(max_iter=100, cost_rtol=1e-12, step_atol=1e-12)
               ) -> RebaseResult:
@@ -207,20 +280,22 @@ class RebaseProblem:
         delta = self.basis @ res.z[0]
         T_b, T_t = corrections(delta)
         R0, p0 = self.frames.R_bf, self.frames.p_bf
-        R1, p1 = self.frames.predict(T_b, T_t)
+        R1, p1 = self._frames_for(delta).predict(T_b, T_t)
         R_meas, p_meas = self.frames.R_meas, self.frames.p_meas
         before, after = pose_error(R_meas, p_meas, R0, p0), pose_error(R_meas, p_meas, R1, p1)
         return RebaseResult(T_b, T_t, delta, self.observability.rank, self.held, self.observability,
                             before[0], after[0], before[1], after[1], bool(res.converged[0]), res.reason[0],
-                            int(res.iterations[0]), time.perf_counter() - start, self.n_samples)
+                            int(res.iterations[0]), time.perf_counter() - start, self.n_samples,
+                            self._joint_offsets(delta))
 
 
-def _describe_free(obs: Observability, index: int, free: np.ndarray) -> str:
+def _describe_free(obs: Observability, index: int, free: np.ndarray, names: tuple[str, ...] = DIRECTION_NAMES
+                   ) -> str:
     """A held direction of the free columns, in plain words."""
-    v = np.zeros(12)
+    v = np.zeros(len(names))
     v[free] = obs.V[:, index]
     order = [j for j in np.argsort(-np.abs(v))[:3] if abs(v[j]) > 0.2]
-    terms = " and ".join(f"{DIRECTION_NAMES[j]} ({v[j]:+.2f})" for j in order)
+    terms = " and ".join(f"{names[j]} ({v[j]:+.2f})" for j in order)
     rel = obs.singular_values[index] / obs.singular_values[0]
     return f"{terms} together (relative singular value {rel:.1e})"
 

@@ -14,9 +14,12 @@ Cross-day matrix: the model fitted on recording A, tested on the test recording 
 :func:`calibration.rebase.rebase_auto` (what ``cellcal rebase`` does: the translations, or both frames when they do
 better on clusters held out in turn) on 21 poses of B: the 3 clusters of B's *training* recording spread widest
 over the (q2, q3) grid (never B's test data), against (c) B's own same-day full calibration with the same
-method; the ratio (b) / (c) of test means is the issue's goal (<= 1.25).
+method; the ratio (b) / (c) of test means is the issue's goal (<= 1.25). ``--rebase-clusters design`` rebases on
+the 3 training clusters the rebase design criterion picks instead (``cellcal select --for rebase``; joint angles
+only, never a measurement or B's test data).
 
     python scripts/bench_days.py [--json FILE] [--methods m1,m2,...] [--cross-methods m1,...] [--quick]
+                                 [--rebase-clusters spread|design]
 """
 
 from __future__ import annotations
@@ -96,6 +99,16 @@ def spread_clusters(rec: Recording, k: int = N_REBASE_CLUSTERS) -> list[int]:
     return [int(ids[i]) for i in chosen]
 
 
+def design_clusters(robot: Any, rec: Recording, k: int = N_REBASE_CLUSTERS) -> list[int]:
+    """The ``k`` clusters of ``rec`` the rebase design criterion picks (``cellcal select --for rebase``: D on the 12
+    frame directions at the nominal arm, from the joint angles alone)."""
+    from calibration.design import select_recording
+    from calibration.parameterisation import MinimalParameterisation
+
+    par = MinimalParameterisation(robot.model(), fit_tool=True)
+    return list(select_recording(par, rec, k, 0.05, CLUSTER_SIZE, rebase_offsets=()).clusters)
+
+
 def mean_max(e: np.ndarray) -> dict[str, float]:
     return {"mean": float(np.mean(e)), "max": float(np.max(e))}
 
@@ -122,6 +135,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", help="write every figure to this JSON file")
     parser.add_argument("--data", type=Path, default=DATA, help=f"the welding_motoman folder (default {DATA})")
     parser.add_argument("--methods", help=f"comma-separated methods (default: {','.join(DEFAULT_METHODS)})")
+    parser.add_argument("--rebase-clusters", choices=("spread", "design"), default="spread",
+                        help="the 3 clusters of B's training recording to rebase on: spread widest over (q2, q3) "
+                             "(default) or those the rebase design criterion picks (cellcal select --for rebase)")
     parser.add_argument("--cross-methods", help="methods of the cross-day matrix (default: the same as --methods)")
     parser.add_argument("--quick", action="store_true", help=f"only {','.join(QUICK_METHODS)}")
     args = parser.parse_args(argv)
@@ -179,7 +195,8 @@ def main(argv: list[str] | None = None) -> int:
 
     # -- cross-day: model of A on B's test, as is and rebased on 3 clusters of B's training recording --
     t = time.perf_counter()
-    rebase_clusters = {u.name: spread_clusters(train[u.name]) for u in UNITS}
+    pick = design_clusters if args.rebase_clusters == "design" else lambda _, rec: spread_clusters(rec)
+    rebase_clusters = {u.name: pick(robot, train[u.name]) for u in UNITS}
     rebase_data = {name: rec.subset(np.isin(rec.clusters(CLUSTER_SIZE), rebase_clusters[name]))
                    for name, rec in train.items()}
     cross: dict[str, dict[str, dict[str, dict[str, Any]]]] = {m: {} for m in cross_methods}

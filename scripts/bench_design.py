@@ -183,13 +183,38 @@ def measure(truth: Any, q: np.ndarray, noise_mm: float, noise_deg: float, rng: n
     return Recording(q, p, so3.R_to_quat(R), dict(extra or {}), "sim")
 
 
+def workspace_validation(safety: Any, others: dict[str, np.ndarray], seed: int, n: int = SIM_VALIDATION_N
+                         ) -> np.ndarray:
+    """R1 validation poses over the whole workspace [rad] (n, 6): q2, q3 in the paper's band, q1 and the wrist in
+    ``SIM_VALIDATION_DEG`` (far beyond the grid's 2 deg), each checked safe with the other arms at ``others``."""
+    from app.cell.planning import paper_q3_bounds, plan_validation
+    from calibration.errors import CellCalError
+
+    lo = np.radians([SIM_VALIDATION_DEG[0][0], -55.0, -70.0, *[b[0] for b in SIM_VALIDATION_DEG[1:]]])
+    hi = np.radians([SIM_VALIDATION_DEG[0][1], 50.0, 50.0, *[b[1] for b in SIM_VALIDATION_DEG[1:]]])
+    lim_lo, lim_hi = safety.limits("R1")
+    lo, hi = np.maximum(lo, lim_lo), np.minimum(hi, lim_hi)
+
+    def accept(q: np.ndarray) -> bool:
+        b = paper_q3_bounds(math.degrees(q[1]))
+        if not b[0] <= math.degrees(q[2]) <= b[1]:
+            return False
+        try:
+            safety.check_configs("R1", q, others)
+        except CellCalError:
+            return False
+        return True
+
+    val = plan_validation("R1", lo, hi, n, seed=seed + 1, margin_deg=0.0, accept=accept, max_tries=2000)
+    return np.array([t.q for t in val])
+
+
 def bench_sim(seed: int, log: Any) -> dict[str, Any]:
     from app.cell.design_plan import DesignSpec, optimal_plan, paper_grid_figures
-    from app.cell.planning import plan_anchor_grid, plan_validation
+    from app.cell.planning import plan_anchor_grid
     from app.cell.runtime import SimCellOptions, park_q
     from app.cell.session_plan import validation_plan
     from app.cell.safety import CellSafety
-    from calibration.errors import CellCalError
     from drivers.sim.truth import cell_truths
 
     cell = load_cell()
@@ -212,25 +237,8 @@ def bench_sim(seed: int, log: Any) -> dict[str, Any]:
     opt_rec = measure(truth, plan.q, opts.noise_pos_mm, opts.noise_rot_deg, rng,
                       {"cluster": np.array([t.cluster for t in plan.targets], dtype=float)})
 
-    from app.cell.planning import paper_q3_bounds
-
-    lo = np.radians([SIM_VALIDATION_DEG[0][0], -55.0, -70.0, *[b[0] for b in SIM_VALIDATION_DEG[1:]]])
-    hi = np.radians([SIM_VALIDATION_DEG[0][1], 50.0, 50.0, *[b[1] for b in SIM_VALIDATION_DEG[1:]]])
-    lim_lo, lim_hi = safety.limits("R1")
-    lo, hi = np.maximum(lo, lim_lo), np.minimum(hi, lim_hi)
-
-    def accept(q: np.ndarray) -> bool:
-        b = paper_q3_bounds(math.degrees(q[1]))
-        if not b[0] <= math.degrees(q[2]) <= b[1]:
-            return False
-        try:
-            safety.check_configs("R1", q, others)
-        except CellCalError:
-            return False
-        return True
-
-    val = plan_validation("R1", lo, hi, SIM_VALIDATION_N, seed=seed + 1, margin_deg=0.0, accept=accept, max_tries=2000)
-    val_rec = measure(truth, np.array([t.q for t in val]), opts.noise_pos_mm, opts.noise_rot_deg, rng)
+    val = workspace_validation(safety, others, seed)
+    val_rec = measure(truth, val, opts.noise_pos_mm, opts.noise_rot_deg, rng)
     near = validation_plan("R1", safety, others, SIM_VALIDATION_N, seed=seed + 2)  # the demo's: wrist within 5 deg
     near_rec = measure(truth, near.q, opts.noise_pos_mm, opts.noise_rot_deg, rng)
     out: dict[str, Any] = {"seed": seed, "validation_poses": SIM_VALIDATION_N,

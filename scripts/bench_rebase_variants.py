@@ -12,6 +12,15 @@ several ways of using the 21 poses:
   the 3 clusters (``inf`` = frames only is a candidate);
 - ``frames+refit`` (pi only): both frames, then the pi model's parameters refitted on the 21 poses with a ridge
   toward the old model (mm-scaled, as the CDC local fits), strength chosen the same way, then the frames again;
+- ``frames+wrist offsets``: both frames and the joint offsets of joints 4 and 5 (``cellcal rebase --offsets``;
+  on these still-wrist poses the SVD holds what it cannot see);
+- ``frames+prior``: both frames with a Gaussian prior on their 12 corrections, its mean and covariance those of the
+  full rebases (on all training poses) of the other pairs of days that involve neither A nor B (training data of
+  other days only), its strength chosen per pair by leave-one-cluster-out over the 3 clusters (``inf`` = no prior);
+- ``design clusters: ...``: the same rebases (both frames; ``cellcal rebase``'s choice) on 3 other clusters of
+  B's training recording, those the rebase design criterion picks (``cellcal plan --design optimal --for rebase``'s
+  D-optimality on the 12 frame directions, at the nominal arm, from the joint angles alone); their training column
+  is on the clusters outside those 3;
 - ``chosen``: the one of ``frames``, ``base`` and ``translations`` leave-one-cluster-out prefers;
 - ``auto (cellcal rebase)``: :func:`calibration.rebase.rebase_auto`, the translations unless both frames do better
   by more than a standard error on the clusters held out in turn.
@@ -20,7 +29,7 @@ Every per-pair choice uses the 21 poses only (never B's test recording). The las
 on the clusters of B's training recording outside the 21 poses, is what a default variant may be chosen on
 (training data only). Also printed: ``frames`` on all of B's training poses, a bound on what frames alone can do.
 
-    python scripts/bench_rebase_variants.py [--method pi] [--json FILE] [--skip-offsets] [--skip-refit]
+    python scripts/bench_rebase_variants.py [--method pi] [--json FILE] [--skip-offsets] [--skip-refit] [--skip-prior]
 """
 
 from __future__ import annotations
@@ -38,6 +47,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from calibration import so3  # noqa: E402
+from calibration.design import REBASE_OFFSETS  # noqa: E402
 from calibration.frames import take_out  # noqa: E402
 from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, GeometricProblem  # noqa: E402
 from calibration.models.rebased import wrap_pose  # noqa: E402
@@ -45,13 +55,15 @@ from calibration.poe import pose_error  # noqa: E402
 from calibration.rebase import RebaseProblem, corrections, rebase_auto  # noqa: E402
 from calibration.recording import Recording, read_recording  # noqa: E402
 from cell_config import load_cell  # noqa: E402
-from scripts.bench_days import CLUSTER_SIZE, DATA, GOAL_RATIO, UNITS, make_fitter, spread_clusters  # noqa: E402
+from scripts.bench_days import (CLUSTER_SIZE, DATA, GOAL_RATIO, UNITS, design_clusters, make_fitter,  # noqa: E402
+                                spread_clusters)  # noqa: E402
 
 Predict = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 FRAME_VARIANTS = {"frames": {}, "base": {"frames": ("base",)}, "translations": {"rotations": False}}
 OFFSET_JOINTS = [1, 2, 3, 4]  # joints 2..5 (0-based)
 OFFSET_GRID = (np.inf, 1.0, 1e-1, 1e-2, 1e-3)
 REFIT_GRID = (np.inf, 10.0, 3.0, 1.0, 0.3)
+PRIOR_GRID = (np.inf, 10.0, 1.0, 0.1, 0.01)  # prior residual weight: sqrt(1 / strength) x the mm residuals' scale
 W_ROT = float(np.sqrt(2 * DEFAULT_ORIENTATION_WEIGHT))
 
 
@@ -96,6 +108,35 @@ def with_refit(model: Any, rec: Recording, prior: float) -> Predict:
     return RebaseProblem.from_recording(inner, rec).solve().model(inner).fk
 
 
+def with_prior(model: Any, rec: Recording, prior: tuple[np.ndarray, np.ndarray] | None, strength: float
+               ) -> Predict:
+    """Both frames, ``delta`` pulled toward the prior mean with ``||L^-1 (delta - mean)|| / sqrt(strength)`` (L the
+    prior covariance's Cholesky factor; residuals in mm, 1 deg as 1 mm); ``inf`` or no prior: frames only."""
+    from scipy.optimize import least_squares
+
+    if prior is None or np.isinf(strength):
+        return frames_only(model, rec)
+    problem = RebaseProblem.from_recording(model, rec)
+    mean, L_inv = prior
+
+    def residuals(delta: np.ndarray) -> np.ndarray:
+        T_b, T_t = corrections(delta)
+        return np.concatenate([problem.frames.residuals(T_b, T_t).ravel(), L_inv @ (delta - mean) / np.sqrt(strength)])
+
+    delta = least_squares(residuals, mean.copy(), method="lm", x_scale="jac").x
+    T_b, T_t = corrections(delta)
+    return lambda q: wrap_pose(T_b, *model.fk(q), T_t)
+
+
+def day_prior(full: dict[tuple[str, str], np.ndarray], a: str, b: str) -> tuple[np.ndarray, np.ndarray] | None:
+    """Mean (12,) and inverse Cholesky factor (12, 12) of the full rebases of the pairs that involve neither a nor b."""
+    d = np.array([v for (x, y), v in full.items() if not {x, y} & {a, b}])
+    if len(d) < 3:
+        return None
+    cov = np.cov(d.T) + 1e-10 * np.eye(12)
+    return d.mean(axis=0), np.linalg.inv(np.linalg.cholesky(cov))
+
+
 def loco_errors(fit: Callable[[Recording], Predict], rec: Recording) -> np.ndarray:
     """Position error of every pose when its cluster is held out from the fit on the others [mm]."""
     cl = rec.clusters(CLUSTER_SIZE)
@@ -117,6 +158,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", help="write every ratio to this JSON file")
     parser.add_argument("--skip-offsets", action="store_true", help="leave out frames+offsets (the slowest)")
     parser.add_argument("--skip-refit", action="store_true", help="leave out frames+refit")
+    parser.add_argument("--skip-prior", action="store_true", help="leave out frames+prior")
     args = parser.parse_args(argv)
     if not DATA.exists():
         print(f"shared recordings not found at {DATA}", file=sys.stderr)
@@ -130,6 +172,10 @@ def main(argv: list[str] | None = None) -> int:
     models = {u.name: make_fitter(robot, train[u.name]).fit(args.method)[0] for u in UNITS}
     same = {lb: float(np.mean(pose_error(t.R, t.p, *models[unit_of[lb]].fk(t.q))[0])) for lb, t in tests.items()}
     poses = {n: r.subset(np.isin(r.clusters(CLUSTER_SIZE), spread_clusters(r))) for n, r in train.items()}
+    picked = {n: design_clusters(robot, r) for n, r in train.items()}
+    full = {} if args.skip_prior else {
+        (a.name, b.name): RebaseProblem.from_recording(models[a.name], train[b.name]).solve().delta
+        for a in UNITS for b in UNITS if a.name != b.name}
     rows: list[dict[str, Any]] = []
     for a in UNITS:
         m = models[a.name]
@@ -142,7 +188,12 @@ def main(argv: list[str] | None = None) -> int:
             predicts["chosen"] = predicts[pick]
             auto, _, auto_choice = rebase_auto(m, rec)
             predicts["auto (cellcal rebase)"] = auto.fk
+            predicts["frames+wrist offsets"] = frames_only(m, rec, offsets=REBASE_OFFSETS)
             extra: dict[str, Any] = {"chosen": pick, "auto": auto_choice}
+            if not args.skip_prior:
+                prior = day_prior(full, a.name, b.name)
+                k = chosen({g: (lambda r, g=g: with_prior(m, r, prior, g)) for g in PRIOR_GRID}, rec)
+                predicts["frames+prior"], extra["prior_strength"] = with_prior(m, rec, prior, k), k
             if not args.skip_offsets:
                 ridge = chosen({g: (lambda r, g=g: with_offsets(m, r, g)) for g in OFFSET_GRID}, rec)
                 predicts["frames+offsets"], extra["offsets_ridge"] = with_offsets(m, rec, ridge), ridge
@@ -152,6 +203,18 @@ def main(argv: list[str] | None = None) -> int:
             rest = train[b.name].subset(~np.isin(train[b.name].clusters(CLUSTER_SIZE),
                                                  spread_clusters(train[b.name])))
             heldout = {k: float(np.mean(pose_error(rest.R, rest.p, *p(rest.q))[0])) for k, p in predicts.items()}
+            cl = train[b.name].clusters(CLUSTER_SIZE)
+            d_rec, d_rest = train[b.name].subset(np.isin(cl, picked[b.name])), \
+                train[b.name].subset(~np.isin(cl, picked[b.name]))
+            d_auto, _, extra["design_auto"] = rebase_auto(m, d_rec)
+            extra["design_chosen"] = chosen({k: (lambda r, o=o: frames_only(m, r, **o))
+                                             for k, o in FRAME_VARIANTS.items()}, d_rec)
+            for k, pr in (("design clusters: frames", frames_only(m, d_rec)),
+                          ("design clusters: translations", frames_only(m, d_rec, rotations=False)),
+                          ("design clusters: chosen", frames_only(m, d_rec, **FRAME_VARIANTS[extra["design_chosen"]])),
+                          ("design clusters: auto", d_auto.fk)):
+                predicts[k] = pr
+                heldout[k] = float(np.mean(pose_error(d_rest.R, d_rest.p, *pr(d_rest.q))[0]))
             predicts["frames, all training poses"] = frames_only(m, train[b.name])
             for lb, t in tests.items():
                 if unit_of[lb] != b.name:

@@ -13,6 +13,16 @@ between them) is checked by :meth:`app.cell.safety.CellSafety.check_plan` before
 Not modelled: whether the mocap cameras see the tool marker at the wide wrist angles (the safety model knows
 limits, the floor and the other arm only); check a new design with ``collect --dry-run`` and a short trial.
 
+``--for rebase`` (``DesignSpec.for_rebase``): the same candidates and selection, but the information is that of the
+parameters a rebase refits (the base and tool-marker frames and the joint offsets of joints 4 and 5,
+:func:`calibration.design.rebase_candidates`), with no spread term (a rebase interpolates nothing) and clusters that
+step each joint by ``REBASE_PERTURB_DEG`` (20 deg). Chosen in the simulated cell (``scripts/bench_rebase_design.py``'s
+day change, seed 0; no real recording): from noiseless poses of day B, a rebase on 3 clusters with 1 / 5 / 10 / 20 /
+30 deg steps is off by 0.096 / 0.089 / 0.080 / 0.050 / 0.051 mm mean over the workspace (condition numbers 82 / 65 /
+50 / 40 / 41; B's own 196-pose calibration 0.051): wider steps keep the 14 parameters from soaking up the old
+model's local errors. The paper's grid column is then the grid's own
+information about the same 14 directions: its still wrist cannot see the wrist offsets.
+
 :func:`compare_designs` gives the figures of the chosen design and of the paper's grid on the same identifiable
 directions (those of all candidates together), so the two are comparable.
 """
@@ -28,12 +38,18 @@ import numpy as np
 from app.cell.planning import Plan, Target, build_plan, paper_q3_bounds, plan_anchor_grid
 from app.cell.safety import CellSafety
 from app.cell.session_plan import Q2_RANGE_DEG
-from calibration import design
+from calibration import design, rebase
 from calibration.cdc import expand_anchors
 from calibration.errors import CellCalError, ConfigError
 from calibration.parameterisation import MinimalParameterisation
 
 CLUSTER_SIZE = 7
+#: What a design is for: identifying the geometry (the default) or rebasing a fitted model onto a new day.
+TARGETS = ("identification", "rebase")
+#: Per-joint step of the paper's clusters [deg].
+PAPER_PERTURB_DEG = 1.0
+#: Per-joint step of a rebase design's clusters [deg].
+REBASE_PERTURB_DEG = 20.0
 #: Smallest number of clusters: a CDC interpolation over (q2, q3) needs d + 1 = 3 anchors.
 MIN_CLUSTERS = 3
 
@@ -51,6 +67,8 @@ class DesignSpec:
         spread_weight: lambda of the space-filling term (see :mod:`calibration.design`).
         noise_mm: measurement noise assumed for the predicted uncertainty [mm].
         seed: seed of the candidates.
+        target: ``identification`` (the geometry, see :mod:`calibration.design`) or ``rebase`` (the rebase's
+            frames and joint offsets).
     """
 
     budget: int = 196
@@ -60,6 +78,17 @@ class DesignSpec:
     spread_weight: float = design.DEFAULT_SPREAD_WEIGHT
     noise_mm: float = 0.05
     seed: int = 0
+    target: str = "identification"
+
+    def __post_init__(self) -> None:
+        if self.target not in TARGETS:
+            raise ConfigError("plan", "for", f"expected one of {', '.join(TARGETS)}, got {self.target!r}")
+
+    @classmethod
+    def for_rebase(cls, budget: int, noise_mm: float = 0.05, seed: int = 0) -> "DesignSpec":
+        """The rebase design: no spread term, ``REBASE_PERTURB_DEG`` steps."""
+        return cls(budget=budget, perturb_deg=REBASE_PERTURB_DEG, spread_weight=0.0, noise_mm=noise_mm, seed=seed,
+                   target="rebase")
 
     @property
     def n_clusters(self) -> int:
@@ -117,8 +146,14 @@ def _safe(robot: str, safety: CellSafety, others: Mapping[str, np.ndarray], anch
 
 
 def _candidates(par: MinimalParameterisation, anchors_q: np.ndarray, perturb_deg: float,
-                reference_q: np.ndarray | None = None) -> design.Candidates:
+                reference_q: np.ndarray | None = None, target: str = "identification", robot: str = "R1"
+                ) -> design.Candidates:
     q, cluster = expand_anchors(anchors_q, math.radians(perturb_deg))
+    if target == "rebase":
+        from calibration.models import ConstantModel
+
+        nominal = ConstantModel(robot, "nominal", par.nominal)
+        return design.rebase_candidates(nominal, q, cluster, anchors_q[:, 1:3], reference_q=reference_q)
     return design.candidates(par, q, cluster, anchors_q[:, 1:3], reference_q=reference_q)
 
 
@@ -134,12 +169,12 @@ def optimal_plan(robot: str, par: MinimalParameterisation, safety: CellSafety, o
     """
     check_budget(spec.budget)
     anchors_q = candidate_anchors(robot, safety, others, spec)
-    cands = _candidates(par, anchors_q, spec.perturb_deg)
+    cands = _candidates(par, anchors_q, spec.perturb_deg, target=spec.target, robot=robot)
     chosen = design.select(cands, spec.n_clusters, spread_weight=spec.spread_weight)
     figs = design.figures(cands, chosen, spec.noise_mm, CLUSTER_SIZE)
     if figs.rank < figs.n_identifiable:
         raise CellCalError(f"{spec.n_clusters} clusters see {figs.rank} of {figs.n_identifiable} identifiable "
-                           "parameter directions; raise the budget")
+                           f"{'rebase' if spec.target == 'rebase' else 'parameter'} directions; raise the budget")
     picked = anchors_q[chosen]
     order = design.visiting_order(picked, q_start)
     targets = []
@@ -149,22 +184,23 @@ def optimal_plan(robot: str, par: MinimalParameterisation, safety: CellSafety, o
         targets += [Target(robot, qq, k, "perturb") for qq in cluster_q[1:]]
     plan = build_plan(targets, robot=robot, design="optimal", budget=spec.budget, clusters=spec.n_clusters,
                       candidates=len(anchors_q), wide_deg=list(spec.wide_deg), spread_weight=spec.spread_weight,
-                      seed=spec.seed)
+                      seed=spec.seed, **({"for": "rebase", "perturb_deg": spec.perturb_deg}
+                                         if spec.target == "rebase" else {}))
     safety.check_plan(robot, plan.q, others, q_start)
-    grid = paper_grid_figures(par, spec, anchors_q)
+    grid = paper_grid_figures(par, spec, anchors_q, robot)
     return plan, {"optimal": figs, "paper_grid": grid}
 
 
-def paper_grid_figures(par: MinimalParameterisation, spec: DesignSpec, anchors_q: np.ndarray | None = None
-                       ) -> design.DesignFigures:
+def paper_grid_figures(par: MinimalParameterisation, spec: DesignSpec, anchors_q: np.ndarray | None = None,
+                       robot: str = "R1") -> design.DesignFigures:
     """Figures of the paper's 248-anchor grid (the default ``plan``), on the identifiable directions of
     ``anchors_q``'s clusters when given (else its own)."""
-    grid = plan_anchor_grid("grid", perturb_deg=spec.perturb_deg)
+    grid = plan_anchor_grid("grid", perturb_deg=PAPER_PERTURB_DEG)
     anchors = np.array([t.q for t in grid if t.kind == "anchor"])
     ref = None
     if anchors_q is not None:
         ref, _ = expand_anchors(anchors_q, math.radians(spec.perturb_deg))
-    cands = _candidates(par, anchors, spec.perturb_deg, reference_q=ref)
+    cands = _candidates(par, anchors, PAPER_PERTURB_DEG, reference_q=ref, target=spec.target, robot=robot)
     return design.figures(cands, list(range(len(cands))), spec.noise_mm, CLUSTER_SIZE)
 
 
@@ -172,7 +208,8 @@ def figures_table(figs: Mapping[str, design.DesignFigures]) -> str:
     """Designs side by side: size, rank, condition number and the predicted uncertainty per joint."""
     names = list(figs)
     first = figs[names[0]]
-    n = len(first.names) // 4  # 4 per joint, plus at most 3 for the flange shift
+    for_rebase = first.names[:12] == rebase.DIRECTION_NAMES  # one row per frame direction and joint offset
+    n = 0 if for_rebase else len(first.names) // 4  # 4 per joint, plus at most 3 for the flange shift
     width = max(12, *(len(k) for k in names)) + 2
     head = f"{'':34s}" + "".join(f"{k:>{width}s}" for k in names)
     lines = [head]
@@ -186,6 +223,12 @@ def figures_table(figs: Mapping[str, design.DesignFigures]) -> str:
     row("clusters / poses", [f"{f.n_clusters} / {f.n_poses}" for f in figs.values()])
     row("directions seen / identifiable", [f"{f.rank} / {f.n_identifiable}" for f in figs.values()])
     row("condition number", [g(f.condition_number, ".4g") for f in figs.values()])
+    if for_rebase:
+        for i, name in enumerate(first.names):
+            angle = "rotation" in name or "offset" in name
+            row(f"sigma {name} [{'mdeg' if angle else 'mm'}]",
+                [g(1e3 * math.degrees(float(f.sigma[i])) if angle else float(f.sigma[i]), ".4f")
+                 for f in figs.values()])
     for j in range(n):
         row(f"sigma joint {j + 1} origin [mm]", [g(float(np.max(f.sigma[2 * j:2 * j + 2])), ".4f")
                                                  for f in figs.values()])
@@ -193,7 +236,7 @@ def figures_table(figs: Mapping[str, design.DesignFigures]) -> str:
         tilt = slice(2 * n + 2 * j, 2 * n + 2 * j + 2)
         row(f"sigma joint {j + 1} tilt [mdeg]", [g(1e3 * math.degrees(float(np.max(f.sigma[tilt]))), ".3f")
                                                  for f in figs.values()])
-    if len(first.names) > 4 * n:
+    if n and len(first.names) > 4 * n:
         row("sigma flange shift [mm]", [g(float(np.max(f.sigma[4 * n:])), ".4f") for f in figs.values()])
     lines.append(f"(sigma: predicted standard deviation for {first.noise_mm:g} mm of noise per measured coordinate)")
     return "\n".join(lines)

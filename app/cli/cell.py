@@ -45,6 +45,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
         anchors, figs = _optimal_anchors(args, robot, safety, others, park_q(args.robot))
     elif args.budget is not None:
         raise CellCalError("--budget applies to --design optimal only (the grid's size is set by its steps)")
+    elif args.target != "identification":
+        raise CellCalError("--for applies to --design optimal only")
     plan = session_plan(args.robot, safety, others, spec, park_q(args.robot), anchors)
     plan.save(args.out)
     kinds: dict[str, int] = {}
@@ -71,7 +73,8 @@ def _optimal_anchors(args: argparse.Namespace, robot: Any, safety: Any, others: 
         raise CellCalError("--design optimal needs --budget N (poses to measure, clusters of 7)")
     check_budget(args.budget)
     _check_noise(args.noise_mm)
-    spec = DesignSpec(budget=args.budget, noise_mm=args.noise_mm, seed=args.seed)
+    spec = DesignSpec.for_rebase(args.budget, args.noise_mm, args.seed) if args.target == "rebase" else \
+        DesignSpec(budget=args.budget, noise_mm=args.noise_mm, seed=args.seed)
     return optimal_plan(args.robot, MinimalParameterisation(robot.model(), fit_tool=True), safety, others, spec,
                         q_start)
 
@@ -94,7 +97,8 @@ def cmd_select(args: argparse.Namespace) -> int:
     check_budget(args.budget, n_clusters, unit="clusters")
     _check_noise(args.noise_mm)
     par = MinimalParameterisation(robot.model(), fit_tool=True)
-    sel = select_recording(par, rec, args.budget, args.noise_mm)
+    sel = select_recording(par, rec, args.budget, args.noise_mm,
+                           rebase_offsets=() if args.target == "rebase" else None)
     write_recording(rec.subset(sel.rows), args.out)
     print(f"{args.robot}: {len(sel.clusters)} of {n_clusters} clusters ({len(sel.rows)} of {len(rec)} samples) "
           f"-> {args.out}")
@@ -341,6 +345,10 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                    help="grid: the paper's anchor grid (default); optimal: D-optimal clusters that move joints 1, 4, "
                         "5, 6 widely and spread over (q2, q3), within the limits and the safety model")
     p.add_argument("--budget", type=int, help="--design optimal: poses to measure (whole clusters of 7)")
+    p.add_argument("--for", dest="target", choices=("identification", "rebase"), default="identification",
+                   help="--design optimal: what the poses are for: identifying the geometry (default) or rebasing a "
+                        "fitted model onto a new day (its frames and the joint offsets of joints 4 and 5; "
+                        "cellcal rebase --offsets)")
     p.add_argument("--noise-mm", type=float, default=0.05,
                    help="measurement noise assumed for the predicted parameter uncertainty [mm]")
     p.add_argument("--json", help="write the plan summary (target counts per kind, and the design figures) as JSON")
@@ -351,6 +359,9 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--data", required=True, help="training recording CSV or Welding_Motoman folder")
     p.add_argument("--budget", required=True, type=int, help="clusters to keep (at least 3)")
     p.add_argument("--out", required=True, help="the subset recording CSV")
+    p.add_argument("--for", dest="target", choices=("identification", "rebase"), default="identification",
+                   help="what the clusters are for: identifying the geometry (default) or rebasing a fitted model "
+                        "(D-optimal on the 12 frame directions cellcal rebase fits, no spread term)")
     p.add_argument("--noise-mm", type=float, default=0.05,
                    help="measurement noise assumed for the predicted parameter uncertainty [mm]")
     p.add_argument("--json", help="write the chosen clusters and the design figures as JSON")

@@ -130,12 +130,18 @@ def _test_frame_check(model: Any, test: Any, subject: str) -> dict[str, Any]:
 
 def cmd_rebase(args: argparse.Namespace) -> int:
     from calibration.models import save_model
+    import math
+
+    from calibration.design import REBASE_OFFSETS
     from calibration.rebase import rebase, rebase_auto
 
     robot = cell_spec(args).robot(args.robot)
     model = load_model_for(args.model, robot)
     data = read_recording_arg(args.data, robot)
-    if args.translation_only or args.all_directions:
+    if args.offsets:
+        rebased, result = rebase(model, data, tolerance=args.tolerance, offsets=REBASE_OFFSETS)
+        choice = "frames+offsets"
+    elif args.translation_only or args.all_directions:
         rebased, result = rebase(model, data, tolerance=args.tolerance, rotations=args.all_directions)
         choice = "translations" if args.translation_only else "frames"
     else:
@@ -153,7 +159,8 @@ def cmd_rebase(args: argparse.Namespace) -> int:
                            "held": list(result.held),
                            "position_mean_mm": {"before": result.mean_before_mm, "after": result.mean_after_mm},
                            "T_base_correction": result.T_base_correction.tolist(),
-                           "T_tool_correction": result.T_tool_correction.tolist(), "out": str(args.out)})
+                           "T_tool_correction": result.T_tool_correction.tolist(),
+                           "joint_offsets_deg": [math.degrees(v) for v in result.joint_offsets], "out": str(args.out)})
     return 0
 
 
@@ -289,6 +296,10 @@ def build_parser() -> argparse.ArgumentParser:
     which.add_argument("--all-directions", action="store_true",
                        help="fit both frames' translations and rotations (12); default: the translations unless "
                             "the rotations do better on clusters held out in turn (by more than a standard error)")
+    which.add_argument("--offsets", action="store_true",
+                       help="fit both frames and the joint offsets of joints 4 and 5 (14): for poses that move the "
+                            "wrist widely (cellcal plan --design optimal --for rebase); a still wrist cannot see "
+                            "them")
     p = add("export-urdf", cmd_export_urdf, "write a model's calibrated geometry as a URDF (revolute chain, flange "
                                             "and tool-marker frames, joint limits; says what a URDF cannot hold)")
     p.add_argument("--model", required=True, help="the model file (constant, pi, cdc, physics, diagnosed, rebased)")

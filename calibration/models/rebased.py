@@ -1,8 +1,10 @@
 """The ``rebased`` model kind: any fitted model with its two frames corrected for a new day.
 
-``T_base_marker(q) = T_base_correction @ T_inner(q) @ T_tool_correction``: a rigid correction of the base
-(mocap-to-base registration) on the left and of the tool marker (marker-to-flange registration) on the right of
-the inner model's pose; both constant (4, 4) [mm]. :func:`calibration.rebase.rebase` fits them.
+``T_base_marker(q) = T_base_correction @ T_inner(q + joint_offsets) @ T_tool_correction``: a rigid correction of
+the base (mocap-to-base registration) on the left and of the tool marker (marker-to-flange registration) on the
+right of the inner model's pose; both constant (4, 4) [mm]; and, optionally, constant joint-angle offsets [rad]
+added to the readings before the inner model sees them (a day whose joint zeros moved; zero by default, and then
+not written to the file). :func:`calibration.rebase.rebase` fits them.
 
 Its blocks are the inner model's, then ``base_correction`` and ``tool_correction`` (6 each): perturbations
 ``[dp (3) mm, dtheta (3) rad]`` about the stored corrections, ``p <- p + dp``, ``R <- exp(dtheta) R`` (the
@@ -61,6 +63,8 @@ class RebasedModel(KinematicModel):
         T_tool_correction: right correction (4, 4) [mm]: the new marker in the inner model's marker frame.
         fitted: number of correction directions the data determined (the rest were held at identity).
         info: free metadata (what the rebase held, on which data, its residuals).
+        joint_offsets: constant offsets [rad] added to the joint readings, shape (n,) (zeros: none). Constants of
+            the rebase, like the corrections; not part of :meth:`vector`.
     """
 
     kind: ClassVar[str] = "rebased"
@@ -71,17 +75,32 @@ class RebasedModel(KinematicModel):
     T_tool_correction: np.ndarray = field(default_factory=lambda: np.eye(4))
     fitted: int = 0
     info: dict[str, Any] = field(default_factory=dict)
+    joint_offsets: np.ndarray = field(default_factory=lambda: np.zeros(6))
 
     def __post_init__(self) -> None:
         self.T_base_correction = _checked_T(self.T_base_correction, "T_base_correction")
         self.T_tool_correction = _checked_T(self.T_tool_correction, "T_tool_correction")
+        dq = np.array(self.joint_offsets, dtype=float)
+        if dq.shape != (6,) or not np.isfinite(dq).all():
+            raise ModelError(f"joint_offsets must be 6 finite numbers [rad], got shape {dq.shape}")
+        self.joint_offsets = dq
+
+    def _shifted(self, q: Any) -> Any:
+        """The readings as the inner model sees them (``q`` itself when there are no offsets)."""
+        if q is None or not self.joint_offsets.any():
+            return q
+        if isinstance(q, np.ndarray):
+            return q + self.joint_offsets
+        import casadi as ca
+
+        return q + ca.DM(self.joint_offsets)
 
     def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        R, p = self.inner.fk(q)
+        R, p = self.inner.fk(self._shifted(np.asarray(q, dtype=float)))
         return wrap_pose(self.T_base_correction, R, p, self.T_tool_correction)
 
     def out_of_range(self, q: np.ndarray) -> np.ndarray:
-        return self.inner.out_of_range(q)
+        return self.inner.out_of_range(self._shifted(np.asarray(q, dtype=float)))
 
     @property
     def n_parameters(self) -> int:
@@ -115,23 +134,40 @@ class RebasedModel(KinematicModel):
         out[:, 3:] = R_b @ J[:, 3:]
         return out
 
-    def jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Pose and ``d[p; rot] / d vector`` (N, 6, m + 12): the inner Jacobian wrapped, then the corrections'."""
-        R_i, p_i, J_i = self.inner.jacobian(q)
-        R, p = wrap_pose(self.T_base_correction, R_i, p_i, self.T_tool_correction)
-        N = p.shape[0]
+    def _correction_columns(self, R_i: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """``d[p; rot] / d`` the 12 correction perturbations (N, 6, 12), at inner rotations R_i and poses p."""
         R_wf = self.T_base_correction[:3, :3] @ R_i  # inner rotation in the new base frame
-        J_c = np.zeros((N, 6, 12))
+        J_c = np.zeros((p.shape[0], 6, 12))
         J_c[:, :3, 0:3] = np.eye(3)
         J_c[:, :3, 3:6] = -so3.hat(p - self.T_base_correction[:3, 3])
         J_c[:, 3:, 3:6] = np.eye(3)
         J_c[:, :3, 6:9] = R_wf
         J_c[:, 3:, 9:12] = R_wf
-        return R, p, np.concatenate([self._wrap_jacobian(R_i, J_i), J_c], axis=2)
+        return J_c
+
+    def jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Pose and ``d[p; rot] / d vector`` (N, 6, m + 12): the inner Jacobian wrapped, then the corrections'."""
+        R_i, p_i, J_i = self.inner.jacobian(self._shifted(np.asarray(q, dtype=float)))
+        R, p = wrap_pose(self.T_base_correction, R_i, p_i, self.T_tool_correction)
+        return R, p, np.concatenate([self._wrap_jacobian(R_i, J_i), self._correction_columns(R_i, p)], axis=2)
 
     def jacobian_q(self, q: np.ndarray) -> np.ndarray:
-        R_i, _ = self.inner.fk(q)
-        return self._wrap_jacobian(R_i, self.inner.jacobian_q(q))
+        qs = self._shifted(np.asarray(q, dtype=float))
+        R_i, _ = self.inner.fk(qs)
+        return self._wrap_jacobian(R_i, self.inner.jacobian_q(qs))
+
+    def rebase_jacobian(self, q: np.ndarray, joints: tuple[int, ...] = ()) -> tuple[np.ndarray, np.ndarray,
+                                                                                     np.ndarray]:
+        """Pose and ``d[p; rot]`` / d the rebase's own parameters (N, 6, 12 + k): the 12 correction
+        perturbations, then the offsets of ``joints`` (1-based) [rad]; the inner model's parameters fixed."""
+        qs = self._shifted(np.asarray(q, dtype=float))
+        R_i, p_i = self.inner.fk(qs)
+        R, p = wrap_pose(self.T_base_correction, R_i, p_i, self.T_tool_correction)
+        J = self._correction_columns(R_i, p)
+        if joints:
+            J_q = self._wrap_jacobian(R_i, self.inner.jacobian_q(qs))
+            J = np.concatenate([J, J_q[:, :, [j - 1 for j in joints]]], axis=2)
+        return R, p, J
 
     def casadi(self, q: Any, theta: Any = None, q_at: Any = None) -> CasadiPose:
         """The inner model's expression wrapped by the corrections (constants when ``theta`` is None, else the
@@ -141,7 +177,7 @@ class RebasedModel(KinematicModel):
         from calibration.casadi_expr import exp_sx
 
         k = self.inner.vector().size
-        pose = self.inner.casadi(q, None if theta is None else theta[:k], q_at)
+        pose = self.inner.casadi(self._shifted(q), None if theta is None else theta[:k], self._shifted(q_at))
         R_b, p_b = ca.DM(self.T_base_correction[:3, :3]), ca.DM(self.T_base_correction[:3, 3])
         R_t, p_t = ca.DM(self.T_tool_correction[:3, :3]), ca.DM(self.T_tool_correction[:3, 3])
         if theta is not None:
@@ -152,7 +188,8 @@ class RebasedModel(KinematicModel):
         return replace(tool.transformed(R_b, p_b), kind=pose.kind)
 
     def pose_at(self, q: np.ndarray, q_at: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        R, p = self.inner.pose_at(q, q_at)
+        R, p = self.inner.pose_at(self._shifted(np.asarray(q, dtype=float)),
+                                  self._shifted(np.asarray(q_at, dtype=float)))
         return wrap_pose(self.T_base_correction, R, p, self.T_tool_correction)
 
     def effects_arm(self) -> PoeModel:
@@ -160,6 +197,11 @@ class RebasedModel(KinematicModel):
 
     def urdf_geometry(self) -> Any:
         geo = self.inner.urdf_geometry()
+        if self.joint_offsets.any():
+            geo = replace(geo, lost=tuple(geo.lost) + (
+                "the rebase's joint offsets " + ", ".join(f"joint {j + 1} {np.degrees(v):+.4f} deg" for j, v in
+                                                          enumerate(self.joint_offsets) if v)
+                + " (add them to the joint readings)",))
         return replace(geo, exported=f"{geo.exported} with the rebase's base and tool-marker corrections",
                        T_base=self.T_base_correction @ geo.T_base, T_tool=geo.T_tool @ self.T_tool_correction)
 
@@ -167,7 +209,8 @@ class RebasedModel(KinematicModel):
         T_b, T_t = self.T_base_correction, self.T_tool_correction
         return {"inner": self.inner.to_dict(), "R_base_correction": T_b[:3, :3].tolist(),
                 "p_base_correction": T_b[:3, 3].tolist(), "R_tool_correction": T_t[:3, :3].tolist(),
-                "p_tool_correction": T_t[:3, 3].tolist(), "fitted": int(self.fitted)}
+                "p_tool_correction": T_t[:3, 3].tolist(), "fitted": int(self.fitted),
+                **({"joint_offsets_rad": self.joint_offsets.tolist()} if self.joint_offsets.any() else {})}
 
     @classmethod
     def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "RebasedModel":
@@ -181,4 +224,11 @@ class RebasedModel(KinematicModel):
             if R.shape != (3, 3) or p.shape != (3,):
                 raise ModelFileError("", f"p_{side}_correction", "expected a 3x3 rotation and 3 numbers")
             T[side] = make_T(R, p)
-        return cls(robot, method, inner, T["base"], T["tool"], int(body.get("fitted", 0)), info)
+        offsets = body.get("joint_offsets_rad", [0.0] * 6)
+        try:
+            offsets = np.array(offsets, dtype=float)
+        except (TypeError, ValueError):
+            raise ModelFileError("", "joint_offsets_rad", f"expected 6 numbers [rad], got {offsets!r}") from None
+        if offsets.shape != (6,) or not np.isfinite(offsets).all():
+            raise ModelFileError("", "joint_offsets_rad", f"expected 6 finite numbers [rad], got {offsets.tolist()}")
+        return cls(robot, method, inner, T["base"], T["tool"], int(body.get("fitted", 0)), info, offsets)

@@ -174,3 +174,84 @@ def test_bad_corrections_are_refused(inner_models):
         RebasedModel("R1", "nls1", inner_models["constant"], bad, np.eye(4))
     with pytest.raises(ModelError, match="q must be"):
         RebaseProblem(inner_models["constant"], np.zeros((0, 6)), np.zeros((0, 3, 3)), np.zeros((0, 3)))
+
+
+DQ = np.radians([0.0, 0.03, -0.02, 0.05, -0.04, 0.0])  # joints 2..5 (1 and 6 are frame rotations)
+
+
+@pytest.mark.parametrize("kind, offsets", [("constant", (1, 2, 3, 4, 5, 6)), ("pi", (2, 3, 4, 5))])
+def test_planted_frames_and_joint_offsets_are_recovered_where_the_wrist_moves(inner_models, kind, offsets):
+    """On a POE arm joint 1's and 6's offsets are exactly frame rotations (held); on pi (its compliance and
+    deflection depend on q) nearly so, hence joints 2-5 only there."""
+    inner = inner_models[kind]
+    truth = RebasedModel("R1", inner.method, inner, T_BASE, T_TOOL, joint_offsets=DQ)
+    q = _q(21, seed=7)  # every joint moves widely
+    model, result = rebase(inner, _recording(truth, q), offsets=offsets)
+    assert result.converged and result.fitted == 16 and len(result.held) == len(offsets) - 4
+    assert all("joint 1 offset" in h or "joint 6 offset" in h for h in result.held)
+    assert result.residual_after_mm.max() < 1e-6 < result.residual_before_mm.min()
+    np.testing.assert_allclose(result.joint_offsets[1:5], DQ[1:5], atol=1e-8)
+    q_test = _q(30, seed=9)
+    np.testing.assert_allclose(model.fk(q_test)[1], truth.fk(q_test)[1], atol=1e-6)
+    assert "Joint offsets: " in result.summary()
+    assert ("of 18 directions (frames and joint offsets)" in result.summary()) == (len(offsets) == 6)
+
+
+def test_a_still_wrist_cannot_see_the_wrist_offsets(inner_models):
+    """The paper's clusters hold the wrist within 2 deg: a joint 4/5 offset looks like a tool rotation there, so
+    the rebase holds (a combination of) them and the rebased model is wrong where the wrist moves."""
+    inner = inner_models["constant"]
+    truth = RebasedModel("R1", inner.method, inner, T_BASE, T_TOOL, joint_offsets=DQ)
+    _, wide = rebase(inner, _recording(truth, _q(21, seed=7)), offsets=(2, 3, 4, 5))
+    model, still = rebase(inner, _recording(truth, _three_clusters()), offsets=(2, 3, 4, 5))
+    assert wide.fitted == 16 and still.fitted < 16
+    assert any("joint 4 offset" in h or "joint 5 offset" in h for h in still.held)
+    q_test = _q(30, seed=9)
+    assert np.abs(model.fk(q_test)[1] - truth.fk(q_test)[1]).max() > 0.1
+
+
+@pytest.mark.parametrize("kind", ["constant", "pi"])
+def test_rebased_with_offsets_jacobians_casadi_and_file(inner_models, kind, tmp_path):
+    model = RebasedModel("R1", inner_models[kind].method, inner_models[kind], T_BASE, T_TOOL, 12, {}, DQ)
+    q = _q(4, seed=1)
+    R, p = model.fk(q)
+    R_i, p_i = model.inner.fk(q + DQ)
+    np.testing.assert_allclose(p, (R_i @ T_TOOL[:3, 3] + p_i) @ T_BASE[:3, :3].T + T_BASE[:3, 3], atol=1e-10)
+    Jq, h = model.jacobian_q(q), 1e-6
+    _, _, J_r = model.rebase_jacobian(q, (2, 5))
+    for j in range(6):
+        dq = np.zeros(6)
+        dq[j] = h
+        fd = _pose_difference(*model.fk(q + dq), *model.fk(q - dq), h)
+        np.testing.assert_allclose(Jq[:, :, j], fd, atol=1e-5, rtol=0, err_msg=f"joint {j + 1}")
+    np.testing.assert_array_equal(J_r[:, :, 12:], Jq[:, :, [1, 4]])
+    theta = model.vector()
+    _, _, J = model.jacobian(q)
+    np.testing.assert_allclose(J[:, :, -12:], J_r[:, :, :12], atol=1e-12)
+    for k in range(theta.size - 12, theta.size):
+        dt = np.zeros_like(theta)
+        dt[k] = h
+        fd = _pose_difference(*model.with_vector(theta + dt).fk(q), *model.with_vector(theta - dt).fk(q), h)
+        np.testing.assert_allclose(J[:, :, k], fd, atol=2e-6 * max(1.0, float(np.abs(fd).max())), rtol=0)
+    save_model(model, tmp_path / "m.yaml")
+    loaded = load_model(tmp_path / "m.yaml", "R1", load_cell().robot("R1").model())
+    np.testing.assert_array_equal(loaded.joint_offsets, DQ)
+    for a, b in zip(loaded.fk(q), model.fk(q)):
+        np.testing.assert_array_equal(a, b)
+    ca = pytest.importorskip("casadi")
+    qs = ca.SX.sym("q", 6)
+    pose = model.casadi(qs)
+    f = ca.Function("fk", [qs], [pose.p])
+    np.testing.assert_allclose(np.asarray(f(q[0])).ravel(), p[0], atol=1e-9)
+
+
+def test_bad_offsets_are_refused(inner_models):
+    from calibration.errors import ModelError
+
+    q = _q(7, seed=2)
+    R, p = inner_models["constant"].fk(q)
+    for bad in ((0,), (7,), (2, 2), (True,)):
+        with pytest.raises(ModelError, match="offsets: expected distinct joints in 1..6"):
+            RebaseProblem(inner_models["constant"], q, R, p, offsets=bad)
+    with pytest.raises(ModelError, match="joint_offsets must be 6 finite numbers"):
+        RebasedModel("R1", "nls1", inner_models["constant"], joint_offsets=np.array([np.nan] * 6))
