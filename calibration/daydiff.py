@@ -21,7 +21,8 @@ deviations from the nominal arm) and ``delta_d`` the 12 frame corrections of :fu
    the repeatability, so the scatter the parameters are judged against is its own residual). The covariance of
    each recording's parameters is the cluster-robust sandwich ``A^+ B A^+`` (``B`` sums each cluster's score):
    the residual of neighbouring poses is correlated, and counting every pose as independent would call noise a
-   difference.
+   difference. With fewer than ``CLUSTERS_PER_DIRECTION`` clusters per direction it is ``A^+`` (see
+   :func:`covariance`).
 4. **Tests** against the first recording (the reference, as in :mod:`calibration.multiday`), each recording
    independent: ``d = x_day - x_ref`` on the directions both identify, covariance ``C_day + C_ref``; a joint
    chi-square over those directions and a z per parameter whose direction both identify (at least
@@ -59,9 +60,13 @@ IDENTIFIED_TOLERANCE = DEFAULT_RELATIVE_TOLERANCE
 #: A parameter (or named change) is tested when at least this share of it (squared norm) lies in the directions
 #: both recordings identify; otherwise it is reported as unidentified.
 IDENTIFIED_SHARE = 0.5
-#: A parameter or named change is tested on a pair of recordings when at least this share of its signature on each
-#: is beyond what the frames take up (:func:`visible`); otherwise it is reported as unidentified.
-VISIBLE_SHARE = 0.1
+#: Directions of the parameters a frame change reproduces exactly (on any data): singular values below this share
+#: of the largest on a rich design (:meth:`DaysProblem.gauge`; they are ~1e-8, the next ones ~4e-2).
+GAUGE_TOLERANCE = 1e-5
+#: Clusters per tested direction below which the covariance is the model's, not the cluster-robust sandwich.
+CLUSTERS_PER_DIRECTION = 5
+#: Poses of the rich design the gauge is found on.
+GAUGE_POSES = 300
 #: Family-wise false-alarm level of the tests (Bonferroni over recordings and the parameters tested).
 ALPHA = 0.01
 #: A recording whose nominal arm, with its frames fitted, still misses by more than this mean [mm] is not a
@@ -206,6 +211,16 @@ class DaysProblem:
         return {"A": Jt.T @ Jt, "b": -Jt.T @ rv, "Jf": Jf, "Jk": Jk, "r": rv, "Aff_inv": Aff_inv,
                 "Bk": scores_k.T @ scores_k, "cl": cl, "res": r}
 
+    def gauge(self, x: np.ndarray) -> np.ndarray:
+        """Basis (m, g) of the scaled parameter directions that a frame change reproduces exactly, whatever the
+        data: the null space of the frames-reduced information on a rich design (every joint over +-57 deg)."""
+        rng = np.random.default_rng(0)
+        q = rng.uniform(-1.0, 1.0, (GAUGE_POSES, self.m // 4))
+        R, p = self.par.pose(q, x)
+        A = self.reduced(_Day("rich design", q, R, p, np.arange(GAUGE_POSES)), x)["A"]
+        w, V = np.linalg.eigh(A)
+        return V[:, np.sqrt(np.clip(w, 0, None)) < GAUGE_TOLERANCE * np.sqrt(w.max())]
+
     def _frames_step(self, day: _Day, lin: dict[str, np.ndarray], dx_scaled: np.ndarray) -> None:
         g = -lin["Jf"].T @ (lin["r"] + lin["Jk"] @ dx_scaled)
         day.delta = day.delta + (lin["Aff_inv"] @ g) * self.scale[self.m:]
@@ -265,12 +280,11 @@ def identified(A: np.ndarray) -> np.ndarray:
     return V[:, keep]
 
 
-def visible(lin: dict[str, np.ndarray], v: np.ndarray) -> float:
-    """Share of a change's signature (scaled direction ``v``) on a recording that its frames cannot take up:
-    ``|J_reduced v| / |J v|`` (0: a frame change does exactly the same, as joint 1's offset and the base rotation;
-    also near 0 when the recording hardly moves the joints the change acts through)."""
-    raw = float(np.linalg.norm(lin["Jk"] @ v))
-    return float(np.sqrt(max(v @ lin["A"] @ v, 0.0)) / raw) if raw > 1e-12 else 0.0
+def share_in(W: np.ndarray, G: np.ndarray, v: np.ndarray) -> float:
+    """Share (squared norm) of ``v``'s part outside the gauge ``G`` that lies in the directions ``W``."""
+    v = v - G @ (G.T @ v)
+    n2 = float(v @ v)
+    return float(np.sum((W.T @ v) ** 2) / n2) if n2 > 1e-24 else 0.0
 
 
 def common(U1: np.ndarray, U2: np.ndarray) -> np.ndarray:
@@ -279,10 +293,13 @@ def common(U1: np.ndarray, U2: np.ndarray) -> np.ndarray:
     return V[:, w > 0.95]
 
 
-def sandwich(A: np.ndarray, B: np.ndarray, U: np.ndarray) -> np.ndarray:
-    """Cluster-robust covariance ``A^+ B A^+`` on the directions ``U`` (m, m, scaled units)."""
+def covariance(A: np.ndarray, B: np.ndarray, U: np.ndarray, n_clusters: int) -> np.ndarray:
+    """Covariance (m, m, scaled) of the directions ``U`` from information ``A`` and cluster scores ``B``: the
+    cluster-robust sandwich ``A^+ B A^+`` when there are ``CLUSTERS_PER_DIRECTION`` clusters per direction or
+    more, else ``A^+`` (the residuals are whitened by the noise floors; a sandwich over few clusters is
+    singular and would call noise a difference)."""
     Ainv = U @ np.linalg.solve(U.T @ A @ U, U.T)
-    return Ainv @ B @ Ainv
+    return Ainv @ B @ Ainv if n_clusters >= CLUSTERS_PER_DIRECTION * U.shape[1] else Ainv
 
 
 @dataclass(frozen=True)
@@ -390,6 +407,7 @@ class DaysResult:
         days: each other recording against the reference.
         pairs: the joint kinematic test of every pair of recordings (i, j, test).
         unidentified: parameters no recording identifies (the frames' gauge or data that never move them).
+        deltas: each recording's 12 frame corrections against the shared arm (:func:`calibration.rebase.corrections`).
         drift: within-recording drift (see :func:`drift`), filled in by the caller; empty when not tested.
         drift_note: why drift was not tested, when it was not.
     """
@@ -400,6 +418,7 @@ class DaysResult:
     days: tuple[DayDiff, ...]
     pairs: tuple[tuple[str, str, Test], ...]
     unidentified: tuple[str, ...]
+    deltas: tuple[np.ndarray, ...] = ()
     drift: tuple[DayDiff, ...] = ()
     drift_note: str = ""
 
@@ -408,17 +427,18 @@ class DaysResult:
               ) -> "DaysResult":
         D = len(own)
         sm = problem.scale[:problem.m]
-        covs = [sandwich(lin["A"], lin["Bk"], U) for _, lin, U in own]
+        covs = [covariance(lin["A"], lin["Bk"], U, lin["cl"].max() + 1) for _, lin, U in own]
         named = named_changes(problem.par.nominal)
         n_tests = max(D - 1, 1) * (problem.m + 12 + len(named))
         z_crit = float(stats.norm.isf(ALPHA / (2 * n_tests)))
         alpha_joint = ALPHA / max(D - 1, 1)
         ref_x, _, ref_U = own[0]
         pooled_A = sum(lin["A"] for _, lin, _ in own)
+        G = problem.gauge(x)
         days = []
         for (x_d, lin, U), C, day in zip(own[1:], covs[1:], problem.days[1:]):
             days.append(_compare(problem, day, x_d, U, C, ref_x, ref_U, covs[0], problem.days[0], own[0][1], lin,
-                                 named, z_crit, alpha_joint))
+                                 named, G, z_crit, alpha_joint))
         pairs = []
         for i in range(D):
             for j in range(i + 1, D):
@@ -428,11 +448,12 @@ class DaysResult:
                               Test.of(d, W.T @ (covs[i] + covs[j]) @ W, ALPHA / max(D * (D - 1) // 2, 1))))
         Up = identified(pooled_A)
         Cp = np.linalg.pinv(pooled_A, rcond=IDENTIFIED_TOLERANCE ** 2, hermitian=True)
-        share = np.array([max(visible(lin, e) for _, lin, _ in own) for e in np.eye(problem.m)])
-        shared = {n: (float(x[i]), float(np.sqrt(Cp[i, i]) * sm[i]) if share[i] >= VISIBLE_SHARE else None)
+        share = np.array([share_in(Up, G, e) for e in np.eye(problem.m)])
+        shared = {n: (float(x[i]), float(np.sqrt(Cp[i, i]) * sm[i]) if share[i] >= IDENTIFIED_SHARE else None)
                   for i, n in enumerate(problem.names)}
-        unid = tuple(n for n, s in zip(problem.names, share) if s < VISIBLE_SHARE)
-        return cls(problem.days[0].name, tuple(d.name for d in problem.days), shared, tuple(days), tuple(pairs), unid)
+        unid = tuple(n for n, s in zip(problem.names, share) if s < IDENTIFIED_SHARE)
+        return cls(problem.days[0].name, tuple(d.name for d in problem.days), shared, tuple(days), tuple(pairs), unid,
+                   tuple(d.delta.copy() for d in problem.days))
 
     @property
     def kinematics_changed(self) -> bool:
@@ -470,26 +491,25 @@ class DaysResult:
 
 def _compare(problem: DaysProblem, day: _Day, x_d: np.ndarray, U_d: np.ndarray, C_d: np.ndarray, x_r: np.ndarray,
              U_r: np.ndarray, C_r: np.ndarray, ref: _Day, lin_r: dict, lin_d: dict, named: list[Named],
-             z_crit: float, alpha: float) -> DayDiff:
+             G: np.ndarray, z_crit: float, alpha: float) -> DayDiff:
     sm = problem.scale[:problem.m]
     W = common(U_d, U_r)
     dz = (x_d - x_r) / sm
     dW, VW = W.T @ dz, W.T @ (C_d + C_r) @ W
     kin_test = Test.of(dW, VW, alpha)
     V = W @ VW @ W.T
-    share = [min(visible(lin_d, e), visible(lin_r, e)) for e in np.eye(problem.m)]
+    share = [share_in(W, G, e) for e in np.eye(problem.m)]
     dproj = W @ dW
     params = []
     for i, n in enumerate(problem.names):
         unit = "mm" if n.endswith("_mm") else "rad"
-        if share[i] < VISIBLE_SHARE:
+        if share[i] < IDENTIFIED_SHARE:
             params.append(Quantity(n, unit, None, None, False, float(share[i])))
             continue
         se = float(np.sqrt(V[i, i]))
         params.append(Quantity(n, unit, float(dproj[i] * sm[i]), se * sm[i], abs(dproj[i]) > z_crit * se,
                                float(share[i])))
-    testable = [k for k, nm in enumerate(named)
-                if min(visible(lin_d, nm.direction / sm), visible(lin_r, nm.direction / sm)) >= VISIBLE_SHARE]
+    testable = [k for k, nm in enumerate(named) if share_in(W, G, nm.direction / sm) >= IDENTIFIED_SHARE]
     found, rest, alternatives = _name(named, sm, W, testable, dW, VW, z_crit)
     # the frames net of what the named changes bring with them: their tool part, and the part of each change
     # outside the directions this recording's arm moves along, which its frames took up
@@ -563,8 +583,9 @@ def _frames(problem: DaysProblem, day: _Day, ref: _Day, lin_d: dict, lin_r: dict
         Jz = np.concatenate([lin["Jk"] @ U_k, lin["Jf"]], axis=1)
         scores = np.zeros((lin["cl"].max() + 1, Jz.shape[1]))
         np.add.at(scores, lin["cl"], Jz * lin["r"][:, None])
-        Ainv = np.linalg.pinv(Jz.T @ Jz, rcond=1e-12, hermitian=True)
-        C = (Ainv @ (scores.T @ scores) @ Ainv)[-12:, -12:]
+        C = covariance(Jz.T @ Jz, scores.T @ scores, np.eye(Jz.shape[1]), lin["cl"].max() + 1)
+        Ainv = np.linalg.inv(Jz.T @ Jz)
+        C = C[-12:, -12:]
         covs.append(C)
         Us.append(identified(np.linalg.pinv(Ainv[-12:, -12:], hermitian=True)))  # the frames' marginal information
     W = common(*Us)
