@@ -317,11 +317,11 @@ class Test:
             return cls(0.0, 0, 1.0, False)
         chi2 = float(d @ np.linalg.solve(V, d))
         p = float(stats.chi2.sf(chi2, d.size))
-        return cls(chi2, d.size, p, p < alpha)
+        return cls(chi2, d.size, p, bool(p < alpha))
 
     def to_json(self) -> dict[str, Any]:
         return {"chi2": round(self.chi2, 2), "dof": self.dof, "p_value": float(f"{self.p_value:.3g}"),
-                "differs": self.differs}
+                "differs": bool(self.differs)}
 
 
 @dataclass(frozen=True)
@@ -343,7 +343,7 @@ class Quantity:
     def to_json(self) -> dict[str, Any]:
         return {"name": self.name, "unit": self.unit, "identified": self.value is not None,
                 "difference": None if self.value is None else float(f"{self.value:.5g}"),
-                "se": None if self.se is None else float(f"{self.se:.3g}"), "differs": self.differs,
+                "se": None if self.se is None else float(f"{self.se:.3g}"), "differs": bool(self.differs),
                 "identified_share": round(self.identified_share, 3)}
 
 
@@ -390,9 +390,9 @@ class DayDiff:
     def to_json(self) -> dict[str, Any]:
         return {"name": self.name, "samples": self.n_samples, "noise_mm": round(self.noise_mm, 4),
                 "noise_deg": round(self.noise_deg, 5), "frames": [f.to_json() for f in self.frames],
-                "frames_test": self.frames_test.to_json(), "frames_differ": self.frames_differ,
+                "frames_test": self.frames_test.to_json(), "frames_differ": bool(self.frames_differ),
                 "parameters": [p.to_json() for p in self.parameters], "kinematics_test": self.kinematics_test.to_json(),
-                "kinematics_differ": self.kinematics_differ, "named_changes": [q.to_json() for q in self.named],
+                "kinematics_differ": bool(self.kinematics_differ), "named_changes": [q.to_json() for q in self.named],
                 "equally_good": list(self.alternatives),
                 "unexplained": self.unexplained.to_json()}
 
@@ -485,7 +485,7 @@ class DaysResult:
                                       for n, (v, s) in self.shared.items()},
                 "unidentified": list(self.unidentified), "days": [d.to_json() for d in self.days],
                 "pairs": [{"a": a, "b": b, **t.to_json()} for a, b, t in self.pairs],
-                "kinematics_changed": self.kinematics_changed,
+                "kinematics_changed": bool(self.kinematics_changed),
                 "drift": {"tested": bool(self.drift), "note": self.drift_note, "halves": [d.to_json() for d in self.drift]}}
 
 
@@ -570,7 +570,7 @@ def _name(named: list[Named], sm: np.ndarray, W: np.ndarray, testable: list[int]
                     for sel in combinations(testable, k) if sel != chosen and within(fit(sel)[0], k))
     alternatives = tuple(" + ".join(named[k].name for k in sel) for _, sel in others[:3]) if within(chi2, len(chosen)) else ()
     return ([(k, float(coef[i]), float(np.sqrt(cov[i, i]))) for i, k in enumerate(chosen)],
-            Test(chi2, dof, p, not within(chi2, len(chosen))), alternatives)
+            Test(chi2, dof, p, bool(not within(chi2, len(chosen)))), alternatives)
 
 
 def _frames(problem: DaysProblem, day: _Day, ref: _Day, lin_d: dict, lin_r: dict, U_d: np.ndarray,
