@@ -287,6 +287,37 @@ def share_in(W: np.ndarray, G: np.ndarray, v: np.ndarray) -> float:
     return float(np.sum((W.T @ v) ** 2) / n2) if n2 > 1e-24 else 0.0
 
 
+def sparsest(d: np.ndarray, G: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The description of a parameter difference ``d`` (scaled) that changes the fewest millimetres in total.
+
+    ``d`` is known up to the gauge ``G`` (what a frame change does exactly), so "which parameters differ" needs a
+    convention: the one of least L1 norm, ``min |d + G g|_1`` (a single moved joint origin stays a single moved
+    origin instead of spreading over every origin). It zeroes ``G.shape[1]`` coordinates (the ones the frames carry
+    instead); the map onto it is linear, ``T = I - G (G_S)^-1 E_S``, so covariances follow.
+
+    Returns:
+        ``T`` (m, m) and the zeroed coordinates ``S``.
+    """
+    from scipy.optimize import linprog
+
+    m, k = G.shape
+    if k == 0:
+        return np.eye(m), np.zeros(0, dtype=int)
+    # variables [g (k), t (m)]: minimise sum t with -t <= d + G g <= t
+    c = np.r_[np.zeros(k), np.ones(m)]
+    A = np.block([[G, -np.eye(m)], [-G, -np.eye(m)]])
+    b = np.r_[-d, d]
+    sol = linprog(c, A_ub=A, b_ub=b, bounds=[(None, None)] * k + [(0, None)] * m, method="highs")
+    g = sol.x[:k] if sol.success else -np.linalg.lstsq(G, d, rcond=None)[0]
+    S = np.sort(np.argsort(np.abs(d + G @ g))[:k])
+    if np.linalg.matrix_rank(G[S]) < k:  # not a vertex: the k coordinates the gauge moves most independently
+        from scipy.linalg import qr
+
+        S = np.sort(qr(G.T, pivoting=True)[2][:k])
+    T = np.eye(m) - G @ np.linalg.solve(G[S], np.eye(m)[S])
+    return T, S
+
+
 def common(U1: np.ndarray, U2: np.ndarray) -> np.ndarray:
     """The directions both bases span (principal angles under ~25 deg)."""
     w, V = np.linalg.eigh(0.5 * (U1 @ U1.T + U2 @ U2.T))
@@ -497,9 +528,11 @@ def _compare(problem: DaysProblem, day: _Day, x_d: np.ndarray, U_d: np.ndarray, 
     dz = (x_d - x_r) / sm
     dW, VW = W.T @ dz, W.T @ (C_d + C_r) @ W
     kin_test = Test.of(dW, VW, alpha)
-    V = W @ VW @ W.T
     share = [share_in(W, G, e) for e in np.eye(problem.m)]
-    dproj = W @ dW
+    T, pinned = sparsest(W @ dW, G)
+    dproj, V = T @ (W @ dW), T @ W @ VW @ W.T @ T.T
+    for i in pinned:  # the frames carry these in the sparsest description
+        share[i] = 0.0
     params = []
     for i, n in enumerate(problem.names):
         unit = "mm" if n.endswith("_mm") else "rad"
