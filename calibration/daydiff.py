@@ -65,6 +65,15 @@ IDENTIFIED_SHARE = 0.5
 GAUGE_TOLERANCE = 1e-5
 #: Clusters per tested direction below which the covariance is the model's, not the cluster-robust sandwich.
 CLUSTERS_PER_DIRECTION = 5
+#: A direction whose part outside the gauge is below this share of it (squared norm) is a frame change (joint 1's
+#: offset leaves ~1e-8, the next smallest named change 0.1).
+GAUGE_RESIDUE = 1e-4
+#: Two poses are the same when every joint is within this [deg]; two recordings cover the same poses when at least
+#: ``SAME_POSES`` of each's are in the other. Otherwise a kinematic difference between them may be a
+#: configuration-dependent effect the geometric model leaves out: on the shared days, the lower and the upper
+#: anchors of one training recording "differ" by up to 2 mm of link length, while its even and odd clusters agree.
+POSE_MATCH_DEG = 1.0
+SAME_POSES = 0.9
 #: Poses of the rich design the gauge is found on.
 GAUGE_POSES = 300
 #: Family-wise false-alarm level of the tests (Bonferroni over recordings and the parameters tested).
@@ -282,9 +291,11 @@ def identified(A: np.ndarray) -> np.ndarray:
 
 def share_in(W: np.ndarray, G: np.ndarray, v: np.ndarray) -> float:
     """Share (squared norm) of ``v``'s part outside the gauge ``G`` that lies in the directions ``W``."""
-    v = v - G @ (G.T @ v)
-    n2 = float(v @ v)
-    return float(np.sum((W.T @ v) ** 2) / n2) if n2 > 1e-24 else 0.0
+    rest = v - G @ (G.T @ v)
+    n2 = float(rest @ rest)
+    if n2 <= GAUGE_RESIDUE * float(v @ v) or n2 <= 1e-24:  # a frame change does it (joint 1's or 6's offset)
+        return 0.0
+    return float(np.sum((W.T @ rest) ** 2) / n2)
 
 
 def sparsest(d: np.ndarray, G: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -316,6 +327,17 @@ def sparsest(d: np.ndarray, G: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         S = np.sort(qr(G.T, pivoting=True)[2][:k])
     T = np.eye(m) - G @ np.linalg.solve(G[S], np.eye(m)[S])
     return T, S
+
+
+def pose_overlap(q_a: np.ndarray, q_b: np.ndarray) -> float:
+    """Share of the poses of each recording within ``POSE_MATCH_DEG`` (every joint) of a pose of the other, the
+    smaller of the two."""
+    from scipy.spatial import cKDTree
+
+    tol = np.radians(POSE_MATCH_DEG)
+    a_in_b = np.mean(cKDTree(q_b).query(q_a, p=np.inf)[0] <= tol)
+    b_in_a = np.mean(cKDTree(q_a).query(q_b, p=np.inf)[0] <= tol)
+    return float(min(a_in_b, b_in_a))
 
 
 def common(U1: np.ndarray, U2: np.ndarray) -> np.ndarray:
@@ -393,6 +415,7 @@ class DayDiff:
     named: tuple[Quantity, ...]
     unexplained: Test
     alternatives: tuple[str, ...] = ()
+    pose_overlap: float = 1.0
 
     @property
     def kinematics_differ(self) -> bool:
@@ -416,10 +439,15 @@ class DayDiff:
                     if self.kinematics_differ else
                     f"kinematics the same within the noise (chi2 {self.kinematics_test.chi2:.1f} over "
                     f"{self.kinematics_test.dof} identified directions)")
-        return f"  {self.name} against {reference}: {frames_text}; {kin_text}"
+        caveat = ""
+        if self.kinematics_differ and self.pose_overlap < SAME_POSES:
+            caveat = (f" (caution: only {self.pose_overlap:.0%} of the poses are shared, so an effect the geometric "
+                      f"model leaves out that depends on the pose would show the same way)")
+        return f"  {self.name} against {reference}: {frames_text}; {kin_text}{caveat}"
 
     def to_json(self) -> dict[str, Any]:
-        return {"name": self.name, "samples": self.n_samples, "noise_mm": round(self.noise_mm, 4),
+        return {"name": self.name, "samples": self.n_samples, "pose_overlap": round(self.pose_overlap, 3),
+                "same_poses": bool(self.pose_overlap >= SAME_POSES), "noise_mm": round(self.noise_mm, 4),
                 "noise_deg": round(self.noise_deg, 5), "frames": [f.to_json() for f in self.frames],
                 "frames_test": self.frames_test.to_json(), "frames_differ": bool(self.frames_differ),
                 "parameters": [p.to_json() for p in self.parameters], "kinematics_test": self.kinematics_test.to_json(),
@@ -437,9 +465,10 @@ class DaysResult:
         shared: the shared arm's parameters (names -> value, units in the names) and their standard errors.
         days: each other recording against the reference.
         pairs: the joint kinematic test of every pair of recordings (i, j, test).
+        pair_overlap: per pair, the share of poses the two recordings share (:func:`pose_overlap`).
         unidentified: parameters no recording identifies (the frames' gauge or data that never move them).
         deltas: each recording's 12 frame corrections against the shared arm (:func:`calibration.rebase.corrections`).
-        drift: within-recording drift (see :func:`drift`), filled in by the caller; empty when not tested.
+        drift: the late half against the early half of each recording with time order (:func:`compare_days`).
         drift_note: why drift was not tested, when it was not.
     """
 
@@ -450,6 +479,7 @@ class DaysResult:
     pairs: tuple[tuple[str, str, Test], ...]
     unidentified: tuple[str, ...]
     deltas: tuple[np.ndarray, ...] = ()
+    pair_overlap: tuple[float, ...] = ()
     drift: tuple[DayDiff, ...] = ()
     drift_note: str = ""
 
@@ -483,8 +513,9 @@ class DaysResult:
         shared = {n: (float(x[i]), float(np.sqrt(Cp[i, i]) * sm[i]) if share[i] >= IDENTIFIED_SHARE else None)
                   for i, n in enumerate(problem.names)}
         unid = tuple(n for n, s in zip(problem.names, share) if s < IDENTIFIED_SHARE)
+        overlap = tuple(pose_overlap(problem.days[i].q, problem.days[j].q) for i in range(D) for j in range(i + 1, D))
         return cls(problem.days[0].name, tuple(d.name for d in problem.days), shared, tuple(days), tuple(pairs), unid,
-                   tuple(d.delta.copy() for d in problem.days))
+                   tuple(d.delta.copy() for d in problem.days), overlap)
 
     @property
     def kinematics_changed(self) -> bool:
@@ -495,6 +526,10 @@ class DaysResult:
                  f"family-wise {ALPHA:g}, cluster-robust noise):"]
         lines += [d.summary(self.reference) for d in self.days]
         agree = [f"{a} ~ {b}" for a, b, t in self.pairs if not t.differs]
+        same = [f"{a} / {b}: {'differ' if t.differs else 'agree'} (chi2 {t.chi2:.0f} over {t.dof})"
+                for (a, b, t), o in zip(self.pairs, self.pair_overlap) if o >= SAME_POSES]
+        if same:
+            lines.append("  kinematics of recordings on the same poses (no pose-dependent confound): " + "; ".join(same))
         if len(self.pairs) > len(self.days):
             lines.append("  pairs whose kinematics agree: " + (", ".join(agree) or "none"))
         if self.unidentified:
@@ -515,7 +550,8 @@ class DaysResult:
                 "shared_parameters": {n: {"value": float(f"{v:.6g}"), "se": None if s is None else float(f"{s:.3g}")}
                                       for n, (v, s) in self.shared.items()},
                 "unidentified": list(self.unidentified), "days": [d.to_json() for d in self.days],
-                "pairs": [{"a": a, "b": b, **t.to_json()} for a, b, t in self.pairs],
+                "pairs": [{"a": a, "b": b, **t.to_json(), "pose_overlap": round(o, 3)} for (a, b, t), o in
+                          zip(self.pairs, self.pair_overlap)],
                 "kinematics_changed": bool(self.kinematics_changed),
                 "drift": {"tested": bool(self.drift), "note": self.drift_note, "halves": [d.to_json() for d in self.drift]}}
 
@@ -556,7 +592,7 @@ def _compare(problem: DaysProblem, day: _Day, x_d: np.ndarray, U_d: np.ndarray, 
     return DayDiff(day.name, day.q.shape[0], day.sigma[0] * np.sqrt(3), float(np.degrees(day.sigma[1]) * np.sqrt(3)),
                    frames, frames_test, tuple(params), kin_test,
                    tuple(Quantity(named[k].name, named[k].unit, v, se, True, 1.0) for k, v, se in found), rest,
-                   alternatives)
+                   alternatives, pose_overlap(day.q, ref.q))
 
 
 def _name(named: list[Named], sm: np.ndarray, W: np.ndarray, testable: list[int], d: np.ndarray, V: np.ndarray, z_crit: float

@@ -122,7 +122,8 @@ def _days(robot: str, nominal: Any, paths: list[str | Path], limits: tuple[np.nd
         seen.add(Path(p).resolve())
     recs = [read_recording(p, *limits) for p in paths]
     check_same_robot(nominal, recs, robot)
-    days = compare_days(nominal, recs, [str(p) for p in paths])
+    short = [Path(p).name or str(p) for p in paths]
+    days = compare_days(nominal, recs, short if len(set(short)) == len(short) else [str(p) for p in paths])
     return pool([take_out(r, *corrections(delta)) for r, delta in zip(recs, days.deltas)]), days
 
 

@@ -122,3 +122,12 @@ def test_recording_of_another_robot_is_refused(r1_nominal):
     other = measure(r2.fk, q, 0.02, 0.01, 1, cluster)
     with pytest.raises(DataError, match="not a recording of R1"):
         check_same_robot(r1_nominal, [measure(r1_nominal.fk, q, 0.02, 0.01, 2, cluster), other], "R1")
+
+
+def test_pose_overlap_flags_recordings_on_other_poses():
+    from calibration.daydiff import pose_overlap
+
+    q, _ = cluster_design(step_deg=15.0)
+    assert pose_overlap(q, q[::-1]) == 1.0  # the same poses in another order
+    half = len(q) // 2
+    assert pose_overlap(q[:half], q[half:]) < 0.5
