@@ -433,8 +433,11 @@ class DayDiff:
         if self.unexplained.differs:
             kin.append("further differences along " + ", ".join(p.name for p in self.parameters if p.differs)
                        if any(p.differs for p in self.parameters) else "further differences no named change explains")
-        frames_text = ("frames differ: " + "; ".join(frames)) if self.frames_differ and frames else (
-            "frames differ (jointly)" if self.frames_differ else "frames the same within the noise")
+        if self.frames_differ and not frames:  # no component alone: name the largest, correlated as they are
+            shown = sorted((f for f in self.frames if f.value is not None), key=lambda f: -abs(f.value / f.se))[:3]
+            frames = [f"jointly (chi2 {self.frames_test.chi2:.0f} over {self.frames_test.dof}; largest: "
+                      + "; ".join(f.text() for f in shown) + ")"]
+        frames_text = ("frames differ: " + "; ".join(frames)) if self.frames_differ else "frames the same within the noise"
         kin_text = ("kinematics differ: " + "; ".join(kin or ["jointly, along no single parameter"])
                     if self.kinematics_differ else
                     f"kinematics the same within the noise (chi2 {self.kinematics_test.chi2:.1f} over "
