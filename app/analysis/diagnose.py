@@ -32,8 +32,8 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
     Args:
         robot: robot name in the cell (``R1``, ``R2``).
         data: recording CSV or Welding_Motoman folder to diagnose on; several (days of one arm): what differs
-            between them is found first (``result.days``), and the diagnosis runs on them pooled, each with its
-            frames taken out.
+            between them is found first (``result.days``), and the diagnosis runs on them pooled in the first
+            one's frames (a ``model`` in use is taken to be in those).
         heldout: recording for the before/after figures; None sets aside a fifth of the clusters of ``data``.
         model: model file in use (constant, physics, pi or cdc; a diagnosed file is refused: give its base); None fits the
             geometric NLS (``nls1``) on ``data``.
@@ -103,14 +103,14 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
 
 def _days(robot: str, nominal: Any, paths: list[str | Path], limits: tuple[np.ndarray, np.ndarray]) -> tuple[Any, Any]:
     """Several recordings of one arm: what differs between them (:func:`calibration.daydiff.compare_days`), and
-    the recordings pooled with each one's frames taken out (the diagnosis runs on that).
+    the recordings pooled in the first one's frames (the others' frames taken out; the diagnosis runs on that).
 
     Raises:
         DataError: a recording given twice, unreadable, or not of ``robot``.
     """
     from calibration.daydiff import check_same_robot, compare_days
     from calibration.errors import DataError
-    from calibration.frames import take_out
+    from calibration.frames import put_in, take_out
     from calibration.multiday import pool
     from calibration.rebase import corrections
     from calibration.recording import read_recording
@@ -124,7 +124,9 @@ def _days(robot: str, nominal: Any, paths: list[str | Path], limits: tuple[np.nd
     check_same_robot(nominal, recs, robot)
     short = [Path(p).name or str(p) for p in paths]
     days = compare_days(nominal, recs, short if len(set(short)) == len(short) else [str(p) for p in paths])
-    return pool([take_out(r, *corrections(delta)) for r, delta in zip(recs, days.deltas)]), days
+    first = corrections(days.deltas[0])  # every recording in the first one's frames (it stays as it is)
+    return pool([recs[0]] + [put_in(take_out(r, *corrections(delta)), *first)
+                             for r, delta in zip(recs[1:], days.deltas[1:])]), days
 
 
 def markdown(result: Diagnosis) -> str:
