@@ -37,7 +37,7 @@ deviations from the nominal arm) and ``delta_d`` the 12 frame corrections of :fu
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -87,7 +87,7 @@ SHARED_ITERATIONS, OWN_ITERATIONS = 6, 3
 MAX_NAMED = 3
 #: Finite-difference step in scaled units (mm, or mrad at a 1 m reach).
 FD_STEP = 1e-4
-#: Units of the named changes: per joint offset 1 deg, per link length 1 mm, growth 1 ppm.
+#: Units the 12 frame corrections are reported in (shifts mm, rotations deg).
 FRAME_UNITS = ("mm",) * 3 + ("deg",) * 3 + ("mm",) * 3 + ("deg",) * 3
 
 
@@ -437,7 +437,8 @@ class DayDiff:
             shown = sorted((f for f in self.frames if f.value is not None), key=lambda f: -abs(f.value / f.se))[:3]
             frames = [f"jointly (chi2 {self.frames_test.chi2:.0f} over {self.frames_test.dof}; largest: "
                       + "; ".join(f.text() for f in shown) + ")"]
-        frames_text = ("frames differ: " + "; ".join(frames)) if self.frames_differ else "frames the same within the noise"
+        frames_text = ("frames differ: " + "; ".join(frames)) if self.frames_differ else \
+            "frames the same within the noise"
         kin_text = ("kinematics differ: " + "; ".join(kin or ["jointly, along no single parameter"])
                     if self.kinematics_differ else
                     f"kinematics the same within the noise (chi2 {self.kinematics_test.chi2:.1f} over "
@@ -532,7 +533,8 @@ class DaysResult:
         same = [f"{a} / {b}: {'differ' if t.differs else 'agree'} (chi2 {t.chi2:.0f} over {t.dof})"
                 for (a, b, t), o in zip(self.pairs, self.pair_overlap) if o >= SAME_POSES]
         if same:
-            lines.append("  kinematics of recordings on the same poses (no pose-dependent confound): " + "; ".join(same))
+            lines.append("  kinematics of recordings on the same poses (no pose-dependent confound): "
+                         + "; ".join(same))
         if len(self.pairs) > len(self.days):
             lines.append("  pairs whose kinematics agree: " + (", ".join(agree) or "none"))
         if self.unidentified:
@@ -556,7 +558,8 @@ class DaysResult:
                 "pairs": [{"a": a, "b": b, **t.to_json(), "pose_overlap": round(o, 3)} for (a, b, t), o in
                           zip(self.pairs, self.pair_overlap)],
                 "kinematics_changed": bool(self.kinematics_changed),
-                "drift": {"tested": bool(self.drift), "note": self.drift_note, "halves": [d.to_json() for d in self.drift]}}
+                "drift": {"tested": bool(self.drift), "note": self.drift_note,
+                          "halves": [d.to_json() for d in self.drift]}}
 
 
 def _compare(problem: DaysProblem, day: _Day, x_d: np.ndarray, U_d: np.ndarray, C_d: np.ndarray, x_r: np.ndarray,
@@ -598,13 +601,15 @@ def _compare(problem: DaysProblem, day: _Day, x_d: np.ndarray, U_d: np.ndarray, 
                    alternatives, pose_overlap(day.q, ref.q))
 
 
-def _name(named: list[Named], sm: np.ndarray, W: np.ndarray, testable: list[int], d: np.ndarray, V: np.ndarray, z_crit: float
+def _name(named: list[Named], sm: np.ndarray, W: np.ndarray, testable: list[int], d: np.ndarray, V: np.ndarray,
+          z_crit: float
           ) -> tuple[list[tuple[int, float, float]], Test, tuple[str, ...]]:
     """Named changes that explain ``d`` (coordinates on the common directions ``W``), and the test of what remains.
 
     The fewest changes (up to ``MAX_NAMED``) whose remainder is within the noise, the best such set; when no set
     is, the largest set each of whose changes still cuts the chi-square by ``z_crit**2``. Only the ``testable``
-    changes are tried (joint 1's offset is the base frame's rotation, joint 6's the tool frame's). Returns (index into ``named``, value, standard error) per change found, the test of the remainder,
+    changes are tried (joint 1's offset is the base frame's rotation, joint 6's the tool frame's). Returns (index
+    into ``named``, value, standard error) per change found, the test of the remainder,
     and up to three other sets (of the same size or one more) that explain it as well: the data cannot tell them apart.
     """
     from itertools import combinations
@@ -640,7 +645,8 @@ def _name(named: list[Named], sm: np.ndarray, W: np.ndarray, testable: list[int]
     p = float(stats.chi2.sf(chi2, dof)) if dof > 0 else 1.0
     others = sorted((fit(sel)[0], sel) for k in {len(chosen), len(chosen) + 1} if 0 < k <= MAX_NAMED
                     for sel in combinations(testable, k) if sel != chosen and within(fit(sel)[0], k))
-    alternatives = tuple(" + ".join(named[k].name for k in sel) for _, sel in others[:3]) if within(chi2, len(chosen)) else ()
+    alternatives = (tuple(" + ".join(named[k].name for k in sel) for _, sel in others[:3])
+                    if within(chi2, len(chosen)) else ())
     return ([(k, float(coef[i]), float(np.sqrt(cov[i, i]))) for i, k in enumerate(chosen)],
             Test(chi2, dof, p, bool(not within(chi2, len(chosen)))), alternatives)
 
@@ -722,6 +728,4 @@ def compare_days(nominal: PoeModel, recs: list[Recording], names: list[str] | No
         drift.extend(half.days)
     note = (f"not tested on {', '.join(untested)}: no t or temp_c column (the recording format's time order)"
             if untested else "")
-    from dataclasses import replace
-
     return replace(result, drift=tuple(drift), drift_note=note)
