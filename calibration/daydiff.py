@@ -190,7 +190,31 @@ class DaysProblem:
         return r / day.sigma[0]
 
     def jacobian(self, day: _Day, x: np.ndarray, delta: np.ndarray) -> np.ndarray:
-        """d residual / d (scaled x, scaled delta), central differences: (N, 6, m + 12)."""
+        """d residual / d (scaled x, scaled delta): (N, 6, m + 12). The arm's columns are analytic (the
+        parameterisation's Jacobian carried through the frames), the frames' 12 by central differences."""
+        R, p, J = self.par.jacobian(day.q, x)  # rows d[p; theta] / dx in the arm's base frame
+        T_b, T_t = corrections(delta)
+        R_b, p_t = T_b[:3, :3], T_t[:3, 3]
+        Rw, pw = wrap_pose(T_b, R, p, T_t)
+        w = day.sigma[0] / day.sigma[1]
+        _, e = weighted_residuals(day.R, day.p, Rw, pw, w)
+        lever = np.einsum("nij,j->ni", R, p_t)  # the marker's offset from the flange, in the arm's base frame
+        dp = J[:, :3] - np.cross(lever[:, :, None], J[:, 3:], axis=1)
+        Jk = np.empty_like(J)
+        Jk[:, :3] = -np.einsum("ij,njk->nik", R_b, dp)
+        Jk[:, 3:] = -w * (so3.right_jacobian_inv(e) @ np.einsum("ij,njk->nik", R_b, J[:, 3:]))
+        Jk *= self.scale[:self.m] / day.sigma[0]
+        cols = []
+        for i in range(12):
+            h = FD_STEP * self.scale[self.m + i]
+            dp_, dm_ = delta.copy(), delta.copy()
+            dp_[i] += h
+            dm_[i] -= h
+            cols.append((self.residual(day, x, dp_) - self.residual(day, x, dm_)) / (2 * FD_STEP))
+        return np.concatenate([Jk, np.stack(cols, axis=-1)], axis=-1)
+
+    def jacobian_fd(self, day: _Day, x: np.ndarray, delta: np.ndarray) -> np.ndarray:
+        """:meth:`jacobian` by central differences in every column (the check of the analytic one)."""
         z = np.concatenate([x, delta])
         cols = []
         for i in range(z.size):

@@ -131,3 +131,16 @@ def test_pose_overlap_flags_recordings_on_other_poses():
     assert pose_overlap(q, q[::-1]) == 1.0  # the same poses in another order
     half = len(q) // 2
     assert pose_overlap(q[:half], q[half:]) < 0.5
+
+
+def test_jacobian_matches_finite_differences(r1_nominal):
+    """The analytic arm columns (through non-identity frames, with per-channel whitening) against central
+    differences."""
+    recs = _twins(r1_nominal, True, 2)[:2]
+    problem = DaysProblem(r1_nominal, recs)
+    day = problem.days[1]
+    day.delta = np.array([0.5, -0.3, 0.2, 1e-3, -2e-3, 5e-4, -0.7, 0.4, 1.1, 2e-3, 1e-3, -1e-3])
+    day.sigma = (0.02, 2e-4)
+    x = np.random.default_rng(2).normal(0, 0.3, problem.m) * problem.scale[:problem.m]
+    J = problem.jacobian(day, x, day.delta)
+    np.testing.assert_allclose(J, problem.jacobian_fd(day, x, day.delta), atol=1e-5 * np.abs(J).max())
