@@ -668,7 +668,8 @@ def _name(named: list[Named], sm: np.ndarray, W: np.ndarray, testable: list[int]
     dof = d.size - len(chosen)
     p = float(stats.chi2.sf(chi2, dof)) if dof > 0 else 1.0
     others = sorted((fit(sel)[0], sel) for k in {len(chosen), len(chosen) + 1} if 0 < k <= MAX_NAMED
-                    for sel in combinations(testable, k) if sel != chosen and within(fit(sel)[0], k))
+                    for sel in combinations(testable, k)
+                    if not set(chosen) <= set(sel) and within(fit(sel)[0], k))  # a superset adds nothing
     alternatives = (tuple(" + ".join(named[k].name for k in sel) for _, sel in others[:3])
                     if within(chi2, len(chosen)) else ())
     return ([(k, float(coef[i]), float(np.sqrt(cov[i, i]))) for i, k in enumerate(chosen)],

@@ -144,3 +144,9 @@ def test_jacobian_matches_finite_differences(r1_nominal):
     x = np.random.default_rng(2).normal(0, 0.3, problem.m) * problem.scale[:problem.m]
     J = problem.jacobian(day, x, day.delta)
     np.testing.assert_allclose(J, problem.jacobian_fd(day, x, day.delta), atol=1e-5 * np.abs(J).max())
+
+
+def test_equally_good_sets_are_not_the_found_set_plus_noise(wide):
+    found = {q.name for q in wide.days[0].named}
+    for alternative in wide.days[0].alternatives:
+        assert not found <= set(alternative.split(" + "))
