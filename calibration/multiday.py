@@ -14,7 +14,9 @@ Any method is then fitted on the pooled corrected recordings; the models are in 
 
 What differs between days: the frames (mm, deg), and per recording the joint model's training RMS against that
 recording's own single-day fit. A ratio well above 1 (``KINEMATICS_RATIO_LIMIT``) means one arm cannot explain
-every day: the arm's kinematics (not only the frames) changed between them.
+every day: the arm's kinematics (not only the frames) changed between them. Which parameters differ, beyond the
+noise and only along the directions each day identifies, comes from :func:`calibration.daydiff.compare_days`
+(``MultiDayFit.differences``) when the nominal arm is a constant POE model.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from calibration.errors import ModelError
 from calibration.frames import FramedFit, FrameFit, check_recording, fit_frames, take_out
 from calibration.metrics import errors
 from calibration.models.base import KinematicModel
+from calibration.models.constant import ConstantModel
 from calibration.models.rebased import RebasedModel
 from calibration.recording import Recording
 
@@ -76,11 +79,14 @@ class MultiDayFit:
             recording's frames, and ``fitter.train`` is the pooled recordings in those frames.
         days: each recording's frames and figures.
         reference: the method the frames and the figures were fitted with.
+        differences: what differs between the recordings per parameter (:class:`calibration.daydiff.DaysResult`),
+            None when not computed.
     """
 
     fitter: Any
     days: tuple[Day, ...]
     reference: str
+    differences: Any = None
 
     @property
     def kinematics_changed(self) -> bool:
@@ -106,12 +112,15 @@ class MultiDayFit:
                          f"over x{KINEMATICS_RATIO_LIMIT}); {self.worst} differs most.")
         else:
             lines.append(f"The frames explain the differences: every ratio is within x{KINEMATICS_RATIO_LIMIT}.")
+        if self.differences is not None:
+            lines.append(self.differences.summary())
         return "\n".join(lines)
 
     def to_json(self) -> dict[str, Any]:
         return {"reference": self.reference, "days": [d.to_json() for d in self.days],
                 "kinematics_ratio_limit": KINEMATICS_RATIO_LIMIT, "kinematics_changed": self.kinematics_changed,
-                "differs_most": self.worst}
+                "differs_most": self.worst,
+                "differences": None if self.differences is None else self.differences.to_json()}
 
 
 def pool(recs: list[Recording], cluster_size: int = 7) -> Recording:
@@ -172,4 +181,9 @@ def fit_days(make_fitter: Callable[[Recording], Any], nominal: KinematicModel, r
             wrapped = RebasedModel(arm.robot, arm.method, arm, f.result.T_base_correction,
                                    f.result.T_tool_correction, 12)
         days.append(Day(r.source, len(r), f, _rms(wrapped, r), _rms(own[i], r)))
-    return MultiDayFit(fitter, tuple(days), reference)
+    differences = None
+    if isinstance(nominal, ConstantModel):
+        from calibration.daydiff import compare_days
+
+        differences = compare_days(nominal.model, recs)
+    return MultiDayFit(fitter, tuple(days), reference, differences)

@@ -10,7 +10,8 @@ from __future__ import annotations
 import json
 import logging
 from pathlib import Path
-from typing import Any
+from dataclasses import replace
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -22,7 +23,7 @@ from calibration.files import atomic_write_text
 log = logging.getLogger("cellcal.app")
 
 
-def run_diagnose(robot: str, data: str | Path, heldout: str | Path | None = None, model: str | Path | None = None,
+def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: str | Path | None = None, model: str | Path | None = None,
                  json_path: str | Path | None = None, report_dir: str | Path | None = None,
                  model_out: str | Path | None = None, cell: str | Path | None = None,
                  options: DiagnoseOptions | None = None, tolerance: Any = None, progress: bool = False) -> Diagnosis:
@@ -30,7 +31,9 @@ def run_diagnose(robot: str, data: str | Path, heldout: str | Path | None = None
 
     Args:
         robot: robot name in the cell (``R1``, ``R2``).
-        data: recording CSV or Welding_Motoman folder to diagnose on.
+        data: recording CSV or Welding_Motoman folder to diagnose on; several (days of one arm): what differs
+            between them is found first (``result.days``), and the diagnosis runs on them pooled in the first
+            one's frames (a ``model`` in use is taken to be in those).
         heldout: recording for the before/after figures; None sets aside a fifth of the clusters of ``data``.
         model: model file in use (constant, physics, pi or cdc; a diagnosed file is refused: give its base); None fits the
             geometric NLS (``nls1``) on ``data``.
@@ -59,7 +62,12 @@ def run_diagnose(robot: str, data: str | Path, heldout: str | Path | None = None
     nominal = cr.model()
     limits = (spec.lower_rad, spec.upper_rad)
     used = load_model(model, robot, nominal) if model is not None else None  # another robot's model: refused
-    rec = read_recording(data, *limits)
+    paths = [data] if isinstance(data, (str, Path)) else list(data)
+    days = None
+    if len(paths) > 1:
+        rec, days = _days(robot, nominal, paths, limits)
+    else:
+        rec = read_recording(paths[0], *limits)
     ho = read_recording(heldout, *limits) if heldout is not None else None
     try:
         gravity = GravityModel.from_spec(spec, nominal)
@@ -76,7 +84,9 @@ def run_diagnose(robot: str, data: str | Path, heldout: str | Path | None = None
 
         result = diagnose(robot, nominal, rec, ho, used, gravity, limits, options, progress=step)
         steps.update(steps.total - steps.n)
-    inputs = [("data", data), ("heldout", heldout), ("model", model)]
+    inputs = [*(("data", p) for p in paths), ("heldout", heldout), ("model", model)]
+    if days is not None:
+        result = replace(result, days=days)
     if model_out is not None:
         from app.provenance import provenance, with_provenance
 
@@ -89,6 +99,34 @@ def run_diagnose(robot: str, data: str | Path, heldout: str | Path | None = None
             models = {f"{result.baseline.model} (before)": used, **models}
         write_report(result, report_dir, tolerance, ho, models, inputs)
     return result
+
+
+def _days(robot: str, nominal: Any, paths: list[str | Path], limits: tuple[np.ndarray, np.ndarray]) -> tuple[Any, Any]:
+    """Several recordings of one arm: what differs between them (:func:`calibration.daydiff.compare_days`), and
+    the recordings pooled in the first one's frames (the others' frames taken out; the diagnosis runs on that).
+
+    Raises:
+        DataError: a recording given twice, unreadable, or not of ``robot``.
+    """
+    from calibration.daydiff import check_same_robot, compare_days
+    from calibration.errors import DataError
+    from calibration.frames import put_in, take_out
+    from calibration.multiday import pool
+    from calibration.rebase import corrections
+    from calibration.recording import read_recording
+
+    seen: set[Path] = set()
+    for p in paths:
+        if Path(p).resolve() in seen:
+            raise DataError(p, None, None, "given twice; give each recording (day) once")
+        seen.add(Path(p).resolve())
+    recs = [read_recording(p, *limits) for p in paths]
+    check_same_robot(nominal, recs, robot)
+    short = [Path(p).name or str(p) for p in paths]
+    days = compare_days(nominal, recs, short if len(set(short)) == len(short) else [str(p) for p in paths])
+    first = corrections(days.deltas[0])  # every recording in the first one's frames (it stays as it is)
+    return pool([recs[0]] + [put_in(take_out(r, *corrections(delta)), *first)
+                             for r, delta in zip(recs[1:], days.deltas[1:])]), days
 
 
 def markdown(result: Diagnosis) -> str:
@@ -119,6 +157,8 @@ def markdown(result: Diagnosis) -> str:
         lines += [f"- {e.kind} on {', '.join(e.links) or ', '.join(map(str, e.joints)) or '-'}: held-out RMS "
                   f"{e.evidence.before.rms_mm:.4f} -> {e.evidence.after.rms_mm:.4f} mm (z = {e.evidence.heldout_z:.1f}). "
                   f"{e.explanation}" for e in result.rejected]
+    if result.days is not None:
+        lines += ["", "## What differs between the recordings", "", "```", result.days.summary(), "```"]
     lines += ["", "## Where the model and the data disagree", "", "| driver | correlation | where |", "|---|---:|---|"]
     lines += [f"| {m['regressor']} | {m['correlation']:.3f} | {m['where']} |" for m in j["mismatch"]]
     lines += ["", "## Not identifiable from this data", ""]
@@ -205,9 +245,22 @@ def write_report(result: Diagnosis, out_dir: str | Path, tolerance: Any = None, 
                                        f"{result.noise.floor_mm:.3f} mm. Details in report.md."],
                       [Table("Held-out accuracy", ["model", "RMS mm", "max mm", "RMS deg", "max deg"], rows),
                        Table("Effects found", ["kind", "on", "delta BIC", "held-out RMS before -> after mm"], effects,
-                             [] if effects else ["None confirmed on the held-out data."])], images)
+                             [] if effects else ["None confirmed on the held-out data."]), *_days_tables(result)],
+                      images)
     files.append(write_html(Page(section.title, command, tol, provenance(inputs), [section]), out))
     return files
+
+
+def _days_tables(result: Diagnosis) -> list[Any]:
+    """With several recordings: each one against the first (frames, kinematics, named changes)."""
+    from app.analysis.report import Table
+
+    if result.days is None:
+        return []
+    rows = [[d.name, "differ" if d.frames_differ else "same", "differ" if d.kinematics_differ else "same",
+             "; ".join(q.text() for q in d.named) or "-"] for d in result.days.days]
+    return [Table(f"What differs between the recordings (against {result.days.reference})",
+                  ["recording", "frames", "kinematics", "named changes"], rows, result.days.summary().splitlines())]
 
 
 def _pyplot() -> Any:

@@ -232,6 +232,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                           report_dir=args.report, model_out=args.out, cell=args.cell,
                           options=DiagnoseOptions(compliance_form=args.compliance_form, weighting=args.weighting),
                           tolerance=tolerance_from_args(args), progress=show_progress(args))
+    if result.days is not None:
+        print(result.days.summary())
     print(result.verdict)
     return 0
 
@@ -317,8 +319,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_report_options(p, "every method's errors, tables and plots; also report.md and the PNGs")
     p = add("diagnose", cmd_diagnose, "find the physics the model in use left out, model it, show the fit improve")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
-    p.add_argument("--train", "--data", dest="train", required=True,
-                   help="recording CSV or Welding_Motoman folder to fit on (--data: the old name)")
+    p.add_argument("--train", "--data", dest="train", required=True, action="append",
+                   help="recording CSV or Welding_Motoman folder to fit on (--data: the old name); repeat it for "
+                        "several days of one arm: what differs between them (frames, parameters, drift) is reported "
+                        "and the diagnosis runs on them pooled, each with its frames taken out")
     p.add_argument("--test", "--heldout", dest="test",
                    help="recording the selection never fits on (default: held-out clusters of --train; --heldout: "
                         "the old name)")

@@ -144,6 +144,8 @@ class Diagnosis:
             extrapolate), with their figures; they are not in ``model``.
         orientation_weight_a: the orientation weight the evidence was weighed with.
         weighting: ``noise`` (from the per-channel noise floors) or ``fixed``.
+        days: with several recordings (days), what differs between them
+            (:class:`calibration.daydiff.DaysResult`), else None.
     """
 
     robot: str
@@ -164,6 +166,7 @@ class Diagnosis:
     rejected: tuple[FoundEffect, ...] = ()
     orientation_weight_a: float = float("nan")
     weighting: str = "fixed"
+    days: Any = None
 
     def to_json(self) -> dict[str, Any]:
         """The ``cellcal.diagnose/1`` report as plain Python (finite floats; NaN becomes None)."""
@@ -188,6 +191,8 @@ class Diagnosis:
             "verdict": self.verdict,
             "notes": list(self.notes),
         }
+        if self.days is not None:
+            out["days"] = self.days.to_json()
         return _finite(out)
 
 

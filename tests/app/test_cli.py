@@ -208,4 +208,4 @@ def test_diagnose_takes_train_and_test_like_every_command_and_the_old_names_stil
 
     new = build_parser().parse_args(["diagnose", "--robot", "R1", "--train", "a.csv", "--test", "b.csv"])
     old = build_parser().parse_args(["diagnose", "--robot", "R1", "--data", "a.csv", "--heldout", "b.csv"])
-    assert (new.train, new.test) == (old.train, old.test) == ("a.csv", "b.csv")
+    assert (new.train, new.test) == (old.train, old.test) == (["a.csv"], "b.csv")  # --train repeats (days)

@@ -66,3 +66,14 @@ def test_one_recording_is_refused(days, r1_nominal):
     with pytest.raises(ModelError, match="at least two recordings"):
         fit_days(lambda r: Fitter("R1", r1_nominal, r, FitOptions()), ConstantModel("R1", "nominal", r1_nominal, 0, {}),
                  days[:1])
+
+
+def test_the_joint_fit_says_which_parameters_differ(days, r1_nominal):
+    """Per parameter: day1 differs by its frames only, day2 by its kinematics (joint 2's origin), beyond the noise."""
+    diff = _fit(days, r1_nominal).differences
+    d1, d2 = diff.days
+    assert d1.frames_differ and not d1.kinematics_differ
+    assert d2.kinematics_differ
+    moved = {p.name for p in d2.parameters if p.differs}
+    assert moved and moved <= {"origin2_a_mm", "origin2_b_mm"}
+    assert "day2 against day0" in diff.summary()
