@@ -101,3 +101,24 @@ def test_nls0_stays_within_the_issue_bound_on_the_shared_days_where_it_blew_up(d
     fitter = Fitter("R1", robot.model(), train, FitOptions())
     worst = {m: errors(fitter.fit(m)[0], test).position_mm.max() for m in ("nominal", "nls0", "nls1")}
     assert worst["nls0"] <= 1.5 * worst["nls1"] and worst["nls0"] <= 2.0 * worst["nominal"], worst
+
+
+def test_compare_prints_the_nls0_warning(tmp_path, r1_nominal, capsys):
+    from app.cli.commands import main
+    from calibration.parameterisation import MinimalParameterisation
+    from calibration.recording import write_recording
+    from tests.conftest import planted_parameters
+
+    par = MinimalParameterisation(r1_nominal, fit_tool=True)
+    truth = par.model(planted_parameters(par, 1, 0.5, 5e-4))
+    q, cluster = cluster_design(step_deg=10.0, spread_wrist=False)
+    train = measure(truth.fk, q, 0.03, 0.02, 1, cluster)
+    model = Fitter("R1", r1_nominal, train, FitOptions()).fit("nls0")[0]
+    assert "warning" in model.info  # the case is one where nls0 is far worse than nls1 on the other clusters
+    write_recording(train, tmp_path / "train.csv")
+    write_recording(measure(truth.fk, np.random.default_rng(3).uniform(-0.7, 0.7, (60, 6)), 0.03, 0.02, 2),
+                    tmp_path / "test.csv")
+    assert main(["compare", "--robot", "R1", "--train", str(tmp_path / "train.csv"), "--test",
+                 str(tmp_path / "test.csv"), "--methods", "nominal,nls0,nls1"]) == 0
+    err = capsys.readouterr().err
+    assert f"warning: {model.info['warning']}" in err and err.count("nls0 extrapolates") == 1
