@@ -125,3 +125,25 @@ def test_cdc_methods_no_worse_than_nls1_with_an_18_mm_tool_marker_error():
     e = {m: errors(fitter.fit(m)[0], test).position_mm for m in ("nls1", "nearest", "linear", "fbf13")}
     for m in ("nearest", "linear", "fbf13"):
         assert np.mean(e[m]) <= np.mean(e["nls1"]) and np.max(e[m]) <= np.max(e["nls1"]), m
+
+
+def test_the_other_frame_is_taken_out_too_when_it_is_beyond_the_limits_once_the_one_at_fault_is_out():
+    """A base off by 4.5 mm / 0.24 deg (within the limits, so the check names the tool alone) under an 18 mm marker
+    error: once the marker is out, the base fitted alone moves beyond the limits, so both frames come out."""
+    robot = load_cell().robot("R1")
+    nominal = robot.model()
+    gravity = GravityModel.from_spec(robot.robot, nominal)
+    train, _, _ = tool_error_case(nominal, gravity, 18.0, 0.5, seed=2,
+                                  train_design=Design(n_q2=6, n_q3=5, spread_deg=3.0), n_heldout=1)
+    T_base = make_T(so3.exp(np.radians(0.3) * np.array([0.0, 0.6, 0.8])), np.array([1.0, -2.0, 4.0]))
+    rec = put_in(train, T_base, np.eye(4))
+    arm = ConstantModel("R1", "nominal", nominal, 0, {})
+    assert check_recording(arm, rec).frame == "tool"
+    fitter, check = framed(lambda r: Fitter("R1", nominal, r, FitOptions()), arm, rec)
+    assert check.frame == "base and tool" and "a rigid fit of the base and tool frames brings" in check.message()
+    assert "base frame (mocap-to-base registration) and tool frame" in check.message()
+    joint = check.fits["base and tool"].result
+    np.testing.assert_array_equal(fitter.frames.T_base_correction, joint.T_base_correction)
+    np.testing.assert_array_equal(fitter.frames.T_tool_correction, joint.T_tool_correction)
+    back = put_in(fitter.inner.train, joint.T_base_correction, joint.T_tool_correction)
+    np.testing.assert_allclose(back.p, rec.p, atol=1e-9)
