@@ -71,6 +71,16 @@ class HeldOut:
     def ratio(self) -> float:
         return self.rms_mm / max(self.reference_rms_mm, 1e-12)
 
+    @classmethod
+    def of_errors(cls, err: np.ndarray, ref: np.ndarray, groups: np.ndarray) -> "HeldOut":
+        """The figures of held-out position errors ``err`` [mm] (N,) against the reference's ``ref`` (N,) on the
+        same poses, ``groups`` their cluster index 0..K-1 (N,) for the standard error over clusters."""
+        per_cluster = np.bincount(groups, err ** 2) / np.maximum(np.bincount(groups), 1)
+        per_cluster = per_cluster[np.bincount(groups) > 0]
+        rms = float(np.sqrt(np.mean(err ** 2)))
+        se = float(per_cluster.std(ddof=1) / np.sqrt(len(per_cluster)) / (2.0 * max(rms, 1e-12)))
+        return cls(rms, float(np.sqrt(np.mean(ref ** 2))), float(err.max()), float(ref.max()), se)
+
 
 def cluster_folds(n_clusters: int, n_folds: int = N_FOLDS, seed: int = 0) -> np.ndarray:
     """Fold (0..n_folds-1) of each cluster: a seeded shuffle dealt round-robin, shape (K,)."""
@@ -205,10 +215,7 @@ class HeldOutCheck:
             err, ref, groups = err[rows], ref[rows], np.unique(self._groups[rows], return_inverse=True)[1]
         else:
             groups = self._groups
-        per_cluster = np.bincount(groups, err ** 2) / np.maximum(np.bincount(groups), 1)
-        rms = float(np.sqrt(np.mean(err ** 2)))
-        se = float(per_cluster.std(ddof=1) / np.sqrt(len(per_cluster)) / (2.0 * max(rms, 1e-12)))
-        return HeldOut(rms, float(np.sqrt(np.mean(ref ** 2))), float(err.max()), float(ref.max()), se)
+        return HeldOut.of_errors(err, ref, groups)
 
 
 def held_out(make: Callable[[], Interpolator], kin: ExtendedKinematics, theta_ref: np.ndarray,

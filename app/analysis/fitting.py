@@ -40,7 +40,7 @@ def checked_fitter_for(robot: Any, train: Any, cpa: Any | None = None, options: 
                        ) -> tuple[Any, Any]:
     """:func:`fitter_for` after a frame check of the training recording against the nominal arm.
 
-    When the check finds a frame or tool-registration problem, the fitter fits both frames first and the
+    When the check finds a frame or tool-registration problem, the fitter fits the frame(s) at fault first and the
     kinematics after (:class:`calibration.frames.FramedFit`), and the check's message is logged.
 
     Returns:
@@ -52,7 +52,8 @@ def checked_fitter_for(robot: Any, train: Any, cpa: Any | None = None, options: 
     nominal = ConstantModel(robot.name, "nominal", robot.model(), 0, {})
     fitter, check = framed(lambda rec: fitter_for(robot, rec, cpa, options), nominal, train)
     if check.found:
-        log.info("%s Fitting the base and tool frames first, then the kinematics.", check.message())
+        log.info("%s Fitting the %s frame%s first, then the kinematics.", check.message(), check.frame,
+                 "s" if " and " in check.frame else "")
     return fitter, check
 
 

@@ -65,8 +65,9 @@ def fitter_from_args(args: argparse.Namespace) -> Any:
     options = FitOptions(a=args.a, epoch_progress=epoch_bar(args))
     fitter, args.frame_check = checked_fitter_for(robot, trains[0], cpa, options)
     if args.frame_check.found:
-        print(f"warning: {args.frame_check.message()} The base and tool frames are fitted first, then the "
-              "kinematics.", file=sys.stderr)
+        frame = args.frame_check.frame
+        print(f"warning: {args.frame_check.message()} The {frame} frame{'s are' if ' and ' in frame else ' is'} "
+              "fitted first, then the kinematics.", file=sys.stderr)
     return fitter, robot
 
 

@@ -38,7 +38,7 @@ def test_fit_names_the_tool_frame_and_fits_it_first(tmp_path, data, capsys):
     assert main(["fit", "--robot", "R1", "--train", str(data / "train_tool.csv"), "--method", "nls1",
                  "--out", str(out)]) == 0
     err = capsys.readouterr().err
-    assert "tool frame (tool-marker-to-flange registration) is off" in err and "fitted first" in err
+    assert "tool frame (tool-marker-to-flange registration) is off" in err and "The tool frame is fitted first" in err
     model = load_model(out)
     assert model.kind == "rebased" and model.info["frames_first"]["frame"] == "tool"
     result = tmp_path / "e.json"
