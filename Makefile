@@ -11,8 +11,9 @@ $(VENV): pyproject.toml
 	$(BIN)/pip install --quiet -e '.[dev]'
 	touch $(VENV)
 
+# On every core (pytest-xdist): whole modules per worker, the longest first (tests/conftest.py says why).
 test: $(VENV)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto --dist loadscope --no-loadscope-reorder
 
 demo: $(VENV)
 	$(BIN)/cellcal demo --out demo_out

@@ -94,12 +94,19 @@ class Process:
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
         if ready:
-            deadline = time.monotonic() + timeout_s
-            while not self.lines:
-                if self.proc.poll() is not None or time.monotonic() > deadline:
-                    self._reader.join(timeout=2)
-                    raise RuntimeError(f"{self.name} did not start: {''.join(self.lines)[-2000:]}")
-                time.sleep(0.05)
+            self.wait_ready(timeout_s)
+        return self
+
+    def wait_ready(self, timeout_s: float = 30.0) -> "Process":
+        """Wait for the started process's ready line (its first stdout line)."""
+        if self.proc is None or self._reader is None:
+            raise RuntimeError(f"{self.name} was never started")
+        deadline = time.monotonic() + timeout_s
+        while not self.lines:
+            if self.proc.poll() is not None or time.monotonic() > deadline:
+                self._reader.join(timeout=2)
+                raise RuntimeError(f"{self.name} did not start: {''.join(self.lines)[-2000:]}")
+            time.sleep(0.05)
         return self
 
     def _read(self) -> None:
@@ -161,7 +168,7 @@ def small_plan(cell: Path, robot: str, out: Path, n: int = 14) -> Path:
 
 
 class Rehearsal:
-    """The three device processes of the rehearsal, started in the order an operator would."""
+    """The three device processes of the rehearsal: the controller and Motive, then the bridge that reads Motive."""
 
     def __init__(self, cell: Path, *motive_args: str, seed: int = 5) -> None:
         self.cell = cell
@@ -170,9 +177,15 @@ class Rehearsal:
         self.bridge = Process(cell, "mocap-bridge")
 
     def __enter__(self) -> "Rehearsal":
-        self.controller.start()
-        self.motive.start()
-        self.bridge.start()
+        try:
+            self.controller.start(ready=False)  # the controller and Motive do not know of each other: start both
+            self.motive.start(ready=False)
+            self.controller.wait_ready()
+            self.motive.wait_ready()
+            self.bridge.start()  # after Motive serves, so its first connection attempt is answered
+        except BaseException:
+            self.__exit__()  # no device process outlives a failed start
+            raise
         return self
 
     def __exit__(self, *exc: object) -> None:

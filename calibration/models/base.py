@@ -155,7 +155,7 @@ class KinematicModel(abc.ABC):
         """``d[p (mm); rotation (rad)] / dq`` (N, 6, 6): exact, from the model's own casadi expression."""
         from calibration.casadi_expr import pose_jacobians
 
-        return pose_jacobians(lambda qs, ts: self.casadi(qs, ts), q, self.vector())[1]
+        return pose_jacobians(lambda qs, ts: self.casadi(qs, ts), q, self.vector(), wrt_theta=False)[1]
 
     @property
     @abc.abstractmethod

@@ -145,8 +145,11 @@ def test_mocap_dropouts_missing_frames_and_determinism(r1):
 
 
 def test_mocap_blackout_and_cell_frame(r1):
+    # A stepped clock: simulated time moves only with this thread's sleeps. Free-running at 200x, a loaded
+    # machine that descheduled the test for 10 ms (2 simulated s, the mocap's 480-frame buffer) between the
+    # blackout and the read dropped the blacked-out frames before they could be checked.
     cell = load_cell()
-    arm = make_arm(r1, scale=200.0)
+    arm = SimRobotDriver("R1", r1.robot, planted_truth(r1.model(), seed=3), clock=SimClock(200.0, stepped=True))
     r2 = cell.robot("R2")
     arm2 = SimRobotDriver("R2", r2.robot, TwinTruth(Twin(r2.model())), clock=arm.clock)
     mocap = SimMocapSource({1: arm, 2: arm2}, SimMocapConfig(noise_pos_mm=0.0, noise_rot_deg=0.0),
