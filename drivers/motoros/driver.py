@@ -45,6 +45,10 @@ CUBIC_PEAK_RATIO = 1.5  # peak / mean speed of a cubic Hermite segment with zero
 MAX_TRAJECTORY_TIME_S = 14400.0  # MotionServer.h MAX_TRAJECTORY_TIME_LENGTH: later points are INVALID (3016)
 MODE_TEACH = 1  # RobotStatus.mode: 1 manual (TEACH), 2 auto (PLAY)
 _BUSY_RETRY_S = 0.01
+# [s] an alarm status this long after START_TRAJ_MODE's reply is live even if no clear status came between:
+# many of the state server's periods (StateServer.c: one status per loop, then Ros_Sleep(STATE_UPDATE_MIN_PERIOD)),
+# so not a stale packet still in flight
+_STALE_STATUS_S = 0.5
 _POINT_FIELDS = ValidFields.TIME | ValidFields.POSITION | ValidFields.VELOCITY  # the minimum MotoROS accepts
 
 
@@ -95,6 +99,7 @@ class MotorosDriver(RobotDriver):
         self._sequence = 0
         self._target: np.ndarray | None = None
         self._fresh_after = 0.0  # [s, monotonic] statuses older than this predate the last START_TRAJ_MODE
+        self._clear_seen = True  # a status without alarm or e-stop arrived since the last START_TRAJ_MODE
 
     def connect(self) -> None:
         """Connect the shared link and wait for this group's first feedback.
@@ -201,6 +206,7 @@ class MotorosDriver(RobotDriver):
             self._refuse_unfixable(ready.subcode)
         self._command(Command.START_TRAJ_MODE, timeout_s=self.start_traj_timeout_s)
         self._fresh_after = time.monotonic()  # an alarm it reset may still be in the last status
+        self._clear_seen = False
         ready = self._command(Command.CHECK_MOTION_READY, check=False)
         if ready.result != Result.TRUE:
             raise ControllerNotReady(self.device, "CHECK_MOTION_READY is FALSE", ready.subcode)
@@ -285,7 +291,9 @@ class MotorosDriver(RobotDriver):
                 continue
             msg, stamp = self.link.status()
             st = to_robot_status(msg)
-            if (st.alarm or st.e_stopped) and stamp >= self._fresh_after:
+            if not (st.alarm or st.e_stopped):
+                self._clear_seen = self._clear_seen or stamp >= self._fresh_after
+            elif self._live_fault(stamp):
                 raise RobotFault(self.device, f"fault while moving (alarm={st.alarm}, "
                                               f"e_stopped={st.e_stopped}, code {st.error_code})")
             moved = previous is None or np.max(np.abs(state.q - previous.q)) > tolerance_rad
@@ -296,6 +304,18 @@ class MotorosDriver(RobotDriver):
             previous = state
             self.link.wait_state(min(0.05, max(deadline - time.monotonic(), 0.0)))
         raise DriverTimeout(self.device, f"{self.name} to settle within {tolerance_rad:g} rad", timeout_s)
+
+    def _live_fault(self, stamp: float) -> bool:
+        """Whether an alarm or e-stop status that arrived at ``stamp`` [s, monotonic] is live.
+
+        The state connection is not the motion connection: a status the controller sent just before
+        START_TRAJ_MODE reset its alarm can arrive after the reply. Such a status is stale. After a
+        START_TRAJ_MODE an alarm counts once a clear status has been seen since, or once it has lasted
+        ``_STALE_STATUS_S`` (the reset did not take).
+        """
+        if stamp < self._fresh_after:
+            return False
+        return self._clear_seen or stamp - self._fresh_after >= _STALE_STATUS_S
 
     def stop(self) -> None:
         """Stop motion now (MotoROS stops every group on the controller) and forget the target."""

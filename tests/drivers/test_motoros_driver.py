@@ -12,8 +12,8 @@ import pytest
 
 from drivers.errors import DriverDisconnected, DriverError, DriverTimeout, RobotFault
 from drivers.motoros import FakeMotorosController, MotorosDriver, MotorosLink
-from drivers.motoros.codec import (Command, JointTrajPtFull, JointTrajPtFullEx, MotionCtrl, MotionReply, Result,
-                                   decode)
+from drivers.motoros.codec import (Command, JointFeedback, JointTrajPtFull, JointTrajPtFullEx, MotionCtrl, MotionReply,
+                                   Result, RobotStatusMsg, decode)
 from drivers.motoros.framing import Framer
 from drivers.motoros.errors import ControllerNotReady, InvalidArgument, NonFiniteFeedback
 
@@ -543,3 +543,53 @@ def test_a_peer_that_only_sends_garbage_is_retried_ever_more_slowly() -> None:
     server.close()
     # doubling from 0.05 s to the 1 s cap: 0, 0.05, 0.15, 0.35, 0.75, 1.55 -> at most 6 tries in 2 s (20 Hz: 40)
     assert 3 <= len(accepted) <= 7, len(accepted)
+
+
+class _ScriptedLink:
+    """The three link calls wait_settled makes, answering from a script of (status, stamp offset) pairs."""
+
+    motion_device = "stub"
+
+    def __init__(self, q: np.ndarray, statuses: list[tuple[RobotStatusMsg, float]], t0: float) -> None:
+        self.q, self.statuses, self.t0, self.i = q, statuses, t0, 0
+
+    def feedback(self, group: int):
+        self.i = min(self.i + 1, len(self.statuses) - 1)
+        return JointFeedback(group, np.r_[self.q, np.zeros(4)]), self.t0 + self.statuses[self.i][1]
+
+    def status(self):
+        msg, dt = self.statuses[self.i]
+        return msg, self.t0 + dt
+
+    def wait_state(self, timeout_s: float) -> None:
+        pass
+
+
+_ALARM = RobotStatusMsg(drives_powered=1, e_stopped=0, error_code=4107, in_error=1, in_motion=0, mode=2,
+                        motion_possible=0)
+_CLEAR = RobotStatusMsg(drives_powered=1, e_stopped=0, error_code=0, in_error=0, in_motion=0, mode=2,
+                        motion_possible=1)
+
+
+def _after_reset(statuses: list[tuple[RobotStatusMsg, float]]) -> MotorosDriver:
+    t0 = time.monotonic()
+    driver = MotorosDriver(_ScriptedLink(Q0[0], statuses, t0), 0, SPEED, reset_alarms=True)
+    driver._fresh_after, driver._clear_seen = t0, False  # as START_TRAJ_MODE's reply leaves them
+    return driver
+
+
+def test_a_stale_alarm_status_arriving_after_the_reset_is_not_a_fault() -> None:
+    """A status sent before START_TRAJ_MODE reset the alarm may arrive after its reply (two connections)."""
+    driver = _after_reset([(_ALARM, 0.0), (_ALARM, 0.01), (_CLEAR, 0.05), (_CLEAR, 0.09), (_CLEAR, 0.13),
+                           (_CLEAR, 0.17), (_CLEAR, 0.21)])
+    np.testing.assert_allclose(driver.wait_settled(1.0).q, Q0[0])
+
+
+def test_an_alarm_after_a_clear_status_or_one_that_lasts_is_a_fault() -> None:
+    driver = _after_reset([(_CLEAR, 0.0), (_CLEAR, 0.04), (_ALARM, 0.08)] + [(_ALARM, 0.1)] * 5)
+    with pytest.raises(RobotFault, match="alarm=True"):
+        driver.wait_settled(1.0)
+    driver = _after_reset([(_ALARM, 0.01 + 0.1 * k) for k in range(10)])  # the reset did not take:
+    driver._target = Q0[0] + 0.1  # the arm does not move
+    with pytest.raises(RobotFault, match="code 4107"):
+        driver.wait_settled(1.0)
