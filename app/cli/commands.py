@@ -200,9 +200,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if checked is not None:
         cmp.analysis["frames"]["test"] = {"model": checked, **_test_frame_check(
             cmp.models[checked], test, f"test recording, against the {checked} fit of the training recording,")}
-    warning = cmp.analysis["observability"]["warning"]
-    if warning:
-        print(f"warning: {warning}", file=sys.stderr)
+    for warning in (cmp.analysis["observability"]["warning"], cmp.analysis.get("measurement_shift", {}).get("warning")):
+        if warning:
+            print(f"warning: {warning}", file=sys.stderr)
     print(comparison_table(cmp, with_paper=args.robot == "R1"))
     print(recommendation_line(cmp))
     write_json(args.json, cmp.to_json())

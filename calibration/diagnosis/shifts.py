@@ -48,6 +48,21 @@ class OneSidedShift:
     def found(self) -> bool:
         return bool(self.shifted.any())
 
+    def message(self, subject: str = "training recording") -> str:
+        """One sentence for a warning; empty when nothing was found."""
+        if not self.found:
+            return ""
+        d = ", ".join(f"{v:+.2f}" for v in self.direction)
+        return (f"the {subject} has {int(self.shifted.sum())} of {self.shifted.size} poses whose measured position "
+                f"jumps by {self.mean_shift_mm:.2f} mm along one direction ({d}, base frame) while the others do "
+                "not: a measurement artefact no kinematic model can follow; the largest errors on recordings of "
+                "this session include such jumps")
+
+    def to_json(self) -> dict:
+        return {"found": self.found, "shifted_poses": int(self.shifted.sum()), "poses": int(self.shifted.size),
+                "direction": [float(v) for v in self.direction], "one_sided_share": self.one_sided_share,
+                "mean_shift_mm": self.mean_shift_mm, "warning": self.message()}
+
 
 def one_sided_shift(residual_mm: np.ndarray, share: float = ONE_SIDED_SHARE) -> OneSidedShift:
     """Look for a one-sided shift in a position residual (measured minus model) ``residual_mm`` (N, 3) [mm].
