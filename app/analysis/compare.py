@@ -150,6 +150,11 @@ def _analysis(fitter: Fitter, test: Recording, cmp: Comparison) -> dict[str, Any
         fourier_test = cmp.test_errors["fbf13"].position_mm
         analysis["paired_tests_vs_fbf13"] = {
             m: paired_tests(e.position_mm, fourier_test) for m, e in cmp.test_errors.items() if m != "fbf13"}
+    if "pi" in cmp.models:  # measurement jumps in the training recording, against its most accurate smooth fit
+        from calibration.diagnosis.shifts import one_sided_shift
+
+        _, p = cmp.models["pi"].fk(fitter.train.q)
+        analysis["measurement_shift"] = one_sided_shift(fitter.train.p - p).to_json()
     obs = fitter.observability()
     analysis["observability"] = {"condition_number": obs.condition_number, "rank": obs.rank,
                                  "parameters": len(obs.singular_values),

@@ -207,9 +207,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if checked is not None:
         cmp.analysis["frames"]["test"] = {"model": checked, **_test_frame_check(
             cmp.models[checked], test, f"test recording, against the {checked} fit of the training recording,")}
-    warning = cmp.analysis["observability"]["warning"]
+    analysis = cmp.analysis
+    warnings = [analysis["observability"]["warning"], analysis.get("measurement_shift", {}).get("warning")]
     # then each method's own check (nls0's other clusters, a CDC fit's held-out and range checks), once each
-    for text in dict.fromkeys([warning] + [m.info.get("warning") or "" for m in cmp.models.values()]):
+    for text in dict.fromkeys(warnings + [m.info.get("warning") or "" for m in cmp.models.values()]):
         if text:
             print(f"warning: {text}", file=sys.stderr)
     print(comparison_table(cmp, with_paper=args.robot == "R1"))
