@@ -25,7 +25,7 @@ Cases of issue 13, on both robots (R1: MA2010 with the weld-gun marker, R2: MA14
 Usage::
 
     PYTHONPATH=. python scripts/prove_discovery.py [--quick] [--json FILE] [--out DIR] [--seed-offset N]
-        [--only all|kinds|issue13] [--no-power] [--no-table] [--power-seeds N]
+        [--only all|kinds|issue13] [--cases wrist,...] [--no-power] [--no-table] [--power-seeds N]
 """
 
 from __future__ import annotations
@@ -206,10 +206,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--only", choices=("all", "kinds", "issue13"), default="all",
                     help="run only the per-kind cases (the original table) or only the issue-13 cases")
     ap.add_argument("--no-power", action="store_true", help="skip the detection-power ladders")
+    ap.add_argument("--cases", help="comma-separated issue-13 cases to run (default all): " + ",".join(ISSUE13))
     ap.add_argument("--no-table", action="store_true", help="skip the planted-vs-found table (the power ladders only)")
     ap.add_argument("--power-seeds", type=int, help="seeds per magnitude of the power ladders (default 5 with "
                     "--quick, else 10)")
     args = ap.parse_args(argv)
+    chosen = args.cases.split(",") if args.cases else list(ISSUE13)
+    if set(chosen) - set(ISSUE13):
+        ap.error(f"unknown case {sorted(set(chosen) - set(ISSUE13))[0]!r}; valid: {', '.join(ISSUE13)}")
     arms = {}
     for name in ROBOTS:
         cr = load_cell().robot(name)
@@ -233,7 +237,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.only != "issue13" and not args.no_table:
         run_kinds(cases, mags, seeds, nominal, gravity, out, design, results)
     if args.only != "kinds" and not args.no_table:
-        for name, (kinds, build, mag, _, _) in ISSUE13.items():
+        for name, (kinds, build, mag, _, _) in ((k, v) for k, v in ISSUE13.items() if k in chosen):
             for robot in ROBOTS:
                 for seed in seeds:
                     r = run_case(name, kinds, wrist_deg if mag is None else mag, seed, *arms[robot], out, design,
@@ -249,7 +253,7 @@ def main(argv: list[str] | None = None) -> int:
     ok = sum(r["ok"] for r in results["cases"])
     print(f"\n{ok} of {len(results['cases'])} cases right (kind, joints, no false positives, at the floor).\n")
     if not args.no_power:
-        power(args, arms, power_seeds, ladder, out, design, results)
+        power(args, arms, power_seeds, ladder, out, design, results, chosen)
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1, default=float), encoding="utf-8")
     return 0 if ok == len(results["cases"]) else 1  # no table (--no-table): 0 of 0, exit 0
@@ -265,7 +269,7 @@ def run_kinds(cases, mags, seeds, nominal, gravity, out, design, results) -> Non
                 print_row(r)
 
 
-def power(args, arms, power_seeds, ladder, out, design, results) -> None:
+def power(args, arms, power_seeds, ladder, out, design, results, chosen=tuple(ISSUE13)) -> None:
     """Detection power: per kind (R1) and per issue-13 case and robot, the smallest magnitude found in >= 90 %."""
     nominal, gravity = arms["R1"]
     print(f"Detection power ({len(power_seeds)} seeds per magnitude; found = the planted kind, no other kind):")
@@ -283,7 +287,7 @@ def power(args, arms, power_seeds, ladder, out, design, results) -> None:
         ladder_txt = ", ".join(f"{m:g} mm: {100 * r:.0f}%" for m, r in rates.items())
         print(f"  {kind}: smallest magnitude found in >= 90% of seeds: "
               f"{'> %g' % ladder[-1] if smallest is None else '%g' % smallest} mm RMS  ({ladder_txt})", flush=True)
-    for name, (kinds, build, _, unit, steps) in (ISSUE13.items() if args.only != "kinds" else ()):
+    for name, (kinds, build, _, unit, steps) in ((k, v) for k, v in ISSUE13.items() if k in chosen and args.only != "kinds"):
         for robot in ROBOTS:
             rates, smallest = {}, None
             for mag in steps:
