@@ -9,6 +9,8 @@ Detection power: for each kind, the smallest magnitude (RMS tool displacement on
 planted kind is found, with no other kind, in >= 90 % of seeds. A table row is "ok" when, in addition, the
 joints/links found include every planted one whose own contribution is >= 0.02 mm and no others, and the
 held-out RMS after the refit is at most 1.3 times the noise floor in both channels (position and orientation).
+A required joint that was missed is printed with its *visible* contribution: what it adds on the held-out poses
+beyond what the geometric parameters and the effect's other joints absorb (the part a diagnosis can see).
 
 Cases of issue 13, on both robots (R1: MA2010 with the weld-gun marker, R2: MA1440 with the scanner marker):
 
@@ -23,6 +25,7 @@ Cases of issue 13, on both robots (R1: MA2010 with the weld-gun marker, R2: MA14
 Usage::
 
     PYTHONPATH=. python scripts/prove_discovery.py [--quick] [--json FILE] [--out DIR] [--seed-offset N]
+        [--only all|kinds|issue13] [--cases wrist,...] [--no-power] [--no-table] [--power-seeds N]
 """
 
 from __future__ import annotations
@@ -96,6 +99,30 @@ def required(twin: Twin, effect, q: np.ndarray, ctx: dict) -> tuple:
     return tuple(out) if where(effect) else ()
 
 
+def visible(twin: Twin, effect, q: np.ndarray, ctx: dict) -> dict:
+    """Per planted joint/link: the RMS position change [mm] on the held-out poses it causes beyond what the
+    geometric parameters and the effect's other joints/links absorb (a least-squares projection on their
+    first-order columns): the part any diagnosis can see. A diagnostic column; "ok" does not read it."""
+    from calibration.diagnosis.inuse import InUse
+
+    inuse = InUse.from_model(None, twin.geometry)
+    G = inuse.jacobian_geometry(q, inuse.theta)[:, :3].reshape(-1, inuse.n_geometric)
+    _, p0 = twin.geometry.fk(q)
+    ws = where(effect)
+    per = max(1, effect.size // max(len(ws), 1))
+    parts = []
+    for i in range(len(ws)):
+        v = np.zeros(effect.size)
+        v[i * per:(i + 1) * per] = effect.values[i * per:(i + 1) * per]
+        parts.append((apply_effects(twin.geometry, [effect.with_values(v)], q, ctx)[1] - p0).ravel())
+    out = {}
+    for i, w in enumerate(ws):
+        X = np.concatenate([G] + [parts[k][:, None] for k in range(len(ws)) if k != i], axis=1)
+        r = parts[i] - X @ np.linalg.lstsq(X, parts[i], rcond=None)[0]
+        out[str(w)] = float(np.sqrt(np.mean(np.sum(r.reshape(-1, 3) ** 2, axis=1))))
+    return out
+
+
 def fmt_params(params: dict, unc: dict | None = None) -> str:
     items = []
     for k, v in params.items():
@@ -134,6 +161,7 @@ def run_case(case: str, kinds: tuple, mag: float, seed: int, nominal, gravity, o
         ok = f is not None and set(req) <= set(got) and set(got) <= set(where(e))
         ok_all &= ok
         rows.append({"kind": e.kind, "planted_on": list(where(e)), "required_on": list(req),
+                     "visible_mm": visible(truth, e, ho.q, ctx),
                      "planted": e.parameters(), "found_on": list(got), "found": f["parameters"] if f else None,
                      "uncertainty": f["uncertainty"] if f else None, "ok": bool(ok)})
     extra = [k for k in found if k not in {e.kind for e in truth.effects}]
@@ -156,6 +184,10 @@ def print_row(r: dict) -> None:
                       for x in r["rows"] if x["found"]) or "nothing"
     if r["false_positives"]:
         found += " + FALSE: " + ",".join(r["false_positives"])
+    missed = [f"{x['kind']}@{w} visible {x['visible_mm'][str(w)]:.4f} mm" for x in r["rows"]
+              for w in x["required_on"] if w not in x["found_on"] and str(w) in x.get("visible_mm", {})]
+    if missed:
+        found += " (missed: " + "; ".join(missed) + ")"
     print(f"| {r['case']} | {r.get('robot', 'R1')} | {r['seed']} | {r['magnitude_mm']:g} | {planted} | {found} | "
           f"{'yes' if r['ok'] else 'NO'} | {r['heldout_rms_mm_before']:.3f} -> {r['heldout_rms_mm_after']:.3f} | "
           f"{r['heldout_rms_deg_before']:.4f} -> {r['heldout_rms_deg_after']:.4f} | "
@@ -174,7 +206,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--only", choices=("all", "kinds", "issue13"), default="all",
                     help="run only the per-kind cases (the original table) or only the issue-13 cases")
     ap.add_argument("--no-power", action="store_true", help="skip the detection-power ladders")
+    ap.add_argument("--cases", help="comma-separated issue-13 cases to run (default all): " + ",".join(ISSUE13))
+    ap.add_argument("--no-table", action="store_true", help="skip the planted-vs-found table (the power ladders only)")
+    ap.add_argument("--power-seeds", type=int, help="seeds per magnitude of the power ladders (default 5 with "
+                    "--quick, else 10)")
     args = ap.parse_args(argv)
+    chosen = args.cases.split(",") if args.cases else list(ISSUE13)
+    if set(chosen) - set(ISSUE13):
+        ap.error(f"unknown case {sorted(set(chosen) - set(ISSUE13))[0]!r}; valid: {', '.join(ISSUE13)}")
     arms = {}
     for name in ROBOTS:
         cr = load_cell().robot(name)
@@ -184,7 +223,7 @@ def main(argv: list[str] | None = None) -> int:
     design = Design()
     seeds = tuple(args.seed_offset + s for s in ((0, 1) if args.quick else (0, 1, 2, 3, 4)))
     mags = (0.3,) if args.quick else (0.1, 0.3)
-    power_seeds = tuple(range(5)) if args.quick else tuple(range(10))
+    power_seeds = tuple(range(args.power_seeds or (5 if args.quick else 10)))
     ladder = (0.01, 0.02, 0.04, 0.08, 0.16, 0.32)
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="prove_discovery_"))
     results: dict = {"design": design.__dict__, "cases": [], "power": {}}
@@ -195,10 +234,10 @@ def main(argv: list[str] | None = None) -> int:
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     cases = [("null", ())] + [(k, (k,)) for k in KINDS] + [("+".join(p), p) for p in PAIRS]
     wrist_deg = 2 * np.sqrt(3) * design.noise_deg  # twice the orientation noise floor
-    if args.only != "issue13":
+    if args.only != "issue13" and not args.no_table:
         run_kinds(cases, mags, seeds, nominal, gravity, out, design, results)
-    if args.only != "kinds":
-        for name, (kinds, build, mag, _, _) in ISSUE13.items():
+    if args.only != "kinds" and not args.no_table:
+        for name, (kinds, build, mag, _, _) in ((k, v) for k, v in ISSUE13.items() if k in chosen):
             for robot in ROBOTS:
                 for seed in seeds:
                     r = run_case(name, kinds, wrist_deg if mag is None else mag, seed, *arms[robot], out, design,
@@ -214,10 +253,10 @@ def main(argv: list[str] | None = None) -> int:
     ok = sum(r["ok"] for r in results["cases"])
     print(f"\n{ok} of {len(results['cases'])} cases right (kind, joints, no false positives, at the floor).\n")
     if not args.no_power:
-        power(args, arms, power_seeds, ladder, out, design, results)
+        power(args, arms, power_seeds, ladder, out, design, results, chosen)
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1, default=float), encoding="utf-8")
-    return 0 if ok == len(results["cases"]) else 1
+    return 0 if ok == len(results["cases"]) else 1  # no table (--no-table): 0 of 0, exit 0
 
 
 def run_kinds(cases, mags, seeds, nominal, gravity, out, design, results) -> None:
@@ -230,7 +269,7 @@ def run_kinds(cases, mags, seeds, nominal, gravity, out, design, results) -> Non
                 print_row(r)
 
 
-def power(args, arms, power_seeds, ladder, out, design, results) -> None:
+def power(args, arms, power_seeds, ladder, out, design, results, chosen=tuple(ISSUE13)) -> None:
     """Detection power: per kind (R1) and per issue-13 case and robot, the smallest magnitude found in >= 90 %."""
     nominal, gravity = arms["R1"]
     print(f"Detection power ({len(power_seeds)} seeds per magnitude; found = the planted kind, no other kind):")
@@ -248,7 +287,7 @@ def power(args, arms, power_seeds, ladder, out, design, results) -> None:
         ladder_txt = ", ".join(f"{m:g} mm: {100 * r:.0f}%" for m, r in rates.items())
         print(f"  {kind}: smallest magnitude found in >= 90% of seeds: "
               f"{'> %g' % ladder[-1] if smallest is None else '%g' % smallest} mm RMS  ({ladder_txt})", flush=True)
-    for name, (kinds, build, _, unit, steps) in (ISSUE13.items() if args.only != "kinds" else ()):
+    for name, (kinds, build, _, unit, steps) in ((k, v) for k, v in ISSUE13.items() if k in chosen and args.only != "kinds"):
         for robot in ROBOTS:
             rates, smallest = {}, None
             for mag in steps:

@@ -97,3 +97,19 @@ def test_unknown_weighting_is_refused():
     _, fit, ho = make_wrist_case(nominal, gravity, 1e-9, 0, DESIGN, n_heldout=20)
     with pytest.raises(ModelError, match="valid: noise, fixed"):
         diagnose("R1", nominal, fit, ho, options=DiagnoseOptions(weighting="equal"))
+
+
+def test_the_fixed_weight_stays_when_the_noise_weight_costs_held_out_position(monkeypatch):
+    """The noise weight is kept only while the model in use's held-out position RMS at it is within
+    ``WEIGHT_CHECK`` of that at the fixed weight; past it the diagnosis says so and weighs by the fixed a."""
+    from calibration.diagnosis import core
+
+    cr, nominal, gravity = arm("R1")
+    _, fit, ho = make_wrist_case(nominal, gravity, 1e-9, 0, Design(n_q2=4, n_q3=3), n_heldout=60)
+    monkeypatch.setattr(core, "WEIGHT_CHECK", 0.5)  # any ratio above half: the fallback must act
+    res = diagnose("R1", nominal, fit, ho, gravity=gravity)
+    assert res.weighting == "fixed" and res.orientation_weight_a == DEFAULT_ORIENTATION_WEIGHT
+    assert any("weighed by the fixed a" in n for n in res.notes)
+    assert res.to_json()["orientation_weight"] == {"a": DEFAULT_ORIENTATION_WEIGHT, "source": "fixed"}
+    monkeypatch.setattr(core, "WEIGHT_CHECK", 1e9)
+    assert diagnose("R1", nominal, fit, ho, gravity=gravity).weighting == "noise"
