@@ -202,13 +202,19 @@ class HeldOutCheck:
         ref = position_errors(kin, self._theta_ref, rec) if self._reference_mm is None else self._reference_mm
         if n < self._n_total:  # only some clusters held out: both figures over their poses
             rows = np.concatenate(self._idx[:n])
-            err, ref, groups = err[rows], ref[rows], np.unique(self._groups[rows], return_inverse=True)[1]
-        else:
-            groups = self._groups
-        per_cluster = np.bincount(groups, err ** 2) / np.maximum(np.bincount(groups), 1)
-        rms = float(np.sqrt(np.mean(err ** 2)))
-        se = float(per_cluster.std(ddof=1) / np.sqrt(len(per_cluster)) / (2.0 * max(rms, 1e-12)))
-        return HeldOut(rms, float(np.sqrt(np.mean(ref ** 2))), float(err.max()), float(ref.max()), se)
+            return held_out_figures(err[rows], ref[rows], self._groups[rows])
+        return held_out_figures(err, ref, self._groups)
+
+
+def held_out_figures(err_mm: np.ndarray, reference_mm: np.ndarray, groups: np.ndarray) -> HeldOut:
+    """:class:`HeldOut` of held-out position errors (N,) [mm] of a fit and of its reference on the same poses, whose
+    cluster labels are ``groups`` (N,) (any integers; the standard error is over these clusters)."""
+    err, ref = np.asarray(err_mm, dtype=float), np.asarray(reference_mm, dtype=float)
+    groups = np.unique(groups, return_inverse=True)[1]
+    per_cluster = np.bincount(groups, err ** 2) / np.maximum(np.bincount(groups), 1)
+    rms = float(np.sqrt(np.mean(err ** 2)))
+    se = float(per_cluster.std(ddof=1) / np.sqrt(len(per_cluster)) / (2.0 * max(rms, 1e-12)))
+    return HeldOut(rms, float(np.sqrt(np.mean(ref ** 2))), float(err.max()), float(ref.max()), se)
 
 
 def held_out(make: Callable[[], Interpolator], kin: ExtendedKinematics, theta_ref: np.ndarray,

@@ -38,7 +38,7 @@ def day_row(robot, day: str) -> dict:
     train = read_recording(DATA / "PH_grad_data" / day, robot.robot.lower_rad, robot.robot.upper_rad)
     fitter = fitter_for(robot, train)
     t0 = time.perf_counter()
-    fitter.prefetch(METHODS_RUN)
+    fitter.prefetch(METHODS_RUN, held_out=True)
     order = [m for m in METHODS_RUN if m not in NEURAL_METHODS] + [m for m in METHODS_RUN if m in NEURAL_METHODS]
     models = {m: fitter.fit(m)[0] for m in order}
     rec = recommend_fitted(fitter, models)

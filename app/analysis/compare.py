@@ -79,7 +79,7 @@ def run_comparison(fitter: Fitter, test: Recording, methods: list[str] | tuple[s
             raise ModelError(f"model {name} is for robot {model.robot!r}, not {fitter.robot!r}")
     # The neural fits train in worker processes while the other methods are fitted here, and are collected last;
     # the rows keep the order asked for.
-    fitter.prefetch(methods)
+    fitter.prefetch(methods, held_out=True)  # the recommendation's network refits too
     order = [m for m in methods if m not in NEURAL_METHODS] + [m for m in methods if m in NEURAL_METHODS]
     bar = tqdm(order, desc=f"{fitter.robot} fit", unit="method", disable=not progress)
     for method in bar:
