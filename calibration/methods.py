@@ -60,6 +60,8 @@ PHYSICS_METHODS = ("pi", "diagnosed")
 NLS0_HELDOUT_MAX_RATIO = 1.5
 #: CDC methods whose fit is a network training (seconds): their held-out folds train in parallel worker processes.
 NEURAL_METHODS = ("nn", "ae", "pi+nn", "pi+ae")
+#: The constant fit each CDC reference is (what a CDC method's held-out figures are set against).
+REFERENCE_FITS = {"geometric": "nls1", "pi": "pi"}
 METHODS = CONSTANT_METHODS + PAPER_CDC_METHODS + PHYSICS_METHODS + PI_CDC_METHODS
 
 
@@ -466,64 +468,85 @@ class Fitter:
         options = self._cdc_options(method)
         if self.warm is not None:  # a fold refit is not checked: the fit on every cluster was
             return self._build_cdc(method, options)
-        jobs = self._cache.get("prefetched", {}).pop(method, None)
-        if jobs is not None:  # final network and held-out folds trained in worker processes (see prefetch)
-            (model, final_s), folds = jobs[0].result(), [f.result() for f in jobs[1]]
-            self._cache.setdefault("worker_seconds", {})[method] = final_s + sum(s for _, s in folds)
-            h = self._held_out_check(method, options, neural=True, workers=1).figures([x for x, _ in folds])
-            if not self._cache["prefetched"]:
-                self._cache.pop("prefetch_pool").shutdown()
-        else:
-            # The neural kinds' held-out check is network trainings: started in worker processes first, it runs
-            # while the final network trains here (same figures as in-process), on the first 2 of the 5 folds.
-            neural = method in NEURAL_METHODS
-            check = self._held_out_check(method, options, neural, robust.default_workers(2) if neural else 1)
-            try:
-                model = self._build_cdc(method, options)
-            except BaseException:
-                check.cancel()
-                raise
+        if method not in NEURAL_METHODS:
+            check = self._held_out_check(method, options)
+            model = self._build_cdc(method, options)
             h = check.result()
+        else:
+            final = self._cache.get("prefetched", {}).pop(method, None)
+            if final is not None:  # final network (and the check's fold refits) trained in worker processes
+                model, final_s = self._collect(final)
+            else:
+                # The check's fold refits are network trainings: started in worker processes first, they run
+                # while the final network trains here (the same bits as in-process)
+                self._submit_folds([(method, f) for f in range(robust.NEURAL_EVALUATED_FOLDS)])
+                try:
+                    start = time.perf_counter()
+                    model = self._build_cdc(method, options)
+                    final_s = time.perf_counter() - start
+                    for f in range(robust.NEURAL_EVALUATED_FOLDS):
+                        self._fold_error(method, f)  # collected here, so a worker failure shuts the pool
+                except BaseException:
+                    self._shutdown_jobs()
+                    raise
+            for f in range(robust.NEURAL_EVALUATED_FOLDS):
+                self._fold_error(method, f)
+            self._cache.setdefault("worker_seconds", {})[method] = final_s + sum(
+                self._cache["fold_seconds"][method, f] for f in range(robust.NEURAL_EVALUATED_FOLDS))
+            h = self._neural_check(method)
         model.info.update(self._cdc_checks(method, model, h))
         return model
 
-    def _held_out_check(self, method: str, options: dict[str, Any], neural: bool, workers: int
-                        ) -> robust.HeldOutCheck:
+    def _held_out_check(self, method: str, options: dict[str, Any]) -> robust.HeldOutCheck:
         from calibration.interpolation import make_interpolator
 
         reference, kind = cdc_method(method)
         (kin, theta), local = self.reference(reference), self.local_fits(reference)
         groups, _ = cluster_anchors(self.train, self.options.cluster_size)
         return robust.HeldOutCheck(lambda: make_interpolator(kind, **options), kin, theta,
-                                   local.anchors, local.x, groups, self.train, CDC_INPUTS, seed=self.options.seed,
-                                   workers=workers, n_evaluated=robust.NEURAL_EVALUATED_FOLDS if neural else None)
+                                   local.anchors, local.x, groups, self.train, CDC_INPUTS, seed=self.options.seed)
 
-    def prefetch(self, methods: list[str] | tuple[str, ...]) -> None:
-        """Start the neural CDC fits among ``methods`` (each final network and its held-out folds) in forked
-        worker processes, so that the methods fitted here in the meantime overlap them; :meth:`fit` collects
-        them (the same bits as fitted here: every training is deterministic on one BLAS thread).
+    def _neural_check(self, method: str) -> robust.HeldOut:
+        """The neural kinds' held-out check: the method and its constant reference (``nls1`` / ``pi``) refitted
+        without each of the first :data:`robust.NEURAL_EVALUATED_FOLDS` folds (the recommendation's own fold refits,
+        :meth:`held_out_errors`), on those folds' poses."""
+        reference = REFERENCE_FITS[cdc_method(method)[0]]
+        groups, _ = cluster_anchors(self.train, self.options.cluster_size)
+        folds = self._fold_fitters()[: robust.NEURAL_EVALUATED_FOLDS]
+        rows = np.concatenate([np.flatnonzero(held) for held, _ in folds])
+        return robust.HeldOut.of_errors(
+            np.concatenate([self._fold_error(method, f) for f in range(len(folds))]),
+            np.concatenate([self._fold_error(reference, f) for f in range(len(folds))]), groups[rows])
+
+    def prefetch(self, methods: list[str] | tuple[str, ...], held_out: bool = False) -> None:
+        """Start the network trainings of the neural CDC fits among ``methods`` (each final network, and the fold
+        refits of its check) in forked worker processes, so that the methods fitted here in the meantime overlap
+        them; :meth:`fit` collects them (the same bits as fitted here: every training is deterministic on one BLAS
+        thread). With ``held_out`` the fold refits of :meth:`held_out_errors` too, for the methods whose held-out
+        errors a recommendation reads (those on the reference :func:`calibration.selection.off_reference` keeps).
 
         A no-op without the ``fork`` start method or with one usable core. The shared fits run here first.
         """
-        global _PREFETCH
-        prefetched = self._cache.get("prefetched", {})
-        neural = [m for m in ("ae", "pi+ae", "nn", "pi+nn") if m in methods and m not in prefetched]
-        workers = robust.default_workers()
-        if not neural or workers < 2 or "fork" not in mp.get_all_start_methods():
+        prefetched = self._cache.setdefault("prefetched", {})
+        neural = [m for m in ("ae", "pi+ae", "nn", "pi+nn") if m in methods and m not in prefetched
+                  and m not in self._cache.get("fitted", ())]
+        if not neural or robust.default_workers() < 2 or "fork" not in mp.get_all_start_methods():
             return
         for m in neural:  # the shared fits of each reference, once, before the workers fork
             self._prepare_shared(m)
         jobs = {m: self._cdc_options(m) for m in neural}
-        _PREFETCH = self  # the workers fork during the submits below
-        try:
-            pool = self._cache["prefetch_pool"] = ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"))
-            prefetched = self._cache.setdefault("prefetched", {})
-            for m, options in jobs.items():  # the longest (ae's final training) first
-                prefetched[m] = (pool.submit(_prefetch_final, m, options),
-                                 [pool.submit(_prefetch_fold, m, options, f)
-                                  for f in range(robust.NEURAL_EVALUATED_FOLDS)])
-        finally:
-            _PREFETCH = None
+        folds = [(m, f) for m in neural for f in range(robust.NEURAL_EVALUATED_FOLDS)]
+        if held_out:
+            from calibration.selection import off_reference
+
+            unread = off_reference({m: (ref, self.held_out_errors(ref)) for m in methods if m in CDC_METHODS
+                                    for ref in [REFERENCE_FITS[cdc_method(m)[0]]]})
+            folds += [(m, f) for m in neural if m not in unread
+                      for f in range(robust.NEURAL_EVALUATED_FOLDS, robust.N_FOLDS)]
+        self._prepare_folds(folds)  # the fold refits' shared fits too, before the fork
+        for m, options in jobs.items():  # the longest (ae's final training) first
+            prefetched[m] = self._submit(_prefetch_final, m, options)
+        self._submit_folds(folds)
 
     def prefetch_held_out_errors(self, methods: list[str] | tuple[str, ...]) -> None:
         """:meth:`held_out_errors` of the neural CDC methods among ``methods``, their fold refits (a network
@@ -533,31 +556,67 @@ class Fitter:
         The fold Fitters' shared fits (reference, local fits) are made here first, so no worker repeats them.
         A no-op without the ``fork`` start method or with one usable core.
         """
-        global _FOLDS
         cache = self._cache.setdefault("held_out_errors", {})
         neural = [m for m in methods if m in NEURAL_METHODS and m not in cache]
-        workers = robust.default_workers(len(neural) * robust.N_FOLDS)
-        if not neural or workers < 2 or "fork" not in mp.get_all_start_methods():
+        if not neural or robust.default_workers() < 2 or "fork" not in mp.get_all_start_methods():
             return
         for m in neural:
             if m not in self._cache.get("fitted", ()):
                 self.fit(m)  # chooses the strengths the fold refits reuse
-        folds = self._fold_fitters()
-        for _, sub in folds:
-            for reference in dict.fromkeys(cdc_method(m)[0] for m in neural):
-                sub.reference(reference)
-                sub.local_fits(reference)
-        _FOLDS = self  # the workers fork during the submits below
         try:
-            with ProcessPoolExecutor(workers, mp_context=mp.get_context("fork")) as pool:
-                jobs = {(m, f): pool.submit(_fold_error_job, m, f) for m in neural for f in range(len(folds))}
-                for m in neural:
-                    err = np.empty(len(self.train))
-                    for f, (held, _) in enumerate(folds):
-                        err[held] = jobs[(m, f)].result()  # a worker that died raises BrokenProcessPool
-                    cache[m] = err
+            self._submit_folds([(m, f) for m in neural for f in range(robust.N_FOLDS)])
+            for m in neural:
+                self._fold_errors(m)  # a worker that died raises BrokenProcessPool
+        except BaseException:
+            self._shutdown_jobs()
+            raise
+
+    def _prepare_folds(self, jobs: list[tuple[str, int]]) -> None:
+        """The shared fits (reference, local fits) of the fold refits ``(CDC method, fold)``, made here."""
+        folds = self._fold_fitters()
+        for reference, f in dict.fromkeys((cdc_method(m)[0], f) for m, f in jobs if m in CDC_METHODS):
+            folds[f][1].reference(reference)
+            folds[f][1].local_fits(reference)
+
+    def _submit(self, job: Callable[..., Any], *args: Any) -> Any:
+        """``job(*args)`` in this Fitter's worker pool (made on first use), a future. The workers fork at the first
+        submit and run every later job with this Fitter as it was then (:data:`_FORKED`)."""
+        global _FORKED
+        if "pool" not in self._cache:
+            self._cache["pool"] = ProcessPoolExecutor(robust.default_workers(), mp_context=mp.get_context("fork"))
+        _FORKED = self  # the workers fork during the submit
+        try:
+            return self._cache["pool"].submit(job, *args)
         finally:
-            _FOLDS = None
+            _FORKED = None
+
+    def _submit_folds(self, jobs: list[tuple[str, int]]) -> None:
+        """Start the fold refits ``(method, fold)`` not yet made or started, in forked workers (in this process
+        when there is one usable core or no ``fork``)."""
+        cached, pending = self._cache.setdefault("fold_errors", {}), self._cache.setdefault("fold_jobs", {})
+        jobs = [j for j in jobs if j not in cached and j not in pending]
+        if not jobs or robust.default_workers() < 2 or "fork" not in mp.get_all_start_methods():
+            return
+        if "pool" not in self._cache:  # workers forked later see them
+            self._prepare_folds(jobs)
+        for m, f in jobs:
+            pending[m, f] = self._submit(_fold_error_job, m, f)
+
+    def _collect(self, future: Any) -> Any:
+        """A worker job's result; the pool is shut once no job is pending."""
+        try:
+            return future.result()  # a worker that died raises BrokenProcessPool
+        finally:
+            if not self._cache.get("prefetched") and not self._cache.get("fold_jobs"):
+                self._shutdown_jobs()
+
+    def _shutdown_jobs(self) -> None:
+        """Drop the jobs not started and wait for the workers to exit."""
+        pool = self._cache.pop("pool", None)
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
+        self._cache.pop("fold_jobs", None)
+        self._cache.pop("prefetched", None)
 
     def held_out_errors(self, method: str) -> np.ndarray | None:
         """Position error [mm] of every training pose as predicted by ``method`` fitted without that pose's
@@ -580,15 +639,24 @@ class Fitter:
 
     def _fold_errors(self, method: str) -> np.ndarray:
         """:meth:`held_out_errors` of a method whose strengths are chosen (cached)."""
-        from calibration.metrics import errors
-
         cache = self._cache.setdefault("held_out_errors", {})
         if method not in cache:
             err = np.empty(len(self.train))
-            for held, sub in self._fold_fitters():
-                err[held] = errors(sub.fit(method)[0], self.train.subset(held)).position_mm
+            for f, (held, _) in enumerate(self._fold_fitters()):
+                err[held] = self._fold_error(method, f)
             cache[method] = err
         return cache[method]
+
+    def _fold_error(self, method: str, fold: int) -> np.ndarray:
+        """Position errors [mm] on fold ``fold``'s poses of ``method`` refitted without them (cached; collected
+        from a worker when one refits it)."""
+        cached = self._cache.setdefault("fold_errors", {})
+        if (method, fold) not in cached:
+            job = self._cache.get("fold_jobs", {}).pop((method, fold), None)
+            err, seconds = self._collect(job) if job is not None else _fold_error_of(self, method, fold)
+            cached[method, fold] = err
+            self._cache.setdefault("fold_seconds", {})[method, fold] = seconds
+        return cached[method, fold]
 
     def _fold_fitters(self) -> list[tuple[np.ndarray, "Fitter"]]:
         """``(held-out mask, Fitter on the other clusters)`` per fold, shared by every method (cached)."""
@@ -681,30 +749,28 @@ class Fitter:
         return info
 
 
-#: The Fitter whose :meth:`Fitter.prefetch` workers are forking (set during the submits, cleared after).
-_PREFETCH: Fitter | None = None
-#: The Fitter whose fold refits :meth:`Fitter.prefetch_held_out_errors`'s forked workers run (set while they fork).
-_FOLDS: Fitter | None = None
+#: The Fitter whose worker pool is forking (set during its submits, cleared after): the workers' jobs run on it.
+_FORKED: Fitter | None = None
 
 
-def _fold_error_job(method: str, fold: int) -> np.ndarray:
-    """Worker job of :meth:`Fitter.prefetch_held_out_errors`: ``method`` refitted without fold ``fold``'s
-    clusters, its position errors [mm] on them."""
+def _fold_error_of(fitter: Fitter, method: str, fold: int) -> tuple[np.ndarray, float]:
+    """``method`` refitted without fold ``fold``'s clusters of ``fitter``: its position errors [mm] on them and the
+    refit's time [s]."""
     from calibration.metrics import errors
 
-    held, sub = _FOLDS._fold_fitters()[fold]  # type: ignore[union-attr]
-    return errors(sub.fit(method)[0], _FOLDS.train.subset(held)).position_mm  # type: ignore[union-attr]
+    start = time.perf_counter()
+    held, sub = fitter._fold_fitters()[fold]
+    err = errors(sub.fit(method)[0], fitter.train.subset(held)).position_mm
+    return err, time.perf_counter() - start
+
+
+def _fold_error_job(method: str, fold: int) -> tuple[np.ndarray, float]:
+    """Worker job of :meth:`Fitter._submit_folds`: :func:`_fold_error_of` on the Fitter that forked it."""
+    return _fold_error_of(_FORKED, method, fold)  # type: ignore[arg-type]
 
 
 def _prefetch_final(method: str, options: dict[str, Any]) -> tuple[CdcModel, float]:
     """Worker job of :meth:`Fitter.prefetch`: the final model and its fit time [s]."""
     start = time.perf_counter()
-    model = _PREFETCH._build_cdc(method, options)  # type: ignore[union-attr]
+    model = _FORKED._build_cdc(method, options)  # type: ignore[union-attr]
     return model, time.perf_counter() - start
-
-
-def _prefetch_fold(method: str, options: dict[str, Any], fold: int) -> tuple[np.ndarray, float]:
-    """Worker job of :meth:`Fitter.prefetch`: one held-out fold's predictions and its time [s]."""
-    start = time.perf_counter()
-    x = _PREFETCH._held_out_check(method, options, neural=True, workers=1).fold_prediction(fold)  # type: ignore
-    return x, time.perf_counter() - start

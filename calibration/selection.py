@@ -66,6 +66,27 @@ def cluster_rms(errors_mm: np.ndarray, groups: np.ndarray) -> np.ndarray:
     return np.sqrt(np.bincount(groups, np.asarray(errors_mm, dtype=float) ** 2) / np.maximum(counts, 1))[counts > 0]
 
 
+def off_reference(cdc_references: dict[str, tuple[str, np.ndarray]] | None) -> dict[str, str]:
+    """The "CDC reference first" step: the CDC methods that are not candidates, with the reason.
+
+    Args:
+        cdc_references: per CDC method, ``(name of its reference's constant fit, that fit's held-out errors)``;
+            with fewer than two references nothing is left out.
+
+    Their own held-out errors play no part in the choice, so a caller need not compute them.
+    """
+    reference_rms = {ref: float(np.sqrt(np.mean(np.asarray(e) ** 2)))
+                     for ref, e in (cdc_references or {}).values()}
+    if len(reference_rms) < 2:
+        return {}
+    chosen = min(reference_rms, key=lambda r: reference_rms[r])
+    return {m: (f"a CDC method around the {ref} fit, which is worse on held-out clusters "
+                f"({reference_rms[ref]:.3f} mm RMS) than {chosen} ({reference_rms[chosen]:.3f} "
+                "mm); held-out clusters cannot judge what a CDC method inherits from its "
+                "reference along the joints they do not move")
+            for m, (ref, _) in (cdc_references or {}).items() if ref != chosen}
+
+
 def recommend(held_out: dict[str, np.ndarray | None], n_parameters: dict[str, int], groups: np.ndarray,
               alpha: float = ALPHA, cdc_references: dict[str, tuple[str, np.ndarray]] | None = None
               ) -> Recommendation:
@@ -73,7 +94,8 @@ def recommend(held_out: dict[str, np.ndarray | None], n_parameters: dict[str, in
 
     Args:
         held_out: per method, the held-out position error of every training pose [mm] (N,), or None when the
-            method has none (it is then not a candidate).
+            method has none (it is then not a candidate; a CDC method that :func:`off_reference` leaves out may
+            have None too: its errors are not read).
         n_parameters: per method, its model's parameter count.
         groups: cluster index (0..K-1) of every training pose, shape (N,).
         alpha: significance level of the paired test.
@@ -85,18 +107,10 @@ def recommend(held_out: dict[str, np.ndarray | None], n_parameters: dict[str, in
     """
     from scipy import stats
 
+    excluded = {m: why for m, why in off_reference(cdc_references).items() if m in held_out}
     not_candidates = {m: "no held-out figure (a fold refit would rerun the whole method)"
-                      for m, e in held_out.items() if e is None}
-    reference_rms = {ref: float(np.sqrt(np.mean(np.asarray(e) ** 2)))
-                     for ref, e in (cdc_references or {}).values()}
-    if len(reference_rms) > 1:
-        chosen = min(reference_rms, key=lambda r: reference_rms[r])
-        for m, (ref, _) in (cdc_references or {}).items():
-            if ref != chosen and held_out.get(m) is not None:
-                not_candidates[m] = (f"a CDC method around the {ref} fit, which is worse on held-out clusters "
-                                     f"({reference_rms[ref]:.3f} mm RMS) than {chosen} ({reference_rms[chosen]:.3f} "
-                                     "mm); held-out clusters cannot judge what a CDC method inherits from its "
-                                     "reference along the joints they do not move")
+                      for m, e in held_out.items() if e is None and m not in excluded}
+    not_candidates.update(excluded)
     scores = {m: cluster_rms(e, groups) for m, e in held_out.items() if e is not None and m not in not_candidates}
     bad = [m for m, s in scores.items() if not np.all(np.isfinite(s))]
     for m in bad:

@@ -14,7 +14,7 @@ from calibration.methods import CDC_METHODS, METHODS, NEURAL_METHODS, Fitter, cd
 from calibration.metrics import Errors, error_stats, errors, joint_correlation, paired_tests, parameter_spread
 from calibration.models import KinematicModel
 from calibration.recording import Recording
-from calibration.selection import Recommendation, recommend
+from calibration.selection import Recommendation, off_reference, recommend
 
 log = logging.getLogger("cellcal.app")
 
@@ -79,7 +79,7 @@ def run_comparison(fitter: Fitter, test: Recording, methods: list[str] | tuple[s
             raise ModelError(f"model {name} is for robot {model.robot!r}, not {fitter.robot!r}")
     # The neural fits train in worker processes while the other methods are fitted here, and are collected last;
     # the rows keep the order asked for.
-    fitter.prefetch(methods)
+    fitter.prefetch(methods, held_out=True)  # the recommendation's network refits too
     order = [m for m in methods if m not in NEURAL_METHODS] + [m for m in methods if m in NEURAL_METHODS]
     bar = tqdm(order, desc=f"{fitter.robot} fit", unit="method", disable=not progress)
     for method in bar:
@@ -118,13 +118,16 @@ def recommendation_line(cmp: Comparison) -> str:
 def recommend_fitted(fitter: Fitter, models: dict[str, KinematicModel]) -> Recommendation:
     """The model to use among methods ``fitter`` fitted (:mod:`calibration.selection`): its training data only,
     no test recording enters."""
-    neural = [m for m in models if m in NEURAL_METHODS]
-    held_out = {m: fitter.held_out_errors(m) for m in models if m not in neural}  # fills the fold fits' caches
-    fitter.prefetch_held_out_errors(neural)  # the costly network refits, on every usable core
-    held_out = {m: held_out[m] if m in held_out else fitter.held_out_errors(m) for m in models}
     constant_fit = {"geometric": "nls1", "pi": "pi"}  # the constant fit each CDC reference is
     references = {m: constant_fit[cdc_method(m)[0]] for m in models if m in CDC_METHODS}
     cdc_references = {m: (ref, fitter.held_out_errors(ref)) for m, ref in references.items()}
+    # the CDC methods on the losing reference are no candidates whatever their own held-out errors: not refitted
+    unread = off_reference(cdc_references)
+    neural = [m for m in models if m in NEURAL_METHODS and m not in unread]
+    held_out = {m: fitter.held_out_errors(m) for m in models if m not in neural and m not in unread}
+    fitter.prefetch_held_out_errors(neural)  # the costly network refits, on every usable core
+    held_out = {m: None if m in unread else held_out[m] if m in held_out else fitter.held_out_errors(m)
+                for m in models}
     groups, _ = cluster_anchors(fitter.train, fitter.options.cluster_size)
     return recommend(held_out, {m: model.n_parameters for m, model in models.items()}, groups,
                      cdc_references=cdc_references)

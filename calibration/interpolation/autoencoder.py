@@ -25,8 +25,9 @@ import numpy as np
 
 from calibration.errors import ModelError
 from calibration.interpolation.base import Interpolator, field, from_options
-from calibration.interpolation.mlp import (EpochCallback, Standardiser, check_training_options, forward,
-                                           forward_casadi, layers_from_dict, layers_to_dict, scale_casadi, train_mlp)
+from calibration.interpolation.mlp import (DEFAULT_PRECISION, EpochCallback, Standardiser, check_precision,
+                                           check_training_options, forward, forward_casadi, layers_from_dict,
+                                           layers_to_dict, scale_casadi, stored_precision, train_mlp)
 from calibration.interpolation.scattered import LinearInterpolator
 
 
@@ -42,15 +43,18 @@ class AutoencoderInterpolator(Interpolator):
         random_state: seed; the same seed and data give the same network.
         progress: called as ``progress(epoch, max_iter)`` after each training epoch; not part of the model
             (not saved), no effect on the result.
+        precision: arithmetic of the training (``calibration.interpolation.mlp.PRECISIONS``); prediction is
+            float64 either way.
     """
 
     kind: ClassVar[str] = "ae"
 
     def __init__(self, latent: int = 6, hidden: Sequence[int] = (200, 200, 200), max_iter: int = 300,
                  learning_rate: float = 1e-3, alpha: float = 1e-4, random_state: int = 0,
-                 progress: EpochCallback | None = None) -> None:
+                 progress: EpochCallback | None = None, precision: str = DEFAULT_PRECISION) -> None:
         super().__init__()
         self.progress = progress
+        self.precision = check_precision(self.kind, precision)
         if isinstance(latent, bool) or not isinstance(latent, (int, np.integer)) or latent < 1:
             raise ModelError(f"{self.kind}: latent must be a positive int, got {latent!r}")
         self.latent = int(latent)
@@ -85,7 +89,7 @@ class AutoencoderInterpolator(Interpolator):
         yz = self._ys.apply(y)
         sizes = (*self.hidden, self.latent, *self.hidden[::-1])
         w, b = train_mlp(yz, yz, sizes, self.max_iter, self.learning_rate, self.alpha, self.random_state,
-                         self.progress)
+                         self.progress, self.precision)
         cut = len(self.hidden) + 1  # layers up to and including the bottleneck
         z = forward(yz, w[:cut], b[:cut])  # identity on the last of these: pre-activation codes
         self._codes = LinearInterpolator().fit(x, z)
@@ -105,14 +109,14 @@ class AutoencoderInterpolator(Interpolator):
     def _state(self) -> dict[str, Any]:
         return {"options": {"latent": self.latent, "hidden": list(self.hidden), "max_iter": self.max_iter,
                             "learning_rate": self.learning_rate, "alpha": self.alpha,
-                            "random_state": self.random_state},
+                            "random_state": self.random_state, "precision": self.precision},
                 "latent_interpolator": self._latent().to_dict(),
                 "y_scaler": self._ys.to_dict(),  # type: ignore[union-attr]
                 "decoder": layers_to_dict(self._w, self._b)}
 
     @classmethod
     def _from_state(cls, d: dict[str, Any]) -> Interpolator:
-        obj = from_options(cls, d)
+        obj = from_options(cls, stored_precision(d))
         obj._codes = LinearInterpolator.from_dict(field(d, "latent_interpolator"))  # type: ignore[assignment]
         obj._ys = Standardiser.from_dict({**field(d, "y_scaler"), "kind": cls.kind})
         obj._w, obj._b = layers_from_dict(d, "decoder")

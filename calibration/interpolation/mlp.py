@@ -83,6 +83,29 @@ def check_training_options(kind: str, hidden: Sequence[int], max_iter: int, lear
     return tuple(int(h) for h in hidden)
 
 
+#: Arithmetic of the network trainings: float32 since issue 14 (half the cost of float64; on the 8 R1 training
+#: recordings the same recommendation, best method and robustness flags as float64, every candidate's held-out RMS
+#: within 0.0003 mm, ``scripts/recommend_days.py --against``). Files saved before it
+#: name no precision and were trained in float64, which :func:`stored_precision` keeps.
+PRECISIONS = ("float32", "float64")
+DEFAULT_PRECISION = "float32"
+
+
+def check_precision(kind: str, precision: str) -> str:
+    if precision not in PRECISIONS:
+        raise ModelError(f"{kind}: precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    return precision
+
+
+def stored_precision(d: dict[str, Any]) -> dict[str, Any]:
+    """``d`` with its options naming the precision the network was trained in (float64 when a file older than the
+    option names none)."""
+    options = d.get("options", {})
+    if isinstance(options, dict) and "precision" not in options:
+        d = {**d, "options": {**options, "precision": "float64"}}
+    return d
+
+
 @contextlib.contextmanager
 def one_blas_thread() -> Iterator[None]:
     """Run the enclosed matrix products on one BLAS thread (no-op without ``threadpoolctl``).
@@ -107,8 +130,8 @@ BATCH_SIZE = 200
 
 
 def train_mlp(x: np.ndarray, y: np.ndarray, hidden: Sequence[int], max_iter: int, learning_rate: float,
-              alpha: float, random_state: int,
-              progress: EpochCallback | None = None) -> tuple[list[np.ndarray], list[np.ndarray]]:
+              alpha: float, random_state: int, progress: EpochCallback | None = None,
+              precision: str = "float64") -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Train a ReLU MLP ``x -> y`` (identity output, squared loss) with Adam, full budget of epochs.
 
     The same arithmetic, in the same order, as scikit-learn's ``MLPRegressor(activation="relu", solver="adam",
@@ -127,23 +150,28 @@ def train_mlp(x: np.ndarray, y: np.ndarray, hidden: Sequence[int], max_iter: int
         random_state: seed of the weight initialisation and batch shuffling.
         progress: called as ``progress(epoch, max_iter)`` after each epoch (a progress bar); no effect on the
             result.
+        precision: ``float64`` or ``float32``, the arithmetic of the training (scikit-learn's too when given
+            float32 data: the same bits); float32 halves the cost of the matrix products.
 
     Returns:
-        Weights (list of (n_in, n_out) arrays) and biases (list of (n_out,) arrays), input layer first.
+        Weights (list of (n_in, n_out) arrays) and biases (list of (n_out,) arrays), input layer first, float64
+        (exact copies of float32 ones), so prediction is the same float64 pass however they were trained.
     """
-    x, y = np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(y, dtype=np.float64)
+    dtype = np.dtype(check_precision("train_mlp", precision))
+    x, y = np.ascontiguousarray(x, dtype=dtype), np.ascontiguousarray(y, dtype=dtype)
     t0 = time.perf_counter()
     rs = np.random.RandomState(random_state)
     units = [x.shape[1], *hidden, y.shape[1]]
     weights, biases = [], []
     for fan_in, fan_out in zip(units[:-1], units[1:]):
         bound = np.sqrt(6.0 / (fan_in + fan_out))
-        weights.append(rs.uniform(-bound, bound, (fan_in, fan_out)))
-        biases.append(rs.uniform(-bound, bound, fan_out))
+        weights.append(rs.uniform(-bound, bound, (fan_in, fan_out)).astype(dtype, copy=False))
+        biases.append(rs.uniform(-bound, bound, fan_out).astype(dtype, copy=False))
     n_layers, n = len(weights), x.shape[0]
     params = weights + biases
     m1, m2 = [np.zeros_like(p) for p in params], [np.zeros_like(p) for p in params]
-    scratch, step = [np.empty_like(p) for p in params], [np.empty_like(p) for p in params]
+    # the step is float64 whatever the precision, as in scikit-learn: -lr * m / (sqrt(v) + eps) with lr a float64
+    scratch, step = [np.empty_like(p) for p in params], [np.empty(p.shape) for p in params]
     grads: list[np.ndarray] = [np.empty(0)] * len(params)
     acts: list[np.ndarray] = [np.empty(0)] * (n_layers + 1)
     batch, order, t = min(BATCH_SIZE, n), np.arange(n), 0
@@ -189,8 +217,8 @@ def train_mlp(x: np.ndarray, y: np.ndarray, hidden: Sequence[int], max_iter: int
                 progress(epoch + 1, max_iter)
     if not all(np.isfinite(p).all() for p in params):
         raise ModelError(f"MLP training diverged (non-finite weights) on {n} anchors; check the anchor values")
-    logger.info("trained MLP %s: %d epochs, %.2f s", tuple(hidden), max_iter, time.perf_counter() - t0)
-    return weights, biases
+    logger.info("trained MLP %s: %d epochs (%s), %.2f s", tuple(hidden), max_iter, precision, time.perf_counter() - t0)
+    return [w.astype(np.float64) for w in weights], [b.astype(np.float64) for b in biases]
 
 
 def forward(z: np.ndarray, weights: Sequence[np.ndarray], biases: Sequence[np.ndarray],
@@ -273,15 +301,17 @@ class MlpInterpolator(Interpolator):
         random_state: seed; the same seed and data give the same network.
         progress: called as ``progress(epoch, max_iter)`` after each training epoch; not part of the model
             (not saved), no effect on the result.
+        precision: arithmetic of the training (:data:`PRECISIONS`); prediction is float64 either way.
     """
 
     kind: ClassVar[str] = "nn"
 
     def __init__(self, hidden: Sequence[int] = (200, 200, 200), max_iter: int = 300,
                  learning_rate: float = 1e-3, alpha: float = 1e-4, random_state: int = 0,
-                 progress: EpochCallback | None = None) -> None:
+                 progress: EpochCallback | None = None, precision: str = DEFAULT_PRECISION) -> None:
         super().__init__()
         self.progress = progress
+        self.precision = check_precision(self.kind, precision)
         self.hidden = check_training_options(self.kind, hidden, max_iter, learning_rate, alpha)
         self.max_iter, self.learning_rate, self.alpha = int(max_iter), float(learning_rate), float(alpha)
         self.random_state = int(random_state)
@@ -301,7 +331,8 @@ class MlpInterpolator(Interpolator):
         self._support, self._anchors = AnchorSupport(x), x
         self._xs, self._ys = Standardiser.fit(x), Standardiser.fit(y)
         self._w, self._b = train_mlp(self._xs.apply(x), self._ys.apply(y), self.hidden, self.max_iter,
-                                     self.learning_rate, self.alpha, self.random_state, self.progress)
+                                     self.learning_rate, self.alpha, self.random_state, self.progress,
+                                     self.precision)
 
     def _predict(self, x: np.ndarray) -> np.ndarray:
         return self._ys.invert(forward(self._xs.apply(x), self._w, self._b))  # type: ignore[union-attr]
@@ -315,14 +346,14 @@ class MlpInterpolator(Interpolator):
     def _state(self) -> dict[str, Any]:
         return {"options": {"hidden": list(self.hidden), "max_iter": self.max_iter,
                             "learning_rate": self.learning_rate, "alpha": self.alpha,
-                            "random_state": self.random_state},
+                            "random_state": self.random_state, "precision": self.precision},
                 "anchors": self._anchors.tolist(),  # type: ignore[union-attr]
                 "x_scaler": self._xs.to_dict(), "y_scaler": self._ys.to_dict(),  # type: ignore[union-attr]
                 "network": layers_to_dict(self._w, self._b)}
 
     @classmethod
     def _from_state(cls, d: dict[str, Any]) -> Interpolator:
-        obj = from_options(cls, d)
+        obj = from_options(cls, stored_precision(d))
         anchors = array_field(d, "anchors", 2)
         obj._support, obj._anchors = AnchorSupport(anchors), anchors
         obj._xs = Standardiser.from_dict({**field(d, "x_scaler"), "kind": cls.kind})

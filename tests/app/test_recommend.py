@@ -49,3 +49,17 @@ def test_the_test_recording_never_enters_the_choice(constant_truth, synthetic_ar
     assert again.test_errors["nls1"].position_mm.mean() > 10 * cmp.test_errors["nls1"].position_mm.mean()
     assert again.recommended == cmp.recommended
     assert again.analysis["recommendation"] == cmp.analysis["recommendation"]
+
+
+def test_cdc_methods_on_the_losing_reference_are_not_refitted_on_the_folds(constant_truth):
+    """Their held-out errors cannot change the choice ("CDC reference first"), so the recommendation skips them."""
+    from calibration.selection import off_reference
+
+    fitter, _, cmp = constant_truth
+    references = {m: ({"fbf13": "nls1", "pi+linear": "pi"}[m], fitter.held_out_errors(
+        {"fbf13": "nls1", "pi+linear": "pi"}[m])) for m in ("fbf13", "pi+linear")}
+    skipped = set(off_reference(references))
+    assert len(skipped) == 1, references  # one of the two references loses
+    computed = set(fitter._cache["held_out_errors"])
+    assert not skipped & computed and ({"fbf13", "pi+linear"} - skipped) <= computed
+    assert skipped <= set(cmp.analysis["recommendation"]["not_candidates"])

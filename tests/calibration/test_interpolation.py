@@ -314,23 +314,45 @@ def test_other_bad_inputs(fitted: dict, anchors: np.ndarray, values: np.ndarray)
         interpolator_from_dict(broken)
 
 
+@pytest.mark.parametrize("precision", ["float64", "float32"])
 @pytest.mark.parametrize("n, hidden, epochs", [(230, (12, 12), 15), (40, (8, 3, 8), 30)])
-def test_mlp_training_gives_the_bits_of_scikit_learns_adam(n: int, hidden: tuple[int, ...], epochs: int) -> None:
-    """train_mlp replays MLPRegressor's Adam (init, shuffles, batches of 200 then the rest) to the last bit, so
-    models trained before it keep their figures."""
+def test_mlp_training_gives_the_bits_of_scikit_learns_adam(n: int, hidden: tuple[int, ...], epochs: int,
+                                                           precision: str) -> None:
+    """train_mlp replays MLPRegressor's Adam (init, shuffles, batches of 200 then the rest) to the last bit, in
+    float64 (so models trained before it keep their figures) and in float32 (scikit-learn given float32 data)."""
     import warnings
 
     neural = pytest.importorskip("sklearn.neural_network")
     from calibration.interpolation.mlp import train_mlp
 
     rng = np.random.default_rng(n)
-    x, y = rng.normal(size=(n, 3)), rng.normal(size=(n, 4))
+    x, y = rng.normal(size=(n, 3)).astype(precision), rng.normal(size=(n, 4)).astype(precision)
     net = neural.MLPRegressor(hidden_layer_sizes=hidden, activation="relu", solver="adam", alpha=1e-3,
                               learning_rate_init=3e-3, max_iter=epochs, tol=0.0, n_iter_no_change=epochs + 1,
                               random_state=7, shuffle=True)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the full epoch budget always "fails to converge"
         net.fit(x, y)
-    weights, biases = train_mlp(x, y, hidden, epochs, 3e-3, 1e-3, 7)
+    weights, biases = train_mlp(x, y, hidden, epochs, 3e-3, 1e-3, 7, precision=precision)
     for ours, theirs in zip(weights + biases, net.coefs_ + net.intercepts_):
+        assert theirs.dtype == precision and ours.dtype == np.float64
         assert np.array_equal(ours, theirs)
+
+
+@pytest.mark.parametrize("kind", ["nn", "ae"])
+def test_networks_train_in_float32_and_files_name_their_precision(kind: str) -> None:
+    rng = np.random.default_rng(3)
+    x, y = rng.uniform(-1, 1, (30, 2)), rng.normal(size=(30, 3))
+    options = {"hidden": (8, 8), "max_iter": 20}
+    f32 = make_interpolator(kind, **options).fit(x, y)
+    f64 = make_interpolator(kind, precision="float64", **options).fit(x, y)
+    d = f32.to_dict()
+    assert d["options"]["precision"] == "float32" and f64.to_dict()["options"]["precision"] == "float64"
+    assert not np.array_equal(f32.predict(x), f64.predict(x))  # the precision is the training's arithmetic
+    np.testing.assert_allclose(f32.predict(x), f64.predict(x), atol=1e-3 * np.abs(y).max())
+    assert np.array_equal(interpolator_from_dict(d).predict(x), f32.predict(x))
+    old = f64.to_dict()
+    del old["options"]["precision"]  # a file saved before the option: trained in float64
+    assert interpolator_from_dict(old).to_dict()["options"]["precision"] == "float64"
+    with pytest.raises(ModelError, match="precision must be one of"):
+        make_interpolator(kind, precision="float16", **options)

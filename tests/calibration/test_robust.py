@@ -190,3 +190,19 @@ def test_held_out_errors_refitted_in_workers_are_those_refitted_here(synthetic_a
     assert there.shape == (len(train),) and np.all(np.isfinite(there))
     assert np.array_equal(there, here)
     assert multiprocessing.active_children() == []
+
+
+def test_the_neural_check_scores_the_recommendations_fold_refits(synthetic_arm, r1_nominal):
+    """nn/ae's held-out check is the method and its constant reference refitted without each of the first folds:
+    the same refits as held_out_errors, so compare trains no network for the check alone."""
+    _, _, truth = synthetic_arm
+    q, cluster = cluster_design(step_deg=30.0)
+    train = measure(truth.fk, q, 0.02, 0.01, 1, cluster)
+    fitter = Fitter("R1", r1_nominal, train, FitOptions(local_prior=0.1))
+    held = fitter.fit("pi+nn")[0].info["heldout"]
+    groups, anchors = cluster_anchors(train)
+    rows = np.isin(robust.cluster_folds(len(anchors))[groups], range(robust.NEURAL_EVALUATED_FOLDS))
+    err, ref = fitter.held_out_errors("pi+nn")[rows], fitter.held_out_errors("pi")[rows]
+    assert held["rms_mm"] == round(float(np.sqrt(np.mean(err ** 2))), 4)
+    assert held["reference_rms_mm"] == round(float(np.sqrt(np.mean(ref ** 2))), 4)
+    assert held["max_mm"] == round(float(err.max()), 4) and held["reference_max_mm"] == round(float(ref.max()), 4)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from calibration.errors import ModelError
-from calibration.selection import cluster_rms, recommend
+from calibration.selection import cluster_rms, off_reference, recommend
 
 K, SIZE = 60, 7
 GROUPS = np.repeat(np.arange(K), SIZE)
@@ -60,3 +60,14 @@ def test_cdc_methods_around_the_worse_reference_are_not_candidates():
     # one reference only: no such step, the held-out figures alone decide
     assert recommend(held_out, n, GROUPS, cdc_references={"rbf": ("nls1", nls1)}).method == "rbf"
     assert recommend(held_out, n, GROUPS).method == "rbf"
+
+
+def test_the_held_out_errors_of_cdc_methods_on_the_worse_reference_are_not_read():
+    nls1, pi, pi_cdc = errors(0.28, 3), errors(0.16, 4), errors(0.14, 6)
+    n = {"nls1": 11, "pi": 77, "rbf": 6746, "pi+rbf": 6746}
+    references = {"rbf": ("nls1", nls1), "pi+rbf": ("pi", pi)}
+    assert set(off_reference(references)) == {"rbf"} and off_reference({"rbf": ("nls1", nls1)}) == {}
+    fitted = recommend({"nls1": nls1, "pi": pi, "rbf": errors(0.12, 5), "pi+rbf": pi_cdc}, n, GROUPS,
+                       cdc_references=references)
+    unread = recommend({"nls1": nls1, "pi": pi, "rbf": None, "pi+rbf": pi_cdc}, n, GROUPS, cdc_references=references)
+    assert unread == fitted and unread.not_candidates["rbf"] == off_reference(references)["rbf"]

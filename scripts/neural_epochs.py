@@ -1,0 +1,68 @@
+"""How many training epochs the neural interpolators (nn, ae) need, on clusters held out from training recordings.
+
+For every R1 training recording of ``../shared/data/welding_motoman/PH_grad_data`` (no test recording is read), on
+the local cluster fits of both CDC references (the geometric one and pi) as ``compare`` makes them: train ``nn`` and
+``ae`` on each of the 5 folds' training clusters with ``max_iter`` epochs (the check of :mod:`calibration.robust`,
+all 5 folds) and print the held-out position RMS and its ratio to the reference's per epoch budget. Training is
+deterministic and Adam's schedule depends on the step count only, so a run of E epochs is exactly the first E
+epochs of a longer run: the figures are those of stopping the 300-epoch training early.
+
+    python scripts/neural_epochs.py [--json FILE] [--days test0801_R1,...] [--epochs 75,150,300]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from app.analysis.fitting import fitter_for  # noqa: E402
+from calibration import robust  # noqa: E402
+from calibration.cdc import CDC_INPUTS, cluster_anchors  # noqa: E402
+from calibration.interpolation import make_interpolator  # noqa: E402
+from calibration.recording import read_recording  # noqa: E402
+from cell_config import load_cell  # noqa: E402
+from scripts.heldout_folds import DATA, DAYS  # noqa: E402
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--json", type=Path)
+    ap.add_argument("--days", default=",".join(DAYS))
+    ap.add_argument("--epochs", default="75,150,300")
+    args = ap.parse_args(argv)
+    epochs = [int(e) for e in args.epochs.split(",")]
+    robot = load_cell().robot("R1")
+    rows = []
+    for day in args.days.split(","):
+        train = read_recording(DATA / "PH_grad_data" / day, robot.robot.lower_rad, robot.robot.upper_rad)
+        fitter = fitter_for(robot, train)
+        groups, _ = cluster_anchors(train, fitter.options.cluster_size)
+        for reference in ("geometric", "pi"):
+            (kin, theta), local = fitter.reference(reference), fitter.local_fits(reference)
+            for kind in ("nn", "ae"):
+                t0 = time.perf_counter()
+                by_e = {e: robust.held_out(lambda: make_interpolator(kind, random_state=fitter.options.seed,
+                                                                     max_iter=e),
+                                           kin, theta, local.anchors, local.x, groups, train, CDC_INPUTS,
+                                           seed=fitter.options.seed, workers=robust.default_workers())
+                        for e in epochs}
+                rows.append({"day": day, "reference": reference, "kind": kind,
+                             "seconds": round(time.perf_counter() - t0, 1),
+                             "rms_mm": {e: round(h.rms_mm, 4) for e, h in by_e.items()},
+                             "se_mm": {e: round(h.se_rms_mm, 4) for e, h in by_e.items()},
+                             "ratio": {e: round(h.ratio, 4) for e, h in by_e.items()}})
+                print(f"{day:22s} {reference:9s} {kind:3s} held-out RMS mm (ratio to reference) by epochs: "
+                      + "  ".join(f"{e}: {h.rms_mm:.4f} ({h.ratio:.3f})" for e, h in by_e.items()), flush=True)
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
