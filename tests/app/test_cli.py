@@ -155,11 +155,13 @@ def test_ctrl_c_during_a_collection_is_one_line_exit_130_and_resumable(tmp_path)
     from app.cell.rehearsal import REPO, sample_count
 
     plan, session = tmp_path / "plan.json", tmp_path / "s"
-    # 126 targets, about 20 s of collection: long enough that the signal always finds it running
-    assert main(["plan", "--robot", "R1", "--q2-step", "25", "--q3-step", "25", "--out", str(plan)]) == 0
+    assert main(["plan", "--robot", "R1", "--q2-step", "50", "--q3-step", "50", "--out", str(plan)]) == 0
+    # Ctrl-C as a terminal delivers it: a suite started as a background job of a non-interactive shell runs with
+    # SIGINT ignored, and a child inherits that (Python then never raises KeyboardInterrupt)
     proc = subprocess.Popen([sys.executable, "-m", "app.cli", "collect", "--robot", "R1", "--plan", str(plan),
                              "--session", str(session), "--sim", "--time-scale", "2", "--no-progress"], cwd=REPO,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 60
     while sample_count(session) < 2 and time.monotonic() < deadline and proc.poll() is None:
         time.sleep(0.1)
@@ -170,7 +172,7 @@ def test_ctrl_c_during_a_collection_is_one_line_exit_130_and_resumable(tmp_path)
     assert proc.returncode == 130, err
     lines = [line for line in err.strip().splitlines() if not line.startswith("target ")]
     assert lines[-1] == "cellcal collect: stopped (continue with --resume)" and "Traceback" not in err
-    assert 2 <= sample_count(session) < 126
+    assert 2 <= sample_count(session) < 56
 
 
 def test_rebase_moves_a_model_onto_a_shifted_day_and_refuses_another_robots_model(tmp_path, capsys):
