@@ -26,9 +26,9 @@ from calibration.cdc import CDC_INPUTS, cluster_anchors  # noqa: E402
 from calibration.interpolation import make_interpolator  # noqa: E402
 from calibration.recording import read_recording  # noqa: E402
 from cell_config import load_cell  # noqa: E402
+from scripts.bench_days import DATA  # noqa: E402
 
-DATA = next((d / "shared" / "data" / "welding_motoman" for d in ROOT.parents
-             if (d / "shared" / "data" / "welding_motoman").exists()), ROOT.parent / "shared" / "data" / "welding_motoman")
+#: Every R1 training recording of the shared data (PH_grad_data), in date order.
 DAYS = ("test0516_R1", "test0524_R1", "test0613_R1", "test0620_R1", "test0627_beforecalib", "test0627_aftercalib",
         "test0725_R1", "test0801_R1")
 

@@ -41,11 +41,8 @@ from calibration.cdc import cluster_anchors  # noqa: E402
 from calibration.recording import read_recording  # noqa: E402
 from calibration.diagnosis.shifts import OneSidedShift, one_sided_shift  # noqa: E402
 from cell_config import load_cell  # noqa: E402
+from scripts.heldout_folds import DATA, DAYS  # noqa: E402
 
-DATA = next((d / "shared" / "data" / "welding_motoman" for d in ROOT.parents
-             if (d / "shared" / "data" / "welding_motoman").exists()), ROOT.parent / "shared" / "data" / "welding_motoman")
-DAYS = ("test0516_R1", "test0524_R1", "test0613_R1", "test0620_R1", "test0627_beforecalib", "test0627_aftercalib",
-        "test0725_R1", "test0801_R1")
 WINDOW = 70  # rows of the moving mean: 10 clusters
 
 

@@ -88,43 +88,44 @@ def test_a_test_recording_off_by_a_frame_is_diagnosed(arm):
     assert "test recording against the training recording is off by a frame" in check.message()
 
 
+def _framed_tool_error_case(seed: int, spread_deg: float):
+    """An 18 mm / 0.5 deg tool-marker error on R1, training clusters turning the wrist by ``spread_deg``: the
+    frames-first fitter, its frame check and the held-out test recording."""
+    robot = load_cell().robot("R1")
+    nominal = robot.model()
+    gravity = GravityModel.from_spec(robot.robot, nominal)
+    train, test, _ = tool_error_case(nominal, gravity, 18.0, 0.5, seed=seed,
+                                     train_design=Design(n_q2=6, n_q3=5, spread_deg=spread_deg), n_heldout=150)
+    fitter, check = framed(lambda r: Fitter("R1", nominal, r, FitOptions(), None, gravity,
+                                            (robot.robot.lower_rad, robot.robot.upper_rad)),
+                           ConstantModel("R1", "nominal", nominal, 0, {}), train)
+    return fitter, check, test
+
+
+def _assert_no_worse_than_nls1(fitter, test, methods: tuple[str, ...]) -> None:
+    e = {m: errors(fitter.fit(m)[0], test).position_mm for m in ("nls1",) + methods}
+    for m in methods:
+        assert np.mean(e[m]) <= np.mean(e["nls1"]) and np.max(e[m]) <= np.max(e["nls1"]), (m, e[m].max(), e["nls1"].max())
+
+
 def test_cdc_methods_no_worse_than_nls1_with_an_18_mm_tool_marker_error_and_the_wrist_within_3_deg():
     """The narrow training design of the shared days: the marker frame is weakly visible. Fitting both frames
     let the nominal arm's errors bias the split between them (seed 1: pi+linear 0.615/1.790 against nls1's
     0.548/1.241 mm); only the frame at fault is taken out now."""
-    robot = load_cell().robot("R1")
-    nominal = robot.model()
-    gravity = GravityModel.from_spec(robot.robot, nominal)
-    train, test, _ = tool_error_case(nominal, gravity, 18.0, 0.5, seed=1,
-                                     train_design=Design(n_q2=6, n_q3=5, spread_deg=3.0), n_heldout=150)
-    fitter, check = framed(lambda r: Fitter("R1", nominal, r, FitOptions(), None, gravity,
-                                            (robot.robot.lower_rad, robot.robot.upper_rad)),
-                           ConstantModel("R1", "nominal", nominal, 0, {}), train)
+    fitter, check, test = _framed_tool_error_case(seed=1, spread_deg=3.0)
     assert check.frame == "tool" and "a rigid fit of the tool frame" in check.message()
     assert isinstance(fitter, FramedFit) and np.allclose(fitter.frames.T_base_correction, np.eye(4))
-    cdc = ("nearest", "linear", "fbf13", "pi+linear", "pi+fbf13")
-    e = {m: errors(fitter.fit(m)[0], test).position_mm for m in ("nls1",) + cdc}
-    for m in cdc:
-        assert np.mean(e[m]) <= np.mean(e["nls1"]) and np.max(e[m]) <= np.max(e["nls1"]), (m, e[m].max(), e["nls1"].max())
+    _assert_no_worse_than_nls1(fitter, test, ("nearest", "linear", "fbf13", "pi+linear", "pi+fbf13"))
 
 
 def test_cdc_methods_no_worse_than_nls1_with_an_18_mm_tool_marker_error():
     """The fast version of scripts/bench_frames.py: a smaller design, three CDC methods. The training clusters
     turn the wrist by up to 20 deg so that the marker frame is observable (with the shared days' 1-2 deg the
     marker offset along the flange's rotation axis is not, with or without the error: see the script)."""
-    robot = load_cell().robot("R1")
-    nominal = robot.model()
-    gravity = GravityModel.from_spec(robot.robot, nominal)
-    train, test, T_tool = tool_error_case(nominal, gravity, 18.0, 0.5, seed=0,
-                                          train_design=Design(n_q2=6, n_q3=5, spread_deg=20.0), n_heldout=150)
-    fitter, check = framed(lambda r: Fitter("R1", nominal, r, FitOptions(), None, gravity,
-                                            (robot.robot.lower_rad, robot.robot.upper_rad)),
-                           ConstantModel("R1", "nominal", nominal, 0, {}), train)
+    fitter, check, test = _framed_tool_error_case(seed=0, spread_deg=20.0)
     assert check.frame == "tool" and "tool frame (tool-marker-to-flange registration)" in check.message()
     assert abs(check.fits["base and tool"].tool_mm - 18.0) < 1.0
-    e = {m: errors(fitter.fit(m)[0], test).position_mm for m in ("nls1", "nearest", "linear", "fbf13")}
-    for m in ("nearest", "linear", "fbf13"):
-        assert np.mean(e[m]) <= np.mean(e["nls1"]) and np.max(e[m]) <= np.max(e["nls1"]), m
+    _assert_no_worse_than_nls1(fitter, test, ("nearest", "linear", "fbf13"))
 
 
 def test_the_other_frame_is_taken_out_too_when_it_is_beyond_the_limits_once_the_one_at_fault_is_out():
