@@ -124,10 +124,11 @@ def recommend_fitted(fitter: Fitter, models: dict[str, KinematicModel]) -> Recom
     # the CDC methods on the losing reference are no candidates whatever their own held-out errors: not refitted
     unread = off_reference(cdc_references)
     neural = [m for m in models if m in NEURAL_METHODS and m not in unread]
-    held_out = {m: fitter.held_out_errors(m) for m in models if m not in neural and m not in unread}
+    for m in models:  # the cheap ones first: they fill the fold fits' caches the network refits start from
+        if m not in neural and m not in unread:
+            fitter.held_out_errors(m)
     fitter.prefetch_held_out_errors(neural)  # the costly network refits, on every usable core
-    held_out = {m: None if m in unread else held_out[m] if m in held_out else fitter.held_out_errors(m)
-                for m in models}
+    held_out = {m: None if m in unread else fitter.held_out_errors(m) for m in models}  # cached by the Fitter
     groups, _ = cluster_anchors(fitter.train, fitter.options.cluster_size)
     return recommend(held_out, {m: model.n_parameters for m, model in models.items()}, groups,
                      cdc_references=cdc_references)
