@@ -28,7 +28,7 @@ from typing import Any, Callable
 import numpy as np
 from tqdm import tqdm
 
-from app.cell.mocap_window import WindowFailed, average_frames, collect_window
+from app.cell.mocap_window import ClockLink, WindowFailed, average_frames, collect_window
 from app.cell.motion import NonFiniteFeedback, device_name, read_q, stop_all
 from app.cell.planning import Plan
 from app.cell.safety import CellSafety
@@ -156,6 +156,7 @@ class _Session:
         # sample stamps: seconds since the session was created (0 for the first run: it was created just now)
         self.t_offset = time.time() - store.created_wall() if store.done() else 0.0
         self.clock = clock
+        self.link = ClockLink(clock)  # the mocap's capture clock against ours, learned from every window
         self.t_start = clock()
         self.moved = False  # no move commanded yet in this run
 
@@ -218,10 +219,11 @@ class _Session:
 
     def measure_here(self, index: int, attempts: int) -> Sample:
         c = self.config
+        settled_at = self.clock()  # the arm is settled by now (measure waited, or a resume finds it still)
         q_before = self.own_q()
         _check_readback(q_before, self.lower, self.upper)
         try:
-            frames = collect_window(self.mocap, self.body_id, c)
+            frames = collect_window(self.mocap, self.body_id, c, self.link, settled_at)
         except WindowFailed as e:
             raise _MeasureFailed(str(e)) from e
         except DriverError as e:

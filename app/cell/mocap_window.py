@@ -4,12 +4,19 @@ After the arm has settled, the frames captured during a dwell window (after a sh
 residual vibration) are collected; frames that are not tracking-valid, carry a large marker error or bad values
 are rejected, and the rest are averaged: mean position, eigenvector quaternion average. Too few usable frames,
 or none for a while, is a failure worth retrying (:class:`WindowFailed`).
+
+The window starts on the mocap's clock, at the moment the arm was seen settled (host clock) mapped through a
+:class:`ClockLink`: frames that were captured while the arm still moved but were in transit when the queue was
+flushed (network delay, a loaded host) are then left out, instead of opening the window.
 """
 
 from __future__ import annotations
 
+import math
+import time
+from collections import deque
 from collections.abc import Sequence
-from typing import Protocol
+from typing import Callable, Protocol
 
 import numpy as np
 
@@ -29,6 +36,51 @@ class WindowOptions(Protocol):
 
 class WindowFailed(Exception):
     """No frames for a while, or too few usable frames in the window: worth measuring again."""
+
+
+class ClockLink:
+    """Maps a host-clock instant onto a mocap source's capture clock, from the frames as they are received.
+
+    A frame captured at mocap time ``c`` and read at host time ``r`` bounds the offset host - mocap from above:
+    ``offset <= r - c`` (its latency is not negative). The smallest bound over the frames of the last
+    ``horizon_s`` is the estimate; it exceeds the true offset by the smallest latency seen (a few ms when some read
+    returned as soon as a frame arrived), so a window started at ``settled - estimate`` may begin that much before
+    the settle instant, which the window's discard covers. The horizon keeps a drift between the two clocks
+    (crystal rates differ by ppm) out of the estimate.
+
+    Args:
+        clock: the host clock [s] the settle instants are read on (the collector's clock).
+        horizon_s: how long a bound is kept [s] (host clock).
+    """
+
+    def __init__(self, clock: Callable[[], float] = time.monotonic, horizon_s: float = 30.0) -> None:
+        self.clock = clock
+        self.horizon_s = float(horizon_s)
+        self._bounds: deque[tuple[float, float]] = deque()  # (host read time, bound), bounds increasing
+        self._latest = -math.inf  # newest capture time seen
+
+    def observe(self, frames: Sequence[RigidBodyFrame]) -> float:
+        """Take the bounds of ``frames`` read just now; returns the host read time.
+
+        A capture clock that went back by over a second (the mocap software restarted) starts the link afresh.
+        """
+        r = self.clock()
+        if frames:
+            newest = max(f.capture_time for f in frames)
+            if newest < self._latest - 1.0:
+                self._bounds.clear()
+            self._latest = newest
+            bound = r - newest
+            while self._bounds and self._bounds[-1][1] >= bound:
+                self._bounds.pop()  # a later, smaller bound makes it useless
+            self._bounds.append((r, bound))
+        while self._bounds and self._bounds[0][0] < r - self.horizon_s and len(self._bounds) > 1:
+            self._bounds.popleft()
+        return r
+
+    def to_capture(self, host_time: float) -> float:
+        """``host_time`` on the mocap clock (−inf before any frame was observed)."""
+        return host_time - self._bounds[0][1] if self._bounds else -math.inf
 
 
 def quat_average(quat: np.ndarray) -> np.ndarray:
@@ -63,27 +115,44 @@ def usable(f: RigidBodyFrame, max_marker_error_mm: float) -> bool:
             and bool(np.all(np.isfinite(p)) and np.all(np.isfinite(q))) and abs(np.linalg.norm(q) - 1.0) < 1e-3)
 
 
-def collect_window(mocap: MocapSource, body_id: int, config: WindowOptions) -> list[RigidBodyFrame]:
-    """Frames of ``body_id`` captured during one dwell window after now, usable ones only.
+def collect_window(mocap: MocapSource, body_id: int, config: WindowOptions, link: ClockLink,
+                   settled_at: float | None = None) -> list[RigidBodyFrame]:
+    """Frames of ``body_id`` captured during one dwell window after the arm settled, usable ones only.
+
+    The window opens ``discard_s`` after the later of: the first frame read after the flush, and ``settled_at``
+    (host clock, default: now) mapped onto the capture clock by ``link``. The mapping sharpens as frames come in,
+    so the start can only move later while the window fills; the frames are kept and sorted out at the end.
+
+    Args:
+        link: the source's clock link, kept across windows (it learns the offset from every read).
+        settled_at: host-clock instant the arm was seen settled (``link.clock``); now when not given.
 
     Raises:
         WindowFailed: no frames for ``frame_timeout_s``, or too few usable frames.
     """
-    mocap.read(0.0)  # drop frames captured before the arm settled
-    frames: list[RigidBodyFrame] = []
-    numbers: list[int] = []
-    t0: float | None = None
+    if settled_at is None:
+        settled_at = link.clock()
+    link.observe(mocap.read(0.0))  # drop what was queued: captured before the arm settled (most of it)
+    got_all: list[RigidBodyFrame] = []
+    t0 = -math.inf
+    # a last guard: frames keep coming but none closes the window, the clocks disagree beyond what observe mends
+    give_up = link.clock() + 5.0 * (config.discard_s + config.dwell_s + config.frame_timeout_s)
     while True:
         got = mocap.read(config.frame_timeout_s)
         if not got:
             raise WindowFailed(f"mocap: no frames for {config.frame_timeout_s:g} s")
-        if t0 is None:
+        if link.observe(got) > give_up:
+            raise WindowFailed(f"mocap: frames came but none closed the {config.dwell_s:g} s window by "
+                               f"{give_up - settled_at:.3g} s after the arm settled (capture clock off the host's)")
+        if not got_all:
             t0 = got[0].capture_time + config.discard_s
-        window = [f for f in got if t0 <= f.capture_time <= t0 + config.dwell_s]
-        numbers += [f.frame_number for f in window]
-        frames += [f for f in window if f.body_id == body_id]
+        got_all += got
+        t0 = max(t0, link.to_capture(settled_at) + config.discard_s)
         if got[-1].capture_time >= t0 + config.dwell_s:
             break
+    window = [f for f in got_all if t0 <= f.capture_time <= t0 + config.dwell_s]
+    numbers = [f.frame_number for f in window]
+    frames = [f for f in window if f.body_id == body_id]
     expected = max(numbers) - min(numbers) + 1 if numbers else 0
     good = [f for f in frames if usable(f, config.max_marker_error_mm)]
     lost = sum(not f.tracking_valid for f in frames)

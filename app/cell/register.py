@@ -13,13 +13,14 @@ from __future__ import annotations
 
 import datetime as _dt
 import logging
+import time
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 from tqdm import tqdm
 
-from app.cell.mocap_window import WindowFailed, average_frames, collect_window
+from app.cell.mocap_window import ClockLink, WindowFailed, average_frames, collect_window
 from calibration import so3
 from calibration.errors import CellCalError
 
@@ -79,7 +80,7 @@ def plan_registration(cell: Any, robot: str, q_center: np.ndarray, safety: Any, 
 
 
 def measure_registration(rt: Any, safety: Any, robot: str, q_plan: np.ndarray, config: Any, *,
-                         progress: bool = True) -> RegistrationRun:
+                         progress: bool = True, clock: Callable[[], float] = time.monotonic) -> RegistrationRun:
     """Visit every pose, measure the marker in the mocap world, solve; the arm returns to its start pose.
 
     Args:
@@ -89,6 +90,7 @@ def measure_registration(rt: Any, safety: Any, robot: str, q_plan: np.ndarray, c
         robot: the arm to register.
         q_plan: the poses [rad] (M, 6).
         config: :class:`~app.cell.collect.CollectConfig` (speed, dwell window, retries).
+        clock: the host clock the settle instants are read on (a simulated cell passes its simulated clock).
 
     Raises:
         RegistrationFailed: fewer than 6 poses measured, or the solver did not converge.
@@ -99,13 +101,15 @@ def measure_registration(rt: Any, safety: Any, robot: str, q_plan: np.ndarray, c
     driver, others = rt.drivers[robot], rt.others(robot)
     mocap, body = rt.mocap_for(robot), rt.body_ids[robot]
     q_home = driver.read_joints().q
+    link = ClockLink(clock)
     qs, Rs, ps, skipped = [], [], [], []
     try:
         for i, q_target in enumerate(tqdm(q_plan, desc=f"{robot} register", unit="pose", disable=not progress)):
             move_safely(driver, q_target, safety, others, config.speed_fraction, config.settle_timeout_s)
+            settled_at = clock()
             for attempt in range(config.mocap_retries + 1):
                 try:
-                    frames = collect_window(mocap, body, config)
+                    frames = collect_window(mocap, body, config, link, settled_at)
                     break
                 except WindowFailed as e:
                     reason = str(e)
