@@ -8,26 +8,15 @@ moved carry a marker 1 mm off, so any of them in the average shows in the mean.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-
 import numpy as np
 import pytest
 
+from app.cell.collect import CollectConfig as Options
 from app.cell.mocap_window import ClockLink, WindowFailed, average_frames, collect_window
 from drivers.base import MocapSource, RigidBodyFrame
 
 OFFSET = -500.0  # source clock = host clock + OFFSET
 PERIOD = 0.01  # 100 Hz
-
-
-@dataclass
-class Options:
-    dwell_s: float = 0.5
-    discard_s: float = 0.05
-    frame_timeout_s: float = 0.5
-    min_frames: int = 10
-    min_valid_fraction: float = 0.8
-    max_marker_error_mm: float = 0.5
 
 
 class HostClock:
