@@ -86,8 +86,7 @@ class FitOptions:
     Attributes:
         a: orientation weight (1641: 1 mm ~ 1 deg).
         tolerance: relative singular value below which a parameter direction counts as unobservable: held at
-            its reference by nls0/nls1 (truncation), damped toward nls1's geometry by pi (Tikhonov filter at that
-            cutoff).
+            its reference by nls0/nls1 (truncation), damped toward nominal by pi (Tikhonov filter at that cutoff).
         fit_tool: identify the flange-point shift too (3 parameters).
         local_prior: ridge strength of local cluster fits toward the pi reference geometry [1/mm-equivalent];
             None (default) chooses it from ``local_prior_grid`` on clusters held out from the training recording
@@ -182,21 +181,13 @@ class Fitter:
         return self._cache["x_global"]
 
     def physics_informed(self) -> PhysicsInformedModel:
-        """The global physics-informed fit (cached): method ``pi`` and the reference of the CDC local fits.
-
-        Its Tikhonov filter damps the directions the training data sees weakly toward the geometric global fit
-        (``nls1``'s geometry, every physics term zero), not toward nominal: on poses whose wrist barely moves, a
-        wrist-geometry error the geometric fit identifies is also nearly matched by the structural deflection,
-        and a filter centred on nominal damps that shared direction, splitting the error between the wrist
-        geometry and a deflection that does not follow the wrist on poses that turn it (a synthetic R1 with
-        the wrist within 3 deg, seed 3: pi 0.935/2.437 mm on wide held-out poses against nls1's 0.856/2.076).
-        """
+        """The global physics-informed fit (cached): method ``pi`` and the reference of the CDC local fits."""
         if "pi" not in self._cache:
-            kin, ref = self.reference("geometric")
+            kin = ExtendedKinematics(self.par)
             obs = self._pi_observability()
-            z0 = None if self.warm is None else (self.warm.physics_informed().theta - ref)[None]
+            z0 = None if self.warm is None else self.warm.physics_informed().theta[None]
             res = GeometricProblem(kin, self.train.q, self.train.R, self.train.p, a=self.options.a,
-                                   prior_weight=filter_weights(obs), x_ref=ref).solve(z0)
+                                   prior_weight=filter_weights(obs)).solve(z0)
             if not res.converged.all():
                 log.warning("physics-informed fit stopped after %d iterations without converging (%s)",
                             res.iterations, res.reason[0].value)
@@ -298,10 +289,10 @@ class Fitter:
 
     def _prepare_shared(self, method: str) -> float:
         """Run (once) the shared fits ``method`` builds on; returns their wall time [s], charged to each user."""
-        needs = {"nls1": ("global",), "pi": ("global", "pi")}.get(method, ())
+        needs = {"nls1": ("global",), "pi": ("pi",)}.get(method, ())
         if method in CDC_METHODS:
             reference = cdc_method(method)[0]
-            needs = ("global", "pi", "local pi") if reference == "pi" else ("global", "local geometric")
+            needs = ("pi", "local pi") if reference == "pi" else ("global", "local geometric")
         steps = {"global": self.global_fit, "pi": self.physics_informed,
                  "local pi": lambda: self.local_fits("pi"), "local geometric": lambda: self.local_fits("geometric")}
         seconds = self._cache.setdefault("seconds", {})

@@ -15,8 +15,7 @@ effect blocks (:mod:`calibration.diagnosis.extended`), and the compliance block'
 :mod:`calibration.models.pi`.
 All terms are fitted jointly by the batched LM (``Fitter.physics_informed``) with a Tikhonov filter on the
 joint, mm-scaled Jacobian: directions whose singular value is below 1 % of the largest are damped toward
-the geometric global fit (nls1's geometry, no physics terms), so what the data cannot see stays where the
-geometric fit puts it (near the vendor arm along what that fit cannot see either).
+nominal, so what the data cannot see stays near the vendor arm.
 """
 
 from __future__ import annotations
