@@ -16,9 +16,9 @@ is that unobservable part; ``--train-spread-deg 20`` shows the case where the fr
 Seed 3 is not a frame case (it fails as much with ``--shift-mm 0 --angle-deg 0``): pi and nls1 differ by 0.12 mm
 RMS on the training poses and by 1.7 mm on the held-out ones, 99 % of that difference (scaled) along directions the
 77-parameter fit sees below its 1 % cutoff: wrist geometry against the structural deflection, which the wrist
-band cannot tell apart. pi damps them toward nominal and loses to nls1 there; centred on nls1's geometry instead
-it wins (0.59/1.42 against 0.86/2.08 mm, marker error planted) but loses on every shared day's test recording
-(0613: 0.31 -> 0.61 mm mean), so the filter stays centred on nominal.
+band cannot tell apart (scripts/pi_nls1_split.py). pi damps them toward nominal and loses to nls1 there; centred on
+nls1's geometry instead it wins (0.59/1.42 against 0.86/2.08 mm, marker error planted) but loses on every shared
+day's test recording (0613: 0.31 -> 0.61 mm mean), so the filter stays centred on nominal.
 With ``--train-spread-deg 20`` pi and every pi+ method beat nls1 on seed 3. ``--fit-seed`` changes the
 networks' initialisation and the held-out folds.
 
