@@ -26,6 +26,9 @@ from drivers.sim.rehearsal import hidden_frames, rehearsal_truths
 
 SEED = 5
 PURE = ("--origin-std-mm", "0", "--tilt-std-deg", "0", "--compliance-mm", "0")  # a twin with no kinematic error
+#: Measurement window of the collections here [s]: 48 frames at the fake Motive's 240 Hz instead of the default
+#: 0.5 s's 120 (every window waits in real time; each claim holds for any window that meets min_frames).
+DWELL_S = 0.2
 
 
 @pytest.fixture(scope="module")
@@ -63,7 +66,7 @@ def check_recording(cell_path: Path, session: Path, out_csv: Path, n_targets: in
 
 
 def test_register_then_collect_both_arms_in_separate_processes(tmp_path: Path, plans: dict[str, Path]) -> None:
-    cell_path = write_rehearsal_cell(tmp_path)
+    cell_path = write_rehearsal_cell(tmp_path, dwell_s=DWELL_S)
     truths = rehearsal_truths(load_cell(cell_path), SEED, PlantedErrors(0.0, 0.0, 0.0))
     with Rehearsal(cell_path, *PURE, seed=SEED):
         for robot in ("R1", "R2"):
@@ -106,7 +109,7 @@ def registered_cell(tmp_path: Path, robot: str = "R1") -> Path:
     registration: writing it directly saves the registration's motion)."""
     from cell_config.loader import RobotRegistration, save_registration
 
-    cell_path = write_rehearsal_cell(tmp_path)
+    cell_path = write_rehearsal_cell(tmp_path, dwell_s=DWELL_S)
     cell = load_cell(cell_path)
     hf = hidden_frames(cell, SEED)[robot]
     tool = cell.robot(robot).tool
@@ -126,7 +129,7 @@ def collector(cell_path: Path, plan: Path, session: Path, *extra: str) -> Proces
 def test_bridge_and_controller_killed_mid_collection_are_waited_for_and_reconnected(
         tmp_path: Path, plans: dict[str, Path]) -> None:
     """One collection, two crashes (SIGKILL, restarted later): the bridge after 3 samples (down 2 s, so the stream
-    is silent longer than the collector tolerates), then the controller after 7 (down 0.5 s). The collector waits
+    is silent longer than the collector tolerates), then the controller after 6 (down 0.5 s). The collector waits
     for the one and reconnects to the other; every target is recorded once, at the truth."""
     cell_path = registered_cell(tmp_path)
     truths = rehearsal_truths(load_cell(cell_path), SEED, PlantedErrors(0.0, 0.0, 0.0))
@@ -134,7 +137,7 @@ def test_bridge_and_controller_killed_mid_collection_are_waited_for_and_reconnec
     with Rehearsal(cell_path, *PURE, seed=SEED) as r:
         c = collector(cell_path, plans["R1"], session).start(ready=False)
         try:
-            for victim, after, down_s in ((r.bridge, 3, 2.0), (r.controller, 7, 0.5)):
+            for victim, after, down_s in ((r.bridge, 3, 2.0), (r.controller, 6, 0.5)):
                 wait_for_samples(session, after)
                 assert sample_count(session) < 14, "the collection ended before the crash"
                 victim.kill()
