@@ -17,7 +17,7 @@ pytest.importorskip("meshcat")
 from app.dual.preview import plan_frames, preview  # noqa: E402
 from calibration.errors import DataError, ModelError  # noqa: E402
 from cell_config.loader import load_cell  # noqa: E402
-from tests.app.browser import browser_or_skip, run_browser, screenshot  # noqa: E402
+from tests.app.browser import browser_or_skip, run_browser, screenshot_and_dom  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -260,12 +260,18 @@ def test_cli_preview_json_into_a_folder_writes_nothing(real_plan, tmp_path, caps
     assert not out.exists()
 
 
-def _screenshot(tmp_path, page, name: str, fragment: str = ""):
+def _screenshot_and_dom(tmp_path, page, name: str, fragment: str = ""):
+    """The page's screenshot as RGB floats and its DOM after the scripts ran (one browser run)."""
     import matplotlib.image as mpimg
 
-    img = mpimg.imread(screenshot(tmp_path, page.as_uri() + fragment, name))[..., :3]
+    png, dom = screenshot_and_dom(tmp_path, page.as_uri() + fragment, name)
+    img = mpimg.imread(png)[..., :3]
     assert img.shape == (768, 1024, 3)
-    return img
+    return img, dom
+
+
+def _screenshot(tmp_path, page, name: str, fragment: str = ""):
+    return _screenshot_and_dom(tmp_path, page, name, fragment)[0]
 
 
 def _masks(img) -> dict:
@@ -330,11 +336,11 @@ def test_browser_readout_shows_waypoint_0_and_steps_the_animation(cell, real_pla
     out = tmp_path / "preview.html"
     preview(cell, real_plan, html_out=out)
     last = len(json.loads(real_plan.read_text())["waypoints"]) - 1
-    _assert_readout_is_waypoint(_readout(run_browser(tmp_path, out.as_uri(), "--dump-dom")), real_plan, 0)
-    _assert_readout_is_waypoint(_readout(run_browser(tmp_path, out.as_uri() + f"#waypoint={last}", "--dump-dom")),
-                                real_plan, last)
-    first = _masks(_screenshot(tmp_path, out, "first.png"))["R2 arm"]
-    moved = _masks(_screenshot(tmp_path, out, "last.png", f"#waypoint={last}"))["R2 arm"]
+    first, dom = _screenshot_and_dom(tmp_path, out, "first.png")
+    _assert_readout_is_waypoint(_readout(dom), real_plan, 0)
+    moved, dom = _screenshot_and_dom(tmp_path, out, "last.png", f"#waypoint={last}")
+    _assert_readout_is_waypoint(_readout(dom), real_plan, last)
+    first, moved = _masks(first)["R2 arm"], _masks(moved)["R2 arm"]
     overlap = (first & moved).sum() / (first | moved).sum()
     assert overlap < 0.8, f"R2 drawn in the same place at waypoints 0 and {last} (overlap {overlap:.2f})"
 

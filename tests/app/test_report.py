@@ -19,7 +19,7 @@ from calibration.errors import CellCalError
 from calibration.methods import METHODS
 from calibration.metrics import Errors
 from calibration.recording import write_recording
-from tests.app.browser import browser_or_skip, run_browser, screenshot
+from tests.app.browser import browser_or_skip, screenshot_and_dom
 from tests.conftest import (assert_bad_input, cluster_design, measure, needs_shared_data, R1_TEST, R1_TRAIN,
                             write_backlash_case)
 
@@ -306,7 +306,7 @@ def test_report_renders_in_headless_chromium(tmp_path, data):
     assert main(["compare", "--robot", "R1", "--train", str(data / "train.csv"), "--test", str(data / "test.csv"),
                  "--methods", "nominal,base,nls1,fbf13,fbf7", "--report", str(report)]) == 0
     html = report / "report.html"
-    shot = screenshot(tmp_path, html.as_uri(), "report.png", size=(1280, 2400), budget_ms=3000)
+    shot, page = screenshot_and_dom(tmp_path, html.as_uri(), "report.png", size=(1280, 2400), budget_ms=3000)
     img = mpimg.imread(shot)[..., :3]
     assert img.shape == (2400, 1280, 3)
     colours = len(np.unique((img * 255).astype(np.uint8).reshape(-1, 3), axis=0))
@@ -314,7 +314,7 @@ def test_report_renders_in_headless_chromium(tmp_path, data):
     pass_green = ((img[..., 1] > 0.9) & (img[..., 0] > 0.8) & (img[..., 0] < 0.9) & (img[..., 2] < 0.9)).sum()
     fail_red = ((img[..., 0] > 0.95) & (img[..., 1] > 0.8) & (img[..., 1] < 0.9) & (img[..., 2] < 0.9)).sum()
     assert pass_green > 200 and fail_red > 200, (pass_green, fail_red)  # PASS and FAIL cells drawn
-    dom = _Page(run_browser(tmp_path, html.as_uri(), "--dump-dom", budget_ms=3000))
+    dom = _Page(page)
     n = int(dom.body_attrs["data-images"])
     assert n == html.read_text().count("<img ") == 4  # workspace, CDFs, Fourier spectrum and correction map
     assert dom.body_attrs["data-images-decoded"] == str(n)  # set by the page's script: naturalWidth > 0
