@@ -118,12 +118,20 @@ def _check_common(html_path: Path, inputs: list[Path]) -> _Page:
     return page
 
 
-def test_compare_report_pass_fail_iso_and_provenance(tmp_path, data):
-    report = tmp_path / "rep"
+@pytest.fixture(scope="module")
+def compare_report(tmp_path_factory, data):
+    """``compare --report`` of three methods on the module's recordings: (the report folder, the --json file);
+    read, never written, by the tests that check its content and its rendering."""
+    work = tmp_path_factory.mktemp("compare_report")
     assert main(["compare", "--robot", "R1", "--train", str(data / "train.csv"), "--test", str(data / "test.csv"),
-                 "--methods", "nominal,nls1,fbf13", "--json", str(tmp_path / "c.json"), "--report", str(report)]) == 0
+                 "--methods", "nominal,nls1,fbf13", "--json", str(work / "c.json"), "--report", str(work / "rep")]) == 0
+    return work / "rep", work / "c.json"
+
+
+def test_compare_report_pass_fail_iso_and_provenance(compare_report, data):
+    report, cmp_json = compare_report
     page = _check_common(report / "report.html", [data / "train.csv", data / "test.csv"])
-    cmp = json.loads((tmp_path / "c.json").read_text())
+    cmp = json.loads(cmp_json.read_text())
     acc = page.rows("acceptance")
     assert set(acc) == {"nominal", "nls1", "fbf13"}
     for m, row in acc.items():
@@ -297,15 +305,12 @@ def test_every_axis_of_the_plots_is_labelled_with_a_unit(data, synthetic_arm):
     assert heat.axes[0].get_xlabel() == "q2 [deg]" and heat.axes[0].get_ylabel() == "q3 [deg]"
 
 
-def test_report_renders_in_headless_chromium(tmp_path, data):
+def test_report_renders_in_headless_chromium(tmp_path, data, compare_report):
     """A real render: the page is drawn (many colours), the tables and hashes are in the DOM, every image decoded."""
     import matplotlib.image as mpimg
 
     browser_or_skip()
-    report = tmp_path / "rep"
-    assert main(["compare", "--robot", "R1", "--train", str(data / "train.csv"), "--test", str(data / "test.csv"),
-                 "--methods", "nominal,base,nls1,fbf13,fbf7", "--report", str(report)]) == 0
-    html = report / "report.html"
+    html = compare_report[0] / "report.html"
     shot, page = screenshot_and_dom(tmp_path, html.as_uri(), "report.png", size=(1280, 2400), budget_ms=3000)
     img = mpimg.imread(shot)[..., :3]
     assert img.shape == (2400, 1280, 3)
