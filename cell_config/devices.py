@@ -70,6 +70,8 @@ class MocapConfig:
         multicast_group: the NatNet multicast group.
         command_port: NatNet command port (UDP).
         data_port: NatNet data port (UDP).
+        dwell_s: length of each measurement's averaging window [s of capture time]; None keeps the collection's
+            default (:class:`app.cell.collect.CollectConfig`). It must hold ``min_frames`` frames at the frame rate.
     """
 
     server_address: str
@@ -79,6 +81,7 @@ class MocapConfig:
     multicast_group: str = "239.255.42.99"
     command_port: int = 1510
     data_port: int = 1511
+    dwell_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -139,7 +142,7 @@ def parse_mocap(node: Node | None, robots: Mapping[str, Any]) -> MocapConfig | N
         return None
     d = MocapConfig("", "", False, {})
     node.only(("server_address", "local_address", "multicast", "multicast_group", "command_port", "data_port",
-               "rigid_bodies"))
+               "rigid_bodies", "dwell_s"))
     b = _robot_names(node, "rigid_bodies", robots)
     bodies = {str(name): b.string(name) for name in b.data}
     if len(set(bodies.values())) != len(bodies):
@@ -157,7 +160,7 @@ def parse_mocap(node: Node | None, robots: Mapping[str, Any]) -> MocapConfig | N
     return MocapConfig(
         server_address=_host(node, "server_address"), local_address=_host(node, "local_address"),
         multicast=node.boolean("multicast"), rigid_bodies=bodies, multicast_group=group,
-        command_port=command_port, data_port=data_port,
+        command_port=command_port, data_port=data_port, dwell_s=node.number("dwell_s", None, lo=0.0, lo_open=True),
     )
 
 

@@ -32,11 +32,12 @@ def free_port(kind: int = socket.SOCK_STREAM) -> int:
         return int(s.getsockname()[1])
 
 
-def write_rehearsal_cell(folder: Path, via_router: bool = False, **controller: Any) -> Path:
+def write_rehearsal_cell(folder: Path, via_router: bool = False, dwell_s: float | None = None,
+                         **controller: Any) -> Path:
     """A copy of ``cell_config/rehearsal.yaml`` in ``folder`` with free ports; ``controller`` overrides keys.
 
     ``via_router``: the bridge and the collector both connect (as clients) to ``cellcal router`` instead of the
-    collector connecting to the bridge.
+    collector connecting to the bridge. ``dwell_s``: the measurement window (``mocap.dwell_s``), when given.
     """
     data = yaml.safe_load((PACKAGE_DIR / "rehearsal.yaml").read_text())
     for entry in data["robots"].values():
@@ -45,6 +46,8 @@ def write_rehearsal_cell(folder: Path, via_router: bool = False, **controller: A
     data["controller"].update({"motion_port": free_port(), "state_port": free_port(), "max_speed_fraction": 1.0,
                                **controller})
     data["mocap"].update(command_port=free_port(socket.SOCK_DGRAM), data_port=free_port(socket.SOCK_DGRAM))
+    if dwell_s is not None:
+        data["mocap"]["dwell_s"] = dwell_s
     bridge = free_port()
     data["zenoh"]["roles"]["bridge"]["listen"] = [f"tcp/127.0.0.1:{bridge}"]
     data["zenoh"]["roles"]["collector"]["connect"] = [f"tcp/127.0.0.1:{bridge}"]

@@ -70,12 +70,15 @@ def speed_fraction(cell: Any, args: argparse.Namespace, default: float = DEFAULT
 
 
 def motion_config(cell: Any, args: argparse.Namespace, base: Any = None) -> Any:
-    """The collection options (:class:`~app.cell.collect.CollectConfig`) with the chosen speed."""
+    """The collection options (:class:`~app.cell.collect.CollectConfig`) with the chosen speed; on the real cell
+    with the cell file's dwell window (``mocap.dwell_s``) when it names one."""
     from app.cell.collect import CollectConfig
     from app.demo.run import DEMO_COLLECT
 
     if base is None:
         base = DEMO_COLLECT if args.sim else CollectConfig()
+    if not args.sim and cell.mocap is not None and cell.mocap.dwell_s is not None:
+        base = replace(base, dwell_s=cell.mocap.dwell_s)
     return replace(base, speed_fraction=speed_fraction(cell, args, base.speed_fraction if args.sim else DEFAULT_SPEED))
 
 

@@ -61,13 +61,20 @@ def run_browser(work: Path, url: str, *mode: str, size: tuple[int, int] = (1024,
     return out.read_text()
 
 
-def screenshot(work: Path, url: str, name: str, size: tuple[int, int] = (1024, 768), budget_ms: int = 5000) -> Path:
-    """A PNG screenshot of ``url`` as ``work/name`` (kept in ``$CELLCAL_SCREENSHOT_DIR`` too when set)."""
+def screenshot_and_dom(work: Path, url: str, name: str, size: tuple[int, int] = (1024, 768),
+                       budget_ms: int = 5000) -> tuple[Path, str]:
+    """A PNG screenshot of ``url`` as ``work/name`` (kept in ``$CELLCAL_SCREENSHOT_DIR`` too when set) and the DOM
+    after the page's scripts ran, from one browser run (each run costs seconds of a core: SwiftShader WebGL)."""
     png = work / name
-    run_browser(work, url, f"--screenshot={png}", size=size, budget_ms=budget_ms)
+    dom = run_browser(work, url, f"--screenshot={png}", "--dump-dom", size=size, budget_ms=budget_ms)
     assert png.exists(), (work / "browser.log").read_text()[-2000:]
     keep = os.environ.get("CELLCAL_SCREENSHOT_DIR")  # to look at them: CELLCAL_SCREENSHOT_DIR=DIR pytest ...
     if keep:
         os.makedirs(keep, exist_ok=True)
         shutil.copy(png, os.path.join(keep, name))
-    return png
+    return png, dom
+
+
+def screenshot(work: Path, url: str, name: str, size: tuple[int, int] = (1024, 768), budget_ms: int = 5000) -> Path:
+    """A PNG screenshot of ``url`` as ``work/name`` (see :func:`screenshot_and_dom`)."""
+    return screenshot_and_dom(work, url, name, size, budget_ms)[0]

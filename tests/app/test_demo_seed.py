@@ -15,7 +15,7 @@ import pytest
 
 from app.cli.commands import main
 
-SHORT = ["--anchor-step", "50", "--validation", "3", "--methods", "nominal,nls1", "--no-progress"]
+SHORT = ["--anchor-step", "90", "--validation", "3", "--methods", "nominal,nls1", "--no-progress"]
 
 
 def figures(data: object) -> object:

@@ -17,7 +17,7 @@ pytest.importorskip("meshcat")
 from app.dual.preview import plan_frames, preview  # noqa: E402
 from calibration.errors import DataError, ModelError  # noqa: E402
 from cell_config.loader import load_cell  # noqa: E402
-from tests.app.browser import browser_or_skip, run_browser, screenshot  # noqa: E402
+from tests.app.browser import browser_or_skip, run_browser, screenshot_and_dom  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -260,12 +260,14 @@ def test_cli_preview_json_into_a_folder_writes_nothing(real_plan, tmp_path, caps
     assert not out.exists()
 
 
-def _screenshot(tmp_path, page, name: str, fragment: str = ""):
+def _screenshot_and_dom(tmp_path, page, name: str, fragment: str = ""):
+    """The page's screenshot as RGB floats and its DOM after the scripts ran (one browser run)."""
     import matplotlib.image as mpimg
 
-    img = mpimg.imread(screenshot(tmp_path, page.as_uri() + fragment, name))[..., :3]
+    png, dom = screenshot_and_dom(tmp_path, page.as_uri() + fragment, name)
+    img = mpimg.imread(png)[..., :3]
     assert img.shape == (768, 1024, 3)
-    return img
+    return img, dom
 
 
 def _masks(img) -> dict:
@@ -279,11 +281,20 @@ def _masks(img) -> dict:
             "workpiece trace": (g > 0.4) & (b > 0.45) & (r < 0.2) & (np.abs(g - b) < 0.15)}  # teal
 
 
-def test_browser_renders_the_task(cell, real_plan, tmp_path):
-    """Issue 12: the page shows both arms, the gun, the workpiece and the path traces (pixels of each colour)."""
-    out = tmp_path / "preview.html"
+@pytest.fixture(scope="module")
+def first_waypoint(cell, real_plan, tmp_path_factory):
+    """The real plan's static page, its screenshot at waypoint 0 and its DOM there (one browser run, shared by the
+    render and readout tests: the same page in the same state)."""
+    work = tmp_path_factory.mktemp("first_waypoint")
+    out = work / "preview.html"
     preview(cell, real_plan, html_out=out)
-    img = _screenshot(tmp_path, out, "shot.png")
+    img, dom = _screenshot_and_dom(work, out, "shot.png")
+    return out, img, dom
+
+
+def test_browser_renders_the_task(first_waypoint):
+    """Issue 12: the page shows both arms, the gun, the workpiece and the path traces (pixels of each colour)."""
+    _, img, _ = first_waypoint
     coloured = (img.max(-1) - img.min(-1)) > 0.25
     assert coloured.mean() > 0.01, f"only {coloured.mean():.2%} coloured pixels: the scene was not drawn"
     counts = {k: int(m.sum()) for k, m in _masks(img).items()}
@@ -324,17 +335,15 @@ def _assert_readout_is_waypoint(texts: dict, plan_file, i: int):
         assert float(texts[key]) == pytest.approx(wp[unit], rel=5e-3)  # three significant digits
 
 
-def test_browser_readout_shows_waypoint_0_and_steps_the_animation(cell, real_plan, tmp_path):
+def test_browser_readout_shows_waypoint_0_and_steps_the_animation(first_waypoint, real_plan, tmp_path):
     """Issue 12: the readout holds waypoint 0's index, joints [deg] and residual from the plan file; stepping
     to another waypoint (the page's address names it, as the slider does) moves the arms and the numbers."""
-    out = tmp_path / "preview.html"
-    preview(cell, real_plan, html_out=out)
+    out, first, dom = first_waypoint
     last = len(json.loads(real_plan.read_text())["waypoints"]) - 1
-    _assert_readout_is_waypoint(_readout(run_browser(tmp_path, out.as_uri(), "--dump-dom")), real_plan, 0)
-    _assert_readout_is_waypoint(_readout(run_browser(tmp_path, out.as_uri() + f"#waypoint={last}", "--dump-dom")),
-                                real_plan, last)
-    first = _masks(_screenshot(tmp_path, out, "first.png"))["R2 arm"]
-    moved = _masks(_screenshot(tmp_path, out, "last.png", f"#waypoint={last}"))["R2 arm"]
+    _assert_readout_is_waypoint(_readout(dom), real_plan, 0)
+    moved, dom = _screenshot_and_dom(tmp_path, out, "last.png", f"#waypoint={last}")
+    _assert_readout_is_waypoint(_readout(dom), real_plan, last)
+    first, moved = _masks(first)["R2 arm"], _masks(moved)["R2 arm"]
     overlap = (first & moved).sum() / (first | moved).sum()
     assert overlap < 0.8, f"R2 drawn in the same place at waypoints 0 and {last} (overlap {overlap:.2f})"
 

@@ -19,7 +19,7 @@ from calibration.errors import CellCalError
 from calibration.methods import METHODS
 from calibration.metrics import Errors
 from calibration.recording import write_recording
-from tests.app.browser import browser_or_skip, run_browser, screenshot
+from tests.app.browser import browser_or_skip, screenshot_and_dom
 from tests.conftest import (assert_bad_input, cluster_design, measure, needs_shared_data, R1_TEST, R1_TRAIN,
                             write_backlash_case)
 
@@ -118,12 +118,20 @@ def _check_common(html_path: Path, inputs: list[Path]) -> _Page:
     return page
 
 
-def test_compare_report_pass_fail_iso_and_provenance(tmp_path, data):
-    report = tmp_path / "rep"
+@pytest.fixture(scope="module")
+def compare_report(tmp_path_factory, data):
+    """``compare --report`` of three methods on the module's recordings: (the report folder, the --json file);
+    read, never written, by the tests that check its content and its rendering."""
+    work = tmp_path_factory.mktemp("compare_report")
     assert main(["compare", "--robot", "R1", "--train", str(data / "train.csv"), "--test", str(data / "test.csv"),
-                 "--methods", "nominal,nls1,fbf13", "--json", str(tmp_path / "c.json"), "--report", str(report)]) == 0
+                 "--methods", "nominal,nls1,fbf13", "--json", str(work / "c.json"), "--report", str(work / "rep")]) == 0
+    return work / "rep", work / "c.json"
+
+
+def test_compare_report_pass_fail_iso_and_provenance(compare_report, data):
+    report, cmp_json = compare_report
     page = _check_common(report / "report.html", [data / "train.csv", data / "test.csv"])
-    cmp = json.loads((tmp_path / "c.json").read_text())
+    cmp = json.loads(cmp_json.read_text())
     acc = page.rows("acceptance")
     assert set(acc) == {"nominal", "nls1", "fbf13"}
     for m, row in acc.items():
@@ -297,16 +305,13 @@ def test_every_axis_of_the_plots_is_labelled_with_a_unit(data, synthetic_arm):
     assert heat.axes[0].get_xlabel() == "q2 [deg]" and heat.axes[0].get_ylabel() == "q3 [deg]"
 
 
-def test_report_renders_in_headless_chromium(tmp_path, data):
+def test_report_renders_in_headless_chromium(tmp_path, data, compare_report):
     """A real render: the page is drawn (many colours), the tables and hashes are in the DOM, every image decoded."""
     import matplotlib.image as mpimg
 
     browser_or_skip()
-    report = tmp_path / "rep"
-    assert main(["compare", "--robot", "R1", "--train", str(data / "train.csv"), "--test", str(data / "test.csv"),
-                 "--methods", "nominal,base,nls1,fbf13,fbf7", "--report", str(report)]) == 0
-    html = report / "report.html"
-    shot = screenshot(tmp_path, html.as_uri(), "report.png", size=(1280, 2400), budget_ms=3000)
+    html = compare_report[0] / "report.html"
+    shot, page = screenshot_and_dom(tmp_path, html.as_uri(), "report.png", size=(1280, 2400), budget_ms=3000)
     img = mpimg.imread(shot)[..., :3]
     assert img.shape == (2400, 1280, 3)
     colours = len(np.unique((img * 255).astype(np.uint8).reshape(-1, 3), axis=0))
@@ -314,7 +319,7 @@ def test_report_renders_in_headless_chromium(tmp_path, data):
     pass_green = ((img[..., 1] > 0.9) & (img[..., 0] > 0.8) & (img[..., 0] < 0.9) & (img[..., 2] < 0.9)).sum()
     fail_red = ((img[..., 0] > 0.95) & (img[..., 1] > 0.8) & (img[..., 1] < 0.9) & (img[..., 2] < 0.9)).sum()
     assert pass_green > 200 and fail_red > 200, (pass_green, fail_red)  # PASS and FAIL cells drawn
-    dom = _Page(run_browser(tmp_path, html.as_uri(), "--dump-dom", budget_ms=3000))
+    dom = _Page(page)
     n = int(dom.body_attrs["data-images"])
     assert n == html.read_text().count("<img ") == 4  # workspace, CDFs, Fourier spectrum and correction map
     assert dom.body_attrs["data-images-decoded"] == str(n)  # set by the page's script: naturalWidth > 0

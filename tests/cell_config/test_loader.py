@@ -173,8 +173,10 @@ _CONTROLLER_KEYS = ("host, motion_port, state_port, groups, connect_timeout_s, r
     (_set("mocap", "multicast_group", "10.0.0.1"), "mocap.multicast_group", "expected a multicast IP address"),
     (_set("mocap", "data_port", 1510), "mocap.data_port", "other than command_port (1510)"),
     (_set("mocap", "command_port", 99999), "mocap.command_port", "expected an integer in [1, 65535]"),
-    (_set("mocap", "rigid_body_ids", {"R1": 1}), "mocap.rigid_body_ids",
-     "valid keys: server_address, local_address, multicast, multicast_group, command_port, data_port, rigid_bodies"),
+    (_set("mocap", "rigid_body_ids", {"R1": 1}), "mocap.rigid_body_ids", "valid keys: server_address, local_address, "
+     "multicast, multicast_group, command_port, data_port, rigid_bodies, dwell_s"),
+    (_set("mocap", "dwell_s", 0), "mocap.dwell_s", "expected a finite number > 0, got 0"),
+    (_set("mocap", "dwell_s", "0.5"), "mocap.dwell_s", "expected a finite number > 0"),
     (_set("probe", "bitrate", "500k"), "probe.bitrate", "expected an integer >= 1"),
     (_set("probe", "bitrate", 0), "probe.bitrate", "expected an integer >= 1"),
     (_set("probe", "base_id", 0x7FF), "probe.base_id", "expected an integer in [0, 2046]"),
@@ -202,6 +204,24 @@ def test_malformed_device_blocks_name_the_key(tmp_path, mutate, key, reason):
         load_cell(path)
     assert e.value.key == key and reason in e.value.reason and e.value.path == str(path)
     assert f": {key}: " in str(e.value)
+
+
+def test_the_cell_files_dwell_window_is_the_real_collections_window(tmp_path):
+    """``mocap.dwell_s`` sets the measurement window of every real-cell command; absent, the collection's default;
+    never the simulated cell's (its mocap is not this block)."""
+    import argparse
+    import dataclasses
+
+    from app.cell.collect import CollectConfig
+    from app.cli.cell_options import motion_config
+
+    real, sim = argparse.Namespace(sim=False, speed=None), argparse.Namespace(sim=True, speed=None)
+    default = load_cell(_copy_rehearsal(tmp_path, lambda d: None))
+    assert default.mocap.dwell_s is None
+    assert motion_config(default, real).dwell_s == CollectConfig().dwell_s
+    short = load_cell(_copy_rehearsal(tmp_path, _set("mocap", "dwell_s", 0.2), "short.yaml"))
+    assert short.mocap.dwell_s == 0.2 and motion_config(short, real).dwell_s == 0.2
+    assert motion_config(short, sim) == motion_config(dataclasses.replace(short, mocap=None), sim)
 
 
 @pytest.mark.parametrize("block, key", [("zenoh", "multicast_scouting"), ("mocap", "multicast")])
