@@ -96,6 +96,9 @@ class RebaseResult:
         seconds: wall time of the solve.
         n_samples: N.
         joint_offsets: the fitted joint offsets [rad], shape (6,) (zeros for joints not refitted).
+        objective_before, objective_after: RMS of the weighted residual the solve minimises (position and
+            a-weighted orientation, [mm]) with the model as is / rebased; LM takes only steps that lower it, so
+            after <= before always (the position mean alone need not fall when the frames were already right).
     """
 
     T_base_correction: np.ndarray
@@ -114,6 +117,8 @@ class RebaseResult:
     seconds: float
     n_samples: int
     joint_offsets: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    objective_before: float = float("nan")
+    objective_after: float = float("nan")
 
     @property
     def mean_before_mm(self) -> float:
@@ -277,6 +282,7 @@ class RebaseProblem:
         """LM from the identity along the observable directions; the held ones stay at zero."""
         start = time.perf_counter()
         res = solve(self, None, settings)
+        r0 = self.residuals(np.zeros((1, self.basis.shape[1]))).r
         delta = self.basis @ res.z[0]
         T_b, T_t = corrections(delta)
         R0, p0 = self.frames.R_bf, self.frames.p_bf
@@ -286,7 +292,8 @@ class RebaseProblem:
         return RebaseResult(T_b, T_t, delta, self.observability.rank, self.held, self.observability,
                             before[0], after[0], before[1], after[1], bool(res.converged[0]), res.reason[0],
                             int(res.iterations[0]), time.perf_counter() - start, self.n_samples,
-                            self._joint_offsets(delta))
+                            self._joint_offsets(delta), float(np.sqrt(np.sum(r0 * r0) / r0.size)),
+                            float(np.sqrt(res.cost[0] / r0.size)))
 
 
 def _describe_free(obs: Observability, index: int, free: np.ndarray, names: tuple[str, ...] = DIRECTION_NAMES

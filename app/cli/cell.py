@@ -283,7 +283,8 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
                                                            if decision.archived else ""))
     write_json(args.json, {**decision.to_json(), **({} if rebased is None else {"rebase": {
         "samples": rebased.n_samples, "fitted_directions": rebased.fitted, "held": list(rebased.held),
-        "position_mean_mm": {"before": rebased.mean_before_mm, "after": rebased.mean_after_mm}}})})
+        "position_mean_mm": {"before": rebased.mean_before_mm, "after": rebased.mean_after_mm},
+        "objective_rms": {"before": rebased.objective_before, "after": rebased.objective_after}}})})
     if args.report:
         from app.analysis.report import Page, evaluation_section, write_html
 

@@ -27,5 +27,8 @@ def test_rebase_refits_the_frames_of_the_model_in_service(tmp_path, capsys):
     assert "Rebased on" in out
     d = json.loads((tmp_path / "d.json").read_text())
     assert d["method"] == "nls1" and d["rebase"]["samples"] > 0
-    assert d["rebase"]["position_mean_mm"]["after"] <= d["rebase"]["position_mean_mm"]["before"]
+    # what the rebase minimises cannot rise (the sim's frames were already right, so the position mean alone is
+    # a coin flip at the noise level: 0.14608 against 0.14606 mm in one run)
+    assert d["rebase"]["objective_rms"]["after"] <= d["rebase"]["objective_rms"]["before"]
+    assert d["rebase"]["position_mean_mm"]["after"] <= d["rebase"]["position_mean_mm"]["before"] * 1.05
     assert load_model(Path(d["current_path"] if d["replaced"] else d["rejected"])).kind == "rebased"

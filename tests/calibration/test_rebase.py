@@ -58,6 +58,9 @@ def test_planted_base_and_tool_change_is_recovered(inner_models, kind):
     np.testing.assert_allclose(result.T_base_correction, T_BASE, atol=1e-6)
     np.testing.assert_allclose(result.T_tool_correction, T_TOOL, atol=1e-6)
     assert result.residual_after_mm.max() < 1e-6 < result.residual_before_mm.min()
+    # the objective: the position RMS at least (orientation adds to it), zero once the planted frames are found
+    assert result.objective_after < 1e-6 and result.objective_before >= np.sqrt(
+        np.mean(result.residual_before_mm ** 2) / 6)
     q_test = _q(30, seed=9)
     np.testing.assert_allclose(model.fk(q_test)[1], truth.fk(q_test)[1], atol=1e-6)
     assert model.kind == "rebased" and model.inner is inner and model.method == inner.method
