@@ -440,6 +440,18 @@ class Fitter:
         return self.physics_informed()
 
     def _fit_diagnosed(self) -> KinematicModel:
+        job = self._cache.pop("diagnosis_job", None)
+        if job is not None:  # started by prefetch in its own worker process: the same bits as here
+            pool, future = job
+            try:
+                model, seconds = future.result()  # a worker that died raises BrokenProcessPool
+            finally:
+                pool.shutdown(wait=True)
+            self._cache.setdefault("worker_seconds", {})["diagnosed"] = seconds
+            return model
+        return self._diagnose()
+
+    def _diagnose(self) -> KinematicModel:
         from calibration.diagnosis import DiagnoseOptions, diagnose
 
         opts = DiagnoseOptions(a=self.options.a, tolerance=self.options.tolerance, cluster_size=self.options.cluster_size)
@@ -525,8 +537,13 @@ class Fitter:
         thread). With ``held_out`` the fold refits of :meth:`held_out_errors` too, for the methods whose held-out
         errors a recommendation reads (those on the reference :func:`calibration.selection.off_reference` keeps).
 
+        ``diagnosed`` among ``methods`` runs in a worker process of its own, forked first: it shares no fit with
+        the others, so it overlaps the shared fits made here before the network workers fork.
+
         A no-op without the ``fork`` start method or with one usable core. The shared fits run here first.
         """
+        if "diagnosed" in methods:
+            self._start_diagnosis()
         prefetched = self._cache.setdefault("prefetched", {})
         neural = [m for m in ("ae", "pi+ae", "nn", "pi+nn") if m in methods and m not in prefetched
                   and m not in self._cache.get("fitted", ())]
@@ -547,6 +564,20 @@ class Fitter:
         for m, options in jobs.items():  # the longest (ae's final training) first
             prefetched[m] = self._submit(_prefetch_final, m, options)
         self._submit_folds(folds)
+
+    def _start_diagnosis(self) -> None:
+        """Start ``diagnosed``'s fit in a forked worker process of its own (collected by :meth:`fit`); a no-op
+        when it is fitted or started, without ``fork`` or with one usable core."""
+        global _FORKED
+        if ("diagnosis_job" in self._cache or "diagnosed" in self._cache.get("fitted", ())
+                or robust.default_workers() < 2 or "fork" not in mp.get_all_start_methods()):
+            return
+        pool = ProcessPoolExecutor(1, mp_context=mp.get_context("fork"))
+        _FORKED = self  # the worker forks during the submit
+        try:
+            self._cache["diagnosis_job"] = pool, pool.submit(_diagnosis_job)
+        finally:
+            _FORKED = None
 
     def prefetch_held_out_errors(self, methods: list[str] | tuple[str, ...]) -> None:
         """:meth:`held_out_errors` of the neural CDC methods among ``methods``, their fold refits (a network
@@ -773,4 +804,11 @@ def _prefetch_final(method: str, options: dict[str, Any]) -> tuple[CdcModel, flo
     """Worker job of :meth:`Fitter.prefetch`: the final model and its fit time [s]."""
     start = time.perf_counter()
     model = _FORKED._build_cdc(method, options)  # type: ignore[union-attr]
+    return model, time.perf_counter() - start
+
+
+def _diagnosis_job() -> tuple[KinematicModel, float]:
+    """Worker job of :meth:`Fitter._start_diagnosis`: ``diagnosed``'s model and its fit time [s]."""
+    start = time.perf_counter()
+    model = _FORKED._diagnose()  # type: ignore[union-attr]
     return model, time.perf_counter() - start

@@ -177,6 +177,23 @@ def test_a_prefetched_neural_fit_is_the_fit_made_here(synthetic_arm, r1_nominal)
     assert multiprocessing.active_children() == []  # the pool is shut once every prefetched fit is collected
 
 
+def test_a_prefetched_diagnosis_runs_in_its_own_worker_and_is_the_fit_made_here(synthetic_arm, r1_nominal):
+    """compare's diagnosed fit shares nothing with the other methods: prefetch forks it first, so it overlaps the
+    shared fits; the same model as diagnosed here."""
+    _, _, truth = synthetic_arm
+    q, cluster = cluster_design(step_deg=30.0)
+    train = measure(truth.fk, q, 0.02, 0.01, 1, cluster)
+    here, _ = Fitter("R1", r1_nominal, train, FitOptions(local_prior=0.1)).fit("diagnosed")
+    fitter = Fitter("R1", r1_nominal, train, FitOptions(local_prior=0.1))
+    fitter.prefetch(["nominal", "diagnosed"])
+    assert "diagnosis_job" in fitter._cache or robust.default_workers() < 2
+    assert multiprocessing.active_children() or robust.default_workers() < 2
+    there, seconds = fitter.fit("diagnosed")
+    assert np.array_equal(there.fk(train.q)[1], here.fk(train.q)[1]) and seconds > 0
+    assert there.info["verdict"] == here.info["verdict"]
+    assert "diagnosis_job" not in fitter._cache and multiprocessing.active_children() == []
+
+
 def test_held_out_errors_refitted_in_workers_are_those_refitted_here(synthetic_arm, r1_nominal):
     """The recommendation's fold refits of the networks run in forked workers: the same bits as in-process."""
     _, _, truth = synthetic_arm
