@@ -105,6 +105,12 @@ class FitOptions:
         nls0_damping_grid: candidate cutoffs, half-decades from the truncation ``tolerance`` up.
         fbf7_rank: rank of the SVD-reduced Fourier basis.
         cluster_size: samples per anchor when the recording has no cluster column.
+        pi_ae_hidden: encoder widths of ``pi+ae``'s autoencoder (the decoder mirrors them). Two layers of 128 since
+            issue 14, a third of the training cost of the paper's three of 200
+            (:data:`calibration.interpolation.autoencoder.PAPER_HIDDEN`, which ``pi_ae_hidden=PAPER_HIDDEN``
+            restores), chosen on clusters held out from the 8 R1 training recordings (``scripts/recommend_days.py``:
+            the same recommendation, best method and flags on every day, pi+ae's held-out RMS within about one paired
+            standard error over clusters). The paper's ``ae`` keeps the paper's network, as the paper defines it.
         seed: random seed of the neural interpolators.
         epoch_progress: called as ``epoch_progress(epoch, n_epochs)`` after each training epoch of the neural
             interpolators (nn, ae; a progress bar); no effect on any result.
@@ -121,6 +127,7 @@ class FitOptions:
     nls0_damping_grid: tuple[float, ...] = (0.01, 0.03, 0.1, 0.3, 1.0)
     fbf7_rank: int = 7
     cluster_size: int = 7
+    pi_ae_hidden: tuple[int, ...] = (128, 128)
     seed: int = 0
     epoch_progress: Callable[[int, int], None] | None = field(default=None, compare=False)
 
@@ -464,6 +471,8 @@ class Fitter:
         options: dict[str, Any] = {}
         if kind == "fbf7":
             options["rank"] = self.options.fbf7_rank
+        if method == "pi+ae":
+            options["hidden"] = tuple(self.options.pi_ae_hidden)
         if kind in ("nn", "ae"):
             options["random_state"] = self.options.seed
             options["progress"] = self.options.epoch_progress

@@ -223,3 +223,15 @@ def test_the_neural_check_scores_the_recommendations_fold_refits(synthetic_arm, 
     assert held["rms_mm"] == round(float(np.sqrt(np.mean(err ** 2))), 4)
     assert held["reference_rms_mm"] == round(float(np.sqrt(np.mean(ref ** 2))), 4)
     assert held["max_mm"] == round(float(err.max()), 4) and held["reference_max_mm"] == round(float(ref.max()), 4)
+
+
+def test_pi_ae_trains_the_issue_14_autoencoder_and_the_papers_ae_keeps_the_papers(fitter):
+    """pi+ae's encoder is two layers of 128 since issue 14 (chosen on held-out training clusters); the paper's ae keeps
+    the paper's three of 200, which is also the interpolator's default and one option away for pi+ae."""
+    from calibration.interpolation.autoencoder import PAPER_HIDDEN, AutoencoderInterpolator
+
+    assert fitter._cdc_options("pi+ae")["hidden"] == (128, 128) == FitOptions().pi_ae_hidden
+    assert "hidden" not in fitter._cdc_options("ae") and AutoencoderInterpolator().hidden == PAPER_HIDDEN == (200,) * 3
+    paper = Fitter(fitter.robot, fitter.nominal, fitter.train, FitOptions(local_prior=0.1, pi_ae_hidden=PAPER_HIDDEN))
+    assert paper._cdc_options("pi+ae")["hidden"] == PAPER_HIDDEN
+    assert not any("hidden" in fitter._cdc_options(m) for m in ("nn", "pi+nn"))  # nn keeps the paper's network
