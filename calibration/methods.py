@@ -105,6 +105,12 @@ class FitOptions:
         nls0_damping_grid: candidate cutoffs, half-decades from the truncation ``tolerance`` up.
         fbf7_rank: rank of the SVD-reduced Fourier basis.
         cluster_size: samples per anchor when the recording has no cluster column.
+        pi_ae_hidden: encoder widths of ``pi+ae``'s autoencoder (the decoder mirrors them). Two layers of 128 since
+            issue 14, a third of the training cost of the paper's three of 200
+            (:data:`calibration.interpolation.autoencoder.PAPER_HIDDEN`, which ``pi_ae_hidden=PAPER_HIDDEN``
+            restores), chosen on clusters held out from the 8 R1 training recordings (``scripts/recommend_days.py``:
+            the same recommendation, best method and flags on every day, pi+ae's held-out RMS within about one paired
+            standard error over clusters). The paper's ``ae`` keeps the paper's network, as the paper defines it.
         seed: random seed of the neural interpolators.
         epoch_progress: called as ``epoch_progress(epoch, n_epochs)`` after each training epoch of the neural
             interpolators (nn, ae; a progress bar); no effect on any result.
@@ -121,6 +127,7 @@ class FitOptions:
     nls0_damping_grid: tuple[float, ...] = (0.01, 0.03, 0.1, 0.3, 1.0)
     fbf7_rank: int = 7
     cluster_size: int = 7
+    pi_ae_hidden: tuple[int, ...] = (128, 128)
     seed: int = 0
     epoch_progress: Callable[[int, int], None] | None = field(default=None, compare=False)
 
@@ -440,6 +447,18 @@ class Fitter:
         return self.physics_informed()
 
     def _fit_diagnosed(self) -> KinematicModel:
+        job = self._cache.pop("diagnosis_job", None)
+        if job is not None:  # started by prefetch in its own worker process: the same bits as here
+            pool, future = job
+            try:
+                model, seconds = future.result()  # a worker that died raises BrokenProcessPool
+            finally:
+                pool.shutdown(wait=True)
+            self._cache.setdefault("worker_seconds", {})["diagnosed"] = seconds
+            return model
+        return self._diagnose()
+
+    def _diagnose(self) -> KinematicModel:
         from calibration.diagnosis import DiagnoseOptions, diagnose
 
         opts = DiagnoseOptions(a=self.options.a, tolerance=self.options.tolerance, cluster_size=self.options.cluster_size)
@@ -452,6 +471,8 @@ class Fitter:
         options: dict[str, Any] = {}
         if kind == "fbf7":
             options["rank"] = self.options.fbf7_rank
+        if method == "pi+ae":
+            options["hidden"] = tuple(self.options.pi_ae_hidden)
         if kind in ("nn", "ae"):
             options["random_state"] = self.options.seed
             options["progress"] = self.options.epoch_progress
@@ -525,8 +546,13 @@ class Fitter:
         thread). With ``held_out`` the fold refits of :meth:`held_out_errors` too, for the methods whose held-out
         errors a recommendation reads (those on the reference :func:`calibration.selection.off_reference` keeps).
 
+        ``diagnosed`` among ``methods`` runs in a worker process of its own, forked first: it shares no fit with
+        the others, so it overlaps the shared fits made here before the network workers fork.
+
         A no-op without the ``fork`` start method or with one usable core. The shared fits run here first.
         """
+        if "diagnosed" in methods:
+            self._start_diagnosis()
         prefetched = self._cache.setdefault("prefetched", {})
         neural = [m for m in ("ae", "pi+ae", "nn", "pi+nn") if m in methods and m not in prefetched
                   and m not in self._cache.get("fitted", ())]
@@ -547,6 +573,20 @@ class Fitter:
         for m, options in jobs.items():  # the longest (ae's final training) first
             prefetched[m] = self._submit(_prefetch_final, m, options)
         self._submit_folds(folds)
+
+    def _start_diagnosis(self) -> None:
+        """Start ``diagnosed``'s fit in a forked worker process of its own (collected by :meth:`fit`); a no-op
+        when it is fitted or started, without ``fork`` or with one usable core."""
+        global _FORKED
+        if ("diagnosis_job" in self._cache or "diagnosed" in self._cache.get("fitted", ())
+                or robust.default_workers() < 2 or "fork" not in mp.get_all_start_methods()):
+            return
+        pool = ProcessPoolExecutor(1, mp_context=mp.get_context("fork"))
+        _FORKED = self  # the worker forks during the submit
+        try:
+            self._cache["diagnosis_job"] = pool, pool.submit(_diagnosis_job)
+        finally:
+            _FORKED = None
 
     def prefetch_held_out_errors(self, methods: list[str] | tuple[str, ...]) -> None:
         """:meth:`held_out_errors` of the neural CDC methods among ``methods``, their fold refits (a network
@@ -773,4 +813,11 @@ def _prefetch_final(method: str, options: dict[str, Any]) -> tuple[CdcModel, flo
     """Worker job of :meth:`Fitter.prefetch`: the final model and its fit time [s]."""
     start = time.perf_counter()
     model = _FORKED._build_cdc(method, options)  # type: ignore[union-attr]
+    return model, time.perf_counter() - start
+
+
+def _diagnosis_job() -> tuple[KinematicModel, float]:
+    """Worker job of :meth:`Fitter._start_diagnosis`: ``diagnosed``'s model and its fit time [s]."""
+    start = time.perf_counter()
+    model = _FORKED._diagnose()  # type: ignore[union-attr]
     return model, time.perf_counter() - start

@@ -31,6 +31,10 @@ from calibration.interpolation.mlp import (DEFAULT_PRECISION, EpochCallback, Sta
 from calibration.interpolation.scattered import LinearInterpolator
 
 
+#: The paper's encoder widths (three hidden layers of 200, the decoder mirrored; the default here).
+PAPER_HIDDEN = (200, 200, 200)
+
+
 class AutoencoderInterpolator(Interpolator):
     """Linear interpolation of autoencoder latent codes over x, decoded to values.
 
@@ -49,7 +53,7 @@ class AutoencoderInterpolator(Interpolator):
 
     kind: ClassVar[str] = "ae"
 
-    def __init__(self, latent: int = 6, hidden: Sequence[int] = (200, 200, 200), max_iter: int = 300,
+    def __init__(self, latent: int = 6, hidden: Sequence[int] = PAPER_HIDDEN, max_iter: int = 300,
                  learning_rate: float = 1e-3, alpha: float = 1e-4, random_state: int = 0,
                  progress: EpochCallback | None = None, precision: str = DEFAULT_PRECISION) -> None:
         super().__init__()

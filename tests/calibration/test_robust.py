@@ -177,6 +177,23 @@ def test_a_prefetched_neural_fit_is_the_fit_made_here(synthetic_arm, r1_nominal)
     assert multiprocessing.active_children() == []  # the pool is shut once every prefetched fit is collected
 
 
+def test_a_prefetched_diagnosis_runs_in_its_own_worker_and_is_the_fit_made_here(synthetic_arm, r1_nominal):
+    """compare's diagnosed fit shares nothing with the other methods: prefetch forks it first, so it overlaps the
+    shared fits; the same model as diagnosed here."""
+    _, _, truth = synthetic_arm
+    q, cluster = cluster_design(step_deg=30.0)
+    train = measure(truth.fk, q, 0.02, 0.01, 1, cluster)
+    here, _ = Fitter("R1", r1_nominal, train, FitOptions(local_prior=0.1)).fit("diagnosed")
+    fitter = Fitter("R1", r1_nominal, train, FitOptions(local_prior=0.1))
+    fitter.prefetch(["nominal", "diagnosed"])
+    assert "diagnosis_job" in fitter._cache or robust.default_workers() < 2
+    assert multiprocessing.active_children() or robust.default_workers() < 2
+    there, seconds = fitter.fit("diagnosed")
+    assert np.array_equal(there.fk(train.q)[1], here.fk(train.q)[1]) and seconds > 0
+    assert there.info["verdict"] == here.info["verdict"]
+    assert "diagnosis_job" not in fitter._cache and multiprocessing.active_children() == []
+
+
 def test_held_out_errors_refitted_in_workers_are_those_refitted_here(synthetic_arm, r1_nominal):
     """The recommendation's fold refits of the networks run in forked workers: the same bits as in-process."""
     _, _, truth = synthetic_arm
@@ -206,3 +223,15 @@ def test_the_neural_check_scores_the_recommendations_fold_refits(synthetic_arm, 
     assert held["rms_mm"] == round(float(np.sqrt(np.mean(err ** 2))), 4)
     assert held["reference_rms_mm"] == round(float(np.sqrt(np.mean(ref ** 2))), 4)
     assert held["max_mm"] == round(float(err.max()), 4) and held["reference_max_mm"] == round(float(ref.max()), 4)
+
+
+def test_pi_ae_trains_the_issue_14_autoencoder_and_the_papers_ae_keeps_the_papers(fitter):
+    """pi+ae's encoder is two layers of 128 since issue 14 (chosen on held-out training clusters); the paper's ae keeps
+    the paper's three of 200, which is also the interpolator's default and one option away for pi+ae."""
+    from calibration.interpolation.autoencoder import PAPER_HIDDEN, AutoencoderInterpolator
+
+    assert fitter._cdc_options("pi+ae")["hidden"] == (128, 128) == FitOptions().pi_ae_hidden
+    assert "hidden" not in fitter._cdc_options("ae") and AutoencoderInterpolator().hidden == PAPER_HIDDEN == (200,) * 3
+    paper = Fitter(fitter.robot, fitter.nominal, fitter.train, FitOptions(local_prior=0.1, pi_ae_hidden=PAPER_HIDDEN))
+    assert paper._cdc_options("pi+ae")["hidden"] == PAPER_HIDDEN
+    assert not any("hidden" in fitter._cdc_options(m) for m in ("nn", "pi+nn"))  # nn keeps the paper's network
