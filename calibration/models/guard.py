@@ -12,7 +12,7 @@ the region and by how much (``evaluate`` and ``predict`` report it).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 from typing import Any
 
 import numpy as np
@@ -100,7 +100,7 @@ def region_of(info: dict[str, Any]) -> Region | None:
 
 
 def extrapolation(model: Any, q: np.ndarray) -> dict[str, Any]:
-    """How many poses lie outside what the model's training data identified, and by how much.
+    """How many poses lie outside what the model's training data identified, by how much, and what the guard did.
 
     Args:
         model: a :class:`~calibration.models.base.KinematicModel`.
@@ -110,7 +110,10 @@ def extrapolation(model: Any, q: np.ndarray) -> dict[str, Any]:
         ``poses``, ``outside_training_range`` (poses with a joint outside the training range),
         ``max_excess_deg`` and ``rms_excess_deg`` (over the outside poses, the largest joint excess),
         ``max_excess_deg_per_joint`` (n,), ``outside_model_region`` (the model's own region test, e.g. a cdc
-        interpolator's), and ``region_known`` (False for a model saved without its training region).
+        interpolator's), ``region_known`` (False for a model saved without its training region), and
+        ``guard_acted`` / ``guard_shift_mm_max``: whether the guard changed the model's prediction on these poses
+        (its configuration-dependent terms held at the edge of the range) and the largest position change it made
+        [mm] (0 and False for a model whose every term is rigid, or with every pose inside).
     """
     q = np.atleast_2d(np.asarray(q, dtype=float))
     region = model.region()
@@ -118,11 +121,26 @@ def extrapolation(model: Any, q: np.ndarray) -> dict[str, Any]:
     out: dict[str, Any] = {"poses": int(q.shape[0]), "region_known": region is not None, "outside_model_region": own}
     if region is None:
         return {**out, "outside_training_range": None, "max_excess_deg": None, "rms_excess_deg": None,
-                "max_excess_deg_per_joint": None}
+                "max_excess_deg_per_joint": None, "guard_acted": False, "guard_shift_mm_max": None}
     ex = np.degrees(region.excess(q))
     worst = ex.max(axis=1)
     outside = worst > 0
+    shift = guard_shift_mm(model, q[outside]) if outside.any() else 0.0
     return {**out, "outside_training_range": int(np.count_nonzero(outside)),
             "max_excess_deg": float(worst.max(initial=0.0)),
             "rms_excess_deg": float(np.sqrt(np.mean(worst[outside] ** 2))) if outside.any() else 0.0,
-            "max_excess_deg_per_joint": ex.max(axis=0).tolist()}
+            "max_excess_deg_per_joint": ex.max(axis=0).tolist(),
+            "guard_acted": bool(shift > GUARD_ACTED_MM), "guard_shift_mm_max": shift}
+
+
+#: The guard is said to have acted when it moves a predicted position by more than this [mm] (rounding level).
+GUARD_ACTED_MM = 1e-9
+
+
+def guard_shift_mm(model: Any, q: np.ndarray) -> float:
+    """The largest change [mm] the guard makes to the model's predicted position at joint angles q (N, n): the
+    model against itself with its training region removed (which turns the guard off)."""
+    if q.shape[0] == 0 or "info" not in {f.name for f in fields(model)}:
+        return 0.0
+    unguarded = replace(model, info={k: v for k, v in model.info.items() if k != REGION_KEY})
+    return float(np.max(np.linalg.norm(model.fk(q)[1] - unguarded.fk(q)[1], axis=1)))

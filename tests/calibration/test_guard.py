@@ -93,3 +93,24 @@ def test_effect_fitted_in_a_narrow_band_is_held_at_its_edge_outside(region, tmp_
     back = load_model(tmp_path / "m.json")
     for a, b in zip(back.fk(far), guarded.fk(far)):
         np.testing.assert_allclose(a, b, atol=1e-12)
+
+
+def test_extrapolation_says_whether_the_guard_acted_and_by_how_much(region):
+    """Outside the range, a configuration-dependent effect makes the guard act (reported with the position change it
+    made); a rigid model, or every pose inside, leaves it idle."""
+    arm = load_cell().robot("R1").model()
+    gear = GearTransmission(((2, (1, 2)),), np.array([3e-3, 0.0, 2e-3, 0.0]))
+    guarded = PhysicsModel("R1", "diagnose", arm, (gear,), 0, {REGION_KEY: region.to_dict()})
+    plain = PhysicsModel("R1", "diagnose", arm, (gear,), 0)
+    rng = np.random.default_rng(3)
+    inside = rng.uniform(region.lower_rad, region.upper_rad, (10, 6))
+    far = inside.copy()
+    far[:, 1] = np.radians(rng.uniform(70, 120, 10))  # joint 2 20-70 deg beyond its range
+    ex = extrapolation(guarded, far)
+    shift = np.max(np.linalg.norm(guarded.fk(far)[1] - plain.fk(far)[1], axis=1))
+    assert ex["guard_acted"] and shift > 0.1
+    assert ex["guard_shift_mm_max"] == pytest.approx(shift, rel=1e-12)
+    idle = extrapolation(guarded, inside)
+    assert not idle["guard_acted"] and idle["guard_shift_mm_max"] == 0.0
+    rigid = extrapolation(PhysicsModel("R1", "t", arm, (), 0, {REGION_KEY: region.to_dict()}), far)
+    assert rigid["outside_training_range"] == 10 and not rigid["guard_acted"] and rigid["guard_shift_mm_max"] == 0.0
