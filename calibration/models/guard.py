@@ -22,27 +22,27 @@ from calibration.errors import ModelError
 #: Width over which the clamp saturates outside the training range [rad], for a region saved without its own
 #: (models fitted before the margins came from the data; see :func:`data_margin_rad`).
 DEFAULT_MARGIN_RAD = math.radians(2.0)
-#: A joint's clamp margin as a share of its training span (:func:`data_margin_rad`).
+#: A joint's clamp margin as a share of its training span, at most ``DEFAULT_MARGIN_RAD`` (:func:`data_margin_rad`).
 MARGIN_SHARE = 0.1
 #: The smallest clamp margin [rad]: a joint the training data never moved is held at the one angle it saw.
 MIN_MARGIN_RAD = 1e-3
 
 
 def data_margin_rad(lower_rad: np.ndarray, upper_rad: np.ndarray) -> np.ndarray:
-    """Per-joint clamp margin from the training data's own spread: ``MARGIN_SHARE`` of each joint's span, at least
-    ``MIN_MARGIN_RAD``. An effect identified inside a band is not carried further beyond the band than a share of
-    its own width.
+    """Per-joint clamp margin from the training data's own spread: ``MARGIN_SHARE`` of each joint's span, between
+    ``MIN_MARGIN_RAD`` and ``DEFAULT_MARGIN_RAD``. An effect identified inside a narrow band is not carried further
+    beyond it than a share of the band's own width; a wide band keeps the 2 deg margin.
 
     Chosen on the shared days' training recordings only (``scripts/extrapolation_folds.py``: edge clusters of q2
-    or q3, or the q1/q4-q6 steps, held out and extrapolated to). A fixed margin cannot suit both joints that move:
-    on 0620's steps (a gear error on a wrist joint seen within +-2 deg) the held-out mean is 0.185 mm at the old
-    2 deg, 0.160 mm held hard at the edge, 0.164 at 10 % of the span; on 0524's q2 edges (compliance and gear error
-    seen over 90 deg of joint 2) it is 0.197 at 2 deg, 0.201 held hard, 0.191 at 10 % of the span. On the other
-    folds evaluated the margin changes nothing beyond the third decimal. (25 % of the span also beats 2 deg on both,
-    less so on 0620: 0.172 and 0.188.)
+    or q3, or the q1/q4-q6 steps, held out and extrapolated to; position mean/max [mm] on them). On 0620's steps
+    (a gear error on a wrist joint seen within +-2 deg) the fixed 2 deg gives 0.185/0.666, 10 % of the span
+    0.164/0.657, held hard at the edge 0.160/0.655. On the wide joints a share of the span cuts both ways: 10 % of
+    the span (10-12 deg) helps 0524's q2 edges (0.197/0.841 -> 0.191/0.830) but costs 0524's q3 edges
+    (0.179/0.451 -> 0.180/0.470), so the margin is capped at the old 2 deg. On every other fold evaluated the
+    margin changes nothing beyond the third decimal.
     """
     span = np.asarray(upper_rad, dtype=float) - np.asarray(lower_rad, dtype=float)
-    return np.maximum(MARGIN_SHARE * span, MIN_MARGIN_RAD)
+    return np.clip(MARGIN_SHARE * span, MIN_MARGIN_RAD, DEFAULT_MARGIN_RAD)
 
 
 @dataclass(frozen=True)

@@ -119,8 +119,8 @@ def test_extrapolation_says_whether_the_guard_acted_and_by_how_much(region):
 def test_region_of_data_takes_each_joints_margin_from_its_own_spread():
     """The clamp margin is a share of each joint's training span (a joint the data never moved: the floor), so an
     effect seen within +-2 deg of the wrist is not carried 2 deg further, while one seen over 100 deg of joint 2
-    fades over 10 deg; a region saved with one margin reads back unchanged."""
-    from calibration.models.guard import MARGIN_SHARE, MIN_MARGIN_RAD
+    keeps the 2 deg cap; a region saved with one margin reads back unchanged."""
+    from calibration.models.guard import DEFAULT_MARGIN_RAD, MARGIN_SHARE, MIN_MARGIN_RAD
 
     rng = np.random.default_rng(4)
     q = np.zeros((200, 6))
@@ -128,8 +128,9 @@ def test_region_of_data_takes_each_joints_margin_from_its_own_spread():
     q[:, 5] = np.radians(rng.uniform(-2, 2, 200))
     r = Region.of(q)
     span = q.max(axis=0) - q.min(axis=0)
-    np.testing.assert_allclose(r.margin_rad, np.maximum(MARGIN_SHARE * span, MIN_MARGIN_RAD))
-    assert r.margin_rad[0] == MIN_MARGIN_RAD and r.margin_rad[5] < math.radians(0.5) < math.radians(5) < r.margin_rad[1]
+    np.testing.assert_allclose(r.margin_rad, np.clip(MARGIN_SHARE * span, MIN_MARGIN_RAD, DEFAULT_MARGIN_RAD))
+    assert r.margin_rad[0] == MIN_MARGIN_RAD and r.margin_rad[5] < math.radians(0.5)
+    assert r.margin_rad[1] == DEFAULT_MARGIN_RAD
     far = np.zeros((1, 6))
     far[0, 5] = math.radians(60.0)
     assert r.clamp(far)[0, 5] <= r.upper_rad[5] + MARGIN_SHARE * span[5]
