@@ -49,8 +49,8 @@ def main(argv: list[str] | None = None) -> int:
     limits = (robot.robot.lower_rad, robot.robot.upper_rad)
     rows = []
     print("| training → test | nls1 mean/max mm | diagnosed mean/max mm | no worse | diagnosed without guard | "
-          "effects kept | test poses outside training range | max excess deg | fit s |")
-    print("|---|---|---|---|---|---|---|---|---|")
+          "effects kept | test poses outside training range | max excess deg | guard acted (max shift mm) | fit s |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for unit in (u for u in UNITS if u.name in chosen):
         train = read_recording(args.data / "PH_grad_data" / unit.train, *limits)
         fitter = make_fitter(robot, train)
@@ -71,7 +71,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"| {unit.name} → {label} | {a['mean']:.3f}/{a['max']:.3f} | {b['mean']:.3f}/{b['max']:.3f} | "
                   f"{'yes' if row['no_worse'] else 'NO'} | {c['mean']:.3f}/{c['max']:.3f} | "
                   f"{', '.join(row['effects']) or '-'} | {ex['outside_training_range']} of {ex['poses']} | "
-                  f"{ex['max_excess_deg']:.1f} | {seconds:.0f} |", flush=True)
+                  f"{ex['max_excess_deg']:.1f} | {'yes' if ex['guard_acted'] else 'no'} "
+                  f"({ex['guard_shift_mm_max']:.3f}) | {seconds:.0f} |", flush=True)
     n_ok = sum(r["no_worse"] for r in rows)
     print(f"\ndiagnosed no worse than nls1 (mean and max) on {n_ok} of {len(rows)} test recordings.")
     if args.json:

@@ -69,8 +69,10 @@ def _warn_extrapolation(model: Any, ex: dict[str, Any]) -> None:
     """One stderr line when poses leave the model's training range (see :mod:`calibration.models.guard`)."""
     if ex["outside_training_range"]:
         print(f"warning: {ex['outside_training_range']} of {ex['poses']} poses lie outside the joint range of the "
-              f"{model.method} model's training data (by up to {ex['max_excess_deg']:.1f} deg); its "
-              "configuration-dependent effects are held at the edge of that range there", file=sys.stderr)
+              f"{model.method} model's training data (by up to {ex['max_excess_deg']:.1f} deg); "
+              + (f"the guard held its configuration-dependent effects at the edge of that range there (moving the "
+                 f"position by up to {ex['guard_shift_mm_max']:.3f} mm)" if ex.get("guard_acted") else
+                 "the guard did not change its prediction there"), file=sys.stderr)
 
 
 def _model_arg(args: argparse.Namespace) -> tuple[Any, Any]:
@@ -239,6 +241,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
     if result.days is not None:
         print(result.days.summary())
     print(result.verdict)
+    if result.extrapolation is not None:
+        _warn_extrapolation(result.model, result.extrapolation)
     return 0
 
 

@@ -45,7 +45,7 @@ from calibration.diagnosis.selection import (Evidence, LinearSelection, Selectio
 from calibration.errors import DataError, ModelError
 from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, rotation_residual_scale, weighted_residuals
 from calibration.models import KinematicModel
-from calibration.models.guard import REGION_KEY, Region
+from calibration.models.guard import REGION_KEY, Region, extrapolation
 from calibration.observability import DEFAULT_RELATIVE_TOLERANCE, Observability, analyse
 from calibration.physics.base import Context, Effect
 from calibration.physics.gravity import GravityModel
@@ -662,10 +662,21 @@ def report(robot: str, split: Split, base: FittedInUse, residual: ResidualDriver
     verdict = explain.verdict(c.effects, base.accuracy, c.accuracy, refitted.noise.floor_mm, hypotheses.hidden,
                               hypotheses.untested, c.rejected)
     plots = PlotData(np.linalg.norm(residual.residual[:, :3], axis=1), residual.drivers, base.heldout_mm, c.heldout_mm)
+    ex = extrapolation(refitted.model, split.heldout.q)
+    notes = refitted.notes + ((extrapolation_note(ex),) if ex["outside_training_range"] else ())
     return Diagnosis(robot, len(split.fit), len(split.heldout), split.source, refitted.noise, base.accuracy,
                      c.accuracy, residual.mismatch, tuple(c.effects), tuple(hypotheses.hidden),
-                     tuple(hypotheses.untested), verdict, refitted.model, refitted.notes, plots, tuple(c.rejected),
-                     refitted.orientation_weight_a, refitted.weighting)
+                     tuple(hypotheses.untested), verdict, refitted.model, notes, plots, tuple(c.rejected),
+                     refitted.orientation_weight_a, refitted.weighting, extrapolation=ex)
+
+
+def extrapolation_note(ex: dict) -> str:
+    """One sentence on the held-out poses outside the saved model's training range and what the guard did."""
+    did = (f"the extrapolation guard held the model's configuration-dependent effects at the edge of that range, "
+           f"moving the predicted position by up to {ex['guard_shift_mm_max']:.3f} mm" if ex["guard_acted"] else
+           "the guard did not change the prediction (no configuration-dependent effect acts there)")
+    return (f"{ex['outside_training_range']} of {ex['poses']} held-out poses lie outside the fit data's joint range "
+            f"(by up to {ex['max_excess_deg']:.1f} deg, RMS {ex['rms_excess_deg']:.1f} deg); {did}.")
 
 
 def _groups(rec: Recording, size: int) -> np.ndarray:

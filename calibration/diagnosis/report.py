@@ -146,6 +146,9 @@ class Diagnosis:
         weighting: ``noise`` (from the per-channel noise floors) or ``fixed``.
         days: with several recordings (days), what differs between them
             (:class:`calibration.daydiff.DaysResult`), else None.
+        extrapolation: the held-out poses against the saved model's training range
+            (:func:`calibration.models.guard.extrapolation`: how many lie outside, by how much, whether the guard
+            acted), or None.
     """
 
     robot: str
@@ -167,6 +170,7 @@ class Diagnosis:
     orientation_weight_a: float = float("nan")
     weighting: str = "fixed"
     days: Any = None
+    extrapolation: dict[str, Any] | None = None
 
     def to_json(self) -> dict[str, Any]:
         """The ``cellcal.diagnose/1`` report as plain Python (finite floats; NaN becomes None)."""
@@ -193,6 +197,8 @@ class Diagnosis:
         }
         if self.days is not None:
             out["days"] = self.days.to_json()
+        if self.extrapolation is not None:
+            out["extrapolation"] = self.extrapolation
         return _finite(out)
 
 

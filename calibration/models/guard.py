@@ -12,15 +12,37 @@ the region and by how much (``evaluate`` and ``predict`` report it).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 from typing import Any
 
 import numpy as np
 
 from calibration.errors import ModelError
 
-#: Width over which the clamp saturates outside the training range [rad].
+#: Width over which the clamp saturates outside the training range [rad], for a region saved without its own
+#: (models fitted before the margins came from the data; see :func:`data_margin_rad`).
 DEFAULT_MARGIN_RAD = math.radians(2.0)
+#: A joint's clamp margin as a share of its training span, at most ``DEFAULT_MARGIN_RAD`` (:func:`data_margin_rad`).
+MARGIN_SHARE = 0.1
+#: The smallest clamp margin [rad]: a joint the training data never moved is held at the one angle it saw.
+MIN_MARGIN_RAD = 1e-3
+
+
+def data_margin_rad(lower_rad: np.ndarray, upper_rad: np.ndarray) -> np.ndarray:
+    """Per-joint clamp margin from the training data's own spread: ``MARGIN_SHARE`` of each joint's span, between
+    ``MIN_MARGIN_RAD`` and ``DEFAULT_MARGIN_RAD``. An effect identified inside a narrow band is not carried further
+    beyond it than a share of the band's own width; a wide band keeps the 2 deg margin.
+
+    Chosen on the shared days' training recordings only (``scripts/extrapolation_folds.py``: edge clusters of q2
+    or q3, or the q1/q4-q6 steps, held out and extrapolated to; position mean/max [mm] on them). On 0620's steps
+    (a gear error on a wrist joint seen within +-2 deg) the fixed 2 deg gives 0.185/0.666, 10 % of the span
+    0.164/0.657, held hard at the edge 0.160/0.655. On the wide joints a share of the span cuts both ways: 10 % of
+    the span (10-12 deg) helps 0524's q2 edges (0.197/0.841 -> 0.191/0.830) but costs 0524's q3 edges
+    (0.179/0.451 -> 0.180/0.470), so the margin is capped at the old 2 deg. On every other fold evaluated the
+    margin changes nothing beyond the third decimal.
+    """
+    span = np.asarray(upper_rad, dtype=float) - np.asarray(lower_rad, dtype=float)
+    return np.clip(MARGIN_SHARE * span, MIN_MARGIN_RAD, DEFAULT_MARGIN_RAD)
 
 
 @dataclass(frozen=True)
@@ -29,27 +51,31 @@ class Region:
 
     Attributes:
         lower_rad, upper_rad: smallest and largest training angle per joint [rad] (n,).
-        margin_rad: the clamp's saturation width outside the range [rad].
+        margin_rad: the clamp's saturation width outside the range [rad], one for every joint or per joint (n,).
     """
 
     lower_rad: np.ndarray
     upper_rad: np.ndarray
-    margin_rad: float = DEFAULT_MARGIN_RAD
+    margin_rad: float | np.ndarray = DEFAULT_MARGIN_RAD
 
     def __post_init__(self) -> None:
         lo, hi = np.asarray(self.lower_rad, dtype=float), np.asarray(self.upper_rad, dtype=float)
         if lo.shape != hi.shape or lo.ndim != 1 or np.any(hi < lo) or not np.all(np.isfinite(np.r_[lo, hi])):
             raise ModelError(f"a training region needs finite lower <= upper per joint, got {lo} and {hi}")
-        if not self.margin_rad > 0:
-            raise ModelError(f"the clamp margin must be positive, got {self.margin_rad}")
+        m = np.asarray(self.margin_rad, dtype=float)
+        if m.ndim > 1 or (m.ndim == 1 and m.shape != lo.shape) or not np.all(m > 0) or not np.all(np.isfinite(m)):
+            raise ModelError(f"the clamp margin must be positive, one or one per joint, got {self.margin_rad}")
         object.__setattr__(self, "lower_rad", lo)
         object.__setattr__(self, "upper_rad", hi)
+        object.__setattr__(self, "margin_rad", float(m) if m.ndim == 0 else m)
 
     @classmethod
-    def of(cls, q: np.ndarray, margin_rad: float = DEFAULT_MARGIN_RAD) -> "Region":
-        """The range of joint angles q [rad] (N, n)."""
+    def of(cls, q: np.ndarray, margin_rad: float | np.ndarray | None = None) -> "Region":
+        """The range of joint angles q [rad] (N, n); by default each joint's margin from the data's own spread
+        (:func:`data_margin_rad`)."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
-        return cls(q.min(axis=0), q.max(axis=0), margin_rad)
+        lo, hi = q.min(axis=0), q.max(axis=0)
+        return cls(lo, hi, data_margin_rad(lo, hi) if margin_rad is None else margin_rad)
 
     def excess(self, q: np.ndarray) -> np.ndarray:
         """How far each joint lies outside the range [rad] (N, n), zero inside."""
@@ -68,23 +94,25 @@ class Region:
         """:meth:`clamp` of casadi joint symbols (n,)."""
         import casadi as ca
 
-        m = self.margin_rad
         out = []
+        margins = np.broadcast_to(self.margin_rad, self.lower_rad.shape)
         for i in range(q.shape[0]):
-            lo, hi = float(self.lower_rad[i]), float(self.upper_rad[i])
+            lo, hi, m = float(self.lower_rad[i]), float(self.upper_rad[i]), float(margins[i])
             out.append(ca.if_else(q[i] > hi, hi + m * ca.tanh((q[i] - hi) / m),
                                   ca.if_else(q[i] < lo, lo - m * ca.tanh((lo - q[i]) / m), q[i])))
         return ca.vertcat(*out)
 
     def to_dict(self) -> dict[str, Any]:
+        m = self.margin_rad
         return {"lower_rad": self.lower_rad.tolist(), "upper_rad": self.upper_rad.tolist(),
-                "margin_rad": float(self.margin_rad)}
+                "margin_rad": m.tolist() if isinstance(m, np.ndarray) else float(m)}
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "Region":
         try:
+            m = d.get("margin_rad", DEFAULT_MARGIN_RAD)
             return cls(np.asarray(d["lower_rad"], dtype=float), np.asarray(d["upper_rad"], dtype=float),
-                       float(d.get("margin_rad", DEFAULT_MARGIN_RAD)))
+                       np.asarray(m, dtype=float) if isinstance(m, list) else float(m))
         except (KeyError, TypeError, ValueError) as e:
             raise ModelError(f"bad training_region {d!r}: {e}") from e
 
@@ -100,7 +128,7 @@ def region_of(info: dict[str, Any]) -> Region | None:
 
 
 def extrapolation(model: Any, q: np.ndarray) -> dict[str, Any]:
-    """How many poses lie outside what the model's training data identified, and by how much.
+    """How many poses lie outside what the model's training data identified, by how much, and what the guard did.
 
     Args:
         model: a :class:`~calibration.models.base.KinematicModel`.
@@ -110,7 +138,10 @@ def extrapolation(model: Any, q: np.ndarray) -> dict[str, Any]:
         ``poses``, ``outside_training_range`` (poses with a joint outside the training range),
         ``max_excess_deg`` and ``rms_excess_deg`` (over the outside poses, the largest joint excess),
         ``max_excess_deg_per_joint`` (n,), ``outside_model_region`` (the model's own region test, e.g. a cdc
-        interpolator's), and ``region_known`` (False for a model saved without its training region).
+        interpolator's), ``region_known`` (False for a model saved without its training region), and
+        ``guard_acted`` / ``guard_shift_mm_max``: whether the guard changed the model's prediction on these poses
+        (its configuration-dependent terms held at the edge of the range) and the largest position change it made
+        [mm] (0 and False for a model whose every term is rigid, or with every pose inside).
     """
     q = np.atleast_2d(np.asarray(q, dtype=float))
     region = model.region()
@@ -118,11 +149,26 @@ def extrapolation(model: Any, q: np.ndarray) -> dict[str, Any]:
     out: dict[str, Any] = {"poses": int(q.shape[0]), "region_known": region is not None, "outside_model_region": own}
     if region is None:
         return {**out, "outside_training_range": None, "max_excess_deg": None, "rms_excess_deg": None,
-                "max_excess_deg_per_joint": None}
+                "max_excess_deg_per_joint": None, "guard_acted": False, "guard_shift_mm_max": None}
     ex = np.degrees(region.excess(q))
     worst = ex.max(axis=1)
     outside = worst > 0
+    shift = guard_shift_mm(model, q[outside]) if outside.any() else 0.0
     return {**out, "outside_training_range": int(np.count_nonzero(outside)),
             "max_excess_deg": float(worst.max(initial=0.0)),
             "rms_excess_deg": float(np.sqrt(np.mean(worst[outside] ** 2))) if outside.any() else 0.0,
-            "max_excess_deg_per_joint": ex.max(axis=0).tolist()}
+            "max_excess_deg_per_joint": ex.max(axis=0).tolist(),
+            "guard_acted": bool(shift > GUARD_ACTED_MM), "guard_shift_mm_max": shift}
+
+
+#: The guard is said to have acted when it moves a predicted position by more than this [mm] (rounding level).
+GUARD_ACTED_MM = 1e-9
+
+
+def guard_shift_mm(model: Any, q: np.ndarray) -> float:
+    """The largest change [mm] the guard makes to the model's predicted position at joint angles q (N, n): the
+    model against itself with its training region removed (which turns the guard off)."""
+    if q.shape[0] == 0 or "info" not in {f.name for f in fields(model)}:
+        return 0.0
+    unguarded = replace(model, info={k: v for k, v in model.info.items() if k != REGION_KEY})
+    return float(np.max(np.linalg.norm(model.fk(q)[1] - unguarded.fk(q)[1], axis=1)))

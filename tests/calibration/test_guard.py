@@ -93,3 +93,54 @@ def test_effect_fitted_in_a_narrow_band_is_held_at_its_edge_outside(region, tmp_
     back = load_model(tmp_path / "m.json")
     for a, b in zip(back.fk(far), guarded.fk(far)):
         np.testing.assert_allclose(a, b, atol=1e-12)
+
+
+def test_extrapolation_says_whether_the_guard_acted_and_by_how_much(region):
+    """Outside the range, a configuration-dependent effect makes the guard act (reported with the position change it
+    made); a rigid model, or every pose inside, leaves it idle."""
+    arm = load_cell().robot("R1").model()
+    gear = GearTransmission(((2, (1, 2)),), np.array([3e-3, 0.0, 2e-3, 0.0]))
+    guarded = PhysicsModel("R1", "diagnose", arm, (gear,), 0, {REGION_KEY: region.to_dict()})
+    plain = PhysicsModel("R1", "diagnose", arm, (gear,), 0)
+    rng = np.random.default_rng(3)
+    inside = rng.uniform(region.lower_rad, region.upper_rad, (10, 6))
+    far = inside.copy()
+    far[:, 1] = np.radians(rng.uniform(70, 120, 10))  # joint 2 20-70 deg beyond its range
+    ex = extrapolation(guarded, far)
+    shift = np.max(np.linalg.norm(guarded.fk(far)[1] - plain.fk(far)[1], axis=1))
+    assert ex["guard_acted"] and shift > 0.1
+    assert ex["guard_shift_mm_max"] == pytest.approx(shift, rel=1e-12)
+    idle = extrapolation(guarded, inside)
+    assert not idle["guard_acted"] and idle["guard_shift_mm_max"] == 0.0
+    rigid = extrapolation(PhysicsModel("R1", "t", arm, (), 0, {REGION_KEY: region.to_dict()}), far)
+    assert rigid["outside_training_range"] == 10 and not rigid["guard_acted"] and rigid["guard_shift_mm_max"] == 0.0
+
+
+def test_region_of_data_takes_each_joints_margin_from_its_own_spread():
+    """The clamp margin is a share of each joint's training span (a joint the data never moved: the floor), so an
+    effect seen within +-2 deg of the wrist is not carried 2 deg further, while one seen over 100 deg of joint 2
+    keeps the 2 deg cap; a region saved with one margin reads back unchanged."""
+    from calibration.models.guard import DEFAULT_MARGIN_RAD, MARGIN_SHARE, MIN_MARGIN_RAD
+
+    rng = np.random.default_rng(4)
+    q = np.zeros((200, 6))
+    q[:, 1] = np.radians(rng.uniform(-55, 50, 200))
+    q[:, 5] = np.radians(rng.uniform(-2, 2, 200))
+    r = Region.of(q)
+    span = q.max(axis=0) - q.min(axis=0)
+    np.testing.assert_allclose(r.margin_rad, np.clip(MARGIN_SHARE * span, MIN_MARGIN_RAD, DEFAULT_MARGIN_RAD))
+    assert r.margin_rad[0] == MIN_MARGIN_RAD and r.margin_rad[5] < math.radians(0.5)
+    assert r.margin_rad[1] == DEFAULT_MARGIN_RAD
+    far = np.zeros((1, 6))
+    far[0, 5] = math.radians(60.0)
+    assert r.clamp(far)[0, 5] <= r.upper_rad[5] + MARGIN_SHARE * span[5]
+    back = Region.from_dict(r.to_dict())
+    np.testing.assert_array_equal(back.margin_rad, r.margin_rad)
+    qs = ca.SX.sym("q", 6)
+    f = ca.Function("c", [qs], [r.clamp_casadi(qs)])
+    probe = np.radians(rng.uniform(-120, 120, (20, 6)))
+    np.testing.assert_allclose(np.vstack([np.asarray(f(x)).ravel() for x in probe]), r.clamp(probe), atol=1e-12)
+    old = Region.from_dict({"lower_rad": [0.0] * 6, "upper_rad": [1.0] * 6, "margin_rad": 0.05})
+    assert old.margin_rad == 0.05 and old.to_dict()["margin_rad"] == 0.05
+    with pytest.raises(ModelError, match="one per joint"):
+        Region(np.zeros(6), np.ones(6), np.ones(5))
