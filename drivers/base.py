@@ -9,6 +9,8 @@ from __future__ import annotations
 import abc
 from dataclasses import dataclass
 
+from typing import Callable
+
 import numpy as np
 
 
@@ -118,6 +120,13 @@ class MocapSource(abc.ABC):
     @abc.abstractmethod
     def read(self, timeout_s: float) -> list[RigidBodyFrame]:
         """Frames received since the last call, waiting up to ``timeout_s`` for at least one."""
+
+    def stamp_clock(self) -> Callable[[], float] | None:
+        """The clock whose rate the capture stamps keep, when it is not the host's: a simulated source's own clock
+        (it may run faster or slower than real time). None: the stamps advance with the host's monotonic clock
+        (a real mocap system, up to a constant offset). A wrapper answers for the source it wraps (``inner``)."""
+        inner = getattr(self, "inner", None)
+        return inner.stamp_clock() if isinstance(inner, MocapSource) else None
 
     @abc.abstractmethod
     def close(self) -> None:

@@ -156,7 +156,8 @@ class _Session:
         # sample stamps: seconds since the session was created (0 for the first run: it was created just now)
         self.t_offset = time.time() - store.created_wall() if store.done() else 0.0
         self.clock = clock
-        self.link = ClockLink(clock)  # the mocap's capture clock against ours, learned from every window
+        # the mocap's capture clock against the host's (a simulated source's own), learned from every window
+        self.link = ClockLink(mocap.stamp_clock() or clock)
         self.t_start = clock()
         self.moved = False  # no move commanded yet in this run
 
@@ -219,7 +220,7 @@ class _Session:
 
     def measure_here(self, index: int, attempts: int) -> Sample:
         c = self.config
-        settled_at = self.clock()  # the arm is settled by now (measure waited, or a resume finds it still)
+        settled_at = self.link.clock()  # the arm is settled by now (measure waited, or a resume finds it still)
         q_before = self.own_q()
         _check_readback(q_before, self.lower, self.upper)
         try:

@@ -121,7 +121,9 @@ def collect_window(mocap: MocapSource, body_id: int, config: WindowOptions, link
 
     The window opens ``discard_s`` after the later of: the first frame read after the flush, and ``settled_at``
     (host clock, default: now) mapped onto the capture clock by ``link``. The mapping sharpens as frames come in,
-    so the start can only move later while the window fills; the frames are kept and sorted out at the end.
+    so the start can only move later while the window fills; the frames are kept and sorted out at the end. The
+    mapped start is at most ``frame_timeout_s`` after the first frame's (frames held up longer are a dropout, not
+    transit; a link off its source's clock, see :meth:`drivers.base.MocapSource.stamp_clock`, costs no more).
 
     Args:
         link: the source's clock link, kept across windows (it learns the offset from every read).
@@ -134,7 +136,7 @@ def collect_window(mocap: MocapSource, body_id: int, config: WindowOptions, link
         settled_at = link.clock()
     link.observe(mocap.read(0.0))  # drop what was queued: captured before the arm settled (most of it)
     got_all: list[RigidBodyFrame] = []
-    t0 = -math.inf
+    t0 = first = -math.inf
     # a last guard: frames keep coming but none closes the window, the clocks disagree beyond what observe mends
     give_up = link.clock() + 5.0 * (config.discard_s + config.dwell_s + config.frame_timeout_s)
     while True:
@@ -145,9 +147,11 @@ def collect_window(mocap: MocapSource, body_id: int, config: WindowOptions, link
             raise WindowFailed(f"mocap: frames came but none closed the {config.dwell_s:g} s window by "
                                f"{give_up - settled_at:.3g} s after the arm settled (capture clock off the host's)")
         if not got_all:
-            t0 = got[0].capture_time + config.discard_s
+            first = got[0].capture_time + config.discard_s
+            t0 = first
         got_all += got
-        t0 = max(t0, link.to_capture(settled_at) + config.discard_s)
+        # frames held up longer than a dropout are not in transit: a larger shift is a link off its source's clock
+        t0 = max(t0, min(link.to_capture(settled_at) + config.discard_s, first + config.frame_timeout_s))
         if got[-1].capture_time >= t0 + config.dwell_s:
             break
     window = [f for f in got_all if t0 <= f.capture_time <= t0 + config.dwell_s]

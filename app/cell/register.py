@@ -90,7 +90,7 @@ def measure_registration(rt: Any, safety: Any, robot: str, q_plan: np.ndarray, c
         robot: the arm to register.
         q_plan: the poses [rad] (M, 6).
         config: :class:`~app.cell.collect.CollectConfig` (speed, dwell window, retries).
-        clock: the host clock the settle instants are read on (a simulated cell passes its simulated clock).
+        clock: the host clock the settle instants are read on, unless the source keeps its own (a simulated one).
 
     Raises:
         RegistrationFailed: fewer than 6 poses measured, or the solver did not converge.
@@ -101,12 +101,12 @@ def measure_registration(rt: Any, safety: Any, robot: str, q_plan: np.ndarray, c
     driver, others = rt.drivers[robot], rt.others(robot)
     mocap, body = rt.mocap_for(robot), rt.body_ids[robot]
     q_home = driver.read_joints().q
-    link = ClockLink(clock)
+    link = ClockLink(mocap.stamp_clock() or clock)
     qs, Rs, ps, skipped = [], [], [], []
     try:
         for i, q_target in enumerate(tqdm(q_plan, desc=f"{robot} register", unit="pose", disable=not progress)):
             move_safely(driver, q_target, safety, others, config.speed_fraction, config.settle_timeout_s)
-            settled_at = clock()
+            settled_at = link.clock()
             for attempt in range(config.mocap_retries + 1):
                 try:
                     frames = collect_window(mocap, body, config, link, settled_at)

@@ -123,6 +123,10 @@ class SettledFrames(MocapSource):
     def connect(self) -> None:
         self.inner.connect()
 
+    def stamp_clock(self) -> Callable[[], float]:
+        """The simulated clock the frames are stamped with."""
+        return self.clock.now
+
     def read(self, timeout_s: float) -> list[Any]:
         """Frames captured since the last flush, waiting up to ``timeout_s`` simulated seconds for one."""
         if timeout_s == 0.0:

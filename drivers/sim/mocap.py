@@ -17,6 +17,7 @@ import math
 import threading
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -97,6 +98,10 @@ class SimMocapSource(MocapSource):
     @property
     def device(self) -> str:
         return "sim:mocap"
+
+    def stamp_clock(self) -> Callable[[], float]:
+        """The simulated clock: the frames are stamped with it."""
+        return self.clock.now
 
     def connect(self) -> None:
         with self._lock:

@@ -133,3 +133,30 @@ def test_the_link_keeps_the_tightest_recent_bound_and_forgets_old_ones() -> None
     clock.t = 40.0  # the 1 ms bound is older than the horizon
     link.observe([f(40.0 - 0.02 + OFFSET)])
     assert link.to_capture(40.0) == pytest.approx(40.0 + OFFSET - 0.02)
+
+
+def test_a_link_off_its_sources_clock_delays_the_window_by_a_dropout_at_most() -> None:
+    clock = HostClock(0.0)
+    # stamps at half the host's rate (a simulated source read against the host clock by mistake)
+    src = ScriptedMocap(clock, 0.0, 0.0, lambda c: 0.002, stamp=lambda t: 0.5 * t + OFFSET)
+    link = ClockLink(clock)
+    clock.t = 1.0
+    src.read(0.0)
+    link.observe(src.read(0.1))  # its smallest bound; the later ones grow at half a second per second
+    clock.t = 20.0  # mapped through that bound, now lies 9.5 stamp-seconds ahead of the stamps
+    frames = collect_window(src, 1, Options(), link, 20.0)
+    first = min(f.capture_time for f in frames) - OFFSET
+    assert first <= 10.0 + Options.discard_s + Options.frame_timeout_s + 0.003
+    assert len(frames) >= 45
+
+
+def test_simulated_sources_and_wrappers_name_the_clock_their_stamps_keep() -> None:
+    from app.cell.real_cell import BaseFrameMocap
+    from drivers.natnet.client import NatNetSource
+    from tests.app.sim_cell import make_cell
+
+    _, driver, source, _, _ = make_cell()
+    assert source.stamp_clock() == driver.clock.now
+    assert BaseFrameMocap(source, None, 1).stamp_clock() == driver.clock.now
+    assert ScriptedMocap(HostClock(), 0.0, 0.0, lambda c: 0.0).stamp_clock() is None
+    assert NatNetSource.stamp_clock is MocapSource.stamp_clock  # a real system: the host's clock
