@@ -10,7 +10,22 @@ from pathlib import Path
 
 
 class CellCalError(Exception):
-    """Root of every error cellcal raises on purpose."""
+    """Root of every error cellcal raises on purpose.
+
+    Pickles as it is (message, type and data attributes), whatever its subclass's ``__init__`` takes: an error
+    raised in a worker process reaches the parent as itself, not as a broken pool.
+    """
+
+    def __reduce__(self) -> tuple[object, ...]:
+        return _rebuild, (type(self), self.args, dict(self.__dict__))
+
+
+def _rebuild(cls: type[CellCalError], args: tuple[object, ...], state: dict[str, object]) -> CellCalError:
+    """The unpickled error: ``cls`` with its message and attributes, its ``__init__`` not called again."""
+    e = cls.__new__(cls)
+    Exception.__init__(e, *args)
+    e.__dict__.update(state)
+    return e
 
 
 class ConfigError(CellCalError):
