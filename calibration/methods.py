@@ -451,9 +451,12 @@ class Fitter:
         if job is not None:  # started by prefetch in its own worker process: the same bits as here
             pool, future = job
             try:
-                model, seconds = future.result()  # a worker that died raises BrokenProcessPool
-            finally:
-                pool.shutdown(wait=True)
+                model, seconds = future.result()  # the worker's own error, or BrokenProcessPool if it died
+            except BaseException:  # an interrupt here must not wait for the rest of the diagnosis
+                self._cache["diagnosis_job"] = job
+                self.abort_jobs()
+                raise
+            pool.shutdown(wait=True)
             self._cache.setdefault("worker_seconds", {})["diagnosed"] = seconds
             return model
         return self._diagnose()
@@ -657,6 +660,21 @@ class Fitter:
             pool.shutdown(wait=True, cancel_futures=True)
         self._cache.pop("fold_jobs", None)
         self._cache.pop("prefetched", None)
+
+    def abort_jobs(self) -> None:
+        """Stop every worker process now (the network pool and ``diagnosed``'s), its results dropped: after a
+        failure or an interrupt in the parent, which must not wait for a fit nobody will collect."""
+        pools = [self._cache.pop("pool", None), (self._cache.pop("diagnosis_job", None) or (None,))[0]]
+        self._cache.pop("fold_jobs", None)
+        self._cache.pop("prefetched", None)
+        for pool in pools:
+            if pool is None:
+                continue
+            # the executor has no public terminate (3.14's terminate_workers): its processes, then its own shutdown,
+            # which finds them dead, cancels what is queued and joins its manager thread (no race on the reaping)
+            for proc in list((getattr(pool, "_processes", None) or {}).values()):
+                proc.terminate()
+            pool.shutdown(wait=True, cancel_futures=True)
 
     def held_out_errors(self, method: str) -> np.ndarray | None:
         """Position error [mm] of every training pose as predicted by ``method`` fitted without that pose's

@@ -71,12 +71,21 @@ def run_comparison(fitter: Fitter, test: Recording, methods: list[str] | tuple[s
     Raises:
         ModelError: a saved model is for another robot.
     """
-    from tqdm import tqdm
-
     out = Comparison(fitter.robot)
     for name, model in (files or {}).items():
         if model.robot != fitter.robot:
             raise ModelError(f"model {name} is for robot {model.robot!r}, not {fitter.robot!r}")
+    try:
+        return _run_comparison(fitter, test, methods, progress, files or {}, out)
+    except BaseException:
+        fitter.abort_jobs()  # a failed or interrupted compare does not wait for workers nobody will collect
+        raise
+
+
+def _run_comparison(fitter: Fitter, test: Recording, methods: list[str] | tuple[str, ...], progress: bool,
+                    files: dict[str, KinematicModel], out: Comparison) -> Comparison:
+    from tqdm import tqdm
+
     # The neural fits train in worker processes while the other methods are fitted here, and are collected last;
     # the rows keep the order asked for.
     fitter.prefetch(methods, held_out=True)  # the recommendation's network refits too
@@ -94,10 +103,10 @@ def run_comparison(fitter: Fitter, test: Recording, methods: list[str] | tuple[s
         fitted = dict(rows)
         rows.clear()
         rows.update({m: fitted[m] for m in methods if m in fitted})
-    for name, model in (files or {}).items():
+    for name, model in files.items():
         out.add(name, model, model.info.get("fit_seconds"), fitter.train, test)
     out.analysis = _analysis(fitter, test, out)
-    recommendation = _recommend(fitter, out, files or {})
+    recommendation = _recommend(fitter, out, files)
     out.recommended = recommendation.method
     out.analysis["recommendation"] = recommendation.to_json()
     return out

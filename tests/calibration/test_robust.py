@@ -1,13 +1,14 @@
 """The robustness checks of CDC fits: held-out clusters, probe ranges, bounded outputs, the chosen local prior."""
 
 import multiprocessing
+import time
 
 import numpy as np
 import pytest
 
 from calibration import robust
 from calibration.cdc import CDC_INPUTS, CdcModel, cluster_anchors, geometric_cdc
-from calibration.errors import ModelError, ModelFileError
+from calibration.errors import DataError, ModelError, ModelFileError
 from calibration.interpolation import Fourier13Interpolator, make_interpolator
 from calibration.methods import FitOptions, Fitter
 from calibration.models import load_model, save_model
@@ -192,6 +193,49 @@ def test_a_prefetched_diagnosis_runs_in_its_own_worker_and_is_the_fit_made_here(
     assert np.array_equal(there.fk(train.q)[1], here.fk(train.q)[1]) and seconds > 0
     assert there.info["verdict"] == here.info["verdict"]
     assert "diagnosis_job" not in fitter._cache and multiprocessing.active_children() == []
+
+
+def test_a_data_error_in_the_diagnosis_worker_reaches_the_caller_as_itself(synthetic_arm, r1_nominal, monkeypatch):
+    """An error raised in the forked worker must come back as the same one-line error (exit 2 in the CLI), not
+    as a broken pool: the data-carrying errors take several arguments and must still pickle."""
+    if robust.default_workers() < 2:
+        pytest.skip("one usable core: no worker is forked")
+    _, _, truth = synthetic_arm
+    q, cluster = cluster_design(step_deg=30.0)
+    train = measure(truth.fk, q, 0.02, 0.01, 1, cluster)
+
+    def bad(self):
+        raise DataError("train.csv", 4, "q2", "not a number")
+
+    monkeypatch.setattr(Fitter, "_diagnose", bad)
+    fitter = Fitter("R1", r1_nominal, train, FitOptions(local_prior=0.1))
+    fitter.prefetch(["nominal", "diagnosed"])
+    with pytest.raises(DataError, match=r"train.csv, row 4, column 'q2': not a number") as e:
+        fitter.fit("diagnosed")
+    assert (e.value.path, e.value.row, e.value.column) == ("train.csv", 4, "q2")
+    assert "diagnosis_job" not in fitter._cache and multiprocessing.active_children() == []
+
+
+def test_a_failure_elsewhere_stops_the_diagnosis_worker_without_waiting_for_it(synthetic_arm, r1_nominal,
+                                                                                monkeypatch):
+    """abort_jobs (what compare calls when anything fails) ends a diagnosis still running in its worker."""
+    if robust.default_workers() < 2:
+        pytest.skip("one usable core: no worker is forked")
+    _, _, truth = synthetic_arm
+    q, cluster = cluster_design(step_deg=30.0)
+    train = measure(truth.fk, q, 0.02, 0.01, 1, cluster)
+
+    def slow(self):
+        time.sleep(60.0)
+
+    monkeypatch.setattr(Fitter, "_diagnose", slow)
+    fitter = Fitter("R1", r1_nominal, train, FitOptions(local_prior=0.1))
+    fitter.prefetch(["nominal", "diagnosed"])
+    assert multiprocessing.active_children()
+    start = time.monotonic()
+    fitter.abort_jobs()
+    assert time.monotonic() - start < 10.0 and multiprocessing.active_children() == []
+    assert "diagnosis_job" not in fitter._cache
 
 
 def test_held_out_errors_refitted_in_workers_are_those_refitted_here(synthetic_arm, r1_nominal):
