@@ -58,6 +58,11 @@ class ControllerConfig:
     groups: Mapping[str, int] = field(kw_only=True)
 
 
+#: Longest measurement window a cell file may set [s]: a static pose needs no more, and a window's give-up
+#: guard scales with it.
+MAX_DWELL_S = 10.0
+
+
 @dataclass(frozen=True)
 class MocapConfig:
     """The Motive (NatNet) server and how the bridge PC reaches it.
@@ -160,7 +165,8 @@ def parse_mocap(node: Node | None, robots: Mapping[str, Any]) -> MocapConfig | N
     return MocapConfig(
         server_address=_host(node, "server_address"), local_address=_host(node, "local_address"),
         multicast=node.boolean("multicast"), rigid_bodies=bodies, multicast_group=group,
-        command_port=command_port, data_port=data_port, dwell_s=node.number("dwell_s", None, lo=0.0, lo_open=True),
+        command_port=command_port, data_port=data_port, dwell_s=node.number("dwell_s", None, lo=0.0, hi=MAX_DWELL_S,
+                                                                       lo_open=True),
     )
 
 

@@ -160,6 +160,10 @@ def collect_window(mocap: MocapSource, body_id: int, config: WindowOptions, link
     expected = max(numbers) - min(numbers) + 1 if numbers else 0
     good = [f for f in frames if usable(f, config.max_marker_error_mm)]
     lost = sum(not f.tracking_valid for f in frames)
+    if 0 < expected < config.min_frames and len(good) == expected:
+        raise WindowFailed(f"mocap: a {config.dwell_s:g} s window holds {expected} frames at this stream's rate, "
+                           f"fewer than the {config.min_frames} a sample needs: lengthen the window (the cell "
+                           "file's mocap.dwell_s)")
     if len(good) < config.min_frames or len(good) < config.min_valid_fraction * expected:
         raise WindowFailed(f"mocap: {len(good)} usable of ~{expected} frames of body {body_id} "
                              f"({lost} not tracking, {len(frames) - len(good) - lost} with marker error above "

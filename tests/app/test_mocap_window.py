@@ -160,3 +160,13 @@ def test_simulated_sources_and_wrappers_name_the_clock_their_stamps_keep() -> No
     assert BaseFrameMocap(source, None, 1).stamp_clock() == driver.clock.now
     assert ScriptedMocap(HostClock(), 0.0, 0.0, lambda c: 0.0).stamp_clock() is None
     assert NatNetSource.stamp_clock is MocapSource.stamp_clock  # a real system: the host's clock
+
+
+def test_a_window_too_short_for_the_stream_rate_names_the_cell_file_key() -> None:
+    from dataclasses import replace
+
+    clock = HostClock(0.0)
+    src = ScriptedMocap(clock, 0.0, 0.0, lambda c: 0.002)
+    clock.t = 1.0
+    with pytest.raises(WindowFailed, match=r"0.05 s window holds [0-9] frames .* mocap.dwell_s"):
+        collect_window(src, 1, replace(Options(), dwell_s=0.05), ClockLink(clock), 1.0)
