@@ -164,13 +164,19 @@ def test_held_out_on_the_first_folds_scores_both_fits_on_those_clusters_only(fit
         robust.held_out(*args, n_evaluated=robust.N_FOLDS + 1)
 
 
-def test_a_prefetched_neural_fit_is_the_fit_made_here(synthetic_arm, r1_nominal):
+def _here_and_prefetched(synthetic_arm, r1_nominal, method: str):
+    """The training recording, ``method`` fitted in this process, and a Fitter that has prefetched it."""
     _, _, truth = synthetic_arm
     q, cluster = cluster_design(step_deg=30.0)
     train = measure(truth.fk, q, 0.02, 0.01, 1, cluster)
-    here, _ = Fitter("R1", r1_nominal, train, FitOptions(local_prior=0.1)).fit("nn")
+    here, _ = Fitter("R1", r1_nominal, train, FitOptions(local_prior=0.1)).fit(method)
     fitter = Fitter("R1", r1_nominal, train, FitOptions(local_prior=0.1))
-    fitter.prefetch(["nominal", "nn"])
+    fitter.prefetch(["nominal", method])
+    return train, here, fitter
+
+
+def test_a_prefetched_neural_fit_is_the_fit_made_here(synthetic_arm, r1_nominal):
+    train, here, fitter = _here_and_prefetched(synthetic_arm, r1_nominal, "nn")
     assert multiprocessing.active_children() or robust.default_workers() < 2
     there, seconds = fitter.fit("nn")
     assert np.array_equal(there.fk(train.q)[1], here.fk(train.q)[1]) and seconds > 0
@@ -181,12 +187,7 @@ def test_a_prefetched_neural_fit_is_the_fit_made_here(synthetic_arm, r1_nominal)
 def test_a_prefetched_diagnosis_runs_in_its_own_worker_and_is_the_fit_made_here(synthetic_arm, r1_nominal):
     """compare's diagnosed fit shares nothing with the other methods: prefetch forks it first, so it overlaps the
     shared fits; the same model as diagnosed here."""
-    _, _, truth = synthetic_arm
-    q, cluster = cluster_design(step_deg=30.0)
-    train = measure(truth.fk, q, 0.02, 0.01, 1, cluster)
-    here, _ = Fitter("R1", r1_nominal, train, FitOptions(local_prior=0.1)).fit("diagnosed")
-    fitter = Fitter("R1", r1_nominal, train, FitOptions(local_prior=0.1))
-    fitter.prefetch(["nominal", "diagnosed"])
+    train, here, fitter = _here_and_prefetched(synthetic_arm, r1_nominal, "diagnosed")
     assert "diagnosis_job" in fitter._cache or robust.default_workers() < 2
     assert multiprocessing.active_children() or robust.default_workers() < 2
     there, seconds = fitter.fit("diagnosed")
@@ -195,21 +196,25 @@ def test_a_prefetched_diagnosis_runs_in_its_own_worker_and_is_the_fit_made_here(
     assert "diagnosis_job" not in fitter._cache and multiprocessing.active_children() == []
 
 
-def test_a_data_error_in_the_diagnosis_worker_reaches_the_caller_as_itself(synthetic_arm, r1_nominal, monkeypatch):
-    """An error raised in the forked worker must come back as the same one-line error (exit 2 in the CLI), not
-    as a broken pool: the data-carrying errors take several arguments and must still pickle."""
+def _diagnosis_in_a_worker(synthetic_arm, r1_nominal, monkeypatch, job) -> Fitter:
+    """A Fitter whose ``diagnosed`` fit (replaced by ``job``) prefetch has started in its worker process."""
     if robust.default_workers() < 2:
         pytest.skip("one usable core: no worker is forked")
     _, _, truth = synthetic_arm
     q, cluster = cluster_design(step_deg=30.0)
-    train = measure(truth.fk, q, 0.02, 0.01, 1, cluster)
+    monkeypatch.setattr(Fitter, "_diagnose", job)
+    fitter = Fitter("R1", r1_nominal, measure(truth.fk, q, 0.02, 0.01, 1, cluster), FitOptions(local_prior=0.1))
+    fitter.prefetch(["nominal", "diagnosed"])
+    return fitter
 
+
+def test_a_data_error_in_the_diagnosis_worker_reaches_the_caller_as_itself(synthetic_arm, r1_nominal, monkeypatch):
+    """An error raised in the forked worker must come back as the same one-line error (exit 2 in the CLI), not
+    as a broken pool: the data-carrying errors take several arguments and must still pickle."""
     def bad(self):
         raise DataError("train.csv", 4, "q2", "not a number")
 
-    monkeypatch.setattr(Fitter, "_diagnose", bad)
-    fitter = Fitter("R1", r1_nominal, train, FitOptions(local_prior=0.1))
-    fitter.prefetch(["nominal", "diagnosed"])
+    fitter = _diagnosis_in_a_worker(synthetic_arm, r1_nominal, monkeypatch, bad)
     with pytest.raises(DataError, match=r"train.csv, row 4, column 'q2': not a number") as e:
         fitter.fit("diagnosed")
     assert (e.value.path, e.value.row, e.value.column) == ("train.csv", 4, "q2")
@@ -219,18 +224,10 @@ def test_a_data_error_in_the_diagnosis_worker_reaches_the_caller_as_itself(synth
 def test_a_failure_elsewhere_stops_the_diagnosis_worker_without_waiting_for_it(synthetic_arm, r1_nominal,
                                                                                 monkeypatch):
     """abort_jobs (what compare calls when anything fails) ends a diagnosis still running in its worker."""
-    if robust.default_workers() < 2:
-        pytest.skip("one usable core: no worker is forked")
-    _, _, truth = synthetic_arm
-    q, cluster = cluster_design(step_deg=30.0)
-    train = measure(truth.fk, q, 0.02, 0.01, 1, cluster)
-
     def slow(self):
         time.sleep(60.0)
 
-    monkeypatch.setattr(Fitter, "_diagnose", slow)
-    fitter = Fitter("R1", r1_nominal, train, FitOptions(local_prior=0.1))
-    fitter.prefetch(["nominal", "diagnosed"])
+    fitter = _diagnosis_in_a_worker(synthetic_arm, r1_nominal, monkeypatch, slow)
     assert multiprocessing.active_children()
     start = time.monotonic()
     fitter.abort_jobs()
