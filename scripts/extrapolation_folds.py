@@ -14,7 +14,6 @@ as it does on a test recording that leaves the training band.
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -33,7 +32,7 @@ from calibration.models.guard import DEFAULT_MARGIN_RAD, MIN_MARGIN_RAD, REGION_
 from calibration.recording import Recording, read_recording  # noqa: E402
 from cell_config import load_cell  # noqa: E402
 from scripts.bench_days import DATA, make_fitter, mean_max  # noqa: E402
-from scripts.heldout_folds import DAYS  # noqa: E402
+from scripts.heldout_folds import days_parser  # noqa: E402
 
 #: Share of the anchors held out at each end of a joint's training range.
 EDGE_SHARE = 0.15
@@ -83,9 +82,7 @@ def guard_variants(model: Any) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--json", type=Path)
-    ap.add_argument("--days", default=",".join(DAYS))
+    ap = days_parser(__doc__)
     ap.add_argument("--save", type=Path, help="save each fold's fitted models in this folder")
     ap.add_argument("--folds", default="steps,q2 edges,q3 edges",
                     help="comma-separated fold names (steps: the q1, q4-q6 steps)")

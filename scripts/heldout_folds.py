@@ -16,6 +16,7 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import Any, Callable
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -33,11 +34,31 @@ DAYS = ("test0516_R1", "test0524_R1", "test0613_R1", "test0620_R1", "test0627_be
         "test0725_R1", "test0801_R1")
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def days_parser(doc: str | None) -> argparse.ArgumentParser:
+    """The day scripts' options: ``--json FILE`` and ``--days`` (comma-separated R1 training recordings)."""
+    ap = argparse.ArgumentParser(description=(doc or "").split("\n\n")[0])
     ap.add_argument("--json", type=Path)
     ap.add_argument("--days", default=",".join(DAYS))
-    args = ap.parse_args(argv)
+    return ap
+
+
+def run_days(argv: list[str] | None, doc: str | None, row: Callable[[Any, str], dict],
+             show: Callable[[str, dict], None]) -> int:
+    """A day script's main: ``row(robot, day)`` for every day asked for, ``show(day, row)`` as each comes, all rows
+    to ``--json``."""
+    args = days_parser(doc).parse_args(argv)
+    robot = load_cell().robot("R1")
+    rows = []
+    for day in args.days.split(","):
+        rows.append(row(robot, day))
+        show(day, rows[-1])
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=2) + "\n")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = days_parser(__doc__).parse_args(argv)
     robot = load_cell().robot("R1")
     rows = []
     for day in args.days.split(","):

@@ -17,7 +17,6 @@ noise a change of configuration is judged against).
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -32,13 +31,11 @@ from calibration.cdc import CDC_INPUTS, cluster_anchors  # noqa: E402
 from calibration.interpolation import make_interpolator  # noqa: E402
 from calibration.recording import read_recording  # noqa: E402
 from cell_config import load_cell  # noqa: E402
-from scripts.heldout_folds import DATA, DAYS  # noqa: E402
+from scripts.heldout_folds import DATA, days_parser  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--json", type=Path)
-    ap.add_argument("--days", default=",".join(DAYS))
+    ap = days_parser(__doc__)
     ap.add_argument("--epochs", default="75,150,300")
     ap.add_argument("--hidden", default="200x200x200", help="comma-separated hidden widths, e.g. 200x200x200,64x64x64")
     ap.add_argument("--seeds", default="0", help="comma-separated training seeds")

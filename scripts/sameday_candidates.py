@@ -20,8 +20,6 @@ scored on the poses it gave up).
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -40,7 +38,7 @@ from calibration.identification.geometric import rotation_residual_scale, weight
 from calibration.methods import FitOptions  # noqa: E402
 from calibration.recording import read_recording  # noqa: E402
 from cell_config import load_cell  # noqa: E402
-from scripts.sameday_causes import DATA, DAYS  # noqa: E402
+from scripts.heldout_folds import DATA, run_days  # noqa: E402
 
 MAD_FACTOR = 3.5
 MAX_REFITS = 3
@@ -111,23 +109,15 @@ def day_rows(robot, day: str) -> dict:
             "variants": {v: figures(e[v]) for v in VARIANTS}}
 
 
+def show(day: str, row: dict) -> None:
+    print(f"{day} (noise a = {row['noise_a']:.0f}; clean {row['clean_poses']} of {row['poses']} poses)")
+    for v, x in row["variants"].items():
+        print(f"   {v:8s} mean {x['mean']:.4f} p95 {x['p95']:.3f} max {x['max']:.3f} | clean mean "
+              f"{x['clean_mean']:.4f} p95 {x['clean_p95']:.3f} max {x['clean_max']:.3f}", flush=True)
+
+
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--json", type=Path)
-    ap.add_argument("--days", default=",".join(DAYS))
-    args = ap.parse_args(argv)
-    robot = load_cell().robot("R1")
-    rows = []
-    for day in args.days.split(","):
-        row = day_rows(robot, day)
-        rows.append(row)
-        print(f"{day} (noise a = {row['noise_a']:.0f}; clean {row['clean_poses']} of {row['poses']} poses)")
-        for v, x in row["variants"].items():
-            print(f"   {v:8s} mean {x['mean']:.4f} p95 {x['p95']:.3f} max {x['max']:.3f} | clean mean "
-                  f"{x['clean_mean']:.4f} p95 {x['clean_p95']:.3f} max {x['clean_max']:.3f}", flush=True)
-    if args.json:
-        args.json.write_text(json.dumps(rows, indent=2) + "\n")
-    return 0
+    return run_days(argv, __doc__, day_rows, show)
 
 
 if __name__ == "__main__":

@@ -26,8 +26,6 @@ with the ``pi`` fit as ``compare`` makes it:
 
 from __future__ import annotations
 
-import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -41,7 +39,7 @@ from calibration.cdc import cluster_anchors  # noqa: E402
 from calibration.recording import read_recording  # noqa: E402
 from calibration.diagnosis.shifts import OneSidedShift, one_sided_shift  # noqa: E402
 from cell_config import load_cell  # noqa: E402
-from scripts.heldout_folds import DATA, DAYS  # noqa: E402
+from scripts.heldout_folds import DATA, run_days  # noqa: E402
 
 WINDOW = 70  # rows of the moving mean: 10 clusters
 
@@ -127,30 +125,22 @@ def day_row(robot, day: str) -> dict:
             "neighbour_same_column_mm": same_mm, "neighbour_next_column_mm": next_mm}
 
 
+def show(day: str, row: dict) -> None:
+    print(f"{day:21s} {row['train_rms_mm']:6.3f} {row['heldout_mean_mm']:7.3f} {row['heldout_p95_mm']:6.3f} "
+          f"{row['heldout_max_mm']:6.3f} | {row['drift_line_mm']:6.3f} {row['drift_moving_rms_mm']:6.3f} | "
+          f"{row['backlash_rms_after_mm']:6.3f} | {row['shift_one_sided_share']:7.2f} {row['shifted_poses']:7d} "
+          f"{row['shift_mean_mm']:6.3f} {'yes' if row['worst_heldout_is_shifted'] else 'no ':3s}  "
+          f"{row['heldout_max_unshifted_mm']:.3f}        | {row['neighbour_same_column_mm']:8.3f} "
+          f"{row['neighbour_next_column_mm']:8.3f} "
+          f"{row['neighbour_next_column_mm'] / row['neighbour_same_column_mm']:5.2f}   span deg {row['joint_span_deg']} backlash deg "
+          f"{row['backlash_deg']}", flush=True)
+
+
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--json", type=Path)
-    ap.add_argument("--days", default=",".join(DAYS))
-    args = ap.parse_args(argv)
-    robot = load_cell().robot("R1")
-    rows = []
     print(f"{'day':21s} {'train':>6s} {'ho mean':>7s} {'p95':>6s} {'max':>6s} | {'drift':>6s} {'mov':>6s} | "
           f"{'bl rms':>6s} | {'1-sided':>7s} {'shifted':>7s} {'shift':>6s} worst? max(unshifted) | "
           f"{'same col':>8s} {'next col':>8s} ratio")
-    for day in args.days.split(","):
-        row = day_row(robot, day)
-        rows.append(row)
-        print(f"{day:21s} {row['train_rms_mm']:6.3f} {row['heldout_mean_mm']:7.3f} {row['heldout_p95_mm']:6.3f} "
-              f"{row['heldout_max_mm']:6.3f} | {row['drift_line_mm']:6.3f} {row['drift_moving_rms_mm']:6.3f} | "
-              f"{row['backlash_rms_after_mm']:6.3f} | {row['shift_one_sided_share']:7.2f} {row['shifted_poses']:7d} "
-              f"{row['shift_mean_mm']:6.3f} {'yes' if row['worst_heldout_is_shifted'] else 'no ':3s}  "
-              f"{row['heldout_max_unshifted_mm']:.3f}        | {row['neighbour_same_column_mm']:8.3f} "
-              f"{row['neighbour_next_column_mm']:8.3f} "
-              f"{row['neighbour_next_column_mm'] / row['neighbour_same_column_mm']:5.2f}   span deg {row['joint_span_deg']} backlash deg "
-              f"{row['backlash_deg']}", flush=True)
-    if args.json:
-        args.json.write_text(json.dumps(rows, indent=2) + "\n")
-    return 0
+    return run_days(argv, __doc__, day_row, show)
 
 
 if __name__ == "__main__":
