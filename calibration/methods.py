@@ -453,8 +453,7 @@ class Fitter:
             try:
                 model, seconds = future.result()  # the worker's own error, or BrokenProcessPool if it died
             except BaseException:  # an interrupt here must not wait for the rest of the diagnosis
-                self._cache["diagnosis_job"] = job
-                self.abort_jobs()
+                _terminate(pool)
                 raise
             pool.shutdown(wait=True)
             self._cache.setdefault("worker_seconds", {})["diagnosed"] = seconds
@@ -664,17 +663,11 @@ class Fitter:
     def abort_jobs(self) -> None:
         """Stop every worker process now (the network pool and ``diagnosed``'s), its results dropped: after a
         failure or an interrupt in the parent, which must not wait for a fit nobody will collect."""
-        pools = [self._cache.pop("pool", None), (self._cache.pop("diagnosis_job", None) or (None,))[0]]
-        self._cache.pop("fold_jobs", None)
-        self._cache.pop("prefetched", None)
-        for pool in pools:
-            if pool is None:
-                continue
-            # the executor has no public terminate (3.14's terminate_workers): its processes, then its own shutdown,
-            # which finds them dead, cancels what is queued and joins its manager thread (no race on the reaping)
-            for proc in list((getattr(pool, "_processes", None) or {}).values()):
-                proc.terminate()
-            pool.shutdown(wait=True, cancel_futures=True)
+        job = self._cache.pop("diagnosis_job", None)
+        for pool in (job[0] if job else None, self._cache.get("pool")):
+            if pool is not None:
+                _terminate(pool)
+        self._shutdown_jobs()  # drops the network jobs' bookkeeping (their workers are gone already)
 
     def held_out_errors(self, method: str) -> np.ndarray | None:
         """Position error [mm] of every training pose as predicted by ``method`` fitted without that pose's
@@ -832,6 +825,15 @@ def _prefetch_final(method: str, options: dict[str, Any]) -> tuple[CdcModel, flo
     start = time.perf_counter()
     model = _FORKED._build_cdc(method, options)  # type: ignore[union-attr]
     return model, time.perf_counter() - start
+
+
+def _terminate(pool: ProcessPoolExecutor) -> None:
+    """Stop an executor's workers now. It has no public terminate (3.14's terminate_workers): its processes, then
+    its own shutdown, which finds them dead, cancels what is queued and reaps them (joining them here raced its
+    manager thread)."""
+    for proc in list((getattr(pool, "_processes", None) or {}).values()):
+        proc.terminate()
+    pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _diagnosis_job() -> tuple[KinematicModel, float]:
