@@ -84,7 +84,8 @@ class MocapFrame:
 
         It is the server's precision clock: PTP (IEEE 1588) time when Motive's cameras are synchronised
         to a PTP master (eSync 2 / PTP-enabled cameras), so it is comparable across machines on that
-        clock; :attr:`timestamp` instead counts seconds since Motive started streaming.
+        clock; :attr:`timestamp` instead counts seconds since Motive started streaming. Informational: no
+        window is cut on it (see :attr:`capture_time`).
         """
         if self.precision_timestamp_sec == 0 and self.precision_timestamp_frac == 0:
             return None
@@ -92,9 +93,16 @@ class MocapFrame:
 
     @property
     def capture_time(self) -> float:
-        """Capture time of the frame [s]: :attr:`precision_time_s` when present, else :attr:`timestamp`."""
-        precision = self.precision_time_s
-        return self.timestamp if precision is None else precision
+        """Capture time of the frame [s]: :attr:`timestamp`, Motive's frame time (a double keyed off the hardware
+        frame id since NatNet 2.7), on every version.
+
+        Not :attr:`precision_time_s`: the SDK leaves the unit of its fraction word open (2**-32 s or nanoseconds,
+        :data:`PRECISION_FRACTION_PER_S`), and read in the wrong one its sub-second part would run at a quarter of
+        real time and jump at each whole second, so a measurement window cut on it would hold the wrong frames.
+        The collector needs only a clock that keeps the capture instants' rate (it learns the offset to the host
+        clock itself, :mod:`app.cell.mocap_window`), which the frame time does.
+        """
+        return self.timestamp
 
 
 class _Section:
@@ -135,9 +143,9 @@ def parse_frame(payload: bytes | memoryview, version: tuple[int, int]) -> MocapF
         version: NatNet stream (major, minor), at least (3, 0).
 
     Returns:
-        The frame; each rigid body's capture_time is :attr:`MocapFrame.capture_time` [s]: the precision
-        timestamp (PTP clock when Motive has one) when the server sent a non-zero one, else the frame
-        timestamp (seconds since Motive started).
+        The frame; each rigid body's capture_time is :attr:`MocapFrame.capture_time` [s], the frame timestamp
+        (seconds since Motive started); the 4.1+ precision timestamp is kept as read
+        (:attr:`MocapFrame.precision_time_s`).
 
     Raises:
         ProtocolError: the payload is truncated or its counts are inconsistent.

@@ -241,9 +241,8 @@ def test_fake_motive_streams_the_callback_poses():
         np.testing.assert_allclose(so3.quat_to_R(f.quat_wxyz), R, atol=1e-6)
         assert f.tracking_valid and f.marker_error_mm == pytest.approx(0.2, abs=1e-6)
     assert all(not f.tracking_valid for f in frames if f.body_id == 7)
-    stamps = np.array([f.capture_time for f in gun])  # the precision timestamp: wall clock
-    np.testing.assert_allclose(np.diff(stamps), 1 / 240.0, atol=1e-5)
-    assert abs(stamps[-1] - time.time()) < 5.0
+    stamps = np.array([f.capture_time for f in gun])  # the frame time since the fake's start
+    np.testing.assert_allclose(stamps, (np.array(numbers) - 1) / 240.0, atol=1e-9)
 
 
 def test_fake_motive_noise():

@@ -73,7 +73,8 @@ def test_hand_built_4_1_packet():
     (b,) = f.rigid_bodies
     assert (f.frame_number, b.body_id, b.tracking_valid, f.timestamp) == (77, 9, True, 9.5)
     assert (f.precision_timestamp_sec, f.precision_timestamp_frac) == (1_700_000_000, 3 << 30)
-    assert b.capture_time == f.capture_time == 1_700_000_000.75  # the precision timestamp wins
+    assert f.precision_time_s == 1_700_000_000.75
+    assert b.capture_time == f.capture_time == 9.5  # the frame time, not the precision timestamp
     np.testing.assert_allclose(b.position_mm, [1000, 2000, 3000])
     np.testing.assert_allclose(b.quat_wxyz, [0.9, 0.1, 0.2, 0.3], atol=1e-7)
     np.testing.assert_allclose(b.marker_error_mm, 0.5, atol=1e-6)
@@ -158,15 +159,19 @@ def test_server_info_as_motive_4_1_sends_it(multicast):
 
 
 @pytest.mark.parametrize("version", VERSIONS)
-def test_precision_timestamp_is_the_capture_time_from_4_1(version):
-    frame = FakeFrame(3, (FakeBody(1, (0.0, 0.0, 0.0)),), timestamp=12.25, precision_timestamp=(1_700_000_000, 1 << 31))
-    f = parse_frame(_payload(frame, version), version)
-    assert f.timestamp == 12.25
-    if version >= (4, 1):
-        assert (f.precision_timestamp_sec, f.precision_timestamp_frac) == (1_700_000_000, 1 << 31)
-        assert f.precision_time_s == f.capture_time == f.rigid_bodies[0].capture_time == 1_700_000_000.5
-    else:  # not on the wire: the frame timestamp is the capture time
-        assert f.precision_time_s is None and f.rigid_bodies[0].capture_time == 12.25
+def test_the_frame_timestamp_is_the_capture_time_whatever_the_precision_word_holds(version):
+    """The precision timestamp's fraction unit is not documented: a nanosecond fraction (here 0.5 s) read as
+    2**-32 s would put the frame 0.38 s early, so capture times never come from it."""
+    for fraction in (1 << 31, 500_000_000):
+        frame = FakeFrame(3, (FakeBody(1, (0.0, 0.0, 0.0)),), timestamp=12.25,
+                          precision_timestamp=(1_700_000_000, fraction))
+        f = parse_frame(_payload(frame, version), version)
+        assert f.timestamp == f.capture_time == f.rigid_bodies[0].capture_time == 12.25
+        if version >= (4, 1):
+            assert (f.precision_timestamp_sec, f.precision_timestamp_frac) == (1_700_000_000, fraction)
+            assert f.precision_time_s == 1_700_000_000 + fraction / 2 ** 32
+        else:  # not on the wire
+            assert f.precision_time_s is None
     absent = parse_frame(_payload(FakeFrame(3, (), timestamp=12.25), version), version)
     assert absent.precision_time_s is None and absent.capture_time == 12.25
 
