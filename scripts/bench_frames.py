@@ -1,6 +1,6 @@
 """A tool-marker registration error of 18 mm and 0.5 deg: do the CDC methods still beat nls1 on held-out poses?
 
-A synthetic R1 (:func:`calibration.diagnosis.synthetic.tool_error_case`: planted geometry 0.5 mm / 0.5 mrad and
+A synthetic R1 (or R2 with ``--robot R2``; :func:`calibration.diagnosis.synthetic.tool_error_case`: planted geometry 0.5 mm / 0.5 mrad and
 0.3 mm of joint compliance under gravity) is measured on the cluster design with joints 1, 4, 5, 6 within 3 deg
 (like the shared training recordings) and on random held-out poses that move every joint widely (like their test
 recordings);
@@ -23,7 +23,7 @@ With ``--train-spread-deg 20`` pi and every pi+ method beat nls1 on seed 3. ``--
 networks' initialisation and the held-out folds.
 
     python scripts/bench_frames.py [--json FILE] [--methods m1,...] [--shift-mm 18] [--angle-deg 0.5] [--seed 0]
-                                   [--train-spread-deg 3] [--fit-seed 0]
+                                   [--train-spread-deg 3] [--fit-seed 0] [--robot R1]
 """
 
 from __future__ import annotations
@@ -50,11 +50,11 @@ from calibration.recording import Recording  # noqa: E402
 from cell_config import load_cell  # noqa: E402
 
 DEFAULT_METHODS = ("nominal", "nls1", "pi") + CDC_METHODS
-def tool_error_case_r1(shift_mm: float, angle_deg: float, seed: int, spread_deg: float
+def tool_error_case_of(shift_mm: float, angle_deg: float, seed: int, spread_deg: float, arm: str = "R1"
                        ) -> tuple[Any, Recording, Recording]:
-    """(R1 cell entry, training recording, held-out recording) of :func:`tool_error_case`, the training clusters'
-    joints 1, 4, 5, 6 within ``spread_deg``."""
-    robot = load_cell().robot("R1")
+    """(cell entry of ``arm``, training recording, held-out recording) of :func:`tool_error_case`, the training
+    clusters' joints 1, 4, 5, 6 within ``spread_deg``."""
+    robot = load_cell().robot(arm)
     gravity = GravityModel.from_spec(robot.robot, robot.model())
     train, test, _ = tool_error_case(robot.model(), gravity, shift_mm, angle_deg, seed, Design(spread_deg=spread_deg))
     return robot, train, test
@@ -66,12 +66,12 @@ def fitter_on(robot: Any, rec: Recording, fit_seed: int = 0) -> Fitter:
 
 
 def run(methods: tuple[str, ...], shift_mm: float, angle_deg: float, seed: int, spread_deg: float,
-        fit_seed: int = 0) -> dict[str, Any]:
-    robot, train, test = tool_error_case_r1(shift_mm, angle_deg, seed, spread_deg)
+        fit_seed: int = 0, arm: str = "R1") -> dict[str, Any]:
+    robot, train, test = tool_error_case_of(shift_mm, angle_deg, seed, spread_deg, arm)
     nominal = ConstantModel(robot.name, "nominal", robot.model(), 0, {})
     framed_fitter, check = framed(lambda rec: fitter_on(robot, rec, fit_seed), nominal, train)
     out: dict[str, Any] = {"planted": {"tool_mm": shift_mm, "tool_deg": angle_deg, "seed": seed,
-                                       "train_spread_deg": spread_deg, "fit_seed": fit_seed},
+                                       "train_spread_deg": spread_deg, "fit_seed": fit_seed, "robot": arm},
                            "check": check.to_json(), "as_is": {}, "frames_first": {}}
     for label, fitter in (("as_is", fitter_on(robot, train, fit_seed)), ("frames_first", framed_fitter)):
         for m in methods:
@@ -90,6 +90,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--shift-mm", type=float, default=18.0)
     parser.add_argument("--angle-deg", type=float, default=0.5)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--robot", default="R1", choices=("R1", "R2"),
+                        help="the arm of the cell whose nominal model and masses the synthetic twin takes (default R1)")
     parser.add_argument("--train-spread-deg", type=float, default=3.0,
                         help="half-range of joints 1, 4, 5 (6: 1.5x) in the training clusters [deg] (default 3, like "
                              "the shared days; 20 lets the training data see the whole marker frame)")
@@ -98,7 +100,7 @@ def main(argv: list[str] | None = None) -> int:
                              "--seed draws the synthetic arm and its recordings)")
     args = parser.parse_args(argv)
     methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
-    out = run(methods, args.shift_mm, args.angle_deg, args.seed, args.train_spread_deg, args.fit_seed)
+    out = run(methods, args.shift_mm, args.angle_deg, args.seed, args.train_spread_deg, args.fit_seed, args.robot)
     print(out["check"]["message"] or "frame check: nothing found")
     print(f"\nheld-out position error mean/max [mm], tool marker off by {args.shift_mm} mm / {args.angle_deg} deg, "
           f"training joints 1, 4, 5, 6 within {args.train_spread_deg} deg\n")

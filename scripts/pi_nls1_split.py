@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from calibration.physics_informed import block_slice  # noqa: E402
-from scripts.bench_frames import fitter_on, tool_error_case_r1  # noqa: E402
+from scripts.bench_frames import fitter_on, tool_error_case_of  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -30,7 +30,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=3)
     parser.add_argument("--train-spread-deg", type=float, default=3.0)
     args = parser.parse_args(argv)
-    robot, train, test = tool_error_case_r1(0.0, 0.0, args.seed, args.train_spread_deg)
+    robot, train, test = tool_error_case_of(0.0, 0.0, args.seed, args.train_spread_deg)
     fitter = fitter_on(robot, train)
     pi = fitter.physics_informed()
     kin, g = pi.kinematics, fitter.par.size
