@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from calibration import so3
+from calibration.errors import ModelError
 from calibration.casadi_expr import NUMPY, CasadiPose, Ops, casadi_ops, check_small_rotations, exp_sx, poe_chain, \
     rot_sx
 from calibration.models.base import Block
@@ -41,6 +42,8 @@ TOOL_NAMES = ("tool_rx_rad", "tool_ry_rad", "tool_rz_rad")
 BLOCKS = (Block("tool", TOOL_NAMES), Block("compliance", COMPLIANCE_NAMES),
           Block("deflection", tuple(f"deflect_{t}_{a}" for t in DEFLECTION_TERMS for a in DEFLECTION_AXES)))
 _TAIL_SIZES = tuple(b.size for b in BLOCKS)
+#: The choices of :meth:`ExtendedKinematics.registration_mask` (``FitOptions.pi_registration_free``).
+REGISTRATION_PARTS = ("none", "rotation", "shift", "all")
 EZ = np.array([0.0, 0.0, 1.0])
 _COMPLIANCE = MassFreeCompliance()  # the one definition of the compliance block's joint deflection
 
@@ -97,6 +100,25 @@ class ExtendedKinematics:
 
     def names(self) -> list[str]:
         return [n for b in self.blocks() for n in b.names]
+
+    def registration_mask(self, parts: str = "all") -> np.ndarray:
+        """Which parameters (m,) describe where the tool marker sits on the flange rather than the arm.
+
+        Args:
+            parts: ``rotation`` (the tool-marker rotation), ``shift`` (the flange-point shift, with ``fit_tool``),
+                ``all`` (both) or ``none``.
+
+        They are a measurement set-up's registration, which the vendor's nominal arm knows nothing about; the pi
+        fit leaves those of ``FitOptions.pi_registration_free`` out of its damping toward nominal.
+        """
+        if parts not in REGISTRATION_PARTS:
+            raise ModelError(f"registration parts must be one of {', '.join(REGISTRATION_PARTS)}, got {parts!r}")
+        mask = np.zeros(self.size, dtype=bool)
+        if parts in ("shift", "all") and self.par.fit_tool:
+            mask[self.par.size - 3: self.par.size] = True
+        if parts in ("rotation", "all"):
+            mask[block_slice("tool", self.par.size)] = True
+        return mask
 
     def scale(self, reach_mm: float = 1000.0) -> np.ndarray:
         """Parameter units per mm of tool motion: angles (tilts, tool and deflection rotations, compliance) / reach."""

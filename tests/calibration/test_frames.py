@@ -148,3 +148,38 @@ def test_the_other_frame_is_taken_out_too_when_it_is_beyond_the_limits_once_the_
     np.testing.assert_array_equal(fitter.frames.T_tool_correction, joint.T_tool_correction)
     back = put_in(fitter.inner.train, joint.T_base_correction, joint.T_tool_correction)
     np.testing.assert_allclose(back.p, rec.p, atol=1e-9)
+
+
+@pytest.mark.parametrize("free", ["rotation", "all"])
+def test_pi_is_not_thrown_by_a_marker_rotation_the_frame_check_lets_through(free):
+    """A tool marker rotated 0.3 deg on the flange (too little for the frame check) and the wrist within 3 deg in
+    training: pi with the marker's rotation damped toward nominal carries the error to poses that turn the wrist;
+    left free (FitOptions.pi_registration_free) the rotation is fitted and the held-out error is as without it."""
+    robot = load_cell().robot("R1")
+    nominal = robot.model()
+    gravity = GravityModel.from_spec(robot.robot, nominal)
+
+    def pi_mean(angle_deg: float, parts: str) -> float:
+        train, test, _ = tool_error_case(nominal, gravity, 0.0, angle_deg, seed=1,
+                                         train_design=Design(n_q2=6, n_q3=5, spread_deg=3.0), n_heldout=150)
+        assert not check_recording(ConstantModel("R1", "nominal", nominal, 0, {}), train).found
+        fitter = Fitter("R1", nominal, train, FitOptions(pi_registration_free=parts), None, gravity,
+                        (robot.robot.lower_rad, robot.robot.upper_rad))
+        return float(np.mean(errors(fitter.fit("pi")[0], test).position_mm))
+
+    clean, damped, freed = pi_mean(0.0, free), pi_mean(0.3, "none"), pi_mean(0.3, free)
+    assert freed <= 1.05 * clean
+    assert damped >= 1.3 * clean
+
+
+def test_registration_mask_names_the_marker_parameters():
+    from calibration.errors import ModelError
+    from calibration.physics_informed import ExtendedKinematics
+
+    kin = ExtendedKinematics(MinimalParameterisation(load_cell().robot("R1").model(), fit_tool=True))
+    names = np.array(kin.names())
+    assert list(names[kin.registration_mask("rotation")]) == ["tool_rx_rad", "tool_ry_rad", "tool_rz_rad"]
+    assert list(names[kin.registration_mask("shift")]) == ["flange_dx_mm", "flange_dy_mm", "flange_dz_mm"]
+    assert kin.registration_mask("all").sum() == 6 and not kin.registration_mask("none").any()
+    with pytest.raises(ModelError, match="registration parts"):
+        kin.registration_mask("tool")
