@@ -25,6 +25,12 @@ R1_TRAIN = SHARED_DATA / "PH_grad_data" / "test0801_R1"
 R1_TEST = SHARED_DATA / "kinematic_raw_data" / "test0801_R1"
 
 
+#: ``--time-scale`` of the tests that collect with ``--sim``: the simulated cell of every ``--sim`` command runs a
+#: stepped clock (``SimCellOptions.deterministic``), so what it measures does not depend on the time scale, only
+#: the real time its paced sleeps take (~3 s per recalibrate at the default 20, a tenth of that at 200).
+SIM_FAST = ("--time-scale", "200")
+
+
 def needs_shared_data() -> pytest.MarkDecorator:
     return pytest.mark.skipif(not (R1_TRAIN.exists() and R1_TEST.exists()),
                               reason=f"real recordings not found at {SHARED_DATA}")

@@ -10,7 +10,7 @@ import pytest
 
 from app.cli.commands import main
 from calibration.recording import write_recording
-from tests.conftest import cluster_design, measure
+from tests.conftest import SIM_FAST, cluster_design, measure
 
 
 def numbers(line: str) -> list[float]:
@@ -62,7 +62,7 @@ def test_plan_collect_export_json_hold_the_printed_figures(tmp_path, capsys):
 
     session = tmp_path / "s"
     assert main(["collect", "--robot", "R1", "--plan", str(plan), "--session", str(session), "--sim",
-                 "--no-progress"]) == 0
+                 *SIM_FAST, "--no-progress"]) == 0
     capsys.readouterr()
     out = tmp_path / "anchors.csv"
     assert main(["export", "--session", str(session), "--out", str(out), "--kinds", "anchor",
