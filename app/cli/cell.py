@@ -12,6 +12,10 @@ from app.cli.common import add_report_options, cell_spec, command_line, epoch_ba
 from calibration.errors import CellCalError
 
 
+#: Largest ``demo --time-scale``: beyond it the paced sleeps are already negligible next to the waits for Zenoh.
+MAX_DEMO_TIME_SCALE = 1000.0
+
+
 def _load_plan(path: str, robot: str) -> Any:
     from app.cell.plan_file import read_plan
     from calibration.errors import DataError
@@ -306,8 +310,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
         raise CellCalError(f"--anchor-step must be in [0.5, 90] deg, got {args.anchor_step:g}")
     if args.validation < 1:
         raise CellCalError(f"--validation must be at least 1, got {args.validation}")
-    if not args.time_scale > 0:
-        raise CellCalError(f"--time-scale must be a positive number of simulated seconds per real second, "
+    if not 0.0 < args.time_scale <= MAX_DEMO_TIME_SCALE:
+        raise CellCalError(f"--time-scale must be in (0, {MAX_DEMO_TIME_SCALE:g}] simulated seconds per real second, "
                            f"got {args.time_scale:g}")
     config = DemoConfig(full=args.full, anchor_step_deg=args.anchor_step, seed=args.seed, n_validation=args.validation,
                         methods=_demo_methods(args.methods), sim=SimCellOptions(time_scale=args.time_scale),

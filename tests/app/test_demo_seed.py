@@ -91,8 +91,9 @@ def test_the_json_holds_what_the_demo_prints(runs):
 
 @pytest.mark.parametrize("bad,fragment", [(["--anchor-step", "0"], "--anchor-step must be in [0.5, 90] deg"),
                                           (["--validation", "0"], "--validation must be at least 1"),
-                                          (["--time-scale", "0"], "--time-scale must be a positive number"),
-                                          (["--time-scale", "nan"], "--time-scale must be a positive number"),
+                                          (["--time-scale", "0"], "--time-scale must be in (0, 1000]"),
+                                          (["--time-scale", "nan"], "--time-scale must be in (0, 1000]"),
+                                          (["--time-scale", "inf"], "--time-scale must be in (0, 1000]"),
                                           (["--methods", "nls1,magic"], "unknown method 'magic'")])
 def test_bad_demo_options_exit_2_and_write_nothing(tmp_path, capsys, bad, fragment):
     from tests.conftest import assert_bad_input
