@@ -130,7 +130,8 @@ def run(seed: int, quick: bool, log: Any, draws: int = 1) -> dict[str, Any]:
     ids = np.array([t.cluster for t in grid.targets])
     grid_rec = Recording(grid.q, np.zeros((len(grid), 3)), so3.R_to_quat(np.tile(np.eye(3), (len(grid), 1, 1))),
                          {"cluster": ids.astype(float)}, "grid")  # only its joint angles pick the clusters
-    grid_plan = Plan(tuple(t for t, c in zip(grid.targets, ids) if c in spread_clusters(grid_rec)))
+    spread = set(spread_clusters(grid_rec))  # once: in the generator it was recomputed for each of 1736 targets
+    grid_plan = Plan(tuple(t for t, c in zip(grid.targets, ids) if c in spread))
     design, figs = optimal_plan("R1", par, safety, others, DesignSpec.for_rebase(REBASE_BUDGET, seed=seed),
                                 park_q("R1"))
 

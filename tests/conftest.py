@@ -25,6 +25,12 @@ R1_TRAIN = SHARED_DATA / "PH_grad_data" / "test0801_R1"
 R1_TEST = SHARED_DATA / "kinematic_raw_data" / "test0801_R1"
 
 
+#: ``--time-scale`` of the tests that collect with ``--sim``: the simulated cell of every ``--sim`` command runs a
+#: stepped clock (``SimCellOptions.deterministic``), so what it measures does not depend on the time scale, only
+#: the real time its paced sleeps take (~3 s per recalibrate at the default 20, a tenth of that at 200).
+SIM_FAST = ("--time-scale", "200")
+
+
 def needs_shared_data() -> pytest.MarkDecorator:
     return pytest.mark.skipif(not (R1_TRAIN.exists() and R1_TEST.exists()),
                               reason=f"real recordings not found at {SHARED_DATA}")
@@ -119,14 +125,20 @@ def write_backlash_case(folder: Path, **sizes: int) -> tuple[Path, Path]:
 
 #: Modules that run first, longest first (summed test durations in a -n 2 run on the 2-core box), so the many short
 #: modules fill in around them at the end instead of one long module running alone on one worker. Only the order
-#: depends on this list: a module missing from it still runs, later.
-LONGEST_FIRST = ("tests/app/test_rehearsal.py", "tests/calibration/test_diagnosis.py", "tests/app/test_diagnose.py",
-                 "tests/app/test_demo_seed.py", "tests/app/test_report.py", "tests/app/test_preview.py",
-                 "tests/app/test_real_data.py", "tests/calibration/test_models.py", "tests/app/test_rebase_design.py",
-                 "tests/calibration/test_model_kinds.py", "tests/app/test_cli.py", "tests/app/test_readme.py",
-                 "tests/calibration/test_robust.py", "tests/app/test_diagnose_days.py", "tests/app/test_dual_plan.py",
-                 "tests/drivers/test_motoros_driver.py", "tests/app/test_e2e_sim_cell.py",
-                 "tests/app/test_collect_session.py", "tests/app/test_provenance.py", "tests/app/test_cli_json.py")
+#: depends on this list: a module missing from it still runs, later. The rehearsal leads: it waits on real-time
+#: OS processes, so the other worker's CPU-bound modules run beside it. test_preview is placed by its size with a
+#: headless browser (without one its browser tests skip and it is short).
+LONGEST_FIRST = ("tests/app/test_rehearsal.py", "tests/app/test_demo_seed.py", "tests/calibration/test_models.py",
+                 "tests/calibration/test_diagnosis_parsimony.py", "tests/app/test_diagnose.py",
+                 "tests/app/test_readme.py", "tests/calibration/test_robust.py", "tests/app/test_rebase_design.py",
+                 "tests/app/test_report.py", "tests/app/test_preview.py", "tests/calibration/test_model_kinds.py",
+                 "tests/calibration/test_diagnosis.py", "tests/app/test_dual_plan.py",
+                 "tests/drivers/test_motoros_driver.py", "tests/app/test_cli_dual.py", "tests/app/test_real_data.py",
+                 "tests/app/test_cli.py", "tests/app/test_diagnose_days.py", "tests/calibration/test_interpolation.py",
+                 "tests/calibration/test_multiday.py", "tests/calibration/test_diagnosis_channels.py",
+                 "tests/app/test_collect_session.py", "tests/app/test_cli_json.py",
+                 "tests/app/test_recalibrate_rebase.py", "tests/calibration/test_daydiff.py",
+                 "tests/calibration/test_nls0.py")
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

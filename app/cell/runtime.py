@@ -145,13 +145,18 @@ class SettledFrames(MocapSource):
         """Every frame due by now, in capture order; while none, the clock steps ``step_s`` (to the deadline)."""
         deadline = self.clock.now() + timeout_s
         while True:
-            self._wait_in_sync()
+            self.wait_in_sync()
             frames = [f for f in self.inner.read(0.0) if f.capture_time >= self._not_before]
             if frames or self.clock.now() >= deadline:
                 return sorted(frames, key=lambda f: (f.frame_number, f.body_id))
             self.clock.advance(min(self.step_s, deadline - self.clock.now()))  # type: ignore[type-var]
 
-    def _wait_in_sync(self) -> None:
+    def wait_in_sync(self) -> None:
+        """Stepped clock: wait (in real time) until every frame captured up to now has come through Zenoh.
+
+        Raises:
+            DriverTimeout: not within ``sync_timeout_s`` [s, real time].
+        """
         from drivers.errors import DriverTimeout
 
         limit = time.monotonic() + self.sync_timeout_s
@@ -300,8 +305,18 @@ class SimCell:
 
     @property
     def frames_received(self) -> int:
-        """Mocap frames the collector received over Zenoh so far."""
-        return 0 if self.subscriber is None else int(self.subscriber.stats.received)
+        """Mocap frames the collector received over Zenoh so far.
+
+        On a stepped clock (``deterministic``) once every frame due by the present simulated instant has arrived,
+        so the count is a function of simulated time, like everything measured: without that wait it depended on
+        whether the bridge thread had published the frames of the last simulated moments yet, which at a fast
+        time scale it often had not (``cellcal demo``'s count differed between runs of one seed).
+        """
+        if self.subscriber is None:
+            return 0
+        if self.clock is not None and self.clock.stepped and isinstance(self.mocap, SettledFrames):
+            self.mocap.wait_in_sync()
+        return int(self.subscriber.stats.received)
 
     def others(self, robot: str) -> dict[str, RobotDriver]:
         """Drivers of every arm but ``robot`` (their live poses feed the safety checks)."""

@@ -10,7 +10,7 @@ import pytest
 
 from app.cli.commands import main
 from calibration.recording import write_recording
-from tests.conftest import cluster_design, measure
+from tests.conftest import SIM_FAST, cluster_design, measure
 
 
 def numbers(line: str) -> list[float]:
@@ -62,7 +62,7 @@ def test_plan_collect_export_json_hold_the_printed_figures(tmp_path, capsys):
 
     session = tmp_path / "s"
     assert main(["collect", "--robot", "R1", "--plan", str(plan), "--session", str(session), "--sim",
-                 "--no-progress"]) == 0
+                 *SIM_FAST, "--no-progress"]) == 0
     capsys.readouterr()
     out = tmp_path / "anchors.csv"
     assert main(["export", "--session", str(session), "--out", str(out), "--kinds", "anchor",
@@ -94,6 +94,8 @@ def test_the_rehearsal_processes_write_their_counters_at_stop(tmp_path):
     import time
 
     from app.cell.rehearsal import Process, write_rehearsal_cell
+    from cell_config import load_cell
+    from drivers.bus import ZenohMocapSource
 
     cell = write_rehearsal_cell(tmp_path)
     procs = {name: Process(cell, name, *args, "--json", str(tmp_path / f"{name}.json"))
@@ -101,7 +103,11 @@ def test_the_rehearsal_processes_write_their_counters_at_stop(tmp_path):
     try:
         for p in procs.values():
             p.start()
-        time.sleep(2.0)  # the bridge connects to the fake Motive and publishes
+        spec = load_cell(cell)
+        with ZenohMocapSource(spec.name, config=spec.zenoh_for("collector"), rigid_bodies=["weldgun"]) as sub:
+            deadline = time.monotonic() + 30  # until the bridge has connected to the fake Motive and publishes
+            while not sub.read(0.5):
+                assert time.monotonic() < deadline, "no mocap frame through the bridge within 30 s"
     finally:
         codes = {name: p.stop() for name, p in reversed(list(procs.items()))}
     assert codes == dict.fromkeys(procs, 0), {n: procs[n].output[-1500:] for n in procs}

@@ -11,7 +11,7 @@ from app.cli.commands import main
 from calibration.errors import ModelError, OutputError
 from calibration.models import ConstantModel, load_model, save_model
 from calibration.parameterisation import MinimalParameterisation
-from tests.conftest import assert_bad_input, cluster_design, measure, planted_parameters
+from tests.conftest import SIM_FAST, assert_bad_input, cluster_design, measure, planted_parameters
 
 
 @pytest.fixture(scope="module")
@@ -158,7 +158,7 @@ def test_recalibrate_cli_replaces_a_nan_model_in_service(tmp_path, files, capsys
     models.mkdir()
     (models / "current.yaml").write_bytes((files / "nan.yaml").read_bytes())
     assert main(["recalibrate", "--robot", "R1", "--plan", str(plan), "--model-dir", str(models), "--method", "nls1",
-                 "--validation", "6", "--validation-seed", "2", "--sim", "--no-progress",
+                 "--validation", "6", "--validation-seed", "2", "--sim", *SIM_FAST, "--no-progress",
                  "--json", str(tmp_path / "d.json")]) == 0
     d = json.loads((tmp_path / "d.json").read_text())
     assert d["decision"] == "replaced" and d["current"] is None

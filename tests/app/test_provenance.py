@@ -13,7 +13,7 @@ from app.cli.commands import main
 from app.provenance import input_files, model_provenance, provenance, version
 from calibration.models import load_model, save_model
 from calibration.recording import write_recording
-from tests.conftest import cluster_design, measure, write_backlash_case
+from tests.conftest import SIM_FAST, cluster_design, measure, write_backlash_case
 
 
 @pytest.fixture(scope="module")
@@ -97,7 +97,7 @@ def test_diagnose_and_recalibrate_record_their_inputs(tmp_path):
     plan, models = tmp_path / "plan.json", tmp_path / "models"
     assert main(["plan", "--robot", "R1", "--out", str(plan), "--q2-step", "35", "--q3-step", "30"]) == 0
     assert main(["recalibrate", "--robot", "R1", "--plan", str(plan), "--model-dir", str(models), "--method", "nls1",
-                 "--validation", "6", "--validation-seed", "2", "--sim", "--no-progress"]) == 0
+                 "--validation", "6", "--validation-seed", "2", "--sim", *SIM_FAST, "--no-progress"]) == 0
     p = model_provenance(load_model(models / "current.yaml"))
     assert [i["role"] for i in p["inputs"]] == ["train", "validation"]
     for item in p["inputs"]:

@@ -97,9 +97,10 @@ def test_the_step_by_step_block_runs_as_written_on_a_coarse_grid(tmp_path, monke
     block = block_with("cellcal plan --robot R1 --out r1_plan.json")
     monkeypatch.chdir(tmp_path)
     ran = run_block(block, {}, {"plan": ["--q2-step", "50", "--q3-step", "50", "--validation", "6"],
-                                "collect": ["--no-progress"],
+                                "collect": ["--time-scale", "200", "--no-progress"],
                                 "compare": ["--methods", "nominal,base,nls1,cpa"],
-                                "recalibrate": ["--method", "nls1", "--validation", "3", "--no-progress"]})
+                                "recalibrate": ["--method", "nls1", "--validation", "3", "--time-scale", "200",
+                                                "--no-progress"]})
     assert ran == ["plan", "collect", "export", "export", "export", "compare", "recalibrate"]
     for name in ("r1_train.csv", "r1_cpa.csv", "r1_test.csv", "rep/report.md", "d.json",
                  "models_r1/current.yaml"):

@@ -12,7 +12,7 @@ from app.cli.commands import main
 from calibration.errors import DataError
 from calibration.models import ConstantModel, load_model, save_model
 from calibration.parameterisation import MinimalParameterisation
-from tests.conftest import assert_bad_input, measure, planted_parameters
+from tests.conftest import SIM_FAST, assert_bad_input, measure, planted_parameters
 
 
 @pytest.fixture(scope="module")
@@ -73,7 +73,7 @@ def test_recalibrate_cli_on_the_simulated_cell(tmp_path, capsys):
     assert main(["plan", "--robot", "R1", "--out", str(plan), "--q2-step", "35", "--q3-step", "30"]) == 0
     models = tmp_path / "models"
     args = ["recalibrate", "--robot", "R1", "--plan", str(plan), "--model-dir", str(models), "--method", "nls1",
-            "--validation", "6", "--validation-seed", "2", "--sim", "--no-progress"]
+            "--validation", "6", "--validation-seed", "2", "--sim", *SIM_FAST, "--no-progress"]
     assert main(args + ["--json", str(tmp_path / "d1.json")]) == 0
     d1 = json.loads((tmp_path / "d1.json").read_text())
     assert d1["decision"] == "installed" and d1["validation_samples"] == 6

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from app.cli.commands import main
 from calibration.models import load_model
-from tests.conftest import assert_bad_input
+from tests.conftest import SIM_FAST, assert_bad_input
 
 
 def test_rebase_refits_the_frames_of_the_model_in_service(tmp_path, capsys):
@@ -16,7 +16,7 @@ def test_rebase_refits_the_frames_of_the_model_in_service(tmp_path, capsys):
     assert main(["plan", "--robot", "R1", "--out", str(plan), "--q2-step", "35", "--q3-step", "30"]) == 0
     models = tmp_path / "models"
     args = ["recalibrate", "--robot", "R1", "--plan", str(plan), "--model-dir", str(models), "--validation", "6",
-            "--validation-seed", "2", "--sim", "--no-progress"]
+            "--validation-seed", "2", "--sim", *SIM_FAST, "--no-progress"]
     before = sorted(p.name for p in tmp_path.iterdir())
     assert_bad_input(capsys, args + ["--rebase"], "--rebase refits the frames of the model in service", "there is none")
     assert sorted(p.name for p in tmp_path.iterdir()) == before

@@ -20,7 +20,7 @@ from calibration.methods import METHODS
 from calibration.metrics import Errors
 from calibration.recording import write_recording
 from tests.app.browser import browser_or_skip, screenshot_and_dom
-from tests.conftest import (assert_bad_input, cluster_design, measure, needs_shared_data, R1_TEST, R1_TRAIN,
+from tests.conftest import (SIM_FAST, assert_bad_input, cluster_design, measure, needs_shared_data, R1_TEST, R1_TRAIN,
                             write_backlash_case)
 
 
@@ -229,14 +229,15 @@ def test_recalibrate_report(tmp_path):
     plan, models, report = tmp_path / "plan.json", tmp_path / "models", tmp_path / "rep"
     assert main(["plan", "--robot", "R1", "--out", str(plan), "--q2-step", "35", "--q3-step", "30"]) == 0
     assert main(["recalibrate", "--robot", "R1", "--plan", str(plan), "--model-dir", str(models), "--method", "nls1",
-                 "--validation", "6", "--validation-seed", "2", "--sim", "--no-progress", "--report", str(report)]) == 0
+                 "--validation", "6", "--validation-seed", "2", "--sim", *SIM_FAST, "--no-progress",
+                 "--report", str(report)]) == 0
     work = next((models / "sessions").iterdir())
     page = _check_common(report / "report.html", [work / "train.csv", work / "validation.csv"])
     assert list(page.rows("acceptance")) == ["candidate nls1"]
     assert "installed candidate nls1" in page.all_text
     in_service = (models / "current.yaml").read_bytes()
     assert main(["recalibrate", "--robot", "R1", "--session", str(work / "train"), "--model-dir", str(models),
-                 "--method", "base", "--validation", "6", "--validation-seed", "3", "--sim", "--no-progress",
+                 "--method", "base", "--validation", "6", "--validation-seed", "3", "--sim", *SIM_FAST, "--no-progress",
                  "--report", str(report)]) == 0
     page = _Page((report / "report.html").read_text())
     assert list(page.rows("acceptance")) == ["candidate base", "in service nls1"]

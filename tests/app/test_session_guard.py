@@ -25,6 +25,7 @@ from drivers.base import MocapSource
 from drivers.errors import DriverError
 from drivers.sim import SimFault, SimRobotConfig, SimRobotDriver, planted_truth
 from sim_cell import FAST, R2_PARK, make_cell, small_plan
+from tests.conftest import SIM_FAST
 
 ROOT = Path(__file__).resolve().parents[2]
 OTHERS = {"R2": R2_PARK}
@@ -298,7 +299,7 @@ def test_cli_collect_prints_the_recorded_stops_and_refuses_a_locked_session(tmp_
         driver.clear_faults()
         run_session(session, driver, mocap, safety, body_id=1, others=OTHERS, config=FAST, resume=True,
                     progress=False)
-    argv = ["collect", "--robot", "R1", "--session", str(session), "--resume", "--sim", "--no-progress"]
+    argv = ["collect", "--robot", "R1", "--session", str(session), "--resume", "--sim", *SIM_FAST, "--no-progress"]
     holder = child(HOLD, str(session), "open")
     try:
         wait_line(holder, "locked")
