@@ -50,8 +50,8 @@ class DiagnosedModel(KinematicModel):
     def fk_context(self, q: np.ndarray, context: Context | None) -> tuple[np.ndarray, np.ndarray]:
         """Pose ``(R (N, 3, 3), p (N, 3) [mm])`` for joint angles q [rad] (N, 6) and a per-sample context.
 
-        The same steps as :meth:`casadi`: the joint effects (each held in the joints it declares at the edge of the
-        training region, see :mod:`calibration.models.guard`) deflect the joints on the base model's arm, the
+        The same steps as :meth:`casadi`: the joint effects (each at the angles the extrapolation guard holds it at,
+        see :mod:`calibration.models.guard`) deflect the joints on the base model's arm, the
         base model runs at the deflected joints (its configuration-dependent parameters at the reading q),
         and geometry effects add the pose change their grown links cause on that arm.
         """

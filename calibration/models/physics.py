@@ -37,8 +37,8 @@ def casadi_effects(effects: tuple[Effect, ...], values: list[Any], geo: PoeModel
                    region: Region | None = None) -> tuple[Any, Any]:
     """Effects on the arm ``geo`` with axes/link vectors ``H``, ``P`` (casadi) at joint symbols q, the default
     context: ``(q + delta_q (6,), P changed by the geometry effects (3, n+1))``; with a training ``region`` each
-    deflection is evaluated at q held in the joints its effect declares (the extrapolation guard,
-    :meth:`~calibration.models.guard.Region.hold_casadi`)."""
+    deflection is evaluated at the angles the extrapolation guard holds its effect at
+    (:meth:`~calibration.models.guard.Region.hold_casadi`)."""
     import casadi as ca
 
     ops = casadi_ops()
@@ -53,8 +53,9 @@ def casadi_effects(effects: tuple[Effect, ...], values: list[Any], geo: PoeModel
         held = () if region is None else region.held_joints(e)
         q_e = q if region is None else region.hold_casadi(e, q)
 
-        def chain(held: tuple[int, ...] = held, q_e: Any = q_e) -> Any:  # the effects' arm at the effect's q, built
-            if held not in chains:  # once per set of held joints, when an effect needs it
+        def chain(held: tuple[int, ...] = held, q_e: Any = q_e) -> Any:
+            """The effects' arm at this effect's q: built once per set of held joints, when an effect needs it."""
+            if held not in chains:
                 chains[held] = poe_chain(geo, q_e, H, P)
             return chains[held]
 
@@ -89,8 +90,7 @@ class PhysicsModel(KinematicModel):
 
     def fk_context(self, q: np.ndarray, context: Context | None) -> tuple[np.ndarray, np.ndarray]:
         """Pose ``(R (N, 3, 3), p (N, 3) [mm])`` for joint angles q [rad] (N, 6) and a per-sample context; each
-        joint effect held in the joints it declares at the edge of the training region
-        (:mod:`calibration.models.guard`)."""
+        joint effect evaluated at the angles the extrapolation guard holds it at (:mod:`calibration.models.guard`)."""
         region = self.region()
         return apply_effects(self.model, self.effects, q, context, None if region is None else region.hold)
 
