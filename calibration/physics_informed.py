@@ -175,13 +175,14 @@ class ExtendedKinematics:
         bound = max(np.linalg.norm(w_tool), float(np.abs(C[:, 3:]).sum(axis=0).max()) * np.sqrt(3))
         check_small_rotations(bound, "tool or deflection")
 
-    def _parts(self, q: np.ndarray, theta: np.ndarray) -> tuple[Any, ...]:
+    def _parts(self, q: np.ndarray, theta: np.ndarray, q_compliance: np.ndarray | None = None,
+               q_deflection: np.ndarray | None = None) -> tuple[Any, ...]:
         q = np.atleast_2d(np.asarray(q, dtype=float))
         theta = np.broadcast_to(np.asarray(theta, dtype=float), (q.shape[0], self.size))
         x, w_tool, c, C = self.split(theta)
-        Y = compliance_regressor(q)
+        Y = compliance_regressor(q if q_compliance is None else q_compliance)
         qe = q + (Y @ c[:, :, None])[..., 0]
-        xi = np.einsum("nk,nkj->nj", deflection_basis(q), C)
+        xi = np.einsum("nk,nkj->nj", deflection_basis(q if q_deflection is None else q_deflection), C)
         Rz = so3.rot(EZ, q[:, 0])
         w_base = (Rz @ xi[:, 3:, None])[..., 0]
         return q, theta, x, w_tool, Y, qe, xi, Rz, w_base
@@ -190,8 +191,13 @@ class ExtendedKinematics:
         R, p = self.par.pose(qe, x)
         return R @ so3.exp(w_tool), p  # the tool position is fixed in the flange frame; only its rotation moves
 
-    def pose(self, q: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        q, theta, x, w_tool, _, qe, xi, Rz, w_base = self._parts(q, theta)
+    def pose(self, q: np.ndarray, theta: np.ndarray, q_compliance: np.ndarray | None = None,
+             q_deflection: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Tool pose ``(R (N, 3, 3), p (N, 3) [mm])`` at joint angles q (N, 6) [rad] for parameters theta (size,)
+        or (N, size); ``q_compliance`` and ``q_deflection`` (N, 6), when given, are the angles the compliance's and
+        the deflection's terms are evaluated at instead of q (how ``scripts/extrapolation_folds.py`` scores either
+        term held at the edge of the training range; a ``pi`` model evaluates both at q)."""
+        q, theta, x, w_tool, _, qe, xi, Rz, w_base = self._parts(q, theta, q_compliance, q_deflection)
         R0, p0 = self._flange_pose(qe, x, w_tool)
         E = so3.exp(w_base)
         return E @ R0, (E @ p0[:, :, None])[..., 0] + (Rz @ xi[:, :3, None])[..., 0]

@@ -70,8 +70,8 @@ def _warn_extrapolation(model: Any, ex: dict[str, Any]) -> None:
     if ex["outside_training_range"]:
         print(f"warning: {ex['outside_training_range']} of {ex['poses']} poses lie outside the joint range of the "
               f"{model.method} model's training data (by up to {ex['max_excess_deg']:.1f} deg); "
-              + (f"the guard held its configuration-dependent effects at the edge of that range there (moving the "
-                 f"position by up to {ex['guard_shift_mm_max']:.3f} mm)" if ex.get("guard_acted") else
+              + (f"the guard held its effects fitted in narrowly seen joints at the edge of that range there "
+                 f"(moving the position by up to {ex['guard_shift_mm_max']:.3f} mm)" if ex.get("guard_acted") else
                  "the guard did not change its prediction there"), file=sys.stderr)
 
 

@@ -672,9 +672,9 @@ def report(robot: str, split: Split, base: FittedInUse, residual: ResidualDriver
 
 def extrapolation_note(ex: dict) -> str:
     """One sentence on the held-out poses outside the saved model's training range and what the guard did."""
-    did = (f"the extrapolation guard held the model's configuration-dependent effects at the edge of that range, "
-           f"moving the predicted position by up to {ex['guard_shift_mm_max']:.3f} mm" if ex["guard_acted"] else
-           "the guard did not change the prediction (no configuration-dependent effect acts there)")
+    did = (f"the extrapolation guard held the model's effects fitted in joints the data saw narrowly at the edge of "
+           f"that range, moving the predicted position by up to {ex['guard_shift_mm_max']:.3f} mm" if ex["guard_acted"]
+           else "the guard did not change the prediction (no effect fitted in a narrowly seen joint acts there)")
     return (f"{ex['outside_training_range']} of {ex['poses']} held-out poses lie outside the fit data's joint range "
             f"(by up to {ex['max_excess_deg']:.1f} deg, RMS {ex['rms_excess_deg']:.1f} deg); {did}.")
 

@@ -59,3 +59,6 @@ class StructuralDeflection(ExtendedEffect, register=False):
     @property
     def names(self) -> tuple[str, ...]:
         return _NAMES["deflection"]
+
+    def fitted_joints(self, n: int) -> tuple[int, ...]:
+        return (1, 2)  # Fourier terms in q2, q3 (q1 only turns the frame it acts in, exactly)

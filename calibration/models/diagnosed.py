@@ -50,16 +50,16 @@ class DiagnosedModel(KinematicModel):
     def fk_context(self, q: np.ndarray, context: Context | None) -> tuple[np.ndarray, np.ndarray]:
         """Pose ``(R (N, 3, 3), p (N, 3) [mm])`` for joint angles q [rad] (N, 6) and a per-sample context.
 
-        The same steps as :meth:`casadi`: the joint effects (evaluated inside the training region, see
-        :mod:`calibration.models.guard`) deflect the joints on the base model's arm, the
+        The same steps as :meth:`casadi`: the joint effects (each at the angles the extrapolation guard holds it at,
+        see :mod:`calibration.models.guard`) deflect the joints on the base model's arm, the
         base model runs at the deflected joints (its configuration-dependent parameters at the reading q),
         and geometry effects add the pose change their grown links cause on that arm.
         """
         q = np.atleast_2d(np.asarray(q, dtype=float))
         geo = self.base.effects_arm()
         region = self.region()
-        q_eff = q if region is None else region.clamp(q)  # the extrapolation guard
-        dq = sum((e.delta_q(geo, q_eff, context) for e in self.effects if e.target == "joints"), np.zeros_like(q))
+        dq = sum((e.delta_q(geo, q if region is None else region.hold(e, q), context)  # the extrapolation guard
+                  for e in self.effects if e.target == "joints"), np.zeros_like(q))
         R, p = self.base.pose_at(q + dq, q)
         R, p = geometry_on_top(geo, self.effects, q + dq, context, R, p)
         return R, p

@@ -36,26 +36,30 @@ def split_values(effects: tuple[Effect, ...], theta: Any) -> list[Any]:
 def casadi_effects(effects: tuple[Effect, ...], values: list[Any], geo: PoeModel, q: Any, H: Any, P: Any,
                    region: Region | None = None) -> tuple[Any, Any]:
     """Effects on the arm ``geo`` with axes/link vectors ``H``, ``P`` (casadi) at joint symbols q, the default
-    context: ``(q + delta_q (6,), P changed by the geometry effects (3, n+1))``; with a training ``region`` the
-    deflections are evaluated at q softly clamped into it (the extrapolation guard)."""
+    context: ``(q + delta_q (6,), P changed by the geometry effects (3, n+1))``; with a training ``region`` each
+    deflection is evaluated at the angles the extrapolation guard holds its effect at
+    (:meth:`~calibration.models.guard.Region.hold_casadi`)."""
     import casadi as ca
 
     ops = casadi_ops()
-    cache: list[Any] = []
-    q_eff = q if region is None else region.clamp_casadi(q)
-
-    def chain() -> Any:  # the chain of the effects' arm at the effects' q, built once when an effect needs it
-        if not cache:
-            cache.append(poe_chain(geo, q_eff, H, P))
-        return cache[0]
+    chains: dict[tuple[int, ...], Any] = {}
 
     dq: Any = ca.SX.zeros(q.shape[0])
     cols = [P[:, c] for c in range(P.shape[1])]
     for e, v in zip(effects, values):
         if e.target == "geometry":
             cols = e.grow(cols, v, 1, None, geo)
-        else:
-            dq = dq + ca.vertcat(*e.casadi_dq(ops, q_eff, chain, v))
+            continue
+        held = () if region is None else region.held_joints(e)
+        q_e = q if region is None else region.hold_casadi(e, q)
+
+        def chain(held: tuple[int, ...] = held, q_e: Any = q_e) -> Any:
+            """The effects' arm at this effect's q: built once per set of held joints, when an effect needs it."""
+            if held not in chains:
+                chains[held] = poe_chain(geo, q_e, H, P)
+            return chains[held]
+
+        dq = dq + ca.vertcat(*e.casadi_dq(ops, q_e, chain, v))
     return q + dq, ca.horzcat(*cols)
 
 
@@ -85,10 +89,10 @@ class PhysicsModel(KinematicModel):
         return self.fk_context(q, None)
 
     def fk_context(self, q: np.ndarray, context: Context | None) -> tuple[np.ndarray, np.ndarray]:
-        """Pose ``(R (N, 3, 3), p (N, 3) [mm])`` for joint angles q [rad] (N, 6) and a per-sample context; the
-        joint effects evaluated inside the training region (:mod:`calibration.models.guard`)."""
+        """Pose ``(R (N, 3, 3), p (N, 3) [mm])`` for joint angles q [rad] (N, 6) and a per-sample context; each
+        joint effect evaluated at the angles the extrapolation guard holds it at (:mod:`calibration.models.guard`)."""
         region = self.region()
-        return apply_effects(self.model, self.effects, q, context, None if region is None else region.clamp(q))
+        return apply_effects(self.model, self.effects, q, context, None if region is None else region.hold)
 
     @property
     def n_parameters(self) -> int:

@@ -2,7 +2,9 @@
 
 Its blocks are the kinematics' (geometry 27, tool rotation 3, mass-free compliance 5, structural deflection
 42, declared once in :mod:`calibration.physics_informed`); its pose, analytic Jacobian and casadi expression
-all read that one layout.
+all read that one layout. It has no extrapolation guard (:mod:`calibration.models.guard` says why): its compliance
+is the mass-free gravity shape, and its structural deflection's fitted shape is in q2 and q3, which the training
+designs see widely.
 """
 
 from __future__ import annotations

@@ -147,6 +147,17 @@ class Effect(abc.ABC):
         """The same effect with other parameter values (m,)."""
         return replace(self, values=np.asarray(values, dtype=float))
 
+    def fitted_joints(self, n: int) -> tuple[int, ...]:
+        """The 0-based joints, of an arm of n, whose angles the effect's fitted shape is a function of: where the
+        training data saw such a joint only narrowly, the extrapolation guard holds the effect at the edge of what
+        it saw (:meth:`calibration.models.guard.Region.held_joints`).
+
+        ``()`` for an effect whose shape in q comes from physics, its size alone fitted (a compliance times a gravity
+        torque: its formula says how it goes on), or that does not depend on q. By default every joint (a fitted
+        shape of unknown variables).
+        """
+        return tuple(range(n))
+
     def joint_terms(self, ops: Ops, q: list[Any], chain: Callable[[], Any], context: Context | None,
                     N: int) -> list[Term]:
         """The non-zero regressor entries, written once for numpy and casadi. Joint effects only.
@@ -244,8 +255,13 @@ def effect_from_dict(d: Mapping[str, Any]) -> Effect:
     return probe.with_values(np.array([params[k] for k in probe.names], dtype=float))
 
 
+#: The joint angles an effect is evaluated at for the readings q (N, n): a model's extrapolation guard
+#: (:meth:`calibration.models.guard.Region.hold`).
+Hold = Callable[[Effect, np.ndarray], np.ndarray]
+
+
 def apply_effects(model: PoeModel, effects: tuple[Effect, ...] | list[Effect], q: np.ndarray,
-                  context: Context | None = None, q_effects: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                  context: Context | None = None, hold: Hold | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Tool pose of a POE model with effects: geometry effects change P, joint effects add to q.
 
     Args:
@@ -253,14 +269,13 @@ def apply_effects(model: PoeModel, effects: tuple[Effect, ...] | list[Effect], q
         effects: the effects, applied together (joint perturbations summed, geometry effects chained).
         q: commanded/measured joint angles [rad], shape (N, n).
         context: per-sample context, see the module docstring.
-        q_effects: the joint angles the joint effects' deflections are evaluated at (default ``q``; a model's
-            extrapolation guard passes ``q`` clamped into its training range, see :mod:`calibration.models.guard`).
+        hold: the joint angles each joint effect's deflection is evaluated at (default ``q``; a model's
+            extrapolation guard, :meth:`calibration.models.guard.Region.hold`).
 
     Returns:
         ``(R_base_tool (N, 3, 3), p_base_tool (N, 3) [mm])``.
     """
     q = check_q(model, q)
-    q_eff = q if q_effects is None else check_q(model, q_effects)
     N = q.shape[0]
     dq = np.zeros_like(q)
     P = None
@@ -270,7 +285,7 @@ def apply_effects(model: PoeModel, effects: tuple[Effect, ...] | list[Effect], q
         if e.target == "geometry":
             P = e.geometry(model, N, context, P)
         else:
-            dq = dq + e.delta_q(model, q_eff, context)
+            dq = dq + e.delta_q(model, q if hold is None else hold(e, q), context)
     return model.fk(q + dq, P=P)
 
 

@@ -11,7 +11,9 @@ unknown lumped masses, ``u = q2 - q3``, ``dq2 = c1 sin q2 + c2 cos u + c3 sin u`
 [rad]. It is also the compliance block of the ``pi`` model (:mod:`calibration.physics_informed`).
 
 Each writes its regressor once (:meth:`~calibration.physics.base.Effect.joint_terms`) for numpy and casadi;
-the torques come from :func:`calibration.physics.gravity.chain_torques`.
+the torques come from :func:`calibration.physics.gravity.chain_torques`. Each extrapolates by its formula (no
+fitted joints for the extrapolation guard, :meth:`~calibration.physics.base.Effect.fitted_joints`): the torque's
+shape in q is physics, known at every pose; only the compliances are fitted.
 """
 
 from __future__ import annotations
@@ -56,6 +58,9 @@ class JointCompliance(Effect):
     def names(self) -> tuple[str, ...]:
         return tuple(f"c{j}_rad_per_Nm" for j in self.joints)
 
+    def fitted_joints(self, n: int) -> tuple[int, ...]:
+        return ()  # a gravity torque's shape: it extrapolates by its formula
+
     def joint_terms(self, ops: Ops, q: list[Any], chain: Any, context: Context | None, N: int) -> list[Term]:
         return _select(chain_torques(ops, chain(), self.gravity.lumped, self.gravity.g), self.joints)
 
@@ -90,6 +95,9 @@ class PayloadCompliance(Effect):
     def names(self) -> tuple[str, ...]:
         return tuple(f"c{j}_rad_per_Nm" for j in self.joints)
 
+    def fitted_joints(self, n: int) -> tuple[int, ...]:
+        return ()  # a gravity torque's shape: it extrapolates by its formula
+
     def joint_terms(self, ops: Ops, q: list[Any], chain: Any, context: Context | None, N: int) -> list[Term]:
         mass = context_array(context, "payload_kg", N)  # the default context (casadi): no payload
         if ops.name != "numpy":
@@ -113,6 +121,9 @@ class MassFreeCompliance(ExtendedEffect):
     @property
     def names(self) -> tuple[str, ...]:
         return COMPLIANCE_NAMES
+
+    def fitted_joints(self, n: int) -> tuple[int, ...]:
+        return ()  # a gravity torque's shape: it extrapolates by its formula
 
     def joint_terms(self, ops: Ops, q: list[Any], chain: Any, context: Context | None, N: int) -> list[Term]:
         u = q[1] - q[2]

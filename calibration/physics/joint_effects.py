@@ -7,7 +7,8 @@ All are linear in their parameters and act as ``q_true = q + delta_q``; each wri
   link lengths, base and tool frames are left to :class:`calibration.parameterisation.MinimalParameterisation`
   and the geometric fitter).
 - ``backlash``: ``delta_q_i = b{i}_rad * dir_i / 2``, the lost motion seen from each approach direction.
-- ``gear_transmission``: ``delta_q_i = sum_k a_k sin(k q_i) + b_k cos(k q_i)`` with harmonics ``k`` per joint.
+- ``gear_transmission``: ``delta_q_i = sum_k a_k sin(k q_i) + b_k cos(k q_i)`` with harmonics ``k`` per joint
+  (a shape fitted inside the data: the extrapolation guard holds it where the data saw its joint only narrowly).
 - ``mocap_latency``: the measured pose lags the joint reading, ``delta_q = -qd * latency_s``.
 """
 
@@ -39,6 +40,9 @@ class JointOffset(Effect):
     def names(self) -> tuple[str, ...]:
         return tuple(f"offset{j}_rad" for j in self.joints)
 
+    def fitted_joints(self, n: int) -> tuple[int, ...]:
+        return ()  # constant in q
+
     def joint_terms(self, ops: Ops, q: list[Any], chain: Any, context: Context | None, N: int) -> list[Term]:
         return [(j - 1, col, 1.0) for col, j in enumerate(self.joints)]
 
@@ -58,6 +62,9 @@ class Backlash(Effect):
     @property
     def names(self) -> tuple[str, ...]:
         return tuple(f"b{j}_rad" for j in self.joints)
+
+    def fitted_joints(self, n: int) -> tuple[int, ...]:
+        return ()  # constant in q
 
     def joint_terms(self, ops: Ops, q: list[Any], chain: Any, context: Context | None, N: int) -> list[Term]:
         d = context_dirs(context, N, len(q))  # the default context (casadi): static, no direction
@@ -92,6 +99,10 @@ class GearTransmission(Effect):
     def names(self) -> tuple[str, ...]:
         return tuple(f"j{j}_{f}{k}_rad" for j, ks in self.harmonics for k in ks for f in ("sin", "cos"))
 
+    def fitted_joints(self, n: int) -> tuple[int, ...]:
+        """The joints of its harmonics: their shape was fitted inside the data's range of those joints' angles."""
+        return tuple(j - 1 for j, _ in self.harmonics)
+
     def joint_terms(self, ops: Ops, q: list[Any], chain: Any, context: Context | None, N: int) -> list[Term]:
         terms, col = [], 0
         for j, ks in self.harmonics:
@@ -118,6 +129,9 @@ class MocapLatency(Effect):
     @property
     def names(self) -> tuple[str, ...]:
         return ("latency_s",)
+
+    def fitted_joints(self, n: int) -> tuple[int, ...]:
+        return ()  # constant in q
 
     def joint_terms(self, ops: Ops, q: list[Any], chain: Any, context: Context | None, N: int) -> list[Term]:
         qd = context_qd(context, N, len(q))  # the default context (casadi): at rest

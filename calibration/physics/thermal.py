@@ -67,6 +67,9 @@ class ThermalDrift(Effect):
         unit = "mm" if self.mode == "warmup" else "mm_per_K"
         return tuple(f"growth_{l}_{unit}" for l in self.links)
 
+    def fitted_joints(self, n: int) -> tuple[int, ...]:
+        return ()  # its drive is the time or the temperature, not q
+
     def drive(self, N: int, context: Context | None = None) -> np.ndarray:
         """The per-sample factor multiplying the growth parameters, shape (N,)."""
         if self.mode == "warmup":

@@ -99,13 +99,13 @@ def test_extrapolation_says_whether_the_guard_acted_and_by_how_much(region):
     """Outside the range, a configuration-dependent effect makes the guard act (reported with the position change it
     made); a rigid model, or every pose inside, leaves it idle."""
     arm = load_cell().robot("R1").model()
-    gear = GearTransmission(((2, (1, 2)),), np.array([3e-3, 0.0, 2e-3, 0.0]))
+    gear = GearTransmission(((6, (1, 2)),), np.array([3e-3, 0.0, 2e-3, 0.0]))
     guarded = PhysicsModel("R1", "diagnose", arm, (gear,), 0, {REGION_KEY: region.to_dict()})
     plain = PhysicsModel("R1", "diagnose", arm, (gear,), 0)
     rng = np.random.default_rng(3)
     inside = rng.uniform(region.lower_rad, region.upper_rad, (10, 6))
     far = inside.copy()
-    far[:, 1] = np.radians(rng.uniform(70, 120, 10))  # joint 2 20-70 deg beyond its range
+    far[:, 5] = np.radians(rng.uniform(30, 120, 10))  # joint 6 (seen within +-1 deg) 29-119 deg beyond its range
     ex = extrapolation(guarded, far)
     shift = np.max(np.linalg.norm(guarded.fk(far)[1] - plain.fk(far)[1], axis=1))
     assert ex["guard_acted"] and shift > 0.1
@@ -144,3 +144,111 @@ def test_region_of_data_takes_each_joints_margin_from_its_own_spread():
     assert old.margin_rad == 0.05 and old.to_dict()["margin_rad"] == 0.05
     with pytest.raises(ModelError, match="one per joint"):
         Region(np.zeros(6), np.ones(6), np.ones(5))
+
+
+def _mixed(region: Region) -> tuple:
+    """The R1 arm, its YAML gravity, a compliance under that gravity on joints 2 and 3 and a joint-5 gear error, and
+    a physics model carrying both with ``region`` as its training region."""
+    from calibration.physics import GravityModel, JointCompliance
+
+    spec = load_cell().robot("R1")
+    arm = spec.model()
+    compliance = JointCompliance(GravityModel.from_spec(spec.robot, arm), (2, 3), np.array([4e-6, 6e-6]))
+    gear = GearTransmission(((5, (1, 2)),), np.array([3e-3, 0.0, 2e-3, 0.0]))
+    return arm, compliance, gear, PhysicsModel("R1", "diagnose", arm, (compliance, gear), 0,
+                                               {REGION_KEY: region.to_dict()})
+
+
+def test_each_effect_is_held_in_the_joints_it_declares(region):
+    """Outside the training range a gravity compliance goes on exactly as its formula says (its torque at the true
+    q2, q3 and wrist), while a gear error in q5 (seen within +-1 deg) is held at the edge of q5's range and nowhere
+    else: the pose is the unguarded formula for the compliance plus the gear's deflection at q5 clamped. Fails on the
+    guard that clamped every effect in every joint."""
+    arm, compliance, gear, model = _mixed(region)
+    assert region.held_joints(compliance) == () and region.held_joints(gear) == (4,)
+    rng = np.random.default_rng(5)
+    far = rng.uniform(region.lower_rad, region.upper_rad, (30, 6))
+    far[:, 1] = np.radians(rng.uniform(60, 110, 30))  # q2 10-60 deg beyond its range
+    far[:, 2] = np.radians(rng.uniform(-90, -50, 30))  # q3 10-50 deg below its range
+    far[:, 4] = np.radians(rng.uniform(30, 120, 30))  # q5 29-119 deg beyond its range
+    q5_held = far.copy()
+    q5_held[:, 4] = region.clamp(far)[:, 4]
+    dq = compliance.delta_q(arm, far) + gear.delta_q(arm, q5_held)
+    R, p = model.fk(far)
+    R_want, p_want = arm.fk(far + dq)
+    np.testing.assert_allclose(p, p_want, atol=1e-9)
+    np.testing.assert_allclose(R, R_want, atol=1e-12)
+    # the compliance's deflection far out is what its formula gives there, not its value at the edge
+    edge = compliance.delta_q(arm, region.clamp(far))
+    assert np.max(np.abs(compliance.delta_q(arm, far) - edge)) > 1e-4
+    # the gear stays within what it did inside the range and the clamp band of q5
+    band = np.zeros((400, 6))
+    band[:, 4] = np.linspace(region.lower_rad[4] - region.margin_rad, region.upper_rad[4] + region.margin_rad, 400)
+    assert np.abs(gear.delta_q(arm, q5_held)[:, 4]).max() <= np.abs(gear.delta_q(arm, band)[:, 4]).max() + 1e-12
+    assert np.abs(gear.delta_q(arm, far)[:, 4]).max() > 2 * np.abs(gear.delta_q(arm, band)[:, 4]).max()
+
+
+def test_each_effect_is_held_in_its_own_joints_in_casadi_too(region):
+    """The casadi expression holds each effect as the numpy pose does (the compliance's torque at the true q, the
+    gear at q5 clamped)."""
+    _, _, _, model = _mixed(region)
+    qs = ca.SX.sym("q", 6)
+    pose = model.casadi(qs)
+    f = ca.Function("p", [qs], [pose.p, pose.R])
+    far = np.radians(np.random.default_rng(6).uniform(-120, 120, (15, 6)))
+    R, p = model.fk(far)
+    for i, x in enumerate(far):
+        pc, Rc = f(x)
+        np.testing.assert_allclose(np.asarray(pc).ravel(), p[i], atol=1e-9)
+        np.testing.assert_allclose(np.asarray(Rc), R[i], atol=1e-12)
+
+
+def test_a_region_saved_before_the_rule_keeps_holding_every_effect_in_every_joint(region, tmp_path):
+    """A model file whose training region has no ``rule`` predicts what it predicted before: every effect evaluated at
+    q clamped in every joint. A region saved now carries its rule and reads back with it, bit for bit."""
+    from calibration.models.guard import RULE_BY_EFFECT, RULE_EVERY_JOINT
+    from calibration.physics.base import apply_effects
+
+    arm, compliance, gear, model = _mixed(region)
+    old_dict = {k: v for k, v in region.to_dict().items() if k != "rule"}
+    old = Region.from_dict(old_dict)
+    assert old.rule == RULE_EVERY_JOINT and Region.from_dict(region.to_dict()).rule == RULE_BY_EFFECT
+    assert Region.of(np.zeros((3, 6))).rule == RULE_BY_EFFECT
+    far = np.radians(np.random.default_rng(7).uniform(-120, 120, (20, 6)))
+    old_model = PhysicsModel("R1", "diagnose", arm, (compliance, gear), 0, {REGION_KEY: old_dict})
+    save_model(old_model, tmp_path / "old.json")
+    back = load_model(tmp_path / "old.json")
+    clamped = region.clamp(far)
+    R0, p0 = arm.fk(far + compliance.delta_q(arm, clamped) + gear.delta_q(arm, clamped))  # the guard before the rule
+    for a, b in zip(back.fk(far), (R0, p0)):
+        np.testing.assert_allclose(a, b, atol=1e-9)
+    assert np.max(np.abs(back.fk(far)[1] - model.fk(far)[1])) > 1e-3  # the two rules differ out there
+    save_model(model, tmp_path / "new.json")
+    new = load_model(tmp_path / "new.json")
+    assert new.info[REGION_KEY]["rule"] == RULE_BY_EFFECT
+    for a, b in zip(new.fk(far), model.fk(far)):
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(ModelError, match="unknown guard rule"):
+        Region.from_dict({**region.to_dict(), "rule": "sometimes"})
+
+
+def test_a_harmonic_fitted_over_a_wide_range_goes_on_as_fitted_one_fitted_in_a_narrow_band_is_held(region):
+    """The guard holds a fitted shape only in the joints the data saw narrowly: a joint-2 gear error identified over
+    100 deg of q2 goes on as fitted 10-60 deg beyond it, the same error on joint 6 (seen within +-1 deg) is held."""
+    from calibration.models.guard import NARROW_SPAN_RAD
+
+    arm = load_cell().robot("R1").model()
+    assert list(region.narrow()) == [True, False, False, True, True, True]
+    assert region.upper_rad[1] - region.lower_rad[1] > NARROW_SPAN_RAD > region.upper_rad[5] - region.lower_rad[5]
+    values = np.array([3e-3, 0.0, 2e-3, 0.0])
+    rng = np.random.default_rng(8)
+    far = rng.uniform(region.lower_rad, region.upper_rad, (20, 6))
+    far[:, 1] = np.radians(rng.uniform(60, 110, 20))
+    far[:, 5] = np.radians(rng.uniform(30, 120, 20))
+    for joint, held in ((2, False), (6, True)):
+        gear = GearTransmission(((joint, (1, 2)),), values)
+        guarded = PhysicsModel("R1", "diagnose", arm, (gear,), 0, {REGION_KEY: region.to_dict()})
+        plain = PhysicsModel("R1", "diagnose", arm, (gear,), 0)
+        shift = np.max(np.linalg.norm(guarded.fk(far)[1] - plain.fk(far)[1], axis=1))
+        assert region.held_joints(gear) == ((joint - 1,) if held else ())
+        assert (shift > 0.1) if held else (shift == 0.0)

@@ -30,9 +30,14 @@ ca = pytest.importorskip("casadi")
 CDC_INTERPOLATORS = {"nearest": {}, "linear": {}, "cubic": {}, "rbf": {}, "fbf7": {},
                      "nn": {"hidden": (32, 32), "max_iter": 60}, "ae": {"latent": 4, "hidden": (32,), "max_iter": 60}}
 KINDS = ("constant", "pi", "cdc", *(f"cdc-{k}" for k in CDC_INTERPOLATORS), "cdc-rbf-bounded", "physics",
-         "diagnosed-pi", "diagnosed-cdc", "diagnosed-cdc-nn", "physics-guarded", "diagnosed-pi-guarded")
-#: A training region narrower than the test configurations (+-1.5 rad), so the extrapolation guard's clamp is active.
-GUARD = {REGION_KEY: Region(np.full(6, -0.6), np.full(6, 0.4), 0.2).to_dict()}
+         "diagnosed-pi", "diagnosed-cdc", "diagnosed-cdc-nn", "physics-guarded", "diagnosed-pi-guarded",
+         "physics-guarded-every-joint")
+#: A training region narrower than the test configurations (+-1.5 rad), q1 and the wrist seen narrowly, so the
+#: extrapolation guard holds the gear errors on joints 1 and 4 (the compliance goes on by its formula).
+_LOWER, _UPPER = np.array([-0.1, -0.6, -0.6, -0.1, -0.1, -0.1]), np.array([0.1, 0.4, 0.4, 0.1, 0.1, 0.1])
+GUARD = {REGION_KEY: Region(_LOWER, _UPPER, 0.05).to_dict()}
+#: The same region saved before the effects declared their fitted joints: every effect held in every joint.
+GUARD_EVERY_JOINT = {REGION_KEY: Region(_LOWER, _UPPER, 0.05, "every_joint").to_dict()}
 
 
 def _effects(gravity: GravityModel) -> tuple:
@@ -71,7 +76,9 @@ def models() -> dict:
             "diagnosed-cdc": DiagnosedModel("R1", "diagnose", cdc, effects),
             "diagnosed-cdc-nn": DiagnosedModel("R1", "diagnose", cdcs["cdc-nn"], effects),
             "physics-guarded": PhysicsModel("R1", "diagnose", geometry, _effects(gravity), par.size, dict(GUARD)),
-            "diagnosed-pi-guarded": DiagnosedModel("R1", "diagnose", pi, effects, dict(GUARD))}
+            "diagnosed-pi-guarded": DiagnosedModel("R1", "diagnose", pi, effects, dict(GUARD)),
+            "physics-guarded-every-joint": PhysicsModel("R1", "diagnose", geometry, _effects(gravity), par.size,
+                                                        dict(GUARD_EVERY_JOINT))}
 
 
 def _q(n: int, seed: int) -> np.ndarray:
