@@ -49,6 +49,10 @@ class Decision:
         rejected: where a candidate that was not better went (``rejected/<timestamp>.yaml``), or None.
         current_problem: why the model in service was unusable (then ``current`` is None and a valid candidate
             replaced it), or None.
+        tolerance_mm: the acceptance tolerance the candidate was held to when nothing usable was in service
+            [mm], or None.
+        refused: the candidate was not installed although nothing usable was in service, because its position
+            RMS on the validation poses exceeds ``tolerance_mm`` (it is filed in ``rejected/``).
     """
 
     robot: str
@@ -61,6 +65,8 @@ class Decision:
     archived: Path | None
     rejected: Path | None
     current_problem: str | None = None
+    tolerance_mm: float | None = None
+    refused: bool = False
 
     @property
     def candidate_rms_mm(self) -> float:
@@ -74,18 +80,25 @@ class Decision:
 
     def to_json(self) -> dict[str, Any]:
         return {"robot": self.robot, "method": self.method, "replaced": self.replaced,
-                "decision": "replaced" if self.archived else "installed" if self.replaced else "kept",
+                "decision": "replaced" if self.archived else "installed" if self.replaced else
+                "refused" if self.refused else "kept",
                 "validation_samples": self.validation_samples,
                 "candidate": {"position_rms_mm": self.candidate_rms_mm, "validation": self.candidate},
                 "current": None if self.current is None else {"position_rms_mm": self.current_rms_mm,
                                                               "validation": self.current},
                 "current_path": str(self.current_path), "archived": str(self.archived) if self.archived else None,
                 "rejected": str(self.rejected) if self.rejected else None,
-                "current_problem": self.current_problem}
+                "current_problem": self.current_problem, "tolerance_mm": self.tolerance_mm}
 
     def summary(self) -> str:
         """One line saying what happened, with both figures."""
         new = f"candidate {self.method} {self.candidate_rms_mm:.4f} mm RMS"
+        if self.refused:
+            had = f"the unusable model in service ({self.current_problem}) stays" if self.current_problem else \
+                "no model in service"
+            return (f"{self.robot}: refused {new} on {self.validation_samples} validation poses: above "
+                    f"--tolerance-mm {self.tolerance_mm:g} (the wrong robot or recording, or a failed fit?); "
+                    f"{had}; candidate filed as {self.rejected}")
         if self.current_problem is not None:
             return (f"{self.robot}: replaced the unusable model in service ({self.current_problem}) with {new} on "
                     f"{self.validation_samples} validation poses")
@@ -149,12 +162,26 @@ def _validation_stats(model: KinematicModel, validation: Recording) -> dict[str,
 
 
 def decide_and_install(model_dir: str | Path, candidate: KinematicModel, validation: Recording,
-                       nominal: PoeModel | None = None) -> Decision:
+                       nominal: PoeModel | None = None, tolerance_mm: float | None = None) -> Decision:
     """Compare ``candidate`` with the model in service on ``validation``; install it only when it is better.
 
     Better means a strictly lower position RMS error [mm] on the validation poses. A model in service that is
     unusable (its file fails validation, or its validation errors are not finite) never counts as better:
     the problem is reported in the decision and a valid candidate replaces it (the old file is archived).
+
+    With nothing usable in service there is no model to beat, so the candidate is held to the acceptance
+    tolerance instead: a position RMS above ``tolerance_mm`` (the largest error allowed on a pose) means most
+    poses fail acceptance, which no calibration engineer would put into service as the first model (R1's
+    session fitted as R2 gives hundreds of mm). It is then refused: filed in ``rejected/``, nothing installed
+    (``decision.refused``). A candidate within the tolerance whose largest error exceeds it is installed with a
+    warning; so is one above the tolerance that beats a usable model in service (it is better than what runs).
+
+    Args:
+        model_dir: the model folder.
+        candidate: the new model.
+        validation: the fresh validation poses.
+        nominal: the robot's nominal geometry, to refuse a model in service of another robot type.
+        tolerance_mm: acceptance tolerance [mm] for a candidate with nothing usable in service; None: no check.
 
     Raises:
         DataError: the model in service is for another robot, or there are no validation poses.
@@ -173,7 +200,9 @@ def decide_and_install(model_dir: str | Path, candidate: KinematicModel, validat
         cur_stats = _validation_stats(service.model, validation)
         if not math.isfinite(cur_stats["position_mm"]["rms"]):
             cur_stats, problem = None, "its errors on the validation poses are not finite"
-    better = cur_stats is None or cand_stats["position_mm"]["rms"] < cur_stats["position_mm"]["rms"]
+    cand_rms = cand_stats["position_mm"]["rms"]
+    refused = cur_stats is None and tolerance_mm is not None and cand_rms > tolerance_mm
+    better = not refused and (cur_stats is None or cand_rms < cur_stats["position_mm"]["rms"])
     current_path = model_dir / CURRENT
     archived = rejected = None
     if better:
@@ -186,8 +215,12 @@ def decide_and_install(model_dir: str | Path, candidate: KinematicModel, validat
         rejected = _stamp(model_dir / "rejected")
         save_model(candidate, rejected)
     decision = Decision(candidate.robot, candidate.method, better, len(validation), cand_stats, cur_stats,
-                        current_path, archived, rejected, problem)
+                        current_path, archived, rejected, problem, tolerance_mm, refused)
     log.info("%s", decision.summary())
+    if better and tolerance_mm is not None and cand_stats["position_mm"]["max"] > tolerance_mm:
+        log.warning("%s: the installed %s model exceeds the tolerance %g mm on some validation poses (largest "
+                    "%.3f mm, RMS %.3f mm)", candidate.robot, candidate.method, tolerance_mm,
+                    cand_stats["position_mm"]["max"], cand_rms)
     return decision
 
 

@@ -369,6 +369,11 @@ def _open_store(session_dir: Path, driver: RobotDriver, plan: Plan | None, info:
     """Lock and open (resume) or create the session; refused at once when another process holds the folder."""
     if resume:
         store = SessionStore(session_dir)
+        try:
+            store.check_robot(driver.name)
+        except DataError:
+            store.close()
+            raise
         stored = store.plan()
         if plan is not None and plan.to_dict()["targets"] != stored.to_dict()["targets"]:
             store.close()
@@ -459,9 +464,14 @@ def export(session_dir: str | Path, out_csv: str | Path, kinds: Sequence[str] | 
         The number of samples written.
 
     Raises:
-        DataError: no session, or no measured sample of the requested kinds (nothing is written).
+        DataError: no session, a session naming several robots, or no measured sample of the requested kinds
+            (nothing is written).
     """
     with SessionStore(session_dir, lock=False) as store:  # reading: allowed while a collector runs
+        robots = store.robots()
+        if len(robots) > 1:
+            raise DataError(store.path, None, "robot", f"the session names several robots ({', '.join(robots)}); "
+                                                       "a recording holds one arm's samples")
         rows = [r for r in store.rows("ok") if kinds is None or r["kind"] in kinds]
     if not rows:
         raise DataError(Path(session_dir), None, None,

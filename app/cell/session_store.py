@@ -296,6 +296,24 @@ class SessionStore:
         """Session information (robot, rigid body, options) stored at creation."""
         return json.loads(self._meta("info"))
 
+    def robots(self) -> list[str]:
+        """Every robot the session names: the one in its information, then any other in its plan or its rows."""
+        names = [str(self.info().get("robot", ""))] + list(self.plan().robots)
+        names += [r[0] for r in self.conn.execute("SELECT DISTINCT robot FROM samples")]
+        return list(dict.fromkeys(n for n in names if n))
+
+    def check_robot(self, robot: str) -> None:
+        """Refuse a session collected on another arm than ``robot`` (its information, plan or rows name another).
+
+        Raises:
+            DataError: naming the session's robot(s) and ``robot``.
+        """
+        names = self.robots()
+        if names != [robot]:
+            raise DataError(self.path, None, "robot", f"the session was collected on {', '.join(names) or 'no robot'}"
+                                                      f", not {robot} (--robot {robot}); give the session of {robot}"
+                                                      " or the --robot it was collected on")
+
     def created_wall(self) -> float:
         """Wall-clock creation time [s since the epoch]."""
         return float(self._meta("created_wall"))

@@ -27,10 +27,12 @@ def _load_plan(path: str, robot: str) -> Any:
     return plan
 
 
-def _require_session(path: str) -> None:
+def _require_session(path: str, robot: str) -> None:
+    """Refuse at once (before any device opens) a folder without a session, or a session of another arm."""
     from app.cell.session_store import SessionStore
 
-    SessionStore(path).close()  # raises DataError when there is no session
+    with SessionStore(path) as store:  # raises DataError when there is no session or another process holds it
+        store.check_robot(robot)
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
@@ -138,7 +140,7 @@ def cmd_collect(args: argparse.Namespace) -> int:
     cell.robot(args.robot)
     runtime = open_runtime(cell, args, robots=(args.robot,))  # a real cell's devices and registration: checked now
     if args.resume:
-        _require_session(args.session)  # refused at once when there is none or another process holds it
+        _require_session(args.session, args.robot)  # refused at once when there is none or another process holds it
     elif not args.plan:
         raise CellCalError("a new session needs --plan PLAN (or --resume an existing one)")
     elif SessionStore.exists(args.session):
@@ -204,9 +206,16 @@ def cmd_export(args: argparse.Namespace) -> int:
         bad = [k for k in kinds if k not in KINDS]
         if bad or not kinds:
             raise CellCalError(f"unknown target kind {bad[0] if bad else args.kinds!r}; valid: {', '.join(KINDS)}")
+    from app.cell.session_store import SessionStore
+
+    with SessionStore(args.session, lock=False) as store:  # reading: allowed while a collector runs
+        if args.robot:
+            store.check_robot(args.robot)
+        robots = store.robots()
     n = export(args.session, args.out, kinds)
-    print(f"{n} samples -> {args.out}")
-    write_json(args.json, {"session": str(args.session), "samples": n, "kinds": kinds, "out": str(args.out)})
+    print(f"{n} samples of {', '.join(robots)} -> {args.out}")
+    write_json(args.json, {"session": str(args.session), "robot": ", ".join(robots), "samples": n, "kinds": kinds,
+                           "out": str(args.out)})
     return 0
 
 
@@ -231,7 +240,7 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         raise CellCalError(f"--validation must be at least 1, got {args.validation}")
     plan = _load_plan(args.plan, args.robot) if args.plan else None
     if args.session:
-        _require_session(args.session)
+        _require_session(args.session, args.robot)
     service = model_in_service(model_dir, args.robot, robot.model())  # another robot's model: stop before motion
     if args.rebase:
         model_to_rebase(model_dir, service)  # nothing to rebase: stop before motion
@@ -281,7 +290,10 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     in_service = service.model
     report_inputs = inputs + ([("model in service", model_dir / "current.yaml")] if in_service is not None else [])
     report_record = provenance(report_inputs)  # before the decision moves the model in service to previous/
-    decision = decide_and_install(model_dir, model, validation, robot.model())
+    decision = decide_and_install(model_dir, model, validation, robot.model(), tolerance.position_mm)
+    if decision.refused:
+        write_json(args.json, decision.to_json())
+        raise CellCalError(decision.summary())
     print(decision.summary())
     print(f"model in service: {decision.current_path}" + (f"; previous one archived as {decision.archived}"
                                                            if decision.archived else ""))
@@ -388,6 +400,7 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--out", required=True, help="recording CSV")
     p.add_argument("--kinds", help="comma-separated target kinds to include (anchor, perturb, cpa, validation); all "
                                    "by default")
+    p.add_argument("--robot", help="refuse the session unless it was collected on this robot (R1, R2)")
     p.add_argument("--json", help="write the sample count as JSON")
     p = add("recalibrate", cmd_recalibrate, "fit a new model, compare it with the one in service on fresh validation "
                                             "poses, replace it only if better")

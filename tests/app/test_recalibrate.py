@@ -81,6 +81,58 @@ def test_recalibrate_cli_on_the_simulated_cell(tmp_path, capsys):
     assert load_model(models / "current.yaml").method == "nls1"
 
 
+def test_first_candidate_outside_the_tolerance_is_refused_not_installed(tmp_path, arm):
+    from calibration.metrics import error_stats, errors
+
+    _, validation, good, poor = arm
+    rms = {m.method: error_stats(errors(m, validation))["position_mm"]["rms"] for m in (good, poor)}
+    tolerance = float(np.sqrt(rms["nls1"] * rms["nominal"]))  # between the two
+    assert rms["nls1"] < tolerance < rms["nominal"]
+    d = decide_and_install(tmp_path, poor, validation, tolerance_mm=tolerance)
+    assert d.refused and not d.replaced and not (tmp_path / "current.yaml").exists()
+    assert d.rejected is not None and load_model(d.rejected).method == "nominal"
+    assert d.to_json()["decision"] == "refused" and "refused candidate nominal" in d.summary()
+    assert decide_and_install(tmp_path, good, validation, tolerance_mm=tolerance).replaced  # within it: installed
+    save_model(poor, tmp_path / "current.yaml")  # a usable model in service: a better candidate above it replaces it
+    assert decide_and_install(tmp_path, good, validation, tolerance_mm=1e-6).replaced
+
+
+def _session_of(folder, robot: str) -> None:
+    """A created (empty) session of ``robot``: what collect leaves before its first sample."""
+    from app.cell.planning import Plan, Target
+    from app.cell.session_store import SessionStore
+
+    plan = Plan((Target(robot, np.zeros(6), 0, "anchor"),), {})
+    with SessionStore(folder, create=True) as store:
+        store.init(plan, {"robot": robot, "body_id": 1})
+
+
+def test_a_session_of_the_other_arm_is_refused_before_any_motion(tmp_path, capsys):
+    session, models, out = tmp_path / "s_r1", tmp_path / "models_r2", tmp_path / "r1.csv"
+    _session_of(session, "R1")
+    before = sorted(str(p) for p in tmp_path.rglob("*"))
+    for argv in (["recalibrate", "--robot", "R2", "--session", str(session), "--model-dir", str(models),
+                  "--method", "nls1", "--sim"],
+                 ["collect", "--robot", "R2", "--session", str(session), "--resume", "--sim"],
+                 ["export", "--robot", "R2", "--session", str(session), "--out", str(out)]):
+        assert_bad_input(capsys, argv, str(session), "collected on R1, not R2")
+    assert sorted(str(p) for p in tmp_path.rglob("*")) == before
+
+
+def test_recalibrate_cli_refuses_a_first_model_outside_the_tolerance(tmp_path, capsys):
+    plan = tmp_path / "plan.json"
+    assert main(["plan", "--robot", "R1", "--out", str(plan), "--q2-step", "35", "--q3-step", "30"]) == 0
+    models = tmp_path / "models"
+    args = ["recalibrate", "--robot", "R1", "--plan", str(plan), "--model-dir", str(models), "--method", "nominal",
+            "--validation", "4", "--validation-seed", "2", "--sim", *SIM_FAST, "--no-progress"]
+    capsys.readouterr()
+    assert main(args + ["--tolerance-mm", "0.01", "--json", str(tmp_path / "d.json")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "refused candidate nominal" in err[0] and "--tolerance-mm 0.01" in err[0], err
+    assert not (models / "current.yaml").exists() and len(list((models / "rejected").iterdir())) == 1
+    assert json.loads((tmp_path / "d.json").read_text())["decision"] == "refused"
+
+
 def test_bad_inputs_exit_2_and_write_nothing(tmp_path, capsys):
     bad_plan = tmp_path / "bad_plan.json"
     bad_plan.write_text('{"schema": "cellcal.plan/1", "targets": [{"robot": "R1", "q_rad": [0, 0], '
