@@ -201,7 +201,8 @@ def add_dual_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                                                                   "outstretched")
     p.add_argument("--models", action="append", help="[LABEL:]R1=FILE,R2=FILE, repeatable; with --sim and none, "
                                                      "the model sets are fitted on twin data")
-    p.add_argument("--methods", help="model sets to fit with --sim (default nominal,cpa,fbf13,ae,physics)")
+    p.add_argument("--methods", help="model sets to fit with --sim (default nominal,cpa,fbf13,ae,pi; pi is the "
+                                     "physics-informed model)")  # the default: app.dual.sim.SIM_METHODS
     p.add_argument("--json", help="write the statistics as JSON")
     add_motion_options(p)
     p = add("preview", cmd_preview, "meshcat preview of a plan (static HTML page or live viewer)")

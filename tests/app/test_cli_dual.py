@@ -166,3 +166,17 @@ def test_validate_dual_sim_json_and_bad_inputs(tmp_path, capsys):
     assert_bad_input(capsys, ["validate-dual", "--sim", "--methods", "nominal,magic", "--json", str(never)],
          "unknown model set 'magic'")
     assert not never.exists()
+
+
+def test_validate_dual_help_names_the_default_model_sets_it_accepts():
+    import argparse
+    import re
+
+    from app.cli.commands import build_parser
+    from app.dual.sim import SIM_METHODS
+    from calibration.methods import METHODS
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    action = next(a for a in sub.choices["validate-dual"]._actions if "--methods" in a.option_strings)
+    default = re.search(r"default ([a-z0-9+,]+)", action.help).group(1).split(",")
+    assert tuple(default) == SIM_METHODS and set(default) <= set(METHODS), action.help
