@@ -51,6 +51,13 @@ ANGLE_LIMIT_DEG = 0.45
 TEST_REMOVED_SHARE = 0.6
 #: A test check names a single frame when its fit alone leaves at most this many times what both frames leave.
 SINGLE_FRAME_SLACK = 1.2
+#: A mean position error [mm] left after the best rigid fit of both frames beyond which the recording is not
+#: this arm's at all (another arm's, or another recording): no frame explains it, and no kinematics either. On
+#: the shared days' eight R1 training recordings that fit leaves 0.32-0.42 mm against R1's nominal arm, on the
+#: demo's (seed 0) training and CPA recordings 0.16-0.56 mm against their own arm's; the same recordings read
+#: as the other arm leave 51-66 mm. 20 mm is 35 times the most a right arm leaves, 2.5 times below the least
+#: the wrong arm does.
+UNEXPLAINED_MM = 20.0
 #: The candidate frame fits.
 CANDIDATES: dict[str, tuple[str, ...]] = {"base": ("base",), "tool": ("tool",), "base and tool": ("base", "tool")}
 
@@ -128,6 +135,11 @@ class FrameCheck:
     @property
     def found(self) -> bool:
         return self.frame is not None
+
+    @property
+    def left_mm(self) -> float:
+        """Mean position error left by the rigid fit of both frames [mm]."""
+        return self.fits["base and tool"].mean_mm
 
     @property
     def removed_share(self) -> float:
@@ -246,7 +258,8 @@ class FramedFit:
                             self.frames.T_tool_correction, 12, info), seconds
 
 
-def framed(make_fitter: Any, nominal: KinematicModel, train: Recording) -> tuple[Any, FrameCheck]:
+def framed(make_fitter: Any, nominal: KinematicModel, train: Recording,
+           check: FrameCheck | None = None) -> tuple[Any, FrameCheck]:
     """``make_fitter(train)`` as is when the training recording has no frame problem, else a :class:`FramedFit`
     around ``make_fitter(train with the frame at fault taken out)``; and the check (its message quotes what was
     taken out).
@@ -259,8 +272,8 @@ def framed(make_fitter: Any, nominal: KinematicModel, train: Recording) -> tuple
     alone on the corrected recording: when it moves beyond ``SHIFT_LIMIT_MM`` or ``ANGLE_LIMIT_DEG`` it is at
     fault too, and both are taken out from their joint fit (a base off by 4.5 mm and 0.24 deg, within the limits,
     under an 18 mm marker error fits at 5.4 mm there); below them it is within what the kinematic fits absorb on
-    every shared day."""
-    check = check_recording(nominal, train)
+    every shared day. ``check``: :func:`check_recording` of ``train`` when the caller already ran it."""
+    check = check if check is not None else check_recording(nominal, train)
     if not check.found:
         return make_fitter(train), check
     frames = check.fits[check.frame].result

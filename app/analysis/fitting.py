@@ -36,21 +36,52 @@ def fitter_for(robot: Any, train: Any, cpa: Any | None = None, options: Any | No
                   (robot.robot.lower_rad, robot.robot.upper_rad))
 
 
+def refuse_unexplained(source: str, robot: str, against: str, before_mm: float, left_mm: float) -> None:
+    """Refuse a recording whose error even the best rigid fit of both frames does not explain.
+
+    Args:
+        source: the recording checked.
+        robot: the arm it was read as (``--robot``, or the model's).
+        against: what it was checked against (``R2's nominal arm``, ``the model model.yaml``).
+        before_mm: its mean position error against that [mm].
+        left_mm: what the best rigid fit of the base and tool frames leaves of it [mm].
+
+    Raises:
+        DataError: ``left_mm`` exceeds :data:`calibration.frames.UNEXPLAINED_MM` (the message names the recording,
+            both figures and the likely causes).
+    """
+    from calibration.errors import DataError
+    from calibration.frames import UNEXPLAINED_MM
+
+    if not left_mm <= UNEXPLAINED_MM:
+        raise DataError(source, None, None,
+                        f"not {robot}'s poses: even the best rigid fit of the base and tool frames leaves a mean "
+                        f"position error of {left_mm:.1f} mm against {against} (from {before_mm:.1f} mm; an arm's own "
+                        f"recordings leave under 1 mm, the limit is {UNEXPLAINED_MM:g} mm); the wrong --robot, or a "
+                        "recording of another arm?")
+
+
 def checked_fitter_for(robot: Any, train: Any, cpa: Any | None = None, options: Any | None = None
                        ) -> tuple[Any, Any]:
     """:func:`fitter_for` after a frame check of the training recording against the nominal arm.
 
     When the check finds a frame or tool-registration problem, the fitter fits the frame(s) at fault first and the
-    kinematics after (:class:`calibration.frames.FramedFit`), and the check's message is logged.
+    kinematics after (:class:`calibration.frames.FramedFit`), and the check's message is logged. A recording that
+    even the best frame fit leaves far off (:func:`refuse_unexplained`) is refused.
 
     Returns:
         The fitter and the :class:`calibration.frames.FrameCheck`.
+
+    Raises:
+        DataError: the training recording is not this arm's (:func:`refuse_unexplained`).
     """
-    from calibration.frames import framed
+    from calibration.frames import check_recording, framed
     from calibration.models import ConstantModel
 
     nominal = ConstantModel(robot.name, "nominal", robot.model(), 0, {})
-    fitter, check = framed(lambda rec: fitter_for(robot, rec, cpa, options), nominal, train)
+    check = check_recording(nominal, train)
+    refuse_unexplained(train.source, robot.name, f"{robot.name}'s nominal arm", check.mean_mm, check.left_mm)
+    fitter, check = framed(lambda rec: fitter_for(robot, rec, cpa, options), nominal, train, check)
     if check.found:
         log.info("%s Fitting the %s frame%s first, then the kinematics.", check.message(), check.frame,
                  "s" if " and " in check.frame else "")
@@ -62,9 +93,16 @@ def days_fitter_for(robot: Any, trains: list[Any], cpa: Any | None = None, optio
 
     Returns:
         The :class:`calibration.multiday.MultiDayFit` (its ``fitter`` fits any method).
+
+    Raises:
+        DataError: a training recording is not this arm's (:func:`refuse_unexplained`).
     """
+    from calibration.frames import check_recording
     from calibration.models import ConstantModel
     from calibration.multiday import fit_days
 
     nominal = ConstantModel(robot.name, "nominal", robot.model(), 0, {})
+    for rec in trains:
+        check = check_recording(nominal, rec)
+        refuse_unexplained(rec.source, robot.name, f"{robot.name}'s nominal arm", check.mean_mm, check.left_mm)
     return fit_days(lambda rec: fitter_for(robot, rec, cpa, options), nominal, trains)

@@ -100,6 +100,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
     model, robot = _model_arg(args)
     test = read_recording_arg(args.test, robot)
+    frames = _test_frame_check(model, test, "recording, against the data the model was fitted on,",
+                               f"the model {args.model}")  # another arm's recording: refused before any output
     ex = extrapolation(model, test.q)
     _warn_extrapolation(model, ex)
     result = {"robot": model.robot, "method": model.method, "samples": len(test),
@@ -107,7 +109,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     pos, ori = result["test"]["position_mm"], result["test"]["orientation_deg"]
     print(f"{model.method} on {len(test)} samples: position mean {pos['mean']:.3f} std {pos['std']:.3f} "
           f"max {pos['max']:.3f} mm; orientation mean {ori['mean']:.3f} max {ori['max']:.3f} deg")
-    result["frames"] = _test_frame_check(model, test, "recording, against the data the model was fitted on,")
+    result["frames"] = frames
     write_json(args.json, result)
     if args.report:
         from app.analysis.report import write_evaluation_report
@@ -119,11 +121,17 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _test_frame_check(model: Any, test: Any, subject: str) -> dict[str, Any]:
-    """:func:`calibration.frames.check_test` of ``model`` on ``test``, its message printed as a warning; JSON."""
+def _test_frame_check(model: Any, test: Any, subject: str, against: str) -> dict[str, Any]:
+    """:func:`calibration.frames.check_test` of ``model`` on ``test``, its message printed as a warning; JSON.
+
+    Raises:
+        DataError: even the rigid frame fit leaves ``test`` far off ``model`` (another arm's recording).
+    """
+    from app.analysis.fitting import refuse_unexplained
     from calibration.frames import check_test
 
     check = check_test(model, test, subject)
+    refuse_unexplained(test.source, model.robot, against, check.mean_mm, check.left_mm)
     if check.found:
         print(f"warning: {check.message()} No kinematic model can remove that; the errors reported are "
               "without the frame fit.", file=sys.stderr)
@@ -151,6 +159,10 @@ def cmd_rebase(args: argparse.Namespace) -> int:
     if not result.converged:
         raise CellCalError(f"rebase of {args.model} on {args.data} did not converge ({result.reason.value}); "
                            "nothing written")
+    from app.analysis.fitting import refuse_unexplained
+
+    refuse_unexplained(data.source, robot.name, f"the rebased model {args.model}", result.mean_before_mm,
+                       result.mean_after_mm)  # the rebase is the frame fit: another arm's data stays far off
     from app.provenance import provenance, with_provenance
 
     save_model(with_provenance(rebased, provenance([("model", args.model), ("data", args.data)])), args.out)
@@ -209,7 +221,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     checked = next((m for m in (cmp.recommended, "pi", "nls1") if m in cmp.models), None)
     if checked is not None:
         cmp.analysis["frames"]["test"] = {"model": checked, **_test_frame_check(
-            cmp.models[checked], test, f"test recording, against the {checked} fit of the training recording,")}
+            cmp.models[checked], test, f"test recording, against the {checked} fit of the training recording,",
+            f"the {checked} fit of the training recording")}
     analysis = cmp.analysis
     warnings = [analysis["observability"]["warning"], analysis.get("measurement_shift", {}).get("warning")]
     # then each method's own check (nls0's other clusters, a CDC fit's held-out and range checks), once each

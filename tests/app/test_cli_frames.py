@@ -12,7 +12,7 @@ from calibration.frames import put_in
 from calibration.models import load_model
 from calibration.models.rebased import make_T
 from calibration.recording import write_recording
-from tests.conftest import cluster_design, measure
+from tests.conftest import R1_TRAIN, assert_bad_input, cluster_design, measure, needs_shared_data
 
 T_TOOL_ERR = make_T(so3.exp(np.radians(0.5) * np.array([0.6, 0.0, 0.8])), np.array([12.0, 12.0, -6.0]))
 T_BASE_ERR = make_T(so3.exp(np.radians(0.3) * np.array([0.0, 0.6, 0.8])), np.array([2.0, -1.5, 1.0]))
@@ -89,3 +89,31 @@ def test_several_training_recordings_fit_one_arm_with_frames_each(tmp_path, data
     assert main(["fit", "--robot", "R1", "--train", str(data / "train.csv"), "--train", str(train_moved),
                  "--method", "nls1", "--out", str(model_file)]) == 0
     assert load_model(model_file).info["days"]["days"][1]["frames"]["base_mm"] == moved["base_mm"]
+
+
+def test_another_arms_recording_is_refused_not_called_a_frame_error(tmp_path, capsys):
+    from calibration.models import ConstantModel, save_model
+    from cell_config import load_cell
+
+    cell = load_cell()
+    q, cluster = cluster_design(step_deg=15.0)
+    r2 = tmp_path / "r2.csv"
+    write_recording(measure(cell.robot("R2").model().fk, q, 0.02, 0.01, 1, cluster), r2)  # R2's poses
+    r1_model = tmp_path / "r1.yaml"
+    save_model(ConstantModel("R1", "nominal", cell.robot("R1").model(), 0, {}), r1_model)
+    out = tmp_path / "out.yaml"
+    before = sorted(p.name for p in tmp_path.iterdir())
+    for argv in (["fit", "--robot", "R1", "--train", str(r2), "--method", "nls1", "--out", str(out)],
+                 ["fit", "--robot", "R1", "--train", str(r2), "--train", str(r2), "--method", "nls1",
+                  "--out", str(out)],
+                 ["evaluate", "--model", str(r1_model), "--test", str(r2), "--json", str(out)],
+                 ["rebase", "--robot", "R1", "--model", str(r1_model), "--data", str(r2), "--out", str(out)]):
+        assert_bad_input(capsys, argv, str(r2), "not R1's poses", "the wrong --robot")
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+@needs_shared_data()
+def test_a_real_day_read_as_the_other_arm_is_refused(tmp_path, capsys):
+    assert_bad_input(capsys, ["fit", "--robot", "R2", "--train", str(R1_TRAIN), "--method", "pi",
+                              "--out", str(tmp_path / "wrong.yaml")], "not R2's poses", "R2's nominal arm")
+    assert not (tmp_path / "wrong.yaml").exists()
