@@ -273,9 +273,20 @@ def _tool_shapes(r: Node) -> tuple[ToolShape, ...]:
     return tuple(shapes)
 
 
+#: The keys of a cell file's top level, and of each entry under ``robots``.
+CELL_KEYS = ("name", "robots", "zenoh", "controller", "mocap", "probe", "registration")
+ROBOT_ENTRY_KEYS = ("robot", "tool", "T_cell_base")
+
+
 def load_cell(path: str | Path = DEFAULT_CELL) -> CellSpec:
-    """Load ``cell.yaml``; robot, tool and registration paths inside it are relative to the cell file."""
+    """Load ``cell.yaml``; robot, tool and registration paths inside it are relative to the cell file.
+
+    Raises:
+        ConfigError: an unknown key at any level (a misspelt ``registraton`` or ``controler`` would otherwise
+            leave the cell without its registration or controller), naming the valid keys; a bad value.
+    """
     r = Node.load(path)
+    r.only(CELL_KEYS)
     robots = _robots(r)
     zenoh, roles = parse_zenoh(r.child("zenoh", None))
     registration_path = None
@@ -301,6 +312,7 @@ def _robots(r: Node) -> dict[str, CellRobot]:
         if not isinstance(robots_node[name], dict):
             raise r.error(f"robots.{name}", "expected a mapping with robot, tool, T_cell_base")
         entry = Node(r.path, robots_node[name], f"robots.{name}")
+        entry.only(ROBOT_ENTRY_KEYS)
         T = entry.array("T_cell_base", (4, 4))
         Rb = T[:3, :3]
         if not np.allclose(Rb @ Rb.T, np.eye(3), atol=1e-5) or not np.allclose(T[3], [0, 0, 0, 1]):

@@ -40,6 +40,12 @@ def _copy_cell(tmp_path, mutate):
     (lambda d: d.__setitem__("robots", []), "robots", "expected a mapping"),
     (lambda d: d["zenoh"].__setitem__("mode", "broker"), "zenoh.mode", "expected one of peer, client, router"),
     (lambda d: d.pop("name"), "name", "required key is missing"),
+    (lambda d: d.__setitem__("colour", "red"), "colour",
+     "unknown key in the top level; valid keys: name, robots, zenoh, controller, mocap, probe, registration"),
+    (lambda d: d.__setitem__("registraton", "reg.yaml"), "registraton", "unknown key in the top level"),
+    (lambda d: d.__setitem__("controler", {"host": "1.2.3.4"}), "controler", "unknown key in the top level"),
+    (lambda d: d["robots"]["R1"].__setitem__("payload_kg", 2.0), "robots.R1.payload_kg",
+     "unknown key in robots.R1; valid keys: robot, tool, T_cell_base"),
 ])
 def test_malformed_cell_names_file_and_key(tmp_path, mutate, key, reason):
     path = _copy_cell(tmp_path, mutate)
@@ -589,3 +595,13 @@ def test_malformed_tool_geometry_names_the_key(tmp_path, line, key, reason):
     with pytest.raises(ConfigError) as e:
         load_tool(bad)
     assert e.value.key == key and reason in e.value.reason and e.value.path == str(bad)
+
+
+def test_the_cli_refuses_an_unknown_top_level_key_in_one_line(tmp_path, capsys):
+    from tests.conftest import assert_bad_input
+
+    path = _copy_cell(tmp_path, lambda d: d.__setitem__("registraton", "reg.yaml"))
+    out = tmp_path / "plan.json"
+    assert_bad_input(capsys, ["--cell", str(path), "plan", "--robot", "R1", "--out", str(out)], str(path),
+                     "registraton", "valid keys: name, robots")
+    assert not out.exists()
