@@ -420,8 +420,8 @@ class Fitter:
         if groups.size == 0 or groups.max() < 1:
             raise ModelError(f"nls0 needs at least 2 training clusters beyond the {self.options.nls0_clusters} it "
                              f"fits, to choose its damping and check it on them; the recording has "
-                             f"{len(np.unique(self.train.clusters(self.options.cluster_size)))}. Use nls1, or fewer "
-                             "nls0 clusters (FitOptions.nls0_clusters)")
+                             f"{len(np.unique(self.train.clusters(self.options.cluster_size)))}. Use nls1, or a training "
+                             "recording with more clusters")
         held = self.train.subset(rest)
         nominal_mm = errors(self._fit_nominal(), held).position_mm
         if self.options.nls0_damping is not None:
@@ -809,7 +809,7 @@ class Fitter:
                             f"the local fits' range by up to {excess.max():.1f} times that range (clipped to it)")
         if problems:
             info["warning"] = f"{method} may be unstable: " + "; ".join(problems) + \
-                ". Prefer pi or a stronger local prior (FitOptions.local_prior), or check the fit."
+                ". Prefer the pi method (--method pi), or train on more clusters (a denser plan)."
         return info
 
 

@@ -82,7 +82,7 @@ class DesignSpec:
 
     def __post_init__(self) -> None:
         if self.target not in TARGETS:
-            raise ConfigError("plan", "for", f"expected one of {', '.join(TARGETS)}, got {self.target!r}")
+            raise ConfigError("DesignSpec", "target", f"expected one of {', '.join(TARGETS)}, got {self.target!r}")
 
     @classmethod
     def for_rebase(cls, budget: int, noise_mm: float = 0.05, seed: int = 0) -> "DesignSpec":
@@ -96,7 +96,7 @@ class DesignSpec:
 
 
 def check_budget(budget: int, limit: int | None = None, unit: str = "poses") -> None:
-    """ConfigError unless ``budget`` ([poses] in clusters of 7, or [clusters]) holds at least MIN_CLUSTERS clusters
+    """CellCalError unless ``budget`` ([poses] in clusters of 7, or [clusters]) holds at least MIN_CLUSTERS clusters
     and at most ``limit``."""
     least = MIN_CLUSTERS * (CLUSTER_SIZE if unit == "poses" else 1)
     ok = (not isinstance(budget, bool) and isinstance(budget, int) and budget >= least
@@ -104,8 +104,7 @@ def check_budget(budget: int, limit: int | None = None, unit: str = "poses") -> 
     if not ok:
         what = f"{least} poses ({MIN_CLUSTERS} clusters of {CLUSTER_SIZE})" if unit == "poses" else f"{least} clusters"
         most = f" and at most {limit} (the recording's clusters)" if limit is not None else ""
-        raise ConfigError("plan" if unit == "poses" else "select", "budget",
-                          f"expected an integer of at least {what}{most}, got {budget!r}")
+        raise CellCalError(f"--budget: expected an integer of at least {what}{most}, got {budget!r}")
 
 
 def candidate_anchors(robot: str, safety: CellSafety, others: Mapping[str, np.ndarray], spec: DesignSpec
@@ -125,8 +124,9 @@ def candidate_anchors(robot: str, safety: CellSafety, others: Mapping[str, np.nd
         q[:, j] = rng.uniform(a, b, n)
     keep = _safe(robot, safety, others, q, step, np.arange(n))
     if len(keep) < spec.n_clusters:
-        raise CellCalError(f"only {len(keep)} of {n} candidate clusters are safe, fewer than the "
-                           f"{spec.n_clusters} the budget asks for; widen DesignSpec.wide_deg or lower the budget")
+        raise CellCalError(f"--budget {spec.budget} asks for {spec.n_clusters} clusters of {CLUSTER_SIZE} but only "
+                           f"{len(keep)} of the {n} candidate clusters drawn are safe; give --budget "
+                           f"{len(keep) * CLUSTER_SIZE} or less")
     return q[keep]
 
 
@@ -163,7 +163,7 @@ def optimal_plan(robot: str, par: MinimalParameterisation, safety: CellSafety, o
     """The optimal design as a plan, and the figures of it and of the paper's grid (``optimal``, ``paper_grid``).
 
     Raises:
-        ConfigError: a budget below 3 clusters.
+        CellCalError: a budget below 3 clusters.
         CellCalError: too few safe candidates, or the chosen design does not see every identifiable direction.
         UnsafeTarget: the plan's targets or paths fail the whole-plan check.
     """

@@ -86,3 +86,16 @@ def test_budget_belongs_to_the_optimal_design(tmp_path, capsys):
     out = tmp_path / "plan.json"
     assert_bad_input(capsys, ["plan", "--robot", "R1", "--budget", "70", "--out", str(out)], "--design optimal")
     assert not out.exists()
+
+
+@pytest.mark.parametrize("budget, fragments", [("10", ("--budget: expected an integer of at least 21 poses",)),
+                                               ("70000", ("--budget 70000 asks for 10000 clusters", "give --budget"))])
+def test_plan_budget_errors_say_what_to_pass_without_internals(tmp_path, capsys, budget, fragments):
+    from app.cli.commands import main
+
+    out = tmp_path / "plan.json"
+    assert main(["plan", "--robot", "R1", "--design", "optimal", "--budget", budget, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith("cellcal plan: --budget"), err
+    assert all(f in err for f in fragments) and "DesignSpec" not in err and "plan: plan:" not in err, err
+    assert not out.exists()

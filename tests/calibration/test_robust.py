@@ -276,3 +276,13 @@ def test_pi_ae_trains_the_issue_14_autoencoder_and_the_papers_ae_keeps_the_paper
     paper = Fitter(fitter.robot, fitter.nominal, fitter.train, FitOptions(local_prior=0.1, pi_ae_hidden=PAPER_HIDDEN))
     assert paper._cdc_options("pi+ae")["hidden"] == PAPER_HIDDEN
     assert not any("hidden" in fitter._cdc_options(m) for m in ("nn", "pi+nn"))  # nn keeps the paper's network
+
+
+def test_the_unstable_fit_warning_says_what_a_user_can_do(synthetic_arm, r1_nominal, monkeypatch):
+    _, _, truth = synthetic_arm
+    q, cluster = cluster_design(step_deg=15.0)
+    fitter = Fitter("R1", r1_nominal, measure(truth.fk, q, 0.02, 0.01, 1, cluster), FitOptions(local_prior=0.1))
+    monkeypatch.setattr(robust, "HELDOUT_RATIO_LIMIT", 0.0)  # every CDC fit fails the held-out check
+    warning = fitter.fit("linear")[0].info["warning"]
+    assert "linear may be unstable" in warning and "--method pi" in warning
+    assert "FitOptions" not in warning and "local_prior" not in warning
