@@ -38,6 +38,7 @@ deviations from the nominal arm) and ``delta_d`` the 12 frame corrections of :fu
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -569,8 +570,10 @@ class DaysResult:
                          .strip())
         if self.drift_note:
             lines.append(f"  drift within a recording: {self.drift_note}")
-        lines.append("The arm's own kinematics changed between recordings beyond the noise." if self.kinematics_changed
-                     else "The arm's own kinematics are the same within the noise; the frames carry the differences.")
+        lines.append("Significance: the arm's own kinematic parameters differ between recordings beyond the "
+                     "measurement noise." if self.kinematics_changed else
+                     "Significance: the arm's own kinematic parameters are the same within the measurement noise; "
+                     "the frames carry the differences.")
         return "\n".join(lines)
 
     def to_json(self) -> dict[str, Any]:
@@ -733,6 +736,13 @@ def halves(rec: Recording, column: str) -> tuple[Recording, Recording]:
     mean = np.bincount(inv, rec.extra[column]) / np.bincount(inv)
     late = mean[inv] > np.median(mean)
     return rec.subset(~late), rec.subset(late)
+
+
+def day_names(sources: list[str]) -> list[str]:
+    """Short names of recordings for the messages: each one's file or folder name (``test0801_R1``), or the
+    sources as given when two share a name."""
+    short = [Path(s).name or str(s) for s in sources]
+    return short if len(set(short)) == len(short) else [str(s) for s in sources]
 
 
 def compare_days(nominal: PoeModel, recs: list[Recording], names: list[str] | None = None) -> DaysResult:

@@ -17,6 +17,12 @@ recording's own single-day fit. A ratio well above 1 (``KINEMATICS_RATIO_LIMIT``
 every day: the arm's kinematics (not only the frames) changed between them. Which parameters differ, beyond the
 noise and only along the directions each day identifies, comes from :func:`calibration.daydiff.compare_days`
 (``MultiDayFit.differences``) when the nominal arm is a constant POE model.
+
+The two verdicts answer different questions and can both hold: the ratio is about accuracy (does one arm serve
+every day?), the per-parameter tests about significance (did anything change beyond the measurement noise?). On
+thousands of poses the tests see changes of a fraction of a millimetre that cost the joint fit a few per cent,
+so "the frames explain the differences" (accuracy) and "the kinematics differ beyond the noise" (significance)
+is a common pair; :meth:`MultiDayFit.summary` says so in a line of its own.
 """
 
 from __future__ import annotations
@@ -46,7 +52,7 @@ class Day:
     """One recording's part of a joint fit.
 
     Attributes:
-        name: the recording (its source).
+        name: the recording (its file or folder name; its source when two share one).
         n_samples: its pose count.
         frames: its frames against the joint arm (``frames.result.T_base_correction`` etc.), None for the first.
         joint_rms_mm: position RMS of the joint model (with this recording's frames) on it [mm].
@@ -107,14 +113,33 @@ class MultiDayFit:
             frames = "the reference frames" if d.frames is None else f"frames off by {d.frames.size()}"
             lines.append(f"  {d.name}: {d.n_samples} poses, {frames}; training RMS {d.joint_rms_mm:.3f} mm in the "
                          f"joint fit against {d.own_rms_mm:.3f} mm fitted alone (x{d.ratio:.2f})")
+        worst = max(d.ratio for d in self.days)
         if self.kinematics_changed:
-            lines.append(f"The arm's own kinematics changed between the recordings, beyond their frames (a ratio "
-                         f"over x{KINEMATICS_RATIO_LIMIT}); {self.worst} differs most.")
+            lines.append(f"Accuracy: one arm does not fit every recording nearly as well as its own fit does "
+                         f"({self.worst} differs most: x{worst:.2f}, over x{KINEMATICS_RATIO_LIMIT}): the arm's "
+                         "kinematics changed between the recordings beyond their frames; a joint model is a compromise.")
         else:
-            lines.append(f"The frames explain the differences: every ratio is within x{KINEMATICS_RATIO_LIMIT}.")
+            lines.append(f"Accuracy: the frames explain the differences: one arm with each recording's frames fits "
+                         f"every recording within x{KINEMATICS_RATIO_LIMIT} of that recording's own fit (at most "
+                         f"x{worst:.2f}), so one model serves them all.")
         if self.differences is not None:
             lines.append(self.differences.summary())
-        return "\n".join(lines)
+            lines.append(self._relation(worst))
+        return "\n".join(line for line in lines if line)
+
+    def _relation(self, worst: float) -> str:
+        """How the accuracy verdict (the ratios) and the significance verdict (``differences``) relate, when they
+        seem to disagree."""
+        significant = self.differences.kinematics_changed
+        if significant and not self.kinematics_changed:
+            return (f"Both hold: the kinematics did change beyond the measurement noise, but by too little to matter "
+                    f"for accuracy: the joint fit costs at most x{worst:.2f} in training RMS against each recording's "
+                    "own fit.")
+        if self.kinematics_changed and not significant:
+            return ("Both hold: no parameter differs beyond the noise along the directions both recordings identify, "
+                    "yet one arm fits some recording worse than its own fit does: the difference lies in directions "
+                    "only one recording identifies, or outside the arm's geometric parameters.")
+        return ""
 
     def to_json(self) -> dict[str, Any]:
         return {"reference": self.reference, "days": [d.to_json() for d in self.days],
@@ -172,6 +197,9 @@ def fit_days(make_fitter: Callable[[Recording], Any], nominal: KinematicModel, r
         arm = fitter.fit(reference)[0]
     if gauge is not None:
         fitter = FramedFit(fitter, pool([recs[0]] + others), gauge, first)
+    from calibration.daydiff import day_names
+
+    names = day_names([r.source for r in recs])
     days = []
     for i, r in enumerate(recs):
         f = None if i == 0 else frames[i - 1]
@@ -180,10 +208,10 @@ def fit_days(make_fitter: Callable[[Recording], Any], nominal: KinematicModel, r
         else:
             wrapped = RebasedModel(arm.robot, arm.method, arm, f.result.T_base_correction,
                                    f.result.T_tool_correction, 12)
-        days.append(Day(r.source, len(r), f, _rms(wrapped, r), _rms(own[i], r)))
+        days.append(Day(names[i], len(r), f, _rms(wrapped, r), _rms(own[i], r)))
     differences = None
     if isinstance(nominal, ConstantModel):
         from calibration.daydiff import compare_days
 
-        differences = compare_days(nominal.model, recs)
+        differences = compare_days(nominal.model, recs, names)
     return MultiDayFit(fitter, tuple(days), reference, differences)

@@ -108,7 +108,7 @@ def _days(robot: str, nominal: Any, paths: list[str | Path], limits: tuple[np.nd
     Raises:
         DataError: a recording given twice, unreadable, or not of ``robot``.
     """
-    from calibration.daydiff import check_same_robot, compare_days
+    from calibration.daydiff import check_same_robot, compare_days, day_names
     from calibration.errors import DataError
     from calibration.frames import put_in, take_out
     from calibration.multiday import pool
@@ -122,8 +122,7 @@ def _days(robot: str, nominal: Any, paths: list[str | Path], limits: tuple[np.nd
         seen.add(Path(p).resolve())
     recs = [read_recording(p, *limits) for p in paths]
     check_same_robot(nominal, recs, robot)
-    short = [Path(p).name or str(p) for p in paths]
-    days = compare_days(nominal, recs, short if len(set(short)) == len(short) else [str(p) for p in paths])
+    days = compare_days(nominal, recs, day_names([str(p) for p in paths]))
     first = corrections(days.deltas[0])  # every recording in the first one's frames (it stays as it is)
     return pool([recs[0]] + [put_in(take_out(r, *corrections(delta)), *first)
                              for r, delta in zip(recs[1:], days.deltas[1:])]), days

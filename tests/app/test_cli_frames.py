@@ -80,7 +80,7 @@ def test_several_training_recordings_fit_one_arm_with_frames_each(tmp_path, data
     assert main(["compare", "--robot", "R1", "--train", str(data / "train.csv"), "--train", str(train_moved),
                  "--test", str(data / "test.csv"), "--methods", "nominal,nls1", "--json", str(out)]) == 0
     err = capsys.readouterr().err
-    assert "2 recordings in one arm model" in err and "The frames explain the differences" in err
+    assert "2 recordings in one arm model" in err and "Accuracy: the frames explain the differences" in err
     days = json.loads(out.read_text())["analysis"]["days"]
     moved = days["days"][1]["frames"]
     assert abs(moved["base_mm"] - np.linalg.norm(T_BASE_ERR[:3, 3])) < 0.1 and not days["kinematics_changed"]

@@ -77,3 +77,27 @@ def test_the_joint_fit_says_which_parameters_differ(days, r1_nominal):
     moved = {p.name for p in d2.parameters if p.differs}
     assert moved and moved <= {"origin2_a_mm", "origin2_b_mm"}
     assert "day2 against day0" in diff.summary()
+
+
+def test_days_are_named_by_their_folder_names(days, r1_nominal):
+    named = [type(r)(r.q, r.p, r.quat, r.extra, f"/data/welding/test{i}_R1") for i, r in enumerate(days[:2])]
+    fit = _fit(named, r1_nominal)
+    assert [d.name for d in fit.days] == ["test0_R1", "test1_R1"]
+    assert "/data/welding" not in fit.summary() and "test1_R1 against test0_R1" in fit.summary()
+
+
+@pytest.mark.parametrize("ratios, significant, says", [
+    ((1.0, 1.06), True, "Both hold: the kinematics did change beyond the measurement noise, but by too little"),
+    ((1.0, 1.6), False, "Both hold: no parameter differs beyond the noise"),
+    ((1.0, 1.06), False, None), ((1.0, 1.6), True, None)])
+def test_the_summary_relates_the_accuracy_and_the_significance_verdicts(ratios, significant, says):
+    from types import SimpleNamespace
+
+    from calibration.multiday import Day, MultiDayFit
+
+    days = tuple(Day(f"d{i}", 10, None, 0.1 * r, 0.1) for i, r in enumerate(ratios))
+    verdict = "differ beyond the measurement noise" if significant else "same within the measurement noise"
+    diff = SimpleNamespace(kinematics_changed=significant, summary=lambda: f"Significance: parameters {verdict}.")
+    text = MultiDayFit(None, days, "pi", diff).summary()
+    assert text.count("Accuracy:") == 1 and text.count("Significance:") == 1
+    assert (says in text) if says else "Both hold" not in text
