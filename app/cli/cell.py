@@ -422,7 +422,7 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p = add("demo", cmd_demo, "the main job on the simulated cell: collect both arms over zenoh, fit, evaluate, "
                               "report")
     p.add_argument("--out", default="demo_out", help="output folder (an earlier demo there is replaced)")
-    p.add_argument("--full", action="store_true", help="the paper's 248-anchor design (5 deg steps; ~4x longer)")
+    p.add_argument("--full", action="store_true", help="the paper's 248-anchor design (5 deg steps; about twice the CPU time)")
     p.add_argument("--seed", type=int, default=0, help="seed of the planted errors, the noise and the validation poses")
     p.add_argument("--anchor-step", type=float, help="anchor grid q2/q3 step [deg] (default 10, 5 with --full; a "
                                                      "coarse grid, e.g. 40, makes a short demo)")
