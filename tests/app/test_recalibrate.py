@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -68,12 +69,17 @@ def test_model_in_service_for_another_robot_is_refused(tmp_path, arm):
         decide_and_install(tmp_path, good, validation)
 
 
-def test_recalibrate_cli_on_the_simulated_cell(tmp_path, capsys):
+def _sim_recalibrate(tmp_path, method: str, validation: int) -> tuple[list[str], Path]:
+    """``recalibrate`` arguments on the simulated cell with a small grid plan, and its model folder."""
     plan = tmp_path / "plan.json"
     assert main(["plan", "--robot", "R1", "--out", str(plan), "--q2-step", "35", "--q3-step", "30"]) == 0
     models = tmp_path / "models"
-    args = ["recalibrate", "--robot", "R1", "--plan", str(plan), "--model-dir", str(models), "--method", "nls1",
-            "--validation", "6", "--validation-seed", "2", "--sim", *SIM_FAST, "--no-progress"]
+    return ["recalibrate", "--robot", "R1", "--plan", str(plan), "--model-dir", str(models), "--method", method,
+            "--validation", str(validation), "--validation-seed", "2", "--sim", *SIM_FAST, "--no-progress"], models
+
+
+def test_recalibrate_cli_on_the_simulated_cell(tmp_path, capsys):
+    args, models = _sim_recalibrate(tmp_path, "nls1", 6)
     assert main(args + ["--json", str(tmp_path / "d1.json")]) == 0
     d1 = json.loads((tmp_path / "d1.json").read_text())
     assert d1["decision"] == "installed" and d1["validation_samples"] == 6
@@ -120,11 +126,7 @@ def test_a_session_of_the_other_arm_is_refused_before_any_motion(tmp_path, capsy
 
 
 def test_recalibrate_cli_refuses_a_first_model_outside_the_tolerance(tmp_path, capsys):
-    plan = tmp_path / "plan.json"
-    assert main(["plan", "--robot", "R1", "--out", str(plan), "--q2-step", "35", "--q3-step", "30"]) == 0
-    models = tmp_path / "models"
-    args = ["recalibrate", "--robot", "R1", "--plan", str(plan), "--model-dir", str(models), "--method", "nominal",
-            "--validation", "4", "--validation-seed", "2", "--sim", *SIM_FAST, "--no-progress"]
+    args, models = _sim_recalibrate(tmp_path, "nominal", 4)
     capsys.readouterr()
     assert main(args + ["--tolerance-mm", "0.01", "--json", str(tmp_path / "d.json")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
