@@ -31,7 +31,12 @@ from calibration.files import atomic_write_text
 from calibration.model_checks import check_model_data, check_model_for
 from calibration.poe import PoeModel
 
-SCHEMA = "cellcal.model/1"
+#: The schema files are written with. /2 since the extrapolation guard's per-effect rule (the training region's
+#: ``rule``): a cellcal that reads /1 only would load a /2 file's region, ignore its rule and predict up to 13 mm
+#: differently with no warning, so it must refuse the file instead. /1 files are read as before.
+SCHEMA = "cellcal.model/2"
+#: The schemas this version reads.
+READABLE_SCHEMAS = ("cellcal.model/1", SCHEMA)
 #: Where each model kind is defined; imported on first load so this module imports none of them.
 MODEL_KIND_MODULES = {"constant": "calibration.models.constant", "cdc": "calibration.models.cdc",
                       "pi": "calibration.models.pi", "physics": "calibration.models.physics",
@@ -177,8 +182,8 @@ class KinematicModel(abc.ABC):
 
     @staticmethod
     def from_dict(d: dict[str, Any]) -> "KinematicModel":
-        if d.get("schema") != SCHEMA:
-            raise ModelError(f"unsupported model schema {d.get('schema')!r}; expected {SCHEMA!r}")
+        if d.get("schema") not in READABLE_SCHEMAS:
+            raise ModelError(f"unsupported model schema {d.get('schema')!r}; expected one of {READABLE_SCHEMAS}")
         kind = d.get("kind")
         return model_class(kind)._from_body(d["robot"], d["method"], d.get("info", {}), d)
 
@@ -266,8 +271,9 @@ def load_model(path: str | Path, robot: str | None = None, nominal: PoeModel | N
     """
     path = Path(path)
     data = _read_model_file(path)
-    if data.get("schema") != SCHEMA:
-        raise DataError(path, None, None, f"unsupported model schema {data.get('schema')!r}; expected {SCHEMA!r}")
+    if data.get("schema") not in READABLE_SCHEMAS:
+        raise DataError(path, None, None,
+                        f"unsupported model schema {data.get('schema')!r}; expected one of {READABLE_SCHEMAS}")
     try:
         model_class(data.get("kind"))
     except ModelError as e:

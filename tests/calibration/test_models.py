@@ -52,3 +52,21 @@ def test_bad_model_files(tmp_path):
         load_model(path)
     with pytest.raises(DataError, match="not found"):
         load_model(tmp_path / "none.yaml")
+
+
+def test_files_are_written_as_schema_2_and_schema_1_files_still_load(tmp_path, fitted):
+    """A /1 reader ignores the training region's guard rule and would mispredict a new file, so new files say /2;
+    files written before keep loading, with the guard they had."""
+    import yaml
+
+    model = fitted("pi")
+    path = tmp_path / "m.yaml"
+    save_model(model, path)
+    data = yaml.safe_load(path.read_text())
+    assert data["schema"] == "cellcal.model/2"
+    data["schema"] = "cellcal.model/1"
+    data["info"]["training_region"].pop("rule", None)
+    old = tmp_path / "old.yaml"
+    old.write_text(yaml.safe_dump(data))
+    q = np.random.default_rng(1).uniform(-1, 1, (20, 6))
+    np.testing.assert_array_equal(load_model(old).fk(q)[1], model.fk(q)[1])
