@@ -12,10 +12,6 @@ from app.cli.common import add_report_options, cell_spec, command_line, epoch_ba
 from calibration.errors import CellCalError
 
 
-#: Largest ``demo --time-scale``: beyond it the paced sleeps are already negligible next to the waits for Zenoh.
-MAX_DEMO_TIME_SCALE = 1000.0
-
-
 def _load_plan(path: str, robot: str) -> Any:
     from app.cell.plan_file import read_plan
     from calibration.errors import DataError
@@ -316,17 +312,16 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     from app.cell.runtime import SimCellOptions
+    from app.cli.cell_options import checked_time_scale
     from app.demo.run import DemoConfig, run_demo, summary_table
 
     if args.anchor_step is not None and not 0.5 <= args.anchor_step <= 90.0:
         raise CellCalError(f"--anchor-step must be in [0.5, 90] deg, got {args.anchor_step:g}")
     if args.validation < 1:
         raise CellCalError(f"--validation must be at least 1, got {args.validation}")
-    if not 0.0 < args.time_scale <= MAX_DEMO_TIME_SCALE:
-        raise CellCalError(f"--time-scale must be in (0, {MAX_DEMO_TIME_SCALE:g}] simulated seconds per real second, "
-                           f"got {args.time_scale:g}")
     config = DemoConfig(full=args.full, anchor_step_deg=args.anchor_step, seed=args.seed, n_validation=args.validation,
-                        methods=_demo_methods(args.methods), sim=SimCellOptions(time_scale=args.time_scale),
+                        methods=_demo_methods(args.methods),
+                        sim=SimCellOptions(time_scale=checked_time_scale(args.time_scale)),
                         progress=show_progress(args),
                         tolerance=tolerance_from_args(args), report_dir=Path(args.report) if args.report else None)
     result = run_demo(args.out, cell_spec(args), config)

@@ -21,6 +21,17 @@ from calibration.errors import CellCalError
 
 #: Speed fraction used when --speed is not given (and the cap allows it).
 DEFAULT_SPEED = 0.2
+#: Largest ``--time-scale`` of the simulated cell: beyond it the paced sleeps are already negligible next to the
+#: waits for Zenoh (and ``inf`` would make the bridge's timeouts infinite).
+MAX_TIME_SCALE = 1000.0
+
+
+def checked_time_scale(value: float) -> float:
+    """``--time-scale`` when it is in (0, MAX_TIME_SCALE]; raises CellCalError naming the value otherwise."""
+    if not 0.0 < value <= MAX_TIME_SCALE:
+        raise CellCalError(f"--time-scale must be in (0, {MAX_TIME_SCALE:g}] simulated seconds per real second, "
+                           f"got {value:g}")
+    return value
 
 
 class NotConfirmed(CellCalError):
@@ -117,7 +128,7 @@ def open_runtime(cell: Any, args: argparse.Namespace, robots: Sequence[str] | No
     if args.sim:
         from app.cell.runtime import SimCell, SimCellOptions
 
-        return SimCell(cell, SimCellOptions(time_scale=args.time_scale, seed=args.seed, mocap_world=not registered,
+        return SimCell(cell, SimCellOptions(time_scale=checked_time_scale(args.time_scale), seed=args.seed, mocap_world=not registered,
                                             deterministic=True))  # the same --seed measures the same values
     from app.cell.real_cell import RealCell
 

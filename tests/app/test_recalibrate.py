@@ -177,3 +177,17 @@ def test_bad_inputs_exit_2_and_write_nothing(tmp_path, capsys):
     assert_bad_input(capsys, ["plan", "--robot", "R1", "--out", str(tmp_path / "p.json"), "--q2-step", "-5"], "positive steps")
     assert_bad_input(capsys, ["demo", "--out", str(bad_plan)], "must be a folder")
     assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+@pytest.mark.parametrize("scale", ["inf", "0", "2000"])
+def test_a_sim_time_scale_out_of_range_is_refused_before_anything_is_written(tmp_path, capsys, scale):
+    """Every --sim command checks --time-scale as demo does: ``inf`` made the bridge's timeouts infinite (a hang)."""
+    plan = tmp_path / "plan.json"
+    assert main(["plan", "--robot", "R1", "--out", str(plan), "--q2-step", "50", "--q3-step", "50"]) == 0
+    capsys.readouterr()
+    before = sorted(p.name for p in tmp_path.iterdir())
+    for argv in (["collect", "--robot", "R1", "--plan", str(plan), "--session", str(tmp_path / "s"), "--sim"],
+                 ["recalibrate", "--robot", "R1", "--plan", str(plan), "--model-dir", str(tmp_path / "m"),
+                  "--method", "nls1", "--sim"]):
+        assert_bad_input(capsys, argv + ["--time-scale", scale, "--no-progress"], "--time-scale must be in (0, 1000]")
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
