@@ -116,7 +116,7 @@ class FitOptions:
             tool-marker rotation, which every pose's orientation sees directly; ``shift``, ``all`` or ``none`` (the
             fit before). Chosen with ``scripts/pi_registration.py``: on the synthetic twins of
             ``scripts/bench_frames.py`` (wrist held within 3 deg in training, turned widely on the held-out poses), a
-            marker rotated 0.3 deg took a damped pi from 0.26 to 0.40 mm (one arm), a free rotation none of it; on
+            marker rotated 0.3 deg took a damped pi from 0.26 to 0.41 mm (one arm), a free rotation none of it; on
             the 8 R1 training recordings the free rotation changes pi on held-out clusters and on the extrapolation
             folds by at most 0.001 mm. Freeing the shift too makes pi immune to a shifted marker on the twins (3 mm:
             0.73 -> 0.25 mm on that arm), but costs 0.001-0.021 mm on the q2-edge folds of 7 of the 8 training days,
@@ -141,6 +141,13 @@ class FitOptions:
     pi_registration_free: str = "rotation"
     seed: int = 0
     epoch_progress: Callable[[int, int], None] | None = field(default=None, compare=False)
+
+    def __post_init__(self) -> None:
+        from calibration.physics_informed import REGISTRATION_PARTS
+
+        if self.pi_registration_free not in REGISTRATION_PARTS:
+            raise ModelError(f"pi_registration_free must be one of {', '.join(REGISTRATION_PARTS)}, "
+                             f"got {self.pi_registration_free!r}")
 
 
 @dataclass

@@ -412,7 +412,9 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--validation", type=int, default=30, help="fresh validation poses to measure")
     p.add_argument("--validation-seed", type=int, help="seed of the validation poses (default: from the clock)")
     p.add_argument("--json", help="write the decision with both figures as JSON")
-    add_report_options(p, "candidate and model in service on the validation poses")
+    add_report_options(p, "candidate and model in service on the validation poses",
+                       "; with no usable model in service, a candidate whose RMS on the validation poses is above it "
+                       "is refused (exit 2, filed under rejected/)")
     add_motion_options(p)
     p = add("demo", cmd_demo, "the main job on the simulated cell: collect both arms over zenoh, fit, evaluate, "
                               "report")

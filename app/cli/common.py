@@ -114,12 +114,14 @@ def write_json(path: str | None, data: dict[str, Any]) -> None:
         atomic_write_text(path, json.dumps(data, indent=1))
 
 
-def add_report_options(p: argparse.ArgumentParser, what: str) -> None:
-    """``--report DIR`` and the acceptance tolerance of its ``report.html`` (issue 12)."""
+def add_report_options(p: argparse.ArgumentParser, what: str, tolerance_note: str = "") -> None:
+    """``--report DIR`` and the acceptance tolerance of its ``report.html`` (issue 12); ``tolerance_note`` is added
+    to ``--tolerance-mm``'s help (what else the command does with it)."""
     p.add_argument("--report", metavar="DIR", help=f"write report.html (self-contained: {what}, pass/fail against "
                                                    "the tolerance, ISO 9283 where poses repeat, input hashes) here")
     p.add_argument("--tolerance-mm", type=float, default=1.0, metavar="MM",
-                   help="acceptance: largest position error allowed on the evaluation poses [mm] (cold spray: 1)")
+                   help="acceptance: largest position error allowed on the evaluation poses [mm] (cold spray: 1)"
+                        + tolerance_note)
     p.add_argument("--tolerance-deg", type=float, default=1.0, metavar="DEG",
                    help="acceptance: largest orientation error allowed on the evaluation poses [deg] (cold spray: 1)")
 

@@ -45,6 +45,10 @@ class ToolFrame(ExtendedEffect, register=False):
     def names(self) -> tuple[str, ...]:
         return _NAMES["tool"]
 
+    def fitted_joints(self, n: int) -> tuple[int, ...]:
+        """None: a constant rotation of the marker, the same at every q."""
+        return ()
+
 
 @dataclass(frozen=True, eq=False)
 class StructuralDeflection(ExtendedEffect, register=False):

@@ -183,3 +183,5 @@ def test_registration_mask_names_the_marker_parameters():
     assert kin.registration_mask("all").sum() == 6 and not kin.registration_mask("none").any()
     with pytest.raises(ModelError, match="registration parts"):
         kin.registration_mask("tool")
+    with pytest.raises(ModelError, match="pi_registration_free must be one of none, rotation, shift, all"):
+        FitOptions(pi_registration_free="tool")  # refused when the options are made, not at the pi fit
