@@ -44,6 +44,13 @@ BLOCKS = (Block("tool", TOOL_NAMES), Block("compliance", COMPLIANCE_NAMES),
 _TAIL_SIZES = tuple(b.size for b in BLOCKS)
 #: The choices of :meth:`ExtendedKinematics.registration_mask` (``FitOptions.pi_registration_free``).
 REGISTRATION_PARTS = ("none", "rotation", "shift", "all")
+
+
+def check_registration_parts(parts: str, what: str = "registration parts") -> str:
+    """``parts`` when it is one of :data:`REGISTRATION_PARTS`; raises ModelError naming ``what`` otherwise."""
+    if parts not in REGISTRATION_PARTS:
+        raise ModelError(f"{what} must be one of {', '.join(REGISTRATION_PARTS)}, got {parts!r}")
+    return parts
 EZ = np.array([0.0, 0.0, 1.0])
 _COMPLIANCE = MassFreeCompliance()  # the one definition of the compliance block's joint deflection
 
@@ -111,8 +118,7 @@ class ExtendedKinematics:
         They are a measurement set-up's registration, which the vendor's nominal arm knows nothing about; the pi
         fit leaves those of ``FitOptions.pi_registration_free`` out of its damping toward nominal.
         """
-        if parts not in REGISTRATION_PARTS:
-            raise ModelError(f"registration parts must be one of {', '.join(REGISTRATION_PARTS)}, got {parts!r}")
+        check_registration_parts(parts)
         mask = np.zeros(self.size, dtype=bool)
         if parts in ("shift", "all") and self.par.fit_tool:
             mask[self.par.size - 3: self.par.size] = True
