@@ -132,10 +132,33 @@ def _test_frame_check(model: Any, test: Any, subject: str, against: str) -> dict
 
     check = check_test(model, test, subject)
     refuse_unexplained(test.source, model.robot, against, check.mean_mm, check.left_mm)
+    out = check.to_json()
     if check.found:
+        caveat = _extrapolation_caveat(model, test)
         print(f"warning: {check.message()} No kinematic model can remove that; the errors reported are "
-              "without the frame fit.", file=sys.stderr)
-    return check.to_json()
+              f"without the frame fit.{caveat}", file=sys.stderr)
+        out["caveat"] = caveat.strip() or None
+    return out
+
+
+#: Share of a test recording's poses outside the model's training joint range beyond which a frame found on it
+#: may be the model's extrapolation instead (a rigid fit absorbs part of any smooth error over those poses).
+EXTRAPOLATED_SHARE = 0.5
+
+
+def _extrapolation_caveat(model: Any, test: Any) -> str:
+    """A sentence for a frame found on a test recording whose poses mostly lie outside the model's training joint
+    range; empty otherwise (or when the model records no training region)."""
+    from calibration.models.guard import extrapolation
+
+    ex = extrapolation(model, test.q)
+    outside = ex["outside_training_range"]
+    if not outside or outside <= EXTRAPOLATED_SHARE * ex["poses"]:
+        return ""
+    return (f" But {outside} of its {ex['poses']} poses lie outside the joint range the model was trained on (by up "
+            f"to {ex['max_excess_deg']:.1f} deg), and a rigid frame fit also absorbs part of a model's error there: "
+            "this may be the model's extrapolation rather than a frame. A frame error shows on poses inside that "
+            "range too; measure a few there to tell.")
 
 
 def cmd_rebase(args: argparse.Namespace) -> int:

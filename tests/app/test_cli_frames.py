@@ -117,3 +117,25 @@ def test_a_real_day_read_as_the_other_arm_is_refused(tmp_path, capsys):
     assert_bad_input(capsys, ["fit", "--robot", "R2", "--train", str(R1_TRAIN), "--method", "pi",
                               "--out", str(tmp_path / "wrong.yaml")], "not R2's poses", "R2's nominal arm")
     assert not (tmp_path / "wrong.yaml").exists()
+
+
+def test_a_frame_found_on_poses_the_model_never_saw_says_it_may_be_extrapolation(tmp_path, synthetic_arm, capsys):
+    _, _, truth = synthetic_arm
+    q, cluster = cluster_design(step_deg=15.0, spread_wrist=False)  # q1 and the wrist within 1-2 deg
+    train = tmp_path / "train.csv"
+    write_recording(measure(truth.fk, q, 0.02, 0.01, 1, cluster), train)
+    wide = np.random.default_rng(3).uniform(-0.8, 0.8, (200, 6))  # every joint turned widely
+    inside = q[np.random.default_rng(4).choice(len(q), 200)]  # the training poses' own joint range
+    model = tmp_path / "m.json"
+    assert main(["fit", "--robot", "R1", "--train", str(train), "--method", "nls1", "--out", str(model)]) == 0
+    out = tmp_path / "e.json"
+    for name, poses, caveat in (("wide", wide, True), ("inside", inside, False)):
+        moved = tmp_path / f"{name}.csv"
+        write_recording(put_in(measure(truth.fk, poses, 0.02, 0.01, 2), T_BASE_ERR, np.eye(4)), moved)
+        capsys.readouterr()
+        assert main(["evaluate", "--model", str(model), "--test", str(moved), "--json", str(out)]) == 0
+        err = capsys.readouterr().err
+        frames = json.loads(out.read_text())["frames"]
+        assert frames["frame"] is not None and "is off by a frame" in err  # the base error is found either way
+        assert ("may be the model's extrapolation rather than a frame" in err) == caveat
+        assert (frames["caveat"] is not None) == caveat
