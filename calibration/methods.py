@@ -121,6 +121,14 @@ class FitOptions:
             0.0001-0.0038 mm) and worsens no extrapolation fold's mean by more than 0.003 mm. Freeing the shift too makes pi immune to a shifted marker on the twins (3 mm:
             0.73 -> 0.25 mm on that arm), but costs 0.001-0.021 mm on the q2-edge folds of 7 of the 8 training days,
             so it is not the default.
+        pi_base_free: when True, pi's damping toward nominal acts on its parameters less their best rigid motion of
+            the arm (:func:`base_free_prior`), so a base-frame (mocap-to-base) error costs the fit nothing. Off by
+            default: on the 8 R1 training recordings it lowers the held-out-cluster RMS on 6 days by at most 3 paired
+            standard errors, but worsens the step folds on 7 days and the q2-edge folds on all 8 by 0.003-0.013 mm
+            mean (``scripts/pi_base_frame.py``), so a registered base is a good prior there. On the synthetic twins a
+            base off by 1.5 mm / 0.1 deg takes the damped pi from 0.26 to 0.74 mm and leaves the free one at 0.20
+            (R1 seed 1). The frames-first fit of a recording the frame check finds off turns it on
+            (:func:`calibration.frames.base_free`).
         seed: random seed of the neural interpolators.
         epoch_progress: called as ``epoch_progress(epoch, n_epochs)`` after each training epoch of the neural
             interpolators (nn, ae; a progress bar); no effect on any result.
@@ -139,6 +147,7 @@ class FitOptions:
     cluster_size: int = 7
     pi_ae_hidden: tuple[int, ...] = (128, 128)
     pi_registration_free: str = "rotation"
+    pi_base_free: bool = False
     seed: int = 0
     epoch_progress: Callable[[int, int], None] | None = field(default=None, compare=False)
 
@@ -211,6 +220,8 @@ class Fitter:
             z0 = None if self.warm is None else self.warm.physics_informed().theta[None]
             prior = filter_weights(obs)
             prior[kin.registration_mask(self.options.pi_registration_free)] = 0.0
+            if self.options.pi_base_free:
+                prior = base_free_prior(prior, kin.base_motion(self.train.q))
             res = GeometricProblem(kin, self.train.q, self.train.R, self.train.p, a=self.options.a,
                                    prior_weight=prior).solve(z0)
             if not res.converged.all():
@@ -859,3 +870,12 @@ def _diagnosis_job() -> tuple[KinematicModel, float]:
     start = time.perf_counter()
     model = _FORKED._diagnose()  # type: ignore[union-attr]
     return model, time.perf_counter() - start
+
+
+def base_free_prior(weights: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """The prior matrix (m, m) of the diagonal prior ``|w * x|^2`` made blind to the rigid motions ``B`` (m, 6) of
+    the arm: ``|W P x|^2`` with ``P = I - B (B^T W^2 B)^-1 B^T W^2``, i.e. the prior of ``x`` less its best rigid
+    motion, so a base-frame error costs the fit nothing and the damping acts on what is left."""
+    W2B = (weights ** 2)[:, None] * B
+    P = np.eye(len(weights)) - B @ np.linalg.solve(B.T @ W2B, W2B.T)
+    return weights[:, None] * P

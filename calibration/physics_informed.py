@@ -126,6 +126,36 @@ class ExtendedKinematics:
             mask[block_slice("tool", self.par.size)] = True
         return mask
 
+    def base_motion(self, q: np.ndarray) -> np.ndarray:
+        """The parameter changes (size, 6) that move the whole arm rigidly in the measurement frame, as a small
+        error of the base frame (mocap to robot base) would: column k for the k-th component of ``(w, v)``, a
+        rotation w [rad] of the arm about the measurement frame's origin, then a shift v [mm].
+
+        The minimal POE represents such a motion exactly (every joint line moves with it, the flange point and the
+        tool rotation follow), in the geometric block and the tool rotation alone; found by least squares of
+        ``J B = G`` over the poses q (N, 6) at nominal, G the pose change ``[dp; dtheta] = [v + w x p; w]``.
+
+        Raises:
+            ModelError: the poses do not determine it (fewer than two distinct poses), or the geometric block does
+                not represent it (residual beyond rounding).
+        """
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        _, p, J = self.jacobian(q, np.zeros(self.size))
+        n = self.par.size + len(TOOL_NAMES)
+        G = np.zeros((q.shape[0], 6, 6))
+        G[:, :3, :3] = -so3.hat(p)
+        G[:, :3, 3:] = np.eye(3)
+        G[:, 3:, :3] = np.eye(3)
+        A, b = J[:, :, :n].reshape(-1, n), G.reshape(-1, 6)
+        sol, _, rank, _ = np.linalg.lstsq(A, b, rcond=None)
+        misfit = np.linalg.norm(A @ sol - b) / np.linalg.norm(b)
+        if misfit > 1e-6:
+            raise ModelError(f"the geometric parameters do not represent a rigid motion of the arm on these "
+                             f"{q.shape[0]} poses (relative misfit {misfit:.1e})")
+        B = np.zeros((self.size, 6))
+        B[:n] = sol
+        return B
+
     def scale(self, reach_mm: float = 1000.0) -> np.ndarray:
         """Parameter units per mm of tool motion: angles (tilts, tool and deflection rotations, compliance) / reach."""
         g, t, c, _ = self.sizes

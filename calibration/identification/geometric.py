@@ -87,7 +87,8 @@ class GeometricProblem:
         a: orientation weight (``a = 1641``: 1 mm ~ 1 deg); 0 fits position only.
         basis: optional (m, k) matrix; parameters move only in its column space, ``x = x_ref + basis @ z``
             (directions outside it stay at ``x_ref``).
-        prior_weight: optional (m,) weights of a Gaussian prior ``|w * (x - x_ref)|^2`` per problem.
+        prior_weight: optional (m,) weights of a Gaussian prior ``|w * (x - x_ref)|^2`` per problem, or a (p, m)
+            matrix W of the prior ``|W (x - x_ref)|^2`` (a prior blind to some directions, e.g. a free base frame).
         x_ref: reference parameters (m,) or per problem (G, m); defaults to nominal (zeros).
     """
 
@@ -113,6 +114,9 @@ class GeometricProblem:
         if self.basis.shape[0] != m:
             raise ModelError(f"basis must have {m} rows, got {self.basis.shape}")
         self.prior_weight = None if prior_weight is None else np.asarray(prior_weight, dtype=float)
+        if self.prior_weight is not None and (self.prior_weight.ndim not in (1, 2) or self.prior_weight.shape[-1] != m
+                                              or (self.prior_weight.ndim == 1 and self.prior_weight.shape != (m,))):
+            raise ModelError(f"prior_weight must be ({m},) or (p, {m}), got {self.prior_weight.shape}")
         x_ref = np.zeros(m) if x_ref is None else np.asarray(x_ref, dtype=float)
         self.x_ref = np.broadcast_to(x_ref, (self.n_groups, m)).copy()
 
@@ -125,7 +129,11 @@ class GeometricProblem:
         return self.x_ref + z @ self.basis.T
 
     def _prior(self, x: np.ndarray) -> np.ndarray | None:
-        return None if self.prior_weight is None else self.prior_weight * (x - self.x_ref)
+        if self.prior_weight is None:
+            return None
+        if self.prior_weight.ndim == 2:
+            return (x - self.x_ref) @ self.prior_weight.T
+        return self.prior_weight * (x - self.x_ref)
 
     def residuals(self, z: np.ndarray) -> Residuals:
         """Weighted residual rows (N, 6) and prior residuals (G, m) at z (G, k)."""
@@ -142,7 +150,8 @@ class GeometricProblem:
         Jr = np.empty_like(J)
         Jr[:, :3] = -J[:, :3]
         Jr[:, 3:] = -self.w_rot * (so3.right_jacobian_inv(e) @ J[:, 3:])
-        J_prior = None if self.prior_weight is None else self.prior_weight[:, None] * self.basis
+        J_prior = None if self.prior_weight is None else (
+            self.prior_weight @ self.basis if self.prior_weight.ndim == 2 else self.prior_weight[:, None] * self.basis)
         return Linearisation(Residuals(r, self._prior(x)), Jr @ self.basis, J_prior)
 
     def settings(self, max_iter: int = 50, tol: float = 1e-6) -> LMSettings:

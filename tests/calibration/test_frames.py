@@ -185,3 +185,78 @@ def test_registration_mask_names_the_marker_parameters():
         kin.registration_mask("tool")
     with pytest.raises(ModelError, match="pi_registration_free must be one of none, rotation, shift, all"):
         FitOptions(pi_registration_free="tool")  # refused when the options are made, not at the pi fit
+
+
+def test_base_motion_is_the_arm_moved_rigidly():
+    """The 6 parameter directions of ExtendedKinematics.base_motion move every pose of the arm as a small rigid
+    motion of the measurement frame would (to second order in its size)."""
+    from calibration.physics_informed import ExtendedKinematics
+
+    kin = ExtendedKinematics(MinimalParameterisation(load_cell().robot("R1").model(), fit_tool=True))
+    q = np.random.default_rng(0).uniform(-1.0, 1.0, (40, 6))
+    B = kin.base_motion(q)
+    xi = np.array([2e-4, -3e-4, 1e-4, 0.3, -0.2, 0.1])  # rad, mm
+    R0, p0 = kin.pose(q, np.zeros(kin.size))
+    R1, p1 = kin.pose(q, B @ xi)
+    E = so3.exp(xi[:3])
+    np.testing.assert_allclose(p1, p0 @ E.T + xi[3:], atol=2e-4)
+    np.testing.assert_allclose(R1, E @ R0, atol=1e-7)
+    assert not B[kin.par.size + 3:].any()  # the geometric block and the tool rotation alone
+
+
+def test_a_prior_matrix_is_the_prior_its_diagonal_weights_give():
+    from calibration.errors import ModelError
+    from calibration.identification.geometric import GeometricProblem
+
+    nominal = load_cell().robot("R1").model()
+    par = MinimalParameterisation(nominal, fit_tool=True)
+    truth = par.model(planted_parameters(par, 1, 0.5, 5e-4))
+    q, cluster = cluster_design(step_deg=15.0)
+    rec = measure(truth.fk, q, 0.02, 0.01, 1, cluster)
+    w = np.random.default_rng(1).uniform(0.1, 2.0, par.size)
+    by_vector = GeometricProblem(par, rec.q, rec.R, rec.p, prior_weight=w).solve().x
+    by_matrix = GeometricProblem(par, rec.q, rec.R, rec.p, prior_weight=np.diag(w)).solve().x
+    np.testing.assert_allclose(by_matrix, by_vector, atol=1e-9)
+    with pytest.raises(ModelError, match=r"prior_weight must be \(27,\) or \(p, 27\)"):
+        GeometricProblem(par, rec.q, rec.R, rec.p, prior_weight=np.ones((3, 5)))
+
+
+def _pi_mean(train, test, base_free: bool) -> float:
+    robot = load_cell().robot("R1")
+    gravity = GravityModel.from_spec(robot.robot, robot.model())
+    fitter = Fitter("R1", robot.model(), train, FitOptions(pi_base_free=base_free), None, gravity,
+                    (robot.robot.lower_rad, robot.robot.upper_rad))
+    return float(np.mean(errors(fitter.fit("pi")[0], test).position_mm))
+
+
+def test_pi_with_a_free_base_is_not_thrown_by_a_base_error_the_frame_check_lets_through():
+    """A base frame off by 1.5 mm and 0.1 deg (too little for the frame check) and the wrist within 3 deg in
+    training: pi damped toward nominal spreads the error over its geometry and carries it to poses that turn the
+    wrist; with FitOptions.pi_base_free the rigid part is not damped and the held-out error is as without it."""
+    robot = load_cell().robot("R1")
+    nominal = robot.model()
+    gravity = GravityModel.from_spec(robot.robot, nominal)
+    train, test, _ = tool_error_case(nominal, gravity, 0.0, 0.0, seed=1,
+                                     train_design=Design(n_q2=6, n_q3=5, spread_deg=3.0), n_heldout=150)
+    T = make_T(so3.exp(np.radians(0.1) * np.array([0.6, -0.8, 0.0])), 1.5 * np.array([0.48, 0.36, -0.8]))
+    off_train, off_test = put_in(train, T, np.eye(4)), put_in(test, T, np.eye(4))
+    assert not check_recording(ConstantModel("R1", "nominal", nominal, 0, {}), off_train).found
+    clean, damped, freed = _pi_mean(train, test, True), _pi_mean(off_train, off_test, False), \
+        _pi_mean(off_train, off_test, True)
+    assert freed <= 1.02 * clean
+    assert damped >= 1.5 * clean
+
+
+def test_the_frames_first_fit_leaves_the_base_free_and_a_clean_recording_does_not():
+    robot = load_cell().robot("R1")
+    nominal = robot.model()
+    gravity = GravityModel.from_spec(robot.robot, nominal)
+    train, _, _ = tool_error_case(nominal, gravity, 18.0, 0.5, seed=1,
+                                  train_design=Design(n_q2=6, n_q3=5, spread_deg=3.0), n_heldout=10)
+    make = lambda rec: Fitter("R1", nominal, rec, FitOptions(), None, gravity)  # noqa: E731
+    fitter, check = framed(make, ConstantModel("R1", "nominal", nominal, 0, {}), train)
+    assert check.found and isinstance(fitter, FramedFit) and fitter.inner.options.pi_base_free
+    clean, _, _ = tool_error_case(nominal, gravity, 0.0, 0.0, seed=1,
+                                  train_design=Design(n_q2=6, n_q3=5, spread_deg=3.0), n_heldout=10)
+    fitter, check = framed(make, ConstantModel("R1", "nominal", nominal, 0, {}), clean)
+    assert not check.found and not fitter.options.pi_base_free
