@@ -26,7 +26,7 @@ import sys
 import time
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -45,29 +45,41 @@ from scripts.bench_frames import fitter_on, tool_error_case_of  # noqa: E402
 from scripts.extrapolation_folds import EDGE_JOINTS, edge_mask, step_mask  # noqa: E402
 from scripts.heldout_folds import DATA, days_parser  # noqa: E402
 
-WAYS = {"damped": "none", "rotation free": "rotation", "free": "all"}
+#: The ways pi is fitted: label -> the FitOptions fields that differ from the defaults.
+WAYS: dict[str, dict[str, Any]] = {"damped": {"pi_registration_free": "none"},
+                                   "rotation free": {"pi_registration_free": "rotation"},
+                                   "free": {"pi_registration_free": "all"}}
 
 
-def twins(seeds: list[int], sizes: list[tuple[float, float]]) -> list[dict[str, Any]]:
+def tool_case(arm: str, seed: int, shift_mm: float, angle_deg: float) -> tuple[Any, Any, Any]:
+    """(cell entry, training, held-out recording) of a twin whose tool marker is off by ``shift_mm``/``angle_deg``."""
+    return tool_error_case_of(shift_mm, angle_deg, seed, 3.0, arm)
+
+
+def twins(seeds: list[int], sizes: list[tuple[float, float]], ways: dict[str, dict[str, Any]] = WAYS,
+          case: Callable[[str, int, float, float], tuple[Any, Any, Any]] = tool_case,
+          keys: tuple[str, str] = ("tool_mm", "tool_deg")) -> list[dict[str, Any]]:
+    """Per arm, seed and error size of ``case``: nls1 and pi fitted each of ``ways``, held-out mean / max [mm]."""
     rows = []
     for arm in ("R1", "R2"):
         for seed in seeds:
             for shift_mm, angle_deg in sizes:
-                robot, train, test = tool_error_case_of(shift_mm, angle_deg, seed, 3.0, arm)
-                row: dict[str, Any] = {"robot": arm, "seed": seed, "tool_mm": shift_mm, "tool_deg": angle_deg}
+                robot, train, test = case(arm, seed, shift_mm, angle_deg)
+                row: dict[str, Any] = {"robot": arm, "seed": seed, keys[0]: shift_mm, keys[1]: angle_deg}
                 base = fitter_on(robot, train)
                 row["nls1"] = mean_max(errors(base.fit("nls1")[0], test).position_mm)
-                for way, free in WAYS.items():
-                    fitter = replace(base, options=replace(base.options, pi_registration_free=free), _cache={})
+                for way, fields in ways.items():
+                    fitter = replace(base, options=replace(base.options, **fields), _cache={})
                     row[f"pi {way}"] = mean_max(errors(fitter.fit("pi")[0], test).position_mm)
                 rows.append(row)
                 print(f"| {arm} | {seed} | {shift_mm:g} / {angle_deg:g} | "
-                      + " | ".join(f"{row[k]['mean']:.3f}/{row[k]['max']:.3f}" for k in ["nls1"] + [f"pi {w}" for w in WAYS])
+                      + " | ".join(f"{row[k]['mean']:.3f}/{row[k]['max']:.3f}" for k in ["nls1"] + [f"pi {w}" for w in ways])
                       + " |", flush=True)
     return rows
 
 
-def days(names: list[str]) -> list[dict[str, Any]]:
+def days(names: list[str], ways: dict[str, dict[str, Any]] = WAYS) -> list[dict[str, Any]]:
+    """Per R1 training recording: pi fitted each of ``ways``, on held-out clusters and the extrapolation folds."""
     robot = load_cell().robot("R1")
     rows = []
     folds = ("steps", "q2 edges", "q3 edges")
@@ -77,8 +89,8 @@ def days(names: list[str]) -> list[dict[str, Any]]:
         groups, _ = cluster_anchors(rec)
         row: dict[str, Any] = {"day": day}
         per_cluster = {}
-        for way, free in WAYS.items():
-            options = FitOptions(pi_registration_free=free)
+        for way, fields in ways.items():
+            options = FitOptions(**fields)
             e = fitter_for(robot, rec, options=options).held_out_errors("pi")
             per_cluster[way] = cluster_rms(e, groups)
             row[f"heldout {way}"] = round(float(np.sqrt(np.mean(e ** 2))), 4)
@@ -86,39 +98,48 @@ def days(names: list[str]) -> list[dict[str, Any]]:
                                                              for j in EDGE_JOINTS]:
                 model, _ = fitter_for(robot, rec.subset(~held), options=options).fit("pi")
                 row[f"{fold} {way}"] = mean_max(errors(model, rec.subset(held)).position_mm)
-        for way in list(WAYS)[1:]:
-            d = per_cluster[way] - per_cluster["damped"]
+        first = next(iter(ways))
+        for way in list(ways)[1:]:
+            d = per_cluster[way] - per_cluster[first]
             row[f"heldout {way} diff se"] = round(float(d.std(ddof=1) / np.sqrt(len(d))), 4)
         row["cpu_s"] = round(time.process_time() - t0, 1)
         rows.append(row)
-        print(f"| {day} | " + " / ".join(f"{row[f'heldout {w}']:.4f}" for w in WAYS)
-              + " (paired se " + ", ".join(f"{row[f'heldout {w} diff se']:.4f}" for w in list(WAYS)[1:]) + ") | "
-              + " | ".join(" / ".join(f"{row[f'{f} {w}']['mean']:.3f}/{row[f'{f} {w}']['max']:.3f}" for w in WAYS)
+        print(f"| {day} | " + " / ".join(f"{row[f'heldout {w}']:.4f}" for w in ways)
+              + " (paired se " + ", ".join(f"{row[f'heldout {w} diff se']:.4f}" for w in list(ways)[1:]) + ") | "
+              + " | ".join(" / ".join(f"{row[f'{f} {w}']['mean']:.3f}/{row[f'{f} {w}']['max']:.3f}" for w in ways)
                            for f in folds) + " |", flush=True)
     return rows
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = days_parser(__doc__)
+def run(argv: list[str] | None, doc: str, ways: dict[str, dict[str, Any]], default_errors: str, what: str,
+        case: Callable[[str, int, float, float], tuple[Any, Any, Any]] = tool_case,
+        keys: tuple[str, str] = ("tool_mm", "tool_deg")) -> int:
+    """The command line of this script and of its siblings: twins with ``what`` off by each ``--errors`` size
+    (``case``), and the training days, for each of ``ways``."""
+    ap = days_parser(doc)
     ap.add_argument("--no-twins", action="store_true")
     ap.add_argument("--no-days", action="store_true")
     ap.add_argument("--seeds", default="0,1,2,3,4")
-    ap.add_argument("--errors", default="0/0,1.5/0.3,3/0.1,18/0.5", help="tool-marker errors mm/deg, comma-separated")
+    ap.add_argument("--errors", default=default_errors, help=f"{what} errors mm/deg, comma-separated")
     args = ap.parse_args(argv)
     out: dict[str, Any] = {}
     if not args.no_twins:
         sizes = [tuple(float(v) for v in e.split("/")) for e in args.errors.split(",")]
         print("twins, fitted as is (no frame check); held-out position mean/max mm\n")
-        print("| arm | seed | tool marker off mm / deg | nls1 | " + " | ".join(f"pi {w}" for w in WAYS) + " |\n|---"
-              + "|---" * (3 + len(WAYS)) + "|")
-        out["twins"] = twins([int(s) for s in args.seeds.split(",")], sizes)  # type: ignore[arg-type]
+        print(f"| arm | seed | {what} off mm / deg | nls1 | " + " | ".join(f"pi {w}" for w in ways) + " |\n|---"
+              + "|---" * (3 + len(ways)) + "|")
+        out["twins"] = twins([int(s) for s in args.seeds.split(",")], sizes, ways, case, keys)  # type: ignore[arg-type]
     if not args.no_days:
-        print("\ntraining days: pi " + " / ".join(WAYS) + "; held-out clusters RMS mm; extrapolation folds mean/max mm\n")
+        print("\ntraining days: pi " + " / ".join(ways) + "; held-out clusters RMS mm; extrapolation folds mean/max mm\n")
         print("| training day | held-out clusters | steps | q2 edges | q3 edges |\n|---|---|---|---|---|")
-        out["days"] = days(args.days.split(","))
+        out["days"] = days(args.days.split(","), ways)
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1) + "\n", encoding="utf-8")
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run(argv, __doc__, WAYS, "0/0,1.5/0.3,3/0.1,18/0.5", "tool marker")
 
 
 if __name__ == "__main__":
