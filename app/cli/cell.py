@@ -361,7 +361,10 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--design", choices=("grid", "optimal"), default="grid",
                    help="grid: the paper's anchor grid (default); optimal: D-optimal clusters that move joints 1, 4, "
                         "5, 6 widely and spread over (q2, q3), within the limits and the safety model")
-    p.add_argument("--budget", type=int, help="--design optimal: poses to measure (whole clusters of 7)")
+    p.add_argument("--budget", type=int, metavar="POSES",
+                   help="--design optimal: the number of POSES to measure (not clusters, as select --budget counts), "
+                        "taken as whole clusters of 7 (rounded down; at least 21, 3 clusters); no default: "
+                        "--design optimal needs it")
     p.add_argument("--for", dest="target", choices=("identification", "rebase"), default="identification",
                    help="--design optimal: what the poses are for: identifying the geometry (default) or rebasing a "
                         "fitted model onto a new day (its frames and the joint offsets of joints 4 and 5; "
@@ -374,7 +377,9 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                                   "criterion) and write them as a recording subset")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
     p.add_argument("--data", required=True, help="training recording CSV or Welding_Motoman folder")
-    p.add_argument("--budget", required=True, type=int, help="clusters to keep (at least 3)")
+    p.add_argument("--budget", required=True, type=int, metavar="CLUSTERS",
+                   help="the number of CLUSTERS of the recording to keep (not poses, as plan --budget counts; a "
+                        "cluster is usually 7 poses): at least 3, at most the recording's; no default (required)")
     p.add_argument("--out", required=True, help="the subset recording CSV")
     p.add_argument("--for", dest="target", choices=("identification", "rebase"), default="identification",
                    help="what the clusters are for: identifying the geometry (default) or rebasing a fitted model "

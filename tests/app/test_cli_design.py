@@ -99,3 +99,24 @@ def test_plan_budget_errors_say_what_to_pass_without_internals(tmp_path, capsys,
     assert len(err.splitlines()) == 1 and err.startswith("cellcal plan: --budget"), err
     assert all(f in err for f in fragments) and "DesignSpec" not in err and "plan: plan:" not in err, err
     assert not out.exists()
+
+
+def _budget_help(command: str) -> str:
+    """The --budget entry of ``cellcal COMMAND --help``, whitespace joined (argparse wraps it)."""
+    import argparse
+
+    from app.cli.commands import build_parser
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)).choices[command]
+    text = " ".join(sub.format_help().split())
+    text = text[text.index(" options: "):]  # the option list, not the usage line
+    return text[text.index("--budget "):][:400]
+
+
+@pytest.mark.parametrize("command, unit, other", [("plan", "POSES", "clusters"), ("select", "CLUSTERS", "poses")])
+def test_budget_help_says_its_unit_and_that_the_other_command_counts_the_other(command, unit, other):
+    """plan --budget counts poses, select --budget clusters: a new user took one for the other."""
+    text = _budget_help(command)
+    assert text.startswith(f"--budget {unit} "), text  # the unit in the usage line
+    assert f"number of {unit}" in text and f"not {other}" in text, text
+    assert "no default" in text, text
