@@ -12,7 +12,8 @@ from typing import Any, Callable
 
 from app.cli.cell import add_cell_parsers
 from app.cli.common import (add_report_options, cell_spec, check_output_args, command_line, fitter_from_args,
-                             load_model_for, read_recording_arg, show_progress, tolerance_from_args, write_json)
+                             load_model_for, model_and_robot, read_recording_arg, show_progress, tolerance_from_args,
+                             write_json)
 from app.cli.dual import add_dual_parsers
 from app.cli.real import add_real_parsers
 from app.jobs.cli import add_job_parsers
@@ -76,20 +77,13 @@ def _warn_extrapolation(model: Any, ex: dict[str, Any]) -> None:
 
 
 def _model_arg(args: argparse.Namespace) -> tuple[Any, Any]:
-    """``--model``, checked (and checked to be ``--robot``'s when that is given), and its robot's cell entry.
+    """``--model``, checked to be ``--robot``'s (or, without it, the recorded robot's: its geometry against the
+    robot YAML), and its robot's cell entry (:func:`app.cli.common.model_and_robot`).
 
-    The robot is ``--robot``, else the one the model file records when the cell has it, so joints are always
-    checked against the limits when they are known (the recording spec calls a joint outside them an error);
-    a model of a robot the cell does not describe gets ``None`` and no limit check.
+    Joints are then checked against the limits when they are known (the recording spec calls a joint outside them
+    an error); a model of a robot the cell does not describe gets ``None`` and no limit check.
     """
-    from calibration.models import load_model
-
-    if args.robot:
-        robot = cell_spec(args).robot(args.robot)
-        return load_model_for(args.model, robot), robot
-    model = load_model(args.model)
-    cell = cell_spec(args)
-    return model, cell.robots.get(model.robot)
+    return model_and_robot(args, args.model)
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
@@ -168,8 +162,7 @@ def cmd_rebase(args: argparse.Namespace) -> int:
     from calibration.design import REBASE_OFFSETS
     from calibration.rebase import rebase, rebase_auto
 
-    robot = cell_spec(args).robot(args.robot)
-    model = load_model_for(args.model, robot)
+    model, robot = model_and_robot(args, args.model, needs_robot=True)
     data = read_recording_arg(args.data, robot)
     if args.offsets:
         rebased, result = rebase(model, data, tolerance=args.tolerance, offsets=REBASE_OFFSETS)
@@ -203,12 +196,9 @@ def cmd_rebase(args: argparse.Namespace) -> int:
 
 
 def cmd_export_urdf(args: argparse.Namespace) -> int:
-    from calibration.models import load_model
     from calibration.urdf import JointLimits, write_urdf
 
-    name = args.robot or load_model(args.model).robot
-    robot = cell_spec(args).robot(name)
-    model = load_model_for(args.model, robot)
+    model, robot = model_and_robot(args, args.model, needs_robot=True)
     geometry = model.urdf_geometry()
     spec = robot.robot
     write_urdf(args.out, geometry, JointLimits(spec.lower_rad, spec.upper_rad, spec.max_speed_rad_s), robot.name,
@@ -330,7 +320,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_report_options(p, "the model's errors and plots")
     p = add("rebase", cmd_rebase, "move a fitted model of any kind onto a new day: refit only its base and tool-marker "
                                   "frames on a few poses")
-    p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
+    p.add_argument("--robot", help="robot name in the cell (R1, R2; default: the robot the model records): refuse "
+                                   "a model of another robot")
     p.add_argument("--model", required=True, help="the fitted model file")
     p.add_argument("--data", required=True, help="a few poses of the new day (recording CSV or Welding_Motoman folder)")
     p.add_argument("--out", required=True, help="the rebased model file")

@@ -37,6 +37,34 @@ def load_model_for(path: str, robot: Any) -> Any:
     return load_model(path, robot.name, robot.model())
 
 
+def model_and_robot(args: argparse.Namespace, path: str, *, needs_robot: bool = False) -> tuple[Any, Any]:
+    """The model file ``path`` and the cell entry of its robot: ``--robot``, else the robot the file records.
+
+    Either way the file is checked to be that robot's, its geometry included (:func:`load_model_for`), so the
+    check no longer needs ``--robot`` to be given; both given and disagreeing is refused.
+
+    Args:
+        needs_robot: the command cannot go on without the robot's cell entry (limits of a recording, a rebase);
+            otherwise a model of a robot the cell does not describe comes with ``None`` and no checks against it.
+
+    Raises:
+        DataError: the file is unusable, records another robot than ``--robot``, or holds another robot type's
+            geometry; ConfigError: the robot (given or recorded) is not in the cell and ``needs_robot``.
+    """
+    from calibration.model_checks import check_model_for
+    from calibration.models import load_model
+
+    cell = cell_spec(args)
+    if args.robot:
+        robot = cell.robot(args.robot)
+        return load_model_for(path, robot), robot
+    model = load_model(path)
+    robot = cell.robot(model.robot) if needs_robot else cell.robots.get(model.robot)
+    if robot is not None:
+        check_model_for(model, robot.name, robot.model(), path)
+    return model, robot
+
+
 def fitter_from_args(args: argparse.Namespace) -> Any:
     """A Fitter for ``--robot``/``--train``/``--cpa``/``--a``, and the robot's cell entry.
 

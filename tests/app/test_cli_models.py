@@ -81,6 +81,25 @@ def test_plan_dual_refuses_r1s_model_for_r2_and_writes_nothing(files, tmp_path, 
     assert not out.exists() and not summary.exists()
 
 
+@pytest.mark.parametrize("command", ["predict", "evaluate", "rebase", "export-urdf"])
+def test_a_models_geometry_is_checked_against_the_robot_it_records_without_robot(files, tmp_path, capsys, command):
+    """The model file knows its robot: without --robot its geometry is checked against that robot's YAML (predict
+    and evaluate checked it only with --robot; rebase required --robot), and --robot disagreeing is refused."""
+    relabelled = tmp_path / "r2.yaml"  # R1's MA2010 geometry with its robot name edited to R2 (an MA1440)
+    relabelled.write_text((files / "r1.yaml").read_text().replace("robot: R1", "robot: R2"))
+    out, js = tmp_path / "out.file", tmp_path / "out.json"
+    rest = {"predict": ["--joints", str(files / "q.csv"), "--out", str(out)],
+            "evaluate": ["--test", str(files / "test.csv")],
+            "rebase": ["--data", str(files / "train.csv"), "--out", str(out)],
+            "export-urdf": ["--out", str(out)]}[command] + ["--json", str(js)]
+    assert_bad_input(capsys, [command, "--model", str(relabelled), *rest], "r2.yaml: geometry: not R2's geometry")
+    assert_bad_input(capsys, [command, "--robot", "R1", "--model", str(relabelled), *rest],
+                     "r2.yaml: robot: the model is for R2, not R1")
+    assert not out.exists() and not js.exists()
+    assert main([command, "--model", str(files / "r1.yaml"), *rest]) == 0  # the robot it records: R1
+    assert json.loads(js.read_text())["robot"] == "R1"
+
+
 def test_validate_dual_refuses_r1s_model_for_r2(files, tmp_path, capsys):
     pytest.importorskip("casadi")
     out = tmp_path / "v.json"
