@@ -162,6 +162,7 @@ def cmd_rebase(args: argparse.Namespace) -> int:
     from calibration.design import REBASE_OFFSETS
     from calibration.rebase import rebase, rebase_auto
 
+    _check_rebase_tolerance(args.tolerance)
     model, robot = model_and_robot(args, args.model, needs_robot=True)
     data = read_recording_arg(args.data, robot)
     if args.offsets:
@@ -193,6 +194,21 @@ def cmd_rebase(args: argparse.Namespace) -> int:
                            "T_tool_correction": result.T_tool_correction.tolist(),
                            "joint_offsets_deg": [math.degrees(v) for v in result.joint_offsets], "out": str(args.out)})
     return 0
+
+
+def _check_rebase_tolerance(tolerance: float) -> None:
+    """Refuse a ``rebase --tolerance`` that is not a fraction in (0, 1) (a direction is fitted when its singular
+    value is at least this fraction of the largest): at 0 or below no direction is held however poorly the poses
+    see it; at 1 only the best seen one is fitted; above 1, at inf or NaN (which compares false with every
+    singular value) none is, and the rebase returned the model unchanged without a word.
+
+    Raises:
+        CellCalError: naming the option and the value.
+    """
+    import math
+
+    if not (math.isfinite(tolerance) and 0.0 < tolerance < 1.0):
+        raise CellCalError(f"--tolerance must be a fraction in (0, 1) of the largest singular value, got {tolerance:g}")
 
 
 def cmd_export_urdf(args: argparse.Namespace) -> int:
@@ -327,7 +343,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="the rebased model file")
     p.add_argument("--json", help="write the corrections and the error before/after as JSON")
     p.add_argument("--tolerance", type=float, default=1e-2,
-                   help="frame directions below this fraction of the largest singular value are held at zero")
+                   help="frame directions whose singular value is below this fraction, in (0, 1), of the largest "
+                        "are held at zero")
     which = p.add_mutually_exclusive_group()
     which.add_argument("--translation-only", action="store_true", help="fit only the two translations (6 parameters)")
     which.add_argument("--all-directions", action="store_true",

@@ -208,6 +208,21 @@ def test_rebase_moves_a_model_onto_a_shifted_day_and_refuses_another_robots_mode
     assert not (tmp_path / "x.yaml").exists()
 
 
+@pytest.mark.parametrize("tolerance", ["0", "-0.01", "nan", "inf", "1", "1e3"])
+def test_rebase_refuses_a_tolerance_that_is_not_a_fraction_and_writes_nothing(tmp_path, data, capsys, tolerance):
+    """--tolerance is a fraction of the largest singular value: 0, negative, NaN, inf or 1 and more held nothing or
+    everything and went on without a word."""
+    from calibration.models import ConstantModel, save_model
+    from cell_config import load_cell
+
+    save_model(ConstantModel("R1", "nls1", load_cell().robot("R1").model()), tmp_path / "m.yaml")
+    out, js = tmp_path / "r.yaml", tmp_path / "r.json"
+    assert_bad_input(capsys, ["rebase", "--model", str(tmp_path / "m.yaml"), "--data", str(data / "train.csv"),
+                              "--out", str(out), "--json", str(js), "--tolerance", tolerance],
+                     "--tolerance must be a fraction in (0, 1)", f"got {float(tolerance):g}")
+    assert not out.exists() and not js.exists()
+
+
 def test_diagnose_takes_train_and_test_like_every_command_and_the_old_names_still_work():
     from app.cli.commands import build_parser
 
