@@ -61,6 +61,26 @@ def refuse_unexplained(source: str, robot: str, against: str, before_mm: float, 
                         "recording of another arm?")
 
 
+def refuse_another_arms(robot: Any, rec: Any, subject: str = "training recording") -> Any:
+    """The frame check of ``rec`` against ``robot``'s nominal arm (:func:`calibration.frames.check_recording`),
+    refused when not even the best rigid fit of both frames explains it (:func:`refuse_unexplained`): a check of
+    rigid fits only, made before any method is fitted on or evaluated against the recording.
+
+    Returns:
+        The :class:`calibration.frames.FrameCheck`.
+
+    Raises:
+        DataError: ``rec`` is not this arm's (naming the recording and the arm).
+    """
+    from calibration.frames import check_recording
+    from calibration.models import ConstantModel
+
+    nominal = ConstantModel(robot.name, "nominal", robot.model(), 0, {})
+    check = check_recording(nominal, rec, subject)
+    refuse_unexplained(rec.source, robot.name, f"{robot.name}'s nominal arm", check.mean_mm, check.left_mm)
+    return check
+
+
 def checked_fitter_for(robot: Any, train: Any, cpa: Any | None = None, options: Any | None = None
                        ) -> tuple[Any, Any]:
     """:func:`fitter_for` after a frame check of the training recording against the nominal arm.
@@ -75,12 +95,11 @@ def checked_fitter_for(robot: Any, train: Any, cpa: Any | None = None, options: 
     Raises:
         DataError: the training recording is not this arm's (:func:`refuse_unexplained`).
     """
-    from calibration.frames import check_recording, framed
+    from calibration.frames import framed
     from calibration.models import ConstantModel
 
     nominal = ConstantModel(robot.name, "nominal", robot.model(), 0, {})
-    check = check_recording(nominal, train)
-    refuse_unexplained(train.source, robot.name, f"{robot.name}'s nominal arm", check.mean_mm, check.left_mm)
+    check = refuse_another_arms(robot, train)
     fitter, check = framed(lambda rec: fitter_for(robot, rec, cpa, options), nominal, train, check)
     if check.found:
         log.info("%s Fitting the %s frame%s first, then the kinematics.", check.message(), check.frame,
@@ -97,12 +116,10 @@ def days_fitter_for(robot: Any, trains: list[Any], cpa: Any | None = None, optio
     Raises:
         DataError: a training recording is not this arm's (:func:`refuse_unexplained`).
     """
-    from calibration.frames import check_recording
     from calibration.models import ConstantModel
     from calibration.multiday import fit_days
 
     nominal = ConstantModel(robot.name, "nominal", robot.model(), 0, {})
     for rec in trains:
-        check = check_recording(nominal, rec)
-        refuse_unexplained(rec.source, robot.name, f"{robot.name}'s nominal arm", check.mean_mm, check.left_mm)
+        refuse_another_arms(robot, rec)
     return fit_days(lambda rec: fitter_for(robot, rec, cpa, options), nominal, trains)

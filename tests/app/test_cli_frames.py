@@ -112,6 +112,29 @@ def test_another_arms_recording_is_refused_not_called_a_frame_error(tmp_path, ca
     assert sorted(p.name for p in tmp_path.iterdir()) == before
 
 
+@pytest.mark.parametrize("which", ["test", "train"])
+def test_compare_refuses_another_arms_recording_before_fitting_anything(tmp_path, data, capsys, monkeypatch, which):
+    """compare checked a test recording of another arm only after fitting every method (seconds to minutes)."""
+    import app.analysis.compare
+    import calibration.methods
+    from cell_config import load_cell
+
+    def never(*args, **kwargs):
+        raise AssertionError("fitted before the recordings were checked")
+
+    monkeypatch.setattr(calibration.methods.Fitter, "fit", never)
+    monkeypatch.setattr(app.analysis.compare, "run_comparison", never)
+    q, cluster = cluster_design(step_deg=15.0)
+    r2 = tmp_path / "r2.csv"
+    write_recording(measure(load_cell().robot("R2").model().fk, q, 0.02, 0.01, 1, cluster), r2)  # R2's poses
+    inputs = {"train": str(data / "train.csv"), "test": str(data / "test.csv"), which: str(r2)}
+    out = tmp_path / "cmp.json"
+    assert_bad_input(capsys, ["compare", "--robot", "R1", "--train", inputs["train"], "--test", inputs["test"],
+                              "--methods", "nominal,nls1", "--json", str(out)],
+                     f"{r2}: not R1's poses", "R1's nominal arm", "the wrong --robot, or a recording of another arm?")
+    assert not out.exists()
+
+
 @needs_shared_data()
 def test_a_real_day_read_as_the_other_arm_is_refused(tmp_path, capsys):
     assert_bad_input(capsys, ["fit", "--robot", "R2", "--train", str(R1_TRAIN), "--method", "pi",
