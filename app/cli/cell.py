@@ -395,7 +395,7 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--resume", action="store_true", help="continue the session at the first target not recorded")
     p.add_argument("--json", help="write the session outcome as JSON")
     add_motion_options(p)
-    p = add("export", cmd_export, "write a session's measured samples as a recording CSV")
+    p = add("export", cmd_export, "write a session's measured samples as a recording CSV", reads_cell=False)
     p.add_argument("--session", required=True, help="session folder")
     p.add_argument("--out", required=True, help="recording CSV")
     p.add_argument("--kinds", help="comma-separated target kinds to include (anchor, perturb, cpa, validation); all "

@@ -11,9 +11,9 @@ import sys
 from typing import Any, Callable
 
 from app.cli.cell import add_cell_parsers
-from app.cli.common import (add_report_options, cell_spec, check_output_args, command_line, fitter_from_args,
-                             load_model_for, model_and_robot, read_recording_arg, show_progress, tolerance_from_args,
-                             write_json)
+from app.cli.common import (CELL_HELP, add_cell_option, add_report_options, cell_spec, check_output_args,
+                             command_line, fitter_from_args, load_model_for, model_and_robot, read_recording_arg,
+                             resolve_cell, show_progress, tolerance_from_args, write_json)
 from app.cli.dual import add_dual_parsers
 from app.cli.real import add_real_parsers
 from app.jobs.cli import add_job_parsers
@@ -303,16 +303,20 @@ def _add_fit_inputs(p: argparse.ArgumentParser) -> None:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="cellcal", description="Calibrate the arms of a robot cell from motion-capture "
                                      "recordings, plan with the calibrated models and put them into service.")
-    parser.add_argument("--cell", help="cell.yaml (default: the packaged Motoman cell)")
+    parser.add_argument("--cell", help=f"{CELL_HELP}; also accepted after the command name of every command that "
+                                       "reads it")
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars (they are off anyway when "
                                                                     "stderr is not a terminal)")
     parser.add_argument("--version", action="version", version=f"cellcal {version()}")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    def add(name: str, func: Callable[[argparse.Namespace], int], help_text: str) -> argparse.ArgumentParser:
+    def add(name: str, func: Callable[[argparse.Namespace], int], help_text: str, *,
+            reads_cell: bool = True) -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=help_text)
         p.set_defaults(func=func)
+        if reads_cell:
+            add_cell_option(p)
         return p
 
     from calibration.methods import METHODS
@@ -415,6 +419,7 @@ def main(argv: list[str] | None = None) -> int:
     install_logging(logging.INFO if args.verbose else logging.WARNING)  # log lines go through the bars
     configure(quiet=args.quiet)
     try:
+        resolve_cell(args)
         check_output_args(args)
         return args.func(args)
     except CellCalError as e:

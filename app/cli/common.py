@@ -10,6 +10,33 @@ from typing import Any
 log = logging.getLogger("cellcal.app")
 
 
+#: ``--cell``'s help, before the command name and after it.
+CELL_HELP = "cell.yaml (default: the packaged Motoman cell)"
+#: Where ``--cell`` given after the command name is kept until :func:`resolve_cell` checks it against the one before.
+CELL_AFTER = "cell_after_command"
+
+
+def add_cell_option(p: argparse.ArgumentParser) -> None:
+    """``--cell`` after the command name, as before it (``cellcal --cell C fit ...`` and ``cellcal fit --cell C``)."""
+    p.add_argument("--cell", dest=CELL_AFTER, metavar="CELL", help=f"{CELL_HELP}; also accepted before the command")
+
+
+def resolve_cell(args: argparse.Namespace) -> None:
+    """``args.cell`` from ``--cell`` before or after the command name.
+
+    Raises:
+        CellCalError: both are given and name different files (which one was meant is not guessed).
+    """
+    from calibration.errors import CellCalError
+
+    after = getattr(args, CELL_AFTER, None)
+    if after is None:
+        return
+    if args.cell is not None and args.cell != after:
+        raise CellCalError(f"--cell given twice: {args.cell} before the command and {after} after it; give it once")
+    args.cell = after
+
+
 def cell_spec(args: argparse.Namespace) -> Any:
     """The cell of ``--cell``, or the packaged Motoman cell."""
     from cell_config import load_cell

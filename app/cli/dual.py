@@ -180,11 +180,7 @@ def cmd_export_targets(args: argparse.Namespace) -> int:
 
 
 def add_dual_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
-    def cell_arg(p: argparse.ArgumentParser) -> None:  # also accepted after the subcommand
-        p.add_argument("--cell", default=argparse.SUPPRESS, help="cell.yaml (default: the packaged Motoman cell)")
-
     p = add("plan-dual", cmd_plan_dual, "plan both arms holding a relative tool pose along a workpiece path")
-    cell_arg(p)
     p.add_argument("--models", help="R1=FILE,R2=FILE (a robot left out uses its nominal model)")
     p.add_argument("--relative-pose", help="gun pose in the workpiece frame: a file (JSON {p_mm, quat} or CSV) or "
                                            "inline x,y,z,qw,qx,qy,qz [mm]; default: the reference pose")
@@ -194,7 +190,6 @@ def add_dual_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--json", help="write a summary as JSON")
     p.add_argument("--no-compile", action="store_true", help="interpreted casadi function (no C compiler)")
     p = add("validate-dual", cmd_validate_dual, "contact validation of model sets (the paper's dual-robot check)")
-    cell_arg(p)
     p.add_argument("--plan", help="dual plan (plan-dual --out) whose waypoints are the contact configurations; "
                                   "needed on the real cell")
     p.add_argument("--configurations", type=int, default=20, help="contact configurations with --sim, inward to "
@@ -206,13 +201,11 @@ def add_dual_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--json", help="write the statistics as JSON")
     add_motion_options(p)
     p = add("preview", cmd_preview, "meshcat preview of a plan (static HTML page or live viewer)")
-    cell_arg(p)
     p.add_argument("--plan", required=True, help="plan file (dual or collection)")
     p.add_argument("--html", help="write a self-contained HTML page")
     p.add_argument("--serve", action="store_true", help="start a live meshcat viewer and wait for Enter")
     p.add_argument("--json", help="write a summary as JSON (waypoints, largest residual, files, joint-limit check)")
     p = add("export-targets", cmd_export_targets, "controller targets (rad, pulses, poses) from a dual plan")
-    cell_arg(p)
     p.add_argument("--plan", required=True, help="plan file written by plan-dual")
     p.add_argument("--out", required=True, help="targets file (.csv or .json)")
     p.add_argument("--frame", choices=("flange", "tool"), default="flange", help="pose frame of the targets")

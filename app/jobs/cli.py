@@ -89,7 +89,6 @@ def cmd_compensate_job(args: argparse.Namespace) -> int:
 def add_job_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p = add("compensate-job", cmd_compensate_job,
             "rewrite a Yaskawa INFORM job (.JBI) so the calibrated arms reach the poses the nominal ones would")
-    p.add_argument("--cell", default=argparse.SUPPRESS, help="cell.yaml (default: the packaged Motoman cell)")
     p.add_argument("--model", action="append", required=True, metavar="[ROBOT=]FILE",
                    help="calibrated model file; ROBOT=FILE to name the robot (default: the robot it was fitted for); "
                         "repeat for a second robot (RB1 is the cell's first robot R1, RB2 its second R2)")
