@@ -352,21 +352,22 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p = add("plan", cmd_plan, "make a collection plan for one arm (anchor grid, CPA sweeps, validation poses)")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
     p.add_argument("--out", required=True, help="plan file (JSON)")
-    p.add_argument("--q2-step", type=float, default=5.0, help="anchor grid q2 step [deg] (5: the paper's design)")
+    p.add_argument("--q2-step", type=float, default=5.0,
+                   help="anchor grid q2 step [deg] (default %(default)g: the paper's design)")
     p.add_argument("--q3-step", type=float, default=5.0, help="anchor grid q3 step [deg]")
     p.add_argument("--cpa", action="store_true", help="add single-joint sweeps (needed by the cpa method)")
     p.add_argument("--validation", type=int, default=0, help="random validation poses to add (the test set)")
     p.add_argument("--seed", type=int, default=0, help="seed of the validation poses (and of the optimal design's "
                                                         "candidates)")
     p.add_argument("--design", choices=("grid", "optimal"), default="grid",
-                   help="grid: the paper's anchor grid (default); optimal: D-optimal clusters that move joints 1, 4, "
+                   help="grid: the paper's anchor grid; optimal: D-optimal clusters that move joints 1, 4, "
                         "5, 6 widely and spread over (q2, q3), within the limits and the safety model")
     p.add_argument("--budget", type=int, metavar="POSES",
                    help="--design optimal: the number of POSES to measure (not clusters, as select --budget counts), "
                         "taken as whole clusters of 7 (rounded down; at least 21, 3 clusters); no default: "
                         "--design optimal needs it")
     p.add_argument("--for", dest="target", choices=("identification", "rebase"), default="identification",
-                   help="--design optimal: what the poses are for: identifying the geometry (default) or rebasing a "
+                   help="--design optimal: what the poses are for: identifying the geometry or rebasing a "
                         "fitted model onto a new day (its frames and the joint offsets of joints 4 and 5; "
                         "cellcal rebase --offsets)")
     p.add_argument("--noise-mm", type=float, default=0.05,
@@ -382,7 +383,7 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                         "cluster is usually 7 poses): at least 3, at most the recording's; no default (required)")
     p.add_argument("--out", required=True, help="the subset recording CSV")
     p.add_argument("--for", dest="target", choices=("identification", "rebase"), default="identification",
-                   help="what the clusters are for: identifying the geometry (default) or rebasing a fitted model "
+                   help="what the clusters are for: identifying the geometry or rebasing a fitted model "
                         "(D-optimal on the 12 frame directions cellcal rebase fits, no spread term)")
     p.add_argument("--noise-mm", type=float, default=0.05,
                    help="measurement noise assumed for the predicted parameter uncertainty [mm]")

@@ -11,9 +11,9 @@ import sys
 from typing import Any, Callable
 
 from app.cli.cell import add_cell_parsers
-from app.cli.common import (CELL_HELP, add_cell_option, add_report_options, cell_spec, check_output_args,
-                             command_line, fitter_from_args, load_model_for, model_and_robot, read_recording_arg,
-                             resolve_cell, show_progress, tolerance_from_args, write_json)
+from app.cli.common import (CELL_HELP, DefaultsHelpFormatter, add_cell_option, add_report_options, cell_spec,
+                             check_output_args, command_line, fitter_from_args, load_model_for, model_and_robot,
+                             read_recording_arg, resolve_cell, show_progress, tolerance_from_args, write_json)
 from app.cli.dual import add_dual_parsers
 from app.cli.real import add_real_parsers
 from app.jobs.cli import add_job_parsers
@@ -297,12 +297,13 @@ def _add_fit_inputs(p: argparse.ArgumentParser) -> None:
                    help="training recording CSV or Welding_Motoman folder; repeat it to fit several recordings "
                         "(days) as one arm with a pair of frames per recording")
     p.add_argument("--cpa", help="single-joint sweep recording for circular point analysis")
-    p.add_argument("--a", type=float, default=1641.0, help="orientation weight (1641: 1 mm ~ 1 deg)")
+    p.add_argument("--a", type=float, default=1641.0, help="orientation weight (default %(default)g: 1 mm ~ 1 deg)")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="cellcal", description="Calibrate the arms of a robot cell from motion-capture "
-                                     "recordings, plan with the calibrated models and put them into service.")
+    parser = argparse.ArgumentParser(prog="cellcal", formatter_class=DefaultsHelpFormatter,
+                                     description="Calibrate the arms of a robot cell from motion-capture recordings, "
+                                     "plan with the calibrated models and put them into service.")
     parser.add_argument("--cell", help=f"{CELL_HELP}; also accepted after the command name of every command that "
                                        "reads it")
     parser.add_argument("-v", "--verbose", action="store_true", help="log progress")
@@ -313,7 +314,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     def add(name: str, func: Callable[[argparse.Namespace], int], help_text: str, *,
             reads_cell: bool = True) -> argparse.ArgumentParser:
-        p = sub.add_parser(name, help=help_text)
+        p = sub.add_parser(name, help=help_text, formatter_class=DefaultsHelpFormatter)
         p.set_defaults(func=func)
         if reads_cell:
             add_cell_option(p)

@@ -5,9 +5,37 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import re
 from typing import Any
 
 log = logging.getLogger("cellcal.app")
+
+
+class DefaultsHelpFormatter(argparse.HelpFormatter):
+    """``--help`` that states every option's default: `` (default X)`` is added to an option's help unless the
+    text states it already (``%(default)`` or ``default X``). Flags, options without a default (None) and empty
+    repeatable lists have none to state. (argparse's ArgumentDefaultsHelpFormatter also prints ``None`` and
+    ``False``, and a second default where the text gives one.)"""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        if not _stated_default(action) or "%(default)" in text or re.search(
+                r"\bdefault:? " + re.escape(_default_text(action.default)) + r"(?![\w.])", text):
+            return action.help
+        return f"{text} (default %(default){'g' if isinstance(action.default, float) else 's'})"
+
+
+def _stated_default(action: argparse.Action) -> bool:
+    """Whether ``--help`` should state ``action``'s default: it has a value a user would otherwise have to guess."""
+    if isinstance(action, (argparse._StoreTrueAction, argparse._StoreFalseAction, argparse._HelpAction,
+                           argparse._VersionAction)) or not action.option_strings:
+        return False
+    return action.default is not None and action.default != argparse.SUPPRESS and action.default != []
+
+
+def _default_text(value: Any) -> str:
+    """A default as ``--help`` prints it: floats as ``%g`` (5, 0.05, 1641), anything else as ``str``."""
+    return f"{value:g}" if isinstance(value, float) else str(value)
 
 
 #: ``--cell``'s help, before the command name and after it.
@@ -175,10 +203,11 @@ def add_report_options(p: argparse.ArgumentParser, what: str, tolerance_note: st
     p.add_argument("--report", metavar="DIR", help=f"write report.html (self-contained: {what}, pass/fail against "
                                                    "the tolerance, ISO 9283 where poses repeat, input hashes) here")
     p.add_argument("--tolerance-mm", type=float, default=1.0, metavar="MM",
-                   help="acceptance: largest position error allowed on the evaluation poses [mm] (cold spray: 1)"
-                        + tolerance_note)
+                   help="acceptance: largest position error allowed on the evaluation poses [mm] (default "
+                        "%(default)g, cold spray)" + tolerance_note)
     p.add_argument("--tolerance-deg", type=float, default=1.0, metavar="DEG",
-                   help="acceptance: largest orientation error allowed on the evaluation poses [deg] (cold spray: 1)")
+                   help="acceptance: largest orientation error allowed on the evaluation poses [deg] (default "
+                        "%(default)g, cold spray)")
 
 
 def tolerance_from_args(args: argparse.Namespace) -> Any:

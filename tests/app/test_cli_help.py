@@ -58,3 +58,29 @@ def test_the_markup_check_can_fail():
     for text in ("the ``cellcal`` command", "a :class:`Plan`", "see `x`", "a :func: reference"):
         assert MARKUP.search(text), text
     assert not MARKUP.search("R1=FILE,R2=FILE [mm]: a plain line, with a colon: yes")
+
+
+def _has_default(action: argparse.Action) -> bool:
+    """An option whose default a user would otherwise have to guess: not a flag, not None, not an empty list."""
+    flags = (argparse._StoreTrueAction, argparse._StoreFalseAction, argparse._HelpAction, argparse._VersionAction,
+             argparse._SubParsersAction)
+    return (bool(action.option_strings) and not isinstance(action, flags) and action.default is not None
+            and action.default != argparse.SUPPRESS and action.default != [])
+
+
+@pytest.mark.parametrize("name,parser", PARSERS, ids=[n for n, _ in PARSERS])
+def test_every_option_with_a_default_states_it_in_help(name, parser):
+    """A new user found no defaults in several help texts (plan --noise-mm, compare --methods, fake-motive ...)."""
+    formatter = parser._get_formatter()
+    for action in filter(_has_default, parser._actions):
+        text = formatter._expand_help(action)  # as --help prints it
+        d = action.default
+        value = f"{d:g}" if isinstance(d, float) else str(d)
+        assert re.search(rf"\bdefault:? {re.escape(value)}(?![\w.])", text), \
+            f"{name} {action.option_strings[-1]}: default {value} not in {text!r}"
+
+
+def test_the_default_check_can_fail():
+    action = argparse.ArgumentParser().add_argument("--noise-mm", type=float, default=0.05, help="noise [mm]")
+    assert _has_default(action)
+    assert not re.search(r"\bdefault:? 0\.05(?![\w.])", "noise [mm] (default 0.055)")
