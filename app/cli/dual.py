@@ -51,10 +51,11 @@ def cmd_plan_dual(args: argparse.Namespace) -> int:
                "max_residual_mm": max(w.residual_mm for w in plan.waypoints),
                "max_residual_deg": max(w.residual_deg for w in plan.waypoints),
                "min_clearance_mm": min(w.clearance_mm for w in plan.waypoints), "out": args.out}
-    if not plan.converged:
+    if not plan.converged:  # refused whole: a plan with holes would move the arms through unchecked poses
         i = plan.failed[0]
-        raise ModelError(f"{len(plan.failed)} of {len(plan.waypoints)} waypoints not solved, nothing written; "
-                         f"first: waypoint {i}: {plan.waypoints[i].reason}")
+        raise ModelError(f"{len(plan.failed)} of {len(plan.waypoints)} waypoints not solved (waypoint"
+                         f"{'s' if len(plan.failed) > 1 else ''} {_index_ranges(plan.failed)}), nothing written"
+                         f"{_named_outputs(args)}; first: waypoint {i}: {plan.waypoints[i].reason}")
     _check_dual_plan(planner.cell, plan.q(), planner.options.limit_margin_deg)
     if args.out:
         save_plan(plan, args.out)
@@ -63,6 +64,23 @@ def cmd_plan_dual(args: argparse.Namespace) -> int:
           f"{summary['solve_ms_median']:.2f} ms, residual <= {summary['max_residual_mm']:.1e} mm, clearance >= "
           f"{summary['min_clearance_mm']:.0f} mm" + (f" -> {args.out}" if args.out else ""))
     return 0
+
+
+def _index_ranges(indices: list[int]) -> str:
+    """``[0, 1, 2, 7, 9, 10]`` -> ``0-2, 7, 9-10`` (sorted indices, runs joined)."""
+    runs: list[list[int]] = []
+    for i in indices:
+        if runs and i == runs[-1][1] + 1:
+            runs[-1][1] = i
+        else:
+            runs.append([i, i])
+    return ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in runs)
+
+
+def _named_outputs(args: argparse.Namespace) -> str:
+    """`` to --out X or --json Y``: the outputs the command was given (empty when none)."""
+    named = [f"--{k} {v}" for k, v in (("out", args.out), ("json", args.json)) if v]
+    return f" to {' or '.join(named)}" if named else ""
 
 
 def _check_dual_plan(cell: Any, q: Any, margin_deg: float) -> None:

@@ -128,8 +128,29 @@ def test_plan_dual_bad_inputs_write_nothing(tmp_path, capsys):
     assert_bad_input(capsys, ["plan-dual", "--path", str(tmp_path / "none.csv"), "--out", str(out)], "path file not found")
     # the gun at the workpiece frame's origin puts the arms into each other: infeasible, reported, not written
     assert_bad_input(capsys, ["plan-dual", "--relative-pose", "0,0,100,1,0,0,0", "--path", "sweep:3", "--no-compile",
-                  "--out", str(out)], "3 of 3 waypoints not solved, nothing written", "waypoint 0:", "collision")
+                  "--out", str(out)], "3 of 3 waypoints not solved (waypoints 0-2), nothing written to --out",
+                     "waypoint 0:", "collision")
     assert not out.exists()
+
+
+def test_plan_dual_with_some_waypoints_unsolved_names_them_and_writes_nothing(tmp_path, capsys):
+    """Waypoints 1 and 2 of 5 out of reach: the plan is refused whole (no --out, no --json, nothing half-written)
+    and the message says which waypoints failed, not only the first."""
+    from calibration import so3
+    from app.dual.paths import sweep_path
+    from app.dual.planner import DualPlanner, PlannerOptions
+
+    wp = sweep_path(DualPlanner(load_cell(), options=PlannerOptions(compile=False)), 5)
+    wp[1:3, :3, 3] += 1000.0  # the workpiece 1.7 m off the sweep: R1 cannot hold the gun to it
+    rows = ["x,y,z,qw,qx,qy,qz"] + [",".join(f"{v:.17g}" for v in np.r_[t[:3, 3], so3.R_to_quat(t[:3, :3])])
+                                    for t in wp]
+    (tmp_path / "path.csv").write_text("\n".join(rows) + "\n")
+    out, js = tmp_path / "plan.json", tmp_path / "s.json"
+    assert_bad_input(capsys, ["plan-dual", "--path", str(tmp_path / "path.csv"), "--no-compile", "--out", str(out),
+                              "--json", str(js)],
+                     f"2 of 5 waypoints not solved (waypoints 1-2), nothing written to --out {out} or --json {js}; "
+                     "first: waypoint 1: relative pose not reached")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["path.csv"]
 
 
 def test_export_and_preview_bad_inputs(tmp_path, planned, capsys):
