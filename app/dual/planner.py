@@ -54,7 +54,9 @@ class PlannerOptions:
         singular_zone: a penalty starts below this value of a measure.
         sigma_q_rad: smoothness scale (distance to the previous solution) [rad].
         track_sigma_mm, track_sigma_rad: how closely the workpiece follows its target pose [mm], [rad].
-        tol_mm, tol_rad: relative-pose tolerance; a result beyond it is not converged [mm], [rad].
+        tol_mm, tol_rad: relative-pose tolerance [mm], [rad]: the iteration stops only once it is met (or at
+            ``max_iter``), and a result beyond it is not converged; the residual is the gun's distance from the pose
+            the workpiece asks of it, in the cell frame, as the solver's equations measure it.
         step_tol_rad: the iteration stops when the step is below this [rad].
         max_iter: Newton iterations per waypoint.
         max_step_rad: largest joint step per iteration [rad].
@@ -102,6 +104,22 @@ def _eq_qp(H: np.ndarray, g: np.ndarray, J: np.ndarray, e: np.ndarray) -> np.nda
     if N.shape[1]:
         dq = dq + N @ np.linalg.solve(N.T @ H @ N, -N.T @ (g + H @ dq))
     return dq
+
+
+def _relative_residual(P: np.ndarray, T_wp_gun: np.ndarray) -> tuple[float, float]:
+    """How far the gun is from the pose the workpiece asks of it: position [mm] and angle [deg], from the
+    cell-frame ``poses`` of :meth:`DualPlanner.evaluate` (R1 column-major (9,), p1, R2, p2).
+
+    The gun's target is taken forward from the workpiece (``p2 + R2 p_wp_gun``, ``R2 R_wp_gun``) and compared in
+    the cell frame, as the solver's equations ``e`` do: the workpiece frame's rotation is not inverted, so a cell
+    file whose ``T_cell_base`` rotation is orthonormal only to its printed digits (the loader accepts 1e-5) does not
+    add its rounding times the gun's distance (~400 mm) to a residual the solver drove to zero.
+    """
+    Rg, pg, Rw, pw = P[:9].reshape(3, 3).T, P[9:12], P[12:21].reshape(3, 3).T, P[21:24]
+    R_des, p_des = Rw @ T_wp_gun[:3, :3], pw + Rw @ T_wp_gun[:3, 3]
+    res_mm = float(np.linalg.norm(pg - p_des))
+    res_deg = float(np.degrees(np.linalg.norm(so3.log(R_des.T @ Rg))))
+    return res_mm, res_deg
 
 
 class DualPlanner:
@@ -253,35 +271,46 @@ class DualPlanner:
         q_ref = q.copy() if q_ref is None else np.asarray(q_ref, dtype=float)
         o = self.options
         frozen = self.fks["R1"].frozen or self.fks["R2"].frozen
-        it = 0
-        for it in range(1, o.max_iter + 1):
+        it, done, ev = 0, False, None
+        while it < o.max_iter:
             ev = self.evaluate(q, T_wp_gun, T_cell_target)
+            if done and self._reached(*_relative_residual(ev["poses"], T_wp_gun)):
+                break  # the tolerance _check applies is met at q (else the iteration goes on, up to max_iter)
+            it += 1
             dq = self._step(q, q_ref, ev)
-            q = q + dq
-            small = np.abs(dq).max()
             e_mm, e_rad = np.linalg.norm(ev["e"][:3]), np.linalg.norm(ev["e"][3:])
+            q, ev = q + dq, None
+            small = np.abs(dq).max()
             if frozen:  # fixed point: the parameters move after the step, so require e small before it
-                done = e_mm < 0.1 * o.tol_mm and e_rad < 0.1 * o.tol_rad and small < 1e-5
+                if e_mm < 0.1 * o.tol_mm and e_rad < 0.1 * o.tol_rad and small < 1e-5:
+                    break
             else:  # e was small before this step; the (exact Newton) step makes it quadratically smaller
                 done = e_mm < 1e-3 and small < 1e-5
-            if done or small < o.step_tol_rad:
+            if small < o.step_tol_rad:
                 break
-        return self._check(q, T_wp_gun, T_cell_target, it, t0)
+        return self._check(q, T_wp_gun, T_cell_target, it, t0, ev)
+
+    def _reached(self, res_mm: float, res_deg: float) -> bool:
+        """Whether a relative-pose residual is within the tolerance (``tol_mm``, ``tol_rad``): the one test the
+        iteration stops on and the result is checked against."""
+        return res_mm <= self.options.tol_mm and res_deg <= np.degrees(self.options.tol_rad)
 
     def _check(self, q: np.ndarray, T_wp_gun: np.ndarray, T_cell_target: np.ndarray, it: int,
-               t0: float) -> WaypointResult:
+               t0: float, ev: dict[str, np.ndarray] | None = None) -> WaypointResult:
+        """The hard checks on the result ``q`` (``ev``: its :meth:`evaluate`, when the iteration has it)."""
         o = self.options
-        ev = self.evaluate(q, T_wp_gun, T_cell_target)
+        if ev is None:
+            ev = self.evaluate(q, T_wp_gun, T_cell_target)
         P = ev["poses"]
-        Rg, pg, Rw, pw = P[:9].reshape(3, 3).T, P[9:12], P[12:21].reshape(3, 3).T, P[21:24]
-        res_mm = float(np.linalg.norm(Rw.T @ (pg - pw) - T_wp_gun[:3, 3]))
-        res_deg = float(np.degrees(np.linalg.norm(so3.log(T_wp_gun[:3, :3].T @ Rw.T @ Rg))))
+        Rw, pw = P[12:21].reshape(3, 3).T, P[21:24]
+        res_mm, res_deg = _relative_residual(P, T_wp_gun)
         trk_mm = float(np.linalg.norm(pw - T_cell_target[:3, 3]))
         trk_deg = float(np.degrees(np.linalg.norm(so3.log(T_cell_target[:3, :3].T @ Rw))))
         clear, sing = float(ev["c"].min()), float(np.abs(ev["s"]).min())
         reasons = []
-        if res_mm > o.tol_mm or res_deg > np.degrees(o.tol_rad):
-            reasons.append(f"relative pose not reached ({res_mm:.3g} mm, {res_deg:.3g} deg)")
+        if not self._reached(res_mm, res_deg):
+            reasons.append(f"relative pose not reached: {res_mm:.3g} mm, {res_deg:.3g} deg off (tolerance "
+                           f"{o.tol_mm:.3g} mm, {np.degrees(o.tol_rad):.3g} deg)")
         bad = np.flatnonzero((q < self.lower - 1e-12) | (q > self.upper + 1e-12))
         if bad.size:
             reasons.append("joint limit: " + ", ".join(f"{'R1' if j < 6 else 'R2'} J{j % 6 + 1}" for j in bad))

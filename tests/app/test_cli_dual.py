@@ -153,6 +153,47 @@ def test_plan_dual_with_some_waypoints_unsolved_names_them_and_writes_nothing(tm
     assert sorted(p.name for p in tmp_path.iterdir()) == ["path.csv"]
 
 
+def test_plan_dual_on_a_cell_file_with_six_digit_rotations_reports_the_residual_the_solver_holds(tmp_path):
+    """A cell file whose R2 base rotation is printed to 6 decimals (orthonormal to ~1e-6, which the loader accepts):
+    the solver holds the gun's pose exactly in the cell frame, but the check measured it in the workpiece frame
+    through the transposed, not quite orthonormal rotation and reported every waypoint 'not reached' by its rounding
+    times the gun's distance (~1e-4 mm against the 1e-6 mm tolerance)."""
+    import re
+    import shutil
+
+    from calibration import so3
+    from calibration.models import ConstantModel
+    from cell_config import DEFAULT_CELL
+
+    shutil.copytree(DEFAULT_CELL.parent, tmp_path / "cell")
+    path = tmp_path / "cell" / DEFAULT_CELL.name
+    text = path.read_text()
+    head, r2 = text.split("  R2:", 1)
+    r2 = re.sub(r"-?0\.\d{9}", lambda m: f"{float(m.group(0)):.6f}", r2, count=9)  # the rotation's 9 entries
+    path.write_text(head + "  R2:" + r2)
+    cell = load_cell(path)
+    Rb = cell.robot("R2").T_cell_base[:3, :3]
+    assert 1e-7 < np.abs(Rb @ Rb.T - np.eye(3)).max() < 1e-5  # rounded, and still accepted
+    out, js = tmp_path / "plan.json", tmp_path / "s.json"
+    assert main(["plan-dual", "--cell", str(path), "--path", "sweep:4", "--no-compile", "--out", str(out),
+                 "--json", str(js)]) == 0
+    s = json.loads(js.read_text())
+    assert s["converged"] and s["max_residual_mm"] < 1e-6
+    plan = json.loads(out.read_text())
+    T_wp_gun = np.array(plan["T_wp_gun"])
+    pose = {}
+    for name in ("R1", "R2"):  # the arms' poses in the cell frame, from the numpy models
+        q = np.array([w[name] for w in plan["waypoints"]])
+        R, p = ConstantModel(name, "nominal", cell.robot(name).model()).fk(q)
+        T = cell.robot(name).T_cell_base
+        pose[name] = (T[:3, :3] @ R, p @ T[:3, :3].T + T[:3, 3])
+    (Rg, pg), (Rw, pw) = pose["R1"], pose["R2"]
+    gun_mm = np.linalg.norm(pg - (pw + Rw @ T_wp_gun[:3, 3]), axis=1)  # where the gun is vs where it is asked
+    gun_deg = np.degrees(np.linalg.norm(so3.log(np.swapaxes(Rw @ T_wp_gun[:3, :3], 1, 2) @ Rg), axis=1))
+    assert gun_mm.max() < 1e-6 and gun_deg.max() < 1e-6
+    np.testing.assert_allclose([w["residual_mm"] for w in plan["waypoints"]], gun_mm, atol=1e-9)
+
+
 def test_export_and_preview_bad_inputs(tmp_path, planned, capsys):
     plan = json.loads((planned / "plan.json").read_text())
     plan["waypoints"][1]["converged"] = False

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 
 import numpy as np
 import pytest
@@ -129,6 +130,9 @@ def test_unreachable_waypoint_is_reported_not_solved(nominal, tmp_path):
     plan = nominal.plan(sweep_path(nominal, 3), T_far, q0)
     assert not plan.converged and plan.failed == [0, 1, 2]
     assert all("relative pose not reached" in w.reason for w in plan.waypoints)
+    # the residual and the tolerance it missed, in the same units
+    assert all(re.search(r"not reached: [\d.e+-]+ mm, [\d.e+-]+ deg off \(tolerance 1e-06 mm, 5.73e-07 deg\)",
+                         w.reason) for w in plan.waypoints), plan.waypoints[0].reason
     out = tmp_path / "t.csv"
     with pytest.raises(UnsafeTarget, match="waypoint 0 was not solved"):
         write_targets(export_rows(plan, nominal.cell), out)
