@@ -123,9 +123,10 @@ class FitOptions:
             so it is not the default.
         pi_base_free: when True, pi's damping toward nominal acts on its parameters less their best rigid motion of
             the arm (:func:`base_free_prior`), so a base-frame (mocap-to-base) error costs the fit nothing. Off by
-            default: on the 8 R1 training recordings it lowers the held-out-cluster RMS on 6 days by at most 3 paired
-            standard errors, but worsens the step folds on 7 days and the q2-edge folds on all 8 by 0.003-0.013 mm
-            mean (``scripts/pi_base_frame.py``), so a registered base is a good prior there. On the synthetic twins a
+            default: on the 8 R1 training recordings its held-out-cluster RMS is lower on 5 days (by 1-5 paired
+            standard errors) and higher on 0627 before (by 5), and it worsens the mean of the step folds on 7 days and
+            of the q2-edge folds on all 8, by 0.002-0.013 mm (``scripts/pi_base_frame.py``), so a registered base is a
+            good prior there. Leaving only the base shift free does the same (0.003-0.013 mm on the q2 edges). On the synthetic twins a
             base off by 1.5 mm / 0.1 deg takes the damped pi from 0.26 to 0.74 mm and leaves the free one at 0.20
             (R1 seed 1). The frames-first fit of a recording the frame check finds off turns it on
             (:func:`calibration.frames.base_free`).
