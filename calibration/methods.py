@@ -126,7 +126,7 @@ class FitOptions:
             default: on the 8 R1 training recordings its held-out-cluster RMS is lower on 5 days (by 1-5 paired
             standard errors) and higher on 0627 before (by 5), and it worsens the mean of the step folds on 7 days and
             of the q2-edge folds on all 8, by 0.002-0.013 mm (``scripts/pi_base_frame.py``), so a registered base is a
-            good prior there. Leaving only the base shift free does the same (0.003-0.013 mm on the q2 edges). On the synthetic twins a
+            good prior there. On the synthetic twins a
             base off by 1.5 mm / 0.1 deg takes the damped pi from 0.26 to 0.74 mm and leaves the free one at 0.20
             (R1 seed 1). The frames-first fit of a recording the frame check finds off turns it on
             (:func:`calibration.frames.base_free`).
