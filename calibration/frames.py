@@ -44,7 +44,8 @@ REMOVED_SHARE = 0.5
 #: on those recordings the kinematic fits absorb that. A real registration error below the limits is not absorbed in
 #: full when the training poses hold the wrist still: on the synthetic twins of ``scripts/pi_registration.py`` a
 #: marker shifted 3 mm takes pi from 0.25 to 0.7 mm on poses that turn the wrist (``FitOptions.pi_registration_free``
-#: frees the marker's rotation by default, ``all`` its shift too), and a base off by 1.5 mm / 0.1 deg takes it to 0.6.
+#: frees the marker's rotation by default, ``all`` its shift too), and a base off by 1.5 mm / 0.1 deg takes it from 0.26 to 0.74 (R1 seed 1 of ``scripts/pi_base_frame.py``;
+#: ``FitOptions.pi_base_free`` undoes that, and the frames-first fit turns it on).
 SHIFT_LIMIT_MM = 5.0
 ANGLE_LIMIT_DEG = 0.45
 #: Share of a trained model's test mean a rigid frame fit on the test recording must remove to report a
@@ -264,7 +265,8 @@ class FramedFit:
 def framed(make_fitter: Any, nominal: KinematicModel, train: Recording,
            check: FrameCheck | None = None) -> tuple[Any, FrameCheck]:
     """``make_fitter(train)`` as is when the training recording has no frame problem, else a :class:`FramedFit`
-    around ``make_fitter(train with the frame at fault taken out)``; and the check (its message quotes what was
+    around ``make_fitter(train with the frame at fault taken out)`` (a fresh :class:`~calibration.methods.Fitter`,
+    its pi then left base-free by :func:`base_free`); and the check (its message quotes what was
     taken out).
 
     Only the frame found at fault is taken out (its own 6-DOF fit, the other frame held at identity), both only when
@@ -303,5 +305,11 @@ def base_free(fitter: Any) -> Any:
     than nls1 (R1 seed 3: 0.922 -> 0.832 mm mean for pi). Not the default of a recording that passes the check: on
     the shared training days' extrapolation folds the damped rigid part does better (``scripts/pi_base_frame.py``).
     """
-    return replace(fitter, options=replace(fitter.options, pi_base_free=True), _cache={})
+    from calibration.errors import ModelError
+    from calibration.methods import Fitter
+
+    if not isinstance(fitter, Fitter) or fitter._cache:
+        raise ModelError(f"the frames-first fit needs a fresh Fitter from make_fitter, got {type(fitter).__name__}"
+                         + (" that has fitted already" if isinstance(fitter, Fitter) else ""))
+    return replace(fitter, options=replace(fitter.options, pi_base_free=True))
 

@@ -156,6 +156,9 @@ class FitOptions:
         from calibration.physics_informed import check_registration_parts
 
         check_registration_parts(self.pi_registration_free, "pi_registration_free")
+        if self.pi_base_free and not self.fit_tool:
+            raise ModelError("pi_base_free needs fit_tool: without the flange-point shift the geometry cannot "
+                             "follow a rigid motion of the arm")
 
 
 @dataclass

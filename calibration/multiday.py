@@ -33,7 +33,7 @@ from typing import Any, Callable
 import numpy as np
 
 from calibration.errors import ModelError
-from calibration.frames import FramedFit, FrameFit, check_recording, fit_frames, take_out
+from calibration.frames import FramedFit, FrameFit, base_free, check_recording, fit_frames, take_out
 from calibration.metrics import errors
 from calibration.models.base import KinematicModel
 from calibration.models.constant import ConstantModel
@@ -194,6 +194,8 @@ def fit_days(make_fitter: Callable[[Recording], Any], nominal: KinematicModel, r
         others = [take_out(r, f.result.T_base_correction, f.result.T_tool_correction)
                   for r, f in zip(recs[1:], frames)]
         fitter = make_fitter(pool([fixed] + others))
+        if gauge is not None:  # as the frames-first fit of one recording: the rigid part of its pi left free
+            fitter = base_free(fitter)
         arm = fitter.fit(reference)[0]
     if gauge is not None:
         fitter = FramedFit(fitter, pool([recs[0]] + others), gauge, first)

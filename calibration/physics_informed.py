@@ -136,8 +136,9 @@ class ExtendedKinematics:
         ``J B = G`` over the poses q (N, 6) at nominal, G the pose change ``[dp; dtheta] = [v + w x p; w]``.
 
         Raises:
-            ModelError: the poses do not determine it (fewer than two distinct poses), or the geometric block does
-                not represent it (residual beyond rounding).
+            ModelError: the poses do not determine it (the Jacobian's columns of those blocks have a lower rank:
+                too few distinct poses), or those blocks do not represent it (without ``fit_tool`` the flange point
+                cannot follow the motion).
         """
         q = np.atleast_2d(np.asarray(q, dtype=float))
         _, p, J = self.jacobian(q, np.zeros(self.size))
@@ -148,6 +149,9 @@ class ExtendedKinematics:
         G[:, 3:, :3] = np.eye(3)
         A, b = J[:, :, :n].reshape(-1, n), G.reshape(-1, 6)
         sol, _, rank, _ = np.linalg.lstsq(A, b, rcond=None)
+        if rank < n:
+            raise ModelError(f"{q.shape[0]} poses do not determine the rigid motion of the arm's parameters (rank "
+                             f"{rank} of {n}); give more distinct poses")
         misfit = np.linalg.norm(A @ sol - b) / np.linalg.norm(b)
         if misfit > 1e-6:
             raise ModelError(f"the geometric parameters do not represent a rigid motion of the arm on these "

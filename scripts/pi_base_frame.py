@@ -5,11 +5,11 @@
 :func:`calibration.methods.base_free_prior`; :meth:`ExtendedKinematics.base_motion` gives the 6 directions), so a
 mocap-to-base registration error costs the fit nothing. Printed, for both:
 
-- **twins** (``--twins``): the synthetic arms of ``scripts/bench_frames.py`` (planted geometry and joint
+- **twins** (unless ``--no-twins``): the synthetic arms of ``scripts/bench_frames.py`` (planted geometry and joint
   compliance; training on clusters with joints 1, 4, 5, 6 within 3 deg, held-out poses that move every joint
   widely), with the base frame off by each ``--errors`` size (mm/deg: within what the frame check lets through),
   fitted as is: nls1 and pi both ways, held-out position mean / max [mm], on both arms;
-- **training days** (``--days``): on every R1 training recording of ``../shared/data/welding_motoman/PH_grad_data``
+- **training days** (unless ``--no-days``; ``--days`` picks them): on every R1 training recording of ``../shared/data/welding_motoman/PH_grad_data``
   (no test recording is read), pi both ways scored on clusters held out from training (the 5 folds of the
   recommendation: RMS [mm], and the paired standard error of the difference over clusters), and on the three
   extrapolation folds of ``scripts/extrapolation_folds.py`` (the q1/q4-q6 steps, the q2 edges, the q3 edges held

@@ -114,8 +114,7 @@ class GeometricProblem:
         if self.basis.shape[0] != m:
             raise ModelError(f"basis must have {m} rows, got {self.basis.shape}")
         self.prior_weight = None if prior_weight is None else np.asarray(prior_weight, dtype=float)
-        if self.prior_weight is not None and (self.prior_weight.ndim not in (1, 2) or self.prior_weight.shape[-1] != m
-                                              or (self.prior_weight.ndim == 1 and self.prior_weight.shape != (m,))):
+        if self.prior_weight is not None and (self.prior_weight.ndim not in (1, 2) or self.prior_weight.shape[-1] != m):
             raise ModelError(f"prior_weight must be ({m},) or (p, {m}), got {self.prior_weight.shape}")
         x_ref = np.zeros(m) if x_ref is None else np.asarray(x_ref, dtype=float)
         self.x_ref = np.broadcast_to(x_ref, (self.n_groups, m)).copy()
@@ -136,7 +135,7 @@ class GeometricProblem:
         return self.prior_weight * (x - self.x_ref)
 
     def residuals(self, z: np.ndarray) -> Residuals:
-        """Weighted residual rows (N, 6) and prior residuals (G, m) at z (G, k)."""
+        """Weighted residual rows (N, 6) and prior residuals (G, p) at z (G, k): p = m, or the prior matrix's rows."""
         x = self.parameters(z)
         R, p = self.kin.pose(self.q, x[self.sample_group])
         return Residuals(weighted_residuals(self.R_meas, self.p_meas, R, p, self.w_rot)[0], self._prior(x))

@@ -213,12 +213,52 @@ def test_a_prior_matrix_is_the_prior_its_diagonal_weights_give():
     truth = par.model(planted_parameters(par, 1, 0.5, 5e-4))
     q, cluster = cluster_design(step_deg=15.0)
     rec = measure(truth.fk, q, 0.02, 0.01, 1, cluster)
-    w = np.random.default_rng(1).uniform(0.1, 2.0, par.size)
+    rng = np.random.default_rng(1)
+    w = rng.uniform(0.1, 2.0, par.size)
     by_vector = GeometricProblem(par, rec.q, rec.R, rec.p, prior_weight=w).solve().x
     by_matrix = GeometricProblem(par, rec.q, rec.R, rec.p, prior_weight=np.diag(w)).solve().x
     np.testing.assert_allclose(by_matrix, by_vector, atol=1e-9)
+    # a non-square, non-symmetric matrix with a basis: the prior residual is W (x - x_ref), its Jacobian W basis
+    W, basis, x_ref = rng.normal(size=(5, par.size)), rng.normal(size=(par.size, 4)), rng.normal(size=par.size)
+    problem = GeometricProblem(par, rec.q, rec.R, rec.p, prior_weight=W, basis=basis, x_ref=x_ref)
+    z = rng.normal(size=(1, 4)) * 1e-3
+    lin = problem.linearise(z)
+    np.testing.assert_allclose(lin.residuals.prior[0], W @ (basis @ z[0]), atol=1e-12)
+    np.testing.assert_allclose(lin.J_prior, W @ basis, atol=1e-12)
     with pytest.raises(ModelError, match=r"prior_weight must be \(27,\) or \(p, 27\)"):
         GeometricProblem(par, rec.q, rec.R, rec.p, prior_weight=np.ones((3, 5)))
+
+
+def test_the_base_free_prior_ignores_a_rigid_motion_and_damps_the_rest_as_before():
+    """|W P x| is |w * (x - B xi)| at the xi that minimises it, in the prior's own weights (not unit ones: the
+    parameters mix mm and rad)."""
+    from calibration.methods import base_free_prior
+    from calibration.physics_informed import ExtendedKinematics
+
+    kin = ExtendedKinematics(MinimalParameterisation(load_cell().robot("R1").model(), fit_tool=True))
+    B = kin.base_motion(np.random.default_rng(0).uniform(-1.0, 1.0, (40, 6)))
+    rng = np.random.default_rng(2)
+    w = rng.uniform(0.1, 10.0, kin.size)
+    M = base_free_prior(w, B)
+    np.testing.assert_allclose(M @ B, 0.0, atol=1e-9 * np.abs(w[:, None] * B).max())
+    x = rng.normal(size=kin.size) * 1e-3
+    xi = np.linalg.lstsq(w[:, None] * B, w * x, rcond=None)[0]
+    np.testing.assert_allclose(M @ x, w * (x - B @ xi), atol=1e-12)
+    assert np.linalg.norm(M @ x) < np.linalg.norm(w * x)  # a rigid part taken out of a random x
+
+
+def test_a_base_free_pi_is_refused_where_it_cannot_be_built():
+    from calibration.errors import ModelError
+    from calibration.frames import base_free
+    from calibration.physics_informed import ExtendedKinematics
+
+    with pytest.raises(ModelError, match="pi_base_free needs fit_tool"):
+        FitOptions(pi_base_free=True, fit_tool=False)
+    kin = ExtendedKinematics(MinimalParameterisation(load_cell().robot("R1").model(), fit_tool=True))
+    with pytest.raises(ModelError, match=r"3 poses do not determine the rigid motion"):
+        kin.base_motion(np.zeros((3, 6)))
+    with pytest.raises(ModelError, match="needs a fresh Fitter from make_fitter, got str"):
+        base_free("not a fitter")
 
 
 def _pi_mean(train, test, base_free: bool) -> float:

@@ -101,3 +101,15 @@ def test_the_summary_relates_the_accuracy_and_the_significance_verdicts(ratios, 
     text = MultiDayFit(None, days, "pi", diff).summary()
     assert text.count("Accuracy:") == 1 and text.count("Significance:") == 1
     assert (says in text) if says else "Both hold" not in text
+
+
+def test_a_first_recording_off_by_a_frame_gives_a_base_free_pooled_fit(days, r1_nominal):
+    """As the frames-first fit of one recording (calibration.frames.base_free): the pooled fit behind a first
+    recording the frame check finds off leaves its pi's rigid part free; one that passes keeps the damped pi."""
+    from calibration.frames import FramedFit
+
+    T_far = make_T(so3.exp(np.radians(1.0) * np.array([0.6, -0.8, 0.0])), np.array([12.0, -8.0, 5.0]))
+    off = [put_in(days[0], T_far, np.eye(4)), days[1]]
+    fit = _fit(off, r1_nominal)
+    assert isinstance(fit.fitter, FramedFit) and fit.fitter.inner.options.pi_base_free
+    assert not _fit(days[:2], r1_nominal).fitter.options.pi_base_free
