@@ -4,11 +4,12 @@ BIN := $(VENV)/bin
 
 .PHONY: test demo clean
 
-# The venv is rebuilt whenever pyproject.toml changes.
-$(VENV): pyproject.toml
+# The venv is rebuilt whenever pyproject.toml or constraints.txt changes. constraints.txt pins every package to the
+# versions the figures in the notes were measured with: a fresh install of other versions changed a diagnosis.
+$(VENV): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e '.[dev]'
+	$(BIN)/pip install --quiet -c constraints.txt -e '.[dev]'
 	touch $(VENV)
 
 # On every core (pytest-xdist): whole modules per worker, the longest first (tests/conftest.py says why).
