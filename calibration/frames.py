@@ -44,8 +44,9 @@ REMOVED_SHARE = 0.5
 #: on those recordings the kinematic fits absorb that. A real registration error below the limits is not absorbed in
 #: full when the training poses hold the wrist still: on the synthetic twins of ``scripts/pi_registration.py`` a
 #: marker shifted 3 mm takes pi from 0.25 to 0.7 mm on poses that turn the wrist (``FitOptions.pi_registration_free``
-#: frees the marker's rotation by default, ``all`` its shift too), and a base off by 1.5 mm / 0.1 deg takes it from 0.26 to 0.74 (R1 seed 1 of ``scripts/pi_base_frame.py``;
-#: ``FitOptions.pi_base_free`` undoes that, and the frames-first fit turns it on).
+#: frees the marker's rotation by default, ``all`` its shift too), and a base off by 1.5 mm / 0.1 deg takes it from
+#: 0.26 to 0.74 (R1 seed 1 of ``scripts/pi_base_frame.py``; ``FitOptions.pi_base_free`` undoes that, and the
+#: frames-first fit turns it on).
 SHIFT_LIMIT_MM = 5.0
 ANGLE_LIMIT_DEG = 0.45
 #: Share of a trained model's test mean a rigid frame fit on the test recording must remove to report a

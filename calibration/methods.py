@@ -126,9 +126,8 @@ class FitOptions:
             default: on the 8 R1 training recordings its held-out-cluster RMS is lower on 5 days (by 1-5 paired
             standard errors) and higher on 0627 before (by 5), and it worsens the mean of the step folds on 7 days and
             of the q2-edge folds on all 8, by 0.002-0.013 mm (``scripts/pi_base_frame.py``), so a registered base is a
-            good prior there. On the synthetic twins a
-            base off by 1.5 mm / 0.1 deg takes the damped pi from 0.26 to 0.74 mm and leaves the free one at 0.20
-            (R1 seed 1). The frames-first fit of a recording the frame check finds off turns it on
+            good prior there. On the synthetic twins a base off by 1.5 mm / 0.1 deg takes the damped pi from 0.26 to
+            0.74 mm and leaves the free one at 0.20 (R1 seed 1). The frames-first fit of a recording the frame check finds off turns it on
             (:func:`calibration.frames.base_free`).
         seed: random seed of the neural interpolators.
         epoch_progress: called as ``epoch_progress(epoch, n_epochs)`` after each training epoch of the neural
@@ -225,7 +224,7 @@ class Fitter:
             prior = filter_weights(obs)
             prior[kin.registration_mask(self.options.pi_registration_free)] = 0.0
             if self.options.pi_base_free:
-                prior = base_free_prior(prior, kin.base_motion(self.train.q))
+                prior = base_free_prior(prior, kin.base_motion())
             res = GeometricProblem(kin, self.train.q, self.train.R, self.train.p, a=self.options.a,
                                    prior_weight=prior).solve(z0)
             if not res.converged.all():

@@ -126,21 +126,24 @@ class ExtendedKinematics:
             mask[block_slice("tool", self.par.size)] = True
         return mask
 
-    def base_motion(self, q: np.ndarray) -> np.ndarray:
+    def base_motion(self, q: np.ndarray | None = None) -> np.ndarray:
         """The parameter changes (size, 6) that move the whole arm rigidly in the measurement frame, as a small
         error of the base frame (mocap to robot base) would: column k for the k-th component of ``(w, v)``, a
         rotation w [rad] of the arm about the measurement frame's origin, then a shift v [mm].
 
         The minimal POE represents such a motion exactly (every joint line moves with it, the flange point and the
         tool rotation follow), in the geometric block and the tool rotation alone; found by least squares of
-        ``J B = G`` over the poses q (N, 6) at nominal, G the pose change ``[dp; dtheta] = [v + w x p; w]``.
+        ``J B = G`` over the poses q (N, 6) at nominal, G the pose change ``[dp; dtheta] = [v + w x p; w]``. B does
+        not depend on the poses, so by default they are 40 generic ones (seeded, within 1 rad of zero), not a
+        recording's: a training recording that barely moves some joints would make the least squares ill-posed.
 
         Raises:
             ModelError: the poses do not determine it (the Jacobian's columns of those blocks have a lower rank:
                 too few distinct poses), or those blocks do not represent it (without ``fit_tool`` the flange point
                 cannot follow the motion).
         """
-        q = np.atleast_2d(np.asarray(q, dtype=float))
+        q = np.random.default_rng(0).uniform(-1.0, 1.0, (40, self.par.n_joints)) if q is None else \
+            np.atleast_2d(np.asarray(q, dtype=float))
         _, p, J = self.jacobian(q, np.zeros(self.size))
         n = self.par.size + len(TOOL_NAMES)
         G = np.zeros((q.shape[0], 6, 6))
