@@ -155,6 +155,16 @@ class CellCapsules:
                              other_segs[None, None, :, 1])
         return d - self.radii(robot)[None, :, None] - self.radii(other)[None, None, :]
 
+    def paired_gaps(self, robot: str, segs: np.ndarray, other: str, other_segs: np.ndarray) -> np.ndarray:
+        """:meth:`gaps` pose by pose: ``robot`` at sample k against ``other`` at the same sample [mm], (N, 6, 6).
+
+        Args:
+            segs, other_segs: the two arms' capsules, shape (N, 6, 2, 3) each [mm].
+        """
+        d = segment_distance(segs[:, :, None, 0], segs[:, :, None, 1], other_segs[:, None, :, 0],
+                             other_segs[:, None, :, 1])
+        return d - self.radii(robot)[None, :, None] - self.radii(other)[None, None, :]
+
     def floor_gaps(self, robot: str, segs: np.ndarray, names: Sequence[str] = FLOOR_CHECKED) -> np.ndarray:
         """Height of the named capsules' lowest surface point above the floor [mm], shape (N, len(names))."""
         cols = [SEGMENTS.index(s) for s in names]

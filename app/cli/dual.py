@@ -96,8 +96,7 @@ def _check_dual_plan(cell: Any, q: Any, margin_deg: float) -> None:
     from app.cell.safety import CellSafety, SafetyConfig
 
     safety = CellSafety(cell, SafetyConfig(joint_margin_deg=margin_deg, process_zone=PROCESS_ZONE))
-    for i in range(len(q)):
-        safety.check_dual_motion(q[max(i - 1, 0)], q[i], i)
+    safety.check_dual_path(q)
 
 
 def _model_sets(specs: list[str] | None, cell: Any) -> dict[str, dict[str, Any]]:

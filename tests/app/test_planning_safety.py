@@ -137,6 +137,52 @@ def test_the_path_is_checked_not_only_the_target(cell):
         safety.check_motion("R1", start, end, others, index=0)
 
 
+def _loop_outcome(safety, q):
+    """What the move-by-move check says of a dual plan: None, or the UnsafeTarget's message."""
+    try:
+        for i in range(len(q)):
+            safety.check_dual_motion(q[max(i - 1, 0)], q[i], i)
+    except UnsafeTarget as e:
+        return str(e)
+    return None
+
+
+def test_the_batched_dual_path_check_refuses_exactly_what_the_move_by_move_check_refuses(cell, monkeypatch):
+    from app.cell.capsules import PROCESS_ZONE
+
+    safety = CellSafety(cell, SafetyConfig(process_zone=PROCESS_ZONE))
+    rng = np.random.default_rng(3)
+    centre = np.concatenate([np.radians([0, 10, -10, 0, -30, 0]), np.radians([0, 10, -10, 0, -30, 0])])
+    reaching = np.concatenate([np.radians([-10, 70, 60, 0, 0, 0]), np.radians([0, 40, 0, 0, 0, 0])])  # arms close
+    outcomes = []
+    for middle, spread_deg in [(centre, s) for s in (2, 10, 25, 45, 70)] + [(reaching, s) for s in (3, 8, 15)]:
+        for _ in range(8):  # from mostly safe plans to mostly unsafe ones
+            q = middle + np.radians(rng.normal(0, spread_deg, (6, 12)))
+            expected = _loop_outcome(safety, q)
+            try:
+                safety.check_dual_path(q)
+                got = None
+            except UnsafeTarget as e:
+                got = str(e)
+            assert got == expected, (spread_deg, got, expected)
+            outcomes.append(expected)
+    assert outcomes.count(None) >= 5 and len(outcomes) - outcomes.count(None) >= 5  # both kinds were tried
+    for kind in ("too close to R", "too close to the floor", "joint"):  # every check was reached
+        assert any(m and kind in m for m in outcomes), kind
+    # non-finite and out-of-limit waypoints too
+    for bad in (np.nan, np.inf, math.radians(400)):
+        q = np.stack([centre, centre.copy()])
+        q[1, 8] = bad
+        with pytest.raises(UnsafeTarget) as e:
+            safety.check_dual_path(q)
+        assert str(e.value) == _loop_outcome(safety, q)
+    # a safe plan is settled by the batched screen alone: not one move-by-move check
+    safe = next(centre + np.radians(rng.normal(0, 2, (6, 12))) for _ in iter(int, 1))
+    assert _loop_outcome(safety, safe) is None
+    monkeypatch.setattr(CellSafety, "check_dual_motion", lambda *a, **k: pytest.fail("screen not used"))
+    safety.check_dual_path(safe)
+
+
 def test_dual_motion_checks_both_arms_together_and_leaves_only_the_process_zone(cell):
     from app.cell.capsules import PROCESS_ZONE, SEGMENTS
     from app.cli.dual import _check_dual_plan
