@@ -158,18 +158,61 @@ def fitter_from_args(args: argparse.Namespace) -> Any:
 OUTPUT_FILE_OPTIONS = ("out", "json", "html")
 
 
+#: Options that name files a command reads (``--models`` as ``R1=FILE,R2=FILE``, ``--model`` also as ``R2=FILE``;
+#: ``--cell`` is the packaged cell when left out).
+INPUT_FILE_OPTIONS = ("train", "test", "cpa", "data", "model", "models", "joints", "plan", "job", "relative_pose",
+                      "path", "cell", CELL_AFTER)
+
+
 def check_output_args(args: argparse.Namespace) -> None:
-    """Refuse an empty, symlink, device, FIFO or folder output path before any work, so nothing is written.
+    """Refuse an empty, symlink, device, FIFO or folder output path before any work, so nothing is written; and an
+    output that is one of the command's input files or another of its outputs (``fit --train r.csv --out r.csv``
+    replaced the recording with the model, ``--json`` equal to ``--out`` the model with its summary).
 
     Raises:
         OutputError: the first such ``--out``/``--json``/``--html`` path.
     """
-    from calibration.files import check_output_path
+    import os
 
+    from calibration.files import check_output_path
+    from calibration.errors import OutputError
+
+    outputs: list[tuple[str, str]] = []
     for name in OUTPUT_FILE_OPTIONS:
         value = getattr(args, name, None)
         if isinstance(value, str) and not (name == "out" and args.command == "demo"):
             check_output_path(value)
+            outputs.append((name, value))
+    inputs = [(name, path) for name in INPUT_FILE_OPTIONS for path in _named_files(getattr(args, name, None))]
+    if hasattr(args, CELL_AFTER) and not args.cell:  # the command reads the packaged cell
+        from cell_config import DEFAULT_CELL
+
+        inputs.append(("cell", str(DEFAULT_CELL)))
+    for i, (name, value) in enumerate(outputs):
+        clash = next(((other, "output") for other, path in outputs[:i]
+                      if os.path.realpath(path) == os.path.realpath(value)), None)
+        if clash is None and os.path.exists(value):
+            clash = next(((other, "input") for other, path in inputs
+                          if os.path.exists(path) and os.path.samefile(value, path)), None)
+        if clash is not None:
+            raise OutputError(value, f"--{name} is also the --{_option(clash[0])} {clash[1]}; refusing to "
+                                     f"overwrite it (give --{name} another file)")
+
+
+def _option(dest: str) -> str:
+    """The option a parser destination comes from (``cell_after_command`` is ``--cell``)."""
+    return "cell" if dest == CELL_AFTER else dest.replace("_", "-")
+
+
+def _named_files(value: Any) -> list[str]:
+    """The file paths an input option's value names: itself, each of a list, and the FILEs of ``NAME=FILE,...``."""
+    values = value if isinstance(value, (list, tuple)) else [value]
+    paths: list[str] = []
+    for v in values:
+        if isinstance(v, str) and v:
+            paths.append(v)
+            paths += [part.split("=", 1)[1] for part in v.split(",") if "=" in part]
+    return paths
 
 
 def show_progress(args: argparse.Namespace) -> bool:

@@ -62,9 +62,7 @@ def cmd_compensate_job(args: argparse.Namespace) -> int:
     from calibration.errors import DataError
     from calibration.files import atomic_write_bytes
 
-    out = _output_path(args.out, "--out")
-    if out.exists() and out.resolve() == Path(args.job).resolve():
-        raise DataError(args.out, None, None, "--out must differ from --job (the input is never overwritten)")
+    out = _output_path(args.out, "--out")  # --out equal to --job: refused by app.cli.common.check_output_args
     if args.json is not None:
         _output_path(args.json, "--json")
     cell = cell_spec(args)

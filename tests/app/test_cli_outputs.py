@@ -71,3 +71,33 @@ def test_a_failed_plan_write_leaves_the_old_plan_whole_and_no_temporary(tmp_path
                      "plan.json: cannot write (No space left on device)")
     monkeypatch.undo()
     assert path.read_bytes() == before and os.listdir(tmp_path) == ["plan.json"]
+
+
+def test_an_output_that_is_an_input_or_another_output_is_refused_and_nothing_changes(tmp_path, capsys):
+    # fit --out equal to --train replaced the recording with the model, --json equal to --out the model with its
+    # summary, plan --out the packaged cell.yaml (read when --cell is left out)
+    from cell_config import DEFAULT_CELL
+
+    plan = tmp_path / "plan.json"
+    assert main(PLAN + [str(plan)]) == 0
+    joints = tmp_path / "q.csv"
+    joints.write_text("q1,q2,q3,q4,q5,q6\n0,0,0,0,0,0\n")
+    cell_before = DEFAULT_CELL.read_bytes()
+    try:
+        assert_bad_input(capsys, PLAN + [str(DEFAULT_CELL)], "cell.yaml: --out is also the --cell input",
+                         "refusing to overwrite it")
+    finally:
+        written = DEFAULT_CELL.read_bytes()
+        DEFAULT_CELL.write_bytes(cell_before)  # never leave the packaged cell replaced, even when the test fails
+    assert written == cell_before
+    before = {p: p.read_bytes() for p in (plan, joints)}
+    assert_bad_input(capsys, PLAN + [str(plan), "--json", str(tmp_path / "." / "plan.json")],
+                     "--json is also the --out output")
+    assert_bad_input(capsys, PLAN + [str(tmp_path / "new.json"), "--json", str(tmp_path / "new.json")],
+                     "new.json: --json is also the --out output")
+    assert_bad_input(capsys, ["predict", "--model", str(plan), "--joints", str(joints), "--out", str(joints)],
+                     "q.csv: --out is also the --joints input")
+    assert_bad_input(capsys, ["plan-dual", "--models", f"R1={plan}", "--out", str(plan)],
+                     "--out is also the --models input")
+    assert {p: p.read_bytes() for p in (plan, joints)} == before
+    assert sorted(os.listdir(tmp_path)) == ["plan.json", "q.csv"]

@@ -302,7 +302,8 @@ def test_bad_model_arguments_exit_2(cell, tmp_path, capsys):
     assert_bad_input(capsys, base + ["--model", f"R1={r2}"], "fitted for R2", "R1")
     assert_bad_input(capsys, base + ["--model", str(binary)], str(binary))
     assert_bad_input(capsys, base + ["--model", f"R3={r2}"], "R3", "valid: R1, R2")
-    assert_bad_input(capsys, base + ["--model", str(r2), "--out", str(job)], "--out must differ from --job")
+    assert_bad_input(capsys, base + ["--model", str(r2), "--out", str(job)],
+                     "--out is also the --job input; refusing to overwrite it")
     assert_bad_input(capsys, base + ["--model", str(r2), "--out", str(job / "OUT.JBI")], "lies under a file")
     assert_bad_input(capsys, base + ["--model", str(r2), "--json", str(tmp_path)], str(tmp_path), "folder")
     assert_bad_input(capsys, base + ["--model", str(r2), "--out", ""], "empty")
