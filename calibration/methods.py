@@ -154,6 +154,9 @@ class FitOptions:
     def __post_init__(self) -> None:
         from calibration.physics_informed import check_registration_parts
 
+        if not (np.isfinite(self.a) and self.a >= 0):  # NaN or inf crashed the observability SVD with a traceback
+            raise ModelError(f"orientation weight a (--a) must be a finite number >= 0 (1641: 1 mm ~ 1 deg), "
+                             f"got {self.a:g}")
         check_registration_parts(self.pi_registration_free, "pi_registration_free")
         if self.pi_base_free and not self.fit_tool:
             raise ModelError("pi_base_free needs fit_tool: without the flange-point shift the geometry cannot "

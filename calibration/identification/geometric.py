@@ -39,8 +39,8 @@ DEFAULT_ORIENTATION_WEIGHT = 1641.0
 
 def rotation_residual_scale(a: float) -> float:
     """Factor applied to rotation-vector residuals [rad] so that their square carries weight ``a``."""
-    if a < 0:
-        raise ModelError(f"orientation weight a must be >= 0, got {a}")
+    if not (np.isfinite(a) and a >= 0):
+        raise ModelError(f"orientation weight a must be a finite number >= 0, got {a}")
     return float(np.sqrt(2.0 * a))
 
 

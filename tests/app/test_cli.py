@@ -86,6 +86,17 @@ def test_bad_inputs_exit_2_and_write_nothing(tmp_path, data, capsys):
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
 
 
+@pytest.mark.parametrize("a", ["nan", "inf", "-5"])
+def test_an_orientation_weight_that_is_not_finite_and_non_negative_is_refused(tmp_path, data, capsys, a):
+    # --a nan and --a inf crashed the observability SVD with a traceback (exit 1); nominal took --a -5 silently
+    out, js = tmp_path / "m.yaml", tmp_path / "m.json"
+    for command, method in (("fit", ["--method", "nominal", "--out", str(out)]),
+                            ("compare", ["--test", str(data / "test.csv"), "--methods", "nls1"])):
+        assert_bad_input(capsys, [command, "--robot", "R1", "--train", str(data / "train.csv"), "--a", a, *method,
+                                  "--json", str(js)], "orientation weight a (--a) must be a finite number >= 0")
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_predict_rejects_bad_joint_file(tmp_path, data, capsys):
     model = tmp_path / "m.json"
     assert main(["fit", "--robot", "R1", "--train", str(data / "train.csv"), "--method", "nls1",
