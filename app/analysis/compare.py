@@ -99,6 +99,8 @@ def _run_comparison(fitter: Fitter, test: Recording, methods: list[str] | tuple[
         model, seconds = fitter.fit(method)
         log.info("%s fitted in %.3f s", method, seconds)
         out.add(method, model, seconds, fitter.train, test)
+    if not out.models:  # the recommendation's "no method has held-out errors" did not say why
+        raise ModelError("no method to compare: " + "; ".join(f"{m} skipped: {why}" for m, why in out.skipped.items()))
     for rows in (out.models, out.fit_seconds, out.train_errors, out.test_errors):
         fitted = dict(rows)
         rows.clear()

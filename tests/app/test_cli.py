@@ -97,6 +97,15 @@ def test_an_orientation_weight_that_is_not_finite_and_non_negative_is_refused(tm
     assert list(tmp_path.iterdir()) == []
 
 
+def test_compare_of_only_cpa_without_sweeps_says_why_and_writes_nothing(tmp_path, data, capsys):
+    # it said "no method has held-out errors to choose from; fitted: none"
+    js, report = tmp_path / "c.json", tmp_path / "report"
+    assert_bad_input(capsys, ["compare", "--robot", "R1", "--train", str(data / "train.csv"), "--test",
+                              str(data / "test.csv"), "--methods", "cpa", "--json", str(js), "--report", str(report)],
+                     "no method to compare: cpa skipped: no single-joint sweep data given (--cpa DATA)")
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_predict_rejects_bad_joint_file(tmp_path, data, capsys):
     model = tmp_path / "m.json"
     assert main(["fit", "--robot", "R1", "--train", str(data / "train.csv"), "--method", "nls1",
