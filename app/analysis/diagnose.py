@@ -69,6 +69,12 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
     else:
         rec = read_recording(paths[0], *limits)
     ho = read_recording(heldout, *limits) if heldout is not None else None
+    from app.analysis.fitting import refuse_another_arms
+
+    if days is None:  # another arm's recording is refused, as fit does (several recordings: by _days)
+        refuse_another_arms(cr, rec)
+    if ho is not None:
+        refuse_another_arms(cr, ho, "test recording")
     try:
         gravity = GravityModel.from_spec(spec, nominal)
     except ModelError as e:

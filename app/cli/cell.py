@@ -87,6 +87,7 @@ def _check_noise(noise_mm: float) -> None:
 
 
 def cmd_select(args: argparse.Namespace) -> int:
+    from app.analysis.fitting import refuse_another_arms
     from app.cell.design_plan import check_budget, figures_table
     from app.cli.common import read_recording_arg
     from calibration.design import select_recording
@@ -95,6 +96,7 @@ def cmd_select(args: argparse.Namespace) -> int:
 
     robot = cell_spec(args).robot(args.robot)
     rec = read_recording_arg(args.data, robot)
+    refuse_another_arms(robot, rec)  # another arm's clusters would be chosen by this arm's Jacobian
     n_clusters = len(set(rec.clusters().tolist()))
     check_budget(args.budget, n_clusters, unit="clusters")
     _check_noise(args.noise_mm)

@@ -99,6 +99,8 @@ def test_another_arms_recording_is_refused_not_called_a_frame_error(tmp_path, ca
     q, cluster = cluster_design(step_deg=15.0)
     r2 = tmp_path / "r2.csv"
     write_recording(measure(cell.robot("R2").model().fk, q, 0.02, 0.01, 1, cluster), r2)  # R2's poses
+    r1 = tmp_path / "r1.csv"
+    write_recording(measure(cell.robot("R1").model().fk, q, 0.02, 0.01, 1, cluster), r1)
     r1_model = tmp_path / "r1.yaml"
     save_model(ConstantModel("R1", "nominal", cell.robot("R1").model(), 0, {}), r1_model)
     out = tmp_path / "out.yaml"
@@ -107,7 +109,13 @@ def test_another_arms_recording_is_refused_not_called_a_frame_error(tmp_path, ca
                  ["fit", "--robot", "R1", "--train", str(r2), "--train", str(r2), "--method", "nls1",
                   "--out", str(out)],
                  ["evaluate", "--model", str(r1_model), "--test", str(r2), "--json", str(out)],
-                 ["rebase", "--robot", "R1", "--model", str(r1_model), "--data", str(r2), "--out", str(out)]):
+                 ["rebase", "--robot", "R1", "--model", str(r1_model), "--data", str(r2), "--out", str(out)],
+                 # diagnose and select took another arm's recording (held-out RMS 385 mm, a subset chosen by R1's
+                 # Jacobian), exit 0
+                 ["diagnose", "--robot", "R1", "--train", str(r2), "--json", str(out)],
+                 ["diagnose", "--robot", "R1", "--train", str(r1), "--test", str(r2),
+                  "--json", str(out)],
+                 ["select", "--robot", "R1", "--data", str(r2), "--budget", "3", "--out", str(out)]):
         assert_bad_input(capsys, argv, str(r2), "not R1's poses", "the wrong --robot")
     assert sorted(p.name for p in tmp_path.iterdir()) == before
 
