@@ -11,6 +11,9 @@ from app.cli.common import add_report_options, cell_spec, command_line, epoch_ba
     tolerance_from_args, write_json
 from calibration.errors import CellCalError
 
+#: The anchor-grid steps ``plan --q2-step/--q3-step`` and ``demo --anchor-step`` accept [deg].
+MIN_GRID_STEP_DEG, MAX_GRID_STEP_DEG = 0.5, 90.0
+
 
 def _load_plan(path: str, robot: str) -> Any:
     from app.cell.plan_file import read_plan
@@ -40,6 +43,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
     robot = cell.robot(args.robot)
     others = {n: park_q(n) for n in cell.robots if n != args.robot}
     safety = CellSafety(cell)
+    for option, step in (("--q2-step", args.q2_step), ("--q3-step", args.q3_step)):
+        _check_grid_step(option, step)
     spec = PlanSpec(q2_step_deg=args.q2_step, q3_step_deg=args.q3_step, cpa=args.cpa,
                     n_validation=args.validation, seed=args.seed)
     anchors, figs = None, None
@@ -79,6 +84,13 @@ def _optimal_anchors(args: argparse.Namespace, robot: Any, safety: Any, others: 
         DesignSpec(budget=args.budget, noise_mm=args.noise_mm, seed=args.seed)
     return optimal_plan(args.robot, MinimalParameterisation(robot.model(), fit_tool=True), safety, others, spec,
                         q_start)
+
+
+def _check_grid_step(option: str, step_deg: float) -> None:
+    """Refuse an anchor-grid step outside [0.5, 90] deg (the demo's ``--anchor-step`` range): 0 and NaN were
+    refused naming the internal key ``q2_range_deg/steps`` and not the value, inf gave a one-row grid."""
+    if not MIN_GRID_STEP_DEG <= step_deg <= MAX_GRID_STEP_DEG:
+        raise CellCalError(f"{option} must be in [{MIN_GRID_STEP_DEG:g}, {MAX_GRID_STEP_DEG:g}] deg, got {step_deg:g}")
 
 
 def _check_noise(noise_mm: float) -> None:
@@ -317,8 +329,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from app.cli.cell_options import checked_time_scale
     from app.demo.run import DemoConfig, run_demo, summary_table
 
-    if args.anchor_step is not None and not 0.5 <= args.anchor_step <= 90.0:
-        raise CellCalError(f"--anchor-step must be in [0.5, 90] deg, got {args.anchor_step:g}")
+    if args.anchor_step is not None:
+        _check_grid_step("--anchor-step", args.anchor_step)
     if args.validation < 1:
         raise CellCalError(f"--validation must be at least 1, got {args.validation}")
     config = DemoConfig(full=args.full, anchor_step_deg=args.anchor_step, seed=args.seed, n_validation=args.validation,
@@ -355,8 +367,8 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
     p.add_argument("--out", required=True, help="plan file (JSON)")
     p.add_argument("--q2-step", type=float, default=5.0,
-                   help="anchor grid q2 step [deg] (default %(default)g: the paper's design)")
-    p.add_argument("--q3-step", type=float, default=5.0, help="anchor grid q3 step [deg]")
+                   help="anchor grid q2 step [deg], 0.5 to 90 (default %(default)g: the paper's design)")
+    p.add_argument("--q3-step", type=float, default=5.0, help="anchor grid q3 step [deg], 0.5 to 90")
     p.add_argument("--cpa", action="store_true", help="add single-joint sweeps (needed by the cpa method)")
     p.add_argument("--validation", type=int, default=0, help="random validation poses to add (the test set)")
     p.add_argument("--seed", type=int, default=0, help="seed of the validation poses (and of the optimal design's "

@@ -120,3 +120,13 @@ def test_budget_help_says_its_unit_and_that_the_other_command_counts_the_other(c
     assert text.startswith(f"--budget {unit} "), text  # the unit in the usage line
     assert f"number of {unit}" in text and f"not {other}" in text, text
     assert "no default" in text, text
+
+
+@pytest.mark.parametrize("option, value", [("--q2-step", "0"), ("--q3-step", "nan"), ("--q3-step", "inf"),
+                                           ("--q2-step", "-5")])
+def test_plan_refuses_a_grid_step_outside_its_range_naming_the_option_and_value(tmp_path, capsys, option, value):
+    # 0 and nan were refused as "plan: q2_range_deg/steps: expected positive steps ...", inf gave a one-row grid
+    out = tmp_path / "plan.json"
+    assert_bad_input(capsys, ["plan", "--robot", "R1", "--out", str(out), option, value],
+                     f"{option} must be in [0.5, 90] deg, got {value}")
+    assert not out.exists()

@@ -174,7 +174,8 @@ def test_bad_inputs_exit_2_and_write_nothing(tmp_path, capsys):
          "unknown robot 'R9'")
     assert_bad_input(capsys, ["recalibrate", "--robot", "R1", "--plan", str(bad_plan), "--model-dir", str(bad_plan), "--sim"],
          "model folder is a file")
-    assert_bad_input(capsys, ["plan", "--robot", "R1", "--out", str(tmp_path / "p.json"), "--q2-step", "-5"], "positive steps")
+    assert_bad_input(capsys, ["plan", "--robot", "R1", "--out", str(tmp_path / "p.json"), "--q2-step", "-5"],
+                     "--q2-step must be in [0.5, 90] deg, got -5")
     assert_bad_input(capsys, ["demo", "--out", str(bad_plan)], "must be a folder")
     assert sorted(p.name for p in tmp_path.iterdir()) == before
 
