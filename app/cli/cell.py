@@ -26,12 +26,23 @@ def _load_plan(path: str, robot: str) -> Any:
     return plan
 
 
-def _require_session(path: str, robot: str) -> None:
-    """Refuse at once (before any device opens) a folder without a session, or a session of another arm."""
+def _require_session(path: str, robot: str, kinds: tuple[str, ...] = ()) -> None:
+    """Refuse at once (before any device opens) a folder without a session, or a session of another arm; with
+    ``kinds``, also one whose plan still has targets of those kinds neither measured nor skipped (a collection
+    stopped half-way: recalibrate fitted and installed a model on what it had measured, without a word)."""
     from app.cell.session_store import SessionStore
+    from calibration.errors import DataError
 
     with SessionStore(path) as store:  # raises DataError when there is no session or another process holds it
         store.check_robot(robot)
+        if kinds:
+            wanted = [i for i, t in enumerate(store.plan().targets) if t.kind in kinds]
+            left = len(set(wanted) - store.done())
+            if left:
+                raise DataError(store.path, None, None,
+                                f"the session is incomplete: {left} of its {len(wanted)} {'/'.join(kinds)} targets "
+                                f"not yet measured; finish it first (cellcal collect --robot {robot} --session "
+                                f"{path} --resume)")
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
@@ -250,7 +261,8 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         raise CellCalError(f"--validation must be at least 1, got {args.validation}")
     plan = _load_plan(args.plan, args.robot) if args.plan else None
     if args.session:
-        _require_session(args.session, args.robot)
+        _require_session(args.session, args.robot, ("anchor", "perturb", "cpa") if args.method == "cpa" else
+                         ("anchor", "perturb"))
     service = model_in_service(model_dir, args.robot, robot.model())  # another robot's model: stop before motion
     if args.rebase:
         model_to_rebase(model_dir, service)  # nothing to rebase: stop before motion

@@ -125,6 +125,28 @@ def test_a_session_of_the_other_arm_is_refused_before_any_motion(tmp_path, capsy
     assert sorted(str(p) for p in tmp_path.rglob("*")) == before
 
 
+def test_a_session_stopped_half_way_is_refused_before_any_motion(tmp_path, capsys):
+    # a collection stopped by Ctrl-C after 53 of 1736 training targets: recalibrate --session fitted and installed
+    # a model on those 53 without a word
+    from app.cell.planning import Plan, Target
+    from app.cell.session_store import Sample, SessionStore
+
+    session, models = tmp_path / "s_r1", tmp_path / "models_r1"
+    targets = tuple(Target("R1", np.full(6, 0.01 * i), i // 7, "anchor" if i % 7 == 0 else "perturb")
+                    for i in range(14)) + (Target("R1", np.zeros(6), -1, "validation"),)
+    with SessionStore(session, create=True) as store:
+        store.init(Plan(targets, {}), {"robot": "R1", "body_id": 1})
+        for i in range(9):  # the first cluster and 2 poses of the second; 5 training targets and the validation left
+            store.add_sample(Sample(i, targets[i].q, np.array([1000.0, 0, 500]), np.array([1.0, 0, 0, 0]), 0.01,
+                                    0.001, 0.05, 30, float(i), np.ones(6)), "R1", targets[i].kind, targets[i].cluster)
+    before = sorted(str(p) for p in tmp_path.rglob("*"))
+    assert_bad_input(capsys, ["recalibrate", "--robot", "R1", "--session", str(session), "--model-dir", str(models),
+                              "--method", "nls1", "--sim", "--yes", "--json", str(tmp_path / "d.json")],
+                     str(session), "the session is incomplete: 5 of its 14 anchor/perturb targets not yet measured",
+                     f"cellcal collect --robot R1 --session {session} --resume")
+    assert sorted(str(p) for p in tmp_path.rglob("*")) == before
+
+
 def test_recalibrate_cli_refuses_a_first_model_outside_the_tolerance(tmp_path, capsys):
     args, models = _sim_recalibrate(tmp_path, "nominal", 4)
     capsys.readouterr()
