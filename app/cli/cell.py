@@ -284,8 +284,12 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
             return _dry_run(args, rt, safety, both, config)
         confirm_motion(args, f"{args.robot} will visit {len(plan) if plan is not None else 0} training and "
                              f"{len(val_plan)} validation targets at {config.speed_fraction:g} of full speed")
-        if plan is not None:
+        if plan is not None:  # what Ctrl-C says (app.cli.commands.main): recalibrate itself has no --resume
+            args.stop_hint = (f" (nothing installed; the training session so far is {session}: finish it with "
+                              f"cellcal collect --robot {args.robot} --session {session} --resume, then "
+                              f"recalibrate --session {session})")
             collect_arm(rt, safety, args.robot, plan, session, config, progress=show_progress(args))
+        args.stop_hint = f" (nothing installed; recalibrate --session {session} reuses the training session)"
         collect_arm(rt, safety, args.robot, val_plan, work / "validation", config, progress=show_progress(args))
     read = lambda p: read_recording(p, robot.robot.lower_rad, robot.robot.upper_rad)  # noqa: E731
     export(session, work / "train.csv", kinds=("anchor", "perturb"))
@@ -312,6 +316,7 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     in_service = service.model
     report_inputs = inputs + ([("model in service", model_dir / "current.yaml")] if in_service is not None else [])
     report_record = provenance(report_inputs)  # before the decision moves the model in service to previous/
+    args.stop_hint = ""
     decision = decide_and_install(model_dir, model, validation, robot.model(), tolerance.position_mm)
     if decision.refused:
         write_json(args.json, decision.to_json())

@@ -427,8 +427,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"cellcal {args.command}: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        resumable = " (continue with --resume)" if getattr(args, "session", None) else ""
-        print(f"cellcal {args.command}: stopped{resumable}", file=sys.stderr)
+        hint = getattr(args, "stop_hint", None)  # a command's own word on what was left (recalibrate)
+        if hint is None:  # a session of a command that can resume it (collect)
+            hint = " (continue with --resume)" if getattr(args, "session", None) and hasattr(args, "resume") else ""
+        print(f"cellcal {args.command}: stopped{hint}", file=sys.stderr)
         return 130
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -85,6 +86,34 @@ def test_recalibrate_cli_on_the_simulated_cell(tmp_path, capsys):
     assert d1["decision"] == "installed" and d1["validation_samples"] == 6
     assert "installed candidate nls1" in capsys.readouterr().out
     assert load_model(models / "current.yaml").method == "nls1"
+
+
+@pytest.mark.parametrize("stopped_in", ["training", "validation"])
+def test_ctrl_c_during_recalibrate_names_the_training_session_not_a_resume_it_lacks(tmp_path, capsys, monkeypatch,
+                                                                                     stopped_in):
+    # it said "stopped (continue with --resume)" (recalibrate has no --resume), or after --plan only "stopped"
+    import app.demo.run
+
+    calls = []
+    collect = app.demo.run.collect_arm
+
+    def interrupted(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == (1 if stopped_in == "training" else 2):
+            raise KeyboardInterrupt
+        return collect(*args, **kwargs)
+
+    monkeypatch.setattr(app.demo.run, "collect_arm", interrupted)
+    args, models = _sim_recalibrate(tmp_path, "nls1", 3)
+    capsys.readouterr()
+    assert main(args) == 130
+    err = capsys.readouterr().err.strip().splitlines()
+    session = re.escape(str(models / "sessions")) + r"/\d{8}T\d{6}/train"
+    expected = (rf"the training session so far is ({session}): finish it with cellcal collect --robot R1 --session "
+                r"\1 --resume, then recalibrate --session \1\)" if stopped_in == "training" else
+                rf"recalibrate --session {session} reuses the training session\)")
+    assert len(err) == 1 and re.fullmatch(r"cellcal recalibrate: stopped \(nothing installed; " + expected, err[0]), err
+    assert not (models / "current.yaml").exists()
 
 
 def test_first_candidate_outside_the_tolerance_is_refused_not_installed(tmp_path, arm):
