@@ -131,3 +131,17 @@ class UnsafeTarget(CellCalError):
         if reason and joint is not None:
             msg += f" ({reason})"
         super().__init__(msg)
+
+
+def parse_error_text(e: BaseException) -> str:
+    """One line saying where and why a YAML or JSON document failed to parse: ``line L, column C: problem``.
+
+    (A YAML error's own text spans several lines, and quoting only its class name named no place.)
+    """
+    mark = getattr(e, "problem_mark", None)
+    if mark is not None:  # yaml.MarkedYAMLError
+        problem = " ".join(str(getattr(e, "problem", "") or e.__class__.__name__).split())
+        return f"line {mark.line + 1}, column {mark.column + 1}: {problem}"
+    if all(hasattr(e, a) for a in ("lineno", "colno", "msg")):  # json.JSONDecodeError
+        return f"line {e.lineno}, column {e.colno}: {e.msg}"  # type: ignore[attr-defined]
+    return " ".join(str(e).split()) or e.__class__.__name__

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from calibration.errors import ConfigError
+from calibration.errors import ConfigError, parse_error_text
 
 _REQUIRED: Any = ...
 
@@ -30,7 +30,7 @@ def read_yaml(path: Path) -> Any:
     except IsADirectoryError as e:
         raise ConfigError(path, "", "expected a file, found a directory") from e
     except yaml.YAMLError as e:
-        raise ConfigError(path, "", f"not valid YAML ({e.__class__.__name__}: {e})") from e
+        raise ConfigError(path, "", f"not valid YAML ({parse_error_text(e)})") from e
     except (OSError, UnicodeDecodeError) as e:
         raise ConfigError(path, "", f"cannot read ({e.__class__.__name__}: {e})") from e
 

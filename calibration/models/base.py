@@ -26,7 +26,7 @@ from typing import Any, ClassVar
 import numpy as np
 import yaml
 
-from calibration.errors import DataError, ModelError, ModelFileError
+from calibration.errors import DataError, ModelError, ModelFileError, parse_error_text
 from calibration.files import atomic_write_text
 from calibration.model_checks import check_model_data, check_model_for
 from calibration.poe import PoeModel
@@ -249,7 +249,7 @@ def _read_model_file(path: Path) -> dict[str, Any]:
         else:
             data = yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
     except (json.JSONDecodeError, yaml.YAMLError, RecursionError) as e:
-        raise DataError(path, None, None, f"not a valid model file ({e.__class__.__name__})") from e
+        raise DataError(path, None, None, f"not a valid model file ({parse_error_text(e)})") from e
     if not isinstance(data, dict):
         raise DataError(path, None, None, "not a model file (expected a mapping)")
     return data

@@ -54,6 +54,19 @@ def test_bad_model_files(tmp_path):
         load_model(tmp_path / "none.yaml")
 
 
+def test_a_model_file_that_does_not_parse_is_named_with_its_line_and_column_on_one_line(tmp_path):
+    # it said "not a valid model file (ParserError)": no place in the file
+    path = tmp_path / "m.yaml"
+    path.write_text("schema: cellcal.model/2\nkind: constant\nrobot: [R1\n")
+    with pytest.raises(DataError) as e:
+        load_model(path)
+    assert str(e.value) == f"{path}: not a valid model file (line 4, column 1: did not find expected ',' or ']')"
+    path = tmp_path / "m.json"
+    path.write_text('{"schema": "cellcal.model/2",\n "kind": }')
+    with pytest.raises(DataError, match=r"m.json: not a valid model file \(line 2, column 10: Expecting value\)$"):
+        load_model(path)
+
+
 def test_files_are_written_as_schema_2_and_schema_1_files_still_load(tmp_path, fitted):
     """A /1 reader ignores the training region's guard rule and would mispredict a new file, so new files say /2;
     files written before keep loading, with the guard they had."""

@@ -63,6 +63,11 @@ def test_malformed_robot_yaml(tmp_path):
     bad.write_text("{not yaml: [")
     with pytest.raises(ConfigError, match="not valid YAML"):
         load_robot(bad)
+    bad.write_text("name: MA2010\njoint_limits_deg: [1, 2\n")  # one line naming the place (it quoted YAML's 3 lines)
+    with pytest.raises(ConfigError) as e:
+        load_robot(bad)
+    assert str(e.value).endswith("not valid YAML (line 3, column 1: expected ',' or ']', but got '<stream end>')")
+    assert "\n" not in str(e.value)
     with pytest.raises(ConfigError, match="file not found"):
         load_robot(tmp_path / "missing.yaml")
 
