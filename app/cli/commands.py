@@ -219,7 +219,8 @@ def cmd_export_urdf(args: argparse.Namespace) -> int:
     spec = robot.robot
     write_urdf(args.out, geometry, JointLimits(spec.lower_rad, spec.upper_rad, spec.max_speed_rad_s), robot.name,
                str(args.model))
-    print(f"{model.kind} {model.method} model of {robot.name}: exported {geometry.exported} -> {args.out}")
+    label = model.method if model.kind == model.method else f"{model.kind} {model.method}"  # not "pi pi model"
+    print(f"{label} model of {robot.name}: exported {geometry.exported} -> {args.out}")
     for item in geometry.lost:
         print(f"  lost: {item}")
     if not geometry.lost:

@@ -51,6 +51,7 @@ def test_export_urdf_of_pi_says_what_is_lost(models, tmp_path, capsys):
     out, js = tmp_path / "pi.urdf", tmp_path / "pi.json"
     assert main(["export-urdf", "--model", str(models / "pi.yaml"), "--out", str(out), "--json", str(js)]) == 0
     stdout = capsys.readouterr().out
+    assert stdout.startswith("pi model of R1: exported ")  # it said "pi pi model of R1"
     assert "27-parameter geometry block and the tool rotation" in stdout
     assert "lost: the gravity compliance" in stdout and "lost: the structural deflection" in stdout
     assert len(json.loads(js.read_text())["lost"]) == 2
