@@ -11,7 +11,7 @@ import sys
 from typing import Any, Callable
 
 from app.cli.cell import add_cell_parsers
-from app.cli.common import (CELL_HELP, DefaultsHelpFormatter, add_cell_option, add_report_options, cell_spec,
+from app.cli.common import (CELL_HELP, DefaultsHelpFormatter, OneLineErrorParser, add_cell_option, add_report_options, cell_spec,
                              check_output_args, command_line, fitter_from_args, load_model_for, model_and_robot,
                              read_recording_arg, resolve_cell, show_progress, tolerance_from_args, write_json)
 from app.cli.dual import add_dual_parsers
@@ -302,7 +302,7 @@ def _add_fit_inputs(p: argparse.ArgumentParser) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="cellcal", formatter_class=DefaultsHelpFormatter,
+    parser = OneLineErrorParser(prog="cellcal", formatter_class=DefaultsHelpFormatter,
                                      description="Calibrate the arms of a robot cell from motion-capture recordings, "
                                      "plan with the calibrated models and put them into service.")
     parser.add_argument("--cell", help=f"{CELL_HELP}; also accepted after the command name of every command that "

@@ -25,6 +25,51 @@ class DefaultsHelpFormatter(argparse.HelpFormatter):
         return f"{text} (default %(default){'g' if isinstance(action.default, float) else 's'})"
 
 
+class OneLineErrorParser(argparse.ArgumentParser):
+    """An ArgumentParser whose usage errors are one line on stderr, exit 2, as every other bad input: argparse
+    printed the whole usage first (4-10 lines), and for a mistyped option (``--methd nls1``) said only that
+    ``--method`` was missing. An unknown option is named first, with the closest valid one. Subcommand parsers
+    are of this class too (``add_subparsers`` uses the parent's)."""
+
+    def parse_known_args(self, args: Any = None, namespace: Any = None) -> Any:
+        import sys
+
+        self._argv = list(sys.argv[1:] if args is None else args)
+        return super().parse_known_args(args, namespace)
+
+    def error(self, message: str) -> Any:  # type: ignore[override]
+        prog = self.prog
+        if message.startswith("the following arguments are required") and self._command() is self:
+            unknown = [a for a in getattr(self, "_argv", []) if a.startswith("--") and not self._knows(a)]
+            if unknown:  # a mistyped option: say so first (argparse names only the option then missing)
+                message = f"unrecognized arguments: {' '.join(unknown)}{self._suggest(unknown, self)}; {message}"
+        elif message.startswith("unrecognized arguments: "):  # left over by the subcommand: named as its error
+            command = self._command()
+            message += self._suggest([a for a in message.split(": ", 1)[1].split() if a.startswith("--")], command)
+            prog = command.prog
+        self.exit(2, f"{prog}: {message}; {prog} --help lists the options\n")
+
+    def _command(self) -> argparse.ArgumentParser:
+        """The subcommand's parser named in the arguments (this parser when it has none)."""
+        subs = next((a for a in self._actions if isinstance(a, argparse._SubParsersAction)), None)
+        name = next((a for a in getattr(self, "_argv", []) if subs is not None and a in subs.choices), None)
+        return subs.choices[name] if name is not None else self  # type: ignore[union-attr]
+
+    def _knows(self, arg: str) -> bool:
+        """Whether ``arg`` (``--opt`` or ``--opt=value``) is one of this parser's options or a prefix of one."""
+        name = arg.split("=", 1)[0]
+        return any(o.startswith(name) for o in self._option_string_actions)
+
+    @staticmethod
+    def _suggest(unknown: list[str], parser: argparse.ArgumentParser) -> str:
+        import difflib
+
+        known = [o[2:] for o in parser._option_string_actions if o.startswith("--")]  # "--" alone looks alike
+        pairs = [(a, difflib.get_close_matches(a.split("=", 1)[0][2:], known, n=1)) for a in unknown]
+        hints = [f"--{close[0]} for {a}" for a, close in pairs if close]
+        return f" (did you mean {', '.join(hints)}?)" if hints else ""
+
+
 def _stated_default(action: argparse.Action) -> bool:
     """Whether ``--help`` should state ``action``'s default: it has a value a user would otherwise have to guess."""
     if isinstance(action, (argparse._StoreTrueAction, argparse._StoreFalseAction, argparse._HelpAction,

@@ -106,6 +106,29 @@ def test_compare_of_only_cpa_without_sweeps_says_why_and_writes_nothing(tmp_path
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("argv, line", [
+    (["fit", "--robot", "R1", "--train", "t.csv", "--methd", "nls1", "--out", "m.yaml"],
+     "cellcal fit: unrecognized arguments: --methd (did you mean --method for --methd?); the following arguments "
+     "are required: --method; cellcal fit --help lists the options"),
+    (["plan", "--robot", "R1", "--out", "p.json", "--q2-stp=50"],
+     "cellcal plan: unrecognized arguments: --q2-stp=50 (did you mean --q2-step for --q2-stp=50?); "
+     "cellcal plan --help lists the options"),
+    (["fit", "--robot", "R1", "--train", "t.csv", "--method", "nls1", "--out", "m.yaml", "--bogus"],
+     "cellcal fit: unrecognized arguments: --bogus; cellcal fit --help lists the options"),
+    (["fit", "--robot", "R1", "--train", "t.csv", "--method", "nls1", "--out", "m.yaml", "--a", "x"],
+     "cellcal fit: argument --a: invalid float value: 'x'; cellcal fit --help lists the options"),
+    ([], "cellcal: the following arguments are required: command; cellcal --help lists the options"),
+])
+def test_a_usage_error_is_one_line_exit_2_naming_a_mistyped_option(tmp_path, capsys, monkeypatch, argv, line):
+    # argparse printed the whole usage first (4-10 lines), and for --methd said only that --method was missing
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    assert e.value.code == 2
+    assert capsys.readouterr().err.splitlines() == [line]
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_predict_rejects_bad_joint_file(tmp_path, data, capsys):
     model = tmp_path / "m.json"
     assert main(["fit", "--robot", "R1", "--train", str(data / "train.csv"), "--method", "nls1",
