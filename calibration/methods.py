@@ -32,7 +32,7 @@ import numpy as np
 from calibration import robust
 from calibration.cdc import CDC_INPUTS, CdcModel, LocalFits, build_cdc, cluster_anchors, fit_local
 from calibration.identification.cpa import identify_cpa, split_sweeps
-from calibration.errors import ModelError
+from calibration.errors import DataError, ModelError
 from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, GeometricProblem
 from calibration.models import ConstantModel, KinematicModel
 from calibration.models.guard import REGION_KEY, Region
@@ -60,6 +60,9 @@ PHYSICS_METHODS = ("pi", "diagnosed")
 NLS0_HELDOUT_MAX_RATIO = 1.5
 #: CDC methods whose fit is a network training (seconds): their held-out folds train in parallel worker processes.
 NEURAL_METHODS = ("nn", "ae", "pi+nn", "pi+ae")
+#: Clusters a CDC method needs: its interpolator over (q2, q3) needs 3 anchors, and its strengths are chosen on
+#: clusters held out in turn (5 folds), so 4 leave 3 on every fold.
+MIN_CDC_CLUSTERS = 4
 #: The constant fit each CDC reference is (what a CDC method's held-out figures are set against).
 REFERENCE_FITS = {"geometric": "nls1", "pi": "pi"}
 METHODS = CONSTANT_METHODS + PAPER_CDC_METHODS + PHYSICS_METHODS + PI_CDC_METHODS
@@ -263,6 +266,9 @@ class Fitter:
         """The local cluster fits around ``reference`` at the local prior of FitOptions (or chosen, see there)."""
         cache = self._cache.setdefault("local", {})
         if reference not in cache:
+            if self.warm is None:  # a fold refit's Fitter has fewer: its parent's count was checked
+                self._require_clusters(MIN_CDC_CLUSTERS, "a CDC method (its interpolator over (q2, q3) needs 3 "
+                                       "anchors on every fold of clusters held out in turn)")
             prior = self.options.local_prior
             if prior is None and self.warm is not None:
                 prior = self.warm.local_prior(reference)
@@ -747,11 +753,25 @@ class Fitter:
     def _fold_fitters(self) -> list[tuple[np.ndarray, "Fitter"]]:
         """``(held-out mask, Fitter on the other clusters)`` per fold, shared by every method (cached)."""
         if "folds" not in self._cache:
+            self._require_clusters(2, "held-out figures (each fold refitted on the other clusters)")
             groups, anchors = cluster_anchors(self.train, self.options.cluster_size)
             folds = robust.cluster_folds(len(anchors), robust.N_FOLDS, self.options.seed)[groups]
             self._cache["folds"] = [(folds == f, replace(self, train=self.train.subset(folds != f), warm=self,
                                                          _cache={})) for f in range(robust.N_FOLDS)]
         return self._cache["folds"]
+
+    def _require_clusters(self, n: int, what: str) -> None:
+        """Refuse a training recording of fewer than ``n`` clusters for ``what`` (one cluster made a fold refit on no
+        poses at all: a traceback in compare, 'x: empty array of shape (0, 2)' from fit --method fbf13).
+
+        Raises:
+            DataError: naming the recording, the count and the need.
+        """
+        _, anchors = cluster_anchors(self.train, self.options.cluster_size)
+        if len(anchors) < n:
+            raise DataError(self.train.source, None, None,
+                            f"{len(anchors)} cluster{'s' if len(anchors) != 1 else ''} of training poses; {what} "
+                            f"need{'s' if what.startswith('a ') else ''} at least {n}")
 
     def _workspace_probes(self) -> np.ndarray:
         if "workspace_probes" not in self._cache:

@@ -129,6 +129,24 @@ def test_a_usage_error_is_one_line_exit_2_naming_a_mistyped_option(tmp_path, cap
     assert list(tmp_path.iterdir()) == []
 
 
+def test_too_few_training_clusters_for_held_out_figures_or_a_cdc_method_are_refused_naming_the_file(tmp_path, data,
+                                                                                                    capsys):
+    # one cluster: compare ended in a numpy traceback (a fold refit on no poses), fit --method fbf13 said
+    # "x: empty array of shape (0, 2)"; two or three: "anchors: need at least d + 1 = 3 anchors ..., got 1"
+    lines = (data / "train.csv").read_text().splitlines()
+    out, js = tmp_path / "m.yaml", tmp_path / "c.json"
+    for n in (1, 3):
+        few = tmp_path / f"few{n}.csv"
+        few.write_text("\n".join(lines[:1 + 7 * n]) + "\n")
+        assert_bad_input(capsys, ["fit", "--robot", "R1", "--train", str(few), "--method", "fbf13", "--out", str(out)],
+                         f"few{n}.csv: {n} cluster{'s' if n > 1 else ''} of training poses; a CDC method",
+                         "needs at least 4")
+    assert_bad_input(capsys, ["compare", "--robot", "R1", "--train", str(tmp_path / "few1.csv"), "--test",
+                              str(data / "test.csv"), "--methods", "nominal,nls1", "--json", str(js)],
+                     "few1.csv: 1 cluster of training poses; held-out figures", "need at least 2")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["few1.csv", "few3.csv"]
+
+
 def test_predict_rejects_bad_joint_file(tmp_path, data, capsys):
     model = tmp_path / "m.json"
     assert main(["fit", "--robot", "R1", "--train", str(data / "train.csv"), "--method", "nls1",
