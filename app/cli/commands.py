@@ -17,7 +17,7 @@ from app.cli.common import (CELL_HELP, DefaultsHelpFormatter, OneLineErrorParser
 from app.cli.dual import add_dual_parsers
 from app.cli.real import add_real_parsers
 from app.jobs.cli import add_job_parsers
-from calibration.errors import CellCalError
+from calibration.errors import CellCalError, DataError
 
 log = logging.getLogger("cellcal.app")
 
@@ -155,9 +155,16 @@ def _extrapolation_caveat(model: Any, test: Any) -> str:
             "range too; measure a few there to tell.")
 
 
+#: Fewer clusters than this in a rebase's data get a warning: the issue-10 design rebases on 3 spread clusters (21
+#: poses), and the frames fitted to one cluster absorb the arm's local error (a new user saw 0.638 -> 0.018 mm).
+REBASE_MIN_CLUSTERS = 3
+
+
 def cmd_rebase(args: argparse.Namespace) -> int:
     from calibration.models import save_model
     import math
+
+    import numpy as np
 
     from calibration.design import REBASE_OFFSETS
     from calibration.rebase import rebase, rebase_auto
@@ -184,6 +191,19 @@ def cmd_rebase(args: argparse.Namespace) -> int:
 
     save_model(with_provenance(rebased, provenance([("model", args.model), ("data", args.data)])), args.out)
     print(result.summary())
+    try:
+        n_clusters = len(np.unique(data.clusters()))
+        where = f"{n_clusters} cluster(s)"
+    except DataError:  # no cluster column and not whole clusters of 7: judged by the pose count
+        n_clusters = result.n_samples // 7
+        where = "no clusters"
+    if n_clusters < REBASE_MIN_CLUSTERS:
+        print(f"warning: {args.data} holds {result.n_samples} poses in {where}: the error after the "
+              f"rebase is measured on the poses it was fitted to, and poses this close together cannot tell a frame "
+              f"change from the arm's own error there. Rebase on {REBASE_MIN_CLUSTERS} or more clusters spread over "
+              f"the workspace (cellcal plan --design optimal --budget 21 --for rebase, or cellcal select --for "
+              f"rebase --budget 3 on a grid recording), or check the model on other poses (cellcal evaluate).",
+              file=sys.stderr)
     print(f"rebased {model.method} model -> {args.out}")
     write_json(args.json, {"robot": robot.name, "model": str(args.model), "data": str(args.data),
                            "samples": result.n_samples, "directions": choice, "fitted_directions": result.fitted,

@@ -170,3 +170,29 @@ def test_a_frame_found_on_poses_the_model_never_saw_says_it_may_be_extrapolation
         assert frames["frame"] is not None and "is off by a frame" in err  # the base error is found either way
         assert ("may be the model's extrapolation rather than a frame" in err) == caveat
         assert (frames["caveat"] is not None) == caveat
+
+
+def test_a_rebase_on_fewer_than_three_clusters_warns_that_its_figure_is_in_sample(tmp_path, synthetic_arm, capsys):
+    from calibration.models import ConstantModel, save_model
+
+    par, _, truth = synthetic_arm
+    q, cluster = cluster_design(step_deg=15.0)
+    model = tmp_path / "m.yaml"
+    save_model(ConstantModel("R1", "nominal", par.nominal, 0, {}), model)
+    for clusters, warned in ((1, True), (2, True), (3, False)):
+        keep = np.isin(cluster, np.unique(cluster)[[0, 17, 34][:clusters]])
+        data = tmp_path / f"few{clusters}.csv"
+        write_recording(measure(truth.fk, q[keep], 0.02, 0.01, 1, cluster[keep]), data)
+        capsys.readouterr()
+        assert main(["rebase", "--robot", "R1", "--model", str(model), "--data", str(data),
+                     "--out", str(tmp_path / f"r{clusters}.yaml")]) == 0
+        err = capsys.readouterr().err
+        assert ("warning:" in err and f"{7 * clusters} poses in {clusters} cluster(s)" in err) == warned, err
+    # without a cluster column and in no whole clusters of 7 it goes by the pose count (3 clusters' worth: 21)
+    for n, warned in ((20, True), (22, False)):
+        data = tmp_path / f"rows{n}.csv"
+        write_recording(measure(truth.fk, q[::5][:n], 0.02, 0.01, 1), data)
+        assert main(["rebase", "--robot", "R1", "--model", str(model), "--data", str(data),
+                     "--out", str(tmp_path / f"n{n}.yaml")]) == 0
+        err = capsys.readouterr().err
+        assert ("warning:" in err and f"{n} poses in no clusters" in err) == warned, err
