@@ -13,8 +13,11 @@ $(VENV): pyproject.toml constraints.txt
 	touch $(VENV)
 
 # On every core (pytest-xdist): whole modules per worker, the longest first (tests/conftest.py says why).
+# Bytecode is cached (__pycache__, ignored by git) even where PYTHONDONTWRITEBYTECODE is set: otherwise each worker
+# re-rewrites the assertions of every test module at collection (7 s of a core per worker) and every cellcal
+# process the tests start compiles the package again.
 test: $(VENV)
-	$(BIN)/python -m pytest -q -n auto --dist loadscope --no-loadscope-reorder
+	PYTHONDONTWRITEBYTECODE= $(BIN)/python -m pytest -q -n auto --dist loadscope --no-loadscope-reorder
 
 demo: $(VENV)
 	$(BIN)/cellcal demo --out demo_out
