@@ -170,6 +170,8 @@ def _read_table(path: Path, columns: tuple[str, ...] | None,
     are kept as numbers where they parse, NaN elsewhere).
     """
     rows = _read_rows(path)
+    if rows:
+        _check_separator(path, rows[0], len(columns) if columns is not None else len(REQUIRED_COLUMNS))
     if columns is None:
         if not rows:
             raise DataError(path, None, None, "empty file, expected a header row")
@@ -193,6 +195,31 @@ def _read_table(path: Path, columns: tuple[str, ...] | None,
             else:
                 data[i, j] = _number_or_nan(text.strip())
     return names, data, first
+
+
+#: Separators a file saved by a spreadsheet in another locale may use instead of the spec's comma: (separator, how
+#: the message names its fields, how it names the separator).
+OTHER_SEPARATORS = ((";", "';'-separated", "';'"), ("\t", "tab-separated", "tabs"))
+
+
+def _check_separator(path: Path, first: list[str], expected: int) -> None:
+    """Refuse a file whose first row is one field holding several ``;``- or tab-separated ones (saved with another
+    separator): read with commas it was one column, and the reader said only that column ``q1`` was missing.
+
+    Args:
+        first: the first row's fields as the comma reader split them.
+        expected: how many columns the file should have (one field is then never right when it is above 1).
+
+    Raises:
+        DataError: naming the file and the separator it seems to use.
+    """
+    if len(first) != 1 or expected < 2:
+        return
+    for sep, fields, name in OTHER_SEPARATORS:
+        if len([part for part in first[0].split(sep) if part.strip()]) > 1:
+            raise DataError(path, 1, None, f"one column holding {fields} fields: the file seems to be separated by "
+                                           f"{name}, but recordings are comma-separated (see "
+                                           "../shared/spec/recording-format.md)")
 
 
 def _check_pose(path: Path, q: np.ndarray, quat: np.ndarray, first_row: int,

@@ -195,3 +195,25 @@ def test_out_of_limit_messages_print_numbers_with_a_sane_precision(tmp_path, mon
     assert e.value.row == 1 and e.value.column == "q3" and len(str(e.value)) < 200
     msg = str(UnsafeTarget("R1", 2, 1e300, 3.0))
     assert "5.72958e+301 deg" in msg and "171.887 deg" in msg and len(msg) < 120
+
+
+@pytest.mark.parametrize("sep, name", [(";", "';'"), ("\t", "tabs")])
+def test_other_separator_is_named(tmp_path, sep, name):
+    """A recording saved with ';' or tabs was one column to the comma reader: 'required column missing q1'."""
+    path = write(tmp_path, (HEADER + "\n" + ROW + "\n").replace(",", sep))
+    with pytest.raises(DataError) as e:
+        read_recording(path)
+    assert f"seems to be separated by {name}" in str(e.value) and "comma-separated" in str(e.value)
+    assert str(path) in str(e.value) and e.value.row == 1 and "\n" not in str(e.value)
+    for text in ("q1,q2,q3,q4,q5,q6\n0,1,2,3,4,5\n", "0,1,2,3,4,5\n"):  # joint files, with and without a header
+        with pytest.raises(DataError, match=f"seems to be separated by {name}"):
+            read_joints(write(tmp_path, text.replace(",", sep), "j.csv"))
+
+
+def test_welding_layout_other_separator_is_named(tmp_path):
+    folder = tmp_path / "run"
+    folder.mkdir()
+    (folder / "robot_q_align.csv").write_text("0.1;0.2;0.3;0.4;0.5;0.6\n")
+    (folder / "mocap_T_align.csv").write_text("1,2,3,1,0,0,0\n")
+    with pytest.raises(DataError, match="robot_q_align.csv, row 1: .*separated by ';'"):
+        read_recording(folder)
