@@ -269,6 +269,7 @@ class Fitter:
             if self.warm is None:  # a fold refit's Fitter has fewer: its parent's count was checked
                 self._require_clusters(MIN_CDC_CLUSTERS, "a CDC method (its interpolator over (q2, q3) needs 3 "
                                        "anchors on every fold of clusters held out in turn)")
+                self._require_spread_anchors()
             prior = self.options.local_prior
             if prior is None and self.warm is not None:
                 prior = self.warm.local_prior(reference)
@@ -772,6 +773,33 @@ class Fitter:
             raise DataError(self.train.source, None, None,
                             f"{len(anchors)} cluster{'s' if len(anchors) != 1 else ''} of training poses; {what} "
                             f"need{'s' if what.startswith('a ') else ''} at least {n}")
+
+    def _require_spread_anchors(self) -> None:
+        """Refuse training clusters whose anchors span no area in a CDC method's inputs (q2, q3), on every cluster
+        or on those a fold of clusters held out in turn leaves: its interpolator cannot triangulate them, and fit
+        --method fbf13 said only 'anchors: the 3 anchors span no 2-dimensional volume', a fold's count, not the
+        recording's, and no file.
+
+        Raises:
+            DataError: naming the recording, its cluster count and the fold.
+        """
+        from calibration.interpolation.support import AnchorSupport
+
+        _, anchor_q = cluster_anchors(self.train, self.options.cluster_size)
+        x = anchor_q[:, list(CDC_INPUTS)]
+        folds = robust.cluster_folds(len(x), robust.N_FOLDS, self.options.seed)
+        names = "(" + ", ".join(f"q{i + 1}" for i in CDC_INPUTS) + ")"
+        for fold in (None, *range(robust.N_FOLDS)):
+            kept = x if fold is None else x[folds != fold]
+            try:
+                AnchorSupport(kept)
+            except ModelError:
+                which = ("" if fold is None else
+                         f", without the {len(x) - len(kept)} held out in fold {fold + 1} of {robust.N_FOLDS},")
+                raise DataError(self.train.source, None, None,
+                                f"{len(x)} clusters of training poses whose anchors{which} span no area in {names} "
+                                f"(all on a line?); a CDC method interpolates over {names} and needs anchors spread "
+                                "over an area") from None
 
     def _workspace_probes(self) -> np.ndarray:
         if "workspace_probes" not in self._cache:

@@ -147,6 +147,23 @@ def test_too_few_training_clusters_for_held_out_figures_or_a_cdc_method_are_refu
     assert sorted(p.name for p in tmp_path.iterdir()) == ["few1.csv", "few3.csv"]
 
 
+def test_training_anchors_on_a_line_are_refused_for_a_cdc_method_naming_the_file(tmp_path, data, capsys):
+    # four clusters of one q2: fit --method fbf13 said "anchors: the 3 anchors span no 2-dimensional volume", a
+    # fold's count and no file; with a fifth cluster off the line, the fold holding it out leaves four on it
+    lines = (data / "train.csv").read_text().splitlines()
+    rows = lines[1:]  # clusters of 7 rows, q2-major on the (q2, q3) grid of 5 q3 values
+    out = tmp_path / "m.yaml"
+    for name, clusters, fragment in (("line4.csv", (0, 1, 2, 3), "4 clusters of training poses whose anchors span "
+                                      "no area in (q2, q3)"),
+                                     ("line5.csv", (0, 1, 2, 3, 5), "5 clusters of training poses whose anchors, "
+                                      "without the 1 held out in fold")):
+        path = tmp_path / name
+        path.write_text("\n".join([lines[0], *(r for c in clusters for r in rows[7 * c:7 * c + 7])]) + "\n")
+        assert_bad_input(capsys, ["fit", "--robot", "R1", "--train", str(path), "--method", "fbf13", "--out",
+                                  str(out)], f"{name}: {fragment}", "a CDC method interpolates over (q2, q3)")
+    assert not out.exists()
+
+
 def test_predict_rejects_bad_joint_file(tmp_path, data, capsys):
     model = tmp_path / "m.json"
     assert main(["fit", "--robot", "R1", "--train", str(data / "train.csv"), "--method", "nls1",
