@@ -467,7 +467,7 @@ def export(session_dir: str | Path, out_csv: str | Path, kinds: Sequence[str] | 
         DataError: no session, a session naming several robots, or no measured sample of the requested kinds
             (nothing is written).
     """
-    with SessionStore(session_dir, lock=False) as store:  # reading: allowed while a collector runs
+    with SessionStore(session_dir, lock=False, purpose="export") as store:  # reading: allowed while a collector runs
         robots = store.robots()
         if len(robots) > 1:
             raise DataError(store.path, None, "robot", f"the session names several robots ({', '.join(robots)}); "

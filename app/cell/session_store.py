@@ -38,8 +38,24 @@ from calibration.errors import DataError
 
 DB_NAME = "session.sqlite"
 LOCK_NAME = "session.lock"
-_INTERRUPTED = ("no session here: its creation was interrupted before the plan was stored (or the file is empty), "
-                "so there is nothing to resume; start a new collect with a plan in this folder (it takes it over)")
+#: What opening a folder without a session says, by what the command wanted of it: "resume" (collect, and by default)
+#: or "export" (which resumes nothing: "nothing to resume" misled a user who exported a mistyped folder).
+_NOTHING = {"resume": "nothing to resume", "export": "nothing to export"}
+#: How each purpose says a folder without a session comes to hold one.
+_START = {"resume": "start a new collect with a plan",
+          "export": "check the folder, or collect a session into it first (cellcal collect --robot R --plan PLAN "
+                    "--session DIR)"}
+
+
+def _no_session(purpose: str) -> str:
+    """The reason of a folder without any session.sqlite, for ``purpose``."""
+    return f"no session here (session.sqlite not found): {_NOTHING[purpose]}; {_START[purpose]}"
+
+
+def _interrupted(purpose: str) -> str:
+    """The reason of a session.sqlite whose creation stopped before the plan was stored, for ``purpose``."""
+    return ("no session here: its creation was interrupted before the plan was stored (or the file is empty), "
+            f"so there is {_NOTHING[purpose]}; start a new collect with a plan in this folder (it takes it over)")
 SCHEMA = "cellcal.session/1"
 QUAT_NORM_TOL = 1e-3
 
@@ -179,25 +195,28 @@ class SessionStore:
     Args:
         session_dir: the session folder (created when ``create`` is True).
         create: start a new session; False opens an existing one.
+        lock: hold the folder lock (a writer); readers pass False.
+        purpose: what the caller wants of an existing session (``"resume"`` or ``"export"``), for the message when
+            there is none.
     """
 
-    def __init__(self, session_dir: str | Path, create: bool = False, *, lock: bool = True) -> None:
+    def __init__(self, session_dir: str | Path, create: bool = False, *, lock: bool = True,
+                 purpose: Literal["resume", "export"] = "resume") -> None:
         self.dir = Path(session_dir)
         self.path = self.dir / DB_NAME
         if create:
             self.dir.mkdir(parents=True, exist_ok=True)
         elif not self.path.exists():
-            raise DataError(self.path, None, None, "no session here (session.sqlite not found): nothing to resume; "
-                                                   "start a new collect with a plan")
+            raise DataError(self.path, None, None, _no_session(purpose))
         elif not self._created_read_only(self.path):  # looked at read-only: opening must not write tables into it
-            raise DataError(self.path, None, None, _INTERRUPTED)
+            raise DataError(self.path, None, None, _interrupted(purpose))
         self._lock = _FolderLock(self.dir) if lock else None
         try:
             self.conn = self._connect()
             if create and self.is_created():
                 raise DataError(self.path, None, None, "a session already exists here; resume it or pick a new folder")
             if not create and not self.is_created():
-                raise DataError(self.path, None, None, _INTERRUPTED)
+                raise DataError(self.path, None, None, _interrupted(purpose))
         except BaseException:
             self.close()
             raise

@@ -229,7 +229,7 @@ def cmd_export(args: argparse.Namespace) -> int:
             raise CellCalError(f"unknown target kind {bad[0] if bad else args.kinds!r}; valid: {', '.join(KINDS)}")
     from app.cell.session_store import SessionStore
 
-    with SessionStore(args.session, lock=False) as store:  # reading: allowed while a collector runs
+    with SessionStore(args.session, lock=False, purpose="export") as store:  # reading: allowed while a collector runs
         if args.robot:
             store.check_robot(args.robot)
         robots = store.robots()

@@ -323,7 +323,19 @@ def test_export_of_an_empty_session_file_writes_nothing_into_it(tmp_path, capsys
     session.mkdir()
     (session / "session.sqlite").touch()
     assert_bad_input(capsys, ["export", "--session", str(session), "--out", str(tmp_path / "r.csv")],
-                     "no session here", "empty")
+                     "no session here", "empty", "nothing to export")
     assert (session / "session.sqlite").stat().st_size == 0
     assert sorted(p.name for p in session.iterdir()) == ["session.sqlite"]  # no lock, no WAL, no journal
     assert not (tmp_path / "r.csv").exists()
+
+
+def test_export_of_a_folder_without_a_session_says_so_for_export(tmp_path, capsys):
+    """export of a mistyped session folder said 'nothing to resume; start a new collect', worded for collect."""
+    from app.cli import main
+    from tests.conftest import assert_bad_input
+
+    assert_bad_input(capsys, ["export", "--session", str(tmp_path / "nosuch"), "--out", str(tmp_path / "r.csv")],
+                     "nosuch", "no session here (session.sqlite not found): nothing to export", "cellcal collect")
+    assert main(["export", "--session", str(tmp_path / "nosuch"), "--out", str(tmp_path / "r.csv")]) == 2
+    assert "resume" not in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
