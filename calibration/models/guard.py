@@ -198,33 +198,48 @@ def region_of(info: dict[str, Any]) -> Region | None:
     return None if d is None else Region.from_dict(d)
 
 
+#: A pose counts as outside the training range only when a joint lies more than this beyond it [deg]: half the 0.1 deg
+#: the warnings print the excess in, so a count never comes with "by up to 0.0 deg" (poses a rounding's width past the
+#: edge, such as a test pose on the training grid's own limit, were counted as extrapolated). Chosen by the printed
+#: precision, not on any recording.
+OUTSIDE_TOLERANCE_DEG = 0.05
+
+
 def extrapolation(model: Any, q: np.ndarray) -> dict[str, Any]:
     """How many poses lie outside what the model's training data identified, by how much, and what the guard did.
+
+    ``evaluate``, ``predict`` and ``diagnose`` all count with this one rule: a pose is outside the training range
+    when one of its joints lies more than :data:`OUTSIDE_TOLERANCE_DEG` beyond that joint's training range (a pose
+    only a rounding's width past the edge is not).
 
     Args:
         model: a :class:`~calibration.models.base.KinematicModel`.
         q: joint angles [rad] (N, n).
 
     Returns:
-        ``poses``, ``outside_training_range`` (poses with a joint outside the training range),
-        ``max_excess_deg`` and ``rms_excess_deg`` (over the outside poses, the largest joint excess),
-        ``max_excess_deg_per_joint`` (n,), ``outside_model_region`` (the model's own region test, e.g. a cdc
-        interpolator's), ``region_known`` (False for a model saved without its training region), and
+        ``poses``, ``outside_training_range`` (poses with a joint more than ``outside_tolerance_deg`` outside the
+        training range), ``outside_tolerance_deg``, ``max_excess_deg`` (the largest joint excess of any pose, 0
+        inside the range) and ``rms_excess_deg`` (over the poses counted outside, of each one's largest joint
+        excess), ``max_excess_deg_per_joint`` (n,), ``outside_model_region`` (the model's own region test, e.g. a
+        cdc interpolator's), ``region_known`` (False for a model saved without its training region), and
         ``guard_acted`` / ``guard_shift_mm_max``: whether the guard changed the model's prediction on these poses
-        (its configuration-dependent terms held at the edge of the range) and the largest position change it made
-        [mm] (0 and False for a model whose every term is rigid, or with every pose inside).
+        (its configuration-dependent terms held at the edge of the range, wherever a joint is past it at all) and
+        the largest position change it made [mm] (0 and False for a model whose every term is rigid, or with every
+        pose inside).
     """
     q = np.atleast_2d(np.asarray(q, dtype=float))
     region = model.region()
     own = int(np.count_nonzero(model.out_of_range(q)))
-    out: dict[str, Any] = {"poses": int(q.shape[0]), "region_known": region is not None, "outside_model_region": own}
+    out: dict[str, Any] = {"poses": int(q.shape[0]), "region_known": region is not None, "outside_model_region": own,
+                           "outside_tolerance_deg": OUTSIDE_TOLERANCE_DEG}
     if region is None:
         return {**out, "outside_training_range": None, "max_excess_deg": None, "rms_excess_deg": None,
                 "max_excess_deg_per_joint": None, "guard_acted": False, "guard_shift_mm_max": None}
     ex = np.degrees(region.excess(q))
     worst = ex.max(axis=1)
-    outside = worst > 0
-    shift = guard_shift_mm(model, q[outside]) if outside.any() else 0.0
+    outside = worst > OUTSIDE_TOLERANCE_DEG
+    held = worst > 0  # where the guard's clamp acts, however little
+    shift = guard_shift_mm(model, q[held]) if held.any() else 0.0
     return {**out, "outside_training_range": int(np.count_nonzero(outside)),
             "max_excess_deg": float(worst.max(initial=0.0)),
             "rms_excess_deg": float(np.sqrt(np.mean(worst[outside] ** 2))) if outside.any() else 0.0,

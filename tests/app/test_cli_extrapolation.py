@@ -33,3 +33,26 @@ def test_predict_and_evaluate_report_poses_outside_the_training_range(tmp_path, 
                  str(tmp_path / "e.json")]) == 0
     ev = json.loads((tmp_path / "e.json").read_text())["extrapolation"]
     assert ev["outside_training_range"] == 3 and ev["max_excess_deg"] == ex["max_excess_deg"]
+
+
+def test_predict_and_evaluate_count_a_pose_a_rounding_past_the_edge_alike(tmp_path, synthetic_arm, capsys):
+    """Poses 0.02 deg past q1's training range made predict and evaluate warn '... (by up to 0.0 deg)': neither
+    counts them now, and both count the pose 0.5 deg past by the same rule."""
+    _, _, truth = synthetic_arm
+    q, cluster = cluster_design(step_deg=30.0)
+    write_recording(measure(truth.fk, q, 0.02, 0.01, 1, cluster), tmp_path / "train.csv")
+    hi = q.max(axis=0)
+    q_test = np.tile((q.min(axis=0) + hi) / 2, (4, 1))
+    q_test[:3, 0] = hi[0] + np.radians([0.02, 0.04, 0.5])
+    write_recording(measure(truth.fk, q_test, 0.02, 0.01, 2), tmp_path / "test.csv")
+    np.savetxt(tmp_path / "q.csv", q_test, delimiter=",", fmt="%.17g")
+    model = tmp_path / "m.yaml"
+    assert main(["fit", "--robot", "R1", "--train", str(tmp_path / "train.csv"), "--method", "nls1",
+                 "--out", str(model)]) == 0
+    capsys.readouterr()
+    for argv, name in ((["predict", "--joints", str(tmp_path / "q.csv"), "--out", str(tmp_path / "p.csv")], "p.json"),
+                       (["evaluate", "--test", str(tmp_path / "test.csv")], "e.json")):
+        assert main([*argv, "--model", str(model), "--json", str(tmp_path / name)]) == 0
+        err = capsys.readouterr().err
+        assert "1 of 4 poses lie outside the joint range" in err and "by up to 0.5 deg" in err, err
+        assert json.loads((tmp_path / name).read_text())["extrapolation"]["outside_training_range"] == 1

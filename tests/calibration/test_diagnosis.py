@@ -110,7 +110,10 @@ def test_narrow_design_reports_not_identifiable_instead_of_inventing(arm):
     assert "Not identifiable" in res.verdict
     # the held-out poses move the wrist far beyond the fit data's band: the report says how many and by how much
     ex = res.to_json()["extrapolation"]
-    outside = np.any((ho.q < fit.q.min(axis=0)) | (ho.q > fit.q.max(axis=0)), axis=1)
+    from calibration.models.guard import OUTSIDE_TOLERANCE_DEG
+
+    tol = np.radians(OUTSIDE_TOLERANCE_DEG)  # a pose counts outside by more than the tolerance (the guard's rule)
+    outside = np.any((ho.q < fit.q.min(axis=0) - tol) | (ho.q > fit.q.max(axis=0) + tol), axis=1)
     assert ex["outside_training_range"] == int(outside.sum()) > 0 and ex["poses"] == len(ho)
     assert ex["max_excess_deg"] > 10 and set(ex) >= {"guard_acted", "guard_shift_mm_max"}
     assert any(f"{int(outside.sum())} of {len(ho)} held-out poses lie outside" in n for n in res.notes)

@@ -66,6 +66,21 @@ def test_extrapolation_counts_poses_outside_and_by_how_much(region):
     assert not unknown["region_known"] and unknown["outside_training_range"] is None
 
 
+def test_a_pose_a_rounding_past_the_edge_is_not_counted_outside(region):
+    """A pose 0.03 deg past the range was counted, and the warning said 'by up to 0.0 deg': only an excess beyond
+    OUTSIDE_TOLERANCE_DEG counts, and the largest counted excess prints as at least 0.1 deg."""
+    from calibration.models.guard import OUTSIDE_TOLERANCE_DEG
+
+    assert OUTSIDE_TOLERANCE_DEG <= 0.05  # half the printed 0.1 deg: a counted excess never prints as 0.0
+    model = PhysicsModel("R1", "t", load_cell().robot("R1").model(), (), 0, {REGION_KEY: region.to_dict()})
+    q = np.zeros((3, 6))
+    q[:, 0] = region.upper_rad[0] + np.radians([0.03, OUTSIDE_TOLERANCE_DEG - 1e-6, OUTSIDE_TOLERANCE_DEG + 0.01])
+    ex = extrapolation(model, q)
+    assert ex["outside_training_range"] == 1 and ex["outside_tolerance_deg"] == OUTSIDE_TOLERANCE_DEG
+    assert f"{ex['rms_excess_deg']:.1f}" == "0.1" and ex["max_excess_deg"] == pytest.approx(0.06)
+    assert extrapolation(model, q[:2])["outside_training_range"] == 0
+
+
 def test_effect_fitted_in_a_narrow_band_is_held_at_its_edge_outside(region, tmp_path):
     """A joint-6 gear error identified within +-1 deg does not swing through its period 40-120 deg away."""
     from calibration import so3
