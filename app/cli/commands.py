@@ -51,8 +51,9 @@ def cmd_predict(args: argparse.Namespace) -> int:
     q = read_joints(args.joints, *((robot.robot.lower_rad, robot.robot.upper_rad) if robot else ()))
     outside = model.out_of_range(q)
     if outside.any():
-        print(f"warning: {int(outside.sum())} of {len(q)} configurations lie outside the region the "
-              f"{model.method} model was fitted on; its parameters there are extrapolated", file=sys.stderr)
+        print(f"warning: {int(outside.sum())} of {len(q)} configurations lie outside the (q2, q3) region the "
+              f"{model.method} model interpolates its parameters over (its anchors' hull); its parameters there are "
+              "extrapolated", file=sys.stderr)
     ex = extrapolation(model, q)
     _warn_extrapolation(model, ex)
     R, p = model.fk(q)
@@ -62,8 +63,20 @@ def cmd_predict(args: argparse.Namespace) -> int:
     print(f"{len(q)} poses -> {args.out}")
     write_json(args.json, {"robot": model.robot, "method": model.method, "poses": len(q),
                            "outside_fitted_region": int(outside.sum()), "out": str(args.out),
-                           "extrapolation": ex})
+                           "extrapolation": ex, "counts_explained": _counts_explained(predict=True)})
     return 0
+
+
+def _counts_explained(*, predict: bool = False) -> dict[str, str]:
+    """What each pose count of the command's JSON counts, keyed by where the count sits (``extrapolation.KEY``);
+    predict's ``outside_fitted_region`` is the extrapolation's ``outside_model_region``."""
+    from calibration.models.guard import COUNTS_EXPLAINED as explained
+
+    out = {f"extrapolation.{key}": text for key, text in explained.items()}
+    if predict:
+        out = {"outside_fitted_region": "the same count as extrapolation.outside_model_region: "
+                                        + explained["outside_model_region"], **out}
+    return out
 
 
 def _warn_extrapolation(model: Any, ex: dict[str, Any]) -> None:
@@ -104,6 +117,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     print(f"{model.method} on {len(test)} samples: position mean {pos['mean']:.3f} std {pos['std']:.3f} "
           f"max {pos['max']:.3f} mm; orientation mean {ori['mean']:.3f} max {ori['max']:.3f} deg")
     result["frames"] = frames
+    result["counts_explained"] = _counts_explained()
     write_json(args.json, result)
     if args.report:
         from app.analysis.report import write_evaluation_report
@@ -354,8 +368,10 @@ def build_parser() -> argparse.ArgumentParser:
                                    "are checked against the limits of the model's robot either way)")
     p.add_argument("--joints", required=True, help="CSV with q1..q6 [rad] (header) or 6 headerless columns")
     p.add_argument("--out", required=True, help="poses CSV to write (x, y, z [mm], qw, qx, qy, qz)")
-    p.add_argument("--json", help="write the pose count, how many lie outside the interpolation region and the "
-                                  "extrapolation beyond the training joint range as JSON")
+    p.add_argument("--json", help="write the pose count, how many lie outside the model's (q2, q3) interpolation "
+                                  "region (outside_fitted_region: 0 for a constant model) and beyond the training "
+                                  "joint range (extrapolation), with what each count counts (counts_explained), as "
+                                  "JSON")
     p = add("evaluate", cmd_evaluate, "accuracy of a model on a recording")
     p.add_argument("--model", required=True, help="the model file (fit --out)")
     p.add_argument("--robot", help="the arm the model is for (R1, R2): refuse a model of another robot (joints "

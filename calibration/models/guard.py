@@ -247,6 +247,18 @@ def extrapolation(model: Any, q: np.ndarray) -> dict[str, Any]:
             "guard_acted": bool(shift > GUARD_ACTED_MM), "guard_shift_mm_max": shift}
 
 
+#: What each count of :func:`extrapolation` counts, in words, for the JSON of the commands that report it: a user
+#: read ``outside_fitted_region: 0`` beside ``outside_training_range: 50`` as a contradiction.
+COUNTS_EXPLAINED = {
+    "outside_training_range": f"poses with a joint more than {OUTSIDE_TOLERANCE_DEG:g} deg outside that joint's range "
+                              "in the model's training data, for every model kind (null: the model file records no "
+                              "training range)",
+    "outside_model_region": "poses outside the model's own interpolation region: the convex hull of the (q2, q3) "
+                            "anchors a cdc model interpolates its parameters over; always 0 for a model of one "
+                            "constant geometry (nominal, nls1, pi, ...), which has no such region",
+}
+
+
 #: The guard is said to have acted when it moves a predicted position by more than this [mm] (rounding level).
 GUARD_ACTED_MM = 1e-9
 

@@ -35,6 +35,46 @@ def test_predict_and_evaluate_report_poses_outside_the_training_range(tmp_path, 
     assert ev["outside_training_range"] == 3 and ev["max_excess_deg"] == ex["max_excess_deg"]
 
 
+def counts_of(doc, prefix=""):
+    """Every pose count of a predict/evaluate JSON (keys starting with ``outside_``), as dotted keys."""
+    found = set()
+    for key, value in doc.items():
+        if isinstance(value, dict) and key != "counts_explained":
+            found |= counts_of(value, f"{prefix}{key}.")
+        elif key.startswith("outside_") and key != "outside_tolerance_deg":
+            found.add(prefix + key)
+    return found
+
+
+def test_predict_and_evaluate_json_say_what_each_count_counts(tmp_path, synthetic_arm, capsys):
+    """predict --json gave outside_fitted_region: 0 next to outside_training_range: 50 and no word on either: every
+    count now has a sentence in counts_explained (the keys themselves stay, scripts read them)."""
+    _, _, truth = synthetic_arm
+    q, cluster = cluster_design(step_deg=30.0)
+    write_recording(measure(truth.fk, q, 0.02, 0.01, 1, cluster), tmp_path / "train.csv")
+    q_test = q[:5].copy()
+    q_test[:, 0] += np.radians(30.0)
+    write_recording(measure(truth.fk, q_test, 0.02, 0.01, 2), tmp_path / "test.csv")
+    np.savetxt(tmp_path / "q.csv", q_test, delimiter=",", fmt="%.17g")
+    model = tmp_path / "m.yaml"
+    assert main(["fit", "--robot", "R1", "--train", str(tmp_path / "train.csv"), "--method", "nls1",
+                 "--out", str(model)]) == 0
+    assert main(["predict", "--model", str(model), "--joints", str(tmp_path / "q.csv"), "--out",
+                 str(tmp_path / "p.csv"), "--json", str(tmp_path / "p.json")]) == 0
+    assert main(["evaluate", "--model", str(model), "--test", str(tmp_path / "test.csv"), "--json",
+                 str(tmp_path / "e.json")]) == 0
+    predict, evaluate = (json.loads((tmp_path / n).read_text()) for n in ("p.json", "e.json"))
+    assert predict["outside_fitted_region"] == 0 and predict["extrapolation"]["outside_training_range"] == 5
+    assert counts_of(predict) == set(predict["counts_explained"]) >= {"outside_fitted_region",
+                                                                      "extrapolation.outside_training_range"}
+    assert counts_of(evaluate) == set(evaluate["counts_explained"])
+    explained = predict["counts_explained"]
+    assert "constant geometry" in explained["outside_fitted_region"] and "0" in explained["outside_fitted_region"]
+    assert "training data" in explained["extrapolation.outside_training_range"]
+    assert f"{predict['extrapolation']['outside_tolerance_deg']:g} deg" in explained[
+        "extrapolation.outside_training_range"]
+
+
 def test_predict_and_evaluate_count_a_pose_a_rounding_past_the_edge_alike(tmp_path, synthetic_arm, capsys):
     """Poses 0.02 deg past q1's training range made predict and evaluate warn '... (by up to 0.0 deg)': neither
     counts them now, and both count the pose 0.5 deg past by the same rule."""
