@@ -209,10 +209,30 @@ INPUT_FILE_OPTIONS = ("train", "test", "cpa", "data", "model", "models", "joints
                       "path", "cell", CELL_AFTER)
 
 
+def _folder_files(args: argparse.Namespace) -> list[tuple[str, str, str]]:
+    """``(option, file name, path)`` of the files a command owns inside the folders it is given: a session's
+    database (and its WAL, shared-memory and lock files), a model folder's model in service. They may not exist yet
+    (recalibrate installs the first ``current.yaml``), so they are compared by path."""
+    import os
+
+    folders: dict[str, tuple[str, ...]] = {}
+    if isinstance(getattr(args, "session", None), str):
+        from app.cell.session_store import DB_NAME, LOCK_NAME
+
+        folders["session"] = (DB_NAME, f"{DB_NAME}-wal", f"{DB_NAME}-shm", LOCK_NAME)
+    if isinstance(getattr(args, "model_dir", None), str):
+        from app.analysis.recalibrate import CURRENT
+
+        folders["model_dir"] = (CURRENT,)
+    return [(name, file, os.path.join(getattr(args, name), file)) for name, files in folders.items() for file in files]
+
+
 def check_output_args(args: argparse.Namespace) -> None:
     """Refuse an empty, symlink, device, FIFO or folder output path before any work, so nothing is written; and an
     output that is one of the command's input files or another of its outputs (``fit --train r.csv --out r.csv``
-    replaced the recording with the model, ``--json`` equal to ``--out`` the model with its summary).
+    replaced the recording with the model, ``--json`` equal to ``--out`` the model with its summary), or a file the
+    command owns in a folder it is given (:func:`_folder_files`: ``export --out S/session.sqlite`` would replace the
+    session it reads, ``recalibrate --json M/current.yaml`` the model it installs).
 
     Raises:
         OutputError: the first such ``--out``/``--json``/``--html`` path.
@@ -239,6 +259,11 @@ def check_output_args(args: argparse.Namespace) -> None:
         if clash is None and os.path.exists(value):
             clash = next(((other, "input") for other, path in inputs
                           if os.path.exists(path) and os.path.samefile(value, path)), None)
+        if clash is None:
+            clash = next(((folder, f"folder's {file}") for folder, file, path in _folder_files(args)
+                          if os.path.realpath(path) == os.path.realpath(value)
+                          or (os.path.exists(path) and os.path.exists(value) and os.path.samefile(value, path))),
+                         None)
         if clash is not None:
             raise OutputError(value, f"--{name} is also the --{_option(clash[0])} {clash[1]}; refusing to "
                                      f"overwrite it (give --{name} another file)")

@@ -101,3 +101,23 @@ def test_an_output_that_is_an_input_or_another_output_is_refused_and_nothing_cha
                      "--out is also the --models input")
     assert {p: p.read_bytes() for p in (plan, joints)} == before
     assert sorted(os.listdir(tmp_path)) == ["plan.json", "q.csv"]
+
+
+def test_an_output_onto_a_file_a_given_folder_holds_is_refused_and_nothing_changes(tmp_path, capsys):
+    # export --out S/session.sqlite replaced the session it read with the CSV; recalibrate --json M/current.yaml
+    # would replace the model it installs (there is none yet in a new model folder: compared by path)
+    session, models = tmp_path / "s", tmp_path / "models"
+    session.mkdir()
+    models.mkdir()
+    (session / "session.sqlite").write_bytes(b"the session")
+    assert_bad_input(capsys, ["export", "--session", str(session), "--out", str(session / "." / "session.sqlite")],
+                     "session.sqlite: --out is also the --session folder's session.sqlite", "refusing to overwrite")
+    for present in (False, True):
+        if present:
+            (models / "current.yaml").write_text("the model in service")
+        assert_bad_input(capsys, ["recalibrate", "--robot", "R1", "--plan", str(tmp_path / "plan.json"),
+                                  "--model-dir", str(models), "--sim", "--json", str(models / "current.yaml")],
+                         "current.yaml: --json is also the --model-dir folder's current.yaml")
+    assert (session / "session.sqlite").read_bytes() == b"the session"
+    assert (models / "current.yaml").read_text() == "the model in service"
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["current.yaml", "models", "s", "session.sqlite"]
