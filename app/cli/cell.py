@@ -344,7 +344,7 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
 def cmd_demo(args: argparse.Namespace) -> int:
     from app.cell.runtime import SimCellOptions
     from app.cli.cell_options import checked_time_scale
-    from app.demo.run import DemoConfig, run_demo, summary_table
+    from app.demo.run import DemoConfig, run_demo, stop_note, summary_table
 
     if args.anchor_step is not None:
         _check_grid_step("--anchor-step", args.anchor_step)
@@ -355,7 +355,12 @@ def cmd_demo(args: argparse.Namespace) -> int:
                         sim=SimCellOptions(time_scale=checked_time_scale(args.time_scale)),
                         progress=show_progress(args),
                         tolerance=tolerance_from_args(args), report_dir=Path(args.report) if args.report else None)
-    result = run_demo(args.out, cell_spec(args), config)
+    cell = cell_spec(args)
+    try:
+        result = run_demo(args.out, cell, config)
+    except KeyboardInterrupt:  # what the stop line says (app.cli.commands.main): what was left, what a re-run does
+        args.stop_hint = stop_note(Path(args.out), tuple(cell.robots))
+        raise
     print(summary_table(result.summary))
     print(f"demo finished in {result.seconds:.1f} s; {result.summary['mocap_frames_received']} mocap frames "
           f"received over zenoh")

@@ -191,6 +191,15 @@ def robot_summary(session: SessionResult, rec: Recordings, cmp: Any, left_out: d
             "observability_warning": full["analysis"].get("observability", {}).get("warning") or ""}
 
 
+#: The files a demo run writes at the top of its output folder.
+TOP_FILES = ("report.html", "summary.json")
+
+
+def _demo_folder(d: Path) -> bool:
+    """Whether the robot folder ``d`` is a demo run's: it holds the demo's ``plan.json`` or ``session/``."""
+    return d.is_dir() and ((d / "plan.json").exists() or (d / "session").is_dir())
+
+
 def clear_previous(out: Path, robots: tuple[str, ...]) -> None:
     """Remove what an earlier demo run wrote into ``out`` (its robot folders, report and summary), nothing else.
 
@@ -200,11 +209,29 @@ def clear_previous(out: Path, robots: tuple[str, ...]) -> None:
 
     for robot in robots:
         d = out / robot
-        if d.is_dir() and ((d / "plan.json").exists() or (d / "session").is_dir()):
+        if _demo_folder(d):
             log.info("removing the previous demo run's %s", d)
             shutil.rmtree(d)
-    for name in ("report.html", "summary.json"):
+    for name in TOP_FILES:
         (out / name).unlink(missing_ok=True)
+
+
+def left_behind(out: Path, robots: tuple[str, ...]) -> list[str]:
+    """What a demo run (finished or stopped part-way) has in ``out``, relative to it, folders with a trailing ``/``:
+    each demo robot folder's entries, then the report and summary. These are what :func:`clear_previous` removes."""
+    left = [f"{robot}/{e.name}{'/' if e.is_dir() else ''}" for robot in robots if _demo_folder(out / robot)
+            for e in sorted((out / robot).iterdir())]
+    return left + [name for name in TOP_FILES if (out / name).exists()]
+
+
+def stop_note(out: Path, robots: tuple[str, ...]) -> str:
+    """The stop line's note for a demo stopped (Ctrl-C) part-way: what it left in ``out`` and what a re-run does
+    with it. Nothing is deleted on a stop (a user's data is never removed silently); a re-run replaces it."""
+    left = left_behind(out, robots)
+    if not left:
+        return f" (nothing left in {out})"
+    return (f" (left in {out}: {', '.join(left)}; nothing was deleted: a re-run of cellcal demo --out {out} "
+            "removes these and starts over)")
 
 
 def run_demo(out_dir: str | Path, cell: CellSpec, config: DemoConfig = DemoConfig()) -> DemoResult:
