@@ -243,6 +243,17 @@ def _check_limits(path: Path, q: np.ndarray, first_row: int,
                             f"[{math.degrees(lower[j]):.1f}, {math.degrees(upper[j]):.1f}] deg")
 
 
+def welding_layout(path: str | Path) -> tuple[Path, Path] | None:
+    """The joint and pose files of ``path`` when it is a folder in the Welding_Motoman layout of the paper's own cell
+    (``[train_data_]robot_q_align.csv`` + ``[train_data_]mocap_T_align.csv``), else None."""
+    path = Path(path)
+    if path.is_dir():
+        for q_name, t_name in WELDING_LAYOUTS:
+            if (path / q_name).exists() and (path / t_name).exists():
+                return path / q_name, path / t_name
+    return None
+
+
 def read_recording(path: str | Path, lower: np.ndarray | None = None, upper: np.ndarray | None = None) -> Recording:
     """Read a recording CSV or a Welding_Motoman folder.
 
@@ -255,17 +266,15 @@ def read_recording(path: str | Path, lower: np.ndarray | None = None, upper: np.
     """
     path = Path(path)
     if path.is_dir():
-        for q_name, t_name in WELDING_LAYOUTS:
-            if (path / q_name).exists() and (path / t_name).exists():
-                q_path, t_path = path / q_name, path / t_name
-                _, q, _ = _read_table(q_path, JOINT_COLUMNS)
-                _, T, _ = _read_table(t_path, POSE_COLUMNS)
-                if len(q) != len(T):
-                    raise DataError(t_path, None, None,
-                                    f"{len(T)} pose rows but {q_path.name} has {len(q)} joint rows")
-                _check_pose(t_path, q, T[:, 3:], 1, lower, upper, q_path)
-                return Recording(q, T[:, :3], T[:, 3:] / np.linalg.norm(T[:, 3:], axis=1, keepdims=True),
-                                 {}, str(path))
+        layout = welding_layout(path)
+        if layout is not None:
+            q_path, t_path = layout
+            _, q, _ = _read_table(q_path, JOINT_COLUMNS)
+            _, T, _ = _read_table(t_path, POSE_COLUMNS)
+            if len(q) != len(T):
+                raise DataError(t_path, None, None, f"{len(T)} pose rows but {q_path.name} has {len(q)} joint rows")
+            _check_pose(t_path, q, T[:, 3:], 1, lower, upper, q_path)
+            return Recording(q, T[:, :3], T[:, 3:] / np.linalg.norm(T[:, 3:], axis=1, keepdims=True), {}, str(path))
         raise DataError(path, None, None, "folder has neither robot_q_align.csv + mocap_T_align.csv nor the "
                                           "train_data_ variants")
     names, data, first = _read_table(path, None, REQUIRED_COLUMNS + KNOWN_OPTIONAL_COLUMNS)

@@ -38,6 +38,9 @@ PAPER_R1_TEST = {  # the paper's Table IV (R1 test set, position mean / std / ma
     "fbf13": (0.31, 0.14, 0.74), "fbf7": (0.32, 0.16, 0.81), "nn": (0.34, 0.13, 0.78), "ae": (0.31, 0.14, 0.73),
 }
 
+#: The paper's column in a comparison table: its figures, on its own R1 test set (:func:`shows_paper`).
+PAPER_COLUMN = "paper's Table IV on its R1 test set: pos mean / std / max mm"
+
 REPORT_HTML = "report.html"
 
 
@@ -210,6 +213,15 @@ def _f(v: float | None, fmt: str) -> str:
     return "–" if v is None else format(v, fmt)
 
 
+def shows_paper(robot: str, test: Recording) -> bool:
+    """Whether a comparison shows the paper's Table IV figures (:data:`PAPER_R1_TEST`) beside its own: only for R1
+    tested on a recording in the Welding_Motoman layout, the paper's own cell's data. On a simulated recording, or
+    any in the native CSV format, the paper's column stood beside the figures as if they were comparable."""
+    from calibration.recording import welding_layout
+
+    return robot == "R1" and welding_layout(test.source) is not None
+
+
 def comparison_table(cmp: Comparison, with_paper: bool = False) -> str:
     """Table IV as Markdown: test and train position/orientation statistics and fit time per method."""
     return "\n".join(comparison_rows(cmp, with_paper).markdown()[2:]).rstrip()
@@ -218,7 +230,7 @@ def comparison_table(cmp: Comparison, with_paper: bool = False) -> str:
 def comparison_rows(cmp: Comparison, with_paper: bool = False) -> Table:
     """Table IV: per method, parameters, fit time, test and train statistics (the paper's figures for R1)."""
     header = ["method", "params", "fit s", "test pos mean / std / max mm", "test ori mean / max deg",
-              "train pos mean / max mm"] + (["paper test mean / std / max"] if with_paper else [])
+              "train pos mean / max mm"] + ([PAPER_COLUMN] if with_paper else [])
     rows = []
     for m, model in cmp.models.items():
         te, tr = cmp.test_errors[m], cmp.train_errors[m]

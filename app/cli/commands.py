@@ -268,7 +268,7 @@ def cmd_export_urdf(args: argparse.Namespace) -> int:
 
 def cmd_compare(args: argparse.Namespace) -> int:
     from app.analysis.compare import parse_methods, recommendation_line, run_comparison
-    from app.analysis.report import comparison_table, write_report
+    from app.analysis.report import comparison_table, shows_paper, write_report
 
     from pathlib import Path
 
@@ -296,12 +296,13 @@ def cmd_compare(args: argparse.Namespace) -> int:
     for text in dict.fromkeys(warnings + [m.info.get("warning") or "" for m in cmp.models.values()]):
         if text:
             print(f"warning: {text}", file=sys.stderr)
-    print(comparison_table(cmp, with_paper=args.robot == "R1"))
+    with_paper = shows_paper(args.robot, test)  # the paper's figures only beside a test recording of its own cell
+    print(comparison_table(cmp, with_paper=with_paper))
     print(recommendation_line(cmp))
     write_json(args.json, cmp.to_json())
     if args.report:
         inputs = [*(("train", t) for t in args.train), ("cpa", args.cpa), ("test", args.test)] + [("model", f) for f in args.model]
-        files = write_report(cmp, test, args.report, args.robot == "R1", tolerance, inputs, command_line(args))
+        files = write_report(cmp, test, args.report, with_paper, tolerance, inputs, command_line(args))
         print(f"report: {files[-1]}")
     return 0
 

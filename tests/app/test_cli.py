@@ -164,6 +164,26 @@ def test_training_anchors_on_a_line_are_refused_for_a_cdc_method_naming_the_file
     assert not out.exists()
 
 
+def test_compare_shows_the_papers_column_only_for_a_test_recording_of_its_own_cell(tmp_path, data, capsys):
+    # the R1 table carried the paper's Table IV figures beside any test recording, a simulated one included
+    from app.analysis.report import PAPER_R1_TEST
+    from calibration.recording import read_recording
+
+    test = read_recording(data / "test.csv")
+    folder = tmp_path / "welding"  # the same poses in the Welding_Motoman layout of the paper's cell
+    folder.mkdir()
+    np.savetxt(folder / "robot_q_align.csv", test.q, delimiter=",", fmt="%.17g")
+    np.savetxt(folder / "mocap_T_align.csv", np.hstack([test.p, test.quat]), delimiter=",", fmt="%.17g")
+    paper = " / ".join(f"{v:.2f}" for v in PAPER_R1_TEST["nominal"])  # the table prints its own figures to 3 places
+    tables = {}
+    for name, path in (("csv", data / "test.csv"), ("welding", folder)):
+        assert main(["compare", "--robot", "R1", "--train", str(data / "train.csv"), "--test", str(path),
+                     "--methods", "nominal,base"]) == 0
+        tables[name] = capsys.readouterr().out
+    assert paper not in tables["csv"] and "paper" not in tables["csv"]
+    assert paper in tables["welding"] and "paper's Table IV on its R1 test set" in tables["welding"]
+
+
 def test_predict_rejects_bad_joint_file(tmp_path, data, capsys):
     model = tmp_path / "m.json"
     assert main(["fit", "--robot", "R1", "--train", str(data / "train.csv"), "--method", "nls1",
