@@ -149,20 +149,11 @@ class CellCapsules:
 
         Args:
             segs: ``robot``'s capsules, shape (N, 6, 2, 3) [mm].
-            other_segs: ``other``'s capsules at one pose, shape (6, 2, 3) [mm].
+            other_segs: ``other``'s capsules at one pose, shape (6, 2, 3), or pose by pose, (N, 6, 2, 3): sample k
+                of ``robot`` against sample k of ``other`` [mm].
         """
-        d = segment_distance(segs[:, :, None, 0], segs[:, :, None, 1], other_segs[None, None, :, 0],
-                             other_segs[None, None, :, 1])
-        return d - self.radii(robot)[None, :, None] - self.radii(other)[None, None, :]
-
-    def paired_gaps(self, robot: str, segs: np.ndarray, other: str, other_segs: np.ndarray) -> np.ndarray:
-        """:meth:`gaps` pose by pose: ``robot`` at sample k against ``other`` at the same sample [mm], (N, 6, 6).
-
-        Args:
-            segs, other_segs: the two arms' capsules, shape (N, 6, 2, 3) each [mm].
-        """
-        d = segment_distance(segs[:, :, None, 0], segs[:, :, None, 1], other_segs[:, None, :, 0],
-                             other_segs[:, None, :, 1])
+        o = other_segs[None] if other_segs.ndim == 3 else other_segs
+        d = segment_distance(segs[:, :, None, 0], segs[:, :, None, 1], o[:, None, :, 0], o[:, None, :, 1])
         return d - self.radii(robot)[None, :, None] - self.radii(other)[None, None, :]
 
     def floor_gaps(self, robot: str, segs: np.ndarray, names: Sequence[str] = FLOOR_CHECKED) -> np.ndarray:

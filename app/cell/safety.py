@@ -118,26 +118,36 @@ class CellSafety:
         return {n: np.asarray(q, dtype=float) for n, q in others.items() if n != robot}
 
     def check_configs(self, robot: str, q: np.ndarray, others: Mapping[str, np.ndarray] | None,
-                      index: Sequence[int] | None = None) -> None:
-        """Check configurations (N, 6) against limits, floor and the other arms; raise on the first unsafe one."""
+                      index: Sequence[int] | None = None, *, paired: bool = False, slack_mm: float = 0.0) -> None:
+        """Check configurations (N, 6) against limits, floor and the other arms; raise on the first unsafe one.
+
+        Args:
+            others: the other arms' joint angles: one pose each (6,), or with ``paired`` one per configuration
+                (N, 6), configuration k against the others' k-th pose (both arms moving together).
+            slack_mm: added to every clearance (a screen that hands near misses to a finer check).
+        """
         q = np.atleast_2d(np.asarray(q, dtype=float))
         self.check_limits(robot, q, index)
         other_q = self._others(robot, others)
         for name, oq in other_q.items():
             self.check_limits(name, oq)
+            if paired and np.atleast_2d(oq).shape != q.shape:
+                raise ConfigError("safety", "others", f"paired poses of {name} must be shaped like {robot}'s "
+                                                      f"{q.shape}, got {np.shape(oq)}")
         segs = self.capsules(robot, q)
         where = (lambda i: f" at target {index[i]}") if index is not None else (lambda i: "")
         if self.config.check_floor:
             gap = self.capsule_model.floor_gaps(robot, segs, FLOOR_CHECKED)
-            bad = gap < self.config.floor_clearance_mm
+            bad = gap < self.config.floor_clearance_mm + slack_mm
             if bad.any():
                 i, k = (int(v) for v in np.argwhere(bad)[0])
                 raise UnsafeTarget(robot, None, float(gap[i, k]), self.config.floor_clearance_mm,
                                    f"{robot} {FLOOR_CHECKED[k]} too close to the floor{where(i)}")
         if self.config.check_collisions:
             for name, oq in other_q.items():
-                gap = self.capsule_model.gaps(robot, segs, name, self.capsules(name, oq)[0])
-                bad = (gap < self.config.clearance_mm) & ~self._zone_pairs
+                other_segs = self.capsules(name, oq)
+                gap = self.capsule_model.gaps(robot, segs, name, other_segs if paired else other_segs[0])
+                bad = (gap < self.config.clearance_mm + slack_mm) & ~self._zone_pairs
                 if bad.any():
                     i, k, m = (int(v) for v in np.argwhere(bad)[0])
                     raise UnsafeTarget(robot, None, float(gap[i, k, m]), self.config.clearance_mm,
@@ -198,23 +208,13 @@ class CellSafety:
                 self.check_dual_motion(q[max(i - 1, 0)], q[i], i)
 
     def _dual_screen(self, q1: np.ndarray, q2: np.ndarray) -> bool:
-        """Whether every paired sample (R1 at q1[k], R2 at q2[k]; (K, 6) each) is clear of every check by more
-        than the slack: finite and within the limits, above the floor, and the arms apart (process zone excepted)."""
-        for robot, q in (("R1", q1), ("R2", q2)):
-            lower, upper = self.limits(robot)
-            if not (np.isfinite(q).all() and (q >= lower).all() and (q <= upper).all()):
-                return False
-        segs = {"R1": self.capsules("R1", q1), "R2": self.capsules("R2", q2)}
-        if self.config.check_floor:
-            for robot in ("R1", "R2"):
-                gap = self.capsule_model.floor_gaps(robot, segs[robot], FLOOR_CHECKED)
-                if (gap < self.config.floor_clearance_mm + SCREEN_SLACK_MM).any():
-                    return False
-        if self.config.check_collisions:
-            for robot, other in (("R1", "R2"), ("R2", "R1")):
-                gap = self.capsule_model.paired_gaps(robot, segs[robot], other, segs[other])
-                if ((gap < self.config.clearance_mm + SCREEN_SLACK_MM) & ~self._zone_pairs).any():
-                    return False
+        """Whether every paired sample (R1 at q1[k], R2 at q2[k]; (K, 6) each) passes :meth:`check_configs` with
+        :data:`SCREEN_SLACK_MM` added to every clearance, for each arm against the other."""
+        try:
+            self.check_configs("R1", q1, {"R2": q2}, paired=True, slack_mm=SCREEN_SLACK_MM)
+            self.check_configs("R2", q2, {"R1": q1}, paired=True, slack_mm=SCREEN_SLACK_MM)
+        except UnsafeTarget:
+            return False
         return True
 
     def check_plan(self, robot: str, q_targets: np.ndarray, others: Mapping[str, np.ndarray] | None,
