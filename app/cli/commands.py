@@ -182,6 +182,7 @@ def cmd_rebase(args: argparse.Namespace) -> int:
 
     from calibration.design import REBASE_OFFSETS
     from calibration.rebase import rebase, rebase_auto
+    from calibration.recording import DEFAULT_CLUSTER_SIZE
 
     _check_rebase_tolerance(args.tolerance)
     model, robot = model_and_robot(args, args.model, needs_robot=True)
@@ -208,8 +209,8 @@ def cmd_rebase(args: argparse.Namespace) -> int:
     try:
         n_clusters = len(np.unique(data.clusters()))
         where = f"{n_clusters} cluster(s)"
-    except DataError:  # no cluster column and not whole clusters of 7: judged by the pose count
-        n_clusters = result.n_samples // 7
+    except DataError:  # no cluster column and not whole clusters: judged by the pose count
+        n_clusters = result.n_samples // DEFAULT_CLUSTER_SIZE
         where = "no clusters"
     if n_clusters < REBASE_MIN_CLUSTERS:
         print(f"warning: {args.data} holds {result.n_samples} poses in {where}: the error after the "

@@ -63,13 +63,18 @@ def test_joint_limits_checked(tmp_path):
     assert e.value.column == "q1" and e.value.row == 2
 
 
-def test_welding_layout_row_count_mismatch(tmp_path):
+def welding_folder(tmp_path, joints: str, poses: str = "1,2,3,1,0,0,0\n"):
+    """A folder in the Welding_Motoman layout with these joint and pose rows."""
     folder = tmp_path / "run"
     folder.mkdir()
-    (folder / "robot_q_align.csv").write_text("0,0,0,0,0,0\n0,0,0,0,0,0\n")
-    (folder / "mocap_T_align.csv").write_text("1,2,3,1,0,0,0\n")
+    (folder / "robot_q_align.csv").write_text(joints)
+    (folder / "mocap_T_align.csv").write_text(poses)
+    return folder
+
+
+def test_welding_layout_row_count_mismatch(tmp_path):
     with pytest.raises(DataError, match="1 pose rows but robot_q_align.csv has 2"):
-        read_recording(folder)
+        read_recording(welding_folder(tmp_path, "0,0,0,0,0,0\n0,0,0,0,0,0\n"))
 
 
 def test_read_joints_with_and_without_header(tmp_path):
@@ -211,9 +216,5 @@ def test_other_separator_is_named(tmp_path, sep, name):
 
 
 def test_welding_layout_other_separator_is_named(tmp_path):
-    folder = tmp_path / "run"
-    folder.mkdir()
-    (folder / "robot_q_align.csv").write_text("0.1;0.2;0.3;0.4;0.5;0.6\n")
-    (folder / "mocap_T_align.csv").write_text("1,2,3,1,0,0,0\n")
     with pytest.raises(DataError, match="robot_q_align.csv, row 1: .*separated by ';'"):
-        read_recording(folder)
+        read_recording(welding_folder(tmp_path, "0.1;0.2;0.3;0.4;0.5;0.6\n"))
