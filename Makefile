@@ -5,7 +5,8 @@ BIN := $(VENV)/bin
 .PHONY: test demo clean
 
 # The venv is rebuilt whenever pyproject.toml or constraints.txt changes. constraints.txt pins every package to the
-# versions the figures in the notes were measured with: a fresh install of other versions changed a diagnosis.
+# versions the figures in the notes were measured with, so an install is repeatable (a diagnosis can still differ
+# between machines in its floating-point rounding: 0627 after, ninth stop's note).
 $(VENV): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
