@@ -35,6 +35,7 @@ from scipy.linalg import block_diag
 from calibration.diagnosis import explain
 from calibration.diagnosis.candidates import KINDS, Candidate, Signatures, Untested, dedupe, library, merge, visibility
 from calibration.diagnosis.drivers import Driver, Mismatch, drivers, locate_mismatch
+from calibration.diagnosis.fits import JointFits, usable_workers
 from calibration.diagnosis.inuse import InUse
 from calibration.diagnosis.model import result_model
 from calibration.diagnosis.noise import NoiseFloor, channel_weight, noise_floor
@@ -477,17 +478,30 @@ def confirm_on_heldout(base: FittedInUse, split: Split, hypotheses: Hypotheses, 
     with the model in use and the kinds kept before it; kept only when the rule accepts it on the held-out data."""
     kinds = selection.kinds()
     merged = [merge(k, selection.of_kind(k), hypotheses.bases) for k in kinds]
+    fits = JointFits(lambda chosen: joint_fit(base, chosen, split.fit, options),
+                     usable_workers() if merged else 1)
+    with fits:
+        return _confirm(base, split, hypotheses, selection, kinds, merged, fits, options)
+
+
+def _confirm(base: FittedInUse, split: Split, hypotheses: Hypotheses, selection: Selection, kinds: list[str],
+             merged: list[tuple[Effect, np.ndarray]], fits: JointFits, options: DiagnoseOptions) -> Confirmed:
+    """:func:`confirm_on_heldout` with its joint fits made by ``fits``: each step starts the fits it may need
+    (the trial and both of :func:`_beyond_flexible`'s) before it waits for the first."""
     kept: list[tuple[Effect, np.ndarray]] = []
     kept_kinds: list[str] = []
-    final, acc, dp, loss = joint_fit(base, [], split.fit, options), base.accuracy, base.heldout_mm, base.heldout_loss
+    fits.start([], merged[:1])
+    final, acc, dp, loss = fits.get([]), base.accuracy, base.heldout_mm, base.heldout_loss
     found, rejected = [], []
     for kind, (e0, B) in zip(kinds, merged):
-        trial = joint_fit(base, kept + [(e0, B)], split.fit, options)
+        flex = _flexible(kept, hypotheses)
+        fits.start(kept + [(e0, B)], *((flex, flex + [(e0, B)]) if not _same(flex, kept) else ()))
+        trial = fits.get(kept + [(e0, B)])
         t_acc, t_dp, t_loss = _accuracy("+".join([base.name] + kept_kinds + [kind]), base.inuse, base.theta_at(trial.x),
                                         trial.effects, split.heldout, split.heldout_context, options)
         rule, reported = _heldout_evidence(hypotheses.problem, selection, kind, kept_kinds, (acc, loss), (t_acc, t_loss))
         item = explain.found(trial.effects[-1], trial.effect_std[-1], reported)
-        if rule.accepted(options.selection) and _beyond_flexible(base, split, hypotheses, kept, (e0, B), options):
+        if rule.accepted(options.selection) and _beyond_flexible(base, split, flex, kept, (e0, B), options, fits):
             kept.append((e0, B))
             kept_kinds.append(kind)
             found.append(item)
@@ -497,7 +511,7 @@ def confirm_on_heldout(base: FittedInUse, split: Split, hypotheses: Hypotheses, 
     if "joint_compliance" in kept_kinds and "joint_compliance" in hypotheses.flexible:
         # The mass-free form replaces the YAML-shaped one on joints 2-3 when the data show a shape it cannot.
         flex = _flexible(kept, hypotheses)
-        trial = joint_fit(base, flex, split.fit, options)
+        trial = fits.get(flex)
         name = "+".join([base.name] + kept_kinds)
         t_acc, t_dp, t_loss = _accuracy(name, base.inuse, base.theta_at(trial.x), trial.effects, split.heldout,
                                         split.heldout_context, options)
@@ -516,7 +530,7 @@ def confirm_on_heldout(base: FittedInUse, split: Split, hypotheses: Hypotheses, 
         kept = [_subset_joints(*kept[i], [k for k, j in enumerate(kept[i][0].joints) if j not in wrong[i]])  # type: ignore[attr-defined]
                 if wrong[i] else kept[i] for i in keep]
         found, kept_kinds = [found[i] for i in keep], [kept_kinds[i] for i in keep]
-        final = joint_fit(base, kept, split.fit, options)
+        final = fits.get(kept)
         acc, dp, loss = _accuracy("+".join([base.name] + kept_kinds), base.inuse, base.theta_at(final.x), final.effects,
                                   split.heldout, split.heldout_context, options)
     # Parameters and uncertainties of the kept effects from the final joint fit.
@@ -564,16 +578,22 @@ def _flexible(kept: list[tuple[Effect, np.ndarray]], hypotheses: Hypotheses) -> 
     return out
 
 
-def _beyond_flexible(base: FittedInUse, split: Split, hypotheses: Hypotheses, kept: list[tuple[Effect, np.ndarray]],
-                     new: tuple[Effect, np.ndarray], options: DiagnoseOptions) -> bool:
-    """Whether ``new`` explains what the kinds kept cannot even in their most flexible form (True when they
-    have no further form): a shape mismatch of the YAML's inertias is not a second kind."""
-    flex = _flexible(kept, hypotheses)
-    if len(flex) == len(kept) and all(a is b for (a, _), (b, _) in zip(flex, kept)):
+def _same(a: list[tuple[Effect, np.ndarray]], b: list[tuple[Effect, np.ndarray]]) -> bool:
+    """Whether two lists of effect templates hold the same templates."""
+    return len(a) == len(b) and all(x is y for (x, _), (y, _) in zip(a, b))
+
+
+def _beyond_flexible(base: FittedInUse, split: Split, flex: list[tuple[Effect, np.ndarray]],
+                     kept: list[tuple[Effect, np.ndarray]], new: tuple[Effect, np.ndarray], options: DiagnoseOptions,
+                     joint_fits: JointFits) -> bool:
+    """Whether ``new`` explains what the kinds kept cannot even in their most flexible form ``flex``
+    (:func:`_flexible`; True when they have no further form): a shape mismatch of the YAML's inertias is not a
+    second kind."""
+    if _same(flex, kept):
         return True
     fits, held = [], []
     for chosen in (flex, flex + [new]):
-        f = joint_fit(base, chosen, split.fit, options)
+        f = joint_fits.get(chosen)
         fits.append(f)
         held.append(_accuracy("+".join([base.name] + [e.kind for e, _ in chosen]), base.inuse, base.theta_at(f.x),
                               f.effects, split.heldout, split.heldout_context, options))
