@@ -24,7 +24,6 @@ from typing import Callable, Collection
 
 import numpy as np
 from scipy import special
-from scipy.optimize import minimize_scalar
 
 from calibration.diagnosis.candidates import Candidate
 from calibration.physics.base import Effect
@@ -285,6 +284,8 @@ def refine_warmup(effect: ThermalDrift, problem: LinearSelection, sets: list[np.
                   ) -> ThermalDrift:
     """The warm-up effect with the time constant, within a factor ``e^1.2`` of its own, that fits best with the
     column sets ``sets``."""
+    from scipy.optimize import minimize_scalar  # here: scipy.optimize costs ~0.3 s to import, and only this kind needs it
+
     lt0 = np.log(effect.tau_s)
     res = minimize_scalar(_warmup_rss, bounds=(lt0 - 1.2, lt0 + 1.2), args=(effect, problem, sets, signature),
                           method="bounded", options={"xatol": 1e-3})
