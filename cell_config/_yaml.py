@@ -16,20 +16,16 @@ import numpy as np
 import yaml
 
 from calibration.errors import ConfigError, parse_error_text
+from calibration.yamlio import safe_load
 
 _REQUIRED: Any = ...
-
-
-#: libyaml's parser under PyYAML's safe constructor (as model files are read, calibration/models/base.py): the same
-#: objects as ``yaml.safe_load`` in a seventh of the time (a cell and its four robot and tool files: 45 ms -> 8 ms).
-_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
 def read_yaml(path: Path) -> Any:
     """Parse ``path`` as ``yaml.safe_load`` does; a missing file or bad YAML is a ConfigError."""
     try:
         with open(path, encoding="utf-8-sig") as f:
-            return yaml.load(f, Loader=_LOADER)
+            return safe_load(f)  # libyaml, as model files are read
     except FileNotFoundError as e:
         raise ConfigError(path, "", "file not found") from e
     except IsADirectoryError as e:

@@ -30,6 +30,7 @@ from calibration.errors import DataError, ModelError, ModelFileError, parse_erro
 from calibration.files import atomic_write_text
 from calibration.model_checks import check_model_data, check_model_for
 from calibration.poe import PoeModel
+from calibration.yamlio import safe_load
 
 #: The schema files are written with. /2 since the extrapolation guard's per-effect rule (the training region's
 #: ``rule``): a cellcal that reads /1 only would load a /2 file's region, ignore its rule and predict up to 13 mm
@@ -247,7 +248,7 @@ def _read_model_file(path: Path) -> dict[str, Any]:
         if path.suffix.lower() == ".json":
             data = json.loads(text)
         else:
-            data = yaml.load(text, Loader=getattr(yaml, "CSafeLoader", yaml.SafeLoader))
+            data = safe_load(text)
     except (json.JSONDecodeError, yaml.YAMLError, RecursionError) as e:
         raise DataError(path, None, None, f"not a valid model file ({parse_error_text(e)})") from e
     if not isinstance(data, dict):
