@@ -39,12 +39,15 @@ from calibration.errors import DataError
 DB_NAME = "session.sqlite"
 LOCK_NAME = "session.lock"
 #: What opening a folder without a session says, by what the command wanted of it: "resume" (collect, and by default)
-#: or "export" (which resumes nothing: "nothing to resume" misled a user who exported a mistyped folder).
-_NOTHING = {"resume": "nothing to resume", "export": "nothing to export"}
+#: "export" or "recalibrate" (which resume nothing: "nothing to resume" misled users who exported, or recalibrated
+#: from, a mistyped folder).
+_NOTHING = {"resume": "nothing to resume", "export": "nothing to export", "recalibrate": "nothing to recalibrate from"}
 #: How each purpose says a folder without a session comes to hold one.
 _START = {"resume": "start a new collect with a plan",
           "export": "check the folder, or collect a session into it first (cellcal collect --robot R --plan PLAN "
-                    "--session DIR)"}
+                    "--session DIR)",
+          "recalibrate": "check the folder, collect a session into it first (cellcal collect --robot R --plan PLAN "
+                         "--session DIR), or give recalibrate --plan PLAN instead of --session to collect one"}
 
 
 def _no_session(purpose: str) -> str:
@@ -196,12 +199,12 @@ class SessionStore:
         session_dir: the session folder (created when ``create`` is True).
         create: start a new session; False opens an existing one.
         lock: hold the folder lock (a writer); readers pass False.
-        purpose: what the caller wants of an existing session (``"resume"`` or ``"export"``), for the message when
-            there is none.
+        purpose: what the caller wants of an existing session (``"resume"``, ``"export"`` or ``"recalibrate"``),
+            for the message when there is none.
     """
 
     def __init__(self, session_dir: str | Path, create: bool = False, *, lock: bool = True,
-                 purpose: Literal["resume", "export"] = "resume") -> None:
+                 purpose: Literal["resume", "export", "recalibrate"] = "resume") -> None:
         self.dir = Path(session_dir)
         self.path = self.dir / DB_NAME
         if create:

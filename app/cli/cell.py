@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Literal
 
 from app.analysis.fitting import fitter_for
 from app.cli.common import add_report_options, cell_spec, command_line, epoch_bar, log, show_progress, \
@@ -26,14 +26,15 @@ def _load_plan(path: str, robot: str) -> Any:
     return plan
 
 
-def _require_session(path: str, robot: str, kinds: tuple[str, ...] = ()) -> None:
+def _require_session(path: str, robot: str, kinds: tuple[str, ...] = (),
+                     purpose: Literal["resume", "recalibrate"] = "resume") -> None:
     """Refuse at once (before any device opens) a folder without a session, or a session of another arm; with
     ``kinds``, also one whose plan still has targets of those kinds neither measured nor skipped (a collection
     stopped half-way: recalibrate fitted and installed a model on what it had measured, without a word)."""
     from app.cell.session_store import SessionStore
     from calibration.errors import DataError
 
-    with SessionStore(path) as store:  # raises DataError when there is no session or another process holds it
+    with SessionStore(path, purpose=purpose) as store:  # DataError when there is none or another process holds it
         store.check_robot(robot)
         if kinds:
             wanted = [i for i, t in enumerate(store.plan().targets) if t.kind in kinds]
@@ -262,7 +263,7 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     plan = _load_plan(args.plan, args.robot) if args.plan else None
     if args.session:
         _require_session(args.session, args.robot, ("anchor", "perturb", "cpa") if args.method == "cpa" else
-                         ("anchor", "perturb"))
+                         ("anchor", "perturb"), purpose="recalibrate")
     service = model_in_service(model_dir, args.robot, robot.model())  # another robot's model: stop before motion
     if args.rebase:
         model_to_rebase(model_dir, service)  # nothing to rebase: stop before motion

@@ -176,6 +176,18 @@ def test_a_session_stopped_half_way_is_refused_before_any_motion(tmp_path, capsy
     assert sorted(str(p) for p in tmp_path.rglob("*")) == before
 
 
+def test_a_folder_without_a_session_says_there_is_nothing_to_recalibrate_from(tmp_path, capsys):
+    # it said "nothing to resume; start a new collect with a plan", worded for collect --resume
+    session, models = tmp_path / "nosuch", tmp_path / "models_r1"
+    argv = ["recalibrate", "--robot", "R1", "--session", str(session), "--model-dir", str(models), "--method", "nls1",
+            "--sim", "--yes"]
+    assert_bad_input(capsys, argv, str(session), "no session here (session.sqlite not found): nothing to recalibrate "
+                     "from", "cellcal collect --robot R --plan PLAN --session DIR", "recalibrate --plan PLAN")
+    assert main(argv) == 2
+    assert "resume" not in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_recalibrate_cli_refuses_a_first_model_outside_the_tolerance(tmp_path, capsys):
     args, models = _sim_recalibrate(tmp_path, "nominal", 4)
     capsys.readouterr()
