@@ -46,7 +46,8 @@ def usable_workers(limit: int = 2) -> int:
 
 
 class JointFits:
-    """Joint fits ``fit(chosen)``, each computed once per set of effect templates (by identity).
+    """Joint fits ``fit(chosen)``, each computed once per set of effect templates and their bases (by identity;
+    the sets asked for are kept, so no identity is reused while this lives).
 
     Args:
         fit: the joint fit of the model in use with ``chosen`` on the fit data.
@@ -58,16 +59,16 @@ class JointFits:
         if _STATE is not None:
             raise RuntimeError("one JointFits at a time: another is still open")
         self._fit = fit
-        self._done: dict[tuple[int, ...], tuple[Chosen, JointFit]] = {}
-        self._pending: dict[tuple[int, ...], tuple[Chosen, Future]] = {}
+        self._done: dict[tuple[tuple[int, int], ...], tuple[Chosen, JointFit]] = {}
+        self._pending: dict[tuple[tuple[int, int], ...], tuple[Chosen, Future]] = {}
         self._pool: ProcessPoolExecutor | None = None
         if workers > 1:
             _STATE = fit  # the workers fork on the first submits, while this is set (cleared by close)
             self._pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"))
 
     @staticmethod
-    def _key(chosen: Chosen) -> tuple[int, ...]:
-        return tuple(id(e) for e, _ in chosen)
+    def _key(chosen: Chosen) -> tuple[tuple[int, int], ...]:
+        return tuple((id(e), id(B)) for e, B in chosen)
 
     def start(self, *sets: Chosen) -> None:
         """Hand the fits of ``sets`` not made or started yet to the workers (a no-op without workers)."""
