@@ -213,13 +213,18 @@ def _check_separator(path: Path, first: list[str], expected: int) -> None:
     Raises:
         DataError: naming the file and the separator it seems to use.
     """
-    if len(first) != 1 or expected < 2:
+    if expected < 2 or len(first) == expected:
         return
     for sep, fields, name in OTHER_SEPARATORS:
-        if len([part for part in first[0].split(sep) if part.strip()]) > 1:
+        if len(first) == 1 and len([part for part in first[0].split(sep) if part.strip()]) > 1:
             raise DataError(path, 1, None, f"one column holding {fields} fields: the file seems to be separated by "
                                            f"{name}, but recordings are comma-separated (see "
                                            "../shared/spec/recording-format.md)")
+        # Decimal commas too (a headerless "0,5;1,25;..."): the comma reader split the numbers, not the fields.
+        if len(first) > 1 and len(",".join(first).split(sep)) == expected:
+            raise DataError(path, 1, None, f"{expected} {fields} fields with decimal commas: the file seems to be "
+                                           f"separated by {name}, but recordings are comma-separated with decimal "
+                                           "points (see ../shared/spec/recording-format.md)")
 
 
 def _check_pose(path: Path, q: np.ndarray, quat: np.ndarray, first_row: int,

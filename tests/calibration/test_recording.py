@@ -215,6 +215,21 @@ def test_other_separator_is_named(tmp_path, sep, name):
             read_joints(write(tmp_path, text.replace(",", sep), "j.csv"))
 
 
+@pytest.mark.parametrize("sep, name", [(";", "';'"), ("\t", "tabs")])
+def test_other_separator_with_decimal_commas_is_named(tmp_path, sep, name):
+    """A headerless joint file saved with ';' and decimal commas said only 'expected 6 fields, found 7'."""
+    text = sep.join(["0,5", "1,25", "2", "3,5", "4", "5"]) + "\n"
+    with pytest.raises(DataError) as e:
+        read_joints(write(tmp_path, text, "j.csv"))
+    msg = str(e.value)
+    assert f"6 {'tab' if sep == chr(9) else chr(39) + ';' + chr(39)}-separated fields with decimal commas" in msg
+    assert f"seems to be separated by {name}" in msg and "decimal points" in msg and e.value.row == 1
+    assert "\n" not in msg
+    # A comma file whose row merely has a wrong field count keeps the plain message
+    with pytest.raises(DataError, match="expected 6 fields, found 7"):
+        read_joints(write(tmp_path, "0,1,2,3,4,5\n0,1,2,3,4,5,6\n", "k.csv"))
+
+
 def test_welding_layout_other_separator_is_named(tmp_path):
     with pytest.raises(DataError, match="robot_q_align.csv, row 1: .*separated by ';'"):
         read_recording(welding_folder(tmp_path, "0.1;0.2;0.3;0.4;0.5;0.6\n"))
