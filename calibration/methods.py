@@ -34,6 +34,7 @@ from calibration.cdc import CDC_INPUTS, CdcModel, LocalFits, build_cdc, cluster_
 from calibration.identification.cpa import identify_cpa, split_sweeps
 from calibration.errors import DataError, ModelError
 from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, GeometricProblem
+from calibration.identification.geometric import check_orientation_weight
 from calibration.models import ConstantModel, KinematicModel
 from calibration.models.guard import REGION_KEY, Region
 from calibration.identification.observability import DEFAULT_RELATIVE_TOLERANCE, Observability, analyse, filter_weights
@@ -157,9 +158,7 @@ class FitOptions:
     def __post_init__(self) -> None:
         from calibration.physics_informed import check_registration_parts
 
-        if not (np.isfinite(self.a) and self.a >= 0):  # NaN or inf crashed the observability SVD with a traceback
-            raise ModelError(f"orientation weight a (--a) must be a finite number >= 0 (1641: 1 mm ~ 1 deg), "
-                             f"got {self.a:g}")
+        check_orientation_weight(self.a, "orientation weight a (--a)")
         check_registration_parts(self.pi_registration_free, "pi_registration_free")
         if self.pi_base_free and not self.fit_tool:
             raise ModelError("pi_base_free needs fit_tool: without the flange-point shift the geometry cannot "

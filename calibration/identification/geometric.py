@@ -37,11 +37,20 @@ class Kinematics(Protocol):
 DEFAULT_ORIENTATION_WEIGHT = 1641.0
 
 
+def check_orientation_weight(a: float, label: str = "orientation weight a") -> float:
+    """``a`` when it is a finite number >= 0 (NaN or inf crashed the observability SVD with a traceback).
+
+    Raises:
+        ModelError: naming ``label`` and the value.
+    """
+    if not (np.isfinite(a) and a >= 0):
+        raise ModelError(f"{label} must be a finite number >= 0 (1641: 1 mm ~ 1 deg), got {a:g}")
+    return float(a)
+
+
 def rotation_residual_scale(a: float) -> float:
     """Factor applied to rotation-vector residuals [rad] so that their square carries weight ``a``."""
-    if not (np.isfinite(a) and a >= 0):
-        raise ModelError(f"orientation weight a must be a finite number >= 0, got {a}")
-    return float(np.sqrt(2.0 * a))
+    return float(np.sqrt(2.0 * check_orientation_weight(a)))
 
 
 def weighted_residuals(R_meas: np.ndarray, p_meas: np.ndarray, R: np.ndarray, p: np.ndarray, w_rot: float
