@@ -253,20 +253,24 @@ def check_output_args(args: argparse.Namespace) -> None:
         from cell_config import DEFAULT_CELL
 
         inputs.append(("cell", str(DEFAULT_CELL)))
+    owned = ([(other, path, "output") for other, path in outputs]  # an input that does not exist is refused later
+             + [(other, path, "input") for other, path in inputs if os.path.exists(path)]
+             + [(folder, path, f"folder's {file}") for folder, file, path in _folder_files(args)])
     for i, (name, value) in enumerate(outputs):
-        clash = next(((other, "output") for other, path in outputs[:i]
-                      if os.path.realpath(path) == os.path.realpath(value)), None)
-        if clash is None and os.path.exists(value):
-            clash = next(((other, "input") for other, path in inputs
-                          if os.path.exists(path) and os.path.samefile(value, path)), None)
-        if clash is None:
-            clash = next(((folder, f"folder's {file}") for folder, file, path in _folder_files(args)
-                          if os.path.realpath(path) == os.path.realpath(value)
-                          or (os.path.exists(path) and os.path.exists(value) and os.path.samefile(value, path))),
-                         None)
+        clash = next(((other, what) for j, (other, path, what) in enumerate(owned)
+                      if j != i and (what != "output" or j < i) and _same_file(value, path)), None)
         if clash is not None:
             raise OutputError(value, f"--{name} is also the --{_option(clash[0])} {clash[1]}; refusing to "
                                      f"overwrite it (give --{name} another file)")
+
+
+def _same_file(a: str, b: str) -> bool:
+    """Whether two paths name one file: the same path once resolved (a file not written yet), or, both existing,
+    the same file (hard links included)."""
+    import os
+
+    return os.path.realpath(a) == os.path.realpath(b) or (os.path.exists(a) and os.path.exists(b)
+                                                          and os.path.samefile(a, b))
 
 
 def _option(dest: str) -> str:
