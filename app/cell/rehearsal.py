@@ -9,6 +9,7 @@ Used by ``tests/app/test_rehearsal.py`` and ``scripts/rehearsal.py``.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import socket
@@ -27,9 +28,18 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 def free_port(kind: int = socket.SOCK_STREAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+    return free_ports(kind)[0]
+
+
+def free_ports(*kinds: int) -> list[int]:
+    """One free port per socket kind in ``kinds``, all different: every socket stays bound until all are picked
+    (ports picked one after the other can repeat: the OS may hand a just-released port out again, and a rehearsal
+    cell once got the same port for the controller's motion and state connections)."""
+    with contextlib.ExitStack() as stack:
+        socks = [stack.enter_context(socket.socket(socket.AF_INET, kind)) for kind in kinds]
+        for s in socks:
+            s.bind(("127.0.0.1", 0))
+        return [int(s.getsockname()[1]) for s in socks]
 
 
 def write_rehearsal_cell(folder: Path, via_router: bool = False, dwell_s: float | None = None,
@@ -43,15 +53,15 @@ def write_rehearsal_cell(folder: Path, via_router: bool = False, dwell_s: float 
     for entry in data["robots"].values():
         entry["robot"] = str(PACKAGE_DIR / entry["robot"])
         entry["tool"] = str(PACKAGE_DIR / entry["tool"])
-    data["controller"].update({"motion_port": free_port(), "state_port": free_port(), "max_speed_fraction": 1.0,
+    tcp, udp = socket.SOCK_STREAM, socket.SOCK_DGRAM
+    motion, state, bridge, router, command, data_port = free_ports(tcp, tcp, tcp, tcp, udp, udp)
+    data["controller"].update({"motion_port": motion, "state_port": state, "max_speed_fraction": 1.0,
                                **controller})
-    data["mocap"].update(command_port=free_port(socket.SOCK_DGRAM), data_port=free_port(socket.SOCK_DGRAM))
+    data["mocap"].update(command_port=command, data_port=data_port)
     if dwell_s is not None:
         data["mocap"]["dwell_s"] = dwell_s
-    bridge = free_port()
     data["zenoh"]["roles"]["bridge"]["listen"] = [f"tcp/127.0.0.1:{bridge}"]
     data["zenoh"]["roles"]["collector"]["connect"] = [f"tcp/127.0.0.1:{bridge}"]
-    router = free_port()
     data["zenoh"]["roles"]["router"]["listen"] = [f"tcp/127.0.0.1:{router}"]
     if via_router:
         for role in ("bridge", "collector"):

@@ -8,6 +8,7 @@ that the command's :class:`~drivers.can_probe.CanContactProbe` reads.
 from __future__ import annotations
 
 import json
+import socket
 import threading
 from pathlib import Path
 
@@ -81,3 +82,13 @@ def test_validate_dual_real_needs_a_plan_and_a_probe(tmp_path: Path, capsys) -> 
     cell_path.write_text(yaml.safe_dump(data, sort_keys=False))
     assert_bad_input(capsys, ["--cell", str(cell_path), "validate-dual", "--plan", str(tmp_path / "p.json")],
                      "no probe block")
+
+
+
+def test_rehearsal_ports_are_picked_with_every_socket_bound() -> None:
+    # Picked one after the other, the controller's motion and state ports once came out the same (36511) and
+    # plan-dual refused the rehearsal cell; free_ports keeps every socket bound until all are picked.
+    from app.cell.rehearsal import free_ports
+
+    ports = free_ports(*[socket.SOCK_STREAM] * 50, socket.SOCK_DGRAM)
+    assert len(ports) == 51 and len(set(ports[:50])) == 50 and all(0 < p < 65536 for p in ports)
