@@ -122,7 +122,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-compile", action="store_true", help="interpreted casadi function instead of C")
     args = ap.parse_args(argv)
     cell = load_cell()
-    opts = PlannerOptions(compile=not args.no_compile)
+    opts = PlannerOptions(compile="off" if args.no_compile else "wait")
     models = {}
     for i, name in enumerate(("R1", "R2")):
         par = MinimalParameterisation(cell.robot(name).model())

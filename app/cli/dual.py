@@ -39,18 +39,22 @@ def cmd_plan_dual(args: argparse.Namespace) -> int:
     T_rel = read_pose(args.relative_pose) if args.relative_pose else None
     from app.progress import bar
 
-    planner = DualPlanner(cell, models.get("R1"), models.get("R2"), PlannerOptions(compile=not args.no_compile))
-    path = read_path(args.path, planner)
-    q0 = np.radians(Q_REF_DEG)
-    with bar(total=len(path), enabled=show_progress(args), desc="plan-dual", unit="waypoint") as waypoints:
-        plan = planner.plan(path, relative_pose(planner, q0) if T_rel is None else T_rel, q0,
-                            on_waypoint=lambda r: waypoints.update(1))
+    planner = DualPlanner(cell, models.get("R1"), models.get("R2"), PlannerOptions(compile=args.compile))
+    try:
+        path = read_path(args.path, planner)
+        q0 = np.radians(Q_REF_DEG)
+        with bar(total=len(path), enabled=show_progress(args), desc="plan-dual", unit="waypoint") as waypoints:
+            plan = planner.plan(path, relative_pose(planner, q0) if T_rel is None else T_rel, q0,
+                                on_waypoint=lambda r: waypoints.update(1))
+    finally:
+        planner.close()  # a build still running has lost its race with the plan: it is not waited for
     ms = [w.solve_ms for w in plan.waypoints]
     summary = {"waypoints": len(plan.waypoints), "converged": plan.converged, "failed": plan.failed,
                "models": plan.models, "solve_ms_median": float(np.median(ms)),
                "max_residual_mm": max(w.residual_mm for w in plan.waypoints),
                "max_residual_deg": max(w.residual_deg for w in plan.waypoints),
-               "min_clearance_mm": min(w.clearance_mm for w in plan.waypoints), "out": args.out}
+               "min_clearance_mm": min(w.clearance_mm for w in plan.waypoints),
+               "evaluations": dict(planner.evaluations), "out": args.out}
     if not plan.converged:  # refused whole: a plan with holes would move the arms through unchecked poses
         i = plan.failed[0]
         raise ModelError(f"{len(plan.failed)} of {len(plan.waypoints)} waypoints not solved (waypoint"
@@ -205,7 +209,10 @@ def add_dual_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                                                        "(x,y,z,qw,qx,qy,qz [mm]) or sweep:N (default sweep:200)")
     p.add_argument("--out", help="write the plan file (JSON)")
     p.add_argument("--json", help="write a summary as JSON")
-    p.add_argument("--no-compile", action="store_true", help="interpreted casadi function (no C compiler)")
+    p.add_argument("--compile", choices=("auto", "wait", "off"), default="auto",
+                   help="auto: the compiled planner from the cache, else interpreted while gcc builds it alongside "
+                        "(used once built); wait: build it first; off: interpreted (default auto)")
+    p.add_argument("--no-compile", dest="compile", action="store_const", const="off", help="same as --compile off")
     p = add("validate-dual", cmd_validate_dual, "contact validation of model sets (the paper's dual-robot check)")
     p.add_argument("--plan", help="dual plan (plan-dual --out) whose waypoints are the contact configurations; "
                                   "needed on the real cell")

@@ -8,9 +8,9 @@ effects' deflection is part of the expression, so the planner differentiates thr
 model whose interpolator casadi cannot see through (``cdc-frozen``) has ``k = m`` parameter inputs, which the
 caller fixes at the previous iterate with ``params_at`` and solves again until they stop changing.
 
-Also here: ``compile_function`` turns a casadi function into C once (gcc, cached by a hash of the source, the
-casadi version and the compiler) and ``buffer_evaluator`` calls it without copies: together about 15x faster
-than the interpreted call.
+Also here: ``start_compile`` turns a casadi function into C once (gcc in the background, cached by a hash of
+the source, the casadi version and the compiler; ``compile_function`` waits for it) and ``buffer_evaluator``
+calls it without copies: together about 15x faster than the interpreted call.
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ import os
 import shutil
 import subprocess
 import tempfile
+import weakref
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -124,28 +125,96 @@ def _cached(lib: Path) -> bool:
         return False
 
 
-def _build(cc: str, src: str, lib: Path) -> None:
-    """Compile src into lib (atomically), then write its digest stamp."""
-    lib.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=lib.parent) as tmp:
-        c_file = Path(tmp) / "f.c"
+class Build:
+    """A gcc build of one casadi function running in the background, into a private folder of the cache.
+
+    :meth:`poll` returns the compiled function once gcc has finished (installing the library and its digest
+    stamp atomically, so a concurrent build of the same key, or a crash, never leaves a half-written library),
+    and None while it runs or after it failed. :meth:`cancel` kills gcc and removes its folder; a build still
+    running when its owner is garbage-collected or the process exits is cancelled the same way.
+    """
+
+    def __init__(self, ca: Any, name: str, cc: str, src: str, lib: Path) -> None:
+        self._ca, self.name, self.lib = ca, name, lib
+        lib.parent.mkdir(parents=True, exist_ok=True)
+        self._tmp = Path(tempfile.mkdtemp(prefix=".build-", dir=lib.parent))
+        c_file, self._out = self._tmp / "f.c", self._tmp / lib.name
         c_file.write_text(src)
-        out, stamp = Path(tmp) / lib.name, Path(tmp) / "stamp"
-        subprocess.run([cc, *COMPILE_FLAGS, str(c_file), "-o", str(out), "-lm"], check=True, capture_output=True,
-                       timeout=300)
-        stamp.write_text(_file_digest(out) + "\n")
-        os.replace(out, lib)
-        os.replace(stamp, lib.with_name(lib.name + ".sha256"))
+        self._log = self._tmp / "gcc.log"
+        try:
+            with self._log.open("wb") as log:  # a file, not a pipe: gcc never blocks on a full pipe
+                self._proc: subprocess.Popen[bytes] | None = subprocess.Popen(
+                    [cc, *COMPILE_FLAGS, str(c_file), "-o", str(self._out), "-lm"],
+                    stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=log)
+        except OSError:
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            raise
+        self._finalizer = weakref.finalize(self, _kill, self._proc, self._tmp)
+        self.failed: str | None = None
+        self._result: Any = None
+
+    def poll(self) -> Any | None:
+        """The compiled function if gcc has finished and the library is installed, else None (never blocks)."""
+        if self._result is not None or self.failed is not None:
+            return self._result
+        if self._proc is not None and self._proc.poll() is None:
+            return None
+        return self._finish()
+
+    def wait(self, timeout: float = 300.0) -> Any | None:
+        """Block until gcc has finished (killing it after ``timeout`` s); the compiled function, or None."""
+        if self._proc is not None and self._result is None and self.failed is None:
+            try:
+                self._proc.wait(timeout=timeout)
+            except subprocess.TimeoutExpired:
+                self.cancel(f"gcc took longer than {timeout:.0f} s")
+                return None
+        return self.poll()
+
+    def cancel(self, why: str = "cancelled") -> None:
+        """Kill gcc (if running) and remove its folder; the cache is left as it was."""
+        if self._result is None and self.failed is None:
+            self.failed = why
+        self._finalizer()
+
+    def _finish(self) -> Any | None:
+        proc, self._proc = self._proc, None
+        try:
+            if proc is not None and proc.returncode != 0:
+                err = self._log.read_text(errors="replace").strip()
+                raise RuntimeError(f"gcc exited {proc.returncode}: {err[-300:]}")
+            stamp = self._tmp / "stamp"
+            stamp.write_text(_file_digest(self._out) + "\n")
+            os.replace(self._out, self.lib)
+            os.replace(stamp, self.lib.with_name(self.lib.name + ".sha256"))
+            self._result = self._ca.external(self.name, str(self.lib))
+            logger.info("compiled %s to %s", self.name, self.lib)
+        except (OSError, RuntimeError) as e:
+            self.failed = str(e)
+            logger.warning("could not compile %s (%s); using the interpreted casadi function", self.name, e)
+        finally:
+            self._finalizer()
+        return self._result
 
 
-def compile_function(ca: Any, F: Any, cache_dir: str | Path | None = None) -> Any:
-    """F compiled to a shared library with gcc, cached by :func:`cache_key`; F itself on failure, or when F has
-    more than :data:`MAX_COMPILE_INSTRUCTIONS` instructions (the build would take minutes).
+def _kill(proc: subprocess.Popen[bytes] | None, tmp: Path) -> None:
+    """End a build: kill gcc if it still runs, remove its folder."""
+    if proc is not None and proc.poll() is None:
+        proc.kill()
+        proc.wait()
+    shutil.rmtree(tmp, ignore_errors=True)
 
-    The cache lives in ``$CELLCAL_CACHE`` or ``~/.cache/cellcal`` so only the first build of a given model pays
-    the compile time (about a second); later builds load the library in milliseconds. Any change of the model's
-    parameters changes the C source and so the key. A cached library whose bytes no longer match the digest
-    stamped beside it at build time (truncated, overwritten, stamp missing) is rebuilt.
+
+def start_compile(ca: Any, F: Any, cache_dir: str | Path | None = None) -> tuple[Any, Build | None]:
+    """F as fast as it can be had right now, and the build that will make it faster.
+
+    Returns ``(compiled, None)`` when the library is in the cache (:func:`cache_key`), ``(F, build)`` when gcc
+    has been started on it in the background (:class:`Build`), and ``(F, None)`` when it will not be compiled:
+    no compiler, or more than :data:`MAX_COMPILE_INSTRUCTIONS` instructions (the build would take minutes).
+
+    The cache lives in ``$CELLCAL_CACHE`` or ``~/.cache/cellcal``. Any change of the model's parameters changes
+    the C source and so the key. A cached library whose bytes no longer match the digest stamped beside it at
+    build time (truncated, overwritten, stamp missing) is built again.
     """
     try:
         size = int(F.n_instructions())
@@ -154,26 +223,35 @@ def compile_function(ca: Any, F: Any, cache_dir: str | Path | None = None) -> An
     if size > MAX_COMPILE_INSTRUCTIONS:
         logger.info("%s has %d instructions (> %d): using the interpreted casadi function rather than a "
                     "minutes-long C build", F.name(), size, MAX_COMPILE_INSTRUCTIONS)
-        return F
+        return F, None
     cc = shutil.which(os.environ.get("CC", "gcc"))
     if cc is None:
         logger.info("no C compiler found; using the interpreted casadi function (slower)")
-        return F
+        return F, None
     cg = ca.CodeGenerator(f"{F.name()}.c", {"with_header": False})
     cg.add(F)
     src = cg.dump()
     root = Path(cache_dir or os.environ.get("CELLCAL_CACHE") or Path.home() / ".cache" / "cellcal")
     lib = root / f"{F.name()}_{cache_key(ca, src, cc)}.so"
     try:
-        if not _cached(lib):
-            if lib.exists():
-                logger.warning("cached %s does not match its build stamp (corrupt or incomplete); rebuilding it", lib)
-            _build(cc, src, lib)
-            logger.info("compiled %s to %s", F.name(), lib)
-        return ca.external(F.name(), str(lib))
-    except (OSError, subprocess.SubprocessError, RuntimeError) as e:
+        if _cached(lib):
+            return ca.external(F.name(), str(lib)), None
+        if lib.exists():
+            logger.warning("cached %s does not match its build stamp (corrupt or incomplete); rebuilding it", lib)
+        return F, Build(ca, F.name(), cc, src, lib)
+    except (OSError, RuntimeError) as e:
         logger.warning("could not compile %s (%s); using the interpreted casadi function", F.name(), e)
-        return F
+        return F, None
+
+
+def compile_function(ca: Any, F: Any, cache_dir: str | Path | None = None) -> Any:
+    """F compiled to a shared library with gcc and cached (:func:`start_compile`), waiting for the build; F
+    itself when it is not compiled or the build fails."""
+    G, build = start_compile(ca, F, cache_dir)
+    if build is None:
+        return G
+    compiled = build.wait()
+    return F if compiled is None else compiled
 
 
 def buffer_evaluator(F: Any, z: np.ndarray, out: np.ndarray) -> Callable[[], None]:

@@ -158,7 +158,10 @@ def plan_dual(cell: CellSpec, model_R1: Any = None, model_R2: Any = None, path: 
         options: planner options.
     """
     planner = DualPlanner(cell, model_R1, model_R2, options or PlannerOptions())
-    q0 = np.radians(Q_REF_DEG) if q_start is None else np.asarray(q_start, dtype=float)
-    T_rel = relative_pose(planner, np.radians(Q_REF_DEG)) if T_wp_gun is None else T_wp_gun
-    return planner.plan(sweep_path(planner, n) if path is None else path, T_rel, q0)
+    try:
+        q0 = np.radians(Q_REF_DEG) if q_start is None else np.asarray(q_start, dtype=float)
+        T_rel = relative_pose(planner, np.radians(Q_REF_DEG)) if T_wp_gun is None else T_wp_gun
+        return planner.plan(sweep_path(planner, n) if path is None else path, T_rel, q0)
+    finally:
+        planner.close()
 

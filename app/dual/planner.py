@@ -22,12 +22,12 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, Literal, get_args
 
 import numpy as np
 
 from app.cell.capsules import PROCESS_ZONE, SEGMENTS, CellCapsules, pairs_outside
-from app.dual.casadi_kinematics import buffer_evaluator, casadi_fk, compile_function
+from app.dual.casadi_kinematics import buffer_evaluator, casadi_fk, start_compile
 from app.dual.plan_result import PlanResult, WaypointResult
 from calibration import so3
 from calibration.errors import ModelError
@@ -36,6 +36,9 @@ from cell_config.loader import CellSpec
 
 logger = logging.getLogger("cellcal.app")
 __all__ = ["DualPlanner", "PlanResult", "PlannerOptions", "WaypointResult"]
+
+
+CompileMode = Literal["auto", "wait", "off"]
 
 
 @dataclass(frozen=True)
@@ -60,7 +63,11 @@ class PlannerOptions:
         step_tol_rad: the iteration stops when the step is below this [rad].
         max_iter: Newton iterations per waypoint.
         max_step_rad: largest joint step per iteration [rad].
-        compile: compile the casadi function to C (gcc, cached on disk); interpreted when False or no compiler.
+        compile: how the casadi function is evaluated. ``"auto"``: the compiled library when it is in the cache
+            (gcc, cached on disk); otherwise interpreted while gcc builds it in the background, the compiled one
+            from the first waypoint after the build is done (a short plan ends before it, and interpreted it is
+            as fast: gcc takes ~2.5 s, the compiled function saves ~0.6 ms per waypoint). ``"wait"``: build
+            first, then plan. ``"off"``: interpreted. Interpreted whenever there is no compiler.
     """
 
     limit_margin_deg: float = 2.0
@@ -78,8 +85,7 @@ class PlannerOptions:
     step_tol_rad: float = 1e-9
     max_iter: int = 60
     max_step_rad: float = 0.3
-    compile: bool = True
-
+    compile: CompileMode = "auto"
 
 
 def _pose(T: np.ndarray, name: str) -> np.ndarray:
@@ -136,6 +142,9 @@ class DualPlanner:
         import casadi as ca
 
         self.cell, self.options = cell, options
+        if options.compile not in get_args(CompileMode):
+            raise ModelError(f"PlannerOptions.compile must be one of {', '.join(get_args(CompileMode))}; "
+                             f"got {options.compile!r}")
         bad = [p for p in options.pairs if len(p) != 2 or not set(p) <= set(SEGMENTS)]
         if bad or not options.pairs:
             raise ModelError(f"PlannerOptions.pairs must be (R1 capsule, R2 capsule) pairs of {', '.join(SEGMENTS)}; "
@@ -185,9 +194,45 @@ class DualPlanner:
         outs.append(ca.vertcat(ca.vec(R1), p1, ca.vec(R2), p2))
         self._layout["poses"] = (k, 24, 24)
         F = ca.Function("cellcal_dual", [z], [ca.densify(ca.vertcat(*outs))])
-        self._F = compile_function(ca, F) if o.compile else F
+        self._F, self._build_job = (F, None) if o.compile == "off" else start_compile(ca, F)
+        if o.compile == "wait" and self._build_job is not None:
+            self._F = self._build_job.wait() or F
+            self._build_job = None
         self._z, self._out = np.zeros(z.shape[0]), np.zeros(k + 24)
         self._eval = buffer_evaluator(self._F, self._z, self._out)
+        #: Whether the casadi function is evaluated from the compiled library (so far).
+        self.compiled = self._F is not F
+        #: Calls of the casadi function so far, by how it was evaluated ("compiled", "interpreted").
+        self.evaluations = {"compiled": 0, "interpreted": 0}
+
+    def _take_build(self) -> None:
+        """Switch to the compiled function once the background build has finished (between waypoints, so each
+        waypoint is solved with one evaluator)."""
+        job = self._build_job
+        if job is None:
+            return
+        compiled = job.poll()
+        if compiled is not None:
+            self._F, self._build_job, self.compiled = compiled, None, True
+            self._eval = buffer_evaluator(self._F, self._z, self._out)
+        elif job.failed is not None:
+            self._build_job = None
+
+    def wait_for_build(self, timeout: float = 300.0) -> bool:
+        """Block until a background build has finished and switch to it; whether the function is compiled."""
+        if self._build_job is not None:
+            self._build_job.wait(timeout)
+            self._take_build()
+        return self.compiled
+
+    def close(self) -> None:
+        """Cancel a background build still running (the cache is left as it was); the planner stays usable,
+        interpreted."""
+        if self._build_job is not None:
+            logger.info("compiled build of the planner cancelled before it finished; %d evaluations interpreted",
+                        self.evaluations["interpreted"])
+            self._build_job.cancel()
+            self._build_job = None
 
     def evaluate(self, q: np.ndarray, T_wp_gun: np.ndarray, T_cell_target: np.ndarray) -> dict[str, np.ndarray]:
         """Residuals and Jacobians at q [rad] (12,).
@@ -207,6 +252,7 @@ class DualPlanner:
         if self.fks["R2"].n_frozen:
             z[36 + n1:] = self.fks["R2"].x0(q[6:])
         self._eval()
+        self.evaluations["compiled" if self.compiled else "interpreted"] += 1
         out = {}
         for key, (k, size, n) in self._layout.items():
             v = self._out[k:k + size]
@@ -262,6 +308,7 @@ class DualPlanner:
         Returns:
             The :class:`WaypointResult`; check ``converged`` before executing it.
         """
+        self._take_build()
         t0 = time.perf_counter()
         T_cell_target, T_wp_gun = _pose(T_cell_target, "T_cell_target"), _pose(T_wp_gun, "T_wp_gun")
         q = np.asarray(q_guess, dtype=float).copy()

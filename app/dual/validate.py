@@ -225,7 +225,7 @@ def contact_plan(cell: CellSpec, twins: dict[str, Any], n: int) -> tuple[np.ndar
     from calibration.physics import PhysicsModel
 
     truth = {k: PhysicsModel(k, "twin", t.geometry, t.effects) for k, t in twins.items()}
-    planner = DualPlanner(cell, truth["R1"], truth["R2"], PlannerOptions(compile=False))
+    planner = DualPlanner(cell, truth["R1"], truth["R2"], PlannerOptions(compile="off"))
     q0 = np.radians(Q_REF_DEG)
     T_rel = relative_pose(planner, q0)
     plan = planner.plan(sweep_path(planner, n), T_rel, q0)

@@ -86,7 +86,7 @@ def test_planner_clearances_are_the_safety_gaps(cell):
     from app.dual.paths import Q_REF_DEG, relative_pose
     from app.dual.planner import DualPlanner, PlannerOptions
 
-    planner = DualPlanner(cell, options=PlannerOptions(compile=False))
+    planner = DualPlanner(cell, options=PlannerOptions(compile="off"))
     assert planner.options.pairs == pairs_outside(PROCESS_ZONE)
     assert len(planner.options.pairs) == len(SEGMENTS) ** 2 - len(PROCESS_ZONE) ** 2
     assert not {("wrist", "tool"), ("tool", "tool")} & set(planner.options.pairs)

@@ -41,6 +41,23 @@ def test_plan_dual_export_and_preview(planned, tmp_path, capsys):
     assert html.stat().st_size > 10_000 and "12 frames" in capsys.readouterr().out
 
 
+@pytest.mark.parametrize("mode", ["auto", "wait", "off"])
+def test_plan_dual_compile_modes_count_their_evaluations_and_leave_the_cache_as_documented(tmp_path, monkeypatch,
+                                                                                           mode):
+    """auto into an empty cache: a short plan ends before gcc, all interpreted, the build cancelled and nothing
+    left behind; wait: all compiled, the library cached; off: all interpreted and no build."""
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("CELLCAL_CACHE", str(cache))
+    args = ["plan-dual", "--path", "sweep:3", "--json", str(tmp_path / "pd.json")]
+    assert main(args + (["--no-compile"] if mode == "off" else ["--compile", mode])) == 0
+    ev = json.loads((tmp_path / "pd.json").read_text())["evaluations"]
+    libs = sorted(p.name for p in cache.glob("*")) if cache.exists() else []
+    if mode == "wait":
+        assert ev["interpreted"] == 0 and ev["compiled"] > 0 and len(libs) == 2  # the library and its stamp
+    else:
+        assert ev["compiled"] == 0 and ev["interpreted"] > 0 and libs == []
+
+
 def test_plan_dual_with_model_files_pose_and_path_files(tmp_path):
     cell = load_cell()
     par = MinimalParameterisation(cell.robot("R2").model())
@@ -58,7 +75,7 @@ def test_plan_dual_with_model_files_pose_and_path_files(tmp_path):
     from app.dual.paths import sweep_path
     from app.dual.planner import DualPlanner, PlannerOptions
 
-    wp = sweep_path(DualPlanner(cell, options=PlannerOptions(compile=False)), 4)
+    wp = sweep_path(DualPlanner(cell, options=PlannerOptions(compile="off")), 4)
     rows = ["x,y,z,qw,qx,qy,qz"] + [",".join(f"{v:.17g}" for v in np.r_[t[:3, 3], so3.R_to_quat(t[:3, :3])])
                                     for t in wp]
     (tmp_path / "path.csv").write_text("\n".join(rows) + "\n")
@@ -140,7 +157,7 @@ def test_plan_dual_with_some_waypoints_unsolved_names_them_and_writes_nothing(tm
     from app.dual.paths import sweep_path
     from app.dual.planner import DualPlanner, PlannerOptions
 
-    wp = sweep_path(DualPlanner(load_cell(), options=PlannerOptions(compile=False)), 5)
+    wp = sweep_path(DualPlanner(load_cell(), options=PlannerOptions(compile="off")), 5)
     wp[1:3, :3, 3] += 1000.0  # the workpiece 1.7 m off the sweep: R1 cannot hold the gun to it
     rows = ["x,y,z,qw,qx,qy,qz"] + [",".join(f"{v:.17g}" for v in np.r_[t[:3, 3], so3.R_to_quat(t[:3, :3])])
                                     for t in wp]

@@ -187,6 +187,7 @@ def test_compile_skips_functions_too_big_for_a_quick_build(tmp_path, monkeypatch
     F = ca.Function("big", [q], [ca.sum1(ca.sin(q) * ca.cos(q))])
     monkeypatch.setattr(ck, "MAX_COMPILE_INSTRUCTIONS", F.n_instructions() - 1)
     monkeypatch.setattr(ck.subprocess, "run", lambda *a, **k: pytest.fail("the compiler ran"))
+    monkeypatch.setattr(ck.subprocess, "Popen", lambda *a, **k: pytest.fail("the compiler ran"))
     assert ck.compile_function(ca, F, cache_dir=tmp_path) is F
     assert list(tmp_path.iterdir()) == []
 

@@ -24,7 +24,7 @@ from cell_config.loader import load_cell  # noqa: E402
 
 from test_dual_kinematics import FourierStub, OpaqueStub  # noqa: E402
 
-FAST = PlannerOptions(compile=False)
+FAST = PlannerOptions(compile="off")
 
 
 @pytest.fixture(scope="module")
@@ -113,13 +113,67 @@ def test_cdc_frozen_fallback_reaches_the_true_model(cell):
 
 def test_compiled_matches_interpreted(cell, nominal, tmp_path, monkeypatch):
     monkeypatch.setenv("CELLCAL_CACHE", str(tmp_path))
-    compiled = DualPlanner(cell)
+    compiled = DualPlanner(cell, options=PlannerOptions(compile="wait"))
+    assert compiled.compiled and not nominal.compiled
     q0 = np.radians(Q_REF_DEG) + 0.05
     T_rel, T_tgt = relative_pose(nominal, q0 - 0.1), np.eye(4)
     a, b = compiled.evaluate(q0, T_rel, T_tgt), nominal.evaluate(q0, T_rel, T_tgt)
     for k in a:
         np.testing.assert_allclose(a[k], b[k], atol=1e-9)
     assert list(tmp_path.glob("*.so"))
+
+
+def test_auto_plans_interpreted_while_gcc_builds_then_switches_between_waypoints(cell, nominal, tmp_path,
+                                                                                  monkeypatch):
+    """With an empty cache the first waypoints are solved interpreted while gcc runs; the waypoint after the
+    build finishes uses the library, which stays in the cache for the next planner; the plan is the same."""
+    monkeypatch.setenv("CELLCAL_CACHE", str(tmp_path))
+    planner = DualPlanner(cell)
+    assert not planner.compiled and planner._build_job is not None
+    q0 = np.radians(Q_REF_DEG)
+    path = sweep_path(nominal, 4)
+    T_rel = relative_pose(nominal, q0)
+    first = planner.solve_waypoint(path[0], T_rel, q0)
+    assert planner.evaluations["interpreted"] > 0 and planner.evaluations["compiled"] == 0
+    assert planner._build_job.wait() is not None  # gcc done; the planner switches at its next waypoint
+    assert not planner.compiled
+    second = planner.solve_waypoint(path[1], T_rel, np.concatenate([first.q_R1, first.q_R2]))
+    assert planner.compiled and planner.evaluations["compiled"] > 0
+    ref = nominal.solve_waypoint(path[1], T_rel, np.concatenate([first.q_R1, first.q_R2]))
+    np.testing.assert_allclose(np.concatenate([second.q_R1, second.q_R2]), np.concatenate([ref.q_R1, ref.q_R2]),
+                               atol=1e-9)
+    assert len(list(tmp_path.glob("*.so"))) == 1 and not list(tmp_path.glob(".build-*"))
+    assert DualPlanner(cell).compiled  # the next planner loads it from the cache at once
+
+
+def test_close_cancels_the_build_and_leaves_the_cache_empty(cell, tmp_path, monkeypatch):
+    monkeypatch.setenv("CELLCAL_CACHE", str(tmp_path))
+    planner = DualPlanner(cell)
+    job = planner._build_job
+    proc = job._proc
+    planner.close()
+    assert proc.poll() is not None and job.failed == "cancelled"  # gcc killed, not left running
+    assert list(tmp_path.iterdir()) == []
+    q0 = np.radians(Q_REF_DEG)
+    assert planner.solve_waypoint(sweep_path(planner, 2)[0], relative_pose(planner, q0), q0).converged
+    assert not planner.compiled
+
+
+def test_a_failed_build_leaves_the_planner_interpreted(cell, tmp_path, monkeypatch, caplog):
+    cc = tmp_path / "cc"
+    cc.write_text("#!/bin/sh\necho 'cc: out of luck' >&2\nexit 1\n")
+    cc.chmod(0o755)
+    monkeypatch.setenv("CC", str(cc))
+    monkeypatch.setenv("CELLCAL_CACHE", str(tmp_path / "cache"))
+    planner = DualPlanner(cell)
+    assert not planner.wait_for_build()
+    assert "out of luck" in caplog.text and planner._build_job is None
+    assert list((tmp_path / "cache").iterdir()) == []
+
+
+def test_compile_mode_is_checked(cell):
+    with pytest.raises(ModelError, match="compile must be one of auto, wait, off; got True"):
+        DualPlanner(cell, options=PlannerOptions(compile=True))
 
 
 def test_unreachable_waypoint_is_reported_not_solved(nominal, tmp_path):

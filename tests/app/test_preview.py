@@ -33,7 +33,7 @@ def real_plan(cell, tmp_path_factory):
     from app.dual.planner import PlannerOptions
 
     path = tmp_path_factory.mktemp("plan") / "plan.json"
-    plan = plan_dual(cell, n=8, options=PlannerOptions(compile=False))
+    plan = plan_dual(cell, n=8, options=PlannerOptions(compile="off"))
     assert plan.converged
     save_plan(plan, path)
     return path

@@ -101,7 +101,7 @@ def test_the_planner_reports_every_waypoint():
     from app.dual.planner import DualPlanner, PlannerOptions
     from cell_config import load_cell
 
-    planner = DualPlanner(load_cell(), options=PlannerOptions(compile=False))
+    planner = DualPlanner(load_cell(), options=PlannerOptions(compile="off"))
     path = read_path("sweep:4", planner)
     q0 = np.radians(Q_REF_DEG)
     seen = []
