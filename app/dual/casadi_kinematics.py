@@ -19,6 +19,7 @@ import hashlib
 import logging
 import os
 import shutil
+import signal
 import subprocess
 import tempfile
 import weakref
@@ -145,7 +146,8 @@ class Build:
             with self._log.open("wb") as log:  # a file, not a pipe: gcc never blocks on a full pipe
                 self._proc: subprocess.Popen[bytes] | None = subprocess.Popen(
                     [cc, *COMPILE_FLAGS, str(c_file), "-o", str(self._out), "-lm"],
-                    stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=log)
+                    stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=log,
+                    start_new_session=True)  # its own process group: cancel kills cc1 and as too
         except OSError:
             shutil.rmtree(self._tmp, ignore_errors=True)
             raise
@@ -198,9 +200,13 @@ class Build:
 
 
 def _kill(proc: subprocess.Popen[bytes] | None, tmp: Path) -> None:
-    """End a build: kill gcc if it still runs, remove its folder."""
+    """End a build: kill gcc and its compiler passes (cc1, as, ld: gcc's process group) if it still runs, remove
+    its folder."""
     if proc is not None and proc.poll() is None:
-        proc.kill()
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
         proc.wait()
     shutil.rmtree(tmp, ignore_errors=True)
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 import csv
 import json
 import re
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -146,13 +148,34 @@ def test_auto_plans_interpreted_while_gcc_builds_then_switches_between_waypoints
     assert DualPlanner(cell).compiled  # the next planner loads it from the cache at once
 
 
+def _running_in_group(pgid: int) -> list[str]:
+    """Commands of the live (not zombie) processes in process group ``pgid``, from /proc."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            text = stat.read_text()
+        except OSError:
+            continue
+        name, rest = text[text.index("(") + 1:text.rindex(")")], text[text.rindex(")") + 2:].split()
+        if int(rest[2]) == pgid and rest[0] not in "ZX":
+            found.append(name)
+    return found
+
+
 def test_close_cancels_the_build_and_leaves_the_cache_empty(cell, tmp_path, monkeypatch):
     monkeypatch.setenv("CELLCAL_CACHE", str(tmp_path))
     planner = DualPlanner(cell)
     job = planner._build_job
     proc = job._proc
+    if Path("/proc/self/stat").exists():
+        deadline = time.monotonic() + 5
+        while "cc1" not in _running_in_group(proc.pid) and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert "cc1" in _running_in_group(proc.pid)  # the compiler pass proper, gcc's child, is at work
     planner.close()
     assert proc.poll() is not None and job.failed == "cancelled"  # gcc killed, not left running
+    if Path("/proc/self/stat").exists():
+        assert _running_in_group(proc.pid) == []  # and its cc1 with it, not left to finish as an orphan
     assert list(tmp_path.iterdir()) == []
     q0 = np.radians(Q_REF_DEG)
     assert planner.solve_waypoint(sweep_path(planner, 2)[0], relative_pose(planner, q0), q0).converged
