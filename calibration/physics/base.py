@@ -114,6 +114,11 @@ class Effect(abc.ABC):
 
     kind: ClassVar[str]
     form: ClassVar[str] = ""  # a second form of a kind (``mass_free``), saved as ``form`` in the file
+    #: The context entries the effect reads (``dir`` for ``dir1..dirn``; ``qd``, ``t``, ``temp_c``,
+    #: ``payload_kg``), or None when a subclass does not say (then it may read anything). A simulated arm
+    #: memoises its true pose per (q, directions) only when its twin reads nothing else
+    #: (:meth:`drivers.sim.SimRobotDriver.true_pose`); tests check that an undeclared entry never changes a pose.
+    context_keys: ClassVar[frozenset[str] | None] = None
     target: ClassVar[Literal["joints", "geometry", "pose"]] = "joints"
 
     def __init_subclass__(cls, register: bool = True, **kwargs: Any) -> None:

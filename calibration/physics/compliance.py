@@ -46,6 +46,7 @@ class JointCompliance(Effect):
     """
 
     kind = "joint_compliance"
+    context_keys = frozenset()
     gravity: GravityModel
     joints: tuple[int, ...] = (2, 3, 5)
     values: np.ndarray = field(default_factory=lambda: np.zeros(3))
@@ -83,6 +84,7 @@ class PayloadCompliance(Effect):
     """
 
     kind = "payload_compliance"
+    context_keys = frozenset({"payload_kg"})
     joints: tuple[int, ...] = (2, 3, 5)
     values: np.ndarray = field(default_factory=lambda: np.zeros(3))
     g: float = 9.80665
@@ -113,6 +115,7 @@ class MassFreeCompliance(ExtendedEffect):
     ``dq2 = c1 sin q2 + c2 cos u + c3 sin u``, ``dq3 = c4 cos u + c5 sin u`` [rad] (values ``c1..c5``)."""
 
     kind = "joint_compliance"
+    context_keys = frozenset()
     form: ClassVar[str] = "mass_free"
     block_name: ClassVar[str] = "compliance"
     joints: tuple[int, ...] = (2, 3)

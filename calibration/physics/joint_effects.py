@@ -29,6 +29,7 @@ class JointOffset(Effect):
     """Constant joint-angle offsets ``offset{j}_rad`` [rad] on the listed 1-based joints."""
 
     kind = "joint_offset"
+    context_keys = frozenset()
     joints: tuple[int, ...] = (1, 2, 3, 4, 5, 6)
     values: np.ndarray = field(default_factory=lambda: np.zeros(6))
 
@@ -52,6 +53,7 @@ class Backlash(Effect):
     """Lost motion ``b{j}_rad`` [rad] (full width); the joint sits ``dir_j * b_j / 2`` off its reading."""
 
     kind = "backlash"
+    context_keys = frozenset({"dir"})
     joints: tuple[int, ...] = (1, 2, 3)
     values: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
@@ -81,6 +83,7 @@ class GearTransmission(Effect):
     """
 
     kind = "gear_transmission"
+    context_keys = frozenset()
     harmonics: tuple[tuple[int, tuple[int, ...]], ...] = ((1, (1, 2)),)
     values: np.ndarray = field(default_factory=lambda: np.zeros(4))
 
@@ -124,6 +127,7 @@ class MocapLatency(Effect):
     """The pose is measured ``latency_s`` [s] after the joint reading: ``delta_q = -qd * latency_s``."""
 
     kind = "mocap_latency"
+    context_keys = frozenset({"qd"})
     values: np.ndarray = field(default_factory=lambda: np.zeros(1))
 
     @property

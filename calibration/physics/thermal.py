@@ -41,6 +41,7 @@ class ThermalDrift(Effect):
     """
 
     kind = "thermal_drift"
+    context_keys = frozenset({"t", "temp_c"})
     target = "geometry"
     links: tuple[str, ...] = ("p23", "p34")
     values: np.ndarray = field(default_factory=lambda: np.zeros(2))

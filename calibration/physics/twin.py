@@ -159,6 +159,17 @@ class Twin:
         """True tool pose ``(R (N, 3, 3), p (N, 3) [mm])`` for joint readings q [rad] (N, 6) and a context."""
         return apply_effects(self.geometry, self.effects, q, context)
 
+    @property
+    def context_keys(self) -> frozenset[str] | None:
+        """The context entries :meth:`pose` reads (the union of its effects' :attr:`Effect.context_keys`), or None
+        when an effect does not say."""
+        keys: set[str] = set()
+        for e in self.effects:
+            if e.context_keys is None:
+                return None
+            keys |= e.context_keys
+        return frozenset(keys)
+
     def effect(self, kind: str) -> Effect:
         for e in self.effects:
             if e.kind == kind:

@@ -1,12 +1,13 @@
 """The ground truth behind the simulated devices: a twin that maps joint angles to the true tool pose.
 
-Any object with ``pose(q, context) -> (R (N, 3, 3), p (N, 3))`` is a twin (the physics twin of
-``calibration.physics`` has that signature). :func:`planted_truth` builds one with the one error planter,
+Any object with ``pose(q, context) -> (R (N, 3, 3), p (N, 3))`` and ``context_keys`` is a twin (the physics twin of
+``calibration.physics`` has both). :func:`planted_truth` builds one with the one error planter,
 :func:`calibration.physics.planted_twin` (seeded geometric errors and, optionally, a gravity-like joint
 compliance), so a calibration run on simulated data has something to recover.
 
 ``context`` maps names to per-sample arrays; the simulated driver passes ``dir`` (N, 6) signs of each joint's
-last motion and ``t`` (N,) simulated time [s]. A twin ignores the keys it does not model.
+last motion and ``t`` (N,) simulated time [s]. A twin ignores the keys it does not model; its ``context_keys`` say
+which it reads (None: any), so the driver can reuse a pose while the arm stands still.
 
 The physics twin (:class:`calibration.physics.Twin`) reads the directions as ``dir1..dir6`` (N,) each;
 :class:`TwinTruth` translates.
@@ -31,6 +32,10 @@ class Truth(Protocol):
     def pose(self, q: np.ndarray, context: Mapping[str, np.ndarray] | None = None
              ) -> tuple[np.ndarray, np.ndarray]:
         """Tool pose for joint angles ``q`` [rad], shape (N, 6): ``(R (N, 3, 3), p (N, 3) [mm])``."""
+
+    @property
+    def context_keys(self) -> frozenset[str] | None:
+        """The context entries :meth:`pose` reads (``dir``, ``t``, ...), or None when it may read any."""
 
 
 def sim_context_to_twin(context: Mapping[str, np.ndarray] | None) -> dict[str, np.ndarray]:
@@ -61,14 +66,20 @@ class TwinTruth:
     """
 
     def __init__(self, twin: Any) -> None:
-        if not hasattr(twin, "pose"):
-            raise InvalidArgument("sim:truth", "twin", twin, "an object with pose(q, context)")
+        if not (hasattr(twin, "pose") and hasattr(twin, "context_keys")):
+            raise InvalidArgument("sim:truth", "twin", twin, "an object with pose(q, context) and context_keys")
         self.twin = twin
 
     def pose(self, q: np.ndarray, context: Mapping[str, np.ndarray] | None = None
              ) -> tuple[np.ndarray, np.ndarray]:
         """Tool pose for joint angles ``q`` [rad], shape (N, 6): ``(R (N, 3, 3), p (N, 3) [mm])``."""
         return self.twin.pose(np.atleast_2d(q), sim_context_to_twin(context))
+
+    @property
+    def context_keys(self) -> frozenset[str] | None:
+        """The simulated driver's context entries the pose reads (``dir``, ``t``, ...), or None when the twin does
+        not say (see :attr:`calibration.physics.Effect.context_keys`)."""
+        return self.twin.context_keys
 
 
 def planted_truth(nominal: PoeModel, errors: PlantedErrors = PlantedErrors(), seed: int = 0,

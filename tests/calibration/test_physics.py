@@ -297,3 +297,53 @@ def test_bad_inputs_raise_with_clear_messages(r1, tmp_path):
     path.write_text(json.dumps(bad))
     with pytest.raises(DataError, match="unknown effect kind"):
         load_model(path)
+
+
+# --- the context entries each effect reads -------------------------------------------------------------------
+
+#: The context entries a twin can be given, grouped as ``Effect.context_keys`` names them (``dir`` is dir1..dir6).
+CONTEXT_GROUPS = {"dir": [f"dir{i + 1}" for i in range(6)], "qd": ["qd"], "t": ["t"], "temp_c": ["temp_c"],
+                  "payload_kg": ["payload_kg"]}
+
+
+def every_kind(gravity):
+    """One effect of every registered kind and form, thermal drift in both its modes."""
+    from calibration.physics import MassFreeCompliance
+
+    return all_effects(gravity) + [
+        MassFreeCompliance(values=np.array([2e-4, -1e-4, 3e-4, 1e-4, -2e-4])),
+        ThermalDrift(("p34",), np.array([0.01]), mode="temperature", ref_temp_c=20.0)]
+
+
+def test_every_registered_kind_says_which_context_entries_it_reads(r1):
+    from calibration.physics import EFFECT_KINDS
+    from calibration.physics.base import registry_key
+
+    effects = every_kind(r1[2])
+    assert {registry_key(e.kind, e.form) for e in effects} == set(EFFECT_KINDS)
+    for e in effects:
+        assert e.context_keys is not None and e.context_keys <= set(CONTEXT_GROUPS), e.kind
+
+
+@pytest.mark.parametrize("index", range(9))
+def test_an_effect_reads_no_context_entry_but_those_it_declares(r1, index):
+    # The simulated arm reuses a true pose while it dwells only when its twin reads nothing but the directions
+    # (drivers.sim.SimRobotDriver.true_pose): a declaration that leaves out an entry the effect reads would freeze
+    # a drift. Every entry left out must leave the pose bit for bit; changing the declared ones must move it.
+    cr, m, gm = r1
+    e = every_kind(gm)[index]
+    q = random_q(cr, 30, seed=11)
+    ctx = {**context(30), "temp_c": np.random.default_rng(4).uniform(15, 40, 30)}
+    R0, p0 = Twin(m, (e,)).pose(q, ctx)
+    rng = np.random.default_rng(9)
+    moved = set()
+    for group, entries in CONTEXT_GROUPS.items():
+        other = dict(ctx)
+        for k in entries:  # directions flip (they must stay in {-1, 0, 1}), the rest move by their size or more
+            other[k] = -ctx[k] if group == "dir" else ctx[k] + rng.choice([-1.0, 1.0], np.shape(ctx[k])) * np.maximum(
+                np.abs(ctx[k]), 1.0)
+        R, p = Twin(m, (e,)).pose(q, other)
+        if not (np.array_equal(R, R0) and np.array_equal(p, p0)):
+            moved.add(group)
+    assert moved <= e.context_keys, f"{e.kind} reads {sorted(moved - e.context_keys)} without declaring them"
+    assert moved or not e.context_keys, f"{e.kind} declares {sorted(e.context_keys)} but reads none of them"

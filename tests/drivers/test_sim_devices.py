@@ -204,3 +204,62 @@ def test_motoros_and_sim_share_one_invalid_argument():
     from drivers.motoros.errors import InvalidArgument as MotorosInvalidArgument
 
     assert MotorosInvalidArgument is InvalidArgument
+
+
+class _Unsaid:
+    """A truth that does not say which context entries it reads: the arm may not reuse its poses."""
+
+    context_keys = None
+
+    def __init__(self, truth):
+        self.truth = truth
+
+    def pose(self, q, context=None):
+        return self.truth.pose(q, context)
+
+
+def _moved_pair(truth):
+    """Two arms on one stepped clock, one reusing poses and one not, moved the same way (and back, so a direction
+    changes), with the times of a collection's frames: every frame of the moves and of the dwells between."""
+    from cell_config import load_cell as cell
+
+    r1 = cell().robot("R1")
+    clock = SimClock(200.0, stepped=True)
+    arms = [SimRobotDriver("R1", r1.robot, t, clock=clock, config=SimRobotConfig(settle_time_s=0.05))
+            for t in (truth, _Unsaid(truth))]
+    for arm in arms:
+        arm.connect()
+    for target in (np.radians([10, -20, 15, 30, -10, 5]), np.zeros(6), np.radians([10, -20, 15, 30, -10, 5])):
+        for arm in arms:
+            arm.move_to(target, 1.0)
+        clock.sleep(8.0)
+    times = np.arange(0.0, clock.now(), 1.0 / 240)
+    return arms, np.concatenate([times, times[::7]])
+
+
+@pytest.mark.parametrize("twin", ["planted", "backlash"])
+def test_reused_true_poses_are_the_twins_bit_for_bit(r1, twin):
+    from calibration.physics import Backlash
+
+    truth = planted_truth(r1.model(), seed=3)
+    if twin == "backlash":  # a pose that depends on the approach direction: the same q from two sides differs
+        truth = TwinTruth(Twin(truth.twin.geometry, (Backlash((1, 2, 3), np.radians([0.05, 0.08, 0.06])),)))
+    (memo, plain), times = _moved_pair(truth)
+    R, p = memo.true_pose(times)
+    R0, p0 = plain.true_pose(times)
+    np.testing.assert_array_equal(p, p0)
+    np.testing.assert_array_equal(R, R0)
+    np.testing.assert_array_equal(memo.true_pose(times[::-1])[1], p0[::-1])  # again, every pose from the memo
+    if twin == "backlash":
+        start, back = memo.true_pose(np.array([0.0, 12.0]))[1]  # q = 0 both times: at rest, then back from a target
+        assert np.linalg.norm(start - back) > 0.1
+
+
+def test_a_twin_that_reads_time_drifts_while_the_arm_dwells(r1):
+    from calibration.physics import ThermalDrift
+
+    warm = Twin(r1.model(), (ThermalDrift(("p23", "p34"), np.array([0.3, 0.5]), tau_s=20.0),))
+    (arm, _), _ = _moved_pair(TwinTruth(warm))
+    now = arm.clock.now()
+    p = arm.true_pose(np.array([now - 4.0, now - 2.0, now]))[1]  # the arm stands still at its last target
+    assert np.linalg.norm(p[2] - p[0]) > 1e-3
