@@ -7,7 +7,8 @@ The commands are the speed goals of issue 14 on the 0801 R1 recordings of ``../s
 - ``plan-dual``: ``plan-dual --path sweep:200`` with the compiled planner already in the cache;
 - ``plan-dual-cold``: the same into an empty ``CELLCAL_CACHE`` (graph build included; gcc starts alongside the
   interpreted plan, which ends first and cancels it);
-- ``make-test`` (only with ``--make-test``, it takes minutes): ``python -m pytest -q`` over the whole suite.
+- ``make-test`` (only with ``--make-test``, it takes minutes): ``make test``, the README's test command, on the
+  built ``.venv`` (the suite on every core).
 
 Each command runs ``--repeat`` times (after one untimed warm-up run for ``plan-dual`` with
 ``--compile wait``, which fills the cache); the
@@ -47,16 +48,16 @@ PACKAGES = ("app", "calibration", "cell_config", "drivers")
 
 
 def commands(data: Path, out: Path) -> dict[str, list[str]]:
-    """The argument lists after ``python -m`` of every benchmarked command."""
+    """The argument list of every benchmarked command."""
     train, test = data / "PH_grad_data" / "test0801_R1", data / "kinematic_raw_data" / "test0801_R1"
-    cli = ["app.cli"]
+    cli = [sys.executable, "-m", "app.cli"]
     return {
         "compare": cli + ["compare", "--robot", "R1", "--train", str(train), "--test", str(test), "--methods", "all",
                           "--json", str(out / "compare.json")],
         "diagnose": cli + ["diagnose", "--robot", "R1", "--train", str(train), "--json", str(out / "diagnose.json")],
         "plan-dual": cli + ["plan-dual", "--path", "sweep:200", "--json", str(out / "plan_dual.json")],
         "plan-dual-cold": cli + ["plan-dual", "--path", "sweep:200", "--json", str(out / "plan_dual.json")],
-        "make-test": ["pytest", "-q", "-p", "no:cacheprovider"],
+        "make-test": ["make", "test"],
     }
 
 
@@ -70,14 +71,14 @@ def children_cpu_s() -> float:
 
 
 def run_once(argv: list[str], env: dict[str, str]) -> tuple[float, float]:
-    """Wall time and CPU time (user + system, the command's whole process tree) [s] of ``python -m argv`` from
-    the repository root; raises when it fails."""
+    """Wall time and CPU time (user + system, the command's whole process tree) [s] of ``argv`` from the
+    repository root; raises when it fails."""
     start, cpu = time.perf_counter(), children_cpu_s()
-    proc = subprocess.run([sys.executable, "-m", *argv], cwd=ROOT, env=env, capture_output=True, text=True)
+    proc = subprocess.run(argv, cwd=ROOT, env=env, capture_output=True, text=True)
     seconds, cpu = time.perf_counter() - start, children_cpu_s() - cpu
     if proc.returncode != 0:
         tail = (proc.stderr or proc.stdout).strip().splitlines()[-3:]
-        raise RuntimeError(f"{' '.join(argv[:2])} exited {proc.returncode}: " + " | ".join(tail))
+        raise RuntimeError(f"{' '.join(argv[:4])} exited {proc.returncode}: " + " | ".join(tail))
     return seconds, cpu
 
 
@@ -97,7 +98,7 @@ def bench(name: str, argv: list[str], repeat: int, base_env: dict[str, str]) -> 
     return {"median_s": round(statistics.median(runs), 3), "runs_s": [round(r, 3) for r in runs],
             "median_cpu_s": round(statistics.median(cpus), 3),
             "load_1min": [round(x, 2) for x in loads], "goal_s": GOALS_S[name],
-            "command": "python -m " + " ".join(argv)}
+            "command": " ".join(["python", *argv[1:]] if argv[0] == sys.executable else argv)}
 
 
 def main(argv: list[str] | None = None) -> int:
