@@ -29,10 +29,7 @@ class Errors:
 def predict(model: KinematicModel, rec: Recording) -> tuple[np.ndarray, np.ndarray]:
     """The poses ``model`` predicts for ``rec``'s samples, (R (N, 3, 3), p (N, 3) [mm]); models whose effects
     depend on the sample's context (time, approach direction, payload...) get the recording's context columns."""
-    fk_context = getattr(model, "fk_context", None)
-    if fk_context is not None:
-        return fk_context(rec.q, rec.context())
-    return model.fk(rec.q)
+    return model.fk_context(rec.q, rec.context())
 
 
 def errors(model: KinematicModel, rec: Recording) -> Errors:

@@ -87,6 +87,14 @@ def _warn_extrapolation(model: Any, ex: dict[str, Any]) -> None:
               + (f"the guard held its effects fitted in narrowly seen joints at the edge of that range there "
                  f"(moving the position by up to {ex['guard_shift_mm_max']:.3f} mm)" if ex.get("guard_acted") else
                  "the guard did not change its prediction there"), file=sys.stderr)
+    beyond = {k: c for k, c in ex.get("outside_context_range", {}).items() if c["poses"]}
+    if beyond:
+        print(f"warning: poses lie beyond the {model.method} model's training data in "
+              + ", ".join(f"{k} ({c['poses']} of {ex['poses']} poses, by up to {c['max_excess']:.3g} {c['unit']}; "
+                          f"trained on {c['range'][0]:.6g} to {c['range'][1]:.6g})" for k, c in beyond.items())
+              + "; " + (f"the guard held its effects fitted in them at the edge of that range (moving the position by "
+                        f"up to {ex['guard_shift_mm_max']:.3f} mm)" if ex.get("guard_acted") else
+                        "no effect of the model is held there (none has a shape fitted in them)"), file=sys.stderr)
 
 
 def _model_arg(args: argparse.Namespace) -> tuple[Any, Any]:
@@ -109,7 +117,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     test = read_recording_arg(args.test, robot)
     frames = _test_frame_check(model, test, "recording, against the data the model was fitted on,",
                                f"the model {args.model}")  # another arm's recording: refused before any output
-    ex = extrapolation(model, test.q)
+    ex = extrapolation(model, test.q, test.context())
     _warn_extrapolation(model, ex)
     result = {"robot": model.robot, "method": model.method, "samples": len(test),
               "test": error_stats(errors(model, test)), "extrapolation": ex}

@@ -666,7 +666,7 @@ def refit_model(robot: str, model: KinematicModel | None, base: FittedInUse, spl
                     f"and the {len(split.heldout)} set-aside ones); the held-out figures are those of the fit on "
                     f"{len(fit)}.")
     info = {"baseline": base.name, "fit_samples": len(saved_on), "effects_found": confirmed.kinds,
-            "orientation_weight_a": options.a, REGION_KEY: Region.of(saved_on.q).to_dict()}
+            "orientation_weight_a": options.a, REGION_KEY: Region.of(saved_on.q, context=saved_on.context()).to_dict()}
     physics, refit_note = result_model(robot, base.inuse, model, base.theta_at(saved.x), saved.effects,
                                        base.refit_basis.shape[1], info)
     obs = base.observability
@@ -682,7 +682,7 @@ def report(robot: str, split: Split, base: FittedInUse, residual: ResidualDriver
     verdict = explain.verdict(c.effects, base.accuracy, c.accuracy, refitted.noise.floor_mm, hypotheses.hidden,
                               hypotheses.untested, c.rejected)
     plots = PlotData(np.linalg.norm(residual.residual[:, :3], axis=1), residual.drivers, base.heldout_mm, c.heldout_mm)
-    ex = extrapolation(refitted.model, split.heldout.q)
+    ex = extrapolation(refitted.model, split.heldout.q, split.heldout.context())
     notes = refitted.notes + ((extrapolation_note(ex),) if ex["outside_training_range"] else ())
     return Diagnosis(robot, len(split.fit), len(split.heldout), split.source, refitted.noise, base.accuracy,
                      c.accuracy, residual.mismatch, tuple(c.effects), tuple(hypotheses.hidden),

@@ -46,12 +46,17 @@ class Design:
     noise_deg: float = 0.01
 
 
+def temperature_c(t: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """The arm's temperature [deg C] at times t [s]: 20 deg C warming by 10 K with a 1500 s time constant, read with
+    0.1 K of noise."""
+    return 20.0 + 10.0 * (1 - np.exp(-t / 1500.0)) + rng.normal(0, 0.1, np.shape(t))
+
+
 def context_columns(N: int, groups: np.ndarray, design: Design, rng: np.random.Generator) -> dict[str, np.ndarray]:
     """Context columns for N samples in time order, one payload per cluster."""
     t = np.arange(N) * design.period_s + rng.uniform(0, 0.5 * design.period_s, N)
     payload = np.asarray(design.payloads_kg)[rng.integers(0, len(design.payloads_kg), groups.max() + 1)][groups]
-    cols = {"t": t, "temp_c": 20.0 + 10.0 * (1 - np.exp(-t / 1500.0)) + rng.normal(0, 0.1, N),
-            "payload_kg": payload}
+    cols = {"t": t, "temp_c": temperature_c(t, rng), "payload_kg": payload}
     cols.update({f"dir{i}": rng.choice([-1.0, 1.0], N) for i in range(1, 7)})
     cols.update({f"qd{i}": rng.uniform(-design.speed_rad_s, design.speed_rad_s, N) for i in range(1, 7)})
     return cols
@@ -110,7 +115,7 @@ def heldout_design(design: Design, n: int, seed: int) -> tuple[np.ndarray, dict[
     cols = context_columns(n, groups, design, rng)
     span = design.n_q2 * design.n_q3 * 7 * design.period_s
     cols["t"] = np.sort(rng.uniform(0, span, n))
-    cols["temp_c"] = 20.0 + 10.0 * (1 - np.exp(-cols["t"] / 1500.0)) + rng.normal(0, 0.1, n)
+    cols["temp_c"] = temperature_c(cols["t"], rng)
     return q, cols
 
 

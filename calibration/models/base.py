@@ -86,6 +86,11 @@ class KinematicModel(abc.ABC):
     def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Tool pose for joint angles q [rad], shape (N, 6): ``(R (N, 3, 3), p (N, 3) [mm])``."""
 
+    def fk_context(self, q: np.ndarray, context: Any) -> tuple[np.ndarray, np.ndarray]:
+        """Tool pose for joint angles q [rad] (N, 6) and a per-sample context (time, approach directions, payload:
+        :mod:`calibration.physics.base`); a model with no context-dependent effect ignores the context."""
+        return self.fk(q)
+
     def out_of_range(self, q: np.ndarray) -> np.ndarray:
         """Boolean mask (N,) of configurations outside the region the model was fitted on."""
         return np.zeros(np.atleast_2d(q).shape[0], dtype=bool)

@@ -50,18 +50,19 @@ class DiagnosedModel(KinematicModel):
     def fk_context(self, q: np.ndarray, context: Context | None) -> tuple[np.ndarray, np.ndarray]:
         """Pose ``(R (N, 3, 3), p (N, 3) [mm])`` for joint angles q [rad] (N, 6) and a per-sample context.
 
-        The same steps as :meth:`casadi`: the joint effects (each at the angles the extrapolation guard holds it at,
-        see :mod:`calibration.models.guard`) deflect the joints on the base model's arm, the
+        The same steps as :meth:`casadi`: the joint effects (each at the angles and the context the extrapolation
+        guard holds it at, see :mod:`calibration.models.guard`) deflect the joints on the base model's arm, the
         base model runs at the deflected joints (its configuration-dependent parameters at the reading q),
         and geometry effects add the pose change their grown links cause on that arm.
         """
         q = np.atleast_2d(np.asarray(q, dtype=float))
         geo = self.base.effects_arm()
         region = self.region()
-        dq = sum((e.delta_q(geo, q if region is None else region.hold(e, q), context)  # the extrapolation guard
+        dq = sum((e.delta_q(geo, q, context) if region is None else  # else at what the extrapolation guard holds
+                  e.delta_q(geo, region.hold(e, q), region.hold_context(e, context, q.shape[0]))
                   for e in self.effects if e.target == "joints"), np.zeros_like(q))
         R, p = self.base.pose_at(q + dq, q)
-        R, p = geometry_on_top(geo, self.effects, q + dq, context, R, p)
+        R, p = geometry_on_top(geo, self.effects, q + dq, context, R, p, region)
         return R, p
 
     def out_of_range(self, q: np.ndarray) -> np.ndarray:

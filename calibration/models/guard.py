@@ -16,6 +16,18 @@ over less than :data:`NARROW_SPAN_RAD`.
 A region saved before the rule (no ``rule`` key) holds every effect in every joint, as it did then
 (:data:`RULE_EVERY_JOINT`), so an older model file predicts what it predicted.
 
+The same in time and temperature: the region also records the range of each context entry of
+:data:`GUARDED_CONTEXT` the training recording carried (:attr:`Region.context_range`), and an effect whose fitted
+shape is a function of one, seen over less than the span the shape shows itself over
+(:meth:`~calibration.physics.base.Effect.fitted_context`: a warm-up curve recorded for less than its fitted time
+constant), is evaluated at that entry softly clamped into the range (:meth:`Region.hold_context`, margin a share of
+the span). A warm-up fitted on ten minutes of a half-hour time constant has seen its slope, not its bend, and its
+asymptote is a guess; held at the edge, it does not promise millimetres hours later (``scripts/bench_time_guard.py``:
+on a synthetic twin whose fit put the time constant at 25 h, 4.61/8.91 mm four hours on without the hold, 0.97/1.21
+with it; a recording longer than the time constant is not held). A growth per kelvin and a payload compliance are
+formulas and go on as they say; a context entry the call does not carry (the default context, a casadi expression)
+is not held.
+
 A ``pi`` model has no guard. Its compliance is the mass-free gravity shape; its structural deflection's shape is
 fitted, in q2 and q3 only, which every shared training day sees over 60 deg or more, so the rule would not hold it
 there either (and holding it in q2, q3 was measured to cost the q2/q3 edge folds of
@@ -26,8 +38,8 @@ much (``evaluate`` and ``predict`` report it).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields, replace
-from typing import Any, Literal, Sequence
+from dataclasses import dataclass, field, fields, replace
+from typing import Any, Literal, Mapping, Sequence
 
 import numpy as np
 
@@ -56,6 +68,10 @@ RULE_BY_EFFECT = "by_effect"
 RULE_EVERY_JOINT = "every_joint"
 GuardRule = Literal["by_effect", "every_joint"]
 RULES = (RULE_BY_EFFECT, RULE_EVERY_JOINT)
+#: The per-sample context entries whose training range a region records (a recording's columns of these names).
+GUARDED_CONTEXT = ("t", "temp_c", "payload_kg")
+#: Units of :data:`GUARDED_CONTEXT`, for the messages.
+CONTEXT_UNITS = {"t": "s", "temp_c": "deg C", "payload_kg": "kg"}
 
 
 def data_margin_rad(lower_rad: np.ndarray, upper_rad: np.ndarray) -> np.ndarray:
@@ -84,12 +100,15 @@ class Region:
         margin_rad: the clamp's saturation width outside the range [rad], one for every joint or per joint (n,).
         rule: which joints an effect is held in (:meth:`held_joints`): ``by_effect`` (those its fitted shape depends
             on that the data saw narrowly) or ``every_joint`` (all, the guard of regions saved before the rule).
+        context_range: smallest and largest value of each context entry of :data:`GUARDED_CONTEXT` the training
+            data carried, ``{"t": (0.0, 600.0)}`` (empty for a recording with none, or a region saved before).
     """
 
     lower_rad: np.ndarray
     upper_rad: np.ndarray
     margin_rad: float | np.ndarray = DEFAULT_MARGIN_RAD
     rule: GuardRule = RULE_BY_EFFECT
+    context_range: Mapping[str, tuple[float, float]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         lo, hi = np.asarray(self.lower_rad, dtype=float), np.asarray(self.upper_rad, dtype=float)
@@ -100,17 +119,29 @@ class Region:
             raise ModelError(f"the clamp margin must be positive, one or one per joint, got {self.margin_rad}")
         if self.rule not in RULES:
             raise ModelError(f"unknown guard rule {self.rule!r}; valid: {', '.join(RULES)}")
+        ranges = {}
+        for key, bounds in dict(self.context_range).items():
+            b = np.asarray(bounds, dtype=float)
+            if key not in GUARDED_CONTEXT or b.shape != (2,) or not np.all(np.isfinite(b)) or b[1] < b[0]:
+                raise ModelError(f"a training region's context range needs finite lower <= upper for entries among "
+                                 f"{', '.join(GUARDED_CONTEXT)}, got {key!r}: {bounds!r}")
+            ranges[key] = (float(b[0]), float(b[1]))
         object.__setattr__(self, "lower_rad", lo)
         object.__setattr__(self, "upper_rad", hi)
         object.__setattr__(self, "margin_rad", float(m) if m.ndim == 0 else m)
+        object.__setattr__(self, "context_range", ranges)
 
     @classmethod
-    def of(cls, q: np.ndarray, margin_rad: float | np.ndarray | None = None) -> "Region":
-        """The range of joint angles q [rad] (N, n); by default each joint's margin from the data's own spread
-        (:func:`data_margin_rad`)."""
+    def of(cls, q: np.ndarray, margin_rad: float | np.ndarray | None = None,
+           context: Mapping[str, np.ndarray] | None = None) -> "Region":
+        """The range of joint angles q [rad] (N, n) and of the entries of :data:`GUARDED_CONTEXT` in the training
+        ``context`` (a recording's :meth:`~calibration.recording.Recording.context`); by default each joint's
+        margin from the data's own spread (:func:`data_margin_rad`)."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
         lo, hi = q.min(axis=0), q.max(axis=0)
-        return cls(lo, hi, data_margin_rad(lo, hi) if margin_rad is None else margin_rad)
+        ranges = {k: (float(np.min(v)), float(np.max(v))) for k, v in (context or {}).items()
+                  if k in GUARDED_CONTEXT and np.size(v) and np.all(np.isfinite(v))}
+        return cls(lo, hi, data_margin_rad(lo, hi) if margin_rad is None else margin_rad, context_range=ranges)
 
     def excess(self, q: np.ndarray) -> np.ndarray:
         """How far each joint lies outside the range [rad] (N, n), zero inside."""
@@ -170,10 +201,49 @@ class Region:
         joints = self.held_joints(effect)
         return self.clamp_casadi(q, joints) if joints else q
 
+    def held_context(self, effect: Any) -> tuple[str, ...]:
+        """The context entries ``effect`` is held in: those its fitted shape depends on that the training data saw
+        over less than the span the shape shows itself over (:meth:`~calibration.physics.base.Effect.fitted_context`:
+        a warm-up recorded for less than its time constant)."""
+        return tuple(k for k, span in effect.fitted_context().items()
+                     if k in self.context_range and self.context_range[k][1] - self.context_range[k][0] < span)
+
+    def clamp_context(self, key: str, values: np.ndarray) -> np.ndarray:
+        """Context entry ``key`` softly clamped into its training range, as :meth:`clamp` does a joint: unchanged
+        inside, ``edge +- m tanh(excess / m)`` outside, with ``m`` :data:`MARGIN_SHARE` of the span (a millionth of
+        the edge's size, or of 1, for an entry the data saw at one value)."""
+        lo, hi = self.context_range[key]
+        m = max(MARGIN_SHARE * (hi - lo), 1e-6 * max(abs(lo), abs(hi), 1.0))
+        v = np.asarray(values, dtype=float)
+        return np.where(v > hi, hi + m * np.tanh(np.maximum(v - hi, 0.0) / m),
+                        np.where(v < lo, lo - m * np.tanh(np.maximum(lo - v, 0.0) / m), v))
+
+    def hold_context(self, effect: Any, context: Mapping[str, Any] | None, N: int) -> Mapping[str, Any] | None:
+        """The context ``effect`` is evaluated at for a recorded ``context`` of N samples: the entries it is held in
+        (:meth:`held_context`) clamped into their training range, the others as given; an entry the context does not
+        carry keeps the effect's default."""
+        keys = [k for k in self.held_context(effect) if context is not None and context.get(k) is not None]
+        if not keys:
+            return context
+        return {**context, **{k: self.clamp_context(k, np.broadcast_to(context[k], (N,))) for k in keys}}
+
+    def context_excess(self, context: Mapping[str, Any] | None, N: int) -> dict[str, np.ndarray]:
+        """How far each sample's recorded context entries lie outside their training range (N,) per entry the
+        region knows and the context carries, zero inside."""
+        out = {}
+        for k, (lo, hi) in self.context_range.items():
+            if context is not None and context.get(k) is not None:
+                v = np.broadcast_to(np.asarray(context[k], dtype=float), (N,))
+                out[k] = np.maximum(lo - v, 0.0) + np.maximum(v - hi, 0.0)
+        return out
+
     def to_dict(self) -> dict[str, Any]:
         m = self.margin_rad
-        return {"lower_rad": self.lower_rad.tolist(), "upper_rad": self.upper_rad.tolist(),
-                "margin_rad": m.tolist() if isinstance(m, np.ndarray) else float(m), "rule": self.rule}
+        d = {"lower_rad": self.lower_rad.tolist(), "upper_rad": self.upper_rad.tolist(),
+             "margin_rad": m.tolist() if isinstance(m, np.ndarray) else float(m), "rule": self.rule}
+        if self.context_range:
+            d["context_range"] = {k: list(v) for k, v in self.context_range.items()}
+        return d
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "Region":
@@ -183,8 +253,8 @@ class Region:
             m = d.get("margin_rad", DEFAULT_MARGIN_RAD)
             return cls(np.asarray(d["lower_rad"], dtype=float), np.asarray(d["upper_rad"], dtype=float),
                        np.asarray(m, dtype=float) if isinstance(m, list) else float(m),
-                       d.get("rule", RULE_EVERY_JOINT))
-        except (KeyError, TypeError, ValueError) as e:
+                       d.get("rule", RULE_EVERY_JOINT), {k: tuple(v) for k, v in d.get("context_range", {}).items()})
+        except (AttributeError, KeyError, TypeError, ValueError) as e:
             raise ModelError(f"bad training_region {d!r}: {e}") from e
 
 
@@ -205,27 +275,31 @@ def region_of(info: dict[str, Any]) -> Region | None:
 OUTSIDE_TOLERANCE_DEG = 0.05
 
 
-def extrapolation(model: Any, q: np.ndarray) -> dict[str, Any]:
+def extrapolation(model: Any, q: np.ndarray, context: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """How many poses lie outside what the model's training data identified, by how much, and what the guard did.
 
     ``evaluate``, ``predict`` and ``diagnose`` all count with this one rule: a pose is outside the training range
     when one of its joints lies more than :data:`OUTSIDE_TOLERANCE_DEG` beyond that joint's training range (a pose
-    only a rounding's width past the edge is not).
+    only a rounding's width past the edge is not). In time, temperature and payload (the recorded ``context``) a pose
+    is outside when its entry lies beyond the training range at all.
 
     Args:
         model: a :class:`~calibration.models.base.KinematicModel`.
         q: joint angles [rad] (N, n).
+        context: the poses' recorded context (a recording's :meth:`~calibration.recording.Recording.context`), or
+            None (the default context, which the guard never holds).
 
     Returns:
         ``poses``, ``outside_training_range`` (poses with a joint more than ``outside_tolerance_deg`` outside the
         training range), ``outside_tolerance_deg``, ``max_excess_deg`` (the largest joint excess of any pose, 0
         inside the range) and ``rms_excess_deg`` (over the poses counted outside, of each one's largest joint
-        excess), ``max_excess_deg_per_joint`` (n,), ``outside_model_region`` (the model's own region test, e.g. a
-        cdc interpolator's), ``region_known`` (False for a model saved without its training region), and
-        ``guard_acted`` / ``guard_shift_mm_max``: whether the guard changed the model's prediction on these poses
-        (its configuration-dependent terms held at the edge of the range, wherever a joint is past it at all) and
-        the largest position change it made [mm] (0 and False for a model whose every term is rigid, or with every
-        pose inside).
+        excess), ``max_excess_deg_per_joint`` (n,), ``outside_context_range`` (per context entry whose training
+        range the model records and the poses carry: ``poses`` outside it, ``max_excess`` in ``unit``, ``range``
+        of the training data), ``outside_model_region`` (the model's own region test, e.g. a cdc interpolator's),
+        ``region_known`` (False for a model saved without its training region), and ``guard_acted`` /
+        ``guard_shift_mm_max``: whether the guard changed the model's prediction on these poses (its terms held at
+        the edge of the range, wherever a joint or a held context entry is past it at all) and the largest position
+        change it made [mm] (0 and False for a model whose every term is rigid, or with every pose inside).
     """
     q = np.atleast_2d(np.asarray(q, dtype=float))
     region = model.region()
@@ -234,17 +308,31 @@ def extrapolation(model: Any, q: np.ndarray) -> dict[str, Any]:
                            "outside_tolerance_deg": OUTSIDE_TOLERANCE_DEG}
     if region is None:
         return {**out, "outside_training_range": None, "max_excess_deg": None, "rms_excess_deg": None,
-                "max_excess_deg_per_joint": None, "guard_acted": False, "guard_shift_mm_max": None}
+                "max_excess_deg_per_joint": None, "outside_context_range": {}, "guard_acted": False,
+                "guard_shift_mm_max": None}
     ex = np.degrees(region.excess(q))
     worst = ex.max(axis=1)
     outside = worst > OUTSIDE_TOLERANCE_DEG
+    context_ex = region.context_excess(context, q.shape[0])
     held = worst > 0  # where the guard's clamp acts, however little
-    shift = guard_shift_mm(model, q[held]) if held.any() else 0.0
+    for e in context_ex.values():
+        held |= e > 0
+    shift = guard_shift_mm(model, q[held], _rows(context, held)) if held.any() else 0.0
     return {**out, "outside_training_range": int(np.count_nonzero(outside)),
             "max_excess_deg": float(worst.max(initial=0.0)),
             "rms_excess_deg": float(np.sqrt(np.mean(worst[outside] ** 2))) if outside.any() else 0.0,
             "max_excess_deg_per_joint": ex.max(axis=0).tolist(),
+            "outside_context_range": {k: {"poses": int(np.count_nonzero(e > 0)), "max_excess": float(e.max(initial=0.0)),
+                                          "unit": CONTEXT_UNITS[k], "range": list(region.context_range[k])}
+                                      for k, e in context_ex.items()},
             "guard_acted": bool(shift > GUARD_ACTED_MM), "guard_shift_mm_max": shift}
+
+
+def _rows(context: Mapping[str, Any] | None, index: np.ndarray) -> dict[str, Any] | None:
+    """The rows ``index`` of a per-sample context (``qd`` (N, n) by row; a scalar entry stands for every row)."""
+    if context is None:
+        return None
+    return {k: v if v is None or np.ndim(v) == 0 else np.asarray(v)[index] for k, v in context.items()}
 
 
 #: What each count of :func:`extrapolation` counts, in words, for the JSON of the commands that report it: a user
@@ -253,6 +341,8 @@ COUNTS_EXPLAINED = {
     "outside_training_range": f"poses with a joint more than {OUTSIDE_TOLERANCE_DEG:g} deg outside that joint's range "
                               "in the model's training data, for every model kind (null: the model file records no "
                               "training range)",
+    "outside_context_range": "per recorded context entry (t, temp_c, payload_kg) whose training range the model "
+                             "records: poses beyond that range, by how much, and the range",
     "outside_model_region": "poses outside the model's own interpolation region: the convex hull of the (q2, q3) "
                             "anchors a cdc model interpolates its parameters over; always 0 for a model of one "
                             "constant geometry (nominal, nls1, pi, ...), which has no such region",
@@ -263,10 +353,11 @@ COUNTS_EXPLAINED = {
 GUARD_ACTED_MM = 1e-9
 
 
-def guard_shift_mm(model: Any, q: np.ndarray) -> float:
-    """The largest change [mm] the guard makes to the model's predicted position at joint angles q (N, n): the
-    model against itself with its training region removed (which turns the guard off)."""
+def guard_shift_mm(model: Any, q: np.ndarray, context: Mapping[str, Any] | None = None) -> float:
+    """The largest change [mm] the guard makes to the model's predicted position at joint angles q (N, n) and the
+    poses' ``context``: the model against itself with its training region removed (which turns the guard off)."""
     if q.shape[0] == 0 or "info" not in {f.name for f in fields(model)}:
         return 0.0
     unguarded = replace(model, info={k: v for k, v in model.info.items() if k != REGION_KEY})
-    return float(np.max(np.linalg.norm(model.fk(q)[1] - unguarded.fk(q)[1], axis=1)))
+    return float(np.max(np.linalg.norm(model.fk_context(q, context)[1] - unguarded.fk_context(q, context)[1],
+                                       axis=1)))

@@ -90,9 +90,9 @@ class PhysicsModel(KinematicModel):
 
     def fk_context(self, q: np.ndarray, context: Context | None) -> tuple[np.ndarray, np.ndarray]:
         """Pose ``(R (N, 3, 3), p (N, 3) [mm])`` for joint angles q [rad] (N, 6) and a per-sample context; each
-        joint effect evaluated at the angles the extrapolation guard holds it at (:mod:`calibration.models.guard`)."""
-        region = self.region()
-        return apply_effects(self.model, self.effects, q, context, None if region is None else region.hold)
+        effect evaluated at the angles and the context the extrapolation guard holds it at
+        (:mod:`calibration.models.guard`)."""
+        return apply_effects(self.model, self.effects, q, context, self.region())
 
     @property
     def n_parameters(self) -> int:

@@ -96,7 +96,11 @@ class RebasedModel(KinematicModel):
         return q + ca.DM(self.joint_offsets)
 
     def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        R, p = self.inner.fk(self._shifted(np.asarray(q, dtype=float)))
+        return self.fk_context(q, None)
+
+    def fk_context(self, q: np.ndarray, context: Any) -> tuple[np.ndarray, np.ndarray]:
+        """The inner model's pose at the shifted readings and the context, in the corrected frames."""
+        R, p = self.inner.fk_context(self._shifted(np.asarray(q, dtype=float)), context)
         return wrap_pose(self.T_base_correction, R, p, self.T_tool_correction)
 
     def out_of_range(self, q: np.ndarray) -> np.ndarray:

@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import abc
 from dataclasses import dataclass, fields, replace
-from typing import Any, Callable, ClassVar, Literal, Mapping, Sequence
+from typing import Any, Callable, ClassVar, Literal, Mapping, Protocol, Sequence
 
 import numpy as np
 
@@ -163,6 +163,17 @@ class Effect(abc.ABC):
         """
         return tuple(range(n))
 
+    def fitted_context(self) -> dict[str, float]:
+        """The context entries (``t``, ``temp_c``, ``payload_kg``) the effect's fitted shape is a function of, each
+        with the span over which that shape shows itself (a warm-up's time constant): where the training data saw
+        such an entry over less than that span, the extrapolation guard holds the effect at the edge of what it saw
+        (:meth:`calibration.models.guard.Region.held_context`).
+
+        Empty by default: a context entry that enters by a formula, its size alone fitted (a payload times a
+        compliance, a temperature times a growth per kelvin), goes on as the formula says.
+        """
+        return {}
+
     def joint_terms(self, ops: Ops, q: list[Any], chain: Callable[[], Any], context: Context | None,
                     N: int) -> list[Term]:
         """The non-zero regressor entries, written once for numpy and casadi. Joint effects only.
@@ -260,13 +271,18 @@ def effect_from_dict(d: Mapping[str, Any]) -> Effect:
     return probe.with_values(np.array([params[k] for k in probe.names], dtype=float))
 
 
-#: The joint angles an effect is evaluated at for the readings q (N, n): a model's extrapolation guard
-#: (:meth:`calibration.models.guard.Region.hold`).
-Hold = Callable[[Effect, np.ndarray], np.ndarray]
+class Guard(Protocol):
+    """A model's extrapolation guard (:class:`calibration.models.guard.Region`): what each effect is evaluated at."""
+
+    def hold(self, effect: Effect, q: np.ndarray) -> np.ndarray:
+        """The joint angles (N, n) ``effect`` is evaluated at for the readings q (N, n)."""
+
+    def hold_context(self, effect: Effect, context: Context | None, N: int) -> Context | None:
+        """The context ``effect`` is evaluated at for the recorded ``context`` of N samples."""
 
 
 def apply_effects(model: PoeModel, effects: tuple[Effect, ...] | list[Effect], q: np.ndarray,
-                  context: Context | None = None, hold: Hold | None = None) -> tuple[np.ndarray, np.ndarray]:
+                  context: Context | None = None, guard: Guard | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Tool pose of a POE model with effects: geometry effects change P, joint effects add to q.
 
     Args:
@@ -274,8 +290,8 @@ def apply_effects(model: PoeModel, effects: tuple[Effect, ...] | list[Effect], q
         effects: the effects, applied together (joint perturbations summed, geometry effects chained).
         q: commanded/measured joint angles [rad], shape (N, n).
         context: per-sample context, see the module docstring.
-        hold: the joint angles each joint effect's deflection is evaluated at (default ``q``; a model's
-            extrapolation guard, :meth:`calibration.models.guard.Region.hold`).
+        guard: a model's extrapolation guard, which says the joint angles and the context each effect is evaluated
+            at (default: ``q`` and ``context`` as given).
 
     Returns:
         ``(R_base_tool (N, 3, 3), p_base_tool (N, 3) [mm])``.
@@ -287,24 +303,25 @@ def apply_effects(model: PoeModel, effects: tuple[Effect, ...] | list[Effect], q
     for e in effects:
         if e.target == "pose":
             raise ModelError(f"{e.kind} acts on the pose of a pi model, not on a POE model; fit a pi model")
+        ctx = context if guard is None else guard.hold_context(e, context, N)
         if e.target == "geometry":
-            P = e.geometry(model, N, context, P)
+            P = e.geometry(model, N, ctx, P)
         else:
-            dq = dq + e.delta_q(model, q if hold is None else hold(e, q), context)
+            dq = dq + e.delta_q(model, q if guard is None else guard.hold(e, q), ctx)
     return model.fk(q + dq, P=P)
 
 
 def geometry_on_top(model: PoeModel, effects: Sequence[Effect], q: np.ndarray, context: Context | None,
-                    R: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                    R: np.ndarray, p: np.ndarray, guard: Guard | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``(R, p)`` (a pose at ``q`` from any kinematics) with the geometry effects among ``effects`` applied on top:
     each moves the tool by the change it makes to ``model``'s forward kinematics at ``q`` (joint effects' deflections
-    already added to ``q``)."""
+    already added to ``q``), at the context the ``guard`` holds it at."""
     geometric = [e for e in effects if e.target == "geometry"]
     if not geometric:
         return R, p
     P = None
     for e in geometric:
-        P = e.geometry(model, q.shape[0], context, P)
+        P = e.geometry(model, q.shape[0], context if guard is None else guard.hold_context(e, context, q.shape[0]), P)
     R0, p0 = model.fk(q)
     R1, p1 = model.fk(q, P=P)
     return R1 @ np.swapaxes(R0, 1, 2) @ R, p + p1 - p0

@@ -36,13 +36,14 @@ def test_predict_and_evaluate_report_poses_outside_the_training_range(tmp_path, 
 
 
 def counts_of(doc, prefix=""):
-    """Every pose count of a predict/evaluate JSON (keys starting with ``outside_``), as dotted keys."""
+    """Every pose count of a predict/evaluate JSON (keys starting with ``outside_``, a number or counts per context
+    entry), as dotted keys."""
     found = set()
     for key, value in doc.items():
-        if isinstance(value, dict) and key != "counts_explained":
-            found |= counts_of(value, f"{prefix}{key}.")
-        elif key.startswith("outside_") and key != "outside_tolerance_deg":
+        if key.startswith("outside_") and key != "outside_tolerance_deg":
             found.add(prefix + key)
+        elif isinstance(value, dict) and key != "counts_explained":
+            found |= counts_of(value, f"{prefix}{key}.")
     return found
 
 
@@ -96,3 +97,33 @@ def test_predict_and_evaluate_count_a_pose_a_rounding_past_the_edge_alike(tmp_pa
         err = capsys.readouterr().err
         assert "1 of 4 poses lie outside the joint range" in err and "by up to 0.5 deg" in err, err
         assert json.loads((tmp_path / name).read_text())["extrapolation"]["outside_training_range"] == 1
+
+
+def test_evaluate_says_when_poses_are_later_than_the_training_data_and_holds_a_short_warm_up(tmp_path, capsys):
+    """A warm-up drift fitted on ten minutes of a one-hour time constant: evaluate on poses taken hours later names
+    the time range and says the guard held the drift at its edge (:mod:`calibration.models.guard`)."""
+    from calibration import so3
+    from calibration.models import save_model
+    from calibration.models.guard import REGION_KEY, Region
+    from calibration.physics import PhysicsModel, ThermalDrift
+    from calibration.recording import Recording
+    from cell_config import load_cell
+
+    spec = load_cell().robot("R1")
+    q = np.radians(np.random.default_rng(3).uniform(-20, 20, (5, 6)))
+    region = Region.of(q, context={"t": np.array([0.0, 600.0])})
+    drift = (ThermalDrift(("p34",), np.array([2.0]), "warmup", tau_s=3600.0),)
+    save_model(PhysicsModel("R1", "diagnose", spec.model(), drift, 0, {REGION_KEY: region.to_dict()}),
+               tmp_path / "m.yaml")
+    t = np.array([60.0, 300.0, 900.0, 3600.0, 14400.0])
+    R, p = spec.model().fk(q)
+    write_recording(Recording(q, p, so3.R_to_quat(R), {"t": t}), tmp_path / "late.csv")
+    capsys.readouterr()
+    assert main(["evaluate", "--model", str(tmp_path / "m.yaml"), "--test", str(tmp_path / "late.csv"),
+                 "--json", str(tmp_path / "e.json")]) == 0
+    err = capsys.readouterr().err
+    assert "poses lie beyond the diagnose model's training data in t (3 of 5 poses, by up to 1.38e+04 s; " \
+           "trained on 0 to 600); the guard held its effects fitted in them at the edge" in err
+    ex = json.loads((tmp_path / "e.json").read_text())["extrapolation"]
+    assert ex["outside_context_range"]["t"] == {"poses": 3, "max_excess": 13800.0, "unit": "s", "range": [0.0, 600.0]}
+    assert ex["guard_acted"]

@@ -267,3 +267,114 @@ def test_a_harmonic_fitted_over_a_wide_range_goes_on_as_fitted_one_fitted_in_a_n
         shift = np.max(np.linalg.norm(guarded.fk(far)[1] - plain.fk(far)[1], axis=1))
         assert region.held_joints(gear) == ((joint - 1,) if held else ())
         assert (shift > 0.1) if held else (shift == 0.0)
+
+
+# --- time and temperature -------------------------------------------------------------------------------------
+
+def _warm(region_dict, mode="warmup"):
+    """A physics model of R1 whose forearm grows by 2 mm with a one-hour warm-up (or 0.1 mm per kelvin)."""
+    from calibration.physics import ThermalDrift
+
+    spec = load_cell().robot("R1")
+    drift = (ThermalDrift(("p34",), np.array([2.0]), "warmup", tau_s=3600.0) if mode == "warmup" else
+             ThermalDrift(("p34",), np.array([0.1]), "temperature", ref_temp_c=20.0))
+    return PhysicsModel("R1", "diagnose", spec.model(), (drift,), 0, {REGION_KEY: region_dict})
+
+
+def _timed_region(region):
+    return Region(region.lower_rad, region.upper_rad, region.margin_rad,
+                  context_range={"t": (0.0, 600.0), "temp_c": (20.0, 25.0)})
+
+
+def test_the_context_range_round_trips_and_a_bad_one_is_refused(region, tmp_path):
+    timed = _timed_region(region)
+    assert Region.from_dict(timed.to_dict()).context_range == {"t": (0.0, 600.0), "temp_c": (20.0, 25.0)}
+    assert "context_range" not in region.to_dict() and Region.from_dict(region.to_dict()).context_range == {}
+    model = _warm(timed.to_dict())
+    save_model(model, tmp_path / "m.yaml")
+    assert load_model(tmp_path / "m.yaml").region().context_range == timed.context_range
+    with pytest.raises(ModelError, match="context range needs finite lower <= upper.*'t'"):
+        Region(region.lower_rad, region.upper_rad, context_range={"t": (600.0, 0.0)})
+    with pytest.raises(ModelError, match="entries among t, temp_c, payload_kg, got 'speed'"):
+        Region(region.lower_rad, region.upper_rad, context_range={"speed": (0.0, 1.0)})
+    rec_context = {"t": np.array([5.0, 300.0, 60.0]), "dir1": np.ones(3), "qd": np.zeros((3, 6))}
+    assert Region.of(np.zeros((3, 6)), context=rec_context).context_range == {"t": (5.0, 300.0)}
+
+
+def test_a_warm_up_fitted_on_ten_minutes_is_held_at_their_edge_hours_later(region):
+    timed = _timed_region(region)
+    guarded, unguarded = _warm(timed.to_dict()), _warm(region.to_dict())
+    q = np.zeros((4, 6))
+    inside = {"t": np.array([0.0, 100.0, 300.0, 600.0])}
+    for a, b in zip(guarded.fk_context(q, inside), unguarded.fk_context(q, inside)):
+        np.testing.assert_array_equal(a, b)  # inside the training time span: the fit as it is
+    late = {"t": np.array([600.0, 1800.0, 3600.0, 14400.0])}
+    p, p_free = guarded.fk_context(q, late)[1], unguarded.fk_context(q, late)[1]
+    p_edge = unguarded.fk_context(q[:1], {"t": np.array([600.0 + 0.1 * 600.0])})[1]
+    grown = np.linalg.norm(p - p[0], axis=1)
+    assert np.all(grown <= np.linalg.norm(p_edge[0] - p[0]) + 1e-12)  # never past edge + margin (60 s)
+    assert np.all(np.diff(grown) >= 0)  # still monotone
+    assert np.linalg.norm(p_free[3] - p_free[0]) > 1.0  # unheld, 4 h later the curve promises over a millimetre
+    for a, b in zip(guarded.fk(q), unguarded.fk(q)):  # the default context (t = 0) is never held
+        np.testing.assert_array_equal(a, b)
+
+
+def test_a_growth_per_kelvin_goes_on_as_its_formula_says(region):
+    timed = _timed_region(region)
+    q, hot = np.zeros((2, 6)), {"temp_c": np.array([22.0, 40.0])}
+    for a, b in zip(_warm(timed.to_dict(), "temperature").fk_context(q, hot),
+                    _warm(region.to_dict(), "temperature").fk_context(q, hot)):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_extrapolation_counts_poses_beyond_the_time_and_temperature_of_the_training_data(region):
+    model = _warm(_timed_region(region).to_dict())
+    q = np.zeros((5, 6))
+    context = {"t": np.array([0.0, 300.0, 900.0, 3600.0, 600.0]), "temp_c": np.full(5, 26.5)}
+    ex = extrapolation(model, q, context)
+    assert ex["outside_training_range"] == 0
+    assert ex["outside_context_range"] == {
+        "t": {"poses": 2, "max_excess": 3000.0, "unit": "s", "range": [0.0, 600.0]},
+        "temp_c": {"poses": 5, "max_excess": 1.5, "unit": "deg C", "range": [20.0, 25.0]}}
+    assert ex["guard_acted"] and ex["guard_shift_mm_max"] > 0.5
+    assert extrapolation(model, q)["outside_context_range"] == {}  # no context given: nothing to say
+    inside = extrapolation(model, q, {"t": np.full(5, 100.0)})
+    assert inside["outside_context_range"]["t"]["poses"] == 0 and not inside["guard_acted"]
+
+
+def test_a_rebased_model_gives_its_inner_model_the_context(region):
+    from calibration.models.rebased import RebasedModel
+    from tests.calibration.kinds import T_BASE, T_TOOL
+
+    inner = _warm(_timed_region(region).to_dict())
+    rebased = RebasedModel("R1", "diagnose", inner, T_BASE, T_TOOL)
+    q, late = np.zeros((2, 6)), {"t": np.array([300.0, 620.0])}
+    shifted = RebasedModel("R1", "diagnose", inner).fk_context(q, late)
+    for a, b in zip(shifted, inner.fk_context(q, late)):
+        np.testing.assert_array_equal(a, b)
+    assert np.linalg.norm(rebased.fk_context(q, late)[1] - rebased.fk(q)[1], axis=1).min() > 0.01
+
+
+def test_a_diagnosed_model_holds_its_warm_up_too(region):
+    from calibration.diagnosis.model import DiagnosedModel
+    from calibration.physics import ThermalDrift
+    from tests.calibration.kinds import models_of_every_kind
+
+    pi = models_of_every_kind().pi
+    drift = (ThermalDrift(("p34",), np.array([2.0]), "warmup", tau_s=3600.0),)
+    guarded = DiagnosedModel("R1", "diagnose", pi, drift, {REGION_KEY: _timed_region(region).to_dict()})
+    unguarded = DiagnosedModel("R1", "diagnose", pi, drift, {REGION_KEY: region.to_dict()})
+    q, late = np.zeros((2, 6)), {"t": np.array([300.0, 14400.0])}
+    p, p_free = guarded.fk_context(q, late)[1], unguarded.fk_context(q, late)[1]
+    np.testing.assert_array_equal(p[0], p_free[0])
+    assert np.linalg.norm(p[1] - p[0]) < 0.5 < np.linalg.norm(p_free[1] - p_free[0])
+
+
+def test_a_warm_up_recorded_for_longer_than_its_time_constant_goes_on_as_fitted(region):
+    long = Region(region.lower_rad, region.upper_rad, region.margin_rad, context_range={"t": (0.0, 4000.0)})
+    model = _warm(long.to_dict())  # tau 3600 s, seen over 4000 s: the bend is in the data
+    assert long.held_context(model.effects[0]) == ()
+    q, late = np.zeros((2, 6)), {"t": np.array([1000.0, 14400.0])}
+    for a, b in zip(model.fk_context(q, late), _warm(region.to_dict()).fk_context(q, late)):
+        np.testing.assert_array_equal(a, b)
+    assert extrapolation(model, q, late)["outside_context_range"]["t"]["poses"] == 1  # still counted and said
