@@ -18,7 +18,6 @@ import argparse
 import json
 import statistics
 import sys
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -40,15 +39,6 @@ def late_poses(design: Any, n: int, seed: int, late_s: tuple[float, float]) -> t
     return q, cols
 
 
-def without_time_range(model: Any) -> Any:
-    """The model with its region's context ranges removed (no hold in time; the joint guard unchanged)."""
-    from calibration.models.guard import REGION_KEY
-
-    region = dict(model.info[REGION_KEY])
-    region.pop("context_range", None)
-    return replace(model, info={**model.info, REGION_KEY: region})
-
-
 def run(seed: int, period_s: float, magnitude_mm: float, late_s: tuple[float, float]) -> dict[str, Any]:
     from calibration.diagnosis import diagnose
     from calibration.diagnosis.synthetic import Design, make_case, measure
@@ -68,7 +58,8 @@ def run(seed: int, period_s: float, magnitude_mm: float, late_s: tuple[float, fl
                            "found": list(res.model.info.get("effects_found", []))}
     drift = [e for e in res.model.effects if e.kind == "thermal_drift"]
     row["tau_s"] = drift[0].tau_s if drift else None
-    for name, model in (("held", res.model), ("free", without_time_range(res.model))):
+    unheld = res.model.with_region(res.model.region().without_context())  # the joint guard as it is
+    for name, model in (("held", res.model), ("free", unheld)):
         e = errors(model, late).position_mm
         row[name] = {"mean_mm": float(e.mean()), "max_mm": float(e.max())}
     return row

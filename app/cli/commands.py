@@ -80,21 +80,27 @@ def _counts_explained(*, predict: bool = False) -> dict[str, str]:
 
 
 def _warn_extrapolation(model: Any, ex: dict[str, Any]) -> None:
-    """One stderr line when poses leave the model's training range (see :mod:`calibration.models.guard`)."""
+    """One stderr line when poses leave the model's training joint range, one when they leave the range of a context
+    entry its effects read (time, temperature, payload; see :mod:`calibration.models.guard`)."""
+    from calibration.models.guard import GUARD_ACTED_MM
+
     if ex["outside_training_range"]:
         print(f"warning: {ex['outside_training_range']} of {ex['poses']} poses lie outside the joint range of the "
               f"{model.method} model's training data (by up to {ex['max_excess_deg']:.1f} deg); "
               + (f"the guard held its effects fitted in narrowly seen joints at the edge of that range there "
                  f"(moving the position by up to {ex['guard_shift_mm_max']:.3f} mm)" if ex.get("guard_acted") else
                  "the guard did not change its prediction there"), file=sys.stderr)
-    beyond = {k: c for k, c in ex.get("outside_context_range", {}).items() if c["poses"]}
+    beyond = {k: c for k, c in ex["outside_context_range"].items() if c["poses"]}
     if beyond:
+        shift = ex["guard_shift_context_mm_max"]
         print(f"warning: poses lie beyond the {model.method} model's training data in "
               + ", ".join(f"{k} ({c['poses']} of {ex['poses']} poses, by up to {c['max_excess']:.3g} {c['unit']}; "
-                          f"trained on {c['range'][0]:.6g} to {c['range'][1]:.6g})" for k, c in beyond.items())
-              + "; " + (f"the guard held its effects fitted in them at the edge of that range (moving the position by "
-                        f"up to {ex['guard_shift_mm_max']:.3f} mm)" if ex.get("guard_acted") else
-                        "no effect of the model is held there (none has a shape fitted in them)"), file=sys.stderr)
+                          f"trained on {c['range'][0]:.6g} to {c['range'][1]:.6g} {c['unit']})"
+                          for k, c in beyond.items())
+              + "; " + (f"the guard held its effects whose shape was fitted over too short a span of them at the edge "
+                        f"of that range (moving the position by up to {shift:.3f} mm)" if shift > GUARD_ACTED_MM else
+                        "the guard did not change its prediction there (its effects go on as their formulas say)"),
+              file=sys.stderr)
 
 
 def _model_arg(args: argparse.Namespace) -> tuple[Any, Any]:

@@ -91,6 +91,22 @@ class KinematicModel(abc.ABC):
         :mod:`calibration.physics.base`); a model with no context-dependent effect ignores the context."""
         return self.fk(q)
 
+    @property
+    def context_keys(self) -> frozenset[str]:
+        """The context entries :meth:`fk_context` reads (:attr:`calibration.physics.base.Effect.context_keys`):
+        none for a model without context-dependent effects."""
+        return frozenset()
+
+    def with_region(self, region: Any) -> "KinematicModel":
+        """The same model with another training region (a :class:`calibration.models.guard.Region`, or None: none,
+        which turns the extrapolation guard off)."""
+        from dataclasses import replace
+
+        from calibration.models.guard import REGION_KEY
+
+        info = {k: v for k, v in self.info.items() if k != REGION_KEY}
+        return replace(self, info=info if region is None else {**info, REGION_KEY: region.to_dict()})  # type: ignore[type-var]
+
     def out_of_range(self, q: np.ndarray) -> np.ndarray:
         """Boolean mask (N,) of configurations outside the region the model was fitted on."""
         return np.zeros(np.atleast_2d(q).shape[0], dtype=bool)

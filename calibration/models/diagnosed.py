@@ -16,7 +16,7 @@ from calibration.casadi_expr import CasadiPose, poe_chain
 from calibration.errors import ModelError
 from calibration.models.base import Block, KinematicModel
 from calibration.models.physics import casadi_effects, effect_blocks, split_values
-from calibration.physics.base import Context, Effect, effect_from_dict, geometry_on_top
+from calibration.physics.base import CONTEXT_KEYS, NO_GUARD, Context, Effect, context_keys_of, effect_from_dict, geometry_on_top
 
 
 @dataclass
@@ -57,16 +57,22 @@ class DiagnosedModel(KinematicModel):
         """
         q = np.atleast_2d(np.asarray(q, dtype=float))
         geo = self.base.effects_arm()
-        region = self.region()
-        dq = sum((e.delta_q(geo, q, context) if region is None else  # else at what the extrapolation guard holds
-                  e.delta_q(geo, region.hold(e, q), region.hold_context(e, context, q.shape[0]))
+        guard = self.region() or NO_GUARD  # each effect at what the extrapolation guard holds it at
+        dq = sum((e.delta_q(geo, guard.hold(e, q), guard.hold_context(e, context, q.shape[0]))
                   for e in self.effects if e.target == "joints"), np.zeros_like(q))
         R, p = self.base.pose_at(q + dq, q)
-        R, p = geometry_on_top(geo, self.effects, q + dq, context, R, p, region)
+        R, p = geometry_on_top(geo, self.effects, q + dq, context, R, p, guard)
         return R, p
 
     def out_of_range(self, q: np.ndarray) -> np.ndarray:
         return self.base.out_of_range(q)
+
+    @property
+    def context_keys(self) -> frozenset[str]:
+        """The context entries its effects read (every one, ``qd`` and the directions included, when an effect does
+        not say)."""
+        keys = context_keys_of(self.effects)
+        return CONTEXT_KEYS if keys is None else keys
 
     @property
     def n_parameters(self) -> int:

@@ -22,9 +22,12 @@ shape is a function of one, seen over less than the span the shape shows itself 
 (:meth:`~calibration.physics.base.Effect.fitted_context`: a warm-up curve recorded for less than its fitted time
 constant), is evaluated at that entry softly clamped into the range (:meth:`Region.hold_context`, margin a share of
 the span). A warm-up fitted on ten minutes of a half-hour time constant has seen its slope, not its bend, and its
-asymptote is a guess; held at the edge, it does not promise millimetres hours later (``scripts/bench_time_guard.py``:
-on a synthetic twin whose fit put the time constant at 25 h, 4.61/8.91 mm four hours on without the hold, 0.97/1.21
-with it; a recording longer than the time constant is not held). A growth per kelvin and a payload compliance are
+asymptote is a guess; held at the edge, it does not promise millimetres hours later. ``scripts/bench_time_guard.py``
+(synthetic twins, a 1800 s warm-up, poses 1-4 h on): on 670 s recordings, seed 0's fit put the time constant at 25 h
+and promised 4.61/8.91 mm without the hold, 0.97/1.21 with it; seed 1 1.007/1.651 -> 0.980/1.352; seed 2, whose fitted
+677 s only just exceeds the span, is worse held (0.769/1.081 -> 1.029/1.420); seeds 3 and 4 unchanged. On 67 min
+recordings (over two time constants) nothing is held. Before the recording a warm-up is pinned at zero at ``t = 0``
+by its formula and is not held. A growth per kelvin and a payload compliance are
 formulas and go on as they say; a context entry the call does not carry (the default context, a casadi expression)
 is not held.
 
@@ -38,7 +41,7 @@ much (``evaluate`` and ``predict`` report it).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, replace
 from typing import Any, Literal, Mapping, Sequence
 
 import numpy as np
@@ -91,6 +94,14 @@ def data_margin_rad(lower_rad: np.ndarray, upper_rad: np.ndarray) -> np.ndarray:
     return np.clip(MARGIN_SHARE * span, MIN_MARGIN_RAD, DEFAULT_MARGIN_RAD)
 
 
+def soft_clamp(v: np.ndarray, lo: Any, hi: Any, m: Any, below: bool = True) -> np.ndarray:
+    """v softly clamped into [lo, hi]: unchanged inside, ``hi + m tanh((v - hi) / m)`` above, and the mirror image
+    below (only when ``below``): continuous with slope 1 at the edges, saturating within ``m`` outside."""
+    above = hi + m * np.tanh(np.maximum(v - hi, 0.0) / m)
+    under = lo - m * np.tanh(np.maximum(lo - v, 0.0) / m) if below else v
+    return np.where(v > hi, above, np.where(v < lo, under, v))
+
+
 @dataclass(frozen=True)
 class Region:
     """Per-joint range of the training data.
@@ -139,8 +150,9 @@ class Region:
         margin from the data's own spread (:func:`data_margin_rad`)."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
         lo, hi = q.min(axis=0), q.max(axis=0)
-        ranges = {k: (float(np.min(v)), float(np.max(v))) for k, v in (context or {}).items()
-                  if k in GUARDED_CONTEXT and np.size(v) and np.all(np.isfinite(v))}
+        seen = {k: np.asarray(v, dtype=float) for k, v in (context or {}).items() if k in GUARDED_CONTEXT and v is not None}
+        seen = {k: v[np.isfinite(v)] for k, v in seen.items()}
+        ranges = {k: (float(v.min()), float(v.max())) for k, v in seen.items() if v.size}
         return cls(lo, hi, data_margin_rad(lo, hi) if margin_rad is None else margin_rad, context_range=ranges)
 
     def excess(self, q: np.ndarray) -> np.ndarray:
@@ -152,10 +164,7 @@ class Region:
         """q (N, n) softly clamped into the range: ``edge + m tanh(excess / m)`` outside, unchanged inside; only the
         0-based ``joints`` listed (all when None), the others as given."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
-        m = self.margin_rad
-        above = self.upper_rad + m * np.tanh(np.maximum(q - self.upper_rad, 0.0) / m)
-        below = self.lower_rad - m * np.tanh(np.maximum(self.lower_rad - q, 0.0) / m)
-        held = np.where(q > self.upper_rad, above, np.where(q < self.lower_rad, below, q))
+        held = soft_clamp(q, self.lower_rad, self.upper_rad, self.margin_rad)
         if joints is None:
             return held
         out = q.copy()
@@ -201,41 +210,62 @@ class Region:
         joints = self.held_joints(effect)
         return self.clamp_casadi(q, joints) if joints else q
 
-    def held_context(self, effect: Any) -> tuple[str, ...]:
-        """The context entries ``effect`` is held in: those its fitted shape depends on that the training data saw
-        over less than the span the shape shows itself over (:meth:`~calibration.physics.base.Effect.fitted_context`:
-        a warm-up recorded for less than its time constant)."""
-        return tuple(k for k, span in effect.fitted_context().items()
-                     if k in self.context_range and self.context_range[k][1] - self.context_range[k][0] < span)
+    def held_context(self, effect: Any) -> dict[str, str]:
+        """The context entries ``effect`` is held in, each with the sides it is held on (``both`` or ``above``): those
+        its fitted shape depends on that the training data saw over less than the span the shape shows itself over
+        (:meth:`~calibration.physics.base.Effect.fitted_context`: a warm-up recorded for less than its time
+        constant)."""
+        held = {}
+        for k, fitted in effect.fitted_context().items():
+            lo, hi = self.context_range.get(k, (0.0, math.inf))
+            if hi - lo < fitted.span:
+                held[k] = fitted.sides
+        return held
 
-    def clamp_context(self, key: str, values: np.ndarray) -> np.ndarray:
-        """Context entry ``key`` softly clamped into its training range, as :meth:`clamp` does a joint: unchanged
-        inside, ``edge +- m tanh(excess / m)`` outside, with ``m`` :data:`MARGIN_SHARE` of the span (a millionth of
-        the edge's size, or of 1, for an entry the data saw at one value)."""
+    def context_margin(self, key: str) -> float:
+        """The clamp margin of context entry ``key``: :data:`MARGIN_SHARE` of its training span (a millionth of the
+        edge's size, or of 1, for an entry the data saw at one value)."""
         lo, hi = self.context_range[key]
-        m = max(MARGIN_SHARE * (hi - lo), 1e-6 * max(abs(lo), abs(hi), 1.0))
-        v = np.asarray(values, dtype=float)
-        return np.where(v > hi, hi + m * np.tanh(np.maximum(v - hi, 0.0) / m),
-                        np.where(v < lo, lo - m * np.tanh(np.maximum(lo - v, 0.0) / m), v))
+        return max(MARGIN_SHARE * (hi - lo), 1e-6 * max(abs(lo), abs(hi), 1.0))
 
     def hold_context(self, effect: Any, context: Mapping[str, Any] | None, N: int) -> Mapping[str, Any] | None:
         """The context ``effect`` is evaluated at for a recorded ``context`` of N samples: the entries it is held in
-        (:meth:`held_context`) clamped into their training range, the others as given; an entry the context does not
-        carry keeps the effect's default."""
-        keys = [k for k in self.held_context(effect) if context is not None and context.get(k) is not None]
-        if not keys:
-            return context
-        return {**context, **{k: self.clamp_context(k, np.broadcast_to(context[k], (N,))) for k in keys}}
+        (:meth:`held_context`) softly clamped into their training range on the sides it is held on, the others as
+        given; an entry the context does not carry keeps the effect's default.
 
-    def context_excess(self, context: Mapping[str, Any] | None, N: int) -> dict[str, np.ndarray]:
-        """How far each sample's recorded context entries lie outside their training range (N,) per entry the
-        region knows and the context carries, zero inside."""
+        Raises:
+            ModelError: a held entry is neither a scalar nor of shape (N,).
+        """
+        from calibration.physics.base import context_array
+
+        held = {k: sides for k, sides in self.held_context(effect).items()
+                if context is not None and context.get(k) is not None}
+        if not held:
+            return context
+        return {**context, **{k: soft_clamp(context_array(context, k, N), *self.context_range[k],
+                                            self.context_margin(k), below=sides == "both")
+                              for k, sides in held.items()}}
+
+    def context_excess(self, context: Mapping[str, Any] | None, N: int,
+                       keys: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+        """How far each sample's recorded context entries lie outside their training range (N,), zero inside: per
+        entry the region knows, the context carries and ``keys`` lists (all when None).
+
+        Raises:
+            ModelError: such an entry is neither a scalar nor of shape (N,).
+        """
+        from calibration.physics.base import context_array
+
         out = {}
         for k, (lo, hi) in self.context_range.items():
-            if context is not None and context.get(k) is not None:
-                v = np.broadcast_to(np.asarray(context[k], dtype=float), (N,))
+            if context is not None and context.get(k) is not None and (keys is None or k in keys):
+                v = context_array(context, k, N)
                 out[k] = np.maximum(lo - v, 0.0) + np.maximum(v - hi, 0.0)
         return out
+
+    def without_context(self) -> "Region":
+        """The same region with no context range: its joint guard alone."""
+        return replace(self, context_range={})
 
     def to_dict(self) -> dict[str, Any]:
         m = self.margin_rad
@@ -293,13 +323,15 @@ def extrapolation(model: Any, q: np.ndarray, context: Mapping[str, Any] | None =
         ``poses``, ``outside_training_range`` (poses with a joint more than ``outside_tolerance_deg`` outside the
         training range), ``outside_tolerance_deg``, ``max_excess_deg`` (the largest joint excess of any pose, 0
         inside the range) and ``rms_excess_deg`` (over the poses counted outside, of each one's largest joint
-        excess), ``max_excess_deg_per_joint`` (n,), ``outside_context_range`` (per context entry whose training
-        range the model records and the poses carry: ``poses`` outside it, ``max_excess`` in ``unit``, ``range``
-        of the training data), ``outside_model_region`` (the model's own region test, e.g. a cdc interpolator's),
-        ``region_known`` (False for a model saved without its training region), and ``guard_acted`` /
+        excess), ``max_excess_deg_per_joint`` (n,), ``outside_context_range`` (per context entry the model's effects
+        read whose training range the model records and the poses carry: ``poses`` outside it, ``max_excess`` in
+        ``unit``, ``range`` of the training data), ``outside_model_region`` (the model's own region test, e.g. a cdc
+        interpolator's), ``region_known`` (False for a model saved without its training region), ``guard_acted`` /
         ``guard_shift_mm_max``: whether the guard changed the model's prediction on these poses (its terms held at
         the edge of the range, wherever a joint or a held context entry is past it at all) and the largest position
-        change it made [mm] (0 and False for a model whose every term is rigid, or with every pose inside).
+        change it made [mm] (0 and False for a model whose every term is rigid, or with every pose inside), and
+        ``guard_shift_context_mm_max``: the part of it the hold in time, temperature and payload made, on the poses
+        past their range (the joint guard left as it is).
     """
     q = np.atleast_2d(np.asarray(q, dtype=float))
     region = model.region()
@@ -309,15 +341,16 @@ def extrapolation(model: Any, q: np.ndarray, context: Mapping[str, Any] | None =
     if region is None:
         return {**out, "outside_training_range": None, "max_excess_deg": None, "rms_excess_deg": None,
                 "max_excess_deg_per_joint": None, "outside_context_range": {}, "guard_acted": False,
-                "guard_shift_mm_max": None}
+                "guard_shift_mm_max": None, "guard_shift_context_mm_max": None}
     ex = np.degrees(region.excess(q))
     worst = ex.max(axis=1)
     outside = worst > OUTSIDE_TOLERANCE_DEG
-    context_ex = region.context_excess(context, q.shape[0])
-    held = worst > 0  # where the guard's clamp acts, however little
-    for e in context_ex.values():
-        held |= e > 0
+    context_ex = region.context_excess(context, q.shape[0], tuple(model.context_keys))
+    late = np.any([e > 0 for e in context_ex.values()], axis=0) if context_ex else np.zeros(q.shape[0], dtype=bool)
+    held = (worst > 0) | late  # where the guard's clamps act, however little
     shift = guard_shift_mm(model, q[held], _rows(context, held)) if held.any() else 0.0
+    shift_context = (guard_shift_mm(model, q[late], _rows(context, late), region.without_context()) if late.any()
+                     else 0.0)
     return {**out, "outside_training_range": int(np.count_nonzero(outside)),
             "max_excess_deg": float(worst.max(initial=0.0)),
             "rms_excess_deg": float(np.sqrt(np.mean(worst[outside] ** 2))) if outside.any() else 0.0,
@@ -325,14 +358,18 @@ def extrapolation(model: Any, q: np.ndarray, context: Mapping[str, Any] | None =
             "outside_context_range": {k: {"poses": int(np.count_nonzero(e > 0)), "max_excess": float(e.max(initial=0.0)),
                                           "unit": CONTEXT_UNITS[k], "range": list(region.context_range[k])}
                                       for k, e in context_ex.items()},
-            "guard_acted": bool(shift > GUARD_ACTED_MM), "guard_shift_mm_max": shift}
+            "guard_acted": bool(shift > GUARD_ACTED_MM), "guard_shift_mm_max": shift,
+            "guard_shift_context_mm_max": shift_context}
 
 
 def _rows(context: Mapping[str, Any] | None, index: np.ndarray) -> dict[str, Any] | None:
-    """The rows ``index`` of a per-sample context (``qd`` (N, n) by row; a scalar entry stands for every row)."""
+    """The rows ``index`` (a mask over N samples) of a per-sample context: an entry of one row, or a scalar, stands
+    for every row; ``qd`` (N, n) is taken by row."""
     if context is None:
         return None
-    return {k: v if v is None or np.ndim(v) == 0 else np.asarray(v)[index] for k, v in context.items()}
+    N = index.shape[0]
+    return {k: v if v is None or np.ndim(v) == 0 else np.broadcast_to(v, (N,) + np.shape(v)[1:])[index]
+            for k, v in context.items()}
 
 
 #: What each count of :func:`extrapolation` counts, in words, for the JSON of the commands that report it: a user
@@ -353,11 +390,12 @@ COUNTS_EXPLAINED = {
 GUARD_ACTED_MM = 1e-9
 
 
-def guard_shift_mm(model: Any, q: np.ndarray, context: Mapping[str, Any] | None = None) -> float:
+def guard_shift_mm(model: Any, q: np.ndarray, context: Mapping[str, Any] | None = None,
+                   against: Region | None = None) -> float:
     """The largest change [mm] the guard makes to the model's predicted position at joint angles q (N, n) and the
-    poses' ``context``: the model against itself with its training region removed (which turns the guard off)."""
-    if q.shape[0] == 0 or "info" not in {f.name for f in fields(model)}:
+    poses' ``context``: the model against itself with its training region replaced by ``against`` (None: removed,
+    which turns the guard off; the region without its context range: the guard in time and temperature alone)."""
+    if q.shape[0] == 0:
         return 0.0
-    unguarded = replace(model, info={k: v for k, v in model.info.items() if k != REGION_KEY})
-    return float(np.max(np.linalg.norm(model.fk_context(q, context)[1] - unguarded.fk_context(q, context)[1],
-                                       axis=1)))
+    other = model.with_region(against)
+    return float(np.max(np.linalg.norm(model.fk_context(q, context)[1] - other.fk_context(q, context)[1], axis=1)))

@@ -107,6 +107,15 @@ class RebasedModel(KinematicModel):
         return self.inner.out_of_range(self._shifted(np.asarray(q, dtype=float)))
 
     @property
+    def context_keys(self) -> frozenset[str]:
+        return self.inner.context_keys
+
+    def with_region(self, region: Any) -> "RebasedModel":
+        """The same rebase with another training region, in its own info and its inner model's (the one that holds)."""
+        own = KinematicModel.with_region(self, region)
+        return replace(own, inner=self.inner.with_region(region))  # type: ignore[type-var]
+
+    @property
     def n_parameters(self) -> int:
         return int(self.inner.n_parameters) + int(self.fitted)
 

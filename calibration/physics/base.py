@@ -50,6 +50,20 @@ Term = tuple[int, int, Any]
 
 Context = Mapping[str, Any]
 
+#: Past which edges of the training range an effect's fitted shape in a context entry is a guess (see
+#: :meth:`Effect.fitted_context`): both, or only above (a warm-up curve is pinned at zero at ``t = 0`` by its formula).
+Sides = Literal["both", "above"]
+
+
+@dataclass(frozen=True)
+class FittedSpan:
+    """How an effect's fitted shape depends on a context entry: ``span`` over which the shape shows itself (in the
+    entry's unit; a warm-up's time constant [s]) and the ``sides`` of the training range past which it is a guess."""
+
+    span: float
+    sides: Sides = "both"
+
+
 EFFECT_KINDS: dict[str, type["Effect"]] = {}
 
 
@@ -163,10 +177,11 @@ class Effect(abc.ABC):
         """
         return tuple(range(n))
 
-    def fitted_context(self) -> dict[str, float]:
+    def fitted_context(self) -> dict[str, FittedSpan]:
         """The context entries (``t``, ``temp_c``, ``payload_kg``) the effect's fitted shape is a function of, each
-        with the span over which that shape shows itself (a warm-up's time constant): where the training data saw
-        such an entry over less than that span, the extrapolation guard holds the effect at the edge of what it saw
+        with the span over which that shape shows itself (a warm-up's time constant) and the sides of the training
+        range past which the shape is a guess: where the training data saw such an entry over less than that span,
+        the extrapolation guard holds the effect at those edges of what it saw
         (:meth:`calibration.models.guard.Region.held_context`).
 
         Empty by default: a context entry that enters by a formula, its size alone fitted (a payload times a
@@ -271,6 +286,21 @@ def effect_from_dict(d: Mapping[str, Any]) -> Effect:
     return probe.with_values(np.array([params[k] for k in probe.names], dtype=float))
 
 
+#: Every context entry an effect can read, as :attr:`Effect.context_keys` names them (``dir`` for ``dir1..dirn``).
+CONTEXT_KEYS = frozenset({"t", "temp_c", "payload_kg", "qd", "dir"})
+
+
+def context_keys_of(effects: Sequence[Effect]) -> frozenset[str] | None:
+    """The context entries a set of effects reads: the union of their :attr:`Effect.context_keys`, or None when one
+    does not say."""
+    keys: set[str] = set()
+    for e in effects:
+        if e.context_keys is None:
+            return None
+        keys |= e.context_keys
+    return frozenset(keys)
+
+
 class Guard(Protocol):
     """A model's extrapolation guard (:class:`calibration.models.guard.Region`): what each effect is evaluated at."""
 
@@ -279,6 +309,19 @@ class Guard(Protocol):
 
     def hold_context(self, effect: Effect, context: Context | None, N: int) -> Context | None:
         """The context ``effect`` is evaluated at for the recorded ``context`` of N samples."""
+
+
+class NoGuard:
+    """The guard of a model without a training region: every effect at the readings and the context as given."""
+
+    def hold(self, effect: Effect, q: np.ndarray) -> np.ndarray:
+        return q
+
+    def hold_context(self, effect: Effect, context: Context | None, N: int) -> Context | None:
+        return context
+
+
+NO_GUARD = NoGuard()
 
 
 def apply_effects(model: PoeModel, effects: tuple[Effect, ...] | list[Effect], q: np.ndarray,
@@ -297,17 +340,16 @@ def apply_effects(model: PoeModel, effects: tuple[Effect, ...] | list[Effect], q
         ``(R_base_tool (N, 3, 3), p_base_tool (N, 3) [mm])``.
     """
     q = check_q(model, q)
-    N = q.shape[0]
+    N, guard = q.shape[0], guard or NO_GUARD
     dq = np.zeros_like(q)
     P = None
     for e in effects:
         if e.target == "pose":
             raise ModelError(f"{e.kind} acts on the pose of a pi model, not on a POE model; fit a pi model")
-        ctx = context if guard is None else guard.hold_context(e, context, N)
         if e.target == "geometry":
-            P = e.geometry(model, N, ctx, P)
+            P = e.geometry(model, N, guard.hold_context(e, context, N), P)
         else:
-            dq = dq + e.delta_q(model, q if guard is None else guard.hold(e, q), ctx)
+            dq = dq + e.delta_q(model, guard.hold(e, q), guard.hold_context(e, context, N))
     return model.fk(q + dq, P=P)
 
 
@@ -319,9 +361,9 @@ def geometry_on_top(model: PoeModel, effects: Sequence[Effect], q: np.ndarray, c
     geometric = [e for e in effects if e.target == "geometry"]
     if not geometric:
         return R, p
-    P = None
+    P, guard = None, guard or NO_GUARD
     for e in geometric:
-        P = e.geometry(model, q.shape[0], context if guard is None else guard.hold_context(e, context, q.shape[0]), P)
+        P = e.geometry(model, q.shape[0], guard.hold_context(e, context, q.shape[0]), P)
     R0, p0 = model.fk(q)
     R1, p1 = model.fk(q, P=P)
     return R1 @ np.swapaxes(R0, 1, 2) @ R, p + p1 - p0

@@ -19,7 +19,7 @@ from typing import Any, Literal
 import numpy as np
 
 from calibration.errors import ModelError
-from calibration.physics.base import Context, Effect, check_q, context_array
+from calibration.physics.base import Context, Effect, FittedSpan, check_q, context_array
 from calibration.poe import PoeModel
 
 
@@ -71,11 +71,12 @@ class ThermalDrift(Effect):
     def fitted_joints(self, n: int) -> tuple[int, ...]:
         return ()  # its drive is the time or the temperature, not q
 
-    def fitted_context(self) -> dict[str, float]:
-        """``t`` over the time constant for the warm-up curve: a recording shorter than it has seen the curve's
-        slope but not its bend, so the asymptote would be a guess (the fitted time constant and growth trade off
-        along that slope); nothing for the growth per kelvin, a formula."""
-        return {"t": self.tau_s} if self.mode == "warmup" else {}
+    def fitted_context(self) -> dict[str, FittedSpan]:
+        """``t`` over the time constant for the warm-up curve, above the recorded times: a recording shorter than the
+        time constant has seen the curve's slope but not its bend, so the asymptote would be a guess (the fitted time
+        constant and growth trade off along that slope); before the recording the formula pins the curve at zero at
+        ``t = 0``. Nothing for the growth per kelvin, a formula."""
+        return {"t": FittedSpan(self.tau_s, "above")} if self.mode == "warmup" else {}
 
     def drive(self, N: int, context: Context | None = None) -> np.ndarray:
         """The per-sample factor multiplying the growth parameters, shape (N,)."""

@@ -25,7 +25,7 @@ import numpy as np
 
 from calibration.errors import ModelError
 from calibration.parameterisation import MinimalParameterisation
-from calibration.physics.base import Context, Effect, apply_effects, effect_from_dict
+from calibration.physics.base import Context, Effect, apply_effects, context_keys_of, effect_from_dict
 from calibration.physics.compliance import JointCompliance, PayloadCompliance
 from calibration.physics.gravity import GravityModel
 from calibration.physics.joint_effects import Backlash, GearTransmission, JointOffset, MocapLatency
@@ -163,12 +163,7 @@ class Twin:
     def context_keys(self) -> frozenset[str] | None:
         """The context entries :meth:`pose` reads (the union of its effects' :attr:`Effect.context_keys`), or None
         when an effect does not say."""
-        keys: set[str] = set()
-        for e in self.effects:
-            if e.context_keys is None:
-                return None
-            keys |= e.context_keys
-        return frozenset(keys)
+        return context_keys_of(self.effects)
 
     def effect(self, kind: str) -> Effect:
         for e in self.effects:

@@ -71,20 +71,20 @@ class _PoseMemo:
     whole batch), and the ``size`` most recently used are kept.
     """
 
-    def __init__(self, truth: Truth, size: int = 512) -> None:
-        self.truth, self.size = truth, size
+    def __init__(self, size: int = 512) -> None:
+        self.size = size
         self._lock = threading.Lock()
         self._poses: OrderedDict[bytes, tuple[np.ndarray, np.ndarray]] = OrderedDict()
 
-    def pose(self, q: np.ndarray, context: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    def pose(self, truth: Truth, q: np.ndarray, context: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         """``truth.pose(q, context)`` for q (N, 6) and a context of ``dir`` (N, 6) and entries the truth ignores."""
         keys = [qi.tobytes() + di.tobytes() for qi, di in zip(q, context["dir"])]
         with self._lock:  # one caller at a time: a pose another caller evicts meanwhile is never missed
             first = {key: i for i, key in reversed(list(enumerate(keys))) if key not in self._poses}
             if first:
                 rows = list(first.values())
-                R, p = self.truth.pose(q[rows], {k: np.asarray(v)[rows] for k, v in context.items()})
-                self._poses.update({key: (R[j], p[j]) for j, key in enumerate(first)})
+                R, p = truth.pose(q[rows], {k: np.asarray(v)[rows] for k, v in context.items()})
+                self._poses.update({key: (R[j].copy(), p[j].copy()) for j, key in enumerate(first)})
             got = []
             for key in keys:
                 got.append(self._poses[key])
@@ -106,7 +106,8 @@ class SimRobotDriver(RobotDriver):
         config: behaviour options.
 
     Raises:
-        InvalidArgument: ``truth`` has no ``pose`` or ``q0`` is not 6 angles (here), or a call is given a
+        InvalidArgument: ``truth`` is not a :class:`~drivers.sim.truth.Truth` (``pose`` and ``context_keys``) or
+            ``q0`` is not 6 angles (here), or a call is given a
             value it cannot use (``move_to``'s ``q``/``speed_fraction``, ``schedule_fault``'s counts).
     """
 
@@ -126,7 +127,7 @@ class SimRobotDriver(RobotDriver):
         self._segments: list[_Segment] = [_Segment(-np.inf, -np.inf, q0, q0)]
         self._dir_history: list[tuple[float, np.ndarray]] = [(-np.inf, np.zeros(6))]
         keys = truth.context_keys
-        self._memo = _PoseMemo(truth) if keys is not None and keys <= {"dir"} else None  # see true_pose
+        self._memo = _PoseMemo() if keys is not None and keys <= {"dir"} else None  # see true_pose
         self._connected = False
         self._alarm = False
         self._estop = False
@@ -325,4 +326,4 @@ class SimRobotDriver(RobotDriver):
         k = np.clip(np.searchsorted(starts, t, side="right") - 1, 0, len(hist) - 1)
         dirs = np.stack([hist[i][1] for i in k])
         q, context = self.true_joints(t), {"dir": dirs, "t": t}
-        return self.truth.pose(q, context) if self._memo is None else self._memo.pose(q, context)
+        return self.truth.pose(q, context) if self._memo is None else self._memo.pose(self.truth, q, context)

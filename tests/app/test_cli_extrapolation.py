@@ -123,7 +123,48 @@ def test_evaluate_says_when_poses_are_later_than_the_training_data_and_holds_a_s
                  "--json", str(tmp_path / "e.json")]) == 0
     err = capsys.readouterr().err
     assert "poses lie beyond the diagnose model's training data in t (3 of 5 poses, by up to 1.38e+04 s; " \
-           "trained on 0 to 600); the guard held its effects fitted in them at the edge" in err
+           "trained on 0 to 600 s); the guard held its effects whose shape was fitted over too short a span of them " \
+           "at the edge of that range (moving the position by up to" in err
+    assert "outside the joint range" not in err
     ex = json.loads((tmp_path / "e.json").read_text())["extrapolation"]
     assert ex["outside_context_range"]["t"] == {"poses": 3, "max_excess": 13800.0, "unit": "s", "range": [0.0, 600.0]}
-    assert ex["guard_acted"]
+    assert ex["guard_acted"] and ex["guard_shift_context_mm_max"] == ex["guard_shift_mm_max"] > 0.5
+
+
+def test_evaluate_tells_the_joint_hold_from_the_time_hold(tmp_path, capsys):
+    """A gear error held in q1 beside a warm-up recorded for longer than its time constant (not held): the time line
+    must not borrow the joint hold's shift, and a model without time effects says nothing of time."""
+    from calibration import so3
+    from calibration.models import save_model
+    from calibration.models.guard import REGION_KEY, Region
+    from calibration.physics import GearTransmission, PhysicsModel, ThermalDrift
+    from calibration.recording import Recording
+    from cell_config import load_cell
+
+    spec = load_cell().robot("R1")
+    q_train = np.radians(np.random.default_rng(4).uniform(-1, 1, (20, 6)))
+    region = Region.of(q_train, context={"t": np.array([0.0, 600.0])})
+    effects = (GearTransmission(((1, (1,)),), np.array([2e-3, 1e-3])),
+               ThermalDrift(("p34",), np.array([0.5]), "warmup", tau_s=100.0))
+    save_model(PhysicsModel("R1", "diagnose", spec.model(), effects, 0, {REGION_KEY: region.to_dict()}),
+               tmp_path / "m.yaml")
+    q = q_train[:4].copy()
+    q[0, 0] = np.radians(30.0)  # far beyond q1's 2 deg band: the gear error is held there
+    R, p = spec.model().fk(q)
+    write_recording(Recording(q, p, so3.R_to_quat(R), {"t": np.array([60.0, 300.0, 900.0, 3600.0])}),
+                    tmp_path / "late.csv")
+    capsys.readouterr()
+    assert main(["evaluate", "--model", str(tmp_path / "m.yaml"), "--test", str(tmp_path / "late.csv"),
+                 "--json", str(tmp_path / "e.json")]) == 0
+    err = capsys.readouterr().err
+    assert "1 of 4 poses lie outside the joint range" in err and "the guard held its effects fitted in narrowly" in err
+    assert "in t (2 of 4 poses, by up to 3e+03 s; trained on 0 to 600 s); the guard did not change its prediction" in err
+    ex = json.loads((tmp_path / "e.json").read_text())["extrapolation"]
+    assert ex["guard_shift_mm_max"] > 0.1 and ex["guard_shift_context_mm_max"] == 0.0
+    # a model whose effects read no time: the recording's late t is no concern of it
+    save_model(PhysicsModel("R1", "diagnose", spec.model(), effects[:1], 0, {REGION_KEY: region.to_dict()}),
+               tmp_path / "gear.yaml")
+    assert main(["evaluate", "--model", str(tmp_path / "gear.yaml"), "--test", str(tmp_path / "late.csv"),
+                 "--json", str(tmp_path / "g.json")]) == 0
+    assert "training data in t" not in capsys.readouterr().err
+    assert json.loads((tmp_path / "g.json").read_text())["extrapolation"]["outside_context_range"] == {}

@@ -315,7 +315,8 @@ def test_a_warm_up_fitted_on_ten_minutes_is_held_at_their_edge_hours_later(regio
     assert np.all(grown <= np.linalg.norm(p_edge[0] - p[0]) + 1e-12)  # never past edge + margin (60 s)
     assert np.all(np.diff(grown) >= 0)  # still monotone
     assert np.linalg.norm(p_free[3] - p_free[0]) > 1.0  # unheld, 4 h later the curve promises over a millimetre
-    for a, b in zip(guarded.fk(q), unguarded.fk(q)):  # the default context (t = 0) is never held
+    early = Region(region.lower_rad, region.upper_rad, region.margin_rad, context_range={"t": (100.0, 600.0)})
+    for a, b in zip(_warm(early.to_dict()).fk(q), unguarded.fk(q)):  # the default context (t = 0) is never held
         np.testing.assert_array_equal(a, b)
 
 
@@ -373,8 +374,44 @@ def test_a_diagnosed_model_holds_its_warm_up_too(region):
 def test_a_warm_up_recorded_for_longer_than_its_time_constant_goes_on_as_fitted(region):
     long = Region(region.lower_rad, region.upper_rad, region.margin_rad, context_range={"t": (0.0, 4000.0)})
     model = _warm(long.to_dict())  # tau 3600 s, seen over 4000 s: the bend is in the data
-    assert long.held_context(model.effects[0]) == ()
+    assert long.held_context(model.effects[0]) == {}
     q, late = np.zeros((2, 6)), {"t": np.array([1000.0, 14400.0])}
     for a, b in zip(model.fk_context(q, late), _warm(region.to_dict()).fk_context(q, late)):
         np.testing.assert_array_equal(a, b)
     assert extrapolation(model, q, late)["outside_context_range"]["t"]["poses"] == 1  # still counted and said
+
+
+def test_a_warm_up_is_not_held_before_its_recording_where_its_formula_pins_it(region):
+    later = Region(region.lower_rad, region.upper_rad, region.margin_rad, context_range={"t": (3600.0, 4200.0)})
+    assert later.held_context(_warm(later.to_dict()).effects[0]) == {"t": "above"}
+    q, cold = np.zeros((3, 6)), {"t": np.array([0.0, 60.0, 600.0])}
+    for a, b in zip(_warm(later.to_dict()).fk_context(q, cold), _warm(region.to_dict()).fk_context(q, cold)):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_context_entries_of_one_row_are_every_rows_and_a_wrong_length_is_named(region):
+    model = _warm(_timed_region(region).to_dict())
+    q = np.zeros((3, 6))
+    one = extrapolation(model, q, {"t": np.array([5000.0])})
+    assert one["outside_context_range"]["t"]["poses"] == 3 and one["guard_acted"]
+    full = extrapolation(model, q, {"t": np.full(3, 5000.0), "qd": np.zeros((3, 6)), "dir1": np.ones(3), "x": None})
+    assert full["guard_shift_mm_max"] == one["guard_shift_mm_max"]
+    with pytest.raises(ModelError, match=r"context\['t'\] must be a scalar or have shape \(3,\)"):
+        model.fk_context(q, {"t": np.zeros(2)})
+    with pytest.raises(ModelError, match=r"context\['t'\] must be a scalar or have shape \(3,\)"):
+        extrapolation(model, q, {"t": np.zeros(2)})
+    assert Region.of(q, context={"t": None, "temp_c": np.array([20.0, np.nan, 24.0])}).context_range == {
+        "temp_c": (20.0, 24.0)}
+
+
+def test_a_rebased_model_says_its_inner_models_guard_acted(region):
+    from calibration.models.rebased import RebasedModel
+    from tests.calibration.kinds import T_BASE, T_TOOL
+
+    timed = _timed_region(region).to_dict()
+    inner = _warm(timed)
+    rebased = RebasedModel("R1", "diagnose", inner, T_BASE, T_TOOL, info={REGION_KEY: timed})
+    late = {"t": np.array([300.0, 14400.0])}
+    ex, ex_inner = extrapolation(rebased, np.zeros((2, 6)), late), extrapolation(inner, np.zeros((2, 6)), late)
+    assert ex["guard_acted"] and ex["outside_context_range"] == ex_inner["outside_context_range"]
+    np.testing.assert_allclose(ex["guard_shift_mm_max"], ex_inner["guard_shift_mm_max"], rtol=1e-9)

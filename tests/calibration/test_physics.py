@@ -306,6 +306,16 @@ CONTEXT_GROUPS = {"dir": [f"dir{i + 1}" for i in range(6)], "qd": ["qd"], "t": [
                   "payload_kg": ["payload_kg"]}
 
 
+def test_the_context_groups_are_every_entry_an_effect_can_read():
+    from calibration.physics.base import CONTEXT_KEYS
+
+    assert set(CONTEXT_GROUPS) == CONTEXT_KEYS
+
+
+#: How many effects :func:`every_kind` gives (checked by the registry test).
+N_KINDS = 9
+
+
 def every_kind(gravity):
     """One effect of every registered kind and form, thermal drift in both its modes."""
     from calibration.physics import MassFreeCompliance
@@ -317,15 +327,16 @@ def every_kind(gravity):
 
 def test_every_registered_kind_says_which_context_entries_it_reads(r1):
     from calibration.physics import EFFECT_KINDS
-    from calibration.physics.base import registry_key
+    from calibration.physics.base import CONTEXT_KEYS, registry_key
 
     effects = every_kind(r1[2])
+    assert len(effects) == N_KINDS  # the parameterised test below sees every one
     assert {registry_key(e.kind, e.form) for e in effects} == set(EFFECT_KINDS)
     for e in effects:
-        assert e.context_keys is not None and e.context_keys <= set(CONTEXT_GROUPS), e.kind
+        assert e.context_keys is not None and e.context_keys <= CONTEXT_KEYS, e.kind
 
 
-@pytest.mark.parametrize("index", range(9))
+@pytest.mark.parametrize("index", range(N_KINDS))
 def test_an_effect_reads_no_context_entry_but_those_it_declares(r1, index):
     # The simulated arm reuses a true pose while it dwells only when its twin reads nothing but the directions
     # (drivers.sim.SimRobotDriver.true_pose): a declaration that leaves out an entry the effect reads would freeze

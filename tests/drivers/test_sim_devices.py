@@ -207,15 +207,23 @@ def test_motoros_and_sim_share_one_invalid_argument():
 
 
 class _Unsaid:
-    """A truth that does not say which context entries it reads: the arm may not reuse its poses."""
+    """A truth that does not say which context entries it reads: the arm may not reuse its poses. Counts the poses
+    it is asked for."""
 
     context_keys = None
 
     def __init__(self, truth):
-        self.truth = truth
+        self.truth, self.rows = truth, 0
 
     def pose(self, q, context=None):
+        self.rows += len(q)
         return self.truth.pose(q, context)
+
+
+class _Counted(_Unsaid):
+    """The same truth, saying it reads nothing: the arm reuses its poses."""
+
+    context_keys = frozenset()
 
 
 def _moved_pair(truth):
@@ -263,3 +271,11 @@ def test_a_twin_that_reads_time_drifts_while_the_arm_dwells(r1):
     now = arm.clock.now()
     p = arm.true_pose(np.array([now - 4.0, now - 2.0, now]))[1]  # the arm stands still at its last target
     assert np.linalg.norm(p[2] - p[0]) > 1e-3
+
+
+def test_a_dwelling_arm_asks_its_twin_once_per_pose(r1):
+    counted = _Counted(planted_truth(r1.model(), seed=3))
+    (arm, plain), times = _moved_pair(counted)
+    arm.true_pose(times)
+    assert counted.rows < len(times) / 5  # the dwells' frames share their poses
+    np.testing.assert_array_equal(arm.true_pose(times[:50])[1], plain.true_pose(times[:50])[1])
