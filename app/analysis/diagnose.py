@@ -114,18 +114,14 @@ def _days(robot: str, nominal: Any, paths: list[str | Path], limits: tuple[np.nd
     Raises:
         DataError: a recording given twice, unreadable, or not of ``robot``.
     """
+    from app.analysis.fitting import refuse_repeated
     from calibration.daydiff import check_same_robot, compare_days, day_names
-    from calibration.errors import DataError
     from calibration.frames import put_in, take_out
     from calibration.multiday import pool
     from calibration.rebase import corrections
     from calibration.recording import read_recording
 
-    seen: set[Path] = set()
-    for p in paths:
-        if Path(p).resolve() in seen:
-            raise DataError(p, None, None, "given twice; give each recording (day) once")
-        seen.add(Path(p).resolve())
+    refuse_repeated(paths)
     recs = [read_recording(p, *limits) for p in paths]
     check_same_robot(nominal, recs, robot)
     days = compare_days(nominal, recs, day_names([str(p) for p in paths]))

@@ -36,6 +36,23 @@ def fitter_for(robot: Any, train: Any, cpa: Any | None = None, options: Any | No
                   (robot.robot.lower_rad, robot.robot.upper_rad))
 
 
+def refuse_repeated(paths: list[Any]) -> None:
+    """Refuse a recording given twice among several: it would be fitted (or compared) as two days that agree.
+
+    Raises:
+        DataError: naming the first path that names a recording already given (compared once resolved).
+    """
+    from pathlib import Path
+
+    from calibration.errors import DataError
+
+    seen: set[Path] = set()
+    for p in paths:
+        if Path(p).resolve() in seen:
+            raise DataError(p, None, None, "given twice; give each recording (day) once")
+        seen.add(Path(p).resolve())
+
+
 def refuse_unexplained(source: str, robot: str, against: str, before_mm: float, left_mm: float) -> None:
     """Refuse a recording whose error even the best rigid fit of both frames does not explain.
 
@@ -114,7 +131,7 @@ def days_fitter_for(robot: Any, trains: list[Any], cpa: Any | None = None, optio
         The :class:`calibration.multiday.MultiDayFit` (its ``fitter`` fits any method).
 
     Raises:
-        DataError: a training recording is not this arm's (:func:`refuse_unexplained`).
+        DataError: a training recording is not this arm's (:func:`refuse_unexplained`), or is given twice.
     """
     from calibration.models import ConstantModel
     from calibration.multiday import fit_days
@@ -122,4 +139,5 @@ def days_fitter_for(robot: Any, trains: list[Any], cpa: Any | None = None, optio
     nominal = ConstantModel(robot.name, "nominal", robot.model(), 0, {})
     for rec in trains:
         refuse_another_arms(robot, rec)
+    refuse_repeated([rec.source for rec in trains])
     return fit_days(lambda rec: fitter_for(robot, rec, cpa, options), nominal, trains)

@@ -91,6 +91,22 @@ def test_several_training_recordings_fit_one_arm_with_frames_each(tmp_path, data
     assert load_model(model_file).info["days"]["days"][1]["frames"]["base_mm"] == moved["base_mm"]
 
 
+def test_the_same_training_recording_twice_is_refused(tmp_path, data, capsys):
+    """fit and compare took one recording given twice as two days that agree (twice the samples, exit 0); diagnose
+    refused it. The same file by another path (a symlink) is the same recording."""
+    train = str(data / "train.csv")
+    alias = tmp_path / "alias.csv"
+    alias.symlink_to(data / "train.csv")
+    out = tmp_path / "out.yaml"
+    for second in (train, str(alias)):
+        for argv in (["fit", "--robot", "R1", "--train", train, "--train", second, "--method", "nls1",
+                      "--out", str(out)],
+                     ["compare", "--robot", "R1", "--train", train, "--train", second, "--test",
+                      str(data / "test.csv"), "--methods", "nls1", "--json", str(out)]):
+            assert_bad_input(capsys, argv, second, "given twice")
+    assert not out.exists()
+
+
 def test_another_arms_recording_is_refused_not_called_a_frame_error(tmp_path, capsys):
     from calibration.models import ConstantModel, save_model
     from cell_config import load_cell
