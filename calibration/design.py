@@ -122,7 +122,15 @@ class DesignFigures:
         return {"clusters": self.n_clusters, "poses": self.n_poses, "rank": self.rank,
                 "identifiable": self.n_identifiable, "condition_number": num(self.condition_number),
                 "log_det_per_direction": num(self.log_det), "noise_mm": self.noise_mm,
-                "sigma": {n: num(s) for n, s in zip(self.names, self.sigma)}}
+                "sigma": {n: num(s) for n, s in zip(self.names, self.sigma)},
+                "sigma_units": {n: sigma_unit(n) for n in self.names}}
+
+
+def sigma_unit(name: str) -> str:
+    """The unit of a parameter's ``sigma``: ``rad`` for an angle (a tilt, a frame rotation, a joint offset), ``mm``
+    otherwise. The identification names carry it (``tilt1_a_rad``); the rebase directions' names do not
+    (``base rotation about x``, ``joint 4 offset``)."""
+    return "rad" if name.endswith("_rad") or "rotation" in name or "offset" in name else "mm"
 
 
 def cluster_rows(par: MinimalParameterisation, q: np.ndarray, a: float = DEFAULT_ORIENTATION_WEIGHT,

@@ -225,7 +225,7 @@ def figures_table(figs: Mapping[str, design.DesignFigures]) -> str:
     row("condition number", [g(f.condition_number, ".4g") for f in figs.values()])
     if for_rebase:
         for i, name in enumerate(first.names):
-            angle = "rotation" in name or "offset" in name
+            angle = design.sigma_unit(name) == "rad"
             row(f"sigma {name} [{'mdeg' if angle else 'mm'}]",
                 [g(1e3 * math.degrees(float(f.sigma[i])) if angle else float(f.sigma[i]), ".4f")
                  for f in figs.values()])

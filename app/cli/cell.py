@@ -409,7 +409,8 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                         "cellcal rebase --offsets)")
     p.add_argument("--noise-mm", type=float, default=0.05,
                    help="measurement noise assumed for the predicted parameter uncertainty [mm]")
-    p.add_argument("--json", help="write the plan summary (target counts per kind, and the design figures) as JSON")
+    p.add_argument("--json", help="write the plan summary (target counts per kind, and the design figures: each "
+                                  "parameter's sigma in the unit sigma_units gives it) as JSON")
 
     p = add("select", cmd_select, "choose the most informative clusters of a recording (the plan --design optimal "
                                   "criterion) and write them as a recording subset")
@@ -424,7 +425,8 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                         "(D-optimal on the 12 frame directions cellcal rebase fits, no spread term)")
     p.add_argument("--noise-mm", type=float, default=0.05,
                    help="measurement noise assumed for the predicted parameter uncertainty [mm]")
-    p.add_argument("--json", help="write the chosen clusters and the design figures as JSON")
+    p.add_argument("--json", help="write the chosen clusters and the design figures (each parameter's sigma in the unit "
+                                  "sigma_units gives it: rad for a rotation or offset, not the table's mdeg) as JSON")
 
     p = add("collect", cmd_collect, "guided collection session of one arm (durable, resumable)")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")

@@ -130,3 +130,25 @@ def test_plan_refuses_a_grid_step_outside_its_range_naming_the_option_and_value(
     assert_bad_input(capsys, ["plan", "--robot", "R1", "--out", str(out), option, value],
                      f"{option} must be in [0.5, 90] deg, got {value}")
     assert not out.exists()
+
+
+@pytest.mark.parametrize("target", ["rebase", "identification"])
+def test_select_json_sigma_says_its_unit_and_matches_the_printed_table(tmp_path, train, capsys, target):
+    """The rebase directions' sigma keys name no unit (``base rotation about x``): the JSON gave radians where the
+    printed table says mdeg, and nothing said so. Every sigma now has its unit in ``sigma_units``, and the printed
+    figure is the JSON's in the table's unit."""
+    js = tmp_path / "select.json"
+    assert main(["select", "--robot", "R1", "--data", str(train), "--budget", "5", "--for", target,
+                 "--out", str(tmp_path / "s.csv"), "--json", str(js)]) == 0
+    table = capsys.readouterr().out
+    figs = json.loads(js.read_text())["figures"]["selected"]
+    assert set(figs["sigma_units"]) == set(figs["sigma"]) and set(figs["sigma_units"].values()) == {"mm", "rad"}
+    for name, unit in figs["sigma_units"].items():
+        assert unit == ("rad" if name.endswith("_rad") or "rotation" in name or "offset" in name else "mm"), name
+    if target == "rebase":
+        for name, sigma in figs["sigma"].items():
+            unit = figs["sigma_units"][name]
+            line = next(l for l in table.splitlines() if l.startswith(f"sigma {name} ["))
+            shown = float(line.split()[-2])  # the selected design's column, printed with 4 decimals
+            assert line.split("]")[0].endswith("mdeg" if unit == "rad" else "mm"), line
+            np.testing.assert_allclose(shown, 1e3 * np.degrees(sigma) if unit == "rad" else sigma, rtol=0, atol=5.1e-5)
