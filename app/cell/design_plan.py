@@ -173,8 +173,9 @@ def optimal_plan(robot: str, par: MinimalParameterisation, safety: CellSafety, o
     chosen = design.select(cands, spec.n_clusters, spread_weight=spec.spread_weight)
     figs = design.figures(cands, chosen, spec.noise_mm, CLUSTER_SIZE)
     if figs.rank < figs.n_identifiable:
-        raise CellCalError(f"{spec.n_clusters} clusters see {figs.rank} of {figs.n_identifiable} identifiable "
-                           f"{'rebase' if spec.target == 'rebase' else 'parameter'} directions; raise the budget")
+        raise CellCalError(f"--budget {spec.budget}: {spec.n_clusters} clusters of {CLUSTER_SIZE} see {figs.rank} of "
+                           f"{figs.n_identifiable} identifiable {'rebase' if spec.target == 'rebase' else 'parameter'} "
+                           f"directions; give a larger --budget (each cluster adds {CLUSTER_SIZE} poses)")
     picked = anchors_q[chosen]
     order = design.visiting_order(picked, q_start)
     targets = []

@@ -401,8 +401,9 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                         "5, 6 widely and spread over (q2, q3), within the limits and the safety model")
     p.add_argument("--budget", type=int, metavar="POSES",
                    help="--design optimal: the number of POSES to measure (not clusters, as select --budget counts), "
-                        "taken as whole clusters of 7 (rounded down; at least 21, 3 clusters); no default: "
-                        "--design optimal needs it")
+                        "taken as whole clusters of 7 (rounded down; at least 21, 3 clusters, and enough clusters "
+                        "to see every identifiable direction: an identification design needs more, about 49 on "
+                        "the packaged R1); no default: --design optimal needs it")
     p.add_argument("--for", dest="target", choices=("identification", "rebase"), default="identification",
                    help="--design optimal: what the poses are for: identifying the geometry or rebasing a "
                         "fitted model onto a new day (its frames and the joint offsets of joints 4 and 5; "

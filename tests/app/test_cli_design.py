@@ -89,7 +89,11 @@ def test_budget_belongs_to_the_optimal_design(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("budget, fragments", [("10", ("--budget: expected an integer of at least 21 poses",)),
-                                               ("70000", ("--budget 70000 asks for 10000 clusters", "give --budget"))])
+                                               ("70000", ("--budget 70000 asks for 10000 clusters", "give --budget")),
+                                               # the help's minimum is a rebase design's; an identification design
+                                               # of 21 said "3 clusters see 18 of 27 ...; raise the budget"
+                                               ("21", ("--budget 21: 3 clusters of 7 see 18 of 27",
+                                                       "give a larger --budget"))])
 def test_plan_budget_errors_say_what_to_pass_without_internals(tmp_path, capsys, budget, fragments):
     from app.cli.commands import main
 
