@@ -44,6 +44,9 @@ from calibration.poe import pose_error
 from calibration.recording import Recording
 from calibration.registration import RegistrationProblem
 
+#: Suffix of a held direction the caller left out (``rotations=False``), not one the poses could not see.
+EXCLUDED = " (excluded)"
+
 #: Plain-word names of the 12 correction directions, in ``delta`` order.
 DIRECTION_NAMES = tuple(f"{frame} {what}" for frame in ("base", "tool") for what in (
     "x shift", "y shift", "z shift", "rotation about x", "rotation about y", "rotation about z"))
@@ -142,8 +145,11 @@ class RebaseResult:
         if self.held:
             what = "frame directions" if total == 12 else "directions (frames and joint offsets)"
             text += (f" {total - self.fitted} of {total} {what} were held at zero (the poses cannot see them, "
-                     f"or they were excluded): {'; '.join(self.held)}. Collect poses that rotate the tool more "
-                     "widely to determine them.")
+                     f"or they were excluded): {'; '.join(self.held)}.")
+            unseen = [h for h in self.held if not h.endswith(EXCLUDED)]  # more poses cannot fit what was excluded
+            if unseen:
+                text += (" Collect poses that rotate the tool more widely to determine "
+                         + ("them." if len(unseen) == len(self.held) else "those not excluded."))
         if not self.converged:
             text += f" The solver did not converge ({self.reason.value})."
         return text
@@ -212,7 +218,7 @@ class RebaseProblem:
         basis = np.zeros((len(self.names), self.observability.rank))
         basis[free] = self.observability.basis
         self.basis = basis
-        self.held = tuple(f"{name} (excluded)" for name, f in zip(self.names, free) if not f) + tuple(
+        self.held = tuple(f"{name}{EXCLUDED}" for name, f in zip(self.names, free) if not f) + tuple(
             _describe_free(self.observability, i, free, self.names)
             for i in range(self.observability.rank, int(free.sum())))
 

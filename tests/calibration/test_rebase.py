@@ -258,3 +258,21 @@ def test_bad_offsets_are_refused(inner_models):
             RebaseProblem(inner_models["constant"], q, R, p, offsets=bad)
     with pytest.raises(ModelError, match="joint_offsets must be 6 finite numbers"):
         RebasedModel("R1", "nls1", inner_models["constant"], joint_offsets=np.array([np.nan] * 6))
+
+
+def test_the_advice_to_collect_more_poses_is_given_only_for_directions_the_poses_could_not_see(inner_models):
+    """Directions left out by the caller (translations only) are held too; the summary told the user to "collect
+    poses that rotate the tool more widely to determine them" although no pose could: they were not fitted by
+    choice. Held because unseen (one repeated pose), the advice stays."""
+    inner = inner_models["constant"]
+    truth = RebasedModel("R1", "nls1", inner, T_BASE, T_TOOL)
+    wide = np.concatenate([_three_clusters(), _q(14, seed=5)])  # sees all 12 directions
+    _, chosen = rebase(inner, _recording(truth, wide), rotations=False)
+    assert len(chosen.held) == 6 and all(h.endswith("(excluded)") for h in chosen.held)
+    assert "6 of 12 frame directions were held at zero" in chosen.summary()
+    assert "Collect poses" not in chosen.summary()
+    _, unseen = rebase(inner, _recording(truth, np.repeat(_q(1, seed=2), 7, axis=0)))
+    assert "Collect poses that rotate the tool more widely to determine them." in unseen.summary()
+    _, both = rebase(inner, _recording(truth, np.repeat(_q(1, seed=2), 7, axis=0)), rotations=False)
+    assert any(h.endswith("(excluded)") for h in both.held) and not all(h.endswith("(excluded)") for h in both.held)
+    assert "to determine those not excluded." in both.summary()
