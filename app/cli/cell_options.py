@@ -17,6 +17,7 @@ import sys
 from dataclasses import replace
 from typing import Any, Sequence
 
+from app.cli.common import non_negative_int
 from calibration.errors import CellCalError
 
 #: Speed fraction used when --speed is not given (and the cap allows it).
@@ -43,7 +44,7 @@ def add_motion_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sim", action="store_true",
                    help="use the simulated arms and mocap (over Zenoh on loopback) instead of the real devices "
                         "named in the cell file")
-    p.add_argument("--seed", type=int, default=0, help="seed of the simulated cell (its planted errors); --sim only")
+    p.add_argument("--seed", type=non_negative_int, default=0, help="seed of the simulated cell (its planted errors); --sim only")
     p.add_argument("--time-scale", type=float, default=20.0, help="simulated seconds per real second; --sim only")
     p.add_argument("--speed", type=float, help=f"fraction of the maximum joint speeds (default {DEFAULT_SPEED}, or "
                                                "the cell's cap if lower); refused above the cell's cap")

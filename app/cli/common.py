@@ -89,6 +89,22 @@ CELL_HELP = "cell.yaml (default: the packaged Motoman cell)"
 CELL_AFTER = "cell_after_command"
 
 
+def non_negative_int(text: str) -> int:
+    """argparse type of a seed or a count: an integer >= 0 (numpy's generators refuse a negative seed, and a
+    negative seed reached them as a traceback, exit 1, after the command had started).
+
+    Raises:
+        argparse.ArgumentTypeError: naming the value (the parser's one line names the option).
+    """
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {value}")
+    return value
+
+
 def add_cell_option(p: argparse.ArgumentParser) -> None:
     """``--cell`` after the command name, as before it (``cellcal --cell C fit ...`` and ``cellcal fit --cell C``)."""
     p.add_argument("--cell", dest=CELL_AFTER, metavar="CELL", help=f"{CELL_HELP}; also accepted before the command")

@@ -15,7 +15,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from app.cli.common import cell_spec, show_progress, write_json
+from app.cli.common import cell_spec, non_negative_int, show_progress, write_json
 from calibration.errors import CellCalError
 
 log = logging.getLogger("cellcal.app")
@@ -210,7 +210,7 @@ def add_real_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--json", help="write the trajectory points received, at stop, as JSON")
     p = add("fake-motive", cmd_fake_motive,
             "rehearsal: a fake Motive streaming the fake controller's arms at 240 Hz in a hidden world frame")
-    p.add_argument("--seed", type=int, default=0, help="seed of the hidden world frame, markers and twins")
+    p.add_argument("--seed", type=non_negative_int, default=0, help="seed of the hidden world frame, markers and twins")
     p.add_argument("--rate", type=float, default=240.0, help="frame rate [Hz]")
     p.add_argument("--noise-pos-mm", type=float, default=0.02, help="per-frame position noise per axis [mm]")
     p.add_argument("--noise-rot-deg", type=float, default=0.005, help="per-frame orientation noise per axis [deg]")

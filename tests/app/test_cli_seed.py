@@ -1,0 +1,43 @@
+"""Seeds and pose counts on the command line are integers >= 0: a negative --seed reached numpy's generator as a
+traceback (exit 1) from plan, demo, collect --sim, ...; plan --validation -5 said "cellcal plan: plan: validation"."""
+
+import argparse
+
+import pytest
+
+from app.cli.commands import build_parser, main
+
+
+def _seed_options() -> list[tuple[str, str]]:
+    """(command, option) of every seed option of every subcommand, and plan's validation count."""
+    root = build_parser()
+    subs = next(a for a in root._actions if isinstance(a, argparse._SubParsersAction))
+    out = [(name, opt) for name, p in subs.choices.items() for a in p._actions for opt in a.option_strings
+           if opt.startswith("--") and a.dest in ("seed", "validation_seed")]
+    return out + [("plan", "--validation")]
+
+
+SEED_OPTIONS = _seed_options()
+
+
+def test_the_walk_finds_the_seed_options():
+    assert {("plan", "--seed"), ("demo", "--seed"), ("collect", "--seed"), ("fake-motive", "--seed"),
+            ("recalibrate", "--validation-seed")} <= set(SEED_OPTIONS)
+
+
+@pytest.mark.parametrize("command, option", SEED_OPTIONS, ids=[f"{c} {o}" for c, o in SEED_OPTIONS])
+def test_a_negative_seed_or_count_is_one_line_naming_the_option(command, option, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as stop:  # argparse's exit, before the command runs
+        main([command, option, "-1"])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"argument {option}: expected an integer >= 0, got -1" in err[0], err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_plan_takes_seed_zero_and_a_validation_count(tmp_path):
+    out = tmp_path / "plan.json"
+    assert main(["plan", "--robot", "R1", "--out", str(out), "--q2-step", "30", "--q3-step", "30", "--seed", "0",
+                 "--validation", "2"]) == 0
+    assert out.exists()
