@@ -157,7 +157,8 @@ class FrameCheck:
             return ""
         fit = self.fits[self.quoted]
         moved = replace(fit, frames=self.frame).size()
-        return (f"The {self.subject} is off by a frame, not by kinematics: the {FRAME_WORDS[self.frame]} is off "
+        verb = "are" if self.frame == "base and tool" else "is"
+        return (f"The {self.subject} is off by a frame, not by kinematics: the {FRAME_WORDS[self.frame]} {verb} off "
                 f"({moved}); a rigid fit of the {self.quoted} frame{'s' if self.quoted == 'base and tool' else ''} "
                 f"brings the mean position error from {self.mean_mm:.3f} to {fit.mean_mm:.3f} mm (max "
                 f"{self.max_mm:.3f} -> {fit.max_mm:.3f}).")

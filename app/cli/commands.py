@@ -60,7 +60,7 @@ def cmd_predict(args: argparse.Namespace) -> int:
     quat = so3.R_to_quat(R)
     write_table(args.out, {"x": p[:, 0], "y": p[:, 1], "z": p[:, 2], "qw": quat[:, 0], "qx": quat[:, 1],
                            "qy": quat[:, 2], "qz": quat[:, 3]})
-    print(f"{len(q)} poses -> {args.out}")
+    print(f"{len(q)} pose{'' if len(q) == 1 else 's'} -> {args.out}")
     write_json(args.json, {"robot": model.robot, "method": model.method, "poses": len(q),
                            "outside_fitted_region": int(outside.sum()), "out": str(args.out),
                            "extrapolation": ex, "counts_explained": _counts_explained(predict=True)})

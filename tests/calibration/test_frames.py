@@ -143,6 +143,7 @@ def test_the_other_frame_is_taken_out_too_when_it_is_beyond_the_limits_once_the_
     fitter, check = framed(lambda r: Fitter("R1", nominal, r, FitOptions()), arm, rec)
     assert check.frame == "base and tool" and "a rigid fit of the base and tool frames brings" in check.message()
     assert "base frame (mocap-to-base registration) and tool frame" in check.message()
+    assert "(tool-marker-to-flange registration) are off (" in check.message()  # two frames: 'are', not 'is'
     joint = check.fits["base and tool"].result
     np.testing.assert_array_equal(fitter.frames.T_base_correction, joint.T_base_correction)
     np.testing.assert_array_equal(fitter.frames.T_tool_correction, joint.T_tool_correction)
