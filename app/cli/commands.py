@@ -27,6 +27,9 @@ def cmd_fit(args: argparse.Namespace) -> int:
 
     from app.provenance import provenance, with_provenance
 
+    if args.method == "cpa" and args.cpa is None:  # before the training data is read: nothing to fit it from
+        raise CellCalError("--method cpa needs --cpa SWEEPS: a single-joint sweep recording (one cluster id per "
+                           "sweep; cellcal plan --cpa adds such sweeps to a plan)")
     fitter, _ = fitter_from_args(args)
     model, seconds = fitter.fit(args.method)
     if args.days is not None:

@@ -106,6 +106,15 @@ def test_compare_of_only_cpa_without_sweeps_says_why_and_writes_nothing(tmp_path
     assert list(tmp_path.iterdir()) == []
 
 
+def test_fit_of_cpa_without_sweeps_names_the_option_and_writes_nothing(tmp_path, data, capsys):
+    # it said "cpa needs single-joint sweep data (...); none was given", naming no option
+    out, js = tmp_path / "m.yaml", tmp_path / "m.json"
+    assert_bad_input(capsys, ["fit", "--robot", "R1", "--train", str(data / "train.csv"), "--method", "cpa",
+                              "--out", str(out), "--json", str(js)],
+                     "--method cpa needs --cpa SWEEPS: a single-joint sweep recording")
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize("argv, line", [
     (["fit", "--robot", "R1", "--train", "t.csv", "--methd", "nls1", "--out", "m.yaml"],
      "cellcal fit: unrecognized arguments: --methd (did you mean --method for --methd?); the following arguments "
