@@ -47,6 +47,7 @@ def test_welding_layout(tmp_path):
     (HEADER + "\n" + ROW.replace(",1,0,0,0", ",0.9,0,0,0"), 2, "qw..qz", "quaternion norm"),
     (HEADER + "\n" + ROW + ",7", 2, None, "expected 13 fields"),
     (HEADER, None, None, "no data rows"),
+    (HEADER + ",t\n" + ROW + ",5\n" + ROW + ",5\n" + ROW + ",4.5", 4, "t", "time goes backwards (5 s, then 4.5 s)"),
 ])
 def test_bad_recordings_are_named(tmp_path, text, row, column, reason):
     path = write(tmp_path, text)
