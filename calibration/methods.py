@@ -332,7 +332,8 @@ class Fitter:
         self._cache.setdefault("fitted", set()).add(method)
         model.info.setdefault("fit_seconds", seconds)
         model.info.setdefault("train_samples", len(self.train))
-        model.info.setdefault(REGION_KEY, Region.of(self.train.q, context=self.train.context()).to_dict())  # the guard's
+        region = Region.of(self.train.q, context=self.train.context())  # the extrapolation guard's region
+        model.info.setdefault(REGION_KEY, region.to_dict())
         return model, seconds
 
     def _prepare_shared(self, method: str) -> float:

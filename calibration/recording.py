@@ -299,8 +299,9 @@ def read_recording(path: str | Path, lower: np.ndarray | None = None, upper: np.
     if "cluster" in extra and np.any(extra["cluster"] != np.round(extra["cluster"])):
         i = int(np.flatnonzero(extra["cluster"] != np.round(extra["cluster"]))[0])
         raise DataError(path, first + i, "cluster", "expected an integer cluster id")
-    if "t" in extra and np.any(np.diff(extra["t"]) < 0):  # the spec: t since the session started, monotonic
-        i = int(np.flatnonzero(np.diff(extra["t"]) < 0)[0]) + 1
+    back = np.flatnonzero(np.diff(extra["t"]) < 0) if "t" in extra else ()
+    if len(back):  # the spec: t is the time since the session started, monotonic
+        i = int(back[0]) + 1
         raise DataError(path, first + i, "t", f"time goes backwards ({extra['t'][i - 1]:g} s, then {extra['t'][i]:g} "
                                               "s): t is the time since the session started, monotonic (one session "
                                               "per recording; rows in the order they were measured)")

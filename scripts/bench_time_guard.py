@@ -2,7 +2,7 @@
 
 For each seed, a twin with planted geometric errors and a concealed warm-up growth of links p23 and p34 (time
 constant 1800 s, ``calibration.diagnosis.synthetic.make_case``) is recorded on the synthetic cluster design with
-samples ``--period`` seconds apart (2 s: a 672 s recording, a third of the time constant, which sees the curve's
+samples ``--period`` seconds apart (2 s: a recording of about 670 s, a third of the time constant, which sees the curve's
 slope and not its asymptote; 12 s: 67 min, over two time constants). ``diagnose`` (training data only) builds its
 model; then it is evaluated on 300 random poses taken later, at times spread uniformly over ``--late`` (seconds
 after the start), with the guard's hold in time on (the model as saved) and off (the same model with its region's
@@ -50,7 +50,7 @@ def run(seed: int, period_s: float, magnitude_mm: float, late_s: tuple[float, fl
     nominal = spec.model()
     gravity = GravityModel.from_spec(spec.robot, nominal)
     design = Design(period_s=period_s)
-    twin, fit, heldout = make_case(nominal, gravity, {"thermal_drift": magnitude_mm}, seed, design)
+    twin, fit, _ = make_case(nominal, gravity, {"thermal_drift": magnitude_mm}, seed, design)
     res = diagnose("R1", nominal, fit, heldout=None, gravity=gravity)
     q, cols = late_poses(design, 300, seed + 7, late_s)
     late = measure(twin, q, cols, design, np.random.default_rng(seed + 9), "late")

@@ -16,7 +16,7 @@ from calibration.casadi_expr import CasadiPose, poe_chain
 from calibration.errors import ModelError
 from calibration.models.base import Block, KinematicModel
 from calibration.models.physics import casadi_effects, effect_blocks, split_values
-from calibration.physics.base import CONTEXT_KEYS, NO_GUARD, Context, Effect, context_keys_of, effect_from_dict, geometry_on_top
+from calibration.physics.base import NO_GUARD, Context, Effect, effect_from_dict, effects_read, geometry_on_top
 
 
 @dataclass
@@ -71,8 +71,7 @@ class DiagnosedModel(KinematicModel):
     def context_keys(self) -> frozenset[str]:
         """The context entries its effects read (every one, ``qd`` and the directions included, when an effect does
         not say)."""
-        keys = context_keys_of(self.effects)
-        return CONTEXT_KEYS if keys is None else keys
+        return effects_read(self.effects)
 
     @property
     def n_parameters(self) -> int:

@@ -94,6 +94,11 @@ def data_margin_rad(lower_rad: np.ndarray, upper_rad: np.ndarray) -> np.ndarray:
     return np.clip(MARGIN_SHARE * span, MIN_MARGIN_RAD, DEFAULT_MARGIN_RAD)
 
 
+def excess_beyond(v: np.ndarray, lo: Any, hi: Any) -> np.ndarray:
+    """How far v lies outside [lo, hi], zero inside (same shape as v)."""
+    return np.maximum(lo - v, 0.0) + np.maximum(v - hi, 0.0)
+
+
 def soft_clamp(v: np.ndarray, lo: Any, hi: Any, m: Any, below: bool = True) -> np.ndarray:
     """v softly clamped into [lo, hi]: unchanged inside, ``hi + m tanh((v - hi) / m)`` above, and the mirror image
     below (only when ``below``): continuous with slope 1 at the edges, saturating within ``m`` outside."""
@@ -150,15 +155,15 @@ class Region:
         margin from the data's own spread (:func:`data_margin_rad`)."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
         lo, hi = q.min(axis=0), q.max(axis=0)
-        seen = {k: np.asarray(v, dtype=float) for k, v in (context or {}).items() if k in GUARDED_CONTEXT and v is not None}
+        seen = {k: np.asarray(v, dtype=float) for k, v in (context or {}).items()
+                if k in GUARDED_CONTEXT and v is not None}
         seen = {k: v[np.isfinite(v)] for k, v in seen.items()}
         ranges = {k: (float(v.min()), float(v.max())) for k, v in seen.items() if v.size}
         return cls(lo, hi, data_margin_rad(lo, hi) if margin_rad is None else margin_rad, context_range=ranges)
 
     def excess(self, q: np.ndarray) -> np.ndarray:
         """How far each joint lies outside the range [rad] (N, n), zero inside."""
-        q = np.atleast_2d(np.asarray(q, dtype=float))
-        return np.maximum(self.lower_rad - q, 0.0) + np.maximum(q - self.upper_rad, 0.0)
+        return excess_beyond(np.atleast_2d(np.asarray(q, dtype=float)), self.lower_rad, self.upper_rad)
 
     def clamp(self, q: np.ndarray, joints: Sequence[int] | None = None) -> np.ndarray:
         """q (N, n) softly clamped into the range: ``edge + m tanh(excess / m)`` outside, unchanged inside; only the
@@ -215,12 +220,8 @@ class Region:
         its fitted shape depends on that the training data saw over less than the span the shape shows itself over
         (:meth:`~calibration.physics.base.Effect.fitted_context`: a warm-up recorded for less than its time
         constant)."""
-        held = {}
-        for k, fitted in effect.fitted_context().items():
-            lo, hi = self.context_range.get(k, (0.0, math.inf))
-            if hi - lo < fitted.span:
-                held[k] = fitted.sides
-        return held
+        spans = {k: hi - lo for k, (lo, hi) in self.context_range.items()}
+        return {k: fitted.sides for k, fitted in effect.fitted_context().items() if spans.get(k, math.inf) < fitted.span}
 
     def context_margin(self, key: str) -> float:
         """The clamp margin of context entry ``key``: :data:`MARGIN_SHARE` of its training span (a millionth of the
@@ -259,8 +260,7 @@ class Region:
         out = {}
         for k, (lo, hi) in self.context_range.items():
             if context is not None and context.get(k) is not None and (keys is None or k in keys):
-                v = context_array(context, k, N)
-                out[k] = np.maximum(lo - v, 0.0) + np.maximum(v - hi, 0.0)
+                out[k] = excess_beyond(context_array(context, k, N), lo, hi)
         return out
 
     def without_context(self) -> "Region":
@@ -346,7 +346,9 @@ def extrapolation(model: Any, q: np.ndarray, context: Mapping[str, Any] | None =
     worst = ex.max(axis=1)
     outside = worst > OUTSIDE_TOLERANCE_DEG
     context_ex = region.context_excess(context, q.shape[0], tuple(model.context_keys))
-    late = np.any([e > 0 for e in context_ex.values()], axis=0) if context_ex else np.zeros(q.shape[0], dtype=bool)
+    late = np.zeros(q.shape[0], dtype=bool)  # poses past the range of a context entry
+    for e in context_ex.values():
+        late |= e > 0
     held = (worst > 0) | late  # where the guard's clamps act, however little
     shift = guard_shift_mm(model, q[held], _rows(context, held)) if held.any() else 0.0
     shift_context = (guard_shift_mm(model, q[late], _rows(context, late), region.without_context()) if late.any()

@@ -15,7 +15,7 @@ import numpy as np
 from calibration.casadi_expr import CasadiPose, casadi_ops, chain_pose, poe_chain
 from calibration.models.base import Block, KinematicModel, poe_from_dict, poe_to_dict
 from calibration.models.guard import Region
-from calibration.physics.base import CONTEXT_KEYS, Context, Effect, apply_effects, context_keys_of, effect_from_dict
+from calibration.physics.base import Context, Effect, apply_effects, effect_from_dict, effects_read
 from calibration.poe import PoeModel
 
 
@@ -98,8 +98,7 @@ class PhysicsModel(KinematicModel):
     def context_keys(self) -> frozenset[str]:
         """The context entries its effects read (every one, ``qd`` and the directions included, when an effect does
         not say)."""
-        keys = context_keys_of(self.effects)
-        return CONTEXT_KEYS if keys is None else keys
+        return effects_read(self.effects)
 
     @property
     def n_parameters(self) -> int:

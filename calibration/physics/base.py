@@ -301,6 +301,12 @@ def context_keys_of(effects: Sequence[Effect]) -> frozenset[str] | None:
     return frozenset(keys)
 
 
+def effects_read(effects: Sequence[Effect]) -> frozenset[str]:
+    """The context entries a set of effects may read: :func:`context_keys_of`, every entry when one does not say."""
+    keys = context_keys_of(effects)
+    return CONTEXT_KEYS if keys is None else keys
+
+
 class Guard(Protocol):
     """A model's extrapolation guard (:class:`calibration.models.guard.Region`): what each effect is evaluated at."""
 
