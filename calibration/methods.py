@@ -115,6 +115,10 @@ class FitOptions:
             restores), chosen on clusters held out from the 8 R1 training recordings (``scripts/recommend_days.py``:
             the same recommendation, best method and flags on every day, pi+ae's held-out RMS within about one paired
             standard error over clusters). The paper's ``ae`` keeps the paper's network, as the paper defines it.
+            ``pi+nn`` keeps the paper's ``nn`` network (three layers of 200, 300 epochs): two layers of 128 or of 200,
+            or 200 epochs, each raised its held-out RMS on every R1 training recording it was run on (5, 7 and 8
+            of them; by up to 0.015 mm) and lost it the recommendation on 4, 4 and 3 days
+            (``scripts/recommend_days.py --against``, issue 14), so its training time is not traded for ``compare``'s.
         pi_registration_free: which parts of the tool marker's registration on the flange the pi fit leaves out of
             its damping toward nominal (:meth:`ExtendedKinematics.registration_mask`): ``rotation`` (default), the
             tool-marker rotation, which every pose's orientation sees directly; ``shift``, ``all`` or ``none`` (the
