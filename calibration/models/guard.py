@@ -18,18 +18,21 @@ A region saved before the rule (no ``rule`` key) holds every effect in every joi
 
 The same in time and temperature: the region also records the range of each context entry of
 :data:`GUARDED_CONTEXT` the training recording carried (:attr:`Region.context_range`), and an effect whose fitted
-shape is a function of one, seen over less than the span the shape shows itself over
-(:meth:`~calibration.physics.base.Effect.fitted_context`: a warm-up curve recorded for less than its fitted time
-constant), is evaluated at that entry softly clamped into the range (:meth:`Region.hold_context`, margin a share of
-the span). A warm-up fitted on ten minutes of a half-hour time constant has seen its slope, not its bend, and its
-asymptote is a guess; held at the edge, it does not promise millimetres hours later. ``scripts/bench_time_guard.py``
-(synthetic twins, a 1800 s warm-up, poses 1-4 h on): on 670 s recordings, seed 0's fit put the time constant at 25 h
-and promised 4.61/8.91 mm without the hold, 0.97/1.21 with it; seed 1 1.007/1.651 -> 0.980/1.352; seed 2, whose fitted
-677 s only just exceeds the span, is worse held (0.769/1.081 -> 1.029/1.420); seeds 3 and 4 unchanged. On 67 min
-recordings (over two time constants) nothing is held. Before the recording a warm-up is pinned at zero at ``t = 0``
-by its formula and is not held. A growth per kelvin and a payload compliance are
-formulas and go on as they say; a context entry the call does not carry (the default context, a casadi expression)
-is not held.
+shape is a function of one, seen over too little of the span the shape shows itself over
+(:meth:`~calibration.physics.base.Effect.fitted_context`: a warm-up curve recorded for less time than a cold start
+takes to show a fifth of its fitted rise, :data:`HELD_BELOW_RISE`), is evaluated at that entry softly clamped into
+the range (:meth:`Region.hold_context`, margin a share of the span). A warm-up fitted on ten minutes has then seen
+its slope, not its bend, and its asymptote is a guess; held at the edge, it does not promise millimetres hours
+later. ``scripts/bench_time_guard.py`` (synthetic twins, a 1800 s warm-up, 670 s recordings, poses 1-4 h on): a fit
+whose time constant ran off (25 h) promised 4.5-5.0 / 8.9-10.4 mm without the hold and about 1.0 / 1.3 with it; a
+fit that found its time constant (1.0-4.2 recording spans) is better free (0.05-0.77 mm mean) than held (about 1.0).
+The first rule held any recording shorter than the fitted time constant, and so those too (a region saved with it
+keeps it, :data:`CONTEXT_RULE_SPAN`; :data:`HELD_BELOW_RISE` says how the share was chosen). On seeds 30-39, which
+no choice saw, no fit ran off and none is held: median of the later poses 0.292/0.451 mm, against 1.018/1.287 with
+the first rule, which held 8 of the 10. On 67 min recordings (over two time constants) nothing is held. Before the
+recording a warm-up is pinned at zero at ``t = 0`` by its formula and is not held. A growth per kelvin and a payload
+compliance are formulas and go on as they say; a context entry the call does not carry (the default context, a
+casadi expression) is not held.
 
 A ``pi`` model has no guard. Its compliance is the mass-free gravity shape; its structural deflection's shape is
 fitted, in q2 and q3 only, which every shared training day sees over 60 deg or more, so the rule would not hold it
@@ -71,6 +74,21 @@ RULE_BY_EFFECT = "by_effect"
 RULE_EVERY_JOINT = "every_joint"
 GuardRule = Literal["by_effect", "every_joint"]
 RULES = (RULE_BY_EFFECT, RULE_EVERY_JOINT)
+#: Share of an effect's exponential approach to its asymptote (a warm-up's rise from a cold start) the training
+#: data must span, ``1 - exp(-seen / span)``, for the fitted curve to be trusted beyond it; less is held at the edge
+#: (regions fitted from now on, :data:`CONTEXT_RULE_RISE`). Chosen with ``scripts/bench_time_guard.py`` (a
+#: concealed 1800 s warm-up, 670 s recordings, poses 1-4 h later): over seeds 0-29, every fit whose time constant
+#: came out at 5.47 spans or more (to 133) was better held (max 1.65-10.4 mm free, at most 1.37 held), and every
+#: one between 1.01 and 4.17 spans better free (0.05-0.77 mm mean free against about 1 mm held); a fifth of the
+#: rise is 4.48 spans. Judged on seeds 30-39, which no choice saw.
+HELD_BELOW_RISE = 0.2
+#: Context entries held by :data:`HELD_BELOW_RISE` (regions fitted from now on).
+CONTEXT_RULE_RISE = "rise_share"
+#: Context entries held when the data saw less than the effect's whole span (a warm-up recorded for less than its
+#: time constant): the rule of a region saved before :data:`CONTEXT_RULE_RISE` (no ``context_rule`` key), which
+#: also held the fits that had found their time constant, kept so an older model file predicts what it predicted.
+CONTEXT_RULE_SPAN = "span"
+CONTEXT_RULES = (CONTEXT_RULE_RISE, CONTEXT_RULE_SPAN)
 #: The per-sample context entries whose training range a region records (a recording's columns of these names).
 GUARDED_CONTEXT = ("t", "temp_c", "payload_kg")
 #: Units of :data:`GUARDED_CONTEXT`, for the messages.
@@ -118,6 +136,9 @@ class Region:
             on that the data saw narrowly) or ``every_joint`` (all, the guard of regions saved before the rule).
         context_range: smallest and largest value of each context entry of :data:`GUARDED_CONTEXT` the training
             data carried, ``{"t": (0.0, 600.0)}`` (empty for a recording with none, or a region saved before).
+        context_rule: when an effect is held in a context entry (:meth:`held_context`): ``rise_share`` (the data saw
+            less than :data:`HELD_BELOW_RISE` of its approach to the asymptote) or ``span`` (less than its whole
+            span: regions saved before ``rise_share``).
     """
 
     lower_rad: np.ndarray
@@ -125,6 +146,7 @@ class Region:
     margin_rad: float | np.ndarray = DEFAULT_MARGIN_RAD
     rule: GuardRule = RULE_BY_EFFECT
     context_range: Mapping[str, tuple[float, float]] = field(default_factory=dict)
+    context_rule: str = CONTEXT_RULE_RISE
 
     def __post_init__(self) -> None:
         lo, hi = np.asarray(self.lower_rad, dtype=float), np.asarray(self.upper_rad, dtype=float)
@@ -135,6 +157,8 @@ class Region:
             raise ModelError(f"the clamp margin must be positive, one or one per joint, got {self.margin_rad}")
         if self.rule not in RULES:
             raise ModelError(f"unknown guard rule {self.rule!r}; valid: {', '.join(RULES)}")
+        if self.context_rule not in CONTEXT_RULES:
+            raise ModelError(f"unknown context rule {self.context_rule!r}; valid: {', '.join(CONTEXT_RULES)}")
         ranges = {}
         for key, bounds in dict(self.context_range).items():
             b = np.asarray(bounds, dtype=float)
@@ -217,11 +241,15 @@ class Region:
 
     def held_context(self, effect: Any) -> dict[str, str]:
         """The context entries ``effect`` is held in, each with the sides it is held on (``both`` or ``above``): those
-        its fitted shape depends on that the training data saw over less than the span the shape shows itself over
-        (:meth:`~calibration.physics.base.Effect.fitted_context`: a warm-up recorded for less than its time
-        constant)."""
-        spans = {k: hi - lo for k, (lo, hi) in self.context_range.items()}
-        return {k: fitted.sides for k, fitted in effect.fitted_context().items() if spans.get(k, math.inf) < fitted.span}
+        its fitted shape depends on that the training data saw over too little of the span the shape shows itself
+        over (:meth:`~calibration.physics.base.Effect.fitted_context`, a warm-up's time constant): less than
+        :data:`HELD_BELOW_RISE` of its approach to the asymptote, or less than the whole span for a region saved
+        before that rule (:attr:`context_rule`)."""
+        seen = {k: hi - lo for k, (lo, hi) in self.context_range.items()}
+        share = (lambda s, span: s < span) if self.context_rule == CONTEXT_RULE_SPAN else \
+            (lambda s, span: -math.expm1(-s / span) < HELD_BELOW_RISE)
+        return {k: fitted.sides for k, fitted in effect.fitted_context().items()
+                if share(seen.get(k, math.inf), fitted.span)}
 
     def context_margin(self, key: str) -> float:
         """The clamp margin of context entry ``key``: :data:`MARGIN_SHARE` of its training span (a millionth of the
@@ -273,17 +301,20 @@ class Region:
              "margin_rad": m.tolist() if isinstance(m, np.ndarray) else float(m), "rule": self.rule}
         if self.context_range:
             d["context_range"] = {k: list(v) for k, v in self.context_range.items()}
+            d["context_rule"] = self.context_rule
         return d
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "Region":
         """Inverse of :meth:`to_dict`; a region saved before the rule existed (no ``rule``) keeps the guard it had
-        then, every effect held in every joint."""
+        then, every effect held in every joint, and one saved before the context rule (no ``context_rule``) keeps
+        its hold in time (:data:`CONTEXT_RULE_SPAN`)."""
         try:
             m = d.get("margin_rad", DEFAULT_MARGIN_RAD)
             return cls(np.asarray(d["lower_rad"], dtype=float), np.asarray(d["upper_rad"], dtype=float),
                        np.asarray(m, dtype=float) if isinstance(m, list) else float(m),
-                       d.get("rule", RULE_EVERY_JOINT), {k: tuple(v) for k, v in d.get("context_range", {}).items()})
+                       d.get("rule", RULE_EVERY_JOINT), {k: tuple(v) for k, v in d.get("context_range", {}).items()},
+                       d.get("context_rule", CONTEXT_RULE_SPAN))
         except (AttributeError, KeyError, TypeError, ValueError) as e:
             raise ModelError(f"bad training_region {d!r}: {e}") from e
 

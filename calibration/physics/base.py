@@ -58,7 +58,8 @@ Sides = Literal["both", "above"]
 @dataclass(frozen=True)
 class FittedSpan:
     """How an effect's fitted shape depends on a context entry: ``span`` over which the shape shows itself (in the
-    entry's unit; a warm-up's time constant [s]) and the ``sides`` of the training range past which it is a guess."""
+    entry's unit; a warm-up's time constant [s], the span of an exponential approach to its asymptote) and the
+    ``sides`` of the training range past which it is a guess."""
 
     span: float
     sides: Sides = "both"
@@ -180,9 +181,9 @@ class Effect(abc.ABC):
     def fitted_context(self) -> dict[str, FittedSpan]:
         """The context entries (``t``, ``temp_c``, ``payload_kg``) the effect's fitted shape is a function of, each
         with the span over which that shape shows itself (a warm-up's time constant) and the sides of the training
-        range past which the shape is a guess: where the training data saw such an entry over less than that span,
-        the extrapolation guard holds the effect at those edges of what it saw
-        (:meth:`calibration.models.guard.Region.held_context`).
+        range past which the shape is a guess: where the training data saw too little of that span (less than a
+        fifth of the approach to the asymptote, :data:`calibration.models.guard.HELD_BELOW_RISE`), the extrapolation
+        guard holds the effect at those edges of what it saw (:meth:`calibration.models.guard.Region.held_context`).
 
         Empty by default: a context entry that enters by a formula, its size alone fitted (a payload times a
         compliance, a temperature times a growth per kelvin), goes on as the formula says.

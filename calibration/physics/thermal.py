@@ -72,10 +72,11 @@ class ThermalDrift(Effect):
         return ()  # its drive is the time or the temperature, not q
 
     def fitted_context(self) -> dict[str, FittedSpan]:
-        """``t`` over the time constant for the warm-up curve, above the recorded times: a recording shorter than the
-        time constant has seen the curve's slope but not its bend, so the asymptote would be a guess (the fitted time
-        constant and growth trade off along that slope); before the recording the formula pins the curve at zero at
-        ``t = 0``. Nothing for the growth per kelvin, a formula."""
+        """``t`` over the time constant for the warm-up curve, above the recorded times: a recording that saw too
+        little of the rise (:data:`calibration.models.guard.HELD_BELOW_RISE`) has seen the curve's slope but not its
+        bend, so the asymptote would be a guess (the fitted time constant and growth trade off along that slope);
+        before the recording the formula pins the curve at zero at ``t = 0``. Nothing for the growth per kelvin, a
+        formula."""
         return {"t": FittedSpan(self.tau_s, "above")} if self.mode == "warmup" else {}
 
     def drive(self, N: int, context: Context | None = None) -> np.ndarray:

@@ -381,6 +381,32 @@ def test_a_warm_up_recorded_for_longer_than_its_time_constant_goes_on_as_fitted(
     assert extrapolation(model, q, late)["outside_context_range"]["t"]["poses"] == 1  # still counted and said
 
 
+@pytest.mark.parametrize("end_s, held", [(600.0, True), (800.0, True), (810.0, False), (1200.0, False)])
+def test_a_warm_up_is_held_when_its_recording_saw_less_than_a_fifth_of_its_rise(region, end_s, held):
+    """tau 3600 s: a cold start sees a fifth of the rise in 3600 ln(5/4) = 803 s. The rule before held any recording
+    shorter than tau, which on the synthetic twins also held the fits that had found their time constant."""
+    rec = Region(region.lower_rad, region.upper_rad, region.margin_rad, context_range={"t": (0.0, end_s)})
+    assert rec.to_dict()["context_rule"] == "rise_share"
+    assert rec.held_context(_warm(rec.to_dict()).effects[0]) == ({"t": "above"} if held else {})
+
+
+def test_a_region_saved_before_the_rise_rule_keeps_its_hold_in_time(region, tmp_path):
+    """A model file saved with the first rule (no context_rule) predicts what it predicted: held below tau."""
+    d = Region(region.lower_rad, region.upper_rad, region.margin_rad, context_range={"t": (0.0, 1200.0)}).to_dict()
+    del d["context_rule"]
+    old = Region.from_dict(d)
+    assert old.context_rule == "span" and old.held_context(_warm(d).effects[0]) == {"t": "above"}
+    model = _warm(d)
+    save_model(model, tmp_path / "old.yaml")
+    q, late = np.zeros((2, 6)), {"t": np.array([600.0, 14400.0])}
+    again = load_model(tmp_path / "old.yaml")
+    np.testing.assert_array_equal(again.fk_context(q, late)[1], model.fk_context(q, late)[1])
+    new = _warm({**d, "context_rule": "rise_share"})
+    assert np.linalg.norm(new.fk_context(q, late)[1][1] - model.fk_context(q, late)[1][1]) > 0.1
+    with pytest.raises(ModelError, match="unknown context rule 'fifth'; valid: rise_share, span"):
+        Region.from_dict({**d, "context_rule": "fifth"})
+
+
 def test_a_warm_up_is_not_held_before_its_recording_where_its_formula_pins_it(region):
     later = Region(region.lower_rad, region.upper_rad, region.margin_rad, context_range={"t": (3600.0, 4200.0)})
     assert later.held_context(_warm(later.to_dict()).effects[0]) == {"t": "above"}
