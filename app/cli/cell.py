@@ -8,7 +8,7 @@ from typing import Any, Callable, Literal
 
 from app.analysis.fitting import fitter_for
 from app.cli.common import add_report_options, cell_spec, command_line, epoch_bar, log, non_negative_int, \
-    show_progress, tolerance_from_args, write_json
+    show_progress, tolerance_from_args, validation_count, write_json
 from calibration.errors import CellCalError
 
 #: The anchor-grid steps ``plan --q2-step/--q3-step`` and ``demo --anchor-step`` accept [deg].
@@ -393,7 +393,7 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                    help="anchor grid q2 step [deg], 0.5 to 90 (default %(default)g: the paper's design)")
     p.add_argument("--q3-step", type=float, default=5.0, help="anchor grid q3 step [deg], 0.5 to 90")
     p.add_argument("--cpa", action="store_true", help="add single-joint sweeps (needed by the cpa method)")
-    p.add_argument("--validation", type=non_negative_int, default=0, help="random validation poses to add (the test set)")
+    p.add_argument("--validation", type=validation_count, default=0, help="random validation poses to add (the test set)")
     p.add_argument("--seed", type=non_negative_int, default=0, help="seed of the validation poses (and of the optimal design's "
                                                         "candidates)")
     p.add_argument("--design", choices=("grid", "optimal"), default="grid",
@@ -455,7 +455,7 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--rebase", action="store_true", help="refit only the base and tool-marker frames of the model in "
                                                          "service on the training poses (a few clusters of a new day) "
                                                          "instead of fitting a new model (--method is not used)")
-    p.add_argument("--validation", type=non_negative_int, default=30, help="fresh validation poses to measure")
+    p.add_argument("--validation", type=validation_count, default=30, help="fresh validation poses to measure")
     p.add_argument("--validation-seed", type=non_negative_int, help="seed of the validation poses (default: from the clock)")
     p.add_argument("--json", help="write the decision with both figures as JSON")
     add_report_options(p, "candidate and model in service on the validation poses",
@@ -469,7 +469,7 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--seed", type=non_negative_int, default=0, help="seed of the planted errors, the noise and the validation poses")
     p.add_argument("--anchor-step", type=float, help="anchor grid q2/q3 step [deg] (default 10, 5 with --full; a "
                                                      "coarse grid, e.g. 40, makes a short demo)")
-    p.add_argument("--validation", type=non_negative_int, default=50, help="random validation poses per arm (the test set)")
+    p.add_argument("--validation", type=validation_count, default=50, help="random validation poses per arm (the test set)")
     p.add_argument("--methods", help="comma-separated methods to fit (default: all)")
     p.add_argument("--time-scale", type=float, default=20.0,  # SimCellOptions.time_scale, as --sim commands
                    help="simulated seconds per real second of the collections (default %(default)g); the demo's "

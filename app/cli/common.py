@@ -89,6 +89,24 @@ CELL_HELP = "cell.yaml (default: the packaged Motoman cell)"
 CELL_AFTER = "cell_after_command"
 
 
+#: Most validation poses a command takes: each is a move and a measurement of seconds on the cell, so 10000 is hours
+#: already; a count past it is a typo (plan --validation 100000000 ran for minutes, building a plan nobody could run).
+MAX_VALIDATION_POSES = 10_000
+
+
+def validation_count(text: str) -> int:
+    """argparse type of a number of validation poses: an integer from 0 to :data:`MAX_VALIDATION_POSES`.
+
+    Raises:
+        argparse.ArgumentTypeError: naming the value (the parser's one line names the option).
+    """
+    value = non_negative_int(text)
+    if value > MAX_VALIDATION_POSES:
+        raise argparse.ArgumentTypeError(f"expected at most {MAX_VALIDATION_POSES} validation poses (each is a move "
+                                         f"and a measurement on the cell), got {value}")
+    return value
+
+
 def non_negative_int(text: str) -> int:
     """argparse type of a seed or a count: an integer >= 0 (numpy's generators refuse a negative seed, and a
     negative seed reached them as a traceback, exit 1, after the command had started).

@@ -41,3 +41,18 @@ def test_plan_takes_seed_zero_and_a_validation_count(tmp_path):
     assert main(["plan", "--robot", "R1", "--out", str(out), "--q2-step", "30", "--q3-step", "30", "--seed", "0",
                  "--validation", "2"]) == 0
     assert out.exists()
+
+
+@pytest.mark.parametrize("command", ["plan", "recalibrate", "demo"])
+def test_a_validation_count_past_ten_thousand_is_refused_before_anything_runs(command, tmp_path, monkeypatch, capsys):
+    """plan --validation 100000000 ran for minutes building a plan of poses nobody could measure."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as stop:
+        main([command, "--validation", "100000000"])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "argument --validation: expected at most 10000 validation poses" in err[0], err
+    assert list(tmp_path.iterdir()) == []
+    from app.cli.common import validation_count
+
+    assert validation_count("10000") == 10000
