@@ -110,15 +110,29 @@ class FakeMotorosController:
     # -- lifecycle -------------------------------------------------------------------------------
     def start(self) -> "FakeMotorosController":
         """Bind both ports (SO_REUSEADDR) and start the threads; returns self."""
-        motion = socket.create_server((self.host, self.motion_port), reuse_port=False)
-        state = socket.create_server((self.host, self.state_port), reuse_port=False)
-        self._listeners = [motion, state]
+        self._listeners = []
+        self._listeners.append(self._listen(self.motion_port, "motion"))
+        self._listeners.append(self._listen(self.state_port, "state"))
+        motion, state = self._listeners
         self.motion_port = motion.getsockname()[1]
         self.state_port = state.getsockname()[1]
         for target, args in ((self._accept, (motion, self._on_motion_client)),
                              (self._accept, (state, self._on_state_client)), (self._simulate, ())):
             self._spawn(target, args)
         return self
+
+    def _listen(self, port: int, role: str) -> socket.socket:
+        """A listening socket on ``port``; a port already taken (another fake controller) is a DriverError naming
+        it, with the sockets bound so far closed (the CLI's one line, exit 2, instead of an OSError traceback)."""
+        try:
+            return socket.create_server((self.host, port), reuse_port=False)
+        except OSError as e:
+            for sock in self._listeners:
+                sock.close()
+            self._listeners = []
+            raise DriverError(f"fake-motoros@{self.host}:{port}", f"cannot listen on the {role} port {port} "
+                                                                 f"({e.strerror or e}); is another fake controller "
+                                                                 "or a MotoROS client already using it?") from e
 
     def close(self) -> None:
         """Stop every thread and close every socket; safe to call twice."""
