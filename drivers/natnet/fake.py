@@ -19,6 +19,7 @@ import threading
 from collections.abc import Mapping
 from dataclasses import dataclass
 
+from drivers.errors import DriverError
 from drivers.natnet.packets import MessageId
 
 log = logging.getLogger("cellcal.drivers")
@@ -184,7 +185,13 @@ class FakeNatNetServer:
         self.clients: list[tuple[str, int]] = []
         self.requests: list[int] = []
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self._sock.bind(("127.0.0.1", command_port))
+        try:
+            self._sock.bind(("127.0.0.1", command_port))
+        except OSError as e:  # another fake Motive (or Motive) holds it: one line, not an OSError traceback
+            self._sock.close()
+            raise DriverError(f"fake-natnet@127.0.0.1:{command_port}", f"cannot listen on the command port "
+                                                                      f"{command_port} ({e.strerror or e}); is "
+                                                                      "another fake Motive already using it?") from e
         self._sock.settimeout(0.05)
         self._sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, socket.inet_aton("127.0.0.1"))
         self._sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_LOOP, 1)
