@@ -15,7 +15,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from app.cli.common import cell_spec, non_negative_int, show_progress, write_json
+from app.cli.common import cell_spec, non_negative_int, positive_float, show_progress, write_json
 from calibration.errors import CellCalError
 
 log = logging.getLogger("cellcal.app")
@@ -222,7 +222,7 @@ def add_real_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
     p.add_argument("--center", help="centre pose of the registration plan, 6 comma-separated angles [deg] "
                                     "(default: where the arm stands)")
-    p.add_argument("--sweep", type=float, default=20.0, help="rotation of each joint about the centre [deg]")
+    p.add_argument("--sweep", type=positive_float, default=20.0, help="rotation of each joint about the centre [deg]")
     p.add_argument("--json", help="write the registration and its residuals as JSON")
     add_motion_options(p)
 
