@@ -7,7 +7,7 @@ import re
 from pathlib import Path
 from typing import Any, Callable
 
-from app.cli.common import cell_spec, write_json
+from app.cli.common import cell_spec, positive_float, write_json
 
 _ROBOT_SPEC = re.compile(r"^([A-Za-z][A-Za-z0-9_]*)=(.+)$")
 
@@ -92,7 +92,7 @@ def add_job_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                         "repeat for a second robot (RB1 is the cell's first robot R1, RB2 its second R2)")
     p.add_argument("--job", required=True, help="input job file (.JBI): PULSE, ROBOT or BASE C positions")
     p.add_argument("--out", required=True, help="compensated job file to write (never the input)")
-    p.add_argument("--max-joint-change-deg", type=float, default=5.0,
+    p.add_argument("--max-joint-change-deg", type=positive_float, default=5.0,
                    help="refuse a point whose compensation moves any joint by more than this [deg] (default 5; "
                         "orientation fixes near the wrist singularity swing joints 4 and 6)")
     p.add_argument("--json", help="write per position: line, group, before/after values, joint change [deg], "

@@ -8,6 +8,8 @@ from app.cli.commands import main
 
 CASES = [
     (["register", "--robot", "R1", "--sim", "--dry-run"], "--sweep"),  # nan: numpy's uniform raised OverflowError
+    (["compensate-job", "--model", "m.yaml", "--job", "J.JBI", "--out", "O.JBI"],
+     "--max-joint-change-deg"),  # nan: no compensation was ever too large, the check was off
 ]
 
 
