@@ -167,6 +167,8 @@ def cmd_collect(args: argparse.Namespace) -> int:
         raise CellCalError("a new session needs --plan PLAN (or --resume an existing one)")
     elif SessionStore.exists(args.session):
         raise CellCalError(f"{args.session} already holds a session; pass --resume or choose a new folder")
+    elif Path(args.session).exists() and not Path(args.session).is_dir():
+        raise CellCalError(f"{args.session}: --session is a file; a session is a folder: choose a new folder")
     plan = _load_plan(args.plan, args.robot) if args.plan else None
     config, safety = motion_config(cell, args), safety_for(cell, args)
     with runtime as rt:

@@ -339,3 +339,21 @@ def test_export_of_a_folder_without_a_session_says_so_for_export(tmp_path, capsy
     assert main(["export", "--session", str(tmp_path / "nosuch"), "--out", str(tmp_path / "r.csv")]) == 2
     assert "resume" not in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_collect_into_a_session_path_that_is_a_file_is_one_line_before_any_motion(tmp_path, capsys):
+    """A new session at a path holding a file: FileExistsError from mkdir, a traceback after the cell had opened (and
+    --dry-run passed it as 'every check')."""
+    import json
+
+    from app.cli import main
+    from tests.conftest import assert_bad_input
+
+    plan = tmp_path / "plan.json"
+    plan.write_text(json.dumps(first(2).to_dict()))
+    session = tmp_path / "s.csv"
+    session.write_text("q1,q2\n")
+    for extra in (["--dry-run"], []):
+        assert_bad_input(capsys, ["collect", "--robot", "R1", "--plan", str(plan), "--session", str(session),
+                                  "--sim", *SIM_FAST, "--no-progress", *extra], str(session), "is a file")
+        assert session.read_text() == "q1,q2\n"
