@@ -8,6 +8,7 @@ configuration q = 0 at the start). A plan with a joint beyond its limit is refus
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -60,11 +61,12 @@ def read_preview_plan(plan: Any) -> PreviewPlan:
     from app.cell.plan_file import read_plan
     from app.dual.plan_result import PlanResult
 
+    source = str(plan) if isinstance(plan, (str, Path)) else "<plan>"  # the file the messages name
     plan = read_plan(plan)
     if isinstance(plan, PlanResult):
         w = plan.waypoints
         if not w:
-            raise DataError("<plan>", None, None, "the plan has no waypoints")
+            raise DataError(source, None, None, "the plan has no waypoints")
         return PreviewPlan("dual", {"R1": np.array([x.q_R1 for x in w]), "R2": np.array([x.q_R2 for x in w])},
                            np.array([x.residual_mm for x in w]), np.array([x.residual_deg for x in w]),
                            np.array([x.converged for x in w]),
@@ -75,13 +77,13 @@ def read_preview_plan(plan: Any) -> PreviewPlan:
     notes = []
     for i, t in enumerate(plan.targets):
         if t.robot not in current:
-            raise DataError("<plan>", None, None, f"entry {i}: unknown robot {t.robot!r}; valid: R1, R2")
+            raise DataError(source, None, None, f"entry {i}: unknown robot {t.robot!r}; valid: R1, R2")
         current[t.robot] = np.asarray(t.q, dtype=float)
         for name in q:
             q[name].append(current[name].copy())
         notes.append(f"{t.robot} target {i} ({t.kind}, cluster {t.cluster})")
     if not notes:
-        raise DataError("<plan>", None, None, "the plan has no waypoints")
+        raise DataError(source, None, None, "the plan has no waypoints")
     nan = np.full(len(notes), np.nan)
     return PreviewPlan("collection", {k: np.array(v) for k, v in q.items()}, nan, nan.copy(), None, tuple(notes))
 

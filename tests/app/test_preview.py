@@ -82,6 +82,17 @@ def test_bad_plans_are_refused_and_nothing_is_written(cell, tmp_path, plan, mess
     assert not out.exists()
 
 
+@pytest.mark.parametrize("plan", [{**PLAN, "waypoints": []}, {**PLAN, "kind": "collection", "targets": []}],
+                         ids=["dual", "collection"])
+def test_an_empty_plan_file_is_named_in_the_message(cell, tmp_path, plan):
+    """The message said '<plan>: the plan has no waypoints' for a file given by its path."""
+    path = tmp_path / "empty_plan.json"
+    path.write_text(json.dumps(plan))
+    with pytest.raises(DataError, match=re.escape(f"{path}: the plan has no waypoints")):
+        preview(cell, path, html_out=tmp_path / "p.html")
+    assert not (tmp_path / "p.html").exists()
+
+
 def test_missing_plan_file(tmp_path):
     with pytest.raises(DataError, match="plan file not found"):
         plan_frames(tmp_path / "nope.json")
