@@ -16,7 +16,7 @@ import numpy as np
 
 from app.cell.plan_file import read_plan
 from app.dual.plan_result import PlanResult
-from calibration.errors import ModelError, UnsafeTarget
+from calibration.errors import DataError, ModelError, UnsafeTarget
 from calibration.files import atomic_write_text
 from cell_config.loader import CellSpec
 
@@ -111,12 +111,17 @@ def export_targets(plan: PlanResult | str | Path, cell: CellSpec, out: str | Pat
 
     Raises:
         UnsafeTarget: an unsolved waypoint (unless ``skip_failed``) or a joint beyond its limit; nothing is written.
-        DataError, ModelError: unreadable plan, unknown frame or file type.
+        DataError, ModelError: unreadable plan, nothing to export (no waypoints, or none solved with
+            ``skip_failed``), unknown frame or file type.
     """
+    source = "<plan>" if isinstance(plan, PlanResult) else str(plan)
     if not isinstance(plan, PlanResult):
         plan = read_plan(plan, "dual")
     if Path(out).suffix.lower() not in (".csv", ".json"):
         raise ModelError(f"unknown target file type {Path(out).suffix!r}; valid: .csv, .json")
     rows = export_rows(plan, cell, frame, skip_failed)
+    if not rows:  # a header-only target file, exit 0, read as a job with nothing to do
+        raise DataError(source, None, None, "no targets to export: the plan has no waypoints" if not plan.waypoints
+                        else f"no targets to export: none of its {len(plan.waypoints)} waypoints was solved")
     write_targets(rows, out, frame)
     return len(rows)

@@ -227,6 +227,20 @@ def test_export_and_preview_bad_inputs(tmp_path, planned, capsys):
     assert not out.exists() and not (tmp_path / "p.html").exists()
 
 
+def test_export_targets_of_a_plan_with_nothing_to_export_writes_nothing(tmp_path, planned, capsys):
+    """A plan with no waypoints (or, with --skip-failed, none solved) wrote a header-only target file, exit 0."""
+    plan = json.loads((planned / "plan.json").read_text())
+    empty, unsolved = tmp_path / "empty.json", tmp_path / "unsolved.json"
+    empty.write_text(json.dumps({**plan, "waypoints": []}))
+    unsolved.write_text(json.dumps({**plan, "waypoints": [{**w, "converged": False} for w in plan["waypoints"]]}))
+    out = tmp_path / "t.csv"
+    assert_bad_input(capsys, ["export-targets", "--plan", str(empty), "--out", str(out)],
+                     f"{empty}: no targets to export: the plan has no waypoints")
+    assert_bad_input(capsys, ["export-targets", "--plan", str(unsolved), "--out", str(out), "--skip-failed"],
+                     f"{unsolved}: no targets to export: none of its 12 waypoints was solved")
+    assert not out.exists()
+
+
 def test_validate_dual_sim_json_and_bad_inputs(tmp_path, capsys):
     pytest.importorskip("can")
     out = tmp_path / "v.json"
