@@ -131,7 +131,17 @@ def cmd_validate_dual(args: argparse.Namespace) -> int:
         if args.configurations < 2:
             raise ModelError(f"--configurations must be >= 2, got {args.configurations}")
         methods = tuple(m.strip() for m in args.methods.split(",") if m.strip()) if args.methods else None
-        result = run_sim_validation(cell, args.configurations, _model_sets(args.models, cell) or None, methods)
+        model_sets = _model_sets(args.models, cell) or None
+        if args.dry_run:  # it ran the whole simulated validation, fits included, as if --dry-run were not given
+            from app.dual.sim import SIM_METHODS, check_methods
+
+            sets = list(model_sets) if model_sets else list(methods or SIM_METHODS)
+            check_methods(() if model_sets else tuple(sets))
+            print(f"dry run, no motion: the simulated cell's {args.configurations} contact configurations, "
+                  f"{len(sets)} model set(s) to score ({', '.join(sets)}); nothing fitted or measured")
+            write_json(args.json, {"dry_run": True, "configurations": args.configurations, "model_sets": sets})
+            return 0
+        result = run_sim_validation(cell, args.configurations, model_sets, methods)
     else:
         result = _validate_real(args, cell)
         if result is None:

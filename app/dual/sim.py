@@ -108,6 +108,15 @@ def cpa_design(n_per_sweep: int = 15, span_deg: float = 120.0) -> tuple[np.ndarr
     return np.array(q), np.array(cluster)
 
 
+def check_methods(methods: tuple[str, ...]) -> None:
+    """Raise ModelError naming the first unknown method and the valid ones."""
+    from calibration.methods import METHODS
+
+    bad = [m for m in methods if m not in METHODS]
+    if bad:
+        raise ModelError(f"unknown model set {bad[0]!r}; valid: {', '.join(METHODS)}")
+
+
 def fit_model_sets(cell: CellSpec, twins: dict[str, Any], methods: tuple[str, ...] = SIM_METHODS,
                    options: SimCellOptions = VALIDATION_CELL, grid: TrainingGrid = TrainingGrid()
                    ) -> dict[str, dict[str, KinematicModel]]:
@@ -120,11 +129,8 @@ def fit_model_sets(cell: CellSpec, twins: dict[str, Any], methods: tuple[str, ..
         ModelError: an unknown method (the message names the valid ones).
     """
     from app.analysis.fitting import fitter_for
-    from calibration.methods import METHODS
 
-    bad = [m for m in methods if m not in METHODS]
-    if bad:
-        raise ModelError(f"unknown model set {bad[0]!r}; valid: {', '.join(METHODS)}")
+    check_methods(methods)
     out: dict[str, dict[str, KinematicModel]] = {m: {} for m in methods}
     for k, name in enumerate(ROBOTS):
         spec = cell.robot(name)

@@ -273,3 +273,16 @@ def test_validate_dual_help_names_the_default_model_sets_it_accepts():
     action = next(a for a in sub.choices["validate-dual"]._actions if "--methods" in a.option_strings)
     default = re.search(r"default ([a-z0-9+,]+)", action.help).group(1).split(",")
     assert tuple(default) == SIM_METHODS and set(default) <= set(METHODS), action.help
+
+
+def test_validate_dual_sim_dry_run_fits_and_measures_nothing(tmp_path, capsys):
+    """--dry-run with --sim ran the whole simulated validation (fits, contacts, the table) as if it were not given."""
+    out = tmp_path / "v.json"
+    assert main(["validate-dual", "--sim", "--dry-run", "--configurations", "3", "--methods", "nominal,fbf13",
+                 "--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert printed.startswith("dry run, no motion") and "2 model set(s) to score (nominal, fbf13)" in printed
+    assert "mean mm" not in printed
+    assert json.loads(out.read_text()) == {"dry_run": True, "configurations": 3, "model_sets": ["nominal", "fbf13"]}
+    assert_bad_input(capsys, ["validate-dual", "--sim", "--dry-run", "--methods", "nominal,magic"],
+                     "unknown model set 'magic'")
