@@ -198,7 +198,7 @@ def add_real_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     from app.cli.cell_options import add_motion_options
 
     p = add("mocap-bridge", cmd_mocap_bridge, "on the mocap PC: Motive (NatNet) -> Zenoh until stopped")
-    p.add_argument("--frame-timeout", type=float, default=2.0,
+    p.add_argument("--frame-timeout", type=positive_float, default=2.0,
                    help="seconds without a frame after which Motive counts as gone and is reconnected")
     p.add_argument("--json", help="write the counters at stop (frames published, connections) as JSON")
     p = add("router", cmd_router, "a Zenoh router (eclipse-zenoh's router mode) for cells with more than two machines")
