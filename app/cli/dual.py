@@ -22,6 +22,8 @@ def _model_pair(spec: str | None, where: str, cell: Any) -> dict[str, Any]:
         robot, sep, path = item.partition("=")
         if not sep or robot.strip() not in ("R1", "R2") or not path.strip():
             raise DataError(where, None, None, f"bad model entry {item!r}; expected R1=FILE,R2=FILE")
+        if robot.strip() in models:  # the last one was used without a word
+            raise DataError(where, None, None, f"{robot.strip()} is given twice ({spec!r}); give one model per robot")
         models[robot.strip()] = load_model_for(path.strip(), cell.robot(robot.strip()))
     return models
 

@@ -286,3 +286,19 @@ def test_validate_dual_sim_dry_run_fits_and_measures_nothing(tmp_path, capsys):
     assert json.loads(out.read_text()) == {"dry_run": True, "configurations": 3, "model_sets": ["nominal", "fbf13"]}
     assert_bad_input(capsys, ["validate-dual", "--sim", "--dry-run", "--methods", "nominal,magic"],
                      "unknown model set 'magic'")
+
+
+def test_a_robot_given_twice_in_models_is_refused(tmp_path, capsys):
+    """--models R1=a,R1=b planned (and validated) with b without a word; compensate-job already refuses it."""
+    from calibration.models import ConstantModel
+
+    cell = load_cell()
+    a, b = tmp_path / "a.yaml", tmp_path / "b.yaml"
+    for path in (a, b):
+        save_model(ConstantModel("R1", "nominal", cell.robot("R1").model()), path)
+    out = tmp_path / "plan.json"
+    assert_bad_input(capsys, ["plan-dual", "--models", f"R1={a},R1={b}", "--path", "sweep:2", "--out", str(out)],
+                     "--models", "R1 is given twice", "one model per robot")
+    assert_bad_input(capsys, ["validate-dual", "--sim", "--models", f"R1={a},R1={b}", "--json", str(out)],
+                     "R1 is given twice")
+    assert not out.exists()
