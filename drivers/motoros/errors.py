@@ -22,7 +22,7 @@ class NonFiniteFeedback(DriverError):
     def __init__(self, device: str, group: int, q: np.ndarray) -> None:
         self.group = group
         self.q = np.array(q, dtype=float)
-        bad = [i + 1 for i in np.flatnonzero(~np.isfinite(self.q))]
+        bad = [int(i) + 1 for i in np.flatnonzero(~np.isfinite(self.q))]  # ints: np.int64(1) in the message
         super().__init__(device, f"joint feedback of group {group} is not finite (joints {bad}: "
                                  f"{self.q.tolist()}); refusing to move")
 

@@ -456,6 +456,13 @@ def test_non_finite_feedback_never_reaches_a_trajectory(fake, arms, value) -> No
     np.testing.assert_allclose(r1.read_joints().q, Q0[0], atol=1e-6)
 
 
+def test_non_finite_feedback_names_the_joints_as_plain_numbers() -> None:
+    """The message read 'joints [np.int64(1), np.int64(2), ...]' under numpy 2 (new-user run: register with the
+    fake controller's SIGUSR2)."""
+    err = NonFiniteFeedback("motoros@127.0.0.1:50240/R1", 0, np.array([0.1, np.nan, 0.2, 0.3, np.inf, 0.4]))
+    assert "(joints [2, 5]: [0.1, nan, 0.2, 0.3, inf, 0.4])" in str(err), str(err)
+
+
 def test_a_restarted_controller_on_the_same_ports_is_reconnected() -> None:
     first = FakeMotorosController(max_speed_rad_s=SPEED, initial_q=Q0).start()
     ports = (first.motion_port, first.state_port)
