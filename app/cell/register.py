@@ -81,7 +81,8 @@ def plan_registration(cell: Any, robot: str, q_center: np.ndarray, safety: Any, 
 
 def measure_registration(rt: Any, safety: Any, robot: str, q_plan: np.ndarray, config: Any, *,
                          progress: bool = True, clock: Callable[[], float] = time.monotonic) -> RegistrationRun:
-    """Visit every pose, measure the marker in the mocap world, solve; the arm returns to its start pose.
+    """Visit every pose, measure the marker in the mocap world, solve; the arm returns to its start pose (after a
+    fault or Ctrl-C every arm is stopped instead and nothing moves again).
 
     Args:
         rt: a connected cell runtime (RealCell(registered=False) or SimCell) with ``drivers``, ``others``,
@@ -95,7 +96,7 @@ def measure_registration(rt: Any, safety: Any, robot: str, q_plan: np.ndarray, c
     Raises:
         RegistrationFailed: fewer than 6 poses measured, or the solver did not converge.
     """
-    from app.cell.motion import move_safely
+    from app.cell.motion import move_safely, stop_all
     from calibration.registration import RegistrationProblem
 
     driver, others = rt.drivers[robot], rt.others(robot)
@@ -121,8 +122,10 @@ def measure_registration(rt: Any, safety: Any, robot: str, q_plan: np.ndarray, c
             qs.append(driver.read_joints().q)
             Rs.append(so3.quat_to_R(quat))
             ps.append(p)
-    finally:
-        move_safely(driver, q_home, safety, others, config.speed_fraction, config.settle_timeout_s)
+    except BaseException:  # an alarm, a lost controller, Ctrl-C: stop every arm, never start another move
+        stop_all({robot: driver, **others})
+        raise
+    move_safely(driver, q_home, safety, others, config.speed_fraction, config.settle_timeout_s)
     if len(qs) < 6:
         raise RegistrationFailed(f"{robot}: only {len(qs)} of {len(q_plan)} registration poses measured "
                                  f"({'; '.join(r for _, r in skipped[:3])})")
