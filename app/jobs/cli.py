@@ -16,9 +16,11 @@ def load_job_models(specs: list[str], cell: Any) -> dict[str, Any]:
     """``FILE`` (the robot the model was fitted for) or ``ROBOT=FILE`` per entry -> {robot: model}.
 
     Raises:
-        DataError: unreadable model file, unknown robot, a model fitted for another robot, or a robot twice.
+        DataError: unreadable model file, unknown robot, a model fitted for another robot or holding another robot
+            type's geometry, or a robot twice.
     """
     from calibration.errors import DataError, ModelError
+    from calibration.model_checks import check_model_for
     from calibration.models import load_model
 
     models: dict[str, Any] = {}
@@ -38,6 +40,7 @@ def load_job_models(specs: list[str], cell: Any) -> dict[str, Any]:
             raise DataError(path, None, None, f"model fitted for {model.robot}, given for {robot}")
         if robot not in cell.robots:
             raise ModelError(f"{path}: model of unknown robot {robot!r}; valid: {', '.join(cell.robots)}")
+        check_model_for(model, robot, cell.robot(robot).model(), path)  # another robot type's geometry
         if robot in models:
             raise DataError(path, None, None, f"a second model for {robot}; give one --model per robot")
         models[robot] = model

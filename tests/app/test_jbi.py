@@ -310,6 +310,18 @@ def test_bad_model_arguments_exit_2(cell, tmp_path, capsys):
     assert not out.exists()
 
 
+def test_a_model_with_another_robot_types_geometry_is_refused_naming_the_file(cell, tmp_path, capsys):
+    """A file recording R1 but holding the MA1440's geometry was taken: the job's first point was then refused as
+    'cannot reach this pose within its joint limits', and a closer wrong geometry would have been written."""
+    job, out = tmp_path / "IN.JBI", tmp_path / "OUT.JBI"
+    job.write_bytes(single_job(cell))
+    wrong = tmp_path / "r1_of_an_ma1440.yaml"
+    save_model(ConstantModel("R1", "nls1", cell.robot("R2").model()), wrong)
+    assert_bad_input(capsys, ["compensate-job", "--model", str(wrong), "--job", str(job), "--out", str(out)],
+                     str(wrong), "geometry: not R1's geometry")
+    assert not out.exists()
+
+
 # --- the command ------------------------------------------------------------------------------------------------
 
 def test_cli_writes_the_compensated_job_and_its_json(cell, tmp_path, capsys):
