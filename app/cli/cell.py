@@ -206,6 +206,11 @@ def _dry_run(args: argparse.Namespace, rt: Any, safety: Any, plan: Any, config: 
     if plan is None:
         with SessionStore(args.session) as store:
             plan, done = store.plan(), store.done()
+        if len(done) >= len(plan.targets):  # summarize_plan said 'plan: expected targets of one robot, got no target'
+            print(f"dry run, no motion: every one of the {len(plan.targets)} targets of {args.session} is measured "
+                  "or skipped; nothing left to collect")
+            write_json(args.json, {"robot": args.robot, "dry_run": True, "targets": 0})
+            return 0
         plan = Plan(tuple(t for i, t in enumerate(plan.targets) if i not in done), plan.params)
     driver = rt.drivers[args.robot]
     others = live_poses(rt.others(args.robot))

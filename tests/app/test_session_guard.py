@@ -357,3 +357,18 @@ def test_collect_into_a_session_path_that_is_a_file_is_one_line_before_any_motio
         assert_bad_input(capsys, ["collect", "--robot", "R1", "--plan", str(plan), "--session", str(session),
                                   "--sim", *SIM_FAST, "--no-progress", *extra], str(session), "is a file")
         assert session.read_text() == "q1,q2\n"
+
+
+def test_dry_run_resume_of_a_finished_session_says_nothing_is_left(tmp_path, capsys):
+    """It said 'summarize_plan: plan: expected targets of one robot, got no target', exit 2."""
+    from app.cli import main
+
+    session = tmp_path / "s"
+    _, driver, mocap, _, safety = make_cell()
+    with driver, mocap:
+        run_session(session, driver, mocap, safety, body_id=1, plan=first(2), others=OTHERS, config=FAST,
+                    progress=False)
+    assert main(["collect", "--robot", "R1", "--session", str(session), "--resume", "--dry-run", "--sim", *SIM_FAST,
+                 "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert f"every one of the 2 targets of {session} is measured or skipped; nothing left to collect" in out
