@@ -143,7 +143,12 @@ def cmd_validate_dual(args: argparse.Namespace) -> int:
                   f"{len(sets)} model set(s) to score ({', '.join(sets)}); nothing fitted or measured")
             write_json(args.json, {"dry_run": True, "configurations": args.configurations, "model_sets": sets})
             return 0
-        result = run_sim_validation(cell, args.configurations, model_sets, methods)
+        from dataclasses import replace
+
+        from app.dual.sim import VALIDATION_CELL
+
+        options = VALIDATION_CELL if args.seed is None else replace(VALIDATION_CELL, seed=args.seed)
+        result = run_sim_validation(cell, args.configurations, model_sets, methods, options)
     else:
         result = _validate_real(args, cell)
         if result is None:
@@ -236,6 +241,9 @@ def add_dual_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                                      "physics-informed model)")  # the default: app.dual.sim.SIM_METHODS
     p.add_argument("--json", help="write the statistics as JSON")
     add_motion_options(p)
+    seed = next(a for a in p._actions if a.dest == "seed")  # --sim's cell is app.dual.sim.VALIDATION_CELL
+    seed.default, seed.help = None, ("seed of the simulated cell (its planted errors and calibration data); --sim "
+                                     "only (default 7, the validation cell's)")
     p = add("preview", cmd_preview, "meshcat preview of a plan (static HTML page or live viewer)")
     p.add_argument("--plan", required=True, help="plan file (dual or collection)")
     p.add_argument("--html", help="write a self-contained HTML page")

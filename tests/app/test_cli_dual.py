@@ -302,3 +302,25 @@ def test_a_robot_given_twice_in_models_is_refused(tmp_path, capsys):
     assert_bad_input(capsys, ["validate-dual", "--sim", "--models", f"R1={a},R1={b}", "--json", str(out)],
                      "R1 is given twice")
     assert not out.exists()
+
+
+def test_validate_dual_sim_uses_its_seed_and_its_help_names_the_default(tmp_path):
+    """--seed (help: 'seed of the simulated cell; --sim only (default 0)') was ignored: the validation cell is
+    seeded 7 whatever was given."""
+    import argparse
+    import re
+
+    from app.cli.commands import build_parser
+    from app.dual.sim import VALIDATION_CELL
+
+    pytest.importorskip("can")
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    action = next(a for a in sub.choices["validate-dual"]._actions if "--seed" in a.option_strings)
+    assert int(re.search(r"default (\d+)", action.help).group(1)) == VALIDATION_CELL.seed, action.help
+    means = {}
+    for seed in (None, str(VALIDATION_CELL.seed), "3"):
+        out = tmp_path / f"v{seed}.json"
+        argv = ["validate-dual", "--sim", "--configurations", "3", "--methods", "nominal", "--json", str(out)]
+        assert main(argv + (["--seed", seed] if seed else [])) == 0
+        means[seed] = json.loads(out.read_text())["models"]["nominal"]["mean_mm"]
+    assert means[None] == means[str(VALIDATION_CELL.seed)] != means["3"]
