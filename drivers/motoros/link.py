@@ -16,15 +16,26 @@ controller, so R1 and R2 on one controller cannot each open their own: they shar
 * Trajectory mode is a controller-wide state: the link remembers that a START_TRAJ_MODE succeeded and sends
   STOP_TRAJ_MODE when its last user closes it (as motoman_driver does on shutdown), so the controller's
   INIT_ROS job ends and INFORM jobs can run again.
+* One process per controller: MotoROS hands its single motion slot to whichever client connected last (an idle
+  connection is closed for the newcomer), so two processes on one controller move its arms in turn, each
+  reconnecting over the other. The first user of a link claims the controller on this machine (an exclusive
+  ``flock`` on a file per controller address in :func:`lock_dir`, freed by the kernel when the process ends, even
+  by a crash), and a second process's link is refused before it opens a connection, naming the holder.
 """
 
 from __future__ import annotations
 
+import fcntl
 import logging
+import os
+import re
 import select
 import socket
+import sys
+import tempfile
 import threading
 import time
+from pathlib import Path
 
 from drivers.errors import DriverDisconnected, DriverError, DriverTimeout
 from drivers.motoros.codec import Command, JointFeedback, MotionCtrl, MotionReply, Result, RobotStatusMsg, decode
@@ -36,6 +47,39 @@ log = logging.getLogger("cellcal.drivers")
 
 MOTION_PORT = 50240
 STATE_PORT = 50241
+
+
+def lock_dir() -> Path:
+    """Folder of the controller claims: ``$CELLCAL_LOCK_DIR``, else ``cellcal-locks`` in the temporary folder."""
+    return Path(os.environ.get("CELLCAL_LOCK_DIR") or Path(tempfile.gettempdir()) / "cellcal-locks")
+
+
+def claim_controller(host: str, port: int, device: str) -> int:
+    """An exclusive claim on the controller at ``host:port`` for this process: the open file descriptor holding the
+    lock (close it to release; the kernel releases it when the process ends).
+
+    Raises:
+        DriverError: another process holds the claim (naming its pid and command line), or the claim file cannot
+            be opened.
+    """
+    folder = lock_dir()
+    path = folder / f"motoros-{re.sub(r'[^A-Za-z0-9.-]', '_', host)}-{port}.lock"
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+    except OSError as e:
+        raise DriverError(device, f"cannot open the controller claim {path}: {e.strerror or e}") from e
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        holder = os.pread(fd, 4096, 0).decode(errors="replace").strip() or "unknown"
+        os.close(fd)
+        raise DriverError(device, f"another process holds this controller ({holder}); MotoROS serves one motion "
+                                  "client and hands the arms to whichever connected last, so stop that process "
+                                  f"first (claim file {path})") from None
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, f"pid {os.getpid()}: {' '.join(sys.argv)}".encode(), 0)
+    return fd
 
 
 def _peer_closed(sock: socket.socket) -> bool:
@@ -88,6 +132,7 @@ class MotorosLink:
         self.max_backoff_s = max_backoff_s
         self.stale_after_s = stale_after_s
         self._traj_mode_group: int | None = None  # group whose START_TRAJ_MODE succeeded, until STOP_TRAJ_MODE
+        self._claim: int | None = None  # the file descriptor of this process's claim on the controller
         self._users = 0
         self._users_lock = threading.Lock()
         self._motion_lock = threading.Lock()
@@ -103,6 +148,11 @@ class MotorosLink:
             self._users += 1
             if self._users > 1:
                 return
+            try:
+                self._claim = claim_controller(self.host, self.motion_port, self.motion_device)
+            except DriverError:
+                self._users = 0
+                raise
             self._stop.clear()
             self._state.start()
             try:
@@ -150,6 +200,9 @@ class MotorosLink:
         with self._motion_lock:
             self._drop_motion()
         self._state.join()
+        if self._claim is not None:  # closing the descriptor frees the claim
+            os.close(self._claim)
+            self._claim = None
 
     # -- state -----------------------------------------------------------------------------------
     @property

@@ -267,24 +267,63 @@ def test_garbage_on_the_state_stream_is_survived(fake, arms, caplog) -> None:
     np.testing.assert_allclose(r1.read_joints().q, Q0[0], atol=1e-6)
 
 
-def test_a_second_link_gets_no_motion_connection_while_moving(fake, arms) -> None:
+def test_a_second_link_gets_no_motion_connection_while_moving(fake, arms, monkeypatch, tmp_path) -> None:
     """MotionServer.c: a new motion connection is closed at once while a queue holds motion."""
     r1, _ = arms
     r1.move_to(Q0[0] + 1.0, 0.5)
+    monkeypatch.setenv("CELLCAL_LOCK_DIR", str(tmp_path / "elsewhere"))  # a client on another machine
     with MotorosDriver(_link(fake), 0, SPEED, name="R1b") as other:
         with pytest.raises(DriverDisconnected, match="peer closed|reset|send failed"):
             other.stop()
     r1.stop()
 
 
-def test_a_second_link_replaces_an_idle_motion_connection(fake, arms) -> None:
+def test_a_second_link_replaces_an_idle_motion_connection(fake, arms, monkeypatch, tmp_path) -> None:
     """MotionServer.c: an idle motion connection is closed for the new one; the old link reconnects later."""
     r1, _ = arms
+    monkeypatch.setenv("CELLCAL_LOCK_DIR", str(tmp_path / "elsewhere"))  # a client on another machine
     with MotorosDriver(_link(fake), 0, SPEED, name="R1b") as other:
         other.move_to(Q0[0] + 0.1, 1.0)
         other.wait_settled(2.0)
     r1.move_to(Q0[0], 1.0)  # its connection was closed by the controller: replaced before sending
     np.testing.assert_allclose(r1.wait_settled(2.0).q, Q0[0], atol=1e-4)
+
+
+def test_a_second_process_on_one_controller_is_refused_before_it_connects(fake, monkeypatch, tmp_path) -> None:
+    """MotoROS gives its one motion slot to whichever client connected last, so two collectors on one machine moved
+    the arms in turn, each reconnecting over the other (new-user run). The first link claims the controller; a
+    second is refused naming the holder and opens nothing; the kernel frees a claim when its process dies."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    from drivers.errors import DriverError
+
+    monkeypatch.setenv("CELLCAL_LOCK_DIR", str(tmp_path))
+    first, second = _link(fake), _link(fake)
+    first.connect()
+    try:
+        with pytest.raises(DriverError, match=rf"another process holds this controller \(pid {os.getpid()}: "):
+            second.connect()
+        assert second.state_connections == 0  # refused before any connection
+    finally:
+        first.close()
+    second.connect()  # the claim went with the first link
+    second.close()
+    holder = subprocess.Popen([sys.executable, "-c", "import sys; from drivers.motoros.link import claim_controller; "
+                               f"claim_controller('127.0.0.1', {fake.motion_port}, 'x'); print('held', flush=True); "
+                               "sys.stdin.read()"], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+                              env={**os.environ, "CELLCAL_LOCK_DIR": str(tmp_path)})
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with pytest.raises(DriverError, match=rf"\(pid {holder.pid}: -c\)"):
+            second.connect()
+    finally:
+        holder.send_signal(signal.SIGKILL)  # a crash: no cleanup runs
+        holder.wait(5)
+    second.connect()
+    second.close()
 
 
 # -- behaviour taken from MotoPlus/MotionServer.c and Controller.c ------------------------------------------
