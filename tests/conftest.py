@@ -69,6 +69,16 @@ def measure(truth_fk, q: np.ndarray, noise_mm: float, noise_deg: float, seed: in
     return Recording(q, p, so3.R_to_quat(R), extra, "synthetic")
 
 
+@pytest.fixture(scope="session", autouse=True)
+def controller_claims(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The MotoROS links' controller claims (drivers.motoros.link.lock_dir) in a folder of this test session, for
+    it and the commands it starts: the fake controllers' ports are new every test, and their claim files would
+    pile up in the machine's /tmp/cellcal-locks."""
+    folder = tmp_path_factory.mktemp("controller-claims")
+    os.environ["CELLCAL_LOCK_DIR"] = str(folder)
+    return folder
+
+
 @pytest.fixture(scope="session")
 def r1_nominal():
     return load_cell().robot("R1").model()

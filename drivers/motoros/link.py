@@ -65,8 +65,12 @@ def claim_controller(host: str, port: int, device: str) -> int:
     folder = lock_dir()
     path = folder / f"motoros-{re.sub(r'[^A-Za-z0-9.-]', '_', host)}-{port}.lock"
     try:
-        folder.mkdir(parents=True, exist_ok=True)
+        if not folder.is_dir():
+            folder.mkdir(parents=True, exist_ok=True)
+            os.chmod(folder, 0o1777)  # shared by every user of the PC, like /tmp (the umask would narrow it)
         fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+        if os.fstat(fd).st_uid == os.getuid():
+            os.fchmod(fd, 0o666)  # another user's process must be able to claim the controller after this one
     except OSError as e:
         raise DriverError(device, f"cannot open the controller claim {path}: {e.strerror or e}") from e
     try:
