@@ -105,9 +105,13 @@ class Decision:
         if self.current is None:
             return f"{self.robot}: no model in service; installed {new} on {self.validation_samples} validation poses"
         old = f"model in service {self.current_rms_mm:.4f} mm RMS"
+        # the difference too: both rounded to 0.1 um read 'replaced: 0.1812 < 0.1812' (new-user run)
+        by = f"{abs(self.current_rms_mm - self.candidate_rms_mm):.2g} mm"
         if self.replaced:
-            return f"{self.robot}: replaced: {new} < {old} on {self.validation_samples} validation poses"
-        return f"{self.robot}: kept the model in service: {new} >= {old} on {self.validation_samples} validation poses"
+            return (f"{self.robot}: replaced: {new} < {old} (lower by {by}) on {self.validation_samples} validation "
+                    "poses")
+        return (f"{self.robot}: kept the model in service: {new} >= {old} (higher by {by}) on "
+                f"{self.validation_samples} validation poses")
 
 
 def _stamp(folder: Path) -> Path:

@@ -48,6 +48,17 @@ def test_better_model_replaces_and_the_old_one_is_archived(tmp_path, arm):
     assert archived == [d.archived] and load_model(archived[0]).method == "nominal"
     j = d.to_json()
     assert j["decision"] == "replaced" and j["current"]["position_rms_mm"] > j["candidate"]["position_rms_mm"]
+    assert f"(lower by {d.current_rms_mm - d.candidate_rms_mm:.2g} mm)" in d.summary()
+
+
+def test_a_decision_by_less_than_its_rounding_says_by_how_much(tmp_path, arm):
+    """Both figures printed to 0.1 um read 'replaced: candidate ... 0.1812 < model in service 0.1812' (new-user run)."""
+    from dataclasses import replace
+
+    _, validation, good, _ = arm
+    d = decide_and_install(tmp_path, good, validation)
+    same = replace(d, current={"position_mm": {"rms": d.candidate_rms_mm + 3e-6}})
+    assert "< model in service" in same.summary() and "(lower by 3e-06 mm)" in same.summary()
 
 
 def test_worse_model_is_kept_out(tmp_path, arm):
