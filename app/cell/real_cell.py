@@ -86,6 +86,23 @@ class BaseFrameMocap(MocapSource):
             self._last_frame = time.monotonic()
         return [self._to_base(f) for f in frames]
 
+    def wait_first_frame(self, timeout_s: float, what: str) -> None:
+        """Return once a frame has arrived (dropped: a measurement window starts after a move), or raise.
+
+        Raises:
+            DriverDisconnected: no frame of ``what`` within ``timeout_s`` [s].
+        """
+        deadline = time.monotonic() + timeout_s
+        while True:
+            left = deadline - time.monotonic()
+            if self.inner.read(min(0.5, max(left, 0.0))):
+                self._last_frame = time.monotonic()
+                return
+            if left <= 0:
+                raise DriverDisconnected("mocap", f"no frames of {what} in {timeout_s:g} s, before any motion: start "
+                                                  "`cellcal mocap-bridge` on the mocap PC and check that Motive "
+                                                  "streams that rigid body")
+
     def _wait_for_stream(self) -> list[RigidBodyFrame]:
         self.waits += 1
         log.warning("mocap stream silent for %.1f s; waiting up to %.0f s for the bridge to come back",
@@ -125,13 +142,16 @@ class RealCell:
         registered: True to require a registration of those arms and read their frames in the base frame;
             False to read mocap-world frames (for ``cellcal register``).
         stream_wait_s: how long a read waits for a stopped mocap stream [s].
+        first_frame_s: how long :meth:`open` waits for the first frame of each arm's rigid body [s]: without the
+            mocap an arm would reach its first target and wait ``stream_wait_s`` there before failing.
         reset_alarms: let START_TRAJ_MODE reset a standing controller alarm (MotoROS does); off by default, so a
             standing alarm refuses motion until the operator clears it or asks for the reset (``--reset-alarms``).
     """
 
     def __init__(self, cell: Any, robots: Sequence[str] | None = None, *, registered: bool = True,
-                 stream_wait_s: float = 30.0, reset_alarms: bool = False) -> None:
+                 stream_wait_s: float = 30.0, first_frame_s: float = 5.0, reset_alarms: bool = False) -> None:
         self.cell = cell
+        self.first_frame_s = first_frame_s
         self.reset_alarms = reset_alarms
         self.robots = tuple(cell.robots if robots is None else robots)
         self.registered = registered
@@ -176,7 +196,8 @@ class RealCell:
         return park_q(robot)
 
     def open(self) -> "RealCell":
-        """Connect the controller and the mocap subscription; on failure whatever was opened is closed."""
+        """Connect the controller and the mocap subscription and wait for each arm's first mocap frame; on failure
+        whatever was opened is closed (nothing has moved)."""
         from drivers.bus import ZenohMocapSource, open_session
         from drivers.motoros import MotorosDriver, MotorosLink
 
@@ -201,6 +222,9 @@ class RealCell:
                 source = BaseFrameMocap(sub, T, self.body_ids[name], stream_wait_s=self.stream_wait_s)
                 source.connect()
                 self._mocap[name] = source
+            for name, source in self._mocap.items():  # the mocap streams before anything moves
+                source.wait_first_frame(self.first_frame_s, f"{name}'s rigid body "
+                                                            f"{self.cell.mocap.rigid_bodies[name]!r}")
             log.info("real cell up: controller %s:%d, arms %s, mocap over zenoh", c.host, c.motion_port,
                      ", ".join(self.cell.robots))
         except BaseException:
