@@ -21,6 +21,8 @@ from typing import TYPE_CHECKING, Any, Literal
 from calibration.errors import DataError
 
 if TYPE_CHECKING:
+    import numpy as np
+
     from app.dual.plan_result import PlanResult
     from app.cell.planning import Plan
 
@@ -75,6 +77,19 @@ def plan_from_data(d: Any, source: str | Path = "<plan>", kind: PlanKind | None 
     if kind is not None and found != kind:
         raise DataError(source, None, "kind", f"this is a {found} plan; expected {_LAYOUTS[kind]}")
     return PlanResult.from_dict(d, source) if found == "dual" else Plan.from_dict(d, str(source))
+
+
+def json_numbers(value: Any) -> "np.ndarray | None":
+    """A (nested) list of JSON numbers as a float array, or None when any entry is not a number: a string ("0.1")
+    or a boolean (true, which numpy reads as 1 rad) in a plan file is a mistake, not an angle."""
+    import numpy as np
+
+    def ok(v: Any) -> bool:
+        if isinstance(v, list):
+            return all(ok(x) for x in v)
+        return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+    return np.asarray(value, dtype=float) if isinstance(value, list) and ok(value) else None
 
 
 def read_plan(source: "str | Path | dict[str, Any] | Plan | PlanResult", kind: PlanKind | None = None

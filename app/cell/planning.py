@@ -21,7 +21,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from app.cell.plan_file import PLAN_SCHEMA as SCHEMA
+from app.cell.plan_file import PLAN_SCHEMA as SCHEMA, json_numbers
 from calibration.errors import ConfigError, DataError, UnsafeTarget
 from calibration.files import atomic_write_text
 
@@ -96,15 +96,12 @@ class Plan:
             where = f"targets[{i}]"
             if not isinstance(t, dict) or not {"robot", "q_rad", "cluster", "kind"} <= set(t):
                 raise DataError(source, None, where, "expected robot, q_rad, cluster and kind")
-            try:
-                q = np.asarray(t["q_rad"], dtype=float)
-            except (TypeError, ValueError):
-                raise DataError(source, None, where + ".q_rad", "expected 6 numbers") from None
-            if q.shape != (6,) or not np.all(np.isfinite(q)):
+            q = json_numbers(t["q_rad"])
+            if q is None or q.shape != (6,) or not np.all(np.isfinite(q)):
                 raise DataError(source, None, where + ".q_rad", f"expected 6 finite numbers, got {t['q_rad']!r}")
             if t["kind"] not in KINDS:
                 raise DataError(source, None, where + ".kind", f"expected one of {', '.join(KINDS)}, got {t['kind']!r}")
-            if not isinstance(t["cluster"], int) or not isinstance(t["robot"], str):
+            if not isinstance(t["cluster"], int) or isinstance(t["cluster"], bool) or not isinstance(t["robot"], str):
                 raise DataError(source, None, where, "expected an integer cluster and a robot name")
             targets.append(Target(t["robot"], q, t["cluster"], t["kind"]))
         return Plan(tuple(targets), dict(d.get("params") or {}))

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from app.cell.plan_file import PLAN_SCHEMA
+from app.cell.plan_file import PLAN_SCHEMA, json_numbers
 from calibration.errors import DataError
 from calibration.files import atomic_write_text
 
@@ -103,10 +103,7 @@ class PlanResult:
             if not isinstance(w, dict) or not {"R1", "R2"} <= set(w):
                 raise DataError(source, None, None, f"waypoint {i}: expected R1 and R2 with 6 finite numbers each "
                                                     "[rad]; it names no robot pair")
-            try:
-                q1, q2 = np.asarray(w["R1"], dtype=float), np.asarray(w["R2"], dtype=float)
-            except (TypeError, ValueError):
-                q1 = q2 = np.full(0, np.nan)
+            q1, q2 = (np.full(0, np.nan) if v is None else v for v in (json_numbers(w["R1"]), json_numbers(w["R2"])))
             if q1.shape != (6,) or q2.shape != (6,) or not np.all(np.isfinite(np.r_[q1, q2])):
                 raise DataError(source, None, None, f"waypoint {i}: expected R1 and R2 with 6 finite numbers each [rad]")
             ok = w.get("converged") is True
@@ -117,10 +114,8 @@ class PlanResult:
                                       w.get("reason", "") if ok else (w.get("reason") or "not marked converged")))
         if d.get("T_wp_gun") is None:
             return cls(tuple(out), None, dict(d.get("models", {})))
-        try:
-            T = np.asarray(d["T_wp_gun"], dtype=float)
-        except (TypeError, ValueError):
-            T = np.full(0, np.nan)
+        T = json_numbers(d["T_wp_gun"])
+        T = np.full(0, np.nan) if T is None else T
         if T.shape != (4, 4) or not np.all(np.isfinite(T)) or not np.allclose(T[3], [0, 0, 0, 1]):
             raise DataError(source, None, "T_wp_gun", "expected a 4x4 homogeneous transform of finite numbers [mm]")
         return cls(tuple(out), T, dict(d.get("models", {})))

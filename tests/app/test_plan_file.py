@@ -69,3 +69,24 @@ def test_a_hand_written_plan_without_a_relative_pose_has_none_not_the_identity()
     d.pop("T_wp_gun")
     plan = read_plan(d)
     assert plan.T_wp_gun is None and plan.to_dict()["T_wp_gun"] is None
+
+
+@pytest.mark.parametrize("bad", [True, "0.1", None])
+def test_an_angle_that_is_not_a_json_number_is_refused_in_either_kind(bad):
+    """A collection plan took "0.1" as 0.1 rad and true as 1 rad (new-user run): a plan file's angle is a number."""
+    d = _collection().to_dict()
+    d["targets"][0]["q_rad"][2] = bad
+    with pytest.raises(DataError, match=r"targets\[0\]\.q_rad.*expected 6 finite numbers"):
+        read_plan(d)
+    d = _dual().to_dict()
+    d["waypoints"][1]["R2"][0] = bad
+    with pytest.raises(DataError, match="waypoint 1: expected R1 and R2 with 6 finite numbers"):
+        read_plan(d)
+    d = _dual().to_dict()
+    d["T_wp_gun"][0][0] = bad
+    with pytest.raises(DataError, match="T_wp_gun"):
+        read_plan(d)
+    d = _collection().to_dict()
+    d["targets"][0]["cluster"] = True
+    with pytest.raises(DataError, match="expected an integer cluster"):
+        read_plan(d)
