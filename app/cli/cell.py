@@ -230,7 +230,10 @@ def cmd_export(args: argparse.Namespace) -> int:
     from app.cell.planning import KINDS
 
     kinds = None
-    if args.kinds:
+    if Path(args.out).suffix.lower() != ".csv":  # export-targets refuses an unknown suffix too
+        raise CellCalError(f"--out {args.out}: a recording is a CSV file (.csv); got {Path(args.out).suffix or 'no'} "
+                           "suffix")
+    if args.kinds is not None:  # --kinds "" exported every kind
         kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
         bad = [k for k in kinds if k not in KINDS]
         if bad or not kinds:

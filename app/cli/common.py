@@ -140,6 +140,22 @@ def positive_float(text: str) -> float:
     return value
 
 
+def non_negative_float(text: str) -> float:
+    """argparse type of a delay, a noise or a spread that may be zero: a finite number >= 0 (``nan`` passes every
+    test, so a delay given as nan was no delay at all).
+
+    Raises:
+        argparse.ArgumentTypeError: naming the value (the parser's one line names the option).
+    """
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text}")
+    return value
+
+
 def add_cell_option(p: argparse.ArgumentParser) -> None:
     """``--cell`` after the command name, as before it (``cellcal --cell C fit ...`` and ``cellcal fit --cell C``)."""
     p.add_argument("--cell", dest=CELL_AFTER, metavar="CELL", help=f"{CELL_HELP}; also accepted before the command")

@@ -15,7 +15,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from app.cli.common import cell_spec, non_negative_int, positive_float, show_progress, write_json
+from app.cli.common import cell_spec, non_negative_float, non_negative_int, positive_float, show_progress, \
+    write_json
 from calibration.errors import CellCalError
 
 log = logging.getLogger("cellcal.app")
@@ -205,18 +206,18 @@ def add_real_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--json", help="write the router's id and endpoints at stop as JSON")
     p = add("fake-controller", cmd_fake_controller,
             "rehearsal: a fake MotoROS controller serving every motion group of the cell with simulated arms")
-    p.add_argument("--servo-on-delay", type=float, default=1.0,
+    p.add_argument("--servo-on-delay", type=non_negative_float, default=1.0,
                    help="seconds START_TRAJ_MODE takes to turn the servos on (a real controller: up to ~10)")
     p.add_argument("--json", help="write the trajectory points received, at stop, as JSON")
     p = add("fake-motive", cmd_fake_motive,
             "rehearsal: a fake Motive streaming the fake controller's arms at 240 Hz in a hidden world frame")
     p.add_argument("--seed", type=non_negative_int, default=0, help="seed of the hidden world frame, markers and twins")
-    p.add_argument("--rate", type=float, default=240.0, help="frame rate [Hz]")
-    p.add_argument("--noise-pos-mm", type=float, default=0.02, help="per-frame position noise per axis [mm]")
-    p.add_argument("--noise-rot-deg", type=float, default=0.005, help="per-frame orientation noise per axis [deg]")
-    p.add_argument("--origin-std-mm", type=float, default=0.5, help="twins' planted joint-origin errors [mm]")
-    p.add_argument("--tilt-std-deg", type=float, default=0.05, help="twins' planted joint-axis tilts [deg]")
-    p.add_argument("--compliance-mm", type=float, default=1.0, help="twins' gravity compliance, RMS [mm]")
+    p.add_argument("--rate", type=positive_float, default=240.0, help="frame rate [Hz]")
+    p.add_argument("--noise-pos-mm", type=non_negative_float, default=0.02, help="per-frame position noise per axis [mm]")
+    p.add_argument("--noise-rot-deg", type=non_negative_float, default=0.005, help="per-frame orientation noise per axis [deg]")
+    p.add_argument("--origin-std-mm", type=non_negative_float, default=0.5, help="twins' planted joint-origin errors [mm]")
+    p.add_argument("--tilt-std-deg", type=non_negative_float, default=0.05, help="twins' planted joint-axis tilts [deg]")
+    p.add_argument("--compliance-mm", type=non_negative_float, default=1.0, help="twins' gravity compliance, RMS [mm]")
     p.add_argument("--json", help="write the frames sent and the body ids, at stop, as JSON")
     p = add("register", cmd_register, "register the mocap world to an arm's base and its marker to the flange")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")

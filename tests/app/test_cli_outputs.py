@@ -121,3 +121,13 @@ def test_an_output_onto_a_file_a_given_folder_holds_is_refused_and_nothing_chang
     assert (session / "session.sqlite").read_bytes() == b"the session"
     assert (models / "current.yaml").read_text() == "the model in service"
     assert sorted(p.name for p in tmp_path.rglob("*")) == ["current.yaml", "models", "s", "session.sqlite"]
+
+
+def test_export_writes_a_csv_and_an_empty_kinds_list_is_refused(tmp_path, capsys):
+    """export --out x.json wrote CSV into a .json file, and --kinds "" exported every kind (new-user run); both are
+    refused before the session is read."""
+    session = tmp_path / "s"
+    for argv, message in ((["--out", str(tmp_path / "x.json")], "a recording is a CSV file (.csv); got .json suffix"),
+                          (["--out", str(tmp_path / "x.csv"), "--kinds", ""], "unknown target kind ''")):
+        assert_bad_input(capsys, ["export", "--session", str(session), *argv], message)
+    assert sorted(p.name for p in tmp_path.iterdir()) == []

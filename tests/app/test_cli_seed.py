@@ -56,3 +56,23 @@ def test_a_validation_count_past_ten_thousand_is_refused_before_anything_runs(co
     from app.cli.common import validation_count
 
     assert validation_count("10000") == 10000
+
+
+@pytest.mark.parametrize("command, option, value, expected", [
+    ("fake-controller", "--servo-on-delay", "nan", "expected a finite number >= 0, got nan"),
+    ("fake-controller", "--servo-on-delay", "-1", "expected a finite number >= 0, got -1"),
+    ("fake-motive", "--rate", "0", "expected a finite number > 0, got 0"),
+    ("fake-motive", "--rate", "nan", "expected a finite number > 0, got nan"),
+    ("fake-motive", "--noise-pos-mm", "inf", "expected a finite number >= 0, got inf"),
+    ("fake-motive", "--compliance-mm", "-0.5", "expected a finite number >= 0, got -0.5"),
+])
+def test_the_fake_peers_numbers_are_checked_by_the_parser(command, option, value, expected, tmp_path, monkeypatch,
+                                                          capsys):
+    """fake-controller --servo-on-delay nan was accepted (new-user run), and fake-motive --rate 0 was refused by the
+    fake Motive as 'rate_hz', a name the command line does not have."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as stop:
+        main([command, f"{option}={value}"])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"argument {option}: {expected}" in err[0], err
