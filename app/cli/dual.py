@@ -124,7 +124,7 @@ def _model_sets(specs: list[str] | None, cell: Any) -> dict[str, dict[str, Any]]
 
 
 def cmd_validate_dual(args: argparse.Namespace) -> int:
-    from calibration.errors import ModelError
+    from calibration.errors import CellCalError, ModelError
 
     cell = cell_spec(args)
     if args.sim:
@@ -132,6 +132,10 @@ def cmd_validate_dual(args: argparse.Namespace) -> int:
 
         if args.configurations < 2:
             raise ModelError(f"--configurations must be >= 2, got {args.configurations}")
+        given = [o for o, v in (("--time-scale", args.time_scale), ("--speed", args.speed)) if v is not None]
+        if given:  # both were silently ignored: the simulated contact moves are not timed
+            raise CellCalError(f"{' and '.join(given)}: not used by validate-dual --sim, whose simulated contact "
+                               f"moves have no clock; leave {'it' if len(given) == 1 else 'them'} out")
         methods = tuple(m.strip() for m in args.methods.split(",") if m.strip()) if args.methods else None
         model_sets = _model_sets(args.models, cell) or None
         if args.dry_run:  # it ran the whole simulated validation, fits included, as if --dry-run were not given
@@ -244,6 +248,10 @@ def add_dual_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     seed = next(a for a in p._actions if a.dest == "seed")  # --sim's cell is app.dual.sim.VALIDATION_CELL
     seed.default, seed.help = None, ("seed of the simulated cell (its planted errors and calibration data); --sim "
                                      "only (default 7, the validation cell's)")
+    scale = next(a for a in p._actions if a.dest == "time_scale")  # the --sim validation has no clock to scale
+    scale.default, scale.help = None, "not used here: the simulated validation (--sim) has no clock"
+    speed = next(a for a in p._actions if a.dest == "speed")
+    speed.help += "; the real cell only (the simulated validation has no clock)"
     p = add("preview", cmd_preview, "meshcat preview of a plan (static HTML page or live viewer)")
     p.add_argument("--plan", required=True, help="plan file (dual or collection)")
     p.add_argument("--html", help="write a self-contained HTML page")

@@ -258,6 +258,11 @@ def test_validate_dual_sim_json_and_bad_inputs(tmp_path, capsys):
     assert_bad_input(capsys, ["validate-dual", "--sim", "--configurations", "1", "--json", str(never)], ">= 2")
     assert_bad_input(capsys, ["validate-dual", "--sim", "--methods", "nominal,magic", "--json", str(never)],
          "unknown model set 'magic'")
+    # both were accepted and ignored, while their help said they apply with --sim (new-user run)
+    assert_bad_input(capsys, ["validate-dual", "--sim", "--speed", "0.5", "--json", str(never)],
+                     "--speed: not used by validate-dual --sim", "leave it out")
+    assert_bad_input(capsys, ["validate-dual", "--sim", "--time-scale", "5", "--speed", "0.5", "--json", str(never)],
+                     "--time-scale and --speed: not used by validate-dual --sim", "leave them out")
     assert not never.exists()
 
 
