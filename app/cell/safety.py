@@ -142,7 +142,7 @@ class CellSafety:
             if bad.any():
                 i, k = (int(v) for v in np.argwhere(bad)[0])
                 raise UnsafeTarget(robot, None, float(gap[i, k]), self.config.floor_clearance_mm,
-                                   f"{robot} {FLOOR_CHECKED[k]} too close to the floor{where(i)}")
+                                   f"{FLOOR_CHECKED[k]} too close to the floor{where(i)}")
         if self.config.check_collisions:
             for name, oq in other_q.items():
                 other_segs = self.capsules(name, oq)
@@ -151,7 +151,7 @@ class CellSafety:
                 if bad.any():
                     i, k, m = (int(v) for v in np.argwhere(bad)[0])
                     raise UnsafeTarget(robot, None, float(gap[i, k, m]), self.config.clearance_mm,
-                                       f"{robot} {SEGMENTS[k]} too close to {name} {SEGMENTS[m]}{where(i)}")
+                                       f"{SEGMENTS[k]} too close to {name} {SEGMENTS[m]}{where(i)}")
 
     def path(self, q_from: np.ndarray, q_to: np.ndarray) -> np.ndarray:
         """Joint-space samples of the move from ``q_from`` to ``q_to`` (both included), shape (K, 6)."""

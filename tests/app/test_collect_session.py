@@ -166,7 +166,7 @@ def test_unsafe_plans_are_refused_before_any_motion(tmp_path):
         with pytest.raises(UnsafeTarget, match=r"R1 joint 3: target 170 deg .* limit 160 deg \(target 3\)"):
             run_session(tmp_path / "a", driver, mocap, safety, body_id=1, plan=out_of_limits, others=OTHERS,
                         config=FAST, progress=False)
-        with pytest.raises(UnsafeTarget, match="R1 .* too close to R2"):
+        with pytest.raises(UnsafeTarget, match="R1: .* too close to R2"):
             run_session(tmp_path / "b", driver, mocap, safety, body_id=1, plan=colliding,
                         others={"R2": np.radians([0, 40, 0, 0, 0, 0])}, config=FAST, progress=False)
     assert driver.move_calls == 0

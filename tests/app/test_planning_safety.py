@@ -116,10 +116,10 @@ def test_out_of_limit_target_names_joint_value_and_limit(cell):
 
 def test_collisions_with_the_other_arm_and_the_floor(cell):
     safety = CellSafety(cell)
-    with pytest.raises(UnsafeTarget, match="too close to R2") as e:
+    with pytest.raises(UnsafeTarget, match=r"^R1: \w+ too close to R2 \w+ \(clearance") as e:
         safety.check_configs("R1", np.radians([-10, 70, 60, 0, 0, 0]), {"R2": np.radians([0, 40, 0, 0, 0, 0])})
     assert e.value.joint is None and e.value.value < 50
-    with pytest.raises(UnsafeTarget, match="too close to the floor"):
+    with pytest.raises(UnsafeTarget, match=r"^R1: \w+ too close to the floor \(clearance"):  # read 'R1: R1 tool'
         safety.check_configs("R1", np.radians([0, 90, 0, 0, 0, 0]), {"R2": np.zeros(6)})
     with pytest.raises(ConfigError, match="pose of R2 unknown"):
         safety.check_configs("R1", np.zeros(6), None)
