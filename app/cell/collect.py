@@ -343,7 +343,9 @@ class _Session:
     def abandon(self, e: BaseException) -> None:
         """Any other end of the run (too many skips, unsafe target, interrupt): stop every arm, record it."""
         stop_all(self.all_drivers())
-        self.record(self.driver.name, "aborted", f"{type(e).__name__}: {e}", self.index)
+        # an interrupt's str() is empty: it was recorded as 'KeyboardInterrupt: '
+        why = "interrupted (Ctrl-C)" if isinstance(e, KeyboardInterrupt) else f"{type(e).__name__}: {e}"
+        self.record(self.driver.name, "aborted", why, self.index)
 
 
 def _fault_kind(driver: RobotDriver | None, e: BaseException) -> EventKind:

@@ -236,3 +236,31 @@ def test_sigkill_mid_session_then_resume(tmp_path):
         assert idx == list(range(133))
         after = dict(con.execute("SELECT target_index, x FROM samples").fetchall())
     assert all(after[i] == x for i, x in before)
+
+
+def test_an_interrupt_is_recorded_as_such_with_the_target_it_stopped_at(tmp_path):
+    """Ctrl-C was recorded as 'KeyboardInterrupt: ' (an interrupt's text is empty; new-user run)."""
+
+    class Interrupting(MocapSource):
+        def __init__(self, inner, driver) -> None:
+            self.inner, self.driver = inner, driver
+
+        def connect(self) -> None:
+            self.inner.connect()
+
+        def close(self) -> None:
+            self.inner.close()
+
+        def read(self, timeout_s: float):
+            if self.driver.move_count >= 2:
+                raise KeyboardInterrupt
+            return self.inner.read(timeout_s)
+
+    _, driver, mocap, _, safety = make_cell()
+    with driver, mocap:
+        with pytest.raises(KeyboardInterrupt):
+            run_session(tmp_path / "s", driver, Interrupting(mocap, driver), safety, body_id=1, plan=first(4),
+                        others=OTHERS, config=FAST, progress=False)
+    with SessionStore(tmp_path / "s") as store:
+        aborted = [e for e in store.events() if e.kind == "aborted"]
+    assert [e.reason for e in aborted] == ["interrupted (Ctrl-C)"] and aborted[0].target_index is not None
