@@ -219,6 +219,23 @@ def test_unreachable_waypoint_is_reported_not_solved(nominal, tmp_path):
     assert not out.exists()
 
 
+def test_one_waypoint_far_from_the_start_is_solved_to_the_tolerance(nominal, monkeypatch):
+    """plan-dual of a single pose (x 1500, y 0, z 800 mm, identity) stalled 5e-05 mm short of the 1e-06 mm
+    tolerance after 60 capped iterations and was refused (new-user run); sweep:2 solved. The pose equations alone
+    finish it: a correction far below a milliradian, so the penalised solution stays what it was."""
+    import app.dual.planner as planner_module
+
+    q0 = np.radians(Q_REF_DEG)
+    T_rel, T = relative_pose(nominal, q0), np.eye(4)
+    T[:3, 3] = [1500.0, 0.0, 800.0]
+    solved = nominal.solve_waypoint(T, T_rel, q0)
+    assert solved.converged and solved.residual_mm < 1e-6, solved.reason
+    monkeypatch.setattr(planner_module, "POLISH_STEPS", 0)
+    stalled = nominal.solve_waypoint(T, T_rel, q0)
+    assert not stalled.converged and 1e-6 < stalled.residual_mm < 1e-3
+    assert np.abs(np.r_[solved.q_R1, solved.q_R2] - np.r_[stalled.q_R1, stalled.q_R2]).max() < 1e-5
+
+
 def test_collision_is_reported(nominal):
     q0 = np.radians(Q_REF_DEG)
     T_wp = np.eye(4)
