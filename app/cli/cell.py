@@ -8,7 +8,7 @@ from typing import Any, Callable, Literal
 
 from app.analysis.fitting import fitter_for
 from app.cli.common import add_report_options, cell_spec, command_line, epoch_bar, log, non_negative_int, \
-    show_progress, tolerance_from_args, validation_count, write_json
+    positive_float, show_progress, tolerance_from_args, validation_count, write_json
 from calibration.errors import CellCalError
 
 #: The anchor-grid steps ``plan --q2-step/--q3-step`` and ``demo --anchor-step`` accept [deg].
@@ -91,7 +91,6 @@ def _optimal_anchors(args: argparse.Namespace, robot: Any, safety: Any, others: 
     if args.budget is None:
         raise CellCalError("--design optimal needs --budget N (poses to measure, clusters of 7)")
     check_budget(args.budget)
-    _check_noise(args.noise_mm)
     spec = DesignSpec.for_rebase(args.budget, args.noise_mm, args.seed) if args.target == "rebase" else \
         DesignSpec(budget=args.budget, noise_mm=args.noise_mm, seed=args.seed)
     return optimal_plan(args.robot, MinimalParameterisation(robot.model(), fit_tool=True), safety, others, spec,
@@ -103,11 +102,6 @@ def _check_grid_step(option: str, step_deg: float) -> None:
     refused naming the internal key ``q2_range_deg/steps`` and not the value, inf gave a one-row grid."""
     if not MIN_GRID_STEP_DEG <= step_deg <= MAX_GRID_STEP_DEG:
         raise CellCalError(f"{option} must be in [{MIN_GRID_STEP_DEG:g}, {MAX_GRID_STEP_DEG:g}] deg, got {step_deg:g}")
-
-
-def _check_noise(noise_mm: float) -> None:
-    if not noise_mm > 0 or noise_mm == float("inf"):
-        raise CellCalError(f"--noise-mm must be a finite number > 0 [mm], got {noise_mm}")
 
 
 def cmd_select(args: argparse.Namespace) -> int:
@@ -123,7 +117,6 @@ def cmd_select(args: argparse.Namespace) -> int:
     refuse_another_arms(robot, rec)  # another arm's clusters would be chosen by this arm's Jacobian
     n_clusters = len(set(rec.clusters().tolist()))
     check_budget(args.budget, n_clusters, unit="clusters")
-    _check_noise(args.noise_mm)
     par = MinimalParameterisation(robot.model(), fit_tool=True)
     sel = select_recording(par, rec, args.budget, args.noise_mm,
                            rebase_offsets=() if args.target == "rebase" else None)
@@ -418,7 +411,7 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                    help="--design optimal: what the poses are for: identifying the geometry or rebasing a "
                         "fitted model onto a new day (its frames and the joint offsets of joints 4 and 5; "
                         "cellcal rebase --offsets)")
-    p.add_argument("--noise-mm", type=float, default=0.05,
+    p.add_argument("--noise-mm", type=positive_float, default=0.05,
                    help="measurement noise assumed for the predicted parameter uncertainty [mm]")
     p.add_argument("--json", help="write the plan summary (target counts per kind, and the design figures: each "
                                   "parameter's sigma in the unit sigma_units gives it) as JSON")
@@ -434,7 +427,7 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--for", dest="target", choices=("identification", "rebase"), default="identification",
                    help="what the clusters are for: identifying the geometry or rebasing a fitted model "
                         "(D-optimal on the 12 frame directions cellcal rebase fits, no spread term)")
-    p.add_argument("--noise-mm", type=float, default=0.05,
+    p.add_argument("--noise-mm", type=positive_float, default=0.05,
                    help="measurement noise assumed for the predicted parameter uncertainty [mm]")
     p.add_argument("--json", help="write the chosen clusters and the design figures (each parameter's sigma in the unit "
                                   "sigma_units gives it: rad for a rotation or offset, not the table's mdeg) as JSON")

@@ -76,3 +76,15 @@ def test_the_fake_peers_numbers_are_checked_by_the_parser(command, option, value
     assert stop.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"argument {option}: {expected}" in err[0], err
+
+
+@pytest.mark.parametrize("command", ["plan", "select"])
+def test_noise_mm_is_a_finite_positive_number_for_every_design(command, tmp_path, monkeypatch, capsys):
+    """plan --noise-mm nan was accepted on a grid plan, which does not use it (checked only for --design optimal)."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as stop:
+        main([command, "--noise-mm", "nan"])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "argument --noise-mm: expected a finite number > 0, got nan" in err[0], err
+    assert list(tmp_path.iterdir()) == []
