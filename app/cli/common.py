@@ -108,6 +108,17 @@ def validation_count(text: str) -> int:
     return value
 
 
+def _checked_number(text: str, kind: type, ok: Any, expected: str) -> Any:
+    """``kind(text)`` when it is finite and ``ok(value)``; else ArgumentTypeError "expected EXPECTED, got TEXT"."""
+    try:
+        value = kind(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {expected}, got {text!r}") from None
+    if not (math.isfinite(value) and ok(value)):
+        raise argparse.ArgumentTypeError(f"expected {expected}, got {text}")
+    return value
+
+
 def non_negative_int(text: str) -> int:
     """argparse type of a seed or a count: an integer >= 0 (numpy's generators refuse a negative seed, and a
     negative seed reached them as a traceback, exit 1, after the command had started).
@@ -115,13 +126,7 @@ def non_negative_int(text: str) -> int:
     Raises:
         argparse.ArgumentTypeError: naming the value (the parser's one line names the option).
     """
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {value}")
-    return value
+    return _checked_number(text, int, lambda v: v >= 0, "an integer >= 0")
 
 
 def positive_float(text: str) -> float:
@@ -131,13 +136,7 @@ def positive_float(text: str) -> float:
     Raises:
         argparse.ArgumentTypeError: naming the value (the parser's one line names the option).
     """
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}") from None
-    if not (math.isfinite(value) and value > 0):
-        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text}")
-    return value
+    return _checked_number(text, float, lambda v: v > 0, "a finite number > 0")
 
 
 def non_negative_float(text: str) -> float:
@@ -147,13 +146,7 @@ def non_negative_float(text: str) -> float:
     Raises:
         argparse.ArgumentTypeError: naming the value (the parser's one line names the option).
     """
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}") from None
-    if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text}")
-    return value
+    return _checked_number(text, float, lambda v: v >= 0, "a finite number >= 0")
 
 
 def add_cell_option(p: argparse.ArgumentParser) -> None:

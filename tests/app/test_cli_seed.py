@@ -25,15 +25,22 @@ def test_the_walk_finds_the_seed_options():
             ("recalibrate", "--validation-seed")} <= set(SEED_OPTIONS)
 
 
+def refused_by_the_parser(argv: list[str], message: str, folder, capsys) -> None:
+    """``main(argv)`` exits 2 from argparse, before the command runs, with one stderr line holding ``message``, and
+    writes nothing into ``folder`` (the working folder)."""
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    assert stop.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err
+    assert list(folder.iterdir()) == []
+
+
 @pytest.mark.parametrize("command, option", SEED_OPTIONS, ids=[f"{c} {o}" for c, o in SEED_OPTIONS])
 def test_a_negative_seed_or_count_is_one_line_naming_the_option(command, option, tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
-    with pytest.raises(SystemExit) as stop:  # argparse's exit, before the command runs
-        main([command, option, "-1"])
-    assert stop.value.code == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and f"argument {option}: expected an integer >= 0, got -1" in err[0], err
-    assert list(tmp_path.iterdir()) == []
+    refused_by_the_parser([command, option, "-1"], f"argument {option}: expected an integer >= 0, got -1", tmp_path,
+                          capsys)
 
 
 def test_plan_takes_seed_zero_and_a_validation_count(tmp_path):
@@ -47,12 +54,8 @@ def test_plan_takes_seed_zero_and_a_validation_count(tmp_path):
 def test_a_validation_count_past_ten_thousand_is_refused_before_anything_runs(command, tmp_path, monkeypatch, capsys):
     """plan --validation 100000000 ran for minutes building a plan of poses nobody could measure."""
     monkeypatch.chdir(tmp_path)
-    with pytest.raises(SystemExit) as stop:
-        main([command, "--validation", "100000000"])
-    assert stop.value.code == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "argument --validation: expected at most 10000 validation poses" in err[0], err
-    assert list(tmp_path.iterdir()) == []
+    refused_by_the_parser([command, "--validation", "100000000"],
+                          "argument --validation: expected at most 10000 validation poses", tmp_path, capsys)
     from app.cli.common import validation_count
 
     assert validation_count("10000") == 10000
@@ -71,20 +74,12 @@ def test_the_fake_peers_numbers_are_checked_by_the_parser(command, option, value
     """fake-controller --servo-on-delay nan was accepted (new-user run), and fake-motive --rate 0 was refused by the
     fake Motive as 'rate_hz', a name the command line does not have."""
     monkeypatch.chdir(tmp_path)
-    with pytest.raises(SystemExit) as stop:
-        main([command, f"{option}={value}"])
-    assert stop.value.code == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and f"argument {option}: {expected}" in err[0], err
+    refused_by_the_parser([command, f"{option}={value}"], f"argument {option}: {expected}", tmp_path, capsys)
 
 
 @pytest.mark.parametrize("command", ["plan", "select"])
 def test_noise_mm_is_a_finite_positive_number_for_every_design(command, tmp_path, monkeypatch, capsys):
     """plan --noise-mm nan was accepted on a grid plan, which does not use it (checked only for --design optimal)."""
     monkeypatch.chdir(tmp_path)
-    with pytest.raises(SystemExit) as stop:
-        main([command, "--noise-mm", "nan"])
-    assert stop.value.code == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "argument --noise-mm: expected a finite number > 0, got nan" in err[0], err
-    assert list(tmp_path.iterdir()) == []
+    refused_by_the_parser([command, "--noise-mm", "nan"], "argument --noise-mm: expected a finite number > 0, got nan",
+                          tmp_path, capsys)
