@@ -92,30 +92,31 @@ class BaseFrameMocap(MocapSource):
         Raises:
             DriverDisconnected: no frame of ``what`` within ``timeout_s`` [s].
         """
-        deadline = time.monotonic() + timeout_s
-        while True:
-            left = deadline - time.monotonic()
-            if self.inner.read(min(0.5, max(left, 0.0))):
-                self._last_frame = time.monotonic()
-                return
-            if left <= 0:
-                raise DriverDisconnected("mocap", f"no frames of {what} in {timeout_s:g} s, before any motion: start "
-                                                  "`cellcal mocap-bridge` on the mocap PC and check that Motive "
-                                                  "streams that rigid body")
+        if not self._frames_within(timeout_s):
+            raise DriverDisconnected("mocap", f"no frames of {what} in {timeout_s:g} s, before any motion: start "
+                                              "`cellcal mocap-bridge` on the mocap PC and check that Motive streams "
+                                              "that rigid body")
 
     def _wait_for_stream(self) -> list[RigidBodyFrame]:
         self.waits += 1
         log.warning("mocap stream silent for %.1f s; waiting up to %.0f s for the bridge to come back",
                     time.monotonic() - self._last_frame, self.stream_wait_s)
-        deadline = time.monotonic() + self.stream_wait_s
+        frames = self._frames_within(self.stream_wait_s)
+        if not frames:
+            raise DriverDisconnected("mocap", f"no frames for {self.stream_wait_s:.0f} s more; is `cellcal "
+                                              "mocap-bridge` running and Motive streaming?")
+        log.warning("mocap stream is back")
+        return frames
+
+    def _frames_within(self, timeout_s: float) -> list[RigidBodyFrame]:
+        """The first frames the inner source delivers within ``timeout_s`` [s] (mocap-world), or [] at the deadline."""
+        deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             frames = self.inner.read(min(0.5, max(deadline - time.monotonic(), 0.0)))
             if frames:
-                log.warning("mocap stream is back")
                 self._last_frame = time.monotonic()
                 return frames
-        raise DriverDisconnected("mocap", f"no frames for {self.stream_wait_s:.0f} s more; is `cellcal mocap-bridge` "
-                                          "running and Motive streaming?")
+        return []
 
     def _to_base(self, f: RigidBodyFrame) -> RigidBodyFrame:
         if not f.tracking_valid:

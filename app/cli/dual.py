@@ -245,12 +245,11 @@ def add_dual_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                                      "physics-informed model)")  # the default: app.dual.sim.SIM_METHODS
     p.add_argument("--json", help="write the statistics as JSON")
     add_motion_options(p)
-    seed = next(a for a in p._actions if a.dest == "seed")  # --sim's cell is app.dual.sim.VALIDATION_CELL
+    seed, scale, speed = (p._option_string_actions[o] for o in ("--seed", "--time-scale", "--speed"))
+    # --sim's cell is app.dual.sim.VALIDATION_CELL, and its contact moves have no clock to scale
     seed.default, seed.help = None, ("seed of the simulated cell (its planted errors and calibration data); --sim "
                                      "only (default 7, the validation cell's)")
-    scale = next(a for a in p._actions if a.dest == "time_scale")  # the --sim validation has no clock to scale
     scale.default, scale.help = None, "not used here: the simulated validation (--sim) has no clock"
-    speed = next(a for a in p._actions if a.dest == "speed")
     speed.help += "; the real cell only (the simulated validation has no clock)"
     p = add("preview", cmd_preview, "meshcat preview of a plan (static HTML page or live viewer)")
     p.add_argument("--plan", required=True, help="plan file (dual or collection)")
