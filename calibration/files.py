@@ -10,11 +10,16 @@ Every file cellcal writes (models, recordings, plans, reports, pages, JSON summa
 - a symlink, a folder, a device node, a FIFO or a socket at the target is refused, never replaced (so
   ``--json /dev/full`` does not turn the device into a regular file); an empty path or one under a file is
   refused too. :func:`check_output_path` runs the same checks early, before any work is done.
+
+One process at a time: :class:`ExclusiveLock` is an exclusive ``flock`` on a lock file with its holder written in
+it, released on :meth:`~ExclusiveLock.release` or by the kernel when the process ends (even by a crash, so no lock is
+ever stale): a session folder's collector and a MotoROS controller's driver hold one.
 """
 
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import os
 import secrets
 import stat
@@ -135,3 +140,50 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
     """Write ``data`` to ``path`` atomically; see :func:`atomic_open`."""
     with atomic_open(path, binary=True) as f:
         f.write(data)
+
+
+class LockHeld(Exception):
+    """Another process holds an :class:`ExclusiveLock`; ``holder`` is the text it wrote in the lock file ('' if
+    none)."""
+
+    def __init__(self, path: Path, holder: str) -> None:
+        self.path, self.holder = path, holder
+        super().__init__(f"{path} is held by {holder or 'another process'}")
+
+
+class ExclusiveLock:
+    """An exclusive ``flock`` on ``path`` (created if missing) for this process, with ``holder`` written in the file.
+
+    Args:
+        path: the lock file.
+        holder: what a refused process reads about this one (its pid, its command line).
+        mode: the lock file's mode, set on a file this user owns (0o666 lets another user's process take the lock
+            after this one; the umask would narrow it).
+
+    Raises:
+        LockHeld: another process holds it (nothing is taken).
+        OSError: the file cannot be opened.
+    """
+
+    def __init__(self, path: str | Path, holder: str, mode: int = 0o644) -> None:
+        self.path = Path(path)
+        self.fd = os.open(self.path, os.O_RDWR | os.O_CREAT, mode)
+        try:
+            if os.fstat(self.fd).st_uid == os.getuid():
+                os.fchmod(self.fd, mode)
+            fcntl.flock(self.fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            text = os.pread(self.fd, 4096, 0).decode(errors="replace").strip()
+            os.close(self.fd)
+            raise LockHeld(self.path, text) from None
+        except BaseException:
+            os.close(self.fd)
+            raise
+        os.ftruncate(self.fd, 0)
+        os.pwrite(self.fd, holder.encode(), 0)
+
+    def release(self) -> None:
+        """Drop the lock (closing the descriptor drops the flock); safe to call twice."""
+        if self.fd >= 0:
+            os.close(self.fd)
+            self.fd = -1

@@ -19,7 +19,6 @@ Why the arms were stopped (alarm, e-stop, lost connection, abort) is kept in an 
 
 from __future__ import annotations
 
-import fcntl
 import json
 import math
 import os
@@ -35,6 +34,7 @@ import numpy as np
 
 from app.cell.planning import Plan
 from calibration.errors import DataError
+from calibration.files import ExclusiveLock, LockHeld
 
 DB_NAME = "session.sqlite"
 LOCK_NAME = "session.lock"
@@ -134,31 +134,12 @@ class SessionEvent:
         return f"{when} {self.robot} {self.kind}{at}: {self.reason}"
 
 
-class _FolderLock:
-    """An exclusive flock on ``<folder>/session.lock`` holding the owner's pid; released on close or death."""
-
-    def __init__(self, folder: Path) -> None:
-        self.path = folder / LOCK_NAME
-        self.fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(self.fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            pid = self._holder()
-            os.close(self.fd)
-            raise SessionLocked(folder, pid) from None
-        os.ftruncate(self.fd, 0)
-        os.pwrite(self.fd, f"{os.getpid()}\n".encode(), 0)
-
-    def _holder(self) -> int | None:
-        try:
-            return int(os.pread(self.fd, 64, 0).decode().strip())
-        except ValueError:
-            return None
-
-    def release(self) -> None:
-        if self.fd >= 0:
-            os.close(self.fd)  # closing the descriptor drops the flock
-            self.fd = -1
+def _folder_lock(folder: Path) -> ExclusiveLock:
+    """The exclusive lock of ``<folder>/session.lock`` holding this process's pid; SessionLocked when taken."""
+    try:
+        return ExclusiveLock(folder / LOCK_NAME, f"{os.getpid()}\n")
+    except LockHeld as e:
+        raise SessionLocked(folder, int(e.holder) if e.holder.isdigit() else None) from None
 
 
 @dataclass(frozen=True)
@@ -213,7 +194,7 @@ class SessionStore:
             raise DataError(self.path, None, None, _no_session(purpose))
         elif not self._created_read_only(self.path):  # looked at read-only: opening must not write tables into it
             raise DataError(self.path, None, None, _interrupted(purpose))
-        self._lock = _FolderLock(self.dir) if lock else None
+        self._lock = _folder_lock(self.dir) if lock else None
         try:
             self.conn = self._connect()
             if create and self.is_created():

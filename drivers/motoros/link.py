@@ -25,7 +25,6 @@ controller, so R1 and R2 on one controller cannot each open their own: they shar
 
 from __future__ import annotations
 
-import fcntl
 import logging
 import os
 import re
@@ -37,6 +36,7 @@ import threading
 import time
 from pathlib import Path
 
+from calibration.files import ExclusiveLock, LockHeld
 from drivers.errors import DriverDisconnected, DriverError, DriverTimeout
 from drivers.motoros.codec import Command, JointFeedback, MotionCtrl, MotionReply, Result, RobotStatusMsg, decode
 from drivers.motoros.errors import InvalidArgument
@@ -54,9 +54,9 @@ def lock_dir() -> Path:
     return Path(os.environ.get("CELLCAL_LOCK_DIR") or Path(tempfile.gettempdir()) / "cellcal-locks")
 
 
-def claim_controller(host: str, port: int, device: str) -> int:
-    """An exclusive claim on the controller at ``host:port`` for this process: the open file descriptor holding the
-    lock (close it to release; the kernel releases it when the process ends).
+def claim_controller(host: str, port: int, device: str) -> ExclusiveLock:
+    """An exclusive claim on the controller at ``host:port`` for this process (release it to let another process
+    claim it; the kernel releases it when the process ends).
 
     Raises:
         DriverError: another process holds the claim (naming its pid and command line), or the claim file cannot
@@ -68,22 +68,13 @@ def claim_controller(host: str, port: int, device: str) -> int:
         if not folder.is_dir():
             folder.mkdir(parents=True, exist_ok=True)
             os.chmod(folder, 0o1777)  # shared by every user of the PC, like /tmp (the umask would narrow it)
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
-        if os.fstat(fd).st_uid == os.getuid():
-            os.fchmod(fd, 0o666)  # another user's process must be able to claim the controller after this one
+        return ExclusiveLock(path, f"pid {os.getpid()}: {' '.join(sys.argv)}", mode=0o666)
+    except LockHeld as e:
+        raise DriverError(device, f"another process holds this controller ({e.holder or 'unknown'}); MotoROS serves "
+                                  "one motion client and hands the arms to whichever connected last, so stop that "
+                                  f"process first (claim file {path})") from None
     except OSError as e:
         raise DriverError(device, f"cannot open the controller claim {path}: {e.strerror or e}") from e
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        holder = os.pread(fd, 4096, 0).decode(errors="replace").strip() or "unknown"
-        os.close(fd)
-        raise DriverError(device, f"another process holds this controller ({holder}); MotoROS serves one motion "
-                                  "client and hands the arms to whichever connected last, so stop that process "
-                                  f"first (claim file {path})") from None
-    os.ftruncate(fd, 0)
-    os.pwrite(fd, f"pid {os.getpid()}: {' '.join(sys.argv)}".encode(), 0)
-    return fd
 
 
 def _peer_closed(sock: socket.socket) -> bool:
@@ -136,7 +127,7 @@ class MotorosLink:
         self.max_backoff_s = max_backoff_s
         self.stale_after_s = stale_after_s
         self._traj_mode_group: int | None = None  # group whose START_TRAJ_MODE succeeded, until STOP_TRAJ_MODE
-        self._claim: int | None = None  # the file descriptor of this process's claim on the controller
+        self._claim: ExclusiveLock | None = None  # this process's claim on the controller
         self._users = 0
         self._users_lock = threading.Lock()
         self._motion_lock = threading.Lock()
@@ -204,8 +195,8 @@ class MotorosLink:
         with self._motion_lock:
             self._drop_motion()
         self._state.join()
-        if self._claim is not None:  # closing the descriptor frees the claim
-            os.close(self._claim)
+        if self._claim is not None:
+            self._claim.release()
             self._claim = None
 
     # -- state -----------------------------------------------------------------------------------
