@@ -13,12 +13,16 @@ Every file cellcal writes (models, recordings, plans, reports, pages, JSON summa
 
 One process at a time: :class:`ExclusiveLock` is an exclusive ``flock`` on a lock file with its holder written in
 it, released on :meth:`~ExclusiveLock.release` or by the kernel when the process ends (even by a crash, so no lock is
-ever stale): a session folder's collector and a MotoROS controller's driver hold one.
+ever stale): a session folder's collector and a MotoROS controller's driver hold one. The lock file is opened
+without following a symlink (``O_NOFOLLOW``) and must be a regular file with a single link, so a link planted where
+the lock goes never makes a process truncate or write another file; its mode is never widened. A folder of lock
+files shared by several users is refused (:func:`private_folder`).
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import fcntl
 import os
 import secrets
@@ -157,20 +161,29 @@ class ExclusiveLock:
     Args:
         path: the lock file.
         holder: what a refused process reads about this one (its pid, its command line).
-        mode: the lock file's mode, set on a file this user owns (0o666 lets another user's process take the lock
-            after this one; the umask would narrow it).
+        mode: the mode of a lock file created now (narrowed by the umask; an existing file's mode is kept).
 
     Raises:
         LockHeld: another process holds it (nothing is taken).
-        OSError: the file cannot be opened.
+        OSError: the file cannot be opened, or ``path`` is a symlink (ELOOP), not a regular file or a file with
+            several links (nothing is written to it).
     """
 
     def __init__(self, path: str | Path, holder: str, mode: int = 0o644) -> None:
         self.path = Path(path)
-        self.fd = os.open(self.path, os.O_RDWR | os.O_CREAT, mode)
+        flags = os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0)
+        try:  # O_NONBLOCK: a FIFO planted there must not block the open
+            self.fd = os.open(self.path, flags, mode)
+        except OSError as e:
+            if e.errno == errno.ELOOP:
+                raise OSError(errno.ELOOP, "the lock file is a symbolic link; refusing to follow it (remove it)",
+                              str(path)) from None
+            raise
         try:
-            if os.fstat(self.fd).st_uid == os.getuid():
-                os.fchmod(self.fd, mode)
+            st = os.fstat(self.fd)
+            if not stat.S_ISREG(st.st_mode) or st.st_nlink != 1:
+                what = "not a regular file" if not stat.S_ISREG(st.st_mode) else f"a file with {st.st_nlink} links"
+                raise OSError(errno.EPERM, f"the lock file is {what}; refusing to use it (remove it)", str(path))
             fcntl.flock(self.fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             text = os.pread(self.fd, 4096, 0).decode(errors="replace").strip()
@@ -187,3 +200,27 @@ class ExclusiveLock:
         if self.fd >= 0:
             os.close(self.fd)
             self.fd = -1
+
+
+def private_folder(path: str | Path, create: bool = True) -> Path:
+    """``path`` as a folder only this user can write: created 0700 when missing (with ``create``), refused when it is
+    a symlink, not a folder, owned by another user, or writable by the group or others (anyone who can create
+    entries in it could plant a link where a file of ours goes).
+
+    Raises:
+        OSError: the folder is refused (naming why) or cannot be created.
+    """
+    path = Path(path)
+    if create:
+        with contextlib.suppress(FileExistsError):
+            path.mkdir(mode=0o700, parents=True)
+    st = os.lstat(path)
+    if stat.S_ISLNK(st.st_mode) or not stat.S_ISDIR(st.st_mode):
+        raise OSError(errno.EPERM, "not a folder (a symlink or a file); refusing to keep lock files there", str(path))
+    if st.st_uid != os.geteuid():
+        raise OSError(errno.EPERM, f"owned by uid {st.st_uid}, not this user ({os.geteuid()}); refusing to keep "
+                                   "lock files there", str(path))
+    if st.st_mode & 0o022:
+        raise OSError(errno.EPERM, f"writable by other users (mode {stat.S_IMODE(st.st_mode):04o}); refusing to keep "
+                                   "lock files there", str(path))
+    return path

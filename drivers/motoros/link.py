@@ -20,7 +20,11 @@ controller, so R1 and R2 on one controller cannot each open their own: they shar
   connection is closed for the newcomer), so two processes on one controller move its arms in turn, each
   reconnecting over the other. The first user of a link claims the controller on this machine (an exclusive
   ``flock`` on a file per controller address in :func:`lock_dir`, freed by the kernel when the process ends, even
-  by a crash), and a second process's link is refused before it opens a connection, naming the holder.
+  by a crash), and a second process's link of the same user is refused before it opens a connection, naming the
+  holder. The claims live in a folder of this user only (``$XDG_RUNTIME_DIR``, else a 0700 folder under the system
+  temporary folder; ``$CELLCAL_LOCK_DIR`` overrides), checked to be owned by the user and writable by no one else:
+  a shared claim folder let another user plant a symlink there that a root collector truncated and made
+  world-writable, and published every collector's command line.
 """
 
 from __future__ import annotations
@@ -36,7 +40,7 @@ import threading
 import time
 from pathlib import Path
 
-from calibration.files import ExclusiveLock, LockHeld
+from calibration.files import ExclusiveLock, LockHeld, private_folder
 from drivers.errors import DriverDisconnected, DriverError, DriverTimeout
 from drivers.motoros.codec import Command, JointFeedback, MotionCtrl, MotionReply, Result, RobotStatusMsg, decode
 from drivers.motoros.errors import InvalidArgument
@@ -50,8 +54,13 @@ STATE_PORT = 50241
 
 
 def lock_dir() -> Path:
-    """Folder of the controller claims: ``$CELLCAL_LOCK_DIR``, else ``cellcal-locks`` in the temporary folder."""
-    return Path(os.environ.get("CELLCAL_LOCK_DIR") or Path(tempfile.gettempdir()) / "cellcal-locks")
+    """Folder of the controller claims: ``$CELLCAL_LOCK_DIR``, else ``cellcal-locks`` in ``$XDG_RUNTIME_DIR``, else
+    ``cellcal-locks-<uid>`` in the temporary folder (not yet created or checked: :func:`claim_controller` does)."""
+    if os.environ.get("CELLCAL_LOCK_DIR"):
+        return Path(os.environ["CELLCAL_LOCK_DIR"])
+    if os.environ.get("XDG_RUNTIME_DIR"):
+        return Path(os.environ["XDG_RUNTIME_DIR"]) / "cellcal-locks"
+    return Path(tempfile.gettempdir()) / f"cellcal-locks-{os.geteuid()}"
 
 
 def claim_controller(host: str, port: int, device: str) -> ExclusiveLock:
@@ -65,16 +74,15 @@ def claim_controller(host: str, port: int, device: str) -> ExclusiveLock:
     folder = lock_dir()
     path = folder / f"motoros-{re.sub(r'[^A-Za-z0-9.-]', '_', host)}-{port}.lock"
     try:
-        if not folder.is_dir():
-            folder.mkdir(parents=True, exist_ok=True)
-            os.chmod(folder, 0o1777)  # shared by every user of the PC, like /tmp (the umask would narrow it)
-        return ExclusiveLock(path, f"pid {os.getpid()}: {' '.join(sys.argv)}", mode=0o666)
+        private_folder(folder)  # this user's only: nobody else can plant a link or read the command line
+        return ExclusiveLock(path, f"pid {os.getpid()}: {' '.join(sys.argv)}", mode=0o600)
     except LockHeld as e:
         raise DriverError(device, f"another process holds this controller ({e.holder or 'unknown'}); MotoROS serves "
                                   "one motion client and hands the arms to whichever connected last, so stop that "
                                   f"process first (claim file {path})") from None
     except OSError as e:
-        raise DriverError(device, f"cannot open the controller claim {path}: {e.strerror or e}") from e
+        where = e.filename or path
+        raise DriverError(device, f"cannot open the controller claim {where}: {e.strerror or e}") from e
 
 
 def _peer_closed(sock: socket.socket) -> bool:

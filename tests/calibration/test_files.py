@@ -106,3 +106,53 @@ def test_a_failed_write_is_an_output_error_and_leaves_the_old_file(tmp_path, mon
         atomic_write_text(path, "new")
     monkeypatch.undo()
     assert path.read_text() == "old" and os.listdir(tmp_path) == ["out.csv"]
+
+
+# -- the exclusive lock: never follows a planted link, never widens a mode ---------------------------------------
+
+
+@pytest.mark.parametrize("plant", ["symlink", "hardlink", "fifo"])
+def test_a_lock_refuses_anything_but_its_own_regular_file_and_leaves_it_untouched(tmp_path, plant):
+    """A symlink planted where a lock goes made a root collector truncate its target, write into it and make it
+    world-writable (issue 30): the lock is opened with O_NOFOLLOW and must be a regular file with one link."""
+    from calibration.files import ExclusiveLock
+
+    victim = tmp_path / "victim.conf"
+    victim.write_text("precious\n")
+    victim.chmod(0o600)
+    lock = tmp_path / "x.lock"
+    {"symlink": lambda: lock.symlink_to(victim), "hardlink": lambda: os.link(victim, lock),
+     "fifo": lambda: os.mkfifo(lock)}[plant]()
+    with pytest.raises(OSError, match="symbolic link|links|not a regular file"):
+        ExclusiveLock(lock, "pid 1: cellcal collect")
+    assert victim.read_text() == "precious\n" and _mode(victim) == 0o600
+
+
+def test_a_lock_file_is_created_with_the_given_mode_and_an_existing_one_keeps_its_mode(tmp_path):
+    from calibration.files import ExclusiveLock, LockHeld
+
+    old = os.umask(0o022)
+    try:
+        first = ExclusiveLock(tmp_path / "a.lock", "pid 1", mode=0o600)
+    finally:
+        os.umask(old)
+    assert _mode(tmp_path / "a.lock") == 0o600 and (tmp_path / "a.lock").read_text() == "pid 1"
+    with pytest.raises(LockHeld) as held:
+        ExclusiveLock(tmp_path / "a.lock", "pid 2", mode=0o666)
+    assert held.value.holder == "pid 1" and _mode(tmp_path / "a.lock") == 0o600  # never widened to 0666
+    first.release()
+
+
+def test_a_private_folder_is_created_0700_and_a_shared_or_linked_one_is_refused(tmp_path):
+    from calibration.files import private_folder
+
+    made = private_folder(tmp_path / "mine" / "locks")
+    assert _mode(made) == 0o700
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    shared.chmod(0o1777)  # the old claim folder's mode
+    with pytest.raises(OSError, match=r"writable by other users \(mode 1777\)"):
+        private_folder(shared)
+    (tmp_path / "link").symlink_to(made)
+    with pytest.raises(OSError, match="not a folder"):
+        private_folder(tmp_path / "link")
