@@ -8,7 +8,9 @@ at once.
 
 Mocap dropouts, timeouts and dropped connections are retried a bounded number of times (a dropped connection
 stops every arm, is recorded and re-established first); then the target is recorded as skipped with the
-reason. An alarm or an e-stop on any arm, non-finite joint feedback, a connection that cannot be restored, or
+reason and whether it was transient (a timeout, lost mocap, no fresh status) or lasting (a sample the store
+refused, a joint readback outside the limits). A resumed session measures the transient skips again (with
+``retry_skipped`` every skip); :attr:`SessionResult.unmeasured` says what is still not measured. An alarm or an e-stop on any arm, non-finite joint feedback, a connection that cannot be restored, or
 too many consecutive skips end the run (:class:`SessionAborted`): every arm the session knows is stopped, the
 reason is recorded in the session's events, and a resumed session continues at the first target not yet
 recorded. Unsafe targets always abort before any motion. Only one process may use a session folder at a time.
@@ -36,7 +38,7 @@ from app.cell.session_store import EventKind, Sample, SessionStore
 from calibration.errors import CellCalError, ConfigError, DataError
 from calibration.recording import Recording, write_recording
 from drivers.base import MocapSource, RobotDriver
-from drivers.errors import DriverDisconnected, DriverError, DriverTimeout, RobotFault
+from drivers.errors import DriverDisconnected, DriverError, DriverTimeout, InvalidArgument, RobotFault
 
 log = logging.getLogger("cellcal.app")
 
@@ -89,8 +91,9 @@ class SessionResult:
         n_skipped: targets recorded as skipped (in the whole session).
         n_new: rows (measured or skipped) written by this run.
         skipped: ``(target index, reason)`` of every skipped target in the session.
-        complete: every target is recorded.
+        complete: every target is recorded (measured or skipped).
         elapsed_s: wall time of this run [s].
+        n_retried: targets skipped earlier that this run (a resume) set out to measure again.
     """
 
     session_dir: Path
@@ -101,6 +104,12 @@ class SessionResult:
     skipped: tuple[tuple[int, str], ...]
     complete: bool
     elapsed_s: float
+    n_retried: int = 0
+
+    @property
+    def unmeasured(self) -> int:
+        """Targets of the plan not measured (skipped, or not yet visited)."""
+        return self.n_targets - self.n_ok
 
 
 class SessionAborted(CellCalError):
@@ -121,7 +130,11 @@ class SessionAborted(CellCalError):
 
 
 class _MeasureFailed(Exception):
-    """A measurement attempt failed for a reason worth retrying."""
+    """A measurement attempt failed for a reason worth retrying; ``transient`` False when it would fail again."""
+
+    def __init__(self, reason: str, transient: bool = True) -> None:
+        self.transient = transient
+        super().__init__(reason)
 
 
 class _Halt(Exception):
@@ -136,7 +149,8 @@ def _check_readback(q: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> None
     bad = np.flatnonzero((q < lower) | (q > upper))
     if bad.size:
         j = int(bad[0])
-        raise _MeasureFailed(f"joint readback q{j + 1} = {math.degrees(q[j]):.6g} deg is outside the limits")
+        raise _MeasureFailed(f"joint readback q{j + 1} = {math.degrees(q[j]):.6g} deg is outside the limits",
+                             transient=False)
 
 
 class _Session:
@@ -249,6 +263,7 @@ class _Session:
         target = self.plan.targets[index]
         driver_faults = measure_faults = 0
         at_target = False
+        transient = True
         while True:
             attempts = driver_faults + measure_faults + 1
             try:
@@ -257,27 +272,27 @@ class _Session:
                 return None
             except _MeasureFailed as e:
                 measure_faults += 1
-                reason = str(e)
+                reason, transient = str(e), e.transient
                 log.warning("target %d: %s (attempt %d)", index, reason, attempts)
                 at_target = True
                 self._reconnect_mocap()
                 if measure_faults > c.mocap_retries:
                     break
             except DataError as e:
-                reason = f"sample rejected: {e.reason}"
+                reason, transient = f"sample rejected: {e.reason}", False
                 break
             except RobotFault as e:  # alarm / e-stop: not the target's fault, never retried
                 raise _Halt(self.driver.name, e, index) from e
             except DriverError as e:
                 driver_faults += 1
-                reason = str(e)
+                reason, transient = str(e), not isinstance(e, InvalidArgument)
                 log.warning("target %d: driver fault: %s (attempt %d)", index, reason, attempts)
                 at_target = False
                 self._recover(e)
                 if driver_faults > c.driver_retries:
                     break
-        self.store.add_skipped(index, target.robot, target.kind, target.cluster, reason, attempts)
-        log.warning("target %d skipped: %s", index, reason)
+        self.store.add_skipped(index, target.robot, target.kind, target.cluster, reason, attempts, transient)
+        log.warning("target %d skipped%s: %s", index, "" if transient else " (lasting cause)", reason)
         return reason
 
     def _recover(self, e: DriverError) -> None:
@@ -415,8 +430,9 @@ def run_session(session_dir: str | Path, driver: RobotDriver, mocap: MocapSource
         other_drivers: drivers of the other arms, read before every move (takes precedence over ``others``);
             they are stopped too when the run ends on a fault.
         config: motion, measurement and retry options.
-        resume: continue an existing session at the first target not yet recorded.
-        retry_skipped: on resume, also try the targets recorded as skipped again.
+        resume: continue an existing session: the targets not yet recorded and those skipped for a transient
+            reason (a timeout, lost mocap, no fresh status) are measured.
+        retry_skipped: on resume, also try the targets skipped for a lasting reason again.
         progress: show a progress bar with an ETA.
         clock: time source of the sample stamps [s] (a simulated cell passes its simulated clock, so a seeded
             run stamps the same times).
@@ -434,8 +450,11 @@ def run_session(session_dir: str | Path, driver: RobotDriver, mocap: MocapSource
     info = {"robot": driver.name, "body_id": body_id, "config": asdict(config)}
     store, plan = _open_store(session_dir, driver, plan, info, resume)
     with store:
-        if resume and retry_skipped:
-            store.forget_skipped()
+        n_retried = 0
+        if resume:
+            n_retried = store.forget_skipped(lasting_too=retry_skipped)
+            if n_retried:
+                log.warning("%d target(s) skipped earlier are measured again", n_retried)
         done = store.done()
         pending = [i for i in range(len(plan)) if i not in done]
         session = _Session(store, plan, driver, mocap, body_id, safety, others or {}, other_drivers or {}, config,
@@ -450,7 +469,7 @@ def run_session(session_dir: str | Path, driver: RobotDriver, mocap: MocapSource
         skipped = tuple((r["target_index"], r["reason"]) for r in store.rows("skipped"))
         n_ok = len(store.rows("ok"))
     return SessionResult(session_dir, len(plan), n_ok, len(skipped), n_new, skipped,
-                         n_ok + len(skipped) == len(plan), time.monotonic() - t_run)
+                         n_ok + len(skipped) == len(plan), time.monotonic() - t_run, n_retried)
 
 
 def export(session_dir: str | Path, out_csv: str | Path, kinds: Sequence[str] | None = None) -> int:

@@ -15,6 +15,14 @@ created": a new session takes it over and a resume is refused with a clear messa
 
 Why the arms were stopped (alarm, e-stop, lost connection, abort) is kept in an ``events`` table
 (:meth:`SessionStore.add_event`, :meth:`SessionStore.events`).
+
+A skipped target records whether its cause was transient (a timeout, lost mocap, no fresh status: worth measuring
+again) or lasting (a sample the store refused, a readback outside the limits); a resumed session tries the
+transient ones again (:meth:`SessionStore.forget_skipped`). A session written before that column existed gets it
+when a collector opens it, its skipped rows counting as transient.
+
+A write the disk refuses (full, read-only) raises :class:`SessionWriteFailed`, one line naming the file; what was
+committed before stays, and the session resumes once there is room.
 """
 
 from __future__ import annotations
@@ -24,7 +32,7 @@ import math
 import os
 import sqlite3
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from contextlib import closing
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,7 +41,7 @@ from typing import Any, Literal
 import numpy as np
 
 from app.cell.planning import Plan
-from calibration.errors import DataError
+from calibration.errors import CellCalError, DataError
 from calibration.files import ExclusiveLock, LockHeld
 
 DB_NAME = "session.sqlite"
@@ -65,7 +73,7 @@ QUAT_NORM_TOL = 1e-3
 _SAMPLE_COLUMNS = (
     ["target_index", "status", "robot", "kind", "cluster"] + [f"q{i}" for i in range(1, 7)]
     + ["x", "y", "z", "qw", "qx", "qy", "qz", "std_pos_mm", "std_rot_deg", "marker_err", "frames", "t"]
-    + [f"dir{i}" for i in range(1, 7)] + ["attempts", "reason", "recorded_at"]
+    + [f"dir{i}" for i in range(1, 7)] + ["attempts", "reason", "recorded_at", "transient"]
 )
 _DDL = f"""
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -77,7 +85,7 @@ CREATE TABLE IF NOT EXISTS samples (
     x REAL, y REAL, z REAL, qw REAL, qx REAL, qy REAL, qz REAL,
     std_pos_mm REAL, std_rot_deg REAL, marker_err REAL, frames INTEGER, t REAL,
     {", ".join(f"dir{i} INTEGER" for i in range(1, 7))},
-    attempts INTEGER NOT NULL, reason TEXT, recorded_at REAL NOT NULL
+    attempts INTEGER NOT NULL, reason TEXT, recorded_at REAL NOT NULL, transient INTEGER
 );
 CREATE TABLE IF NOT EXISTS events (
     id INTEGER PRIMARY KEY AUTOINCREMENT, t_wall REAL NOT NULL, robot TEXT NOT NULL, kind TEXT NOT NULL,
@@ -107,6 +115,20 @@ class SessionLocked(DataError):
         holder = f"process {pid}" if pid is not None else "another process (pid unknown)"
         super().__init__(folder, None, None, f"session folder is in use by {holder}; only one collector may use a "
                                              f"session at a time: wait for it to end or stop it, then retry")
+
+
+class SessionWriteFailed(CellCalError):
+    """The session file could not be written (a full disk, a read-only folder): what was committed before is kept.
+
+    Attributes:
+        path: the session file.
+        reason: SQLite's words.
+    """
+
+    def __init__(self, path: Path, reason: str) -> None:
+        self.path, self.reason = path, reason
+        super().__init__(f"{path}: cannot write the session ({reason}); everything recorded before is kept: free "
+                         "space (or fix the folder's permissions), then resume the session")
 
 
 @dataclass(frozen=True)
@@ -212,10 +234,14 @@ class SessionStore:
             conn.execute("PRAGMA journal_mode=WAL")
             conn.execute("PRAGMA synchronous=FULL")
             conn.executescript(_DDL)
+            if "transient" not in {r[1] for r in conn.execute("PRAGMA table_info(samples)")} and self._lock is not None:
+                conn.execute("ALTER TABLE samples ADD COLUMN transient INTEGER")  # a session of an older cellcal
             return conn
         except sqlite3.DatabaseError as e:
             if conn is not None:
                 conn.close()
+            if _write_refused(e):
+                raise SessionWriteFailed(self.path, str(e)) from e
             raise DataError(self.path, None, None, f"not a usable session database ({e})") from e
 
     def is_created(self) -> bool:
@@ -277,6 +303,14 @@ class SessionStore:
         _hook("schema")
         rows = {"schema": SCHEMA, "plan": json.dumps(plan.to_dict()), "info": json.dumps(info),
                 "created_wall": repr(time.time())}
+        try:
+            self._create(rows)
+        except sqlite3.OperationalError as e:
+            if _write_refused(e):
+                raise SessionWriteFailed(self.path, str(e)) from e
+            raise
+
+    def _create(self, rows: dict[str, str]) -> None:
         with self.conn:
             self.conn.execute("BEGIN IMMEDIATE")
             if self.is_created() or self.conn.execute("SELECT 1 FROM samples").fetchone() is not None:
@@ -351,38 +385,62 @@ class SessionStore:
         row = ([s.target_index, "ok", robot, kind, cluster] + [float(v) for v in s.q]
                + [float(v) for v in s.p] + [float(v) for v in s.quat]
                + [s.std_pos_mm, s.std_rot_deg, s.marker_err, int(s.frames), s.t]
-               + [int(v) for v in s.dirs] + [s.attempts, None, time.time()])
+               + [int(v) for v in s.dirs] + [s.attempts, None, time.time(), None])
         self._insert(row)
 
     def add_skipped(self, target_index: int, robot: str, kind: str, cluster: int, reason: str,
-                    attempts: int) -> None:
-        """Commit a target that could not be measured, with the reason."""
+                    attempts: int, transient: bool = True) -> None:
+        """Commit a target that could not be measured, with the reason and whether it was transient (a resume
+        tries a transient skip again)."""
         values = {"target_index": target_index, "status": "skipped", "robot": robot, "kind": kind,
-                  "cluster": cluster, "attempts": attempts, "reason": reason, "recorded_at": time.time()}
+                  "cluster": cluster, "attempts": attempts, "reason": reason, "recorded_at": time.time(),
+                  "transient": int(transient)}
         row = [values.get(c) for c in _SAMPLE_COLUMNS]
         self._insert(row)
 
-    def forget_skipped(self) -> int:
-        """Delete skipped rows so a resumed session tries those targets again; returns how many."""
-        with self.conn:
-            return self.conn.execute("DELETE FROM samples WHERE status = 'skipped'").rowcount
+    def retriable(self, lasting_too: bool = False) -> set[int]:
+        """Skipped targets a resume measures again: those skipped for a transient reason (or recorded before the
+        cause was kept), and with ``lasting_too`` every skipped one."""
+        sql = "SELECT target_index FROM samples WHERE status = 'skipped'"
+        if not lasting_too:
+            sql += " AND (transient IS NULL OR transient != 0)"
+        return {r[0] for r in self.conn.execute(sql)}
+
+    def forget_skipped(self, lasting_too: bool = True) -> int:
+        """Delete skipped rows so a resumed session tries those targets again; returns how many.
+
+        Args:
+            lasting_too: also the targets skipped for a lasting reason; False: the transient ones only.
+        """
+        sql = "DELETE FROM samples WHERE status = 'skipped'"
+        if not lasting_too:
+            sql += " AND (transient IS NULL OR transient != 0)"
+        return self._write(sql, ()).rowcount
 
     def _insert(self, row: list[Any]) -> None:
         sql = f"INSERT INTO samples ({', '.join(_SAMPLE_COLUMNS)}) VALUES ({', '.join('?' * len(_SAMPLE_COLUMNS))})"
         try:
-            with self.conn:
-                self.conn.execute(sql, row)
+            self._write(sql, row)
         except sqlite3.IntegrityError as e:
             raise DataError(self.path, None, f"target {row[0]}", f"already recorded ({e})") from e
+
+    def _write(self, sql: str, args: Sequence[Any]) -> sqlite3.Cursor:
+        """Run one write in its own transaction; a write the disk refuses raises SessionWriteFailed."""
+        try:
+            with self.conn:
+                return self.conn.execute(sql, args)
+        except sqlite3.OperationalError as e:
+            if _write_refused(e):
+                raise SessionWriteFailed(self.path, str(e)) from e
+            raise
 
     # ---- events --------------------------------------------------------------------------------------------
 
     def add_event(self, robot: str, kind: EventKind, reason: str, target_index: int | None = None) -> SessionEvent:
         """Commit why the arms were stopped (at once, like a sample) and return the recorded event."""
         event = SessionEvent(time.time(), robot, kind, reason, target_index)
-        with self.conn:
-            self.conn.execute("INSERT INTO events (t_wall, robot, kind, reason, target_index) VALUES (?, ?, ?, ?, ?)",
-                              (event.t_wall, robot, kind, reason, target_index))
+        self._write("INSERT INTO events (t_wall, robot, kind, reason, target_index) VALUES (?, ?, ?, ?, ?)",
+                    (event.t_wall, robot, kind, reason, target_index))
         return event
 
     def events(self) -> list[SessionEvent]:
@@ -392,13 +450,26 @@ class SessionStore:
 
     def rows(self, status: Literal["ok", "skipped"] | None = None) -> list[dict[str, Any]]:
         """Recorded rows as dicts ordered by target index, optionally filtered by status."""
-        sql = f"SELECT {', '.join(_SAMPLE_COLUMNS)} FROM samples"
+        present = {r[1] for r in self.conn.execute("PRAGMA table_info(samples)")}  # a reader of an older session
+        columns = [c for c in _SAMPLE_COLUMNS if c in present]
+        sql = f"SELECT {', '.join(columns)} FROM samples"
         args: tuple[Any, ...] = ()
         if status is not None:
             sql += " WHERE status = ?"
             args = (status,)
         cur = self.conn.execute(sql + " ORDER BY target_index", args)
-        return [dict(zip(_SAMPLE_COLUMNS, r)) for r in cur]
+        return [dict(zip(columns, r)) for r in cur]
+
+
+#: SQLite's primary result codes of a write the disk or the folder refused: SQLITE_READONLY, SQLITE_IOERR,
+#: SQLITE_FULL, SQLITE_CANTOPEN.
+_REFUSED_CODES = {8, 10, 13, 14}
+
+
+def _write_refused(e: sqlite3.Error) -> bool:
+    """True for a write the disk or the folder refused (full, read-only, I/O error)."""
+    code = getattr(e, "sqlite_errorcode", None)
+    return code is not None and (code & 0xFF) in _REFUSED_CODES
 
 
 def _hook(stage: str) -> None:

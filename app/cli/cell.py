@@ -156,6 +156,8 @@ def cmd_collect(args: argparse.Namespace) -> int:
     runtime = open_runtime(cell, args, robots=(args.robot,))  # a real cell's devices and registration: checked now
     if args.resume:
         _require_session(args.session, args.robot)  # refused at once when there is none or another process holds it
+    elif args.retry_skipped:
+        raise CellCalError("--retry-skipped applies to --resume only (a new session has nothing skipped)")
     elif not args.plan:
         raise CellCalError("a new session needs --plan PLAN (or --resume an existing one)")
     elif SessionStore.exists(args.session):
@@ -171,7 +173,7 @@ def cmd_collect(args: argparse.Namespace) -> int:
                              f"{config.speed_fraction:g} of full speed")
         try:
             result = collect_arm(rt, safety, args.robot, plan, Path(args.session), config,
-                                 resume=args.resume, progress=show_progress(args))
+                                 resume=args.resume, retry_skipped=args.retry_skipped, progress=show_progress(args))
         except SessionAborted:
             _print_events(args.session)
             raise
@@ -184,8 +186,14 @@ def cmd_collect(args: argparse.Namespace) -> int:
     events = _print_events(args.session)
     write_json(args.json, {"robot": args.robot, "session": str(args.session), "targets": result.n_targets,
                             "measured": result.n_ok, "skipped": [list(s) for s in result.skipped],
-                            "new": result.n_new, "complete": result.complete, "seconds": result.elapsed_s,
+                            "new": result.n_new, "retried": result.n_retried, "complete": result.complete,
+                            "unmeasured": result.unmeasured, "seconds": result.elapsed_s,
                             "mocap_frames_received": frames, "events": events, "sim": bool(args.sim)})
+    if result.unmeasured and not args.accept_skipped:  # it ended exit 0 with targets never measured again
+        raise CellCalError(f"{args.robot}: {result.unmeasured} of {result.n_targets} targets not measured; "
+                           f"cellcal collect --robot {args.robot} --session {args.session} --resume measures those "
+                           "skipped for a transient reason again (add --retry-skipped for every skipped one), "
+                           "or pass --accept-skipped to accept the session as it is")
     return 0
 
 
@@ -197,8 +205,9 @@ def _dry_run(args: argparse.Namespace, rt: Any, safety: Any, plan: Any, config: 
     from app.cell.session_store import SessionStore
 
     if plan is None:
-        with SessionStore(args.session) as store:
-            plan, done = store.plan(), store.done()
+        with SessionStore(args.session) as store:  # what the resume would measure: the same targets
+            plan = store.plan()
+            done = store.done() - store.retriable(lasting_too=getattr(args, "retry_skipped", False))
         if len(done) >= len(plan.targets):  # summarize_plan said 'plan: expected targets of one robot, got no target'
             print(f"dry run, no motion: every one of the {len(plan.targets)} targets of {args.session} is measured "
                   "or skipped; nothing left to collect")
@@ -436,7 +445,15 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
     p.add_argument("--plan", help="plan file (cellcal plan); optional with --resume")
     p.add_argument("--session", required=True, help="session folder (created; holds session.sqlite)")
-    p.add_argument("--resume", action="store_true", help="continue the session at the first target not recorded")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the session: the targets not yet recorded and those skipped for a transient reason "
+                        "(a timeout, lost mocap, no fresh controller status) are measured")
+    p.add_argument("--retry-skipped", action="store_true",
+                   help="with --resume: also measure again the targets skipped for a lasting reason (a sample the "
+                        "session refused, a joint readback outside the limits)")
+    p.add_argument("--accept-skipped", action="store_true",
+                   help="exit 0 even when targets stay skipped (without it a run that ends with targets not measured "
+                        "says so and exits 2)")
     p.add_argument("--json", help="write the session outcome as JSON")
     add_motion_options(p)
     p = add("export", cmd_export, "write a session's measured samples as a recording CSV", reads_cell=False)

@@ -119,7 +119,7 @@ class Recordings:
 
 
 def collect_arm(sim: SimCell, safety: CellSafety, robot: str, plan: Plan | None, session_dir: Path,
-                config: CollectConfig, *, resume: bool = False, progress: bool = True,
+                config: CollectConfig, *, resume: bool = False, retry_skipped: bool = False, progress: bool = True,
                 clock: Callable[[], float] | None = None) -> SessionResult:
     """Collect one arm's session while the other arms stay parked, then park the arm again.
 
@@ -129,7 +129,8 @@ def collect_arm(sim: SimCell, safety: CellSafety, robot: str, plan: Plan | None,
     driver = sim.drivers[robot]
     others = sim.others(robot)
     result = run_session(session_dir, driver, sim.mocap_for(robot), safety, body_id=sim.body_ids[robot], plan=plan,
-                         other_drivers=others, config=config, resume=resume, progress=progress,
+                         other_drivers=others, config=config, resume=resume, retry_skipped=retry_skipped,
+                         progress=progress,
                          **({} if clock is None else {"clock": clock}))
     move_safely(driver, sim.park_q(robot), safety, others, config.speed_fraction, config.settle_timeout_s)
     return result
