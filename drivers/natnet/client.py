@@ -51,6 +51,8 @@ class NatNetStats:
         frames_dropped: rigid-body frames discarded because the buffer was full (read() too slow).
         last_error: message of the last rejected datagram, ``""`` if none.
         handshakes: ``NAT_SERVERINFO`` replies received (1 after connect, +1 per server restart seen).
+        packets_foreign: datagrams from another address than the server's, dropped unread.
+        bodies_dropped: rigid bodies dropped from parsed frames for a non-finite pose or a non-unit quaternion.
     """
 
     packets_received: int = 0
@@ -59,6 +61,8 @@ class NatNetStats:
     frames_dropped: int = 0
     last_error: str = ""
     handshakes: int = 0
+    packets_foreign: int = 0
+    bodies_dropped: int = 0
 
 
 class NatNetSource(MocapSource):
@@ -127,7 +131,7 @@ class NatNetSource(MocapSource):
     def stats(self) -> NatNetStats:
         """A snapshot of the receive counters."""
         with self._cond:
-            return self._stats
+            return dataclasses.replace(self._stats, packets_foreign=self._link.foreign_dropped)
 
     def connect(self) -> None:
         """Open both sockets, handshake with the server and start the receive thread.
@@ -214,7 +218,11 @@ class NatNetSource(MocapSource):
             self._buffer.extend(frame.rigid_bodies)
             self._stats = dataclasses.replace(s, packets_received=s.packets_received + 1,
                                               frames_parsed=s.frames_parsed + 1,
-                                              frames_dropped=s.frames_dropped + overflow)
+                                              frames_dropped=s.frames_dropped + overflow,
+                                              bodies_dropped=s.bodies_dropped + frame.bodies_dropped)
+            if frame.bodies_dropped and not s.bodies_dropped:
+                log.warning("%s: dropping rigid bodies with a non-finite pose or a non-unit quaternion",
+                            self.device)
             self._cond.notify_all()
 
     def _count_rejected(self, error: ProtocolError, received: bool = False) -> None:

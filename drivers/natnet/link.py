@@ -6,6 +6,11 @@ back to it) and a data socket (the data port, joined to the multicast group in m
 also sends ``NAT_KEEPALIVE`` in unicast mode and re-sends ``NAT_CONNECT`` when nothing has arrived for
 ``reconnect_s`` (Motive restarted, or the network dropped): the restarted server answers with
 ``NAT_SERVERINFO`` and, in unicast mode, streams to the client again.
+
+Only the configured server is heard: a datagram from any other address (a forged frame from another host of the
+network, which made a collection skip targets with injected NaN frames) is dropped and counted
+(:attr:`NatNetLink.foreign_dropped`), never parsed. NatNet has no authentication: the mocap network must still be
+trusted (a host that can forge the server's address can inject frames).
 """
 
 from __future__ import annotations
@@ -47,9 +52,12 @@ class NatNetLink:
         self.keepalive_s, self.reconnect_s = keepalive_s, reconnect_s
         self.cmd: socket.socket | None = None
         self.data: socket.socket | None = None
+        self.foreign_dropped = 0  # datagrams from another address than the server's, dropped
+        self._server_ip: str | None = None
 
     def open(self) -> None:
-        """Bind both sockets (and join the group); raises OSError."""
+        """Resolve the server's address, bind both sockets (and join the group); raises OSError."""
+        self._server_ip = socket.gethostbyname(self.server[0])
         self.cmd = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.cmd.bind((self.local_address, 0))
         self.data = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -71,12 +79,23 @@ class NatNetLink:
         self.cmd.sendto(packet, self.server)
 
     def recv_command(self, timeout_s: float) -> bytes | None:
-        """One datagram from the command socket, None after ``timeout_s`` [s] (blocking mode only)."""
+        """One datagram of the server from the command socket, None after ``timeout_s`` [s] (blocking mode only)."""
         self.cmd.settimeout(max(timeout_s, 1e-3))
         try:
-            return self.cmd.recv(RECV_SIZE)
+            packet, source = self.cmd.recvfrom(RECV_SIZE)
         except (socket.timeout, ConnectionRefusedError):
             return None
+        return packet if self._from_server(source) else None
+
+    def _from_server(self, source: tuple[str, int]) -> bool:
+        """True for a datagram from the server's address; another sender's is counted and dropped."""
+        if source[0] == self._server_ip:
+            return True
+        if self.foreign_dropped == 0:
+            log.warning("%s: dropping datagrams from %s:%d, not the NatNet server %s", self.device, source[0],
+                        source[1], self._server_ip)
+        self.foreign_dropped += 1
+        return False
 
     def _send_quietly(self, packet: bytes) -> None:
         try:
@@ -100,8 +119,10 @@ class NatNetLink:
             while not stop.is_set():
                 for key, _ in sel.select(POLL_S):
                     try:
-                        packet = key.fileobj.recv(RECV_SIZE)
+                        packet, source = key.fileobj.recvfrom(RECV_SIZE)
                     except ConnectionRefusedError:  # ICMP port unreachable: the server is down
+                        continue
+                    if not self._from_server(source):
                         continue
                     last_packet = time.monotonic()
                     handle(packet)

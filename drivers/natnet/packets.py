@@ -15,6 +15,7 @@ raises :class:`~drivers.errors.ProtocolError`; nothing is returned half-parsed.
 from __future__ import annotations
 
 import dataclasses
+import math
 import struct
 from dataclasses import dataclass
 
@@ -60,6 +61,8 @@ class MocapFrame:
         precision_timestamp_frac: fraction of a second of the precision timestamp, taken as units of
             2**-32 s (the SDK names it "fractional seconds" without a unit; check against a real Motive
             before relying on sub-second precision time, see :data:`PRECISION_FRACTION_PER_S`).
+        bodies_dropped: rigid bodies left out of ``rigid_bodies`` because their pose was not finite or their
+            quaternion not of unit norm (a corrupt or forged frame; Motive streams unit quaternions).
     """
 
     frame_number: int
@@ -77,6 +80,7 @@ class MocapFrame:
     params: int
     precision_timestamp_sec: int = 0
     precision_timestamp_frac: int = 0
+    bodies_dropped: int = 0
 
     @property
     def precision_time_s(self) -> float | None:
@@ -202,10 +206,22 @@ def parse_frame(payload: bytes | memoryview, version: tuple[int, int]) -> MocapF
     frame = MocapFrame(frame_number, (), tuple(marker_sets), unlabeled, skeleton_count, labeled_count,
                        timecode, timecode_sub, timestamp, *stamps, params, *precision)
     capture_time = frame.capture_time
+    kept = [b for b in bodies if _usable_pose(b[1], b[2], b[3])]
     rigid_bodies = tuple(
         RigidBodyFrame(body_id=i, position_mm=p, quat_wxyz=q, marker_error_mm=e,
                        tracking_valid=bool(f & TRACKING_VALID), capture_time=capture_time,
                        frame_number=frame_number)
-        for i, p, q, e, f in bodies
+        for i, p, q, e, f in kept
     )
-    return dataclasses.replace(frame, rigid_bodies=rigid_bodies)
+    return dataclasses.replace(frame, rigid_bodies=rigid_bodies, bodies_dropped=len(bodies) - len(kept))
+
+
+#: Largest departure of a streamed quaternion's norm from 1 (Motive streams float32 unit quaternions, ~1e-7 off).
+QUAT_NORM_TOL = 1e-3
+
+
+def _usable_pose(p_mm: np.ndarray, quat: np.ndarray, error_mm: float) -> bool:
+    """A finite position, marker error and unit quaternion: NaN positions and zero quaternions passed as
+    tracking-valid frames (issue 30), whatever their tracking flag said."""
+    return bool(np.all(np.isfinite(p_mm)) and np.all(np.isfinite(quat)) and math.isfinite(error_mm)
+                and abs(float(np.linalg.norm(quat)) - 1.0) <= QUAT_NORM_TOL)

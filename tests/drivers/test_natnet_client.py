@@ -321,3 +321,52 @@ def test_fake_motive_multicast():
                          data_port=data_port, multicast_group=GROUP) as src:
         assert src.server_info.multicast and src.server_info.data_port == data_port
         assert len(_read_until(src, 40)) >= 40
+
+
+# -- only the server is heard, and only usable poses pass (issue 30) ----------------------------------------------
+
+
+def test_datagrams_from_another_sender_are_dropped_unread():
+    """NatNet accepted datagrams from any sender: a host of the mocap network could inject frames. A second sender
+    on loopback (127.0.0.2) sends well-formed frames to the client's command and data sockets; none is read."""
+    with FakeNatNetServer((4, 1)) as server, _unicast(server) as src:
+        forged = encode_frame(FakeFrame(999, (FakeBody(1, (9.0, 9.0, 9.0)),)), (4, 1))
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as attacker:
+            attacker.bind(("127.0.0.2", 0))
+            for port in (src._link.cmd.getsockname()[1], src.data_port):
+                for _ in range(5):
+                    attacker.sendto(forged, ("127.0.0.1", port))
+            time.sleep(0.1)
+            for n in range(1, 4):
+                server.send_frame(_frame(n))
+            frames = _read_until(src, 6)
+        assert len(frames) == 6 and all(f.frame_number != 999 for f in frames)
+        assert src.stats.packets_foreign == 10 and src.stats.frames_parsed == 3
+
+
+@pytest.mark.parametrize("position_m, quat_xyzw, error_m", [
+    ((float("nan"), 0.0, 1.0), (0.0, 0.0, 0.0, 1.0), 0.0002),
+    ((0.0, float("inf"), 1.0), (0.0, 0.0, 0.0, 1.0), 0.0002),
+    ((0.0, 0.0, 1.0), (0.0, 0.0, 0.0, 0.0), 0.0002),  # a zero quaternion
+    ((0.0, 0.0, 1.0), (0.0, 0.0, 0.0, 2.0), 0.0002),  # not unit
+    ((0.0, 0.0, 1.0), (float("nan"), 0.0, 0.0, 1.0), 0.0002),
+    ((0.0, 0.0, 1.0), (0.0, 0.0, 0.0, 1.0), float("nan")),
+])
+@pytest.mark.parametrize("version", [(3, 1), (4, 1)])
+def test_a_non_finite_or_non_unit_pose_is_dropped_by_the_parser(position_m, quat_xyzw, error_m, version):
+    """Frames with NaN positions or zero quaternions passed as tracking_valid (issue 30)."""
+    from drivers.natnet.packets import parse_frame
+
+    bad = FakeBody(5, position_m, quat_xyzw, error_m, tracking_valid=True)
+    good = FakeBody(6, (0.1, 0.2, 0.3), (0.0, 0.0, np.sin(0.2), np.cos(0.2)))
+    frame = parse_frame(encode_frame(FakeFrame(1, (bad, good)), version)[4:], version)
+    assert [b.body_id for b in frame.rigid_bodies] == [6] and frame.bodies_dropped == 1
+    np.testing.assert_allclose(frame.rigid_bodies[0].position_mm, [100.0, 200.0, 300.0], atol=1e-4)
+
+
+def test_dropped_bodies_are_counted_by_the_client():
+    with FakeNatNetServer((4, 1)) as server, _unicast(server) as src:
+        server.send_frame(FakeFrame(1, (FakeBody(1, (float("nan"), 0.0, 1.0)), FakeBody(2, (0.0, 0.0, 1.0)))))
+        frames = _read_until(src, 1)
+        time.sleep(0.05)
+        assert [f.body_id for f in frames] == [2] and src.stats.bodies_dropped == 1

@@ -64,7 +64,7 @@ def test_frame_fields_units_and_quaternion_order(version):
 
 def test_hand_built_4_1_packet():
     """One rigid body written out by hand, with the 4.1 byte counts, independent of the fake encoder."""
-    body = struct.pack("<i3f4ffh", 9, 1.0, 2.0, 3.0, 0.1, 0.2, 0.3, 0.9, 0.0005, 0x05)
+    body = struct.pack("<i3f4ffh", 9, 1.0, 2.0, 3.0, 0.1, 0.2, 0.3, 0.86 ** 0.5, 0.0005, 0x05)  # a unit quaternion
     empty = struct.pack("<ii", 0, 0)
     payload = (struct.pack("<i", 77) + empty + empty + struct.pack("<ii", 1, len(body)) + body
                + empty + empty + empty + empty + empty
@@ -76,7 +76,7 @@ def test_hand_built_4_1_packet():
     assert f.precision_time_s == 1_700_000_000.75
     assert b.capture_time == f.capture_time == 9.5  # the frame time, not the precision timestamp
     np.testing.assert_allclose(b.position_mm, [1000, 2000, 3000])
-    np.testing.assert_allclose(b.quat_wxyz, [0.9, 0.1, 0.2, 0.3], atol=1e-7)
+    np.testing.assert_allclose(b.quat_wxyz, [0.86 ** 0.5, 0.1, 0.2, 0.3], atol=1e-7)
     np.testing.assert_allclose(b.marker_error_mm, 0.5, atol=1e-6)
     with pytest.raises(ProtocolError):  # the same bytes read with the 3.x layout do not add up
         parse_frame(payload, (3, 1))
