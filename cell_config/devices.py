@@ -42,7 +42,8 @@ class ControllerConfig:
         groups: robot name -> MotoROS control group (0..3), distinct.
         connect_timeout_s: TCP connect timeout [s].
         reply_timeout_s: timeout of one motion-server reply [s].
-        start_traj_timeout_s: timeout of START_TRAJ_MODE (alarm reset + servo on, ~10 s on a real controller) [s].
+        start_traj_timeout_s: timeout of START_TRAJ_MODE [s]: MotoROS resets alarms, turns the servos on and
+            starts its job, each waited for up to 5 s, so up to ~15 s on a real controller (25 s leaves margin).
         max_speed_fraction: cap of ``--speed`` as a fraction of each joint's maximum speed, in (0, 1].
         joint_margin_deg: distance kept from every joint limit on this cell [deg].
     """
@@ -52,7 +53,7 @@ class ControllerConfig:
     state_port: int = 50241
     connect_timeout_s: float = 5.0
     reply_timeout_s: float = 2.0
-    start_traj_timeout_s: float = 15.0
+    start_traj_timeout_s: float = 25.0
     max_speed_fraction: float = 0.25
     joint_margin_deg: float = 2.0
     groups: Mapping[str, int] = field(kw_only=True)
@@ -77,6 +78,8 @@ class MocapConfig:
         data_port: NatNet data port (UDP).
         dwell_s: length of each measurement's averaging window [s of capture time]; None keeps the collection's
             default (:class:`app.cell.collect.CollectConfig`). It must hold ``min_frames`` frames at the frame rate.
+        stream_wait_s: how long the collector waits for a stopped mocap stream (the bridge restarted, the network
+            dropped) before the measurement counts as failed [s].
     """
 
     server_address: str
@@ -87,6 +90,7 @@ class MocapConfig:
     command_port: int = 1510
     data_port: int = 1511
     dwell_s: float | None = None
+    stream_wait_s: float = 30.0
 
 
 @dataclass(frozen=True)
@@ -147,7 +151,7 @@ def parse_mocap(node: Node | None, robots: Mapping[str, Any]) -> MocapConfig | N
         return None
     d = MocapConfig("", "", False, {})
     node.only(("server_address", "local_address", "multicast", "multicast_group", "command_port", "data_port",
-               "rigid_bodies", "dwell_s"))
+               "rigid_bodies", "dwell_s", "stream_wait_s"))
     b = _robot_names(node, "rigid_bodies", robots)
     bodies = {str(name): b.string(name) for name in b.data}
     if len(set(bodies.values())) != len(bodies):
@@ -167,6 +171,7 @@ def parse_mocap(node: Node | None, robots: Mapping[str, Any]) -> MocapConfig | N
         multicast=node.boolean("multicast"), rigid_bodies=bodies, multicast_group=group,
         command_port=command_port, data_port=data_port, dwell_s=node.number("dwell_s", None, lo=0.0, hi=MAX_DWELL_S,
                                                                        lo_open=True),
+        stream_wait_s=node.number("stream_wait_s", d.stream_wait_s, lo=0.0, hi=3600.0, lo_open=True),
     )
 
 

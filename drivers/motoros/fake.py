@@ -8,7 +8,11 @@ RobotStatus (13) at ``publish_hz`` (StateServer.c, Ros_StateServer_SendState). F
 velocity, no time, as MotoROS's does.
 
 Motion connections follow MotionServer.c (Ros_MotionServer_StartNewConnection, MAX_MOTION_CONNECTIONS = 1): a
-new connection replaces an idle one, and is closed at once while a queue still holds motion.
+new connection replaces an idle one, and is closed at once while a queue still holds motion. What the motion
+server does with each message follows Ros_MotionServer_WaitForSimpleMsg and Ros_MotionServer_SimpleMsgProcess: a
+type it has no size for (Ros_MotionServer_GetExpectedByteSizeForMessageType) is answered INVALID 3003 and the
+connection stays; a type it knows but does not serve on the motion port (RobotStatus, JointFeedback(Ex), a
+MotoMotionReply) drops the connection without a reply; a successful DISCONNECT closes it without a reply too.
 
 Faults for tests: ``set_alarm``, ``set_estop``, ``set_servo``, ``set_mode``, ``set_remote``, ``set_hold``,
 ``set_nonfinite_feedback``, ``drop_connections``, ``stall_replies``, ``split_messages``, ``inject_state_bytes``.
@@ -27,15 +31,24 @@ import numpy as np
 from drivers.errors import DriverError, ProtocolError
 from drivers.motoros.codec import (JointFeedback, JointFeedbackEx, Message, MotionReply, Result, ValidFields,
                                    decode)
-from drivers.motoros.codes import InvalidSubcode
+from drivers.motoros.codes import InvalidSubcode, MsgType
 from drivers.motoros.errors import InvalidArgument
 from drivers.motoros.fake_arm import INTERPOLATION_PERIOD_S, SimulatedGroup
 from drivers.motoros.fake_logic import SimulatedController
-from drivers.motoros.framing import Framer, recv_into_framer
+from drivers.motoros.framing import Framer, Packet, recv_into_framer
 
 log = logging.getLogger("cellcal.drivers")
 
 _POLL_S = 0.05
+#: Types MotoROS's motion server has a size for but does not serve (SimpleMsgProcess's default: the connection
+#: closes, no reply is sent).
+_NOT_SERVED = {int(MsgType.ROBOT_STATUS), int(MsgType.JOINT_FEEDBACK), int(MsgType.MOTO_MOTION_REPLY),
+               int(MsgType.JOINT_FEEDBACK_EX)}
+#: Every type GetExpectedByteSizeForMessageType has a size for (SimpleMessage.h numbers): ping 1, the two point
+#: types, MotoMotionCtrl, the I/O requests 2003/2005/2007/2009, SELECT_TOOL 2018, GET_DH_PARAMETERS 2020, and the
+#: four not served. Those this fake does not implement (ping, I/O, tool, DH) it cannot decode and answers INVALID
+#: 3001 (a liberty: MotoROS serves them).
+_SIZED = {1, 14, 2001, 2016, 2003, 2005, 2007, 2009, 2018, 2020} | _NOT_SERVED
 DEFAULT_PULSES_PER_RAD = 1.0e5  # a generic encoder (30 pulses = 0.3 mrad); fake_cell uses the robot YAML's
 _DEVICE = "fake-motoros"
 
@@ -221,7 +234,10 @@ class FakeMotorosController:
 
     # -- connections -----------------------------------------------------------------------------
     def _accept(self, listener: socket.socket, on_client: Callable[[socket.socket], None]) -> None:
-        listener.settimeout(_POLL_S)
+        try:
+            listener.settimeout(_POLL_S)
+        except OSError:  # closed before this thread ran
+            return
         while not self._stop.is_set():
             try:
                 sock, _ = listener.accept()
@@ -267,27 +283,21 @@ class FakeMotorosController:
 
     def _serve_motion(self, sock: socket.socket) -> None:
         framer = Framer("fake-motoros-motion")
-        sock.settimeout(_POLL_S)
         try:
+            sock.settimeout(_POLL_S)  # EBADF when a newer connection replaced this one before its thread ran
             while not self._stop.is_set():
                 try:
                     packets = recv_into_framer(sock, framer)
                 except TimeoutError:
                     continue
                 for packet in packets:
-                    try:
-                        msg = decode(packet)
-                    except ProtocolError:  # MotoROS answers a mis-sized or unknown message, it does not hang up
-                        reply, hang_up = MotionReply(-1, -1, packet.msg_type, Result.INVALID,
-                                                     InvalidSubcode.MSGSIZE), False
-                    else:
-                        with self._lock:
-                            self.received.append(msg)
-                        reply, hang_up = self.controller.answer(msg)
-                    if not self._stall and not self._send(sock, reply.encode()):
+                    reply, hang_up = self._answer(packet)
+                    if reply is not None and not self._stall and not self._send(sock, reply.encode()):
                         return
                     if hang_up:
                         return
+        except OSError as e:  # the socket closed under this thread (replaced, dropped): the client is gone
+            log.info("fake motoros: motion connection closed: %s", e)
         except DriverError as e:
             log.info("fake motoros: motion client gone: %s", e)
         finally:
@@ -295,6 +305,22 @@ class FakeMotorosController:
                 if self._motion_client is sock:
                     self._motion_client = None
             sock.close()
+
+    def _answer(self, packet: Packet) -> tuple[MotionReply | None, bool]:
+        """The reply to one packet (None: none is sent) and whether the connection closes after it."""
+        if packet.msg_type not in _SIZED:  # "Unknown Message Received": INVALID_MSGTYPE, the connection stays
+            return MotionReply(0, -1, packet.msg_type, Result.INVALID, InvalidSubcode.MSGTYPE), False
+        if packet.msg_type in _NOT_SERVED:  # SimpleMsgProcess's default returns ERROR: disconnect, no reply
+            log.info("fake motoros: message type %d is not served on the motion port; closing", packet.msg_type)
+            return None, True
+        try:
+            msg = decode(packet)
+        except ProtocolError:  # a served type of the wrong size: INVALID_MSGSIZE, the connection stays
+            return MotionReply(-1, -1, packet.msg_type, Result.INVALID, InvalidSubcode.MSGSIZE), False
+        with self._lock:
+            self.received.append(msg)
+        reply, hang_up = self.controller.answer(msg)
+        return (None if hang_up else reply), hang_up  # a successful DISCONNECT: closed without a reply
 
     # -- simulation and publication --------------------------------------------------------------
     def _feedback(self) -> list[JointFeedback]:

@@ -12,7 +12,8 @@ controller, so R1 and R2 on one controller cannot each open their own: they shar
   reply can never be taken for the answer to a later request; the next request reconnects (bounded tries).
   START_TRAJ_MODE gets its own, longer timeout: MotoROS answers it only after resetting alarms, turning the
   servos on and starting its INIT_ROS job, each waited for up to 5 s (MotionServer.c,
-  Ros_MotionServer_StartTrajMode, MOTION_START_TIMEOUT), so ~10 s is normal on a real controller.
+  Ros_MotionServer_StartTrajMode, MOTION_START_TIMEOUT), so up to ~15 s on a real controller; the default
+  25 s leaves it margin (15 s had none), and ``start_traj_timeout_s`` (the cell file's) sets it.
 * Trajectory mode is a controller-wide state: the link remembers that a START_TRAJ_MODE succeeded and sends
   STOP_TRAJ_MODE when its last user closes it (as motoman_driver does on shutdown), so the controller's
   INIT_ROS job ends and INFORM jobs can run again.
@@ -113,7 +114,7 @@ class MotorosLink:
     """
 
     def __init__(self, host: str, motion_port: int = MOTION_PORT, state_port: int = STATE_PORT, *,
-                 reply_timeout_s: float = 1.0, connect_timeout_s: float = 2.0, start_traj_timeout_s: float = 15.0,
+                 reply_timeout_s: float = 1.0, connect_timeout_s: float = 2.0, start_traj_timeout_s: float = 25.0,
                  reconnect_attempts: int = 3, backoff_s: float = 0.05, max_backoff_s: float = 1.0,
                  stale_after_s: float = 0.5) -> None:
         self.motion_device = f"motoros@{host}:{motion_port}"

@@ -187,7 +187,7 @@ _CONTROLLER_KEYS = ("host, motion_port, state_port, groups, connect_timeout_s, r
     (_set("mocap", "data_port", 1510), "mocap.data_port", "other than command_port (1510)"),
     (_set("mocap", "command_port", 99999), "mocap.command_port", "expected an integer in [1, 65535]"),
     (_set("mocap", "rigid_body_ids", {"R1": 1}), "mocap.rigid_body_ids", "valid keys: server_address, local_address, "
-     "multicast, multicast_group, command_port, data_port, rigid_bodies, dwell_s"),
+     "multicast, multicast_group, command_port, data_port, rigid_bodies, dwell_s, stream_wait_s"),
     (_set("mocap", "dwell_s", 0), "mocap.dwell_s", "expected a finite number in (0, 10], got 0"),
     (_set("mocap", "dwell_s", "0.5"), "mocap.dwell_s", "expected a finite number in (0, 10]"),
     (_set("mocap", "dwell_s", 1e7), "mocap.dwell_s", "expected a finite number in (0, 10], got 10000000.0"),

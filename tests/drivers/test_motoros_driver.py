@@ -346,7 +346,8 @@ def test_servo_off_is_switched_on_by_start_traj_mode() -> None:
 
 
 def test_start_traj_mode_has_its_own_longer_timeout() -> None:
-    assert MotorosLink("127.0.0.1").start_traj_timeout_s == 15.0
+    # three waits of up to 5 s each (MotionServer.c, MOTION_START_TIMEOUT): 15 s had no margin
+    assert MotorosLink("127.0.0.1").start_traj_timeout_s == 25.0 > 3 * 5.0
     with FakeMotorosController(max_speed_rad_s=SPEED, initial_q=Q0, servo_on_delay_s=0.8) as fake:
         fake.set_servo(False)
         with MotorosDriver(_link(fake, reply_timeout_s=0.3, start_traj_timeout_s=0.4), 0, SPEED) as r1:
@@ -639,3 +640,89 @@ def test_an_alarm_after_a_clear_status_or_one_that_lasts_is_a_fault() -> None:
     driver._target = Q0[0] + 0.1  # the arm does not move
     with pytest.raises(RobotFault, match="code 4107"):
         driver.wait_settled(1.0)
+
+
+# -- the motion server's handling of each message, as MotionServer.c's WaitForSimpleMsg / SimpleMsgProcess -------
+
+
+def _raw_client(fake: FakeMotorosController) -> tuple[socket.socket, Framer]:
+    sock = socket.create_connection((fake.host, fake.motion_port), timeout=1.0)
+    return sock, Framer("test")
+
+
+def _next(sock: socket.socket, framer: Framer) -> object:
+    """The next reply, or 'closed' when the controller hung up (timeout: AssertionError)."""
+    from drivers.motoros.codec import decode
+    from drivers.motoros.framing import recv_into_framer
+
+    deadline = time.monotonic() + 1.0
+    while time.monotonic() < deadline:
+        try:
+            packets = recv_into_framer(sock, framer)
+        except DriverDisconnected:
+            return "closed"
+        except TimeoutError:
+            continue
+        if packets:
+            return decode(packets[0])
+    raise AssertionError("neither a reply nor a close within 1 s")
+
+
+def test_disconnect_closes_the_connection_without_a_reply(fake) -> None:
+    """MotoROS returns 1 from MotionCtrlProcess on DISCONNECT and closes before sending the reply; the fake
+    answered it."""
+    sock, framer = _raw_client(fake)
+    with sock:
+        sock.sendall(MotionCtrl(0, 1, Command.CHECK_MOTION_READY).encode())
+        assert isinstance(_next(sock, framer), MotionReply)
+        sock.sendall(MotionCtrl(0, 2, Command.DISCONNECT).encode())
+        assert _next(sock, framer) == "closed"
+
+
+@pytest.mark.parametrize("msg_type", [999, 2, 2030, 7])
+def test_an_unknown_message_type_is_answered_3003_and_the_connection_stays(fake, msg_type) -> None:
+    """GetExpectedByteSizeForMessageType has no size: 'Unknown Message Received', INVALID 3003 (the fake said
+    3001), and the loop goes on."""
+    from drivers.motoros.codec import Packet
+
+    sock, framer = _raw_client(fake)
+    with sock:
+        sock.sendall(Packet(msg_type, 2, 0, bytes(8)).to_bytes())
+        reply = _next(sock, framer)
+        assert isinstance(reply, MotionReply) and (reply.result, reply.subcode) == (Result.INVALID, 3003)
+        sock.sendall(MotionCtrl(0, 1, Command.CHECK_MOTION_READY).encode())
+        assert isinstance(_next(sock, framer), MotionReply)  # still connected
+
+
+@pytest.mark.parametrize("msg", [RobotStatusMsg(1, 0, 0, 0, 0, 2, 1),
+                                 JointFeedback(0, np.zeros(6), np.zeros(6)),
+                                 MotionReply(0, 1, Command.STOP_MOTION, Result.SUCCESS, 0)])
+def test_a_type_the_motion_port_does_not_serve_drops_the_connection(fake, msg) -> None:
+    """SimpleMsgProcess's default returns ERROR: WaitForSimpleMsg breaks out and closes, no reply sent; the fake
+    stayed connected."""
+    sock, framer = _raw_client(fake)
+    with sock:
+        sock.sendall(msg.encode())
+        assert _next(sock, framer) == "closed"
+
+
+def test_a_connection_replaced_before_its_thread_runs_does_not_kill_the_thread(monkeypatch) -> None:
+    """After a reconnect the fake's thread of the replaced connection died with EBADF (settimeout on a socket the
+    newer connection had already closed): a thread scheduled late, as on a loaded machine."""
+    errors: list[BaseException] = []
+    monkeypatch.setattr(threading, "excepthook", lambda args: errors.append(args.exc_value))
+    serve = FakeMotorosController._serve_motion
+
+    def late(self, sock):  # noqa: ANN001
+        time.sleep(0.2)
+        serve(self, sock)
+
+    monkeypatch.setattr(FakeMotorosController, "_serve_motion", late)
+    with FakeMotorosController(max_speed_rad_s=SPEED, initial_q=Q0) as fake:
+        first = socket.create_connection((fake.host, fake.motion_port), timeout=1.0)
+        time.sleep(0.05)
+        second = socket.create_connection((fake.host, fake.motion_port), timeout=1.0)  # replaces the first
+        time.sleep(0.4)
+        first.close()
+        second.close()
+    assert errors == []
