@@ -474,7 +474,8 @@ def run_session(session_dir: str | Path, driver: RobotDriver, mocap: MocapSource
 
 def export(session_dir: str | Path, out_csv: str | Path, kinds: Sequence[str] | None = None) -> int:
     """Write the session's measured samples as a recording CSV (extra columns: cluster, t, dir1..dir6,
-    marker_err, frames).
+    marker_err, frames), in the order they were measured (``t`` is monotonic, as the recording format wants; a
+    skipped target measured on a resume comes after the targets measured before it).
 
     Args:
         session_dir: the session folder.
@@ -494,6 +495,7 @@ def export(session_dir: str | Path, out_csv: str | Path, kinds: Sequence[str] | 
             raise DataError(store.path, None, "robot", f"the session names several robots ({', '.join(robots)}); "
                                                        "a recording holds one arm's samples")
         rows = [r for r in store.rows("ok") if kinds is None or r["kind"] in kinds]
+    rows.sort(key=lambda r: r["t"])  # measurement order: a target a resume measured again comes after the others
     if not rows:
         raise DataError(Path(session_dir), None, None,
                         f"no measured samples{'' if kinds is None else ' of kind ' + ', '.join(kinds)} to export")

@@ -121,9 +121,12 @@ def collect_window(mocap: MocapSource, body_id: int, config: WindowOptions, link
 
     The window opens ``discard_s`` after the later of: the first frame read after the flush, and ``settled_at``
     (host clock, default: now) mapped onto the capture clock by ``link``. The mapping sharpens as frames come in,
-    so the start can only move later while the window fills; the frames are kept and sorted out at the end. The
-    mapped start is at most ``frame_timeout_s`` after the first frame's (frames held up longer are a dropout, not
-    transit; a link off its source's clock, see :meth:`drivers.base.MocapSource.stamp_clock`, costs no more).
+    so the start can only move later while the window fills; the frames are kept and sorted out at the end. A
+    frame read more than ``frame_timeout_s`` after the link says it was captured is held up, not in transit (a
+    bridge or a network that stalled delivers its backlog): it is left out. A stalled bridge's backlog, captured
+    while the arm moved to the target, had opened the window and made a sample 22.7 mm off (issue 30's rehearsal).
+    A link off its source's clock (see :meth:`drivers.base.MocapSource.stamp_clock`) sees every frame held up and
+    fails the window, naming it.
 
     Args:
         link: the source's clock link, kept across windows (it learns the offset from every read).
@@ -143,15 +146,22 @@ def collect_window(mocap: MocapSource, body_id: int, config: WindowOptions, link
         got = mocap.read(config.frame_timeout_s)
         if not got:
             raise WindowFailed(f"mocap: no frames for {config.frame_timeout_s:g} s")
-        if link.observe(got) > give_up:
+        read_at = link.observe(got)
+        if read_at > give_up:
             raise WindowFailed(f"mocap: frames came but none closed the {config.dwell_s:g} s window by "
-                               f"{give_up - settled_at:.3g} s after the arm settled (capture clock off the host's)")
+                               f"{give_up - settled_at:.3g} s after the arm settled (frames held up, or a capture "
+                               "clock off the host's)")
+        # frames held up longer than a dropout (a backlog: the bridge or the network stalled) were captured before
+        # now by more than the link allows; they say nothing of the pose the arm holds now
+        now = link.to_capture(read_at)
+        got = [f for f in got if now - f.capture_time <= config.frame_timeout_s]
+        if not got:
+            continue
         if not got_all:
             first = got[0].capture_time + config.discard_s
             t0 = first
         got_all += got
-        # frames held up longer than a dropout are not in transit: a larger shift is a link off its source's clock
-        t0 = max(t0, min(link.to_capture(settled_at) + config.discard_s, first + config.frame_timeout_s))
+        t0 = max(t0, link.to_capture(settled_at) + config.discard_s)
         if got[-1].capture_time >= t0 + config.dwell_s:
             break
     window = [f for f in got_all if t0 <= f.capture_time <= t0 + config.dwell_s]

@@ -142,7 +142,8 @@ class RealCell:
             contact validation, which reads the CAN probe instead).
         registered: True to require a registration of those arms and read their frames in the base frame;
             False to read mocap-world frames (for ``cellcal register``).
-        stream_wait_s: how long a read waits for a stopped mocap stream [s].
+        stream_wait_s: how long a read waits for a stopped mocap stream [s]; None: the cell file's
+            ``mocap.stream_wait_s`` (30 s by default).
         first_frame_s: how long :meth:`open` waits for the first frame of each arm's rigid body [s]: without the
             mocap an arm would reach its first target and wait ``stream_wait_s`` there before failing.
         reset_alarms: let START_TRAJ_MODE reset a standing controller alarm (MotoROS does); off by default, so a
@@ -150,12 +151,14 @@ class RealCell:
     """
 
     def __init__(self, cell: Any, robots: Sequence[str] | None = None, *, registered: bool = True,
-                 stream_wait_s: float = 30.0, first_frame_s: float = 5.0, reset_alarms: bool = False) -> None:
+                 stream_wait_s: float | None = None, first_frame_s: float = 5.0, reset_alarms: bool = False) -> None:
         self.cell = cell
         self.first_frame_s = first_frame_s
         self.reset_alarms = reset_alarms
         self.robots = tuple(cell.robots if robots is None else robots)
         self.registered = registered
+        if stream_wait_s is None:
+            stream_wait_s = cell.mocap.stream_wait_s if cell.mocap is not None else 30.0
         self.stream_wait_s = stream_wait_s
         self.drivers: dict[str, RobotDriver] = {}
         self.body_ids = {name: i + 1 for i, name in enumerate(cell.robots)}

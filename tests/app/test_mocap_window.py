@@ -135,7 +135,9 @@ def test_the_link_keeps_the_tightest_recent_bound_and_forgets_old_ones() -> None
     assert link.to_capture(40.0) == pytest.approx(40.0 + OFFSET - 0.02)
 
 
-def test_a_link_off_its_sources_clock_delays_the_window_by_a_dropout_at_most() -> None:
+def test_a_link_off_its_sources_clock_fails_the_window_naming_it() -> None:
+    """Every frame of a source read against another clock looks held up: the window fails, naming the clock (it
+    used to open at the first frame, a dropout after it at most, which a stalled bridge's backlog also did)."""
     clock = HostClock(0.0)
     # stamps at half the host's rate (a simulated source read against the host clock by mistake)
     src = ScriptedMocap(clock, 0.0, 0.0, lambda c: 0.002, stamp=lambda t: 0.5 * t + OFFSET)
@@ -144,9 +146,26 @@ def test_a_link_off_its_sources_clock_delays_the_window_by_a_dropout_at_most() -
     src.read(0.0)
     link.observe(src.read(0.1))  # its smallest bound; the later ones grow at half a second per second
     clock.t = 20.0  # mapped through that bound, now lies 9.5 stamp-seconds ahead of the stamps
-    frames = collect_window(src, 1, Options(), link, 20.0)
-    first = min(f.capture_time for f in frames) - OFFSET
-    assert first <= 10.0 + Options.discard_s + Options.frame_timeout_s + 0.003
+    with pytest.raises(WindowFailed, match="frames held up, or a capture clock off the host's"):
+        collect_window(src, 1, Options(), link, 20.0)
+
+
+def test_a_backlog_held_up_by_a_stalled_bridge_stays_out_of_the_window() -> None:
+    """The bridge stalled 6 s while the arm moved to its next target; when it came back it delivered its backlog
+    at once, and the window opened at the backlog's first frame, a dropout after it at most: the sample averaged
+    frames captured in motion (22.7 mm off in issue 30's rehearsal). Held-up frames are left out."""
+    clock = HostClock(0.0)
+    settle = 10.0
+    src = ScriptedMocap(clock, 0.0, settle, lambda c: settle + 0.05 - c if 4.0 <= c < settle + 0.05 else 0.002)
+    link = ClockLink(clock)
+    clock.t = 3.9  # the previous window taught the link the offset
+    src.read(0.0)
+    link.observe(src.read(0.1))
+    clock.t = settle
+    frames = collect_window(src, 1, Options(), link, settle)
+    p, *_ = average_frames(frames)
+    assert np.linalg.norm(p) < 1e-12, f"a frame captured in motion was averaged (mean {p})"
+    assert min(f.capture_time for f in frames) >= settle + OFFSET + Options.discard_s - 0.003
     assert len(frames) >= 45
 
 

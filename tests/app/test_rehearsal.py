@@ -114,12 +114,12 @@ def test_collection_without_registration_is_refused_before_motion(tmp_path: Path
 # -- faults, each with real processes ---------------------------------------------------------------------------
 
 
-def registered_cell(tmp_path: Path, robot: str = "R1") -> Path:
+def registered_cell(tmp_path: Path, robot: str = "R1", **options: float) -> Path:
     """A rehearsal cell whose registration is the hidden truth (the fault tests are about collection, not
-    registration: writing it directly saves the registration's motion)."""
+    registration: writing it directly saves the registration's motion); ``options`` go to write_rehearsal_cell."""
     from cell_config.loader import RobotRegistration, save_registration
 
-    cell_path = write_rehearsal_cell(tmp_path, dwell_s=DWELL_S)
+    cell_path = write_rehearsal_cell(tmp_path, dwell_s=DWELL_S, **options)
     cell = load_cell(cell_path)
     hf = hidden_frames(cell, SEED)[robot]
     tool = cell.robot(robot).tool
@@ -304,3 +304,54 @@ def test_a_silent_mocap_is_refused_before_any_motion(tmp_path: Path, plans: dict
         assert time.monotonic() - started < 30.0
         assert r.controller.stop() == 0
     assert "trajectory points received: 0" in r.controller.output
+
+
+
+def stall_then_resume(tmp_path: Path, plans: dict[str, Path], victim: str, cell_path: Path,
+                      stall_s: float | None) -> str:
+    """Collect R1's plan; after 3 samples stop ``victim`` (SIGSTOP) for ``stall_s`` seconds (None: until the
+    collector ends), expect the run to end exit 2 with targets unmeasured, then resume: exit 0, and every target is
+    measured exactly once, at the truth. Returns the stalled run's output."""
+    truths = rehearsal_truths(load_cell(cell_path), SEED, PlantedErrors(0.0, 0.0, 0.0))
+    session = tmp_path / "s"
+    with Rehearsal(cell_path, *PURE, seed=SEED) as r:
+        stalled = getattr(r, victim)
+        c = collector(cell_path, plans["R1"], session).start(ready=False)
+        try:
+            wait_for_samples(session, 3)
+            stalled.signal(signal.SIGSTOP)
+            if stall_s is not None:
+                time.sleep(stall_s)
+                stalled.signal(signal.SIGCONT)
+            code = c.wait(120)
+        finally:
+            stalled.signal(signal.SIGCONT)
+            c.kill()
+        assert code == 2 and "skipped" in c.output, c.output
+        assert sample_count(session) < 14
+        again = run_cellcal(cell_path, "collect", "--robot", "R1", "--session", str(session), "--resume", "--yes",
+                            "--speed", "1", "--no-progress")
+        assert again.returncode == 0, again.stdout + again.stderr
+        assert "14 of 14 targets measured, 0 skipped" in again.stdout
+    assert check_recording(cell_path, session, tmp_path / "r1.csv", 14, "R1", truths) < 0.1
+    return c.output
+
+
+def test_a_stalled_controller_skips_targets_and_the_resume_measures_each_once(tmp_path: Path,
+                                                                             plans: dict[str, Path]) -> None:
+    """A controller stalled 36 s (SIGSTOP) made collect skip 5 targets and abort, and `collect --resume` then
+    ended '57 of 62 targets measured, 5 skipped', exit 0, for good (issue 30): the resume measures them again. The
+    controller stays stopped until the collector gives up (5 skips in a row); replies time out after 0.5 s here."""
+    cell_path = registered_cell(tmp_path, reply_timeout_s=0.5)
+    output = stall_then_resume(tmp_path, plans, "controller", cell_path, None)
+    assert "5 targets in a row skipped" in output and "fresh robot status" in output
+
+
+def test_a_stalled_bridge_skips_a_target_and_the_resume_measures_each_once(tmp_path: Path,
+                                                                          plans: dict[str, Path]) -> None:
+    """A bridge stalled 70 s made collect skip a target and end '61 of 62', exit 0 (issue 30). The collector waits
+    1 s (mocap.stream_wait_s) for a stopped stream here; the bridge is stopped 6 s, longer than a target's three
+    attempts."""
+    cell_path = registered_cell(tmp_path, stream_wait_s=1.0)
+    output = stall_then_resume(tmp_path, plans, "bridge", cell_path, 6.0)
+    assert "targets not measured" in output and "mocap" in output
