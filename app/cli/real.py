@@ -78,7 +78,6 @@ def cmd_router(args: argparse.Namespace) -> int:
 
 def cmd_fake_controller(args: argparse.Namespace) -> int:
     from app.cell.runtime import park_q
-    from drivers.motoros.codec import JointTrajPtFull, JointTrajPtFullEx
     from drivers.motoros.fake_cell import run_fake_controller
 
     cell = cell_spec(args)
@@ -96,7 +95,7 @@ def cmd_fake_controller(args: argparse.Namespace) -> int:
                         servo_on_delay_s=args.servo_on_delay, on_ready=ready)
     points = 0
     if served:
-        points = sum(isinstance(m, (JointTrajPtFull, JointTrajPtFullEx)) for m in served[0].received)
+        points = served[0].points_received
         print(f"fake-controller stopped: trajectory points received: {points}", flush=True)
     write_json(args.json, {"served": bool(served), "trajectory_points_received": points})
     return 0

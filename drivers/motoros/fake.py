@@ -20,6 +20,7 @@ Faults for tests: ``set_alarm``, ``set_estop``, ``set_servo``, ``set_mode``, ``s
 
 from __future__ import annotations
 
+import collections
 import logging
 import socket
 import threading
@@ -29,8 +30,8 @@ from typing import Callable
 import numpy as np
 
 from drivers.errors import DriverError, ProtocolError
-from drivers.motoros.codec import (JointFeedback, JointFeedbackEx, Message, MotionReply, Result, ValidFields,
-                                   decode)
+from drivers.motoros.codec import (JointFeedback, JointFeedbackEx, JointTrajPtFull, JointTrajPtFullEx, Message,
+                                   MotionReply, Result, ValidFields, decode)
 from drivers.motoros.codes import InvalidSubcode, MsgType
 from drivers.motoros.errors import InvalidArgument
 from drivers.motoros.fake_arm import INTERPOLATION_PERIOD_S, SimulatedGroup
@@ -40,6 +41,8 @@ from drivers.motoros.framing import Framer, Packet, recv_into_framer
 log = logging.getLogger("cellcal.drivers")
 
 _POLL_S = 0.05
+#: Decoded requests kept in order (``FakeMotorosController.received``).
+MAX_KEPT_REQUESTS = 10_000
 #: Types MotoROS's motion server has a size for but does not serve (SimpleMsgProcess's default: the connection
 #: closes, no reply is sent).
 _NOT_SERVED = {int(MsgType.ROBOT_STATUS), int(MsgType.JOINT_FEEDBACK), int(MsgType.MOTO_MOTION_REPLY),
@@ -110,7 +113,10 @@ class FakeMotorosController:
         self.groups = [SimulatedGroup(n_joints, s, p, q, interpolation_period_s) for s, p, q in zip(speeds, pulses, q0)]
         self.controller = SimulatedController(self.groups, servo_on_delay_s, self._stop.wait)
         self._lock = self.controller.lock
-        self.received: list[Message] = []  # every decoded request, for tests to inspect
+        # the latest decoded requests, for tests to inspect (a rehearsal sends ~100 points a second for hours: the
+        # history is bounded); points_received counts every trajectory point
+        self.received: collections.deque[Message] = collections.deque(maxlen=MAX_KEPT_REQUESTS)
+        self.points_received = 0
         self._stall = False
         self.nonfinite_feedback = False  # publishing NaN / inf joint positions (set_nonfinite_feedback)
         self._nonfinite_value = float("nan")
@@ -319,6 +325,7 @@ class FakeMotorosController:
             return MotionReply(-1, -1, packet.msg_type, Result.INVALID, InvalidSubcode.MSGSIZE), False
         with self._lock:
             self.received.append(msg)
+            self.points_received += isinstance(msg, (JointTrajPtFull, JointTrajPtFullEx))
         reply, hang_up = self.controller.answer(msg)
         return (None if hang_up else reply), hang_up  # a successful DISCONNECT: closed without a reply
 

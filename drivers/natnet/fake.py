@@ -1,8 +1,10 @@
 """A fake NatNet server (Motive stand-in) that speaks the wire protocol on loopback.
 
 It builds frame and model-definition packets field by field for NatNet 3.x and 4.x, answers
-``NAT_CONNECT`` with ``NAT_SERVERINFO`` and ``NAT_REQUEST_MODELDEF`` with ``NAT_MODELDEF``, records
-``NAT_KEEPALIVE``, and streams frames to the clients that connected (unicast, to the socket their
+``NAT_CONNECT`` with ``NAT_SERVERINFO`` and ``NAT_REQUEST_MODELDEF`` with ``NAT_MODELDEF``, counts every request
+(``request_counts``; an SDK client sends about 240 a second, so only the last ``MAX_KEPT_REQUESTS`` are kept in
+order), streams to each unicast client in the NatNet version its ``NAT_CONNECT`` asked for (bytes 265..268 of the
+SDK's request) when it can encode it (3.0 up to its own), and streams frames to the clients that connected (unicast, to the socket their
 ``NAT_CONNECT`` came from, as Motive does), to its multicast group, or to any address given. It can also send
 truncated or garbage datagrams to exercise error paths. :class:`drivers.natnet.fake_motive.FakeMotive`
 streams moving bodies through it at a fixed rate.
@@ -12,6 +14,7 @@ implementations of the layout rather than one with itself.
 
 from __future__ import annotations
 
+import collections
 import logging
 import socket
 import struct
@@ -23,6 +26,11 @@ from drivers.errors import DriverError
 from drivers.natnet.packets import MessageId
 
 log = logging.getLogger("cellcal.drivers")
+
+#: Requests kept in order (``FakeNatNetServer.requests``); ``request_counts`` counts every one.
+MAX_KEPT_REQUESTS = 1000
+#: Where the SDK's ``NAT_CONNECT`` body holds the requested NatNet version (major, minor, 0, 0).
+_CONNECT_VERSION_AT = 265
 
 
 @dataclass(frozen=True)
@@ -60,6 +68,7 @@ class FakeFrame:
     params: int = 0
     force_plates: tuple[tuple[int, tuple[tuple[float, ...], ...]], ...] = ()
     precision_timestamp: tuple[int, int] = (0, 0)  # seconds, fraction [2**-32 s]; sent from 4.1 on
+    assets: int = 0  # assets (4.1+), each with no bodies and no markers; Motive sends none unless some are defined
 
 
 def _body(b: FakeBody) -> bytes:
@@ -86,8 +95,9 @@ def encode_frame(frame: FakeFrame, version: tuple[int, int]) -> bytes:
     skels = b"".join(struct.pack("<ii", sid, len(bones)) + b"".join(_body(b) for b in bones)
                      for sid, bones in frame.skeletons)
     out += _section(len(frame.skeletons), skels, version)
-    if version >= (4, 1):
-        out += _section(1, struct.pack("<iii", 7, 0, 0), version)  # one asset: id 7, no bodies, no markers
+    if version >= (4, 1):  # assets: ids 7, 8, ..., no bodies, no markers
+        out += _section(frame.assets, b"".join(struct.pack("<iii", 7 + k, 0, 0) for k in range(frame.assets)),
+                        version)
     labeled = b"".join(struct.pack("<i3ffhf", (1 << 16) | i, 0.1 * i, 0.0, 0.0, 0.014, 0, 0.0001)
                        for i in range(frame.labeled_marker_count))
     out += _section(frame.labeled_marker_count, labeled, version)
@@ -183,7 +193,9 @@ class FakeNatNetServer:
         self.bodies = dict(bodies or {})
         self.data_port = data_port
         self.clients: list[tuple[str, int]] = []
-        self.requests: list[int] = []
+        self.client_versions: dict[tuple[str, int], tuple[int, int]] = {}  # what each unicast client asked for
+        self.requests: collections.deque[int] = collections.deque(maxlen=MAX_KEPT_REQUESTS)  # the latest, in order
+        self.request_counts: collections.Counter[int] = collections.Counter()
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             self._sock.bind(("127.0.0.1", command_port))
@@ -216,18 +228,40 @@ class FakeNatNetServer:
             (message_id,) = struct.unpack_from("<H", data)
             with self._lock:
                 self.requests.append(message_id)
+                self.request_counts[message_id] += 1
             if message_id == MessageId.CONNECT and self.answer_connect:
+                version = self._requested_version(data)
                 with self._lock:
                     if addr not in self.clients:
                         self.clients.append(addr)
-                reply = encode_server_info(self.version, data_port=self.data_port, multicast_group=self.multicast_group)
+                    self.client_versions[addr] = version
+                reply = encode_server_info(version, data_port=self.data_port, multicast_group=self.multicast_group)
                 self._sock.sendto(reply, addr)
             elif message_id == MessageId.REQUEST_MODEL_DEF:
-                self._sock.sendto(encode_model_definitions(self.bodies, self.version), addr)
+                with self._lock:
+                    version = self.client_versions.get(addr, self.version)
+                self._sock.sendto(encode_model_definitions(self.bodies, version), addr)
+
+    def _requested_version(self, request: bytes) -> tuple[int, int]:
+        """The version a ``NAT_CONNECT`` asks for when this server can stream it (3.0 up to its own), else its own."""
+        at = 4 + _CONNECT_VERSION_AT
+        if len(request) >= at + 2:
+            asked = (request[at], request[at + 1])
+            if (3, 0) <= asked <= self.version:
+                return asked
+        return self.version
 
     def send_frame(self, frame: FakeFrame, to: tuple[str, int] | None = None) -> None:
-        """Send one frame to ``to``, or to every connected client when None."""
-        self.send_raw(encode_frame(frame, self.version), to)
+        """Send one frame to ``to``, or to every connected client when None, each in the version it asked for."""
+        with self._lock:
+            targets = [to] if to is not None else list(self.clients)
+            versions = {addr: self.client_versions.get(addr, self.version) for addr in targets}
+        packets: dict[tuple[int, int], bytes] = {}
+        for addr in targets:
+            version = versions[addr]
+            if version not in packets:
+                packets[version] = encode_frame(frame, version)
+            self._send(packets[version], addr)
 
     def stream(self, frame: FakeFrame) -> None:
         """Send one frame as Motive streams it: to the multicast group's data port, else to every client."""
@@ -239,10 +273,13 @@ class FakeNatNetServer:
         with self._lock:
             targets = [to] if to is not None else list(self.clients)
         for addr in targets:
-            try:
-                self._sock.sendto(packet, addr)
-            except OSError as e:  # a client that went away; Motive keeps streaming to the others
-                log.debug("fake natnet: send to %s failed: %s", addr, e)
+            self._send(packet, addr)
+
+    def _send(self, packet: bytes, addr: tuple[str, int]) -> None:
+        try:
+            self._sock.sendto(packet, addr)
+        except OSError as e:  # a client that went away; Motive keeps streaming to the others
+            log.debug("fake natnet: send to %s failed: %s", addr, e)
 
     def close(self) -> None:
         """Stop the server thread and release the socket; safe to call twice."""

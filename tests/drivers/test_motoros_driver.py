@@ -195,7 +195,7 @@ def test_bad_arguments_are_refused_with_nothing_sent(fake, arms) -> None:
         MotorosDriver(r1.link, 0, -SPEED)
     with pytest.raises(InvalidArgument, match="reconnect_attempts must be >= 1, got 0"):
         MotorosLink("127.0.0.1", reconnect_attempts=0)
-    assert fake.received == []
+    assert list(fake.received) == [] and fake.points_received == 0
 
 
 def test_reconnects_after_the_controller_drops_connections(fake, arms) -> None:
@@ -726,3 +726,17 @@ def test_a_connection_replaced_before_its_thread_runs_does_not_kill_the_thread(m
         first.close()
         second.close()
     assert errors == []
+
+
+def test_the_fake_keeps_a_bounded_request_history(monkeypatch) -> None:
+    """Every request was kept in a list that never shrank; a rehearsal sends about 100 points a second."""
+    import drivers.motoros.fake as fake_module
+
+    monkeypatch.setattr(fake_module, "MAX_KEPT_REQUESTS", 5)
+    with FakeMotorosController(max_speed_rad_s=SPEED, initial_q=Q0) as fake:
+        sock, framer = _raw_client(fake)
+        with sock:
+            for k in range(20):
+                sock.sendall(MotionCtrl(0, k, Command.CHECK_MOTION_READY).encode())
+                assert isinstance(_next(sock, framer), MotionReply)
+        assert [m.sequence for m in fake.received] == list(range(15, 20))

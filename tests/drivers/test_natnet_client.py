@@ -304,7 +304,9 @@ def test_client_re_handshakes_when_motive_restarts_on_the_same_port():
             frames = _read_until(src, 5, timeout_s=5.0)
             assert len(frames) >= 5 and frames[0].frame_number < 100  # the new server's counter
             assert second.server.requests.count(MessageId.CONNECT) >= 1
-            assert src.version == (4, 2) and src.stats.handshakes >= 2
+            # a 4.2 server streams the 4.1 the client's NAT_CONNECT asks for, re-learnt from its NAT_SERVERINFO
+            assert src.version == (4, 1) and src.stats.handshakes >= 2
+            assert second.server.client_versions[("127.0.0.1", src._link.cmd.getsockname()[1])] == (4, 1)
             assert src.stats.packets_rejected == 0
             assert src.rigid_body_ids(1.0) == bodies
     finally:
@@ -370,3 +372,44 @@ def test_dropped_bodies_are_counted_by_the_client():
         frames = _read_until(src, 1)
         time.sleep(0.05)
         assert [f.body_id for f in frames] == [2] and src.stats.bodies_dropped == 1
+
+
+# -- the fake Motive as strict as Motive (issue 30) -------------------------------------------------------------
+
+
+def test_the_fake_keeps_a_bounded_request_history_and_counts_every_request():
+    """It kept every request in a list that never shrank (an SDK client sends about 240 a second)."""
+    from drivers.natnet.fake import MAX_KEPT_REQUESTS
+    from drivers.natnet.messages import build_request
+
+    n = 3 * MAX_KEPT_REQUESTS
+    with FakeNatNetServer((4, 1)) as server, socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as client:
+        for _ in range(n):
+            client.sendto(build_request(MessageId.KEEP_ALIVE), ("127.0.0.1", server.command_port))
+            if _ % 200 == 0:
+                time.sleep(0.005)  # leave the server time to read (the socket buffer is finite)
+        deadline = time.monotonic() + 5.0
+        while server.request_counts[MessageId.KEEP_ALIVE] < n and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert server.request_counts[MessageId.KEEP_ALIVE] == n
+        assert len(server.requests) == MAX_KEPT_REQUESTS
+
+
+def test_the_fake_streams_the_version_a_client_asks_for():
+    """A client asking for NatNet 3.1 got 4.1 frames it cannot parse: the fake ignored the requested version."""
+    with FakeNatNetServer((4, 1)) as server, _unicast(server, version=(3, 1)) as old, _unicast(server) as new:
+        time.sleep(0.1)
+        for n in range(1, 6):
+            server.send_frame(_frame(n))
+        assert len(_read_until(old, 10)) == 10 and len(_read_until(new, 10)) == 10
+        assert old.stats.packets_rejected == 0 and new.stats.packets_rejected == 0
+        assert sorted(server.client_versions.values()) == [(3, 1), (4, 1)]
+
+
+def test_a_frame_carries_no_asset_unless_one_is_defined():
+    """Motive sends assets only when some are defined; the fake put one in every 4.1 frame."""
+    packet = encode_frame(FakeFrame(1, ()), (4, 1))
+    (assets,) = struct.unpack_from("<i", packet, 4 + 4 + 4 * 8)  # header, frame number, four (count, bytes) pairs
+    assert assets == 0
+    with_one = encode_frame(FakeFrame(1, (), assets=1), (4, 1))
+    assert struct.unpack_from("<ii", with_one, 4 + 4 + 4 * 8) == (1, 12)
