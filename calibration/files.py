@@ -9,7 +9,14 @@ Every file cellcal writes (models, recordings, plans, reports, pages, JSON summa
   keeps its mode (and, where the process may, its owner);
 - a symlink, a folder, a device node, a FIFO or a socket at the target is refused, never replaced (so
   ``--json /dev/full`` does not turn the device into a regular file); an empty path or one under a file is
-  refused too. :func:`check_output_path` runs the same checks early, before any work is done.
+  refused too. :func:`check_output_path` runs the same checks early, before any work is done;
+- a write that fails removes the folders it created for the file.
+
+A command that writes a set of outputs (a report folder and a JSON summary) writes them inside
+:func:`staged_outputs`: each file waits under its temporary name beside its destination, and the set is renamed into
+place only when the whole command succeeded; on any failure every temporary file and every folder created for the
+set is removed, so a full disk leaves nothing half-written (``evaluate --report R --json J`` had left ``J`` and half
+of ``R``).
 
 One process at a time: :class:`ExclusiveLock` is an exclusive ``flock`` on a lock file with its holder written in
 it, released on :meth:`~ExclusiveLock.release` or by the kernel when the process ends (even by a crash, so no lock is
@@ -22,6 +29,7 @@ files shared by several users is refused (:func:`private_folder`).
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import errno
 import fcntl
 import os
@@ -77,6 +85,102 @@ def _create_temp(path: Path) -> tuple[int, Path]:
             continue
 
 
+class _Stage:
+    """The outputs of one :func:`staged_outputs` block: temporary files waiting for their names, folders made."""
+
+    def __init__(self) -> None:
+        self.files: list[tuple[Path, Path]] = []  # (temporary, destination), in the order written
+        self.folders: list[Path] = []  # created for the set, parents first
+
+    def commit(self) -> None:
+        for k, (tmp, path) in enumerate(self.files):
+            try:
+                check_output_path(path)  # not swapped for a symlink or a device meanwhile
+                os.replace(tmp, path)
+            except (OSError, OutputError) as e:
+                for later, _ in self.files[k:]:
+                    with contextlib.suppress(FileNotFoundError):
+                        os.unlink(later)
+                done = ", ".join(str(p) for _, p in self.files[:k]) or "none"
+                if isinstance(e, OutputError):
+                    raise OutputError(path, f"{e.reason}; already in place: {done}") from e
+                raise OutputError(path, f"cannot write ({e.strerror or e}); already in place: {done}") from e
+        for folder in dict.fromkeys(path.parent for _, path in self.files):
+            _fsync_folder(folder)
+
+    def discard(self) -> None:
+        for tmp, _ in self.files:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(tmp)
+        _remove_folders(self.folders)
+
+
+_STAGE: contextvars.ContextVar[_Stage | None] = contextvars.ContextVar("cellcal_output_stage", default=None)
+
+
+@contextlib.contextmanager
+def staged_outputs() -> Iterator[None]:
+    """Every :func:`atomic_open` (and :func:`make_folders`) inside the block is one set: the files take their names
+    together when the block ends without an exception; on an exception every temporary file and every folder the
+    block created are removed and the exception propagates. A nested block belongs to the outer one.
+
+    Files written in the block wait under their temporary names until it ends: read one back with
+    :func:`read_output_bytes`.
+
+    Raises:
+        OutputError: a rename at the end failed (the message names the files already in place; the rest are
+            removed).
+    """
+    if _STAGE.get() is not None:
+        yield
+        return
+    stage = _Stage()
+    token = _STAGE.set(stage)
+    try:
+        yield
+    except BaseException:
+        stage.discard()
+        raise
+    finally:
+        _STAGE.reset(token)
+    stage.commit()
+
+
+def read_output_bytes(path: str | Path) -> bytes:
+    """The bytes of an output written earlier, also while it waits under its temporary name in a
+    :func:`staged_outputs` block (a report embeds the plots it has just written)."""
+    stage = _STAGE.get()
+    if stage is not None:
+        for tmp, dest in reversed(stage.files):
+            if dest == Path(path):
+                return tmp.read_bytes()
+    return Path(path).read_bytes()
+
+
+def make_folders(folder: str | Path) -> list[Path]:
+    """Create ``folder`` and its missing parents; returns the ones created (parents first). Inside
+    :func:`staged_outputs` they are removed again if the block fails."""
+    folder = Path(folder)
+    missing = []
+    for f in (folder, *folder.parents):
+        if f.exists() or f.is_symlink():
+            break
+        missing.append(f)
+    folder.mkdir(parents=True, exist_ok=True)
+    created = missing[::-1]
+    stage = _STAGE.get()
+    if stage is not None:
+        stage.folders += created
+    return created
+
+
+def _remove_folders(folders: list[Path]) -> None:
+    """Remove ``folders`` (parents first in the list), children first, each only if empty."""
+    for folder in reversed(folders):
+        with contextlib.suppress(OSError):
+            os.rmdir(folder)
+
+
 def _keep_owner_and_mode(fd: int, st: os.stat_result | None) -> None:
     if st is None:
         return
@@ -104,18 +208,23 @@ def atomic_open(path: str | Path, binary: bool = False) -> Iterator[IO[Any]]:
     """A file object whose content replaces ``path`` only when the ``with`` block ends without an exception.
 
     Text mode writes UTF-8 with no newline translation. On any exception (a failed serialisation midway, a
-    full disk) the temporary file is removed, ``path`` is left as it was and the exception propagates
-    (an ``OSError`` as :class:`OutputError`).
+    full disk) the temporary file and the folders made for it are removed, ``path`` is left as it was and the
+    exception propagates (an ``OSError`` as :class:`OutputError`). Inside :func:`staged_outputs` the file takes
+    its name when the block ends.
 
     Raises:
         OutputError: the path is refused (see :func:`check_output_path`) or the write failed.
     """
     st = check_output_path(path)  # before Path(): Path("") is the current folder
     path = Path(path)
+    stage = _STAGE.get()
+    created: list[Path] = []
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
+        created = make_folders(path.parent)
         fd, tmp = _create_temp(path)
     except OSError as e:
+        if stage is None:
+            _remove_folders(created)
         raise OutputError(path, f"cannot write ({e.strerror or e})") from e
     try:
         with (os.fdopen(fd, "wb") if binary else os.fdopen(fd, "w", encoding="utf-8", newline="")) as f:
@@ -124,10 +233,15 @@ def atomic_open(path: str | Path, binary: bool = False) -> Iterator[IO[Any]]:
             f.flush()
             os.fsync(f.fileno())
         check_output_path(path)  # not swapped for a symlink or a device while we wrote
+        if stage is not None:
+            stage.files.append((tmp, path))  # renamed with the rest of the set
+            return
         os.replace(tmp, path)
     except BaseException as e:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
+        if stage is None:
+            _remove_folders(created)
         if isinstance(e, OSError):
             raise OutputError(path, f"cannot write ({e.strerror or e})") from e
         raise

@@ -26,7 +26,7 @@ import numpy as np
 from app.analysis import plots
 from app.analysis.compare import Comparison
 from calibration.errors import CellCalError
-from calibration.files import atomic_write_text
+from calibration.files import atomic_write_text, make_folders, read_output_bytes
 from calibration.iso9283 import RepeatedPose, accuracy_per_pose, repeated_poses
 from calibration.metrics import Errors, errors, predict
 from calibration.recording import Recording
@@ -153,7 +153,7 @@ class Image:
 
     @classmethod
     def from_file(cls, caption: str, path: Path) -> "Image":
-        return cls(caption, Path(path).read_bytes(), Path(path).name)
+        return cls(caption, read_output_bytes(path), Path(path).name)  # a staged plot: under its temporary name
 
 
 @dataclass
@@ -200,7 +200,7 @@ def render_html(page: Page) -> str:
 def write_html(page: Page, out_dir: str | Path) -> Path:
     """Write ``out_dir/report.html`` atomically (the folder is created); returns its path."""
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    make_folders(out)  # removed again when a staged set of outputs fails (calibration.files.staged_outputs)
     path = out / REPORT_HTML
     atomic_write_text(path, render_html(page))
     return path
@@ -286,7 +286,7 @@ def comparison_section(cmp: Comparison, test: Recording, out_dir: str | Path, to
                        paragraphs: list[str] | None = None) -> Section:
     """One arm's comparison: writes ``report.md`` and the PNG plots into ``out_dir`` and returns the section."""
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    make_folders(out)  # removed again when a staged set of outputs fails (calibration.files.staged_outputs)
     images = error_plots(cmp.test_errors, test, out, tol)
     if "fbf13" in cmp.models:
         interp = cmp.models["fbf13"].interpolator  # type: ignore[attr-defined]
@@ -362,7 +362,7 @@ def write_evaluation_report(title: str, command: str, models: dict[str, Any], re
     from app.provenance import provenance
 
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    make_folders(out)  # removed again when a staged set of outputs fails (calibration.files.staged_outputs)
     record = provenance(inputs)
     section = evaluation_section(title, models, rec, out, tol, label, paragraphs)
     return write_html(Page(title, command, tol, record, [section]), out)

@@ -18,6 +18,7 @@ from app.cli.dual import add_dual_parsers
 from app.cli.real import add_real_parsers
 from app.jobs.cli import add_job_parsers
 from calibration.errors import CellCalError, DataError
+from calibration.files import staged_outputs
 
 log = logging.getLogger("cellcal.app")
 
@@ -135,13 +136,16 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
           f"max {pos['max']:.3f} mm; orientation mean {ori['mean']:.3f} max {ori['max']:.3f} deg")
     result["frames"] = frames
     result["counts_explained"] = _counts_explained()
-    write_json(args.json, result)
-    if args.report:
-        from app.analysis.report import write_evaluation_report
+    page = None
+    with staged_outputs():  # the JSON and the report take their names together, or nothing is left (a full disk)
+        write_json(args.json, result)
+        if args.report:
+            from app.analysis.report import write_evaluation_report
 
-        page = write_evaluation_report(f"Evaluation of {args.model} on {args.test}", command_line(args),
-                                       {model.method: model}, test, args.report, tolerance,
-                                       [("model", args.model), ("test", args.test)], "the test recording")
+            page = write_evaluation_report(f"Evaluation of {args.model} on {args.test}", command_line(args),
+                                           {model.method: model}, test, args.report, tolerance,
+                                           [("model", args.model), ("test", args.test)], "the test recording")
+    if page is not None:
         print(f"report: {page}")
     return 0
 
