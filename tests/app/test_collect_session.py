@@ -192,6 +192,10 @@ def test_a_resume_measures_transient_skips_again_and_lasting_ones_only_when_aske
         res = run_session(tmp_path / "s", driver, mocap, safety, body_id=1, others=OTHERS, config=FAST,
                           resume=True, retry_skipped=True, progress=False)
     assert res.n_retried == 1 and res.n_ok == 6 and res.unmeasured == 0
+    export(tmp_path / "s", tmp_path / "r.csv")  # in measurement order: t monotonic, as the recording format wants
+    rec = read_recording(tmp_path / "r.csv")
+    assert np.all(np.diff(rec.extra["t"]) > 0) and rec.extra["cluster"].shape == (6,)
+    np.testing.assert_allclose(rec.q[-2:], first(6).q[[1, 4]], atol=1e-4)  # the two measured again come last
 
 
 def test_unsafe_plans_are_refused_before_any_motion(tmp_path):
