@@ -32,7 +32,7 @@ import numpy as np
 from drivers.errors import DriverError, ProtocolError
 from drivers.motoros.codec import (JointFeedback, JointFeedbackEx, JointTrajPtFull, JointTrajPtFullEx, Message,
                                    MotionReply, Result, ValidFields, decode)
-from drivers.motoros.codes import InvalidSubcode, MsgType
+from drivers.motoros.codes import CommType, InvalidSubcode, MsgType
 from drivers.motoros.errors import InvalidArgument
 from drivers.motoros.fake_arm import INTERPOLATION_PERIOD_S, SimulatedGroup
 from drivers.motoros.fake_logic import SimulatedController
@@ -315,6 +315,8 @@ class FakeMotorosController:
     def _answer(self, packet: Packet) -> tuple[MotionReply | None, bool]:
         """The reply to one packet (None: none is sent) and whether the connection closes after it."""
         if packet.msg_type not in _SIZED:  # "Unknown Message Received": INVALID_MSGTYPE, the connection stays
+            if packet.comm_type == CommType.SERVICE_REPLY:  # "don't send a reply to a reply from the pc"
+                return None, False
             return MotionReply(0, -1, packet.msg_type, Result.INVALID, InvalidSubcode.MSGTYPE), False
         if packet.msg_type in _NOT_SERVED:  # SimpleMsgProcess's default returns ERROR: disconnect, no reply
             log.info("fake motoros: message type %d is not served on the motion port; closing", packet.msg_type)

@@ -690,8 +690,10 @@ def test_an_unknown_message_type_is_answered_3003_and_the_connection_stays(fake,
         sock.sendall(Packet(msg_type, 2, 0, bytes(8)).to_bytes())
         reply = _next(sock, framer)
         assert isinstance(reply, MotionReply) and (reply.result, reply.subcode) == (Result.INVALID, 3003)
+        sock.sendall(Packet(msg_type, 3, 0, bytes(8)).to_bytes())  # a reply from the PC: no answer, still connected
         sock.sendall(MotionCtrl(0, 1, Command.CHECK_MOTION_READY).encode())
-        assert isinstance(_next(sock, framer), MotionReply)  # still connected
+        reply = _next(sock, framer)
+        assert isinstance(reply, MotionReply) and reply.command == Command.CHECK_MOTION_READY
 
 
 @pytest.mark.parametrize("msg", [RobotStatusMsg(1, 0, 0, 0, 0, 2, 1),
