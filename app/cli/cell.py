@@ -10,7 +10,6 @@ from app.analysis.fitting import fitter_for
 from app.cli.common import add_report_options, cell_spec, command_line, epoch_bar, log, non_negative_int, \
     positive_float, show_progress, tolerance_from_args, validation_count, write_json
 from calibration.errors import CellCalError
-from calibration.files import staged_outputs
 
 #: The anchor-grid steps ``plan --q2-step/--q3-step`` and ``demo --anchor-step`` accept [deg].
 MIN_GRID_STEP_DEG, MAX_GRID_STEP_DEG = 0.5, 90.0
@@ -247,11 +246,10 @@ def cmd_export(args: argparse.Namespace) -> int:
         if args.robot:
             store.check_robot(args.robot)
         robots = store.robots()
-    with staged_outputs():  # the recording and the JSON take their names together, or nothing is left
-        n = export(args.session, args.out, kinds)
-        write_json(args.json, {"session": str(args.session), "robot": ", ".join(robots), "samples": n,
-                               "kinds": kinds, "out": str(args.out)})
+    n = export(args.session, args.out, kinds)  # staged with the JSON (app.cli.commands.STAGED_COMMANDS)
     print(f"{n} samples of {', '.join(robots)} -> {args.out}")
+    write_json(args.json, {"session": str(args.session), "robot": ", ".join(robots), "samples": n, "kinds": kinds,
+                           "out": str(args.out)})
     return 0
 
 

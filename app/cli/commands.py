@@ -6,6 +6,7 @@ Exit codes: 0 success, 2 bad input (one clear line on stderr, nothing written), 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import sys
 from typing import Any, Callable
@@ -136,16 +137,13 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
           f"max {pos['max']:.3f} mm; orientation mean {ori['mean']:.3f} max {ori['max']:.3f} deg")
     result["frames"] = frames
     result["counts_explained"] = _counts_explained()
-    page = None
-    with staged_outputs():  # the JSON and the report take their names together, or nothing is left (a full disk)
-        write_json(args.json, result)
-        if args.report:
-            from app.analysis.report import write_evaluation_report
+    write_json(args.json, result)
+    if args.report:
+        from app.analysis.report import write_evaluation_report
 
-            page = write_evaluation_report(f"Evaluation of {args.model} on {args.test}", command_line(args),
-                                           {model.method: model}, test, args.report, tolerance,
-                                           [("model", args.model), ("test", args.test)], "the test recording")
-    if page is not None:
+        page = write_evaluation_report(f"Evaluation of {args.model} on {args.test}", command_line(args),
+                                       {model.method: model}, test, args.report, tolerance,
+                                       [("model", args.model), ("test", args.test)], "the test recording")
         print(f"report: {page}")
     return 0
 
@@ -470,6 +468,12 @@ def version() -> str:
     return cellcal_version()
 
 
+#: Commands whose outputs (files, a report folder, a JSON summary) are one set: they take their names together when
+#: the command succeeds, and a failure (a full disk) leaves none of them, not even a folder
+#: (:func:`calibration.files.staged_outputs`). Commands that read back what they wrote (recalibrate, demo) are not.
+STAGED_COMMANDS = frozenset({"evaluate", "compare", "fit", "predict", "select", "plan", "export"})
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one subcommand: 0 on success, 2 on bad input or a refused action, 130 on Ctrl-C."""
     parser = build_parser()
@@ -482,7 +486,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         resolve_cell(args)
         check_output_args(args)
-        return args.func(args)
+        with staged_outputs() if args.command in STAGED_COMMANDS else contextlib.nullcontext():
+            return args.func(args)
     except CellCalError as e:
         print(f"cellcal {args.command}: {e}", file=sys.stderr)
         return 2

@@ -112,3 +112,12 @@ def test_export_on_a_full_disk_leaves_no_csv_and_no_folder(tmp_path, capsys, mon
                  str(out / "x.json")]) == 2
     assert "No space left on device" in capsys.readouterr().err
     assert not (tmp_path / "new").exists()
+
+
+def test_fit_on_a_full_disk_leaves_no_model_without_its_json(tmp_path, fitted, capsys, monkeypatch):
+    """The class, not the instance: every command of app.cli.commands.STAGED_COMMANDS writes its set staged."""
+    disk_full_at(monkeypatch, 2)  # the model is written, the JSON is not
+    assert main(["fit", "--robot", "R1", "--train", str(fitted / "train.csv"), "--method", "nls1", "--out",
+                 str(tmp_path / "m" / "m.yaml"), "--json", str(tmp_path / "m" / "fit.json")]) == 2
+    assert "No space left on device" in capsys.readouterr().err
+    assert left_in(tmp_path) == []
