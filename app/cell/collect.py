@@ -158,8 +158,10 @@ class _Session:
 
     def __init__(self, store: SessionStore, plan: Plan, driver: RobotDriver, mocap: MocapSource, body_id: int,
                  safety: CellSafety, others: Mapping[str, np.ndarray], other_drivers: Mapping[str, RobotDriver],
-                 config: CollectConfig, clock: Callable[[], float] = time.monotonic) -> None:
+                 config: CollectConfig, clock: Callable[[], float] = time.monotonic,
+                 retry: set[int] | None = None) -> None:
         self.store, self.plan, self.driver, self.mocap = store, plan, driver, mocap
+        self.retry = set(retry or ())  # skipped targets this run measures again (a new row replaces the skip)
         self.body_id, self.safety, self.config = body_id, safety, config
         self.static_others = {k: np.asarray(v, dtype=float) for k, v in others.items()}
         self.other_drivers = dict(other_drivers)
@@ -261,6 +263,7 @@ class _Session:
         c = self.config
         self.index = index
         target = self.plan.targets[index]
+        again = index in self.retry  # skipped before: the new row replaces the skip (kept on record until then)
         driver_faults = measure_faults = 0
         at_target = False
         transient = True
@@ -268,7 +271,8 @@ class _Session:
             attempts = driver_faults + measure_faults + 1
             try:
                 sample = self.measure_here(index, attempts) if at_target else self.measure(index, attempts)
-                self.store.add_sample(sample, target.robot, target.kind, target.cluster, self.lower, self.upper)
+                self.store.add_sample(sample, target.robot, target.kind, target.cluster, self.lower, self.upper,
+                                      replace_skip=again)
                 return None
             except _MeasureFailed as e:
                 measure_faults += 1
@@ -291,7 +295,8 @@ class _Session:
                 self._recover(e)
                 if driver_faults > c.driver_retries:
                     break
-        self.store.add_skipped(index, target.robot, target.kind, target.cluster, reason, attempts, transient)
+        self.store.add_skipped(index, target.robot, target.kind, target.cluster, reason, attempts, transient,
+                               replace_skip=again)
         log.warning("target %d skipped%s: %s", index, "" if transient else " (lasting cause)", reason)
         return reason
 
@@ -450,15 +455,13 @@ def run_session(session_dir: str | Path, driver: RobotDriver, mocap: MocapSource
     info = {"robot": driver.name, "body_id": body_id, "config": asdict(config)}
     store, plan = _open_store(session_dir, driver, plan, info, resume)
     with store:
-        n_retried = 0
-        if resume:
-            n_retried = store.forget_skipped(lasting_too=retry_skipped)
-            if n_retried:
-                log.warning("%d target(s) skipped earlier are measured again", n_retried)
-        done = store.done()
+        retry = store.retriable(lasting_too=retry_skipped) if resume else set()
+        if retry:
+            log.warning("%d target(s) skipped earlier are measured again", len(retry))
+        done = store.done() - retry
         pending = [i for i in range(len(plan)) if i not in done]
         session = _Session(store, plan, driver, mocap, body_id, safety, others or {}, other_drivers or {}, config,
-                           clock)
+                           clock, retry)
         try:
             n_new = session.run(pending, len(done), progress)
         except _Halt as h:
@@ -469,7 +472,7 @@ def run_session(session_dir: str | Path, driver: RobotDriver, mocap: MocapSource
         skipped = tuple((r["target_index"], r["reason"]) for r in store.rows("skipped"))
         n_ok = len(store.rows("ok"))
     return SessionResult(session_dir, len(plan), n_ok, len(skipped), n_new, skipped,
-                         n_ok + len(skipped) == len(plan), time.monotonic() - t_run, n_retried)
+                         n_ok + len(skipped) == len(plan), time.monotonic() - t_run, len(retry))
 
 
 def export(session_dir: str | Path, out_csv: str | Path, kinds: Sequence[str] | None = None) -> int:

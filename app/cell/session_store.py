@@ -18,7 +18,7 @@ Why the arms were stopped (alarm, e-stop, lost connection, abort) is kept in an 
 
 A skipped target records whether its cause was transient (a timeout, lost mocap, no fresh status: worth measuring
 again) or lasting (a sample the store refused, a readback outside the limits); a resumed session tries the
-transient ones again (:meth:`SessionStore.forget_skipped`). A session written before that column existed gets it
+transient ones again (:meth:`SessionStore.retriable`; the new row replaces the skipped one in one transaction). A session written before that column existed gets it
 when a collector opens it, its skipped rows counting as transient.
 
 A write the disk refuses (full, read-only) raises :class:`SessionWriteFailed`, one line naming the file; what was
@@ -362,8 +362,10 @@ class SessionStore:
         return {r[0] for r in self.conn.execute("SELECT target_index FROM samples")}
 
     def add_sample(self, s: Sample, robot: str, kind: str, cluster: int,
-                   lower: np.ndarray | None = None, upper: np.ndarray | None = None) -> None:
-        """Validate and commit one measured sample; nothing is written when a value is unusable.
+                   lower: np.ndarray | None = None, upper: np.ndarray | None = None, *,
+                   replace_skip: bool = False) -> None:
+        """Validate and commit one measured sample; nothing is written when a value is unusable. With
+        ``replace_skip`` it replaces the target's skipped row (a resume measured it again), in one transaction.
 
         Raises:
             DataError: non-finite value, quaternion norm off by more than 1e-3, joint outside [lower, upper],
@@ -386,17 +388,17 @@ class SessionStore:
                + [float(v) for v in s.p] + [float(v) for v in s.quat]
                + [s.std_pos_mm, s.std_rot_deg, s.marker_err, int(s.frames), s.t]
                + [int(v) for v in s.dirs] + [s.attempts, None, time.time(), None])
-        self._insert(row)
+        self._insert(row, replace_skip)
 
     def add_skipped(self, target_index: int, robot: str, kind: str, cluster: int, reason: str,
-                    attempts: int, transient: bool = True) -> None:
+                    attempts: int, transient: bool = True, *, replace_skip: bool = False) -> None:
         """Commit a target that could not be measured, with the reason and whether it was transient (a resume
-        tries a transient skip again)."""
+        tries a transient skip again); ``replace_skip`` replaces its earlier skipped row, in one transaction."""
         values = {"target_index": target_index, "status": "skipped", "robot": robot, "kind": kind,
                   "cluster": cluster, "attempts": attempts, "reason": reason, "recorded_at": time.time(),
                   "transient": int(transient)}
         row = [values.get(c) for c in _SAMPLE_COLUMNS]
-        self._insert(row)
+        self._insert(row, replace_skip)
 
     def retriable(self, lasting_too: bool = False) -> set[int]:
         """Skipped targets a resume measures again: those skipped for a transient reason (or recorded before the
@@ -406,29 +408,22 @@ class SessionStore:
             sql += " AND (transient IS NULL OR transient != 0)"
         return {r[0] for r in self.conn.execute(sql)}
 
-    def forget_skipped(self, lasting_too: bool = True) -> int:
-        """Delete skipped rows so a resumed session tries those targets again; returns how many.
-
-        Args:
-            lasting_too: also the targets skipped for a lasting reason; False: the transient ones only.
-        """
-        sql = "DELETE FROM samples WHERE status = 'skipped'"
-        if not lasting_too:
-            sql += " AND (transient IS NULL OR transient != 0)"
-        return self._write(sql, ()).rowcount
-
-    def _insert(self, row: list[Any]) -> None:
+    def _insert(self, row: list[Any], replace_skip: bool) -> None:
         sql = f"INSERT INTO samples ({', '.join(_SAMPLE_COLUMNS)}) VALUES ({', '.join('?' * len(_SAMPLE_COLUMNS))})"
+        writes = [(sql, row)]
+        if replace_skip:  # in the same transaction: a target is never left without its row by a failed write
+            writes.insert(0, ("DELETE FROM samples WHERE target_index = ? AND status = 'skipped'", [row[0]]))
         try:
-            self._write(sql, row)
+            self._write(*writes)
         except sqlite3.IntegrityError as e:
             raise DataError(self.path, None, f"target {row[0]}", f"already recorded ({e})") from e
 
-    def _write(self, sql: str, args: Sequence[Any]) -> sqlite3.Cursor:
-        """Run one write in its own transaction; a write the disk refuses raises SessionWriteFailed."""
+    def _write(self, *writes: tuple[str, Sequence[Any]]) -> None:
+        """Run the writes in one transaction; a write the disk refuses raises SessionWriteFailed."""
         try:
             with self.conn:
-                return self.conn.execute(sql, args)
+                for sql, args in writes:
+                    self.conn.execute(sql, args)
         except sqlite3.OperationalError as e:
             if _write_refused(e):
                 raise SessionWriteFailed(self.path, str(e)) from e
@@ -439,8 +434,8 @@ class SessionStore:
     def add_event(self, robot: str, kind: EventKind, reason: str, target_index: int | None = None) -> SessionEvent:
         """Commit why the arms were stopped (at once, like a sample) and return the recorded event."""
         event = SessionEvent(time.time(), robot, kind, reason, target_index)
-        self._write("INSERT INTO events (t_wall, robot, kind, reason, target_index) VALUES (?, ?, ?, ?, ?)",
-                    (event.t_wall, robot, kind, reason, target_index))
+        self._write(("INSERT INTO events (t_wall, robot, kind, reason, target_index) VALUES (?, ?, ?, ?, ?)",
+                     (event.t_wall, robot, kind, reason, target_index)))
         return event
 
     def events(self) -> list[SessionEvent]:

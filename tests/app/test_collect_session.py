@@ -185,6 +185,13 @@ def test_a_resume_measures_transient_skips_again_and_lasting_ones_only_when_aske
         assert store.retriable() == {1} and store.retriable(lasting_too=True) == {1, 4}
     _, driver, mocap, _, safety = make_cell()
     with driver, mocap:
+        driver.schedule_fault(SimFault.ESTOP, at_call=1)  # a resume that ends before reaching them keeps the skips on record
+        with pytest.raises(SessionAborted, match="e-stop"):
+            run_session(tmp_path / "s", driver, mocap, safety, body_id=1, others=OTHERS, config=FAST, resume=True,
+                        progress=False)
+        driver.clear_faults()
+        with SessionStore(tmp_path / "s") as store:
+            assert [r["target_index"] for r in store.rows("skipped")] == [1, 4]
         res = run_session(tmp_path / "s", driver, mocap, safety, body_id=1, others=OTHERS, config=FAST,
                           resume=True, progress=False)
         assert res.n_retried == 1 and res.n_ok == 5 and res.skipped == ((4, "sample rejected: quaternion norm 1.2 "
