@@ -199,7 +199,8 @@ def _dual_defects(cell: CellSpec, plan: PlanResult, models: Mapping[str, Any], s
         for n in np.unique(owner[(drift > MAX_DRIFT_MM) & (owner > 0)]):  # waypoint 0's move has no length
             worst = float(drift[owner == n].max())
             out.append(PlanDefect(index[n], f"the move to it from waypoint {index[n - 1]} takes the gun {worst:.0f} "
-                                            f"mm from its relative pose (step too large: at most {MAX_DRIFT_MM:g} mm)"))
+                                            f"mm from its relative pose (step too large: at most {MAX_DRIFT_MM:g} "
+                                            "mm; plan more waypoints)"))
     if out and first_only:
         return out
     out += _clearance_defects(safety, q, index, first_only)
