@@ -176,6 +176,7 @@ def _dual_defects(cell: CellSpec, plan: PlanResult, models: Mapping[str, Any], s
     q = np.array([np.concatenate([plan.waypoints[i].q_R1, plan.waypoints[i].q_R2]) for i in index])
     safety = CellSafety(cell, SafetyConfig(joint_margin_deg=DUAL_LIMIT_MARGIN_DEG,
                                            process_zone=PROCESS_ZONE if T is not None else ()))
+    n_before = len(out)
     for k, robot in enumerate(("R1", "R2")):  # limits first: no path is sampled to a target beyond them
         lower, upper = safety.limits(robot)
         qr = q[:, 6 * k:6 * k + 6]
@@ -183,7 +184,8 @@ def _dual_defects(cell: CellSpec, plan: PlanResult, models: Mapping[str, Any], s
             out.append(PlanDefect(index[n], f"{robot} joint {j + 1} at {math.degrees(qr[n, j]):.6g} deg is outside "
                                             f"its limits less the planner's {DUAL_LIMIT_MARGIN_DEG:g} deg margin "
                                             f"({math.degrees(lower[j]):.6g}..{math.degrees(upper[j]):.6g} deg)"))
-    if out:
+    beyond_limits = len(out) > n_before
+    if out and first_only:
         return out
     given = ", ".join(f"{n} {'given' if n in models else 'nominal'}" for n in ("R1", "R2"))
     models = {n: models[n] if n in models else ConstantModel(n, "nominal", cell.robot(n).model())
@@ -201,8 +203,8 @@ def _dual_defects(cell: CellSpec, plan: PlanResult, models: Mapping[str, Any], s
             out.append(PlanDefect(index[n], f"the move to it from waypoint {index[n - 1]} takes the gun {worst:.0f} "
                                             f"mm from its relative pose (step too large: at most {MAX_DRIFT_MM:g} "
                                             "mm; plan more waypoints)"))
-    if out and first_only:
-        return out
+    if (out and first_only) or beyond_limits:  # the clearance check would only name the limit again
+        return sorted(out, key=lambda d: -1 if d.waypoint is None else d.waypoint)
     out += _clearance_defects(safety, q, index, first_only)
     return sorted(out, key=lambda d: -1 if d.waypoint is None else d.waypoint)
 

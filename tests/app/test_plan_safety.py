@@ -257,3 +257,24 @@ def test_a_collection_target_near_the_floor_is_marked_by_preview_and_refused_by_
         assert main(["collect", "--sim", "--robot", "R1", "--plan", str(path), "--session", str(session)] + dry) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert "target 2" in err[-1] and "floor" in err[-1], err
+
+
+@pytest.mark.parametrize("edit, words", [
+    (lambda d: d.update(models="constant"), "'models': expected the model kind per robot"),
+    (lambda d: d.update(models={"R1": 3}), "'models': expected the model kind per robot"),
+    (lambda d: d["waypoints"][1].update(residual_mm="small"), "waypoint 1: residual_mm must be a number"),
+    (lambda d: d["waypoints"][1].update(clearance_mm=[1]), "waypoint 1: clearance_mm must be a number"),
+    (lambda d: d["waypoints"][1].update(solve_ms=10**400), "waypoint 1: solve_ms must be a number"),
+], ids=["models-text", "models-number", "residual-text", "clearance-list", "huge-int"])
+def test_malformed_plan_claims_are_one_line_errors(planned, tmp_path, capsys, edit, words):
+    """A plan file's models and recorded figures of the wrong type were a ValueError/TypeError traceback."""
+    from tests.conftest import assert_bad_input
+
+    cell_path, base = planned
+    d = copy.deepcopy(base)
+    edit(d)
+    path, out = tmp_path / "p.json", tmp_path / "t.csv"
+    path.write_text(json.dumps(d))
+    assert_bad_input(capsys, ["--cell", str(cell_path), "export-targets", "--plan", str(path), "--out", str(out)],
+                     words)
+    assert not out.exists()
