@@ -85,12 +85,12 @@ class PlanDefect:
 
 
 class UnsafePlan(UnsafeTarget):
-    """A plan refused by :func:`check_plan_safe`: one line naming the plan, the first defect and how many."""
+    """A plan refused by :func:`check_plan_safe`: one line naming the plan and its first defect (the check stops at
+    the first kind of defect it finds, so how many more there are is not known; the preview lists them all)."""
 
     def __init__(self, source: str, defects: list[PlanDefect]) -> None:
-        first = defects[0]
-        more = f" ({len(defects) - 1} more defect{'s' if len(defects) > 2 else ''})" if len(defects) > 1 else ""
-        CellCalError.__init__(self, f"{source}: unsafe plan, {first}{more}; nothing written")
+        more = "; cellcal preview marks every defect" if len(defects) > 1 else ""
+        CellCalError.__init__(self, f"{source}: unsafe plan, {defects[0]}{more}; nothing written")
         self.robot, self.joint, self.value, self.limit = "R1+R2", None, float("nan"), float("nan")
         self.defects = defects
 
