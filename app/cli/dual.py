@@ -123,6 +123,9 @@ def cmd_validate_dual(args: argparse.Namespace) -> int:
         if given:  # both were silently ignored: the simulated contact moves are not timed
             raise CellCalError(f"{' and '.join(given)}: not used by validate-dual --sim, whose simulated contact "
                                f"moves have no clock; leave {'it' if len(given) == 1 else 'them'} out")
+        if args.plan_models:  # read only with --plan on the real cell: it was silently ignored
+            raise CellCalError("--plan-models: not used by validate-dual --sim, which plans its own contact "
+                               "configurations; give it with --plan on the real cell")
         methods = tuple(m.strip() for m in args.methods.split(",") if m.strip()) if args.methods else None
         model_sets = _model_sets(args.models, cell) or None
         if args.dry_run:  # it ran the whole simulated validation, fits included, as if --dry-run were not given

@@ -278,3 +278,11 @@ def test_malformed_plan_claims_are_one_line_errors(planned, tmp_path, capsys, ed
     assert_bad_input(capsys, ["--cell", str(cell_path), "export-targets", "--plan", str(path), "--out", str(out)],
                      words)
     assert not out.exists()
+
+
+def test_validate_dual_sim_refuses_plan_models_it_would_not_use(tmp_path, capsys):
+    from tests.conftest import assert_bad_input
+
+    assert_bad_input(capsys, ["validate-dual", "--sim", "--plan-models", "R1=m.yaml", "--json", str(tmp_path / "v.json")],
+                     "--plan-models: not used by validate-dual --sim")
+    assert not (tmp_path / "v.json").exists()
