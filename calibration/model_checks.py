@@ -129,6 +129,8 @@ def _is_position(key: str) -> bool:
 def _number_problem(value: Any, key: str) -> str | None:
     """Why a leaf cannot be a number of a model file, or None. Text that reads as a number counts as one (YAML
     reads a plain ``nan``, ``inf`` or ``1e308`` as text, and numpy converts that text to a float)."""
+    if type(value) is float and -MAX_POSITION_MM <= value <= MAX_POSITION_MM:  # nearly every leaf: done at once
+        return None
     if isinstance(value, bool):
         return None
     if isinstance(value, str):
@@ -147,6 +149,8 @@ def _number_problem(value: Any, key: str) -> str | None:
         return None
     if not math.isfinite(number):
         return f"expected a finite number, got {shown}"
+    if abs(number) <= MAX_POSITION_MM:
+        return None
     bound, unit = (MAX_POSITION_MM, " mm, a position") if _is_position(key) else (MAX_NUMBER, "")
     if abs(number) > bound:
         return f"expected a number within +-{bound:g}{unit}, got {shown}"
