@@ -50,13 +50,16 @@ def test_a_tool_frame_off_by_a_constant_rotation_is_not_taken_for_a_swap(files):
     check_quaternion_order(Recording(rec.q, rec.p, so3.R_to_quat(turned), rec.extra, rec.source), nominal)
 
 
-@pytest.mark.parametrize("command", ["fit", "evaluate"])
+@pytest.mark.parametrize("command", ["fit", "evaluate", "diagnose", "rebase"])
 def test_commands_refuse_a_swapped_recording_naming_the_columns(files, tmp_path, capsys, command):
     root, _ = files
     out = tmp_path / "out.yaml"
     argv = {"fit": ["fit", "--robot", "R1", "--method", "nls1", "--train", str(root / "xyzw.csv"), "--out", str(out)],
             "evaluate": ["evaluate", "--robot", "R1", "--model", str(root / "r1.yaml"), "--test",
-                         str(root / "xyzw.csv"), "--json", str(out)]}[command]
+                         str(root / "xyzw.csv"), "--json", str(out)],
+            "diagnose": ["diagnose", "--robot", "R1", "--train", str(root / "xyzw.csv"), "--json", str(out)],
+            "rebase": ["rebase", "--robot", "R1", "--model", str(root / "r1.yaml"), "--data", str(root / "xyzw.csv"),
+                       "--out", str(out)]}[command]
     assert_bad_input(capsys, argv, "xyzw.csv", "qw, qx, qy, qz", "x, y, z, w order")
     assert not out.exists()
 
