@@ -32,6 +32,18 @@ LINK_TOLERANCE_MM = 50.0
 AXIS_TOLERANCE_DEG = 5.0
 #: Methods a model file may record besides the fitting methods: diagnose results and simulation twins.
 OTHER_METHODS = ("diagnose", "twin")
+#: Largest magnitude of any number in a model file. The largest a fit writes is a lumped gravity torque of ~2e4
+#: N mm (every kind of tests/calibration/test_model_kinds.py); 1e308, which YAML reads as text and numpy as a float,
+#: is refused.
+MAX_NUMBER = 1e9
+#: Largest magnitude of a position in a model file [mm]: link vectors ``P`` (base and flange included), ``p_*``
+#: offsets and ``T_*`` transforms. The arms reach ~2 m; the largest link vector written is 1082 mm.
+MAX_POSITION_MM = 1e4
+#: Largest list in a model file (the biggest a fit writes: an interpolator's training values, one row per
+#: calibration pose, a few thousand); a longer one is refused naming its key before any shape is built.
+MAX_LIST_LENGTH = 1_000_000
+#: Largest model file read [bytes]. A model file is a few hundred kB at most (a neural interpolator's weights).
+MAX_MODEL_FILE_BYTES = 64 * 1024 * 1024
 
 
 def known_methods() -> tuple[str, ...]:
@@ -79,6 +91,85 @@ def _mappings(node: Any, key: str) -> Iterator[tuple[str, dict[str, Any]]]:
                 yield from _mappings(v, f"{key}[{i}]")
 
 
+def check_model_structure(data: Any, path: str | Path = "") -> None:
+    """Refuse a decoded model file whose structure cannot be walked safely: a container reached twice (a YAML
+    alias ``*name`` of an anchor ``&name``: a "billion laughs" file expands to 10^9 leaves through them) or a list
+    longer than :data:`MAX_LIST_LENGTH`. Runs before anything else walks the file, in time proportional to its size.
+
+    Raises:
+        ModelFileError: naming the key of the shared or too long container.
+    """
+    seen: set[int] = set()
+    stack: list[tuple[str, Any]] = [("", data)]
+    while stack:
+        key, node = stack.pop()
+        if id(node) in seen:
+            raise ModelFileError(path, key or "(top level)", "refers back to a block used elsewhere (a YAML alias "
+                                                             "*name of an anchor &name): a model file holds no aliases")
+        seen.add(id(node))
+        if isinstance(node, dict):
+            items: Any = ((f"{key}.{k}" if key else str(k), v) for k, v in node.items())
+        else:
+            if len(node) > MAX_LIST_LENGTH:
+                raise ModelFileError(path, key, f"a list of {len(node)} entries; a model file holds at most "
+                                                f"{MAX_LIST_LENGTH} per list")
+            items = ((f"{key}[{i}]", v) for i, v in enumerate(node))
+        stack.extend(reversed([(k, v) for k, v in items if isinstance(v, _CONTAINERS)]))  # file order
+
+
+def _is_position(key: str) -> bool:
+    """Whether a dotted key holds a position [mm]: ``P`` (link vectors), ``p_*`` and ``T_*`` blocks."""
+    for part in key.split("."):
+        name = part.split("[", 1)[0]
+        if name == "P" or name.startswith(("p_", "T_")):
+            return True
+    return False
+
+
+def _number_problem(value: Any, key: str) -> str | None:
+    """Why a leaf cannot be a number of a model file, or None. Text that reads as a number counts as one (YAML
+    reads a plain ``nan``, ``inf`` or ``1e308`` as text, and numpy converts that text to a float)."""
+    if type(value) is float and -MAX_POSITION_MM <= value <= MAX_POSITION_MM:  # nearly every leaf: done at once
+        return None
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, str):
+        try:
+            number = float(value)
+        except ValueError:
+            return None
+        shown = f"{value!r} (text read as {number:g})"
+    elif isinstance(value, (int, float)):
+        try:
+            number = float(value)
+        except OverflowError:
+            return f"expected a number within +-{MAX_NUMBER:g}, got an integer of {len(str(abs(value)))} digits"
+        shown = f"{value}"
+    else:
+        return None
+    if not math.isfinite(number):
+        return f"expected a finite number, got {shown}"
+    if abs(number) <= MAX_POSITION_MM:
+        return None
+    bound, unit = (MAX_POSITION_MM, " mm, a position") if _is_position(key) else (MAX_NUMBER, "")
+    if abs(number) > bound:
+        return f"expected a number within +-{bound:g}{unit}, got {shown}"
+    return None
+
+
+def check_model_numbers(data: Any, path: str | Path = "") -> None:
+    """Refuse any number of a decoded model file (or of a model's ``to_dict``) that is not finite or beyond its
+    physical bound (:data:`MAX_POSITION_MM` for positions, :data:`MAX_NUMBER` otherwise), text included.
+
+    Raises:
+        ModelFileError: naming the key.
+    """
+    for key, value in _leaves(data, ""):
+        problem = _number_problem(value, key)
+        if problem is not None:
+            raise ModelFileError(path, key, problem)
+
+
 def _check_rotation(path: str | Path, key: str, value: Any) -> None:
     try:
         R = np.array(value, dtype=float)
@@ -86,11 +177,13 @@ def _check_rotation(path: str | Path, key: str, value: Any) -> None:
         R = None
     if R is None or R.shape != (3, 3):
         raise ModelFileError(path, key, "expected a 3x3 rotation matrix")
+    if not np.all(np.isfinite(R)):
+        raise ModelFileError(path, key, "expected a 3x3 rotation matrix of finite numbers")
     err = float(np.max(np.abs(R.T @ R - np.eye(3))))
-    if err > ROTATION_TOLERANCE:
+    if not err <= ROTATION_TOLERANCE:
         raise ModelFileError(path, key, f"not a rotation: its columns are not orthonormal (R^T R - I up to "
                                         f"{err:.2g}, tolerance {ROTATION_TOLERANCE:g})")
-    if np.linalg.det(R) < 0:
+    if not np.linalg.det(R) > 0:
         raise ModelFileError(path, key, "not a rotation: determinant -1 (a reflection)")
 
 
@@ -98,12 +191,13 @@ def check_model_data(data: dict[str, Any], path: str | Path = "") -> None:
     """Refuse a decoded model file whose numbers, rotations, robot or method cannot be used.
 
     Raises:
-        ModelFileError: a number is NaN or infinite, an ``R_*`` entry is not a rotation (orthonormal,
-            determinant +1), the robot is missing, or the method is unknown (the message lists the valid ones).
+        ModelFileError: an alias or a too long list (:func:`check_model_structure`), a number (or text read as
+            one) NaN, infinite or beyond its bound (:func:`check_model_numbers`), an ``R_*`` entry that is not a
+            rotation (orthonormal, determinant +1), the robot missing, or the method unknown (the message lists
+            the valid ones).
     """
-    for key, value in _leaves(data, ""):
-        if isinstance(value, float) and not math.isfinite(value):
-            raise ModelFileError(path, key, f"expected a finite number, got {value}")
+    check_model_structure(data, path)
+    check_model_numbers(data, path)
     for key, mapping in _mappings(data, ""):
         for k, v in mapping.items():
             if isinstance(k, str) and k.startswith("R_"):

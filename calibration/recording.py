@@ -355,3 +355,51 @@ def write_recording(rec: Recording, path: str | Path) -> None:
     cols.update({c: rec.quat[:, i] for i, c in enumerate(("qw", "qx", "qy", "qz"))})
     cols.update(rec.extra)
     write_table(path, cols)
+
+
+#: The quaternion order check refuses a recording whose orientations, read in the spec's (w, x, y, z) order, scatter
+#: by more than this around their best constant tool offset from the nominal model [deg] (median) ...
+QUAT_ORDER_SPREAD_DEG = 2.0
+#: ... while read in Motive's own (x, y, z, w) order they scatter this many times less. Every Welding_Motoman day
+#: (both folders, 16 recordings): 0.04-0.07 deg as stored, 16-44 deg in the other order.
+QUAT_ORDER_RATIO = 10.0
+
+
+def _offset_spread_deg(R_nominal: np.ndarray, R_measured: np.ndarray) -> float:
+    """Median angle [deg] of the measured orientations from the nominal ones times their best constant offset on the
+    tool side (the chordal mean of ``R_nominal^T R_measured``): small when the marker frame is rigidly on the
+    tool, whatever the tool frame's orientation."""
+    offsets = np.swapaxes(R_nominal, 1, 2) @ R_measured
+    U, _, Vt = np.linalg.svd(offsets.mean(axis=0))
+    mean = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    return float(np.degrees(np.median(np.linalg.norm(so3.log(np.swapaxes(offsets, 1, 2) @ mean), axis=1))))
+
+
+def check_quaternion_order(rec: Recording, nominal: object, columns: str = "qw, qx, qy, qz") -> None:
+    """Refuse a recording whose quaternions are stored x, y, z, w (Motive's order) under the spec's w, x, y, z
+    columns: read as they are, its orientations would fit a model ~20-40 deg off.
+
+    Both orders are compared against the nominal model (the arm's geometry and tool from the cell): the one the
+    spec says must fit it (up to a constant tool offset) at least :data:`QUAT_ORDER_RATIO` times better than the
+    other whenever it is off by more than :data:`QUAT_ORDER_SPREAD_DEG`.
+
+    Args:
+        rec: the recording as read.
+        nominal: the arm's nominal model (``fk(q) -> (R (N, 3, 3), p)``), its tool included.
+        columns: how the message names the quaternion columns.
+
+    Raises:
+        DataError: naming the file and the columns, with both orders' spreads.
+    """
+    if len(rec) < 3:
+        return
+    R_nominal, _ = nominal.fk(rec.q)  # type: ignore[attr-defined]
+    as_read = _offset_spread_deg(R_nominal, rec.R)
+    if not as_read > QUAT_ORDER_SPREAD_DEG:
+        return
+    other = _offset_spread_deg(R_nominal, so3.quat_to_R(rec.quat[:, [3, 0, 1, 2]]))
+    if other * QUAT_ORDER_RATIO < as_read:
+        raise DataError(rec.source, None, columns,
+                        f"the quaternions look stored in x, y, z, w order (Motive's), not w, x, y, z: against the "
+                        f"nominal model they scatter {as_read:.1f} deg (median) as read and {other:.2f} deg read as "
+                        "x, y, z, w; write them in the order qw, qx, qy, qz")

@@ -54,7 +54,7 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
     """
     from calibration.models import load_model, save_model
     from calibration.physics.gravity import GravityModel
-    from calibration.recording import read_recording
+    from calibration.recording import check_quaternion_order, read_recording
     from cell_config import load_cell
 
     cr = (load_cell(cell) if cell else load_cell()).robot(robot)
@@ -68,7 +68,10 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
         rec, days = _days(robot, nominal, paths, limits)
     else:
         rec = read_recording(paths[0], *limits)
+        check_quaternion_order(rec, nominal)
     ho = read_recording(heldout, *limits) if heldout is not None else None
+    if ho is not None:
+        check_quaternion_order(ho, nominal)
     from app.analysis.fitting import refuse_another_arms
 
     if days is None:  # another arm's recording is refused, as fit does (several recordings: by _days)
@@ -119,10 +122,12 @@ def _days(robot: str, nominal: Any, paths: list[str | Path], limits: tuple[np.nd
     from calibration.frames import put_in, take_out
     from calibration.multiday import pool
     from calibration.rebase import corrections
-    from calibration.recording import read_recording
+    from calibration.recording import check_quaternion_order, read_recording
 
     refuse_repeated(paths)
     recs = [read_recording(p, *limits) for p in paths]
+    for r in recs:
+        check_quaternion_order(r, nominal)
     check_same_robot(nominal, recs, robot)
     days = compare_days(nominal, recs, day_names([str(p) for p in paths]))
     first = corrections(days.deltas[0])  # every recording in the first one's frames (it stays as it is)

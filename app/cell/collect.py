@@ -32,6 +32,7 @@ from tqdm import tqdm
 
 from app.cell.mocap_window import ClockLink, WindowFailed, average_frames, collect_window
 from app.cell.motion import NonFiniteFeedback, device_name, read_q, stop_all
+from app.cell.plan_safety import check_plan_safe
 from app.cell.planning import Plan
 from app.cell.safety import CellSafety
 from app.cell.session_store import EventKind, Sample, SessionStore
@@ -336,7 +337,9 @@ class _Session:
         c = self.config
         name = self.driver.name
         if pending:
-            self.safety.check_plan(name, self.plan.q[pending], self.others(), self.own_q())
+            check_plan_safe(self.safety.cell, Plan(tuple(self.plan.targets[i] for i in pending), self.plan.params),
+                            "the plan", safety=self.safety, others=self.others(), q_start={name: self.own_q()},
+                            numbers=pending)
         n_new = consecutive = 0
         with tqdm(total=len(self.plan), initial=n_done, unit="target", desc=f"{name} collect",
                   disable=not progress) as bar:

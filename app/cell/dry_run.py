@@ -4,8 +4,8 @@
 MotoROS driver times its moves: each joint move from the previous pose is a cubic Hermite segment with zero end
 velocities, whose peak speed is ``CUBIC_PEAK_RATIO`` (1.5) times its mean speed, so a move lasts
 ``1.5 * max_j |dq_j| / (speed_fraction * max_speed_j)``. The safety verdict is the full check the collector runs
-before its first motion (:meth:`~app.cell.safety.CellSafety.check_plan`: every target and every path, against the
-limits, the floor and the other arms at the given poses).
+before its first motion (:func:`~app.cell.plan_safety.plan_defects`, the one definition of a safe plan: every target
+and every path, against the limits, the floor and the other arms at the given poses).
 """
 
 from __future__ import annotations
@@ -18,8 +18,9 @@ from typing import Any
 import numpy as np
 
 from app.cell.planning import KINDS, Plan
+from app.cell.plan_safety import plan_defects
 from app.cell.safety import CellSafety
-from calibration.errors import ConfigError, UnsafeTarget
+from calibration.errors import ConfigError
 from drivers.motoros.driver import CUBIC_PEAK_RATIO
 
 
@@ -112,11 +113,8 @@ def summarize_plan(plan: Plan, safety: CellSafety, others: Mapping[str, np.ndarr
     q = np.concatenate([q_start[None], plan.q])
     moves = move_durations_s(q, safety.cell.robot(robot).robot.max_speed_rad_s, speed_fraction)
     counts = {k: sum(t.kind == k for t in plan.targets) for k in KINDS}
-    error = None
-    try:
-        safety.check_plan(robot, plan.q, others, q_start)
-    except (UnsafeTarget, ConfigError) as e:
-        error = str(e)
+    defects = plan_defects(safety.cell, plan, safety=safety, others=others, q_start={robot: q_start}, first_only=True)
+    error = str(defects[0]) if defects else None
     motion_s = float(moves.sum())
     return PlanSummary(robot, n, {k: c for k, c in counts.items() if c}, q.min(axis=0), q.max(axis=0),
                        speed_fraction, motion_s, per_target_s, motion_s + n * per_target_s,

@@ -178,12 +178,25 @@ def cell_spec(args: argparse.Namespace) -> Any:
 
 
 def read_recording_arg(path: str, robot: Any | None = None) -> Any:
-    """A recording (CSV or Welding_Motoman folder), checked against ``robot``'s joint limits when given."""
+    """A recording (CSV or Welding_Motoman folder), checked against ``robot``'s joint limits when given, and its
+    quaternion order against ``robot``'s nominal model (:func:`calibration.recording.check_quaternion_order`)."""
     from calibration.recording import read_recording
+
+    from calibration.recording import check_quaternion_order
 
     if robot is None:
         return read_recording(path)
-    return read_recording(path, robot.robot.lower_rad, robot.robot.upper_rad)
+    rec = read_recording(path, robot.robot.lower_rad, robot.robot.upper_rad)
+    check_quaternion_order(rec, robot.model(), _quaternion_columns(path))
+    return rec
+
+
+def _quaternion_columns(path: str) -> str:
+    """How a recording names its quaternion columns: qw..qz, or a Welding_Motoman pose file's columns 4-7."""
+    from calibration.recording import welding_layout
+
+    layout = welding_layout(path)
+    return "qw, qx, qy, qz" if layout is None else f"{layout[1].name} columns 4-7"
 
 
 def load_model_for(path: str, robot: Any) -> Any:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from typing import Any, Callable
 
 from app.cli.cell_options import add_motion_options
@@ -62,7 +63,9 @@ def cmd_plan_dual(args: argparse.Namespace) -> int:
         raise ModelError(f"{len(plan.failed)} of {len(plan.waypoints)} waypoints not solved (waypoint"
                          f"{'s' if len(plan.failed) > 1 else ''} {_index_ranges(plan.failed)}), nothing written"
                          f"{_named_outputs(args)}; first: waypoint {i}: {plan.waypoints[i].reason}")
-    _check_dual_plan(planner.cell, plan.q(), planner.options.limit_margin_deg)
+    from app.cell.plan_safety import check_plan_safe
+
+    check_plan_safe(planner.cell, plan, "the solved plan", models=models)  # the checks every exit runs on the file
     if args.out:
         save_plan(plan, args.out)
     write_json(args.json, summary)
@@ -87,22 +90,6 @@ def _named_outputs(args: argparse.Namespace) -> str:
     """`` to --out X or --json Y``: the outputs the command was given (empty when none)."""
     named = [f"--{k} {v}" for k, v in (("out", args.out), ("json", args.json)) if v]
     return f" to {' or '.join(named)}" if named else ""
-
-
-def _check_dual_plan(cell: Any, q: Any, margin_deg: float) -> None:
-    """The cell-safety check every motion goes through, on the plan's waypoints and the moves between them.
-
-    The plan's moves are both arms together; the process zone (gun and workpiece ends, which the relative pose
-    brings together on purpose) is left to the planner's relative-pose constraint.
-
-    Raises:
-        UnsafeTarget: naming the waypoint; nothing is written.
-    """
-    from app.cell.capsules import PROCESS_ZONE
-    from app.cell.safety import CellSafety, SafetyConfig
-
-    safety = CellSafety(cell, SafetyConfig(joint_margin_deg=margin_deg, process_zone=PROCESS_ZONE))
-    safety.check_dual_path(q)
 
 
 def _model_sets(specs: list[str] | None, cell: Any) -> dict[str, dict[str, Any]]:
@@ -136,6 +123,9 @@ def cmd_validate_dual(args: argparse.Namespace) -> int:
         if given:  # both were silently ignored: the simulated contact moves are not timed
             raise CellCalError(f"{' and '.join(given)}: not used by validate-dual --sim, whose simulated contact "
                                f"moves have no clock; leave {'it' if len(given) == 1 else 'them'} out")
+        if args.plan_models:  # read only with --plan on the real cell: it was silently ignored
+            raise CellCalError("--plan-models: not used by validate-dual --sim, which plans its own contact "
+                               "configurations; give it with --plan on the real cell")
         methods = tuple(m.strip() for m in args.methods.split(",") if m.strip()) if args.methods else None
         model_sets = _model_sets(args.models, cell) or None
         if args.dry_run:  # it ran the whole simulated validation, fits included, as if --dry-run were not given
@@ -177,7 +167,7 @@ def _validate_real(args: argparse.Namespace, cell: Any) -> Any:
                          "configurations; --sim plans its own")
     runtime = open_runtime(cell, args, robots=())  # the arms only: contacts come from the CAN probe
     probe = open_probe(cell)
-    q_plan, p_contact = contact_configurations(args.plan)
+    q_plan, p_contact = contact_configurations(args.plan, cell, _model_pair(args.plan_models, "--plan-models", cell))
     model_sets, speed, safety = _model_sets(args.models, cell), speed_fraction(cell, args), safety_for(cell, args)
     with runtime as rt:
         if args.dry_run:
@@ -199,10 +189,14 @@ def cmd_preview(args: argparse.Namespace) -> int:
 
     if not args.html and not args.serve:
         raise ModelError("preview needs --html OUT (a static page) or --serve (a live viewer)")
-    result = preview(cell_spec(args), args.plan, html_out=args.html, serve=args.serve)
+    cell = cell_spec(args)
+    result = preview(cell, args.plan, html_out=args.html, serve=args.serve,
+                     plan_models=_model_pair(args.models, "--models", cell))
     write_json(args.json, result.summary())
     if result.html_path:
         print(f"{result.n_frames} frames -> {result.html_path}")
+    for d in result.defects:  # drawn in red with the reason in the readout; said here too
+        print(f"UNSAFE {d}", file=sys.stderr)
     if result.url:
         print(f"live viewer at {result.url}; press Enter to stop", flush=True)
         try:
@@ -215,10 +209,16 @@ def cmd_preview(args: argparse.Namespace) -> int:
 def cmd_export_targets(args: argparse.Namespace) -> int:
     from app.dual.export_targets import export_targets
 
-    n = export_targets(args.plan, cell_spec(args), args.out, args.frame, args.skip_failed)
+    cell = cell_spec(args)
+    n = export_targets(args.plan, cell, args.out, args.frame, args.skip_failed,
+                       models=_model_pair(args.models, "--models", cell))
     print(f"{n} targets ({args.frame} frame) -> {args.out}")
     write_json(args.json, {"plan": str(args.plan), "targets": n, "frame": args.frame, "out": str(args.out)})
     return 0
+
+
+PLAN_MODELS_HELP = ("R1=FILE,R2=FILE: the models the plan was solved with (plan-dual --models); its relative pose is "
+                    "recomputed from them (a robot left out: its nominal model)")
 
 
 def add_dual_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
@@ -237,6 +237,7 @@ def add_dual_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p = add("validate-dual", cmd_validate_dual, "contact validation of model sets (the paper's dual-robot check)")
     p.add_argument("--plan", help="dual plan (plan-dual --out) whose waypoints are the contact configurations; "
                                   "needed on the real cell")
+    p.add_argument("--plan-models", help=PLAN_MODELS_HELP.replace("R1=FILE,R2=FILE: ", "R1=FILE,R2=FILE with --plan: "))
     p.add_argument("--configurations", type=int, default=20, help="contact configurations with --sim, inward to "
                                                                   "outstretched")
     p.add_argument("--models", action="append", help="[LABEL:]R1=FILE,R2=FILE, repeatable; with --sim and none, "
@@ -256,9 +257,11 @@ def add_dual_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--html", help="write a self-contained HTML page")
     p.add_argument("--serve", action="store_true", help="start a live meshcat viewer and wait for Enter")
     p.add_argument("--json", help="write a summary as JSON (waypoints, largest residual, files, joint-limit check)")
+    p.add_argument("--models", help=PLAN_MODELS_HELP)
     p = add("export-targets", cmd_export_targets, "controller targets (rad, pulses, poses) from a dual plan")
     p.add_argument("--plan", required=True, help="plan file written by plan-dual")
     p.add_argument("--out", required=True, help="targets file (.csv or .json)")
     p.add_argument("--frame", choices=("flange", "tool"), default="flange", help="pose frame of the targets")
     p.add_argument("--skip-failed", action="store_true", help="leave out unsolved waypoints instead of refusing")
+    p.add_argument("--models", help=PLAN_MODELS_HELP)
     p.add_argument("--json", help="write the target count and frame as JSON")

@@ -9,12 +9,14 @@ from __future__ import annotations
 import csv
 import io
 import json
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from app.cell.plan_file import read_plan
+from app.cell.plan_safety import check_plan_safe
 from app.dual.plan_result import PlanResult
 from calibration.errors import DataError, ModelError, UnsafeTarget
 from calibration.files import atomic_write_text
@@ -103,14 +105,20 @@ def write_targets(rows: list[dict[str, Any]], path: str | Path, frame: str = "fl
 
 
 def export_targets(plan: PlanResult | str | Path, cell: CellSpec, out: str | Path, frame: str = "flange",
-                   skip_failed: bool = False) -> int:
+                   skip_failed: bool = False, models: Mapping[str, Any] | None = None) -> int:
     """Export a plan (object or plan file) as controller targets to ``out`` (.csv or .json).
+
+    The plan must first pass :func:`app.cell.plan_safety.check_plan_safe`, the checks plan-dual made when it
+    solved it (clearances and floor along every move, the step between waypoints, the relative pose recomputed
+    from ``models``, the nominal ones for a robot not given), so a plan edited since cannot leave unchecked.
 
     Returns:
         The number of rows written (waypoints x 2 robots).
 
     Raises:
-        UnsafeTarget: an unsolved waypoint (unless ``skip_failed``) or a joint beyond its limit; nothing is written.
+        UnsafeTarget: an unsolved waypoint (unless ``skip_failed``), a joint beyond its limit, or any defect of
+            :func:`~app.cell.plan_safety.check_plan_safe` (an :class:`~app.cell.plan_safety.UnsafePlan` naming the
+            waypoint); nothing is written.
         DataError, ModelError: unreadable plan, nothing to export (no waypoints, or none solved with
             ``skip_failed``), unknown frame or file type.
     """
@@ -119,6 +127,7 @@ def export_targets(plan: PlanResult | str | Path, cell: CellSpec, out: str | Pat
         plan = read_plan(plan, "dual")
     if Path(out).suffix.lower() not in (".csv", ".json"):
         raise ModelError(f"unknown target file type {Path(out).suffix!r}; valid: .csv, .json")
+    check_plan_safe(cell, plan, source, models=models, skip_failed=skip_failed)
     rows = export_rows(plan, cell, frame, skip_failed)
     if not rows:  # a header-only target file, exit 0, read as a job with nothing to do
         raise DataError(source, None, None, "no targets to export: the plan has no waypoints" if not plan.waypoints

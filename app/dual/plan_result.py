@@ -98,6 +98,11 @@ class PlanResult:
         """
         if not isinstance(d, dict) or d.get("schema") != PLAN_SCHEMA or not isinstance(d.get("waypoints"), list):
             raise DataError(source, None, None, f"expected a dual plan (schema {PLAN_SCHEMA!r} with 'waypoints')")
+        models = d.get("models", {})
+        if not isinstance(models, dict) or not all(isinstance(k, str) and isinstance(v, str)
+                                                   for k, v in models.items()):
+            raise DataError(source, None, "models", f"expected the model kind per robot, e.g. {{\"R1\": \"constant\", "
+                                                    f"\"R2\": \"constant\"}}, got {str(models)[:80]}")
         out = []
         for i, w in enumerate(d["waypoints"]):
             if not isinstance(w, dict) or not {"R1", "R2"} <= set(w):
@@ -108,17 +113,24 @@ class PlanResult:
                 raise DataError(source, None, None, f"waypoint {i}: expected R1 and R2 with 6 finite numbers each [rad]")
             ok = w.get("converged") is True
             nan = float("nan")
-            out.append(WaypointResult(q1, q2, float(w.get("residual_mm", nan)), float(w.get("residual_deg", nan)),
-                                      float(w.get("track_mm", nan)), nan, float(w.get("clearance_mm", nan)), nan,
-                                      float(w.get("solve_ms", nan)), 0, ok,
-                                      w.get("reason", "") if ok else (w.get("reason") or "not marked converged")))
+            claims = {}
+            for key in ("residual_mm", "residual_deg", "track_mm", "clearance_mm", "solve_ms"):
+                v = w.get(key)
+                if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or abs(v) > 1e300):
+                    raise DataError(source, None, None, f"waypoint {i}: {key} must be a number, got {str(v)[:40]!r}")
+                claims[key] = nan if v is None else float(v)
+            reason = w.get("reason", "")
+            reason = reason if isinstance(reason, str) else str(reason)[:200]
+            out.append(WaypointResult(q1, q2, claims["residual_mm"], claims["residual_deg"], claims["track_mm"], nan,
+                                      claims["clearance_mm"], nan, claims["solve_ms"], 0, ok,
+                                      reason if ok else (reason or "not marked converged")))
         if d.get("T_wp_gun") is None:
-            return cls(tuple(out), None, dict(d.get("models", {})))
+            return cls(tuple(out), None, dict(models))
         T = json_numbers(d["T_wp_gun"])
         T = np.full(0, np.nan) if T is None else T
         if T.shape != (4, 4) or not np.all(np.isfinite(T)) or not np.allclose(T[3], [0, 0, 0, 1]):
             raise DataError(source, None, "T_wp_gun", "expected a 4x4 homogeneous transform of finite numbers [mm]")
-        return cls(tuple(out), T, dict(d.get("models", {})))
+        return cls(tuple(out), T, dict(models))
 
 
 def save_plan(plan: PlanResult, path: str | Path) -> None:

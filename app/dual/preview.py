@@ -9,7 +9,9 @@ a live view in the browser, bound to 127.0.0.1; :mod:`app.dual.meshcat_server`).
 Plans: any plan file (:func:`app.cell.plan_file.read_plan`): a dual plan draws both arms per waypoint; a
 single-robot collection plan moves its arm target by target while the other keeps its previous configuration
 (the home configuration q = 0 at the start). A plan with a joint beyond its limit is refused, as
-export-targets refuses it.
+export-targets refuses it. Any other defect of :func:`app.cell.plan_safety.plan_defects` (the checks every exit of
+a plan runs: relative pose recomputed from the models, the step between waypoints, floor and clearances, ...) is
+drawn, so the person sees it: red dots on the unsafe waypoints, ``UNSAFE`` and the reason in the readout.
 
 What is drawn (viewer units are metres):
 
@@ -38,6 +40,8 @@ from typing import Any
 import numpy as np
 
 from app.cell.capsules import CellCapsules
+from app.cell.plan_file import read_plan
+from app.cell.plan_safety import NOT_SOLVED, PlanDefect, plan_defects
 from app.dual.preview_plan import PreviewPlan, limit_margin, plan_frames, read_preview_plan
 from calibration.files import atomic_write_text
 from cell_config.loader import CellSpec
@@ -60,6 +64,9 @@ class PreviewResult:
             it records none (a collection plan, a hand-written plan).
         min_limit_margin_deg: smallest distance of any joint from its limit over the plan [deg] (the plan was
             refused when negative), with ``limit_margin_at`` = (waypoint, robot, joint 1..6) where it occurs.
+        defects: why the plan must not leave (:func:`app.cell.plan_safety.plan_defects`, the checks export-targets
+            and collect refuse it for); each unsafe waypoint is drawn with a red marker and its reason in the
+            readout. Empty: safe.
     """
 
     n_frames: int
@@ -70,6 +77,7 @@ class PreviewResult:
     max_residual_deg: float | None = None
     min_limit_margin_deg: float = float("nan")
     limit_margin_at: tuple[int, str, int] | None = None
+    defects: tuple[PlanDefect, ...] = ()
 
     def summary(self) -> dict[str, Any]:
         """The ``preview --json`` summary: waypoints, largest residual, files written, joint-limit check."""
@@ -77,6 +85,8 @@ class PreviewResult:
         return {"waypoints": self.n_frames, "kind": self.kind, "max_residual_mm": self.max_residual_mm,
                 "max_residual_deg": self.max_residual_deg,
                 "files": [str(self.html_path)] if self.html_path else [], "url": self.url,
+                "safe": not self.defects,
+                "unsafe": [{"waypoint": d.waypoint, "reason": d.reason} for d in self.defects],
                 "joint_limits": {"checked": True, "within": True, "min_margin_deg": self.min_limit_margin_deg,
                                  "at": None if at is None else {"waypoint": at[0], "robot": at[1], "joint": at[2]}}}
 
@@ -155,7 +165,8 @@ def _windows(static: bool, serve: bool, overlay: str) -> tuple[list[Any], str | 
 
 
 def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve: bool = False,
-            models: dict[str, Any] | None = None, fps: float = 10.0) -> PreviewResult:
+            models: dict[str, Any] | None = None, fps: float = 10.0,
+            plan_models: dict[str, Any] | None = None) -> PreviewResult:
     """Draw the cell and animate a plan.
 
     Args:
@@ -167,6 +178,8 @@ def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve
             page carries the same waypoint readout.
         models: PoeModel per robot used for drawing (``chain``); the cell's nominal models when None.
         fps: animation frames (waypoints) per second.
+        plan_models: the models a dual plan was solved with, per robot (nominal when not given): its relative pose
+            is recomputed from them by the safety checks (:func:`app.cell.plan_safety.plan_defects`).
 
     Returns:
         The :class:`PreviewResult`.
@@ -186,10 +199,16 @@ def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve
         raise ModelError("preview needs html_out (a static page) or serve=True (a live viewer)")
     p = read_preview_plan(plan)
     margin, margin_at = limit_margin(cell, p)
+    defects = tuple(plan_defects(cell, read_plan(plan), models=plan_models))
+    unsafe = _unsafe_frames(p.n_frames, defects)
+    said = [[r for r in unsafe[f] if not r.startswith(NOT_SOLVED)] for f in range(p.n_frames)]  # the note says it
+    notes = [f"UNSAFE: {'; '.join(said[f])} | {n}" if said[f] else n for f, n in enumerate(p.notes)]
+    ok = np.array([not unsafe[f] for f in range(p.n_frames)])
+    converged = ok if p.converged is None and not ok.all() else None if p.converged is None else p.converged & ok
     models = models or {n: cell.robot(n).model() for n in ("R1", "R2")}
     capsules = CellCapsules(cell)
     q_deg = {n: np.degrees(p.q[n]) for n in ("R1", "R2")}
-    overlay = readout_html(readout_data(q_deg, p.residual_mm, p.residual_deg, p.converged, list(p.notes), fps),
+    overlay = readout_html(readout_data(q_deg, p.residual_mm, p.residual_deg, converged, notes, fps),
                            {**scene.COLORS, **scene.TRACE_COLORS})
     windows, url = _windows(html_out is not None, serve, overlay)
     for window in windows:
@@ -197,6 +216,7 @@ def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve
         anim = Animation(default_framerate=fps)
         tools = {n: scene.draw_arm(vis, anim, cell, capsules, n, p.q[n], models[n]) for n in ("R1", "R2")}
         scene.draw_traces(vis, p, tools)
+        scene.draw_unsafe(vis, tools, np.flatnonzero(~ok))
         scene.draw_labels(vis, cell)
         top.set_animation(anim, play=False, repetitions=1)  # the readout opens it at waypoint 0; "play" runs it
     path = None
@@ -208,5 +228,17 @@ def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve
     def worst(a: np.ndarray) -> float | None:
         return float(np.nanmax(a)) if np.isfinite(a).any() else None
 
+    if defects:
+        logger.warning("the plan is unsafe (%d defects, marked in red); first: %s", len(defects), defects[0])
     return PreviewResult(p.n_frames, path, url, p.kind, worst(p.residual_mm), worst(p.residual_deg), margin,
-                         margin_at)
+                         margin_at, defects)
+
+
+def _unsafe_frames(n_frames: int, defects: tuple[PlanDefect, ...]) -> list[list[str]]:
+    """Per frame, the reasons it is unsafe (a plan-wide defect marks every frame)."""
+    out: list[list[str]] = [[] for _ in range(n_frames)]
+    for d in defects:
+        for f in range(n_frames) if d.waypoint is None else [d.waypoint]:
+            if 0 <= f < n_frames:
+                out[f].append(d.reason)
+    return out

@@ -160,6 +160,24 @@ def draw_traces(vis: Any, plan: PreviewPlan, tools: dict[str, np.ndarray]) -> No
         vis["R2/tool/target"].set_object(target)
 
 
+#: Colour of the markers on unsafe waypoints (:func:`draw_unsafe`).
+UNSAFE_COLOR = 0xE00000
+
+
+def draw_unsafe(vis: Any, tools: dict[str, np.ndarray], frames: np.ndarray) -> None:
+    """A large red dot on both tool points of every unsafe waypoint (cell frame); nothing when there is none.
+
+    Args:
+        tools: tool poses per robot in the cell frame, shape (F, 4, 4) [m].
+        frames: indices of the unsafe waypoints.
+    """
+    if len(frames) == 0:
+        return
+    points = np.concatenate([tools[name][frames, :3, 3] for name in ("R1", "R2")])
+    _, dots = _polyline(points, UNSAFE_COLOR, 0.06)
+    vis["unsafe/points"].set_object(dots)
+
+
 def draw_arm(vis: Any, anim: Any, cell: CellSpec, capsules: CellCapsules, name: str, q: np.ndarray,
              model: Any) -> np.ndarray:
     """One arm's capsules, what it carries and its tool triad, animated over its joint angles q [rad] (F, 6).

@@ -22,16 +22,27 @@ from calibration.errors import CellCalError, DataError, ModelError
 log = logging.getLogger("cellcal.app")
 
 
-def contact_configurations(plan_path: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """``(q (N, 12) [rad], p_wp_contact (3,) [mm])`` from a dual plan file.
+def contact_configurations(plan_path: str | Path, cell: Any,
+                           models: dict[str, Any] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``(q (N, 12) [rad], p_wp_contact (3,) [mm])`` from a dual plan file that passes the checks every plan
+    passes before it leaves (:func:`app.cell.plan_safety.check_plan_safe`).
+
+    Args:
+        plan_path: the dual plan file.
+        cell: the cell.
+        models: the models the plan was solved with (nominal for a robot not given): the relative pose is
+            recomputed from them.
 
     Raises:
         DataError: not a dual plan file.
         ModelError: the plan has unsolved waypoints or fewer than 2.
+        UnsafeTarget: an :class:`~app.cell.plan_safety.UnsafePlan` naming the waypoint.
     """
     from app.cell.plan_file import read_plan
+    from app.cell.plan_safety import check_plan_safe
 
     plan = read_plan(plan_path, "dual")
+    check_plan_safe(cell, plan, str(plan_path), models=models)
     unsolved = [i for i, w in enumerate(plan.waypoints) if not w.converged]
     if unsolved:
         raise ModelError(f"{plan_path}: waypoints {unsolved[:5]} are not solved; validate only a fully solved plan")

@@ -28,7 +28,8 @@ import yaml
 
 from calibration.errors import DataError, ModelError, ModelFileError, parse_error_text
 from calibration.files import atomic_write_text
-from calibration.model_checks import check_model_data, check_model_for
+from calibration.model_checks import (MAX_MODEL_FILE_BYTES, MAX_POSITION_MM, check_model_data, check_model_for,
+                                      check_model_numbers, check_model_structure)
 from calibration.poe import PoeModel
 from calibration.yamlio import safe_load
 
@@ -255,8 +256,19 @@ def save_model(model: KinematicModel, path: str | Path) -> None:
 
 
 def _read_model_file(path: Path) -> dict[str, Any]:
+    """The decoded model file: a regular file of at most :data:`~calibration.model_checks.MAX_MODEL_FILE_BYTES`
+    (a FIFO or a device would block or never end), whose structure can be walked (no aliases, no list beyond
+    :data:`~calibration.model_checks.MAX_LIST_LENGTH`)."""
     try:
-        text = path.read_text(encoding="utf-8-sig")
+        if path.exists() and not path.is_dir() and not path.is_file():
+            raise DataError(path, None, None, "not a regular file (a FIFO, a device or a socket); expected a model "
+                                              "file (YAML or JSON)")
+        with path.open("rb") as f:
+            raw = f.read(MAX_MODEL_FILE_BYTES + 1)
+        if len(raw) > MAX_MODEL_FILE_BYTES:
+            raise DataError(path, None, None, f"larger than {MAX_MODEL_FILE_BYTES // 2**20} MiB, the most a model "
+                                              "file may hold (a model file is a few hundred kB)")
+        text = raw.decode("utf-8-sig")
     except FileNotFoundError:
         raise DataError(path, None, None, "model file not found") from None
     except IsADirectoryError:
@@ -274,6 +286,7 @@ def _read_model_file(path: Path) -> dict[str, Any]:
         raise DataError(path, None, None, f"not a valid model file ({parse_error_text(e)})") from e
     if not isinstance(data, dict):
         raise DataError(path, None, None, "not a model file (expected a mapping)")
+    check_model_structure(data, path)
     return data
 
 
@@ -311,6 +324,11 @@ def load_model(path: str | Path, robot: str | None = None, nominal: PoeModel | N
         raise DataError(path, None, None, f"malformed model file: {e!r}") from e
     except ModelError as e:
         raise DataError(path, None, None, str(e)) from e
+    check_model_numbers(_plain(model.to_dict()), path)  # every number again, after conversion
+    R, p = model.fk(np.zeros((1, 6)))
+    if not (np.all(np.isfinite(R)) and np.all(np.isfinite(p))) or not float(np.abs(p).max()) <= MAX_POSITION_MM:
+        raise ModelFileError(path, "", f"the model's tool pose at q = 0 is {p[0].tolist()} mm: not a finite "
+                                       f"position within {MAX_POSITION_MM:g} mm")
     if robot is not None:
         check_model_for(model, robot, nominal, path)
     return model

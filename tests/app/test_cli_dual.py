@@ -218,7 +218,7 @@ def test_export_and_preview_bad_inputs(tmp_path, planned, capsys):
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps(plan))
     out = tmp_path / "t.csv"
-    assert_bad_input(capsys, ["export-targets", "--plan", str(bad), "--out", str(out)], "waypoint 1 was not solved")
+    assert_bad_input(capsys, ["export-targets", "--plan", str(bad), "--out", str(out)], "waypoint 1: not solved: near singularity")
     assert_bad_input(capsys, ["export-targets", "--plan", str(planned / "plan.json"), "--out", str(tmp_path / "t.txt")],
          "valid: .csv, .json")
     assert_bad_input(capsys, ["preview", "--plan", str(planned / "plan.json")], "--html OUT", "--serve")
@@ -329,3 +329,25 @@ def test_validate_dual_sim_uses_its_seed_and_its_help_names_the_default(tmp_path
         assert main(argv + (["--seed", seed] if seed else [])) == 0
         means[seed] = json.loads(out.read_text())["models"]["nominal"]["mean_mm"]
     assert means[None] == means[str(VALIDATION_CELL.seed)] != means["3"]
+
+
+def test_a_plan_solved_with_a_model_leaves_only_with_that_model(tmp_path, capsys):
+    """export-targets and preview recompute the relative pose from the models the plan was solved with: without
+    them (the nominal model would be ~mm off) the plan is refused, naming the model to give; with them it leaves."""
+    cell = load_cell()
+    save_model(_diagnosed_r1(cell), tmp_path / "r1.yaml")
+    plan, out = tmp_path / "plan.json", tmp_path / "t.csv"
+    models = f"R1={tmp_path / 'r1.yaml'}"
+    assert main(["plan-dual", "--models", models, "--path", "sweep:6", "--out", str(plan)]) == 0
+    assert_bad_input(capsys, ["export-targets", "--plan", str(plan), "--out", str(out)],
+                     "solved with a diagnosed model for R1", "--models R1=FILE")
+    assert not out.exists()
+    assert main(["export-targets", "--plan", str(plan), "--out", str(out), "--models", models]) == 0
+    d = json.loads(plan.read_text())
+    d["models"]["R1"] = "constant"  # the file now claims the nominal model: the recomputed pose is off
+    plan.write_text(json.dumps(d))
+    assert_bad_input(capsys, ["export-targets", "--plan", str(plan), "--out", str(tmp_path / "u.csv")],
+                     "waypoint 0: relative pose not held", "R1 nominal")
+    summary = tmp_path / "p.json"
+    assert main(["preview", "--plan", str(plan), "--html", str(tmp_path / "p.html"), "--json", str(summary)]) == 0
+    assert not json.loads(summary.read_text())["safe"]

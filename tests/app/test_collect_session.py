@@ -212,7 +212,7 @@ def test_unsafe_plans_are_refused_before_any_motion(tmp_path):
     colliding = build_plan(list(first(3).targets) + [dataclasses.replace(first(1).targets[0],
                                                                          q=np.radians([-10, 70, 60, 0, 0, 0]))])
     with driver, mocap:
-        with pytest.raises(UnsafeTarget, match=r"R1 joint 3: target 170 deg .* limit 160 deg \(target 3\)"):
+        with pytest.raises(UnsafeTarget, match=r"target 3: R1 joint 3: target 170 deg .* limit 160 deg"):
             run_session(tmp_path / "a", driver, mocap, safety, body_id=1, plan=out_of_limits, others=OTHERS,
                         config=FAST, progress=False)
         with pytest.raises(UnsafeTarget, match="R1: .* too close to R2"):

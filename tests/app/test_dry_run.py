@@ -69,15 +69,20 @@ def test_duration_is_the_cubic_profile_of_the_slowest_joint(cell):
 
 
 def test_the_safety_verdict_is_the_full_check(cell):
+    from app.cell.plan_safety import check_plan_safe
+
     safety = CellSafety(cell)
     plan = small_plan()
     colliding = build_plan(list(plan.targets[:3]) + [dataclasses.replace(plan.targets[0],
                                                                          q=np.radians([-10, 70, 60, 0, 0, 0]))])
     near = {"R2": np.radians([0, 40, 0, 0, 0, 0])}
     s = summarize_plan(colliding, safety, near, Q_START)
-    with pytest.raises(UnsafeTarget) as e:
+    with pytest.raises(UnsafeTarget):
         safety.check_plan("R1", colliding.q, near, Q_START)
-    assert not s.safe and s.safety_error == str(e.value) and "too close to R2" in s.safety_error
+    with pytest.raises(UnsafeTarget) as e:  # the one definition of a safe plan, which collect runs before motion
+        check_plan_safe(cell, colliding, "p", safety=safety, others=near, q_start={"R1": Q_START})
+    assert not s.safe and f"p: unsafe plan, {s.safety_error}; nothing written" == str(e.value)
+    assert s.safety_error.startswith("target 3: ") and "too close to R2" in s.safety_error
     assert "REFUSED" in s.lines()[-1]
     assert summarize_plan(colliding, safety, OTHERS, Q_START).safe  # R2 turned away: the same plan is safe
     unknown = summarize_plan(plan, safety, {}, Q_START)

@@ -308,9 +308,16 @@ def test_plan_dual_file_round_trip_and_export(cell, tmp_path):
     d = json.loads((tmp_path / "plan.json").read_text())
     d["waypoints"][2].pop("converged")  # hand-edited plans are not trusted
     (tmp_path / "edited.json").write_text(json.dumps(d))
-    with pytest.raises(UnsafeTarget, match="waypoint 2 was not solved: not marked converged"):
+    with pytest.raises(UnsafeTarget, match="waypoint 2: not solved: not marked converged"):
         export_targets(tmp_path / "edited.json", cell, tmp_path / "e.csv")
     assert not (tmp_path / "e.csv").exists()
+    d["waypoints"][1].pop("converged")  # leaving both 1 and 2 out makes the move from 0 to 3 too long a step
+    (tmp_path / "edited.json").write_text(json.dumps(d))
+    with pytest.raises(UnsafeTarget, match=r"waypoint 3: the move to it from waypoint 0 .* \(step too large"):
+        export_targets(tmp_path / "edited.json", cell, tmp_path / "e.json", skip_failed=True)
+    d["waypoints"][1]["converged"] = d["waypoints"][2]["converged"] = True
+    d["waypoints"][4].pop("converged")  # leaving out the last one leaves the other moves as they were planned
+    (tmp_path / "edited.json").write_text(json.dumps(d))
     assert export_targets(tmp_path / "edited.json", cell, tmp_path / "e.json", skip_failed=True) == 8
 
 

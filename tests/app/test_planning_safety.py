@@ -185,7 +185,8 @@ def test_the_batched_dual_path_check_refuses_exactly_what_the_move_by_move_check
 
 def test_dual_motion_checks_both_arms_together_and_leaves_only_the_process_zone(cell):
     from app.cell.capsules import PROCESS_ZONE, SEGMENTS
-    from app.cli.dual import _check_dual_plan
+    from app.cell.plan_safety import UnsafePlan, check_plan_safe
+    from app.dual.plan_result import PlanResult, WaypointResult
 
     safety = CellSafety(cell, SafetyConfig(process_zone=PROCESS_ZONE))
     r2 = np.radians([0, 40, 0, 0, 0, 0])
@@ -195,8 +196,10 @@ def test_dual_motion_checks_both_arms_together_and_leaves_only_the_process_zone(
     with pytest.raises(UnsafeTarget, match="too close to R2") as e:  # ... the joint move between them is not
         safety.check_dual_motion(start, end, index=7)
     assert "target 7" in str(e.value)
-    with pytest.raises(UnsafeTarget, match="too close to the floor"):
-        _check_dual_plan(cell, np.stack([np.concatenate([np.radians([0, 90, 0, 0, 0, 0]), r2])]), 0.0)
+    nan = float("nan")
+    low = WaypointResult(np.radians([0, 90, 0, 0, 0, 0]), r2, nan, nan, nan, nan, nan, nan, nan, 0, True)
+    with pytest.raises(UnsafePlan, match="waypoint 0: R1: .*too close to the floor"):
+        check_plan_safe(cell, PlanResult((low,), None, {"R1": "constant", "R2": "constant"}))
     with pytest.raises(ConfigError, match="unknown capsules"):
         CellSafety(cell, SafetyConfig(process_zone=("gun",)))
     # the process zone leaves exactly the pairs with both capsules in it unchecked
