@@ -44,7 +44,7 @@ from calibration.metrics import errors  # noqa: E402
 from calibration.models import ConstantModel  # noqa: E402
 from calibration.models.rebased import wrap_pose  # noqa: E402
 from calibration.poe import pose_error  # noqa: E402
-from calibration.rebase import RebaseProblem, choose_directions  # noqa: E402
+from calibration.rebase import RebaseProblem, choice_options, choose_directions  # noqa: E402
 from calibration.recording import Recording, read_recording  # noqa: E402
 from cell_config import load_cell  # noqa: E402
 
@@ -207,8 +207,8 @@ def main(argv: list[str] | None = None) -> int:
             for b in UNITS:
                 if b.name != a.name:
                     choice, _ = choose_directions(models[a.name][m], rebase_data[b.name])  # as cellcal rebase
-                    rebases[b.name] = RebaseProblem.from_recording(models[a.name][m], rebase_data[b.name],
-                                                                   rotations=choice == "frames").solve()
+                    rebases[b.name] = None if choice == "none" else RebaseProblem.from_recording(  # none: refused
+                        models[a.name][m], rebase_data[b.name], **choice_options(choice)).solve()
                     bounds[b.name] = RebaseProblem.from_recording(models[a.name][m], train[b.name]).solve()
             for label, test in tests.items():
                 b_name = target_unit[label]
@@ -216,7 +216,8 @@ def main(argv: list[str] | None = None) -> int:
                     continue
                 R_i, p_i = models[a.name][m].fk(test.q)  # the rebased model's pose is this, wrapped
                 res = rebases[b_name]
-                R_r, p_r = wrap_pose(res.T_base_correction, R_i, p_i, res.T_tool_correction)
+                R_r, p_r = (R_i, p_i) if res is None else wrap_pose(res.T_base_correction, R_i, p_i,
+                                                                    res.T_tool_correction)
                 as_is = mean_max(pose_error(test.R, test.p, R_i, p_i)[0])
                 rebased = mean_max(pose_error(test.R, test.p, R_r, p_r)[0])
                 bound = bounds[b_name]
@@ -226,9 +227,10 @@ def main(argv: list[str] | None = None) -> int:
                 cross[m][a.name][label] = {
                     "as_is": as_is, "rebased": rebased, "same_day": ref, "ratio": rebased["mean"] / ref["mean"],
                     "rebased_all_clusters": rebased_all, "ratio_all_clusters": rebased_all["mean"] / ref["mean"],
-                    "directions": "frames" if res.fitted > 6 else "translations",
-                    "fitted_directions": res.fitted, "held": list(res.held), "converged": res.converged,
-                    "rebase_mean_mm": {"before": res.mean_before_mm, "after": res.mean_after_mm}}
+                    **({"directions": "refused"} if res is None else {
+                        "directions": "frames" if res.fitted > 6 else "translations",
+                        "fitted_directions": res.fitted, "held": list(res.held), "converged": res.converged,
+                        "rebase_mean_mm": {"before": res.mean_before_mm, "after": res.mean_after_mm}})}
     timings["cross_day_s"] = time.perf_counter() - t
     timings["total_s"] = time.perf_counter() - start
 

@@ -25,7 +25,7 @@ sys.path.insert(0, str(ROOT))
 from calibration.metrics import errors  # noqa: E402
 from calibration.models import ConstantModel  # noqa: E402
 from calibration.multiday import fit_days  # noqa: E402
-from calibration.rebase import rebase_auto  # noqa: E402
+from calibration.rebase import RebaseRefused, rebase_auto  # noqa: E402
 from calibration.recording import Recording, read_recording  # noqa: E402
 from cell_config import load_cell  # noqa: E402
 from scripts.bench_days import CLUSTER_SIZE, DATA, GOAL_RATIO, UNITS, make_fitter, spread_clusters  # noqa: E402
@@ -63,7 +63,10 @@ def main(argv: list[str] | None = None) -> int:
         joint = fit_days(fitter, nominal, pool)
         arm = joint.fitter.fit("pi")[0]
         poses = train[b].subset(np.isin(train[b].clusters(CLUSTER_SIZE), spread_clusters(train[b])))
-        rebased, result, choice = rebase_auto(arm, poses)
+        try:
+            rebased, _, choice = rebase_auto(arm, poses)
+        except RebaseRefused:  # no frame change confirmed on the held-out clusters: the pooled arm as is
+            rebased, choice = arm, "refused"
         own = fitter(train[b]).fit("pi")[0]
         for label, _ in u.tests:
             t = tests[label]

@@ -52,7 +52,7 @@ from calibration.frames import take_out  # noqa: E402
 from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, GeometricProblem  # noqa: E402
 from calibration.models.rebased import wrap_pose  # noqa: E402
 from calibration.poe import pose_error  # noqa: E402
-from calibration.rebase import RebaseProblem, corrections, rebase_auto  # noqa: E402
+from calibration.rebase import RebaseProblem, RebaseRefused, corrections, rebase_auto  # noqa: E402
 from calibration.recording import Recording, read_recording  # noqa: E402
 from cell_config import load_cell  # noqa: E402
 from scripts.bench_days import (CLUSTER_SIZE, DATA, GOAL_RATIO, UNITS, design_clusters, make_fitter,  # noqa: E402
@@ -66,6 +66,15 @@ REFIT_GRID = (np.inf, 10.0, 3.0, 1.0, 0.3)
 PRIOR_GRID = (np.inf, 10.0, 1.0, 0.1, 0.01)  # prior residual weight: sqrt(1 / strength) x the mm residuals' scale
 W_ROT = float(np.sqrt(2 * DEFAULT_ORIENTATION_WEIGHT))
 
+
+
+def auto_or_refused(model: Any, rec: Recording) -> tuple[Any, str]:
+    """``cellcal rebase``'s model and choice; the model as given when it refuses (no frame change confirmed)."""
+    try:
+        rebased, _, choice = rebase_auto(model, rec)
+    except RebaseRefused:
+        return model, "refused"
+    return rebased, choice
 
 def frames_only(model: Any, rec: Recording, **options: Any) -> Predict:
     return RebaseProblem.from_recording(model, rec, **options).solve().model(model).fk
@@ -186,7 +195,7 @@ def main(argv: list[str] | None = None) -> int:
             predicts: dict[str, Predict] = {k: frames_only(m, rec, **o) for k, o in FRAME_VARIANTS.items()}
             pick = chosen({k: (lambda r, o=o: frames_only(m, r, **o)) for k, o in FRAME_VARIANTS.items()}, rec)
             predicts["chosen"] = predicts[pick]
-            auto, _, auto_choice = rebase_auto(m, rec)
+            auto, auto_choice = auto_or_refused(m, rec)
             predicts["auto (cellcal rebase)"] = auto.fk
             predicts["frames+wrist offsets"] = frames_only(m, rec, offsets=REBASE_OFFSETS)
             extra: dict[str, Any] = {"chosen": pick, "auto": auto_choice}
@@ -206,7 +215,7 @@ def main(argv: list[str] | None = None) -> int:
             cl = train[b.name].clusters(CLUSTER_SIZE)
             d_rec, d_rest = train[b.name].subset(np.isin(cl, picked[b.name])), \
                 train[b.name].subset(~np.isin(cl, picked[b.name]))
-            d_auto, _, extra["design_auto"] = rebase_auto(m, d_rec)
+            d_auto, extra["design_auto"] = auto_or_refused(m, d_rec)
             extra["design_chosen"] = chosen({k: (lambda r, o=o: frames_only(m, r, **o))
                                              for k, o in FRAME_VARIANTS.items()}, d_rec)
             for k, pr in (("design clusters: frames", frames_only(m, d_rec)),

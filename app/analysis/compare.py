@@ -184,7 +184,7 @@ def _analysis(fitter: Fitter, test: Recording, cmp: Comparison) -> dict[str, Any
         analysis["local_parameter_spread"] = parameter_spread(local.x, fitter.par.names())
         analysis["local_fit_seconds"] = local.seconds
         analysis["local_fit_rms_mm"] = {"mean": float(np.mean(local.rms_mm)), "max": float(np.max(local.rms_mm))}
-    if "fbf13" in cmp.models:
-        interp = cmp.models["fbf13"].interpolator  # type: ignore[attr-defined]
+    interp = cmp.models["fbf13"].interpolation() if "fbf13" in cmp.models else None
+    if interp is not None:  # any kind answers: a frames-first fit wraps fbf13 in a rebased model
         analysis["fourier_singular_values"] = np.asarray(interp.singular_values()).tolist()
     return analysis

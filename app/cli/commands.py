@@ -412,10 +412,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="frame directions whose singular value is below this fraction, in (0, 1), of the largest "
                         "are held at zero")
     which = p.add_mutually_exclusive_group()
-    which.add_argument("--translation-only", action="store_true", help="fit only the two translations (6 parameters)")
+    which.add_argument("--translation-only", action="store_true",
+                       help="fit only the two translations (6 parameters), unchecked on held-out clusters")
     which.add_argument("--all-directions", action="store_true",
-                       help="fit both frames' translations and rotations (12); default: the translations unless "
-                            "the rotations do better on clusters held out in turn (by more than a standard error)")
+                       help="fit both frames' translations and rotations (12), unchecked on held-out clusters; "
+                            "default: chosen on clusters held out in turn (poses, with fewer than 2 clusters): the "
+                            "translations, both frames with their barely seen directions held, or both frames, the "
+                            "fewest within a standard error of the best; refused (exit 2, nothing written) when the "
+                            "model as given does as well there")
     which.add_argument("--offsets", action="store_true",
                        help="fit both frames and the joint offsets of joints 4 and 5 (14): for poses that move the "
                             "wrist widely (cellcal plan --design optimal --for rebase); a still wrist cannot see "

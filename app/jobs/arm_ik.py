@@ -21,6 +21,11 @@ __all__ = ["ArmIk", "IkResult", "pose_error"]
 
 #: Weight of the rotation-matrix residual against millimetres (1 mrad ~ 1 mm).
 ROTATION_WEIGHT_MM = 1000.0
+#: :meth:`ArmIk.solve_near` leaves the orientation directions whose singular value (of the orientation task within
+#: the position task's null space) is below this fraction of the largest. At the wrist singularity (q5 = 0) of the
+#: fbf13 model of 0801 the one it leaves is ~0 (1e-3 leaves it too); at q5 = 0.3 deg reaching it exactly swings
+#: joints 4 and 6 by 4.4 deg against each other, at q5 = 0.9 deg by 1.9 deg, and this fraction leaves it at both.
+NEAR_RCOND = 1e-2
 
 
 @dataclass(frozen=True)
@@ -42,6 +47,9 @@ class IkResult:
     iterations: int
     converged: bool
     at_limit: tuple[int, ...] = ()
+    #: solved by :meth:`ArmIk.solve_near`: the position reached, the orientation as near as the wrist allows
+    #: without swinging joints 4 and 6 (``residual_deg`` is what it leaves).
+    near: bool = False
 
 
 def pose_error(model: Any, q: np.ndarray, R_target: np.ndarray, p_target: np.ndarray) -> tuple[float, float]:
@@ -114,3 +122,34 @@ class ArmIk:
         at = tuple(int(j) + 1 for j in np.flatnonzero((q <= self.lower) | (q >= self.upper)))
         ok = res_mm <= self.tol_mm and np.radians(res_deg) <= tol_rad * 10
         return IkResult(q, res_mm, res_deg, it, bool(ok), at)
+
+    def solve_near(self, R_target: np.ndarray, p_target: np.ndarray, q_start: np.ndarray,
+                   rcond: float = NEAR_RCOND) -> IkResult:
+        """The joints nearest ``q_start`` that reach the target position and as much of its orientation as the arm
+        turns to without large joint motion: Gauss-Newton steps of the position task first, the orientation task
+        within its null space, that task's directions below ``rcond`` of its largest singular value left out
+        (the wrist singularity: at q5 ~ 0 only q4 + q6 is determined, and the orientation about the axis normal to
+        joints 4 and 5 would need a swing of both; that part of the orientation is left, and reported).
+
+        ``converged`` says the position was reached (within ``tol_mm``); ``residual_deg`` is the orientation left.
+        """
+        T = np.concatenate([np.asarray(R_target, dtype=float).ravel(order="F"), np.asarray(p_target, dtype=float)])
+        q = np.clip(np.asarray(q_start, dtype=float), self.lower, self.upper)
+        it = 0
+        for it in range(1, self.max_iter + 1):
+            e, J = self._eval(q, T)
+            J_p, J_r = J[:3], J[3:]
+            P = np.linalg.pinv(J_p)
+            dq = P @ -e[:3]
+            N = np.eye(6) - P @ J_p
+            dq = dq + N @ (np.linalg.pinv(J_r @ N, rcond=rcond) @ (-e[3:] - J_r @ dq))
+            big = np.abs(dq).max()
+            if big > self.max_step_rad:
+                dq *= self.max_step_rad / big
+            q_new = np.clip(q + dq, self.lower, self.upper)
+            if np.abs(q_new - q).max() < 1e-15:
+                break
+            q = q_new
+        res_mm, res_deg = pose_error(self.model, q, np.asarray(R_target, dtype=float), np.asarray(p_target))
+        at = tuple(int(j) + 1 for j in np.flatnonzero((q <= self.lower) | (q >= self.upper)))
+        return IkResult(q, res_mm, res_deg, it, bool(res_mm <= self.tol_mm), at, near=True)

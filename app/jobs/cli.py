@@ -71,7 +71,8 @@ def cmd_compensate_job(args: argparse.Namespace) -> int:
     cell = cell_spec(args)
     models = load_job_models(args.model, cell)
     job = read_job(args.job)
-    comp = JobCompensator(cell, models, max_joint_change_deg=args.max_joint_change_deg).compensate(job)
+    comp = JobCompensator(cell, models, max_joint_change_deg=args.max_joint_change_deg,
+                          near_orientation_deg=args.near_orientation_deg).compensate(job)
     data = write_job(job, comp.replacements)
     summary = {"job": str(args.job), "out": str(out), **comp.to_json()}
     writers = ((args.json, lambda: write_json(args.json, summary)), (out, lambda: atomic_write_bytes(out, data)))
@@ -84,6 +85,11 @@ def cmd_compensate_job(args: argparse.Namespace) -> int:
     print(f"{len(comp.points)} positions compensated ({robots}), residual <= {summary['max_residual_mm']:.1e} mm "
           f"under the model, {summary['max_written_residual_mm']:.1e} mm as written, joints moved by up to "
           f"{summary['max_joint_change_deg']:.3f} deg -> {out}")
+    near = [p for p in comp.points if p.near_singularity]
+    if near:
+        print(f"{len(near)} of them at the wrist singularity (q5 ~ 0): position reached, orientation left up to "
+              f"{max(p.residual_deg for p in near):.3f} deg off rather than swinging joints 4 and 6 ("
+              + ", ".join(p.name for p in near[:5]) + (", ..." if len(near) > 5 else "") + ")")
     return 0
 
 
@@ -97,6 +103,12 @@ def add_job_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--out", required=True, help="compensated job file to write (never the input)")
     p.add_argument("--max-joint-change-deg", type=positive_float, default=5.0,
                    help="refuse a point whose compensation moves any joint by more than this [deg] (default 5; "
-                        "orientation fixes near the wrist singularity swing joints 4 and 6)")
+                        "near the wrist singularity the solution nearest the programmed joints is taken, see "
+                        "--near-orientation-deg)")
+    p.add_argument("--near-orientation-deg", type=positive_float, default=0.5,
+                   help="near the wrist singularity (q5 ~ 0), where reaching the last part of the orientation swings "
+                        "joints 4 and 6 against each other, reach the position exactly and leave at most this "
+                        "orientation error [deg] instead (default 0.5); the JSON marks such points "
+                        "(near_singularity)")
     p.add_argument("--json", help="write per position: line, group, before/after values, joint change [deg], "
                                   "residual [mm, deg] as JSON")

@@ -33,10 +33,20 @@ from app.jobs.jbi import Job, JobError, JobPosition, format_values
 from calibration.models import ConstantModel
 from cell_config.loader import CellSpec
 
-__all__ = ["HOME_DEG", "Compensation", "JobCompensator", "PointResult"]
+__all__ = ["HOME_DEG", "NEAR_ORIENTATION_DEG", "Compensation", "JobCompensator", "PointResult"]
 
 #: Start of the nominal solve of a robot's first Cartesian position [deg] (wrist bent: away from q5 = 0).
 HOME_DEG = np.array([0.0, 0.0, 0.0, 0.0, -45.0, 0.0])
+#: Beyond this joint change [deg] of the exact solution the solution nearest the programmed joints is tried
+#: (:meth:`JobCompensator._solve`): a compensation of a millimetre moves a joint by a tenth of a degree elsewhere.
+NEAR_SWITCH_DEG = 1.0
+#: Orientation [deg] a position at the wrist singularity may be left off its target (the position is reached):
+#: moving joints 1-3 by the ~0.1 deg a millimetre's compensation takes turns the tool by as much, and the part of it
+#: about the axis normal to joints 4 and 5 the wrist cannot take back there without the swing: under the fbf13 model
+#: of 0801 0.025 deg at the home position, up to 0.21 deg at random poses with |q5| < 1 deg; under planted errors of
+#: 1 mm / 1 mrad per joint up to 0.44 deg. A welding torch's work and travel angles are held to degrees, and 0.5 deg
+#: turns a wire 15 mm beyond the tool point by 0.13 mm; the position itself is reached exactly.
+NEAR_ORIENTATION_DEG = 0.5
 _RCONF_JOINTS = {3: 3, 4: 5, 5: 0}  # RCONF flag index -> joint index: R >= 180, T >= 180, S >= 180
 
 
@@ -60,6 +70,7 @@ class PointResult:
     residual_deg: float
     written_residual_mm: float  # the same after rounding to what the file holds (whole pulses, its decimals)
     written_residual_deg: float
+    near_singularity: bool = False  # the position reached, the orientation left residual_deg off (wrist singular)
 
 
 @dataclass(frozen=True)
@@ -86,15 +97,18 @@ class JobCompensator:
         cell: the cell (pulse conventions, joint limits, nominal geometry and tools).
         models: robot name (R1, R2) -> calibrated model; the job's robots must all have one.
         tol_mm: largest accepted residual of a compensated point under its model [mm].
-        max_joint_change_deg: largest accepted change of any joint [deg]; a bigger one (an orientation fix near
-            the wrist singularity, q5 ~ 0, swings joints 4 and 6) is refused rather than written.
+        max_joint_change_deg: largest accepted change of any joint [deg]; a bigger one is refused rather than
+            written.
+        near_orientation_deg: largest orientation [deg] a position near the wrist singularity may be left off its
+            target by, to keep joints 4 and 6 from swinging (see :meth:`_solve`; its position is reached exactly).
     """
 
     def __init__(self, cell: CellSpec, models: Mapping[str, Any], tol_mm: float = 1e-6,
-                 max_joint_change_deg: float = 5.0) -> None:
+                 max_joint_change_deg: float = 5.0, near_orientation_deg: float = NEAR_ORIENTATION_DEG) -> None:
         self.cell, self.models, self.tol_mm = cell, dict(models), tol_mm
-        self.max_joint_change_deg = max_joint_change_deg
+        self.max_joint_change_deg, self.near_orientation_deg = max_joint_change_deg, near_orientation_deg
         self.units = {f"RB{i}": name for i, name in enumerate(cell.robots, start=1)}
+        self._near_left: dict[int, float] = {}  # job line -> orientation [deg] its nearest solution left
         self._ik: dict[str, tuple[ArmIk, ArmIk]] = {}
         for name, model in self.models.items():
             spec = cell.robot(name)
@@ -119,10 +133,14 @@ class JobCompensator:
             change = np.abs(point.joint_change_deg)
             if change.max() > self.max_joint_change_deg:
                 j = int(np.argmax(change))
+                near = self._near_left.get(pos.line)
+                why = ("" if near is None else f"; the solution nearest the programmed joints leaves the orientation "
+                       f"{near:.3f} deg off, more than the {self.near_orientation_deg:g} deg allowed")
                 raise JobError(job.path, pos.line, f"{pos.name}: compensation moves {robot} joint {j + 1} by "
                                                    f"{change[j]:.2f} deg, more than the {self.max_joint_change_deg:g} "
                                                    f"deg allowed (joint 5 at {point.q_before_deg[4]:.2f} deg; near "
-                                                   "q5 = 0 the wrist is singular); raise --max-joint-change-deg")
+                                                   f"q5 = 0 the wrist is singular{why}); raise "
+                                                   "--max-joint-change-deg or --near-orientation-deg")
             last[robot] = np.radians(point.q_after_deg)
             points.append(point)
             lines[pos.line] = f"{pos.name}={format_values(point.after, pos.decimals)}"
@@ -149,7 +167,23 @@ class JobCompensator:
 
     def _solve(self, job: Job, pos: JobPosition, robot: str, ik: ArmIk, R: np.ndarray, p: np.ndarray,
                q0: np.ndarray, what: str) -> IkResult:
+        """The calibrated joints for a pose, from the programmed ``q0``: the exact solution, or, when that moves a
+        joint by more than :data:`NEAR_SWITCH_DEG` or is not found (the wrist singularity, q5 ~ 0, where the last
+        part of the orientation takes a swing of joints 4 and 6 against each other: 74 deg at the home position
+        under the fbf13 model of 0801), :meth:`ArmIk.solve_near`'s: the position reached exactly, the orientation
+        as near as the wrist allows. That one is taken when it moves every joint less than the exact one (and
+        within ``max_joint_change_deg``) and leaves at most ``near_orientation_deg``."""
         res = ik.solve(R, p, q0)
+        exact = res.converged and res.residual_mm <= self.tol_mm
+        change = np.degrees(np.abs(res.q - q0).max()) if exact else np.inf
+        if change > NEAR_SWITCH_DEG:
+            near = ik.solve_near(R, p, q0)
+            near_change = np.degrees(np.abs(near.q - q0).max())
+            if (near.converged and near.residual_mm <= self.tol_mm and near_change < change
+                    and near_change <= self.max_joint_change_deg and near.residual_deg <= self.near_orientation_deg):
+                return near
+            if near.converged and near_change <= self.max_joint_change_deg:
+                self._near_left[pos.line] = near.residual_deg  # why the nearest solution was not taken
         if not res.converged or res.residual_mm > self.tol_mm:
             where = (f" (joint {', '.join(map(str, res.at_limit))} held at its limit)" if res.at_limit else "")
             raise JobError(job.path, pos.line, f"{pos.name}: the {what} {robot} cannot reach this pose within its "
@@ -214,7 +248,7 @@ class JobCompensator:
             before, after = [int(v) for v in before], [int(v) for v in after]
         return PointResult(pos.line, pos.name, pos.group, pos.unit, robot, pos.postype, pos.tool, before, after,
                            q0.tolist(), q1.tolist(), (q1 - q0).tolist(), res.residual_mm, res.residual_deg,
-                           w_mm, w_deg)
+                           w_mm, w_deg, res.near)
 
 
 def _rconf_ok(flags: tuple[int, ...] | None, q: np.ndarray) -> bool:

@@ -112,6 +112,13 @@ class KinematicModel(abc.ABC):
         """Boolean mask (N,) of configurations outside the region the model was fitted on."""
         return np.zeros(np.atleast_2d(q).shape[0], dtype=bool)
 
+    def interpolation(self) -> Any:
+        """The interpolator of the configuration-dependent parameters (a
+        :class:`calibration.interpolation.Interpolator`), or None for a model whose parameters are constant.
+        A kind that wraps another model answers with the wrapped one's: an analysis asks any model, never its
+        type."""
+        return None
+
     def region(self) -> Any:
         """The per-joint range of the training data (a :class:`calibration.models.guard.Region`), or None when
         the model was saved without it."""

@@ -52,6 +52,9 @@ class CdcModel(KinematicModel):
         """``geometric`` (every non-geometric term of ``theta_ref`` is zero: the paper's construction) or ``pi``."""
         return _reference(self.theta_ref, self.kinematics.par.size)
 
+    def interpolation(self) -> Any:
+        return self.interpolator
+
     def _clip(self, x: np.ndarray) -> np.ndarray:
         return x if self.bounds is None else np.clip(x, self.bounds[0], self.bounds[1])
 

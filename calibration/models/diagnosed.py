@@ -43,6 +43,9 @@ class DiagnosedModel(KinematicModel):
             raise ModelError(f"{', '.join(pose_effects)} act on the pose: they belong in the base model's "
                              "parameters, not in a diagnosed model's effects")
 
+    def interpolation(self) -> Any:
+        return self.base.interpolation()
+
     def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pose with the default context (static, t = 0, no payload, reference temperature)."""
         return self.fk_context(q, None)

@@ -110,6 +110,9 @@ class RebasedModel(KinematicModel):
     def context_keys(self) -> frozenset[str]:
         return self.inner.context_keys
 
+    def interpolation(self) -> Any:
+        return self.inner.interpolation()
+
     def with_region(self, region: Any) -> "RebasedModel":
         """The same rebase with another training region, in its own info and its inner model's (the one that holds)."""
         own = KinematicModel.with_region(self, region)

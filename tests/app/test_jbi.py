@@ -10,6 +10,7 @@ import pytest
 pytest.importorskip("casadi")
 
 from app.dual.export_targets import R_from_rpy_deg, rpy_deg  # noqa: E402
+from calibration import so3  # noqa: E402
 from app.jobs import JobCompensator, JobError, parse_job, read_job, write_job  # noqa: E402
 from calibration.cdc import CdcModel, geometric_cdc  # noqa: E402
 from calibration.models import ConstantModel, save_model  # noqa: E402
@@ -226,22 +227,59 @@ def test_two_robots_in_one_group_are_compensated(cell):
     _check_points(cell, comp, models, parse_job(data))
 
 
-def test_big_joint_change_near_the_wrist_singularity_is_refused(cell, tmp_path, capsys):
+def test_big_joint_change_near_the_wrist_singularity_is_refused_when_the_nearest_solution_leaves_too_much(
+        cell, tmp_path, capsys):
     from app.cli.commands import main
 
     q = [list(r) for r in Q_R1_DEG]
-    q[0][4] = -0.5  # q5 ~ 0: the orientation fix needs large swings of joints 4 and 6 (about 10 deg here)
+    q[0][4] = -0.5  # q5 ~ 0: the exact orientation fix swings joints 4 and 6 (about 10 deg here)
     data = single_job(cell, q)
     model = planted(cell, "R1")
+    comp = JobCompensator(cell, {"R1": model}).compensate(parse_job(data))  # the nearest solution: under a degree
+    assert comp.points[0].near_singularity and np.abs(comp.points[0].joint_change_deg).max() < 1.0
     with pytest.raises(JobError, match=r"line 8: C00000: compensation moves R1 joint \d by [\d.]+ deg, more than "
-                                       r"the 5 deg allowed \(joint 5 at -0\.50 deg"):
-        JobCompensator(cell, {"R1": model}).compensate(parse_job(data))
+                                       r"the 5 deg allowed \(joint 5 at -0\.50 deg; near q5 = 0 the wrist is singular; "
+                                       r"the solution nearest the programmed joints leaves the orientation [\d.]+ deg "
+                                       r"off, more than the 0\.001 deg allowed\)"):
+        JobCompensator(cell, {"R1": model}, near_orientation_deg=1e-3).compensate(parse_job(data))
     job, out, m = tmp_path / "IN.JBI", tmp_path / "OUT.JBI", tmp_path / "r1.yaml"
     job.write_bytes(data)
     save_model(model, m)
     assert main(["compensate-job", "--model", str(m), "--job", str(job), "--out", str(out),
-                 "--max-joint-change-deg", "180"]) == 0
+                 "--near-orientation-deg", "0.001", "--max-joint-change-deg", "180"]) == 0
     assert out.exists() and "4 positions" in capsys.readouterr().out
+
+
+def _wrist_singular_job(cell, rng) -> list[list[float]]:
+    """Home (every joint 0), q5 = 0 exactly with the other joints anywhere, and |q5| < 1 deg."""
+    q = [[0.0] * 6]
+    for q5 in (0.0, 0.0, 0.2, -0.5, 0.9, -0.99):
+        q.append([*rng.uniform(-40, 40, 4), q5, rng.uniform(-150, 150)])
+    return q
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_points_at_the_wrist_singularity_take_the_solution_nearest_the_taught_joints(cell, seed):
+    """At q5 ~ 0 only q4 + q6 is determined: the exact orientation fix swings joints 4 and 6 by up to 75 deg
+    against each other (issue 31: 74.27 deg at a job's home under fbf13 of 0801). The compensation reaches the
+    position and leaves the orientation within NEAR_ORIENTATION_DEG, every joint moved by under a degree."""
+    from app.jobs.compensate import NEAR_ORIENTATION_DEG
+
+    par = MinimalParameterisation(cell.robot("R1").model(), fit_tool=True)
+    model = ConstantModel("R1", "nls1", par.model(planted_parameters(par, seed=seed, offset_mm=0.5, tilt_rad=5e-4)))
+    q_deg = _wrist_singular_job(cell, np.random.default_rng(seed))
+    comp = JobCompensator(cell, {"R1": model}).compensate(parse_job(single_job(cell, q_deg)))
+    spec, nominal = cell.robot("R1").robot, cell.robot("R1").model()
+    for pt in comp.points:
+        q = np.radians(pt.q_after_deg)
+        R_n, p_n = nominal.fk(spec.from_pulses(np.array(pt.before))[None])
+        R_c, p_c = model.fk(q[None])
+        assert np.linalg.norm(p_c - p_n) <= 1e-6  # the position reached
+        angle = np.degrees(np.linalg.norm(so3.log(R_n[0].T @ R_c[0])))
+        assert angle <= NEAR_ORIENTATION_DEG and abs(angle - pt.residual_deg) < 1e-6
+        assert np.abs(pt.joint_change_deg).max() < 1.0, pt
+        assert pt.written_residual_mm < 0.05
+    assert sum(pt.near_singularity for pt in comp.points) >= 3  # the exact solution would have swung the wrist
 
 
 def test_pulse_conversion_round_trips_through_the_job(cell):

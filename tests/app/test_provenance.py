@@ -12,6 +12,8 @@ import yaml
 from app.cli.commands import main
 from app.provenance import input_files, model_provenance, provenance, version
 from calibration.models import load_model, save_model
+from calibration.frames import put_in
+from calibration.models.rebased import make_T
 from calibration.recording import write_recording
 from tests.conftest import SIM_FAST, cluster_design, measure, write_backlash_case
 
@@ -23,7 +25,8 @@ def data(tmp_path_factory, synthetic_arm):
     q, cluster = cluster_design(step_deg=20.0)
     write_recording(measure(truth.fk, q, 0.02, 0.01, 1, cluster), root / "train.csv")
     q_few = np.random.default_rng(4).uniform(-0.6, 0.6, (30, 6))
-    write_recording(measure(truth.fk, q_few, 0.02, 0.01, 5), root / "day2.csv")
+    day2 = put_in(measure(truth.fk, q_few, 0.02, 0.01, 5), make_T(np.eye(3), np.array([1.5, -0.8, 0.6])), np.eye(4))
+    write_recording(day2, root / "day2.csv")  # another day: its base moved (a rebase that changes nothing is refused)
     return root
 
 

@@ -22,13 +22,11 @@ def test_rebase_refits_the_frames_of_the_model_in_service(tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == before
     assert main(args + ["--method", "nls1"]) == 0
     capsys.readouterr()
-    assert main(args + ["--rebase", "--json", str(tmp_path / "d.json")]) == 0
-    out = capsys.readouterr().out
-    assert "Rebased on" in out
-    d = json.loads((tmp_path / "d.json").read_text())
-    assert d["method"] == "nls1" and d["rebase"]["samples"] > 0
-    # what the rebase minimises cannot rise (the sim's frames were already right, so the position mean alone is
-    # a coin flip at the noise level: 0.14608 against 0.14606 mm in one run)
-    assert d["rebase"]["objective_rms"]["after"] <= d["rebase"]["objective_rms"]["before"]
-    assert d["rebase"]["position_mean_mm"]["after"] <= d["rebase"]["position_mean_mm"]["before"] * 1.05
-    assert load_model(Path(d["current_path"] if d["replaced"] else d["rejected"])).kind == "rebased"
+    current = {p.name: p.read_bytes() for p in models.rglob("*.yaml")}  # the models (the new session is data)
+    # the simulated cell's frames are right: no frame change is confirmed on the new poses held out in turn, so
+    # the rebase refuses (issue 31: a rebase that cannot show it is better on held-out poses hands back nothing)
+    assert main(args + ["--rebase", "--json", str(tmp_path / "d.json")]) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if not line.startswith("warning:")]
+    assert len(err) == 1 and "rebase refused" in err[0] and "nothing written" in err[0], err
+    assert not (tmp_path / "d.json").exists()
+    assert {p.name: p.read_bytes() for p in models.rglob("*.yaml")} == current

@@ -205,3 +205,18 @@ def test_mass_free_compliance_is_a_registered_joint_effect(models):
     assert e.block(27) == block_slice("compliance", 27) == slice(30, 35)
     physics = PhysicsModel("R1", "diagnose", geometry, (e,))
     np.testing.assert_allclose(physics.fk(q)[1], geometry.fk(q + e.delta_q(geometry, q))[1], atol=1e-12)
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_every_kind_answers_for_its_interpolator_bare_and_rebased(models, kind):
+    """An analysis asks any model for its interpolator, never its type (issue 31: compare reached for
+    CdcModel.interpolator and a frames-first fit's rebased fbf13 has none): configuration-dependent kinds answer
+    with theirs, a wrapper with its inner model's, the rest None."""
+    from calibration.models.rebased import RebasedModel
+
+    model = models[kind]
+    own = model.interpolation()
+    assert (own is not None) == kind.startswith(("cdc", "diagnosed-cdc"))
+    if isinstance(model, CdcModel):
+        assert own is model.interpolator
+    assert RebasedModel(model.robot, model.method, model).interpolation() is own
