@@ -16,6 +16,7 @@ import numpy as np
 import yaml
 
 from calibration.errors import ConfigError, parse_error_text
+from calibration.files import read_input_text
 from calibration.yamlio import safe_load
 
 _REQUIRED: Any = ...
@@ -24,8 +25,7 @@ _REQUIRED: Any = ...
 def read_yaml(path: Path) -> Any:
     """Parse ``path`` as ``yaml.safe_load`` does; a missing file or bad YAML is a ConfigError."""
     try:
-        with open(path, encoding="utf-8-sig") as f:
-            return safe_load(f)  # libyaml, as model files are read
+        return safe_load(read_input_text(path))  # libyaml, as model files are read; a regular file, bounded
     except FileNotFoundError as e:
         raise ConfigError(path, "", "file not found") from e
     except IsADirectoryError as e:

@@ -27,7 +27,7 @@ import numpy as np
 import yaml
 
 from calibration.errors import DataError, ModelError, ModelFileError, parse_error_text
-from calibration.files import atomic_write_text
+from calibration.files import atomic_write_text, read_input_text
 from calibration.model_checks import check_model_data, check_model_for
 from calibration.poe import PoeModel
 from calibration.yamlio import safe_load
@@ -256,7 +256,7 @@ def save_model(model: KinematicModel, path: str | Path) -> None:
 
 def _read_model_file(path: Path) -> dict[str, Any]:
     try:
-        text = path.read_text(encoding="utf-8-sig")
+        text = read_input_text(path)  # a regular file of at most 64 MiB: a FIFO or /dev/zero is refused
     except FileNotFoundError:
         raise DataError(path, None, None, "model file not found") from None
     except IsADirectoryError:
