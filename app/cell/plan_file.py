@@ -34,6 +34,9 @@ PLAN_KINDS: tuple[str, ...] = ("collection", "dual")
 #: beyond the path readers' 100,000 waypoints; a larger file (a 480 MB plan had export-targets and preview work for
 #: minutes), a FIFO or a device is refused before it is read.
 MAX_PLAN_BYTES = 128 * 2**20
+#: Most waypoints or targets a plan file may hold: the path readers' limit (app.dual.paths.MAX_WAYPOINTS); a
+#: collection plan is a few thousand targets.
+MAX_PLAN_ENTRIES = 100_000
 
 
 _LAYOUTS = {None: "a plan with 'waypoints' (kind 'dual') or 'targets' (kind 'collection')",
@@ -81,6 +84,10 @@ def plan_from_data(d: Any, source: str | Path = "<plan>", kind: PlanKind | None 
     found = plan_kind(d, source, kind)
     if kind is not None and found != kind:
         raise DataError(source, None, "kind", f"this is a {found} plan; expected {_LAYOUTS[kind]}")
+    entries = d.get("waypoints" if found == "dual" else "targets")
+    if isinstance(entries, list) and len(entries) > MAX_PLAN_ENTRIES:
+        raise DataError(source, None, "waypoints" if found == "dual" else "targets",
+                        f"{len(entries)} entries, more than the limit of {MAX_PLAN_ENTRIES}; split the plan")
     return PlanResult.from_dict(d, source) if found == "dual" else Plan.from_dict(d, str(source))
 
 

@@ -234,3 +234,14 @@ def test_units_check_passes_a_recording_in_millimetres(data):
     with pytest.raises(CellCalError):
         rec = read_recording(data / "train.csv")
         check_units(load_model(data / "m.yaml"), Recording(rec.q, rec.p * 10, rec.quat, {}, "x"))
+
+
+@pytest.mark.parametrize("kind,key", [("dual", "waypoints"), ("collection", "targets")])
+def test_plan_with_more_entries_than_the_limit_is_refused_before_they_are_read(tmp_path, monkeypatch, kind, key):
+    import app.cell.plan_file as plan_file
+
+    monkeypatch.setattr(plan_file, "MAX_PLAN_ENTRIES", 5)
+    f = tmp_path / "plan.json"
+    f.write_text(json.dumps({"schema": "cellcal.plan/1", "kind": kind, key: [{}] * 6}))
+    with pytest.raises(DataError, match="more than the limit of 5"):
+        plan_file.read_plan(f)
