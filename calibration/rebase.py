@@ -314,9 +314,10 @@ def _describe_free(obs: Observability, index: int, free: np.ndarray, names: tupl
 
 
 #: The measured positions' spread may differ from the model's by at most this factor before the recording is refused
-#: as in other units. On the 16 Welding_Motoman R1 recordings the ratio is 0.9994-1.0003 against the nominal arm;
+#: as in other units. On the 16 Welding_Motoman R1 recordings the ratio is 0.9994-1.0003 against the nominal arm, and
+#: another arm's recording read as R1 (or R1's as R2) gives 0.74-1.3, which the frame check refuses as another arm's;
 #: a unit mistake is a factor of 10 (cm), 25.4 (inches) or 1000 (m).
-UNITS_RATIO_LIMIT = 1.2
+UNITS_RATIO_LIMIT = 5.0
 #: Below this spread of the model's positions [mm] (poses too close together) the units are not judged.
 UNITS_MIN_SPREAD_MM = 20.0
 _UNITS = ((1e-3, "metres"), (0.1, "centimetres"), (1 / 25.4, "inches"), (1e3, "micrometres"))
@@ -339,8 +340,7 @@ def check_units(model: KinematicModel, rec: Recording, subject: str = "recording
     if 1 / UNITS_RATIO_LIMIT <= ratio <= UNITS_RATIO_LIMIT:
         return
     factor, unit = min(_UNITS, key=lambda u: abs(np.log(max(ratio, 1e-300) / u[0])))
-    guess = f" (about {factor:g}: {unit}?)" if abs(np.log(max(ratio, 1e-300) / factor)) < np.log(UNITS_RATIO_LIMIT) \
-        else ""
+    guess = f" (about {factor:g}: {unit}?)" if abs(np.log(max(ratio, 1e-300) / factor)) < np.log(1.5) else ""
     raise DataError(rec.source, None, "x, y, z", f"the {subject}'s positions spread {ratio:.3g} times as far as "
                                                  f"{model.robot}'s model predicts at its joint angles{guess}; "
                                                  "positions must be in millimetres")
