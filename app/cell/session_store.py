@@ -23,6 +23,7 @@ import json
 import math
 import os
 import sqlite3
+import sys
 import time
 from collections.abc import Callable
 from contextlib import closing
@@ -34,7 +35,7 @@ import numpy as np
 
 from app.cell.planning import Plan
 from calibration.errors import DataError
-from calibration.files import ExclusiveLock, LockHeld
+from calibration.files import ExclusiveLock, InputRefused, LockHeld, check_input_path
 
 DB_NAME = "session.sqlite"
 LOCK_NAME = "session.lock"
@@ -195,7 +196,8 @@ class SessionStore:
             self.dir.mkdir(parents=True, exist_ok=True)
         elif not self.path.exists():
             raise DataError(self.path, None, None, _no_session(purpose))
-        elif not self._created_read_only(self.path):  # looked at read-only: opening must not write tables into it
+        _refuse_special(self.path)  # SQLite blocks forever opening a FIFO
+        if not create and not self._created_read_only(self.path):  # read-only: opening must not write tables into it
             raise DataError(self.path, None, None, _interrupted(purpose))
         self._lock = _folder_lock(self.dir) if lock else None
         try:
@@ -246,6 +248,7 @@ class SessionStore:
         path = Path(session_dir) / DB_NAME
         if not path.exists():
             return False
+        _refuse_special(path)
         try:
             with closing(sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=10.0)) as conn:
                 return conn.execute("SELECT 1 FROM meta WHERE key = 'plan'").fetchone() is not None
@@ -450,6 +453,18 @@ class SessionStore:
             norm = math.sqrt(sum(r[c] ** 2 for c in ("qw", "qx", "qy", "qz")))
             if abs(norm - 1.0) > QUAT_NORM_TOL:
                 raise DataError(self.path, None, where, f"quaternion norm {norm:.6f} is not 1")
+
+
+def _refuse_special(path: Path) -> None:
+    """Refuse a session database that is a FIFO, a device or a socket: SQLite blocked forever opening a FIFO.
+
+    Raises:
+        DataError: naming the file and what it is.
+    """
+    try:
+        check_input_path(path, sys.maxsize)
+    except InputRefused as e:
+        raise DataError(path, None, None, f"not a session database: {e.strerror}") from None
 
 
 def _hook(stage: str) -> None:

@@ -92,7 +92,7 @@ def test_cli_names_the_option_of_a_fifo_before_any_work(data, capsys, tmp_path, 
     argv = ["compare", "--robot", "R1", "--train", str(data / "train.csv"), "--test", str(data / "train.csv"),
             "--json", str(tmp_path / "j.json")]
     argv[argv.index(option) + 1] = str(data / "fifo")
-    finishes(lambda: assert_bad_input(capsys, argv, str(data / "fifo"), f"{option}:", "FIFO"))
+    assert finishes(lambda: assert_bad_input(capsys, argv, str(data / "fifo"), f"{option}:", "FIFO")) is None
     assert not (tmp_path / "j.json").exists()
 
 
@@ -245,3 +245,12 @@ def test_plan_with_more_entries_than_the_limit_is_refused_before_they_are_read(t
     f.write_text(json.dumps({"schema": "cellcal.plan/1", "kind": kind, key: [{}] * 6}))
     with pytest.raises(DataError, match="more than the limit of 5"):
         plan_file.read_plan(f)
+
+
+@pytest.mark.parametrize("argv", [["export", "--out", "{T}/out.csv"], ["collect", "--robot", "R1", "--sim", "--resume"]])
+def test_a_session_database_that_is_a_fifo_is_refused_at_once(tmp_path, capsys, argv):
+    (tmp_path / "s").mkdir()
+    os.mkfifo(tmp_path / "s" / "session.sqlite")
+    argv = [a.replace("{T}", str(tmp_path)) for a in argv] + ["--session", str(tmp_path / "s")]
+    assert finishes(lambda: assert_bad_input(capsys, argv, "session.sqlite", "FIFO"), 20.0) is None
+    assert not (tmp_path / "out.csv").exists()
