@@ -16,7 +16,7 @@ import numpy as np
 import yaml
 
 from calibration.errors import ConfigError, parse_error_text
-from calibration.files import read_input_text
+from calibration.files import InputRefused, read_input_text
 from calibration.yamlio import safe_load
 
 _REQUIRED: Any = ...
@@ -32,6 +32,8 @@ def read_yaml(path: Path) -> Any:
         raise ConfigError(path, "", "expected a file, found a directory") from e
     except yaml.YAMLError as e:
         raise ConfigError(path, "", f"not valid YAML ({parse_error_text(e)})") from e
+    except InputRefused as e:  # a FIFO, a device, a file over the bound
+        raise ConfigError(path, "", e.strerror) from None
     except (OSError, UnicodeDecodeError) as e:
         raise ConfigError(path, "", f"cannot read ({e.__class__.__name__}: {e})") from e
 
