@@ -7,6 +7,7 @@ position error mean on that day's test recording is compared with the clean fit'
 the clean recording (none expected) and whether they are exactly the planted ones.
 
     python scripts/bench_gross_rows.py [--days 0801,0516] [--seeds 3] [--error-mm 50] [--json FILE]
+    python scripts/bench_gross_rows.py --clean    # the rows rejected on every shared recording as it is (none expected)
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from app.analysis.fitting import fitter_for  # noqa: E402
 from calibration.methods import FitOptions  # noqa: E402
 from calibration.poe import pose_error  # noqa: E402
 from calibration.recording import Recording, read_recording  # noqa: E402
+from calibration.robust import GROSS_SCORE  # noqa: E402
 from cell_config import load_cell  # noqa: E402
 
 DATA = next((d / "shared" / "data" / "welding_motoman" for d in ROOT.parents
@@ -58,8 +60,21 @@ def main() -> int:
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--error-mm", type=float, default=50.0)
     ap.add_argument("--json")
+    ap.add_argument("--clean", action="store_true", help="only screen every shared recording as it is")
     args = ap.parse_args()
     robot = load_cell().robot("R1")
+    if args.clean:
+        for folder in sorted(DATA.glob("*/*")):
+            rec = read_recording(folder)
+            fitter = fitter_for(robot, rec)
+            g = fitter.gross
+            R, p = fitter.fit("nls1")[0].fk(rec.q)
+            scores = [float(np.max((e - np.median(e)) / (1.4826 * np.median(np.abs(e - np.median(e))))))
+                      for e in pose_error(rec.R, rec.p, R, p)]
+            print(f"{folder.parent.name}/{folder.name}: {len(g.rows)} of {g.n_samples} rows rejected, {g.beyond} beyond "
+                  f"the bounds ({g.bound_mm:.2f} mm, {g.bound_deg:.2f} deg); largest score under nls1: position "
+                  f"{scores[0]:.1f}, orientation {scores[1]:.1f} (bound {GROSS_SCORE:g})")
+        return 0
     out = []
     for day in args.days.split(","):
         train_name, test_name = PAIRS[day]
