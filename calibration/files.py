@@ -24,6 +24,12 @@ ever stale): a session folder's collector and a MotoROS controller's driver hold
 without following a symlink (``O_NOFOLLOW``) and must be a regular file with a single link, so a link planted where
 the lock goes never makes a process truncate or write another file; its mode is never widened. A folder of lock
 files shared by several users is refused (:func:`private_folder`).
+
+Every input file (recordings, model files, cell files, plan files, path files, jobs) is read through
+:func:`read_input_bytes` (or :func:`read_input_text`): only a regular file is read (a FIFO, a device such as
+``/dev/zero`` or a socket is refused before anything is read: opened without blocking, checked, then read), and
+never more than its bound of bytes (``MAX_INPUT_BYTES`` unless the reader gives its own), so a huge or endless
+input is refused instead of filling memory or hanging.
 """
 
 from __future__ import annotations
@@ -258,6 +264,86 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
     """Write ``data`` to ``path`` atomically; see :func:`atomic_open`."""
     with atomic_open(path, binary=True) as f:
         f.write(data)
+
+
+#: Largest input file read by default [bytes]: 64 MiB, far beyond any model, cell, plan, path or job file; a reader
+#: whose files may be larger (recordings) passes its own bound.
+MAX_INPUT_BYTES = 64 * 2**20
+
+
+class InputRefused(OSError):
+    """An input path that is not read: not a regular file, or larger than its bound. An ``OSError`` (``strerror``
+    says why), so a reader's ``except OSError`` turns it into its own one-line error naming the file."""
+
+    def __init__(self, path: str | Path, reason: str) -> None:
+        super().__init__(errno.EINVAL, reason, str(path))
+
+
+def _check_input(path: str | Path, st: os.stat_result, max_bytes: int) -> None:
+    if stat.S_ISDIR(st.st_mode):
+        raise IsADirectoryError(errno.EISDIR, "is a folder", str(path))
+    if not stat.S_ISREG(st.st_mode):
+        kind = _KINDS.get(stat.S_IFMT(st.st_mode), "not a regular file")
+        raise InputRefused(path, f"is {kind}, not a regular file; only regular files are read")
+    if st.st_size > max_bytes:
+        raise InputRefused(path, f"is {st.st_size / 2**20:.1f} MiB, over the {max_bytes / 2**20:g} MiB limit of "
+                                 "this kind of file (the limit bounds memory and time)")
+
+
+def check_input_path(path: str | Path, max_bytes: int = MAX_INPUT_BYTES) -> None:
+    """Refuse, without opening it, an existing input that is not a regular file or a folder, or a file over
+    ``max_bytes``; a missing path or a folder passes (its reader says what it expects).
+
+    Raises:
+        InputRefused: a FIFO, a device, a socket, or a file over the bound.
+    """
+    try:
+        st = os.stat(path)
+    except OSError:
+        return
+    if not stat.S_ISDIR(st.st_mode):
+        _check_input(path, st, max_bytes)
+
+
+def read_input_bytes(path: str | Path, max_bytes: int = MAX_INPUT_BYTES) -> bytes:
+    """The content of the regular file ``path``, at most ``max_bytes`` of it.
+
+    The file is checked before it is opened, opened without blocking (a FIFO swapped in meanwhile cannot hang the
+    open) and checked again on the open descriptor; the read stops one byte past the bound (a file that grows).
+
+    Raises:
+        FileNotFoundError, IsADirectoryError: as ``open`` would.
+        InputRefused: not a regular file (FIFO, device, socket), or larger than ``max_bytes``.
+        OSError: the read failed.
+    """
+    _check_input(path, os.stat(path), max_bytes)
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
+    try:
+        _check_input(path, os.fstat(fd), max_bytes)
+        os.set_blocking(fd, True)
+        chunks: list[bytes] = []
+        size = 0
+        while size <= max_bytes:
+            chunk = os.read(fd, min(1 << 20, max_bytes + 1 - size))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            size += len(chunk)
+    finally:
+        os.close(fd)
+    if size > max_bytes:
+        raise InputRefused(path, f"is over the {max_bytes / 2**20:g} MiB limit of this kind of file (the limit "
+                                 "bounds memory and time)")
+    return b"".join(chunks)
+
+
+def read_input_text(path: str | Path, max_bytes: int = MAX_INPUT_BYTES) -> str:
+    """:func:`read_input_bytes` decoded as UTF-8 (a byte-order mark, as Excel writes, is dropped).
+
+    Raises:
+        UnicodeDecodeError: not UTF-8 text; and as :func:`read_input_bytes`.
+    """
+    return read_input_bytes(path, max_bytes).decode("utf-8-sig")
 
 
 class LockHeld(Exception):

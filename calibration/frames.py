@@ -32,7 +32,7 @@ import numpy as np
 from calibration import so3
 from calibration.models.base import KinematicModel
 from calibration.models.rebased import RebasedModel
-from calibration.rebase import RebaseProblem, RebaseResult
+from calibration.rebase import RebaseProblem, RebaseResult, check_units
 from calibration.recording import Recording
 
 #: A nominal mean error [mm] beyond this is never kinematics alone (the shared days' nominal means are 1.2-1.8).
@@ -186,6 +186,7 @@ def check_recording(nominal: KinematicModel, rec: Recording, subject: str = "tra
     ``NOMINAL_LIMIT_MM`` (both frames then, if neither moved that far). The message quotes the fit of the frame(s)
     at fault alone, the one :func:`framed` takes out.
     """
+    check_units(nominal, rec, subject)  # a recording in metres: refused at once, not after the frame fits
     fits = _candidates(nominal, rec)
     both = fits["base and tool"]
     mean, peak = both.result.mean_before_mm, float(np.max(both.result.residual_before_mm))

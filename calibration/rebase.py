@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from calibration import so3
-from calibration.errors import ModelError
+from calibration.errors import DataError, ModelError
 from calibration.identification import DEFAULT_ORIENTATION_WEIGHT
 from calibration.identification.lm import Groups, Linearisation, LMSettings, Residuals, StopReason, solve
 from calibration.identification.observability import (DEFAULT_REACH_MM, DEFAULT_RELATIVE_TOLERANCE, Observability,
@@ -313,12 +313,46 @@ def _describe_free(obs: Observability, index: int, free: np.ndarray, names: tupl
     return f"{terms} together (relative singular value {rel:.1e})"
 
 
+#: The measured positions' spread may differ from the model's by at most this factor before the recording is refused
+#: as in other units. On the 16 Welding_Motoman R1 recordings the ratio is 0.9994-1.0003 against the nominal arm, and
+#: another arm's recording read as R1 (or R1's as R2) gives 0.74-1.3, which the frame check refuses as another arm's;
+#: a unit mistake is a factor of 10 (cm), 25.4 (inches) or 1000 (m).
+UNITS_RATIO_LIMIT = 5.0
+#: Below this spread of the model's positions [mm] (poses too close together) the units are not judged.
+UNITS_MIN_SPREAD_MM = 20.0
+_UNITS = ((1e-3, "metres"), (0.1, "centimetres"), (1 / 25.4, "inches"), (1e3, "micrometres"))
+
+
+def check_units(model: KinematicModel, rec: Recording, subject: str = "recording") -> None:
+    """Refuse a recording whose positions are not in millimetres, before any fit: its positions' spread about their
+    mean (independent of the frames) against the model's at the same joint angles. Cheap (one forward kinematics);
+    a recording in metres ran a rebase for about a minute before the frame check refused it.
+
+    Raises:
+        DataError: the ratio is beyond :data:`UNITS_RATIO_LIMIT` (the message names the likely unit).
+    """
+    _, p_model = model.fk(rec.q)
+    spread_model = float(np.sqrt(np.mean(np.sum((p_model - p_model.mean(0)) ** 2, axis=1))))
+    spread = float(np.sqrt(np.mean(np.sum((rec.p - rec.p.mean(0)) ** 2, axis=1))))
+    if not spread_model >= UNITS_MIN_SPREAD_MM:
+        return
+    ratio = spread / spread_model
+    if 1 / UNITS_RATIO_LIMIT <= ratio <= UNITS_RATIO_LIMIT:
+        return
+    factor, unit = min(_UNITS, key=lambda u: abs(np.log(max(ratio, 1e-300) / u[0])))
+    guess = f" (about {factor:g}: {unit}?)" if abs(np.log(max(ratio, 1e-300) / factor)) < np.log(1.5) else ""
+    raise DataError(rec.source, None, "x, y, z", f"the {subject}'s positions spread {ratio:.3g} times as far as "
+                                                 f"{model.robot}'s model predicts at its joint angles{guess}; "
+                                                 "positions must be in millimetres")
+
+
 def rebase(model: KinematicModel, rec: Recording, **options: Any) -> tuple[RebasedModel, RebaseResult]:
     """Refit ``model``'s base and tool-marker frames on ``rec`` (a few poses of the new day).
 
     Returns:
         The rebased model (kind ``rebased``) and the result (corrections, residuals, held directions).
     """
+    check_units(model, rec, "rebase data")
     result = RebaseProblem.from_recording(model, rec, **options).solve()
     return result.model(model), result
 
@@ -404,6 +438,7 @@ def rebase_auto(model: KinematicModel, rec: Recording, cluster_size: int = 7, **
         RebaseRefused: the poses held out in turn confirm no frame change (the model as given does as well on
             them): nothing to hand back that would not risk being worse on the new day.
     """
+    check_units(model, rec, "rebase data")  # before the held-out rebases
     choice, means = choose_directions(model, rec, cluster_size, **options)
     if choice == "none":
         raise RebaseRefused(

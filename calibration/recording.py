@@ -23,7 +23,7 @@ import numpy as np
 
 from calibration import so3
 from calibration.errors import DataError
-from calibration.files import atomic_write_text
+from calibration.files import atomic_write_text, read_input_text
 
 JOINT_COLUMNS = tuple(f"q{i}" for i in range(1, 7))
 POSE_COLUMNS = ("x", "y", "z", "qw", "qx", "qy", "qz")
@@ -46,6 +46,10 @@ MAX_ABS_OTHER = 1e9
 MAX_ROWS = 200_000
 """Largest number of data rows read from one file: a calibration session holds a few thousand samples;
 a bigger file is refused while it is read, before any of it is parsed, so memory stays bounded."""
+MAX_RECORDING_BYTES = 256 * 2**20
+"""Largest recording file read [bytes]: 256 MiB, over 1 kB for each of ``MAX_ROWS`` rows (a row of the 13 required
+and 20 optional columns at full precision is about 700 bytes); a larger file, a device (``/dev/zero``) or a FIFO is
+refused before it is read (:func:`calibration.files.read_input_bytes`)."""
 
 
 def _max_abs(column: str) -> float:
@@ -144,13 +148,15 @@ def _read_rows(path: Path) -> list[list[str]]:
     """
     rows: list[list[str]] = []
     try:
-        with open(path, newline="", encoding="utf-8-sig") as f:
-            for r in csv.reader(f):
-                if r and any(c.strip() for c in r):
-                    rows.append(r)
-                    if len(rows) > MAX_ROWS + 1:
-                        raise DataError(path, None, None, f"more than {MAX_ROWS} data rows (the limit bounds "
-                                                          f"memory; split the recording or subsample it)")
+        reader = csv.reader(io.StringIO(read_input_text(path, MAX_RECORDING_BYTES), newline=""))
+        for r in reader:
+            if r and any(c.strip() for c in r):
+                rows.append(r)
+                if len(rows) > MAX_ROWS + 1:
+                    raise DataError(path, None, None, f"more than {MAX_ROWS} data rows (the limit bounds "
+                                                      f"memory; split the recording or subsample it)")
+    except csv.Error as e:  # a field over csv's 131072-character limit, a NUL byte, an unclosed quote
+        raise DataError(path, reader.line_num, None, f"not a CSV recording ({e})") from None
     except FileNotFoundError:
         raise DataError(path, None, None, "file not found") from None
     except IsADirectoryError:

@@ -16,6 +16,7 @@ import numpy as np
 import yaml
 
 from calibration.errors import ConfigError, parse_error_text
+from calibration.files import InputRefused, read_input_text
 from calibration.yamlio import safe_load
 
 _REQUIRED: Any = ...
@@ -24,14 +25,15 @@ _REQUIRED: Any = ...
 def read_yaml(path: Path) -> Any:
     """Parse ``path`` as ``yaml.safe_load`` does; a missing file or bad YAML is a ConfigError."""
     try:
-        with open(path, encoding="utf-8-sig") as f:
-            return safe_load(f)  # libyaml, as model files are read
+        return safe_load(read_input_text(path))  # libyaml, as model files are read; a regular file, bounded
     except FileNotFoundError as e:
         raise ConfigError(path, "", "file not found") from e
     except IsADirectoryError as e:
         raise ConfigError(path, "", "expected a file, found a directory") from e
     except yaml.YAMLError as e:
         raise ConfigError(path, "", f"not valid YAML ({parse_error_text(e)})") from e
+    except InputRefused as e:  # a FIFO, a device, a file over the bound
+        raise ConfigError(path, "", e.strerror) from None
     except (OSError, UnicodeDecodeError) as e:
         raise ConfigError(path, "", f"cannot read ({e.__class__.__name__}: {e})") from e
 

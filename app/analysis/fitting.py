@@ -14,7 +14,8 @@ log = logging.getLogger("cellcal.app")
 
 
 def fitter_for(robot: Any, train: Any, cpa: Any | None = None, options: Any | None = None) -> Any:
-    """A Fitter for one arm of the cell: its nominal model, link masses and joint limits.
+    """A Fitter for one arm of the cell: its nominal model, link masses and joint limits, on the training recording
+    less its gross measurement errors (``Fitter.without_gross_rows``; ``fitter.gross`` names them).
 
     Args:
         robot: the arm's cell entry (:meth:`cell_config.loader.CellSpec.robot`).
@@ -32,8 +33,9 @@ def fitter_for(robot: Any, train: Any, cpa: Any | None = None, options: Any | No
     except ModelError as e:
         log.warning("%s: joint compliance takes the mass-free form: %s", robot.name, e)
         gravity = None
-    return Fitter(robot.name, nominal, train, options or FitOptions(), cpa, gravity,
-                  (robot.robot.lower_rad, robot.robot.upper_rad))
+    fitter = Fitter(robot.name, nominal, train, options or FitOptions(), cpa, gravity,
+                    (robot.robot.lower_rad, robot.robot.upper_rad))
+    return fitter.without_gross_rows() if fitter.options.reject_gross_rows else fitter
 
 
 def refuse_repeated(paths: list[Any]) -> None:

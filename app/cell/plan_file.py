@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 from calibration.errors import DataError
+from calibration.files import read_input_text
 
 if TYPE_CHECKING:
     import numpy as np
@@ -29,6 +30,13 @@ if TYPE_CHECKING:
 PLAN_SCHEMA = "cellcal.plan/1"
 PlanKind = Literal["collection", "dual"]
 PLAN_KINDS: tuple[str, ...] = ("collection", "dual")
+#: Largest plan file read [bytes]. A dual plan holds about 1 kB a waypoint as plan-dual writes it, so 128 MiB is
+#: beyond the path readers' 100,000 waypoints; a larger file (a 480 MB plan had export-targets and preview work for
+#: minutes), a FIFO or a device is refused before it is read.
+MAX_PLAN_BYTES = 128 * 2**20
+#: Most waypoints or targets a plan file may hold: the path readers' limit (app.dual.paths.MAX_WAYPOINTS); a
+#: collection plan is a few thousand targets.
+MAX_PLAN_ENTRIES = 100_000
 
 
 _LAYOUTS = {None: "a plan with 'waypoints' (kind 'dual') or 'targets' (kind 'collection')",
@@ -76,6 +84,10 @@ def plan_from_data(d: Any, source: str | Path = "<plan>", kind: PlanKind | None 
     found = plan_kind(d, source, kind)
     if kind is not None and found != kind:
         raise DataError(source, None, "kind", f"this is a {found} plan; expected {_LAYOUTS[kind]}")
+    entries = d.get("waypoints" if found == "dual" else "targets")
+    if isinstance(entries, list) and len(entries) > MAX_PLAN_ENTRIES:
+        raise DataError(source, None, "waypoints" if found == "dual" else "targets",
+                        f"{len(entries)} entries, more than the limit of {MAX_PLAN_ENTRIES}; split the plan")
     return PlanResult.from_dict(d, source) if found == "dual" else Plan.from_dict(d, str(source))
 
 
@@ -115,7 +127,9 @@ def read_plan(source: "str | Path | dict[str, Any] | Plan | PlanResult", kind: P
         return plan_from_data(source, "<plan>", kind)
     path = Path(source)
     try:
-        d = json.loads(path.read_text(encoding="utf-8-sig"))
+        d = json.loads(read_input_text(path, MAX_PLAN_BYTES))
+    except RecursionError:
+        raise DataError(path, None, None, "not a plan file (JSON nested too deep)") from None
     except FileNotFoundError:
         raise DataError(path, None, None, "plan file not found") from None
     except IsADirectoryError:
@@ -124,4 +138,7 @@ def read_plan(source: "str | Path | dict[str, Any] | Plan | PlanResult", kind: P
         raise DataError(path, None, None, f"cannot read the plan file ({e.strerror or e})") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise DataError(path, None, None, f"not valid JSON ({e})") from None
-    return plan_from_data(d, path, kind)
+    try:
+        return plan_from_data(d, path, kind)
+    except RecursionError:  # a deeply nested entry, read by a recursive check
+        raise DataError(path, None, None, "not a plan file (an entry nested too deep)") from None

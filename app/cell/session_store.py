@@ -31,6 +31,7 @@ import json
 import math
 import os
 import sqlite3
+import sys
 import time
 from collections.abc import Callable, Sequence
 from contextlib import closing
@@ -42,7 +43,7 @@ import numpy as np
 
 from app.cell.planning import Plan
 from calibration.errors import CellCalError, DataError
-from calibration.files import ExclusiveLock, LockHeld
+from calibration.files import ExclusiveLock, InputRefused, LockHeld, check_input_path
 
 DB_NAME = "session.sqlite"
 LOCK_NAME = "session.lock"
@@ -75,6 +76,9 @@ _SAMPLE_COLUMNS = (
     + ["x", "y", "z", "qw", "qx", "qy", "qz", "std_pos_mm", "std_rot_deg", "marker_err", "frames", "t"]
     + [f"dir{i}" for i in range(1, 7)] + ["attempts", "reason", "recorded_at", "transient"]
 )
+#: Columns a measured row holds as numbers (:meth:`SessionStore.add_sample`).
+_MEASURED_COLUMNS = ([f"q{i}" for i in range(1, 7)] + ["x", "y", "z", "qw", "qx", "qy", "qz", "marker_err", "frames",
+                                                        "t"] + [f"dir{i}" for i in range(1, 7)])
 _DDL = f"""
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
 CREATE TABLE IF NOT EXISTS samples (
@@ -214,7 +218,8 @@ class SessionStore:
             self.dir.mkdir(parents=True, exist_ok=True)
         elif not self.path.exists():
             raise DataError(self.path, None, None, _no_session(purpose))
-        elif not self._created_read_only(self.path):  # looked at read-only: opening must not write tables into it
+        _refuse_special(self.path)  # SQLite blocks forever opening a FIFO
+        if not create and not self._created_read_only(self.path):  # read-only: opening must not write tables into it
             raise DataError(self.path, None, None, _interrupted(purpose))
         self._lock = _folder_lock(self.dir) if lock else None
         try:
@@ -269,6 +274,7 @@ class SessionStore:
         path = Path(session_dir) / DB_NAME
         if not path.exists():
             return False
+        _refuse_special(path)
         try:
             with closing(sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=10.0)) as conn:
                 return conn.execute("SELECT 1 FROM meta WHERE key = 'plan'").fetchone() is not None
@@ -325,13 +331,32 @@ class SessionStore:
             raise DataError(self.path, None, key, "missing from the session (was it created by cellcal?)")
         return row[0]
 
+    def _meta_json(self, key: str) -> Any:
+        """A metadata value as JSON, refused naming the key when it is not (a damaged or edited database).
+
+        Raises:
+            DataError: naming the database and the key.
+        """
+        try:
+            return json.loads(self._meta(key))
+        except (ValueError, TypeError, RecursionError) as e:
+            raise DataError(self.path, None, key, f"not valid JSON in the session ({e.__class__.__name__}: "
+                                                  f"{str(e)[:200]}); was the database edited?") from None
+
     def plan(self) -> Plan:
         """The plan stored in the session."""
-        return Plan.from_dict(json.loads(self._meta("plan")), str(self.path))
+        try:
+            return Plan.from_dict(self._meta_json("plan"), str(self.path))
+        except (ValueError, TypeError, KeyError, AttributeError, IndexError, RecursionError) as e:
+            raise DataError(self.path, None, "plan", f"the session's plan is unusable ({e.__class__.__name__}: "
+                                                     f"{str(e)[:200]})") from None
 
     def info(self) -> dict[str, Any]:
         """Session information (robot, rigid body, options) stored at creation."""
-        return json.loads(self._meta("info"))
+        info = self._meta_json("info")
+        if not isinstance(info, dict):
+            raise DataError(self.path, None, "info", f"expected a JSON object, found {type(info).__name__}")
+        return info
 
     def robots(self) -> list[str]:
         """Every robot the session names: the one in its information, then any other in its plan or its rows."""
@@ -452,8 +477,49 @@ class SessionStore:
         if status is not None:
             sql += " WHERE status = ?"
             args = (status,)
-        cur = self.conn.execute(sql + " ORDER BY target_index", args)
-        return [dict(zip(columns, r)) for r in cur]
+        try:
+            cur = self.conn.execute(sql + " ORDER BY target_index", args)
+            rows = [dict(zip(columns, r)) for r in cur]
+        except sqlite3.DatabaseError as e:  # a damaged page, a table of another layout
+            raise DataError(self.path, None, None, f"not a usable session database ({e})") from None
+        for r in rows:
+            self._check_row(r)
+        return rows
+
+    def _check_row(self, r: dict[str, Any]) -> None:
+        """Refuse a recorded row whose values :meth:`add_sample` would not have written (a damaged or edited
+        database): text or NULL where a number belongs, a non-finite number, an unknown status, a quaternion that
+        is not unit.
+
+        Raises:
+            DataError: naming the database, the target and the column.
+        """
+        where = f"target {r['target_index']}"
+        if not isinstance(r["target_index"], int) or r["status"] not in ("ok", "skipped") \
+                or not isinstance(r["robot"], str) or not isinstance(r["kind"], str):
+            raise DataError(self.path, None, where, f"malformed row (status {r['status']!r}, robot {r['robot']!r}, "
+                                                    f"kind {r['kind']!r})")
+        numeric = ["cluster"] + (_MEASURED_COLUMNS if r["status"] == "ok" else [])
+        for c in numeric:
+            v = r[c]
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise DataError(self.path, None, f"{where}, column {c}", f"expected a finite number, found {v!r}")
+        if r["status"] == "ok":
+            norm = math.sqrt(sum(r[c] ** 2 for c in ("qw", "qx", "qy", "qz")))
+            if abs(norm - 1.0) > QUAT_NORM_TOL:
+                raise DataError(self.path, None, where, f"quaternion norm {norm:.6f} is not 1")
+
+
+def _refuse_special(path: Path) -> None:
+    """Refuse a session database that is a FIFO, a device or a socket: SQLite blocked forever opening a FIFO.
+
+    Raises:
+        DataError: naming the file and what it is.
+    """
+    try:
+        check_input_path(path, sys.maxsize)
+    except InputRefused as e:
+        raise DataError(path, None, None, f"not a session database: {e.strerror}") from None
 
 
 #: SQLite's primary result codes of a write the disk or the folder refused: SQLITE_READONLY, SQLITE_IOERR,

@@ -43,7 +43,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
           f"-> {args.out}")
     write_json(args.json, {"robot": args.robot, "method": args.method, "n_parameters": model.n_parameters,
                            "samples": len(fitter.train), "fit_seconds": seconds, "out": str(args.out),
-                           "warning": model.info.get("warning") or ""})
+                           "warning": model.info.get("warning") or "",
+                           "gross_rows": None if fitter.gross is None else fitter.gross.to_json()})
     return 0
 
 
@@ -303,6 +304,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     fitter, robot = fitter_from_args(args)  # the training recordings are checked the same way before fitting
     cmp = run_comparison(fitter, test, methods, progress=show_progress(args), files=files)
     cmp.analysis["frames"] = {"training": None if args.frame_check is None else args.frame_check.to_json()}
+    cmp.analysis["gross_rows"] = None if fitter.gross is None else fitter.gross.to_json()
     if args.days is not None:
         cmp.analysis["days"] = args.days.to_json()
     checked = next((m for m in (cmp.recommended, "pi", "nls1") if m in cmp.models), None)

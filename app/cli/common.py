@@ -262,6 +262,7 @@ def fitter_from_args(args: argparse.Namespace) -> Any:
         args.days = days_fitter_for(robot, trains, cpa, FitOptions(a=args.a, epoch_progress=epoch_bar(args)))
         print(args.days.summary(), file=sys.stderr)
         args.frame_check = None
+        _warn_gross_rows(args.days.fitter)
         return args.days.fitter, robot
     options = FitOptions(a=args.a, epoch_progress=epoch_bar(args))
     fitter, args.frame_check = checked_fitter_for(robot, trains[0], cpa, options)
@@ -269,7 +270,17 @@ def fitter_from_args(args: argparse.Namespace) -> Any:
         frame = args.frame_check.frame
         print(f"warning: {args.frame_check.message()} The {frame} frame{'s are' if ' and ' in frame else ' is'} "
               "fitted first, then the kinematics.", file=sys.stderr)
+    _warn_gross_rows(fitter)
     return fitter, robot
+
+
+def _warn_gross_rows(fitter: Any) -> None:
+    """Print the training rows the fitter set aside as gross measurement errors (``Fitter.gross``), if any."""
+    import sys
+
+    gross = getattr(fitter, "gross", None)
+    if gross is not None and gross.message():
+        print(f"warning: {gross.message()}", file=sys.stderr)
 
 
 #: File outputs every subcommand may take; ``demo --out`` is a folder and is left to the demo.
@@ -315,6 +326,7 @@ def check_output_args(args: argparse.Namespace) -> None:
     from calibration.files import check_output_path
     from calibration.errors import OutputError
 
+    check_input_args(args)
     outputs: list[tuple[str, str]] = []
     for name in OUTPUT_FILE_OPTIONS:
         value = getattr(args, name, None)
@@ -335,6 +347,27 @@ def check_output_args(args: argparse.Namespace) -> None:
         if clash is not None:
             raise OutputError(value, f"--{name} is also the --{_option(clash[0])} {clash[1]}; refusing to "
                                      f"overwrite it (give --{name} another file)")
+
+
+def check_input_args(args: argparse.Namespace) -> None:
+    """Refuse, before any work and without opening it, an input file option naming a FIFO, a device or a socket: a
+    FIFO blocked its reader forever, ``/dev/zero`` as a recording read until memory ran out. Each reader refuses
+    them too (:func:`calibration.files.read_input_bytes`, with its own bound on the size); this names the option.
+
+    Raises:
+        DataError: naming the option and the path.
+    """
+    import sys
+
+    from calibration.errors import DataError
+    from calibration.files import InputRefused, check_input_path
+
+    for name in INPUT_FILE_OPTIONS:
+        for path in _named_files(getattr(args, name, None)):
+            try:
+                check_input_path(path, sys.maxsize)  # sizes are each reader's to bound
+            except InputRefused as e:
+                raise DataError(path, None, None, f"--{_option(name)}: {e.strerror}") from None
 
 
 def _same_file(a: str, b: str) -> bool:

@@ -18,6 +18,7 @@ from app.dual.plan_result import PlanResult
 from app.dual.planner import DualPlanner, PlannerOptions
 from calibration import so3
 from calibration.errors import DataError, ModelError
+from calibration.files import read_input_text
 from calibration.recording import MAX_ABS_POSITION_MM
 from cell_config.loader import CellSpec
 
@@ -88,6 +89,23 @@ def pose_from_numbers(v: Any, where: str) -> np.ndarray:
     return T
 
 
+def _read_pose_file(path: Path) -> str:
+    """The text of a pose or path file: a regular UTF-8 file of at most
+    :data:`calibration.files.MAX_INPUT_BYTES` (a FIFO, a device or binary content is refused naming the file).
+
+    Raises:
+        DataError: naming the file and what is wrong.
+    """
+    try:
+        return read_input_text(path)
+    except IsADirectoryError:
+        raise DataError(path, None, None, "is a folder, expected a pose file (CSV or JSON)") from None
+    except UnicodeDecodeError as e:
+        raise DataError(path, None, None, f"not a pose file (not UTF-8 text: {e.reason})") from None
+    except OSError as e:
+        raise DataError(path, None, None, f"cannot read ({e.strerror or e})") from None
+
+
 def _poses_from_text(text: str, where: str) -> list[Any]:
     """Pose entries of a JSON document or a CSV (header ``x,y,z,qw,qx,qy,qz`` optional), one per row."""
     text = text.strip()
@@ -96,6 +114,8 @@ def _poses_from_text(text: str, where: str) -> list[Any]:
             doc = json.loads(text)
         except json.JSONDecodeError as e:
             raise DataError(where, None, None, f"not valid JSON ({e})") from e
+        except RecursionError:
+            raise DataError(where, None, None, "not a pose file (JSON nested too deep)") from None
         doc = doc.get("poses", doc) if isinstance(doc, dict) else doc
         items = doc if isinstance(doc, list) else [doc]
         out = []
@@ -113,7 +133,7 @@ def _poses_from_text(text: str, where: str) -> list[Any]:
 def read_pose(spec: str) -> np.ndarray:
     """A relative pose (4, 4) [mm] from a file (JSON ``{p_mm, quat}`` or one CSV row) or inline 7 numbers."""
     path = Path(spec)
-    text = path.read_text(encoding="utf-8-sig") if path.is_file() else spec
+    text = _read_pose_file(path) if path.exists() else spec
     items = _poses_from_text(text, spec)
     if len(items) != 1:
         raise DataError(spec, None, None, f"expected one pose (x, y, z [mm], qw, qx, qy, qz), got {len(items)}")
@@ -132,9 +152,9 @@ def read_path(spec: str, planner: DualPlanner) -> np.ndarray:
                                               f"use sweep:N with 2 <= N <= {MAX_WAYPOINTS}")
         return sweep_path(planner, n)
     path = Path(spec)
-    if not path.is_file():
+    if not path.exists():
         raise DataError(spec, None, None, "path file not found (or use sweep:N)")
-    items = _poses_from_text(path.read_text(encoding="utf-8-sig"), spec)
+    items = _poses_from_text(_read_pose_file(path), spec)
     if not items:
         raise DataError(spec, None, None, "the path has no poses")
     if len(items) > MAX_WAYPOINTS:

@@ -39,6 +39,7 @@ from pathlib import Path
 from typing import Literal
 
 from calibration.errors import CellCalError
+from calibration.files import read_input_bytes
 
 __all__ = ["JOB_POSTYPES", "Job", "JobError", "JobPosition", "parse_job", "read_job", "write_job"]
 
@@ -120,9 +121,7 @@ def read_job(path: str | Path) -> Job:
     try:
         if path.is_dir():
             raise JobError(path, None, "expected a job file, found a directory")
-        if path.stat().st_size > MAX_JOB_BYTES:
-            raise JobError(path, None, f"larger than {MAX_JOB_BYTES // 2**20} MiB; not a job file")
-        data = path.read_bytes()
+        data = read_input_bytes(path, MAX_JOB_BYTES)  # a FIFO or a device is refused, a larger file too
     except FileNotFoundError:
         raise JobError(path, None, "job file not found") from None
     except OSError as e:

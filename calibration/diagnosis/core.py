@@ -259,6 +259,7 @@ def diagnose(robot: str, nominal: PoeModel, data: Recording, heldout: Recording 
     step = progress or (lambda name: None)
     step(DIAGNOSE_STEPS[0])
     split = split_data(data, heldout, opts)
+    _require_data(split, opts.cluster_size)
     base = fit_model_in_use(model, nominal, split, opts)
     if opts.weighting == "fixed":
         return _diagnose_weighed(robot, nominal, model, split, gravity, joint_limits, opts, base,
@@ -697,6 +698,32 @@ def extrapolation_note(ex: dict) -> str:
            else "the guard did not change the prediction (no effect fitted in a narrowly seen joint acts there)")
     return (f"{ex['outside_training_range']} of {ex['poses']} held-out poses lie outside the fit data's joint range "
             f"(by up to {ex['max_excess_deg']:.1f} deg, RMS {ex['rms_excess_deg']:.1f} deg); {did}.")
+
+
+#: Fewest clusters the fit data and the held-out data each need: a diagnosis compares fits across clusters.
+MIN_DIAGNOSE_CLUSTERS = 2
+
+
+def _require_data(split: Split, cluster_size: int) -> None:
+    """Refuse data a diagnosis cannot use: fewer than :data:`MIN_DIAGNOSE_CLUSTERS` clusters to fit on or to hold
+    out (7 rows left nothing to fit on: an IndexError), or measurements that never differ within a cluster (copied
+    rows: a noise floor of 0, a division by zero).
+
+    Raises:
+        DataError: naming the recording and what it lacks.
+    """
+    for what, rec, groups in (("to fit on", split.fit, split.groups), ("held out", split.heldout, None)):
+        n = len(np.unique(groups if groups is not None else _groups(rec, cluster_size))) if len(rec) else 0
+        if n < MIN_DIAGNOSE_CLUSTERS:
+            raise DataError(split.everything.source or rec.source, None, None,
+                            f"too few clusters for a diagnosis: {n} {what} (of {len(split.everything)} rows), at least "
+                            f"{MIN_DIAGNOSE_CLUSTERS} needed; give a longer recording (or --test for the held-out "
+                            "poses)")
+    pose = np.concatenate([split.fit.p, split.fit.quat], axis=1)
+    scatter = [np.ptp(pose[split.groups == g], axis=0).max() for g in np.unique(split.groups)]
+    if max(scatter) == 0.0:
+        raise DataError(split.everything.source, None, None, "no scatter at all: every cluster's measured poses are "
+                                                      "identical (copied rows?), so no noise floor can be estimated")
 
 
 def _groups(rec: Recording, size: int) -> np.ndarray:

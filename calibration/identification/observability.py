@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from calibration.errors import ModelError
 from calibration.identification.geometric import DEFAULT_ORIENTATION_WEIGHT, Kinematics, rotation_residual_scale
 
 DEFAULT_REACH_MM = 1000.0
@@ -100,7 +101,13 @@ def analyse_jacobian(J: np.ndarray, scale: np.ndarray, names: tuple[str, ...], a
                      tolerance: float = DEFAULT_RELATIVE_TOLERANCE) -> Observability:
     """Observability from a pose Jacobian ``d[p; theta] / d params`` (N, 6, m) and the column scaling (m,)."""
     Js = scaled_rows(J, scale, a).reshape(-1, np.shape(J)[-1])
-    _, s, Vt = np.linalg.svd(Js, full_matrices=False)
+    m = Js.shape[1]
+    # fewer equations than parameters (one pose, or none): the directions past the rows are unseen, singular value 0
+    # (they were missing from V, and a caller naming them, a one-row recording's frame check, raised IndexError)
+    _, s, Vt = np.linalg.svd(Js, full_matrices=Js.shape[0] < m)
+    s = np.concatenate([s, np.zeros(m - len(s))])
+    if not s.size or s[0] == 0:
+        raise ModelError(f"no information in the data: the pose Jacobian is zero ({Js.shape[0] // 6} poses)")
     rank = int(np.sum(s >= tolerance * s[0]))
     cond = float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
     return Observability(s, cond, np.asarray(scale, dtype=float), Vt.T, rank, tolerance, tuple(names))

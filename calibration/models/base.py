@@ -27,7 +27,7 @@ import numpy as np
 import yaml
 
 from calibration.errors import DataError, ModelError, ModelFileError, parse_error_text
-from calibration.files import atomic_write_text
+from calibration.files import atomic_write_text, read_input_text
 from calibration.model_checks import (MAX_MODEL_FILE_BYTES, MAX_POSITION_MM, check_model_data, check_model_for,
                                       check_model_numbers, check_model_structure)
 from calibration.poe import PoeModel
@@ -267,15 +267,7 @@ def _read_model_file(path: Path) -> dict[str, Any]:
     (a FIFO or a device would block or never end), whose structure can be walked (no aliases, no list beyond
     :data:`~calibration.model_checks.MAX_LIST_LENGTH`)."""
     try:
-        if path.exists() and not path.is_dir() and not path.is_file():
-            raise DataError(path, None, None, "not a regular file (a FIFO, a device or a socket); expected a model "
-                                              "file (YAML or JSON)")
-        with path.open("rb") as f:
-            raw = f.read(MAX_MODEL_FILE_BYTES + 1)
-        if len(raw) > MAX_MODEL_FILE_BYTES:
-            raise DataError(path, None, None, f"larger than {MAX_MODEL_FILE_BYTES // 2**20} MiB, the most a model "
-                                              "file may hold (a model file is a few hundred kB)")
-        text = raw.decode("utf-8-sig")
+        text = read_input_text(path, MAX_MODEL_FILE_BYTES)  # a regular file: a FIFO or /dev/zero is refused
     except FileNotFoundError:
         raise DataError(path, None, None, "model file not found") from None
     except IsADirectoryError:
