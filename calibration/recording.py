@@ -85,11 +85,19 @@ class Recording:
     def clusters(self, size: int = DEFAULT_CLUSTER_SIZE) -> np.ndarray:
         """Cluster id of every sample: the ``cluster`` column, else consecutive groups of ``size`` rows.
 
+        A negative id in the column marks a stand-alone pose (:data:`STANDALONE`, e.g. a pose added by
+        :func:`with_added`): each gets an id of its own above the others, so no two are ever taken for one cluster.
+
         Raises:
             DataError: no cluster column and the row count is not a multiple of ``size``.
         """
         if "cluster" in self.extra:
-            return self.extra["cluster"].astype(int)
+            ids = self.extra["cluster"].astype(int)
+            alone = ids < 0
+            if alone.any():
+                ids = ids.copy()
+                ids[alone] = max(int(ids.max()), -1) + 1 + np.arange(int(alone.sum()))
+            return ids
         if len(self) % size:
             raise DataError(self.source, None, "cluster",
                             f"no cluster column and {len(self)} rows are not a multiple of the "
@@ -307,6 +315,39 @@ def read_recording(path: str | Path, lower: np.ndarray | None = None, upper: np.
                                               "per recording; rows in the order they were measured)")
     return Recording(q, np.stack([col["x"], col["y"], col["z"]], 1),
                      quat / np.linalg.norm(quat, axis=1, keepdims=True), extra, str(path))
+
+
+#: The ``cluster`` id of a stand-alone pose: a pose measured on its own (a top-up pose), no anchor's cluster.
+STANDALONE = -1
+
+
+def standalone_mask(rec: Recording) -> np.ndarray:
+    """Which samples of ``rec`` stand alone (a negative ``cluster`` id), shape (N,) bool."""
+    if "cluster" not in rec.extra:
+        return np.zeros(len(rec), dtype=bool)
+    return np.asarray(rec.extra["cluster"]) < 0
+
+
+def with_added(train: Recording, added: list[Recording], size: int = DEFAULT_CLUSTER_SIZE) -> Recording:
+    """``train`` with the poses of ``added`` appended as stand-alone poses, fitted as one day.
+
+    The training samples keep their cluster ids (:meth:`Recording.clusters`: the column, else consecutive groups
+    of ``size`` rows); every added sample gets :data:`STANDALONE` whatever cluster column it has, so global fits
+    use it and local (per-cluster) fits never group it. Extra columns are kept only when every recording has them.
+
+    Raises:
+        DataError: ``train`` has no cluster column and not whole ``size``-row clusters.
+    """
+    if not added:
+        return train
+    ids = np.where(standalone_mask(train), STANDALONE, train.clusters(size))
+    parts = [train, *added]
+    common = [k for k in train.extra if k != "cluster" and all(k in r.extra for r in added)]
+    extra = {k: np.concatenate([np.asarray(r.extra[k], dtype=float) for r in parts]) for k in common}
+    extra["cluster"] = np.concatenate([ids.astype(float)] + [np.full(len(r), float(STANDALONE)) for r in added])
+    source = " + ".join([train.source] + [r.source for r in added])
+    return Recording(np.concatenate([r.q for r in parts]), np.concatenate([r.p for r in parts]),
+                     np.concatenate([r.quat for r in parts]), extra, source)
 
 
 def read_joints(path: str | Path, lower: np.ndarray | None = None, upper: np.ndarray | None = None) -> np.ndarray:

@@ -7,8 +7,8 @@ from pathlib import Path
 from typing import Any, Callable, Literal
 
 from app.analysis.fitting import fitter_for
-from app.cli.common import add_report_options, cell_spec, command_line, epoch_bar, log, non_negative_int, \
-    positive_float, show_progress, tolerance_from_args, validation_count, write_json
+from app.cli.common import ADD_HELP, add_report_options, cell_spec, command_line, epoch_bar, log, non_negative_int, \
+    positive_float, read_recording_arg, show_progress, tolerance_from_args, validation_count, write_json
 from calibration.errors import CellCalError
 
 #: The anchor-grid steps ``plan --q2-step/--q3-step`` and ``demo --anchor-step`` accept [deg].
@@ -254,7 +254,7 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         model_to_rebase, rebase_candidate
     from app.provenance import provenance, with_provenance
     from app.cell.session_plan import validation_plan
-    from calibration.recording import read_recording
+    from calibration.recording import read_recording, with_added
 
     cell = cell_spec(args)
     robot = cell.robot(args.robot)
@@ -267,6 +267,7 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     if args.session:
         _require_session(args.session, args.robot, ("anchor", "perturb", "cpa") if args.method == "cpa" else
                          ("anchor", "perturb"), purpose="recalibrate")
+    added = [read_recording_arg(path, robot) for path in args.add]  # bad extra poses: refused before any motion
     service = model_in_service(model_dir, args.robot, robot.model())  # another robot's model: stop before motion
     if args.rebase:
         model_to_rebase(model_dir, service)  # nothing to rebase: stop before motion
@@ -303,15 +304,16 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         cpa = read(work / "cpa.csv")
     export(work / "validation", work / "validation.csv")
     rebased = None
+    train = with_added(read(work / "train.csv"), added)  # --add: the extra poses stand alone beside the clusters
     if args.rebase:
-        model, rebased = rebase_candidate(model_dir, service, read(work / "train.csv"))
+        model, rebased = rebase_candidate(model_dir, service, train)
         print(rebased.summary())
     else:
         from calibration.methods import FitOptions
 
-        fitter = fitter_for(robot, read(work / "train.csv"), cpa, FitOptions(epoch_progress=epoch_bar(args)))
+        fitter = fitter_for(robot, train, cpa, FitOptions(epoch_progress=epoch_bar(args)))
         model, _ = fitter.fit(args.method)
-    inputs = [("train", work / "train.csv"), ("cpa", work / "cpa.csv" if cpa else None),
+    inputs = [("train", work / "train.csv"), *(("add", a) for a in args.add), ("cpa", work / "cpa.csv" if cpa else None),
               ("validation", work / "validation.csv")]
     if args.rebase:
         inputs.append(("model rebased", model_dir / "current.yaml"))
@@ -459,6 +461,7 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                                                          "service on the training poses (a few clusters of a new day) "
                                                          "instead of fitting a new model (--method is not used)")
     p.add_argument("--validation", type=validation_count, default=30, help="fresh validation poses to measure")
+    p.add_argument("--add", action="append", default=[], metavar="PICKED.csv", help=ADD_HELP)
     p.add_argument("--validation-seed", type=non_negative_int, help="seed of the validation poses (default: from the clock)")
     p.add_argument("--json", help="write the decision with both figures as JSON")
     add_report_options(p, "candidate and model in service on the validation poses",
