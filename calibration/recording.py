@@ -350,6 +350,25 @@ def with_added(train: Recording, added: list[Recording], size: int = DEFAULT_CLU
                      np.concatenate([r.quat for r in parts]), extra, source)
 
 
+def copy_rows(source: str | Path, rows: np.ndarray, path: str | Path, rec: Recording | None = None) -> None:
+    """Write rows ``rows`` (0-based data rows, as :func:`read_recording` numbers the samples) of the recording
+    ``source`` to ``path`` as they are there: a CSV's header and those lines' fields unchanged (no number is
+    reformatted), atomically. A Welding_Motoman folder has no one file to copy from: its samples ``rec`` (read
+    from it) are written as a recording CSV (:func:`write_recording`)."""
+    rows = np.asarray(rows, dtype=int)
+    if Path(source).is_dir():
+        if rec is None:
+            raise DataError(source, None, None, "a folder's rows are written from its recording; none given")
+        write_recording(rec.subset(rows), path)
+        return
+    table = _read_rows(Path(source))
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(table[0])
+    w.writerows(table[1 + int(i)] for i in rows)
+    atomic_write_text(path, buf.getvalue())
+
+
 def read_joints(path: str | Path, lower: np.ndarray | None = None, upper: np.ndarray | None = None) -> np.ndarray:
     """Read joint angles [rad] for prediction: a header row with q1..q6, or a headerless 6-column file.
 

@@ -112,6 +112,11 @@ def cmd_select(args: argparse.Namespace) -> int:
     from calibration.parameterisation import MinimalParameterisation
     from calibration.recording import write_recording
 
+    if args.given is not None or args.task is not None or args.poses is not None:
+        return _select_topup(args)
+    if args.budget is None:
+        raise CellCalError("select needs --budget CLUSTERS (clusters of --data to keep), or --given TRAIN --task TASK "
+                           "--poses K (the poses of --data a task needs beyond TRAIN)")
     robot = cell_spec(args).robot(args.robot)
     rec = read_recording_arg(args.data, robot)
     refuse_another_arms(robot, rec)  # another arm's clusters would be chosen by this arm's Jacobian
@@ -127,6 +132,47 @@ def cmd_select(args: argparse.Namespace) -> int:
     write_json(args.json, {"robot": args.robot, "data": str(args.data), "out": str(args.out), "budget": args.budget,
                            "clusters": list(sel.clusters), "samples": int(len(sel.rows)),
                            "figures": {"selected": sel.selected.to_json(), "all": sel.every.to_json()}})
+    return 0
+
+
+def _select_topup(args: argparse.Namespace) -> int:
+    """``select --given TRAIN --task TASK --poses K``: the K rows of --data (candidates) that most lower the predicted
+    position variance over the task's configurations given TRAIN (:mod:`calibration.topup`); joint angles only."""
+    import numpy as np
+
+    from app.cell.design_plan import read_task
+    from calibration.recording import copy_rows
+    from calibration.topup import TopupPrior, choose
+
+    missing = [o for o, v in (("--given", args.given), ("--task", args.task), ("--poses", args.poses)) if v is None]
+    if missing:
+        raise CellCalError(f"a top-up selection needs --given TRAIN, --task TASK and --poses K; missing "
+                           f"{', '.join(missing)}")
+    if args.budget is not None or args.target != "identification":
+        raise CellCalError("--budget and --for choose clusters of one recording; a top-up selection (--given, --task, "
+                           "--poses) takes neither")
+    cell = cell_spec(args)
+    robot = cell.robot(args.robot)
+    cands = read_recording_arg(args.data, robot)
+    given = read_recording_arg(args.given, robot)
+    q_task = read_task(args.task, args.robot, cell)
+    if not 1 <= args.poses <= len(cands):
+        raise CellCalError(f"--poses must be in 1..{len(cands)} (the rows of {args.data}), got {args.poses}")
+    res = choose(robot.model(), given.q, cands.q, q_task, args.poses, TopupPrior(noise_mm=args.noise_mm))
+    rows = np.sort(np.asarray(res.order))
+    copy_rows(args.data, rows, args.out, cands)
+    before, after = res.sigma_before_mm, res.sigma_after_mm
+    print(f"{args.robot}: {len(rows)} of {len(cands)} candidate poses -> {args.out}")
+    print(f"predicted position error over the task's {len(q_task)} configurations (sigma, RMS of the error norm; "
+          f"{len(res.task_rows)} read): mean {before.mean():.3f} -> {after.mean():.3f} mm, worst {before.max():.3f} "
+          f"-> {after.max():.3f} mm")
+    write_json(args.json, {"robot": args.robot, "data": str(args.data), "given": str(args.given),
+                           "task": str(args.task), "out": str(args.out), "poses": len(rows),
+                           "rows": rows.tolist(), "order": list(res.order),
+                           "predicted_sigma_mm": {"before": {"mean": float(before.mean()), "max": float(before.max())},
+                                                  "after": {"mean": float(after.mean()), "max": float(after.max())}},
+                           "criterion": "mean + mean of the worst 10 % of the predicted task position variance "
+                                        "(calibration.topup)"})
     return 0
 
 
@@ -422,10 +468,17 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                                   "criterion) and write them as a recording subset")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
     p.add_argument("--data", required=True, help="training recording CSV or Welding_Motoman folder")
-    p.add_argument("--budget", required=True, type=int, metavar="CLUSTERS",
+    p.add_argument("--budget", type=int, metavar="CLUSTERS",
                    help="the number of CLUSTERS of the recording to keep (not poses, as plan --budget counts; a "
-                        "cluster is usually 7 poses): at least 3, at most the recording's; no default (required)")
-    p.add_argument("--out", required=True, help="the subset recording CSV")
+                        "cluster is usually 7 poses): at least 3, at most the recording's; no default (required "
+                        "unless --given/--task/--poses choose a top-up)")
+    p.add_argument("--given", metavar="TRAIN", help="top-up: the training recording already measured (its joint "
+                                                    "angles); --data is then the candidate poses (no clusters needed)")
+    p.add_argument("--task", help="top-up: the configurations the cell will run: a joints CSV (q1..q6 [rad]), a dual "
+                                  "plan (.json: this robot's waypoints) or a JBI job (.jbi: its PULSE positions)")
+    p.add_argument("--poses", type=int, metavar="K", help="top-up: how many candidate poses to choose")
+    p.add_argument("--out", required=True, help="the subset recording CSV (top-up: the chosen rows of --data as they "
+                                                "are there)")
     p.add_argument("--for", dest="target", choices=("identification", "rebase"), default="identification",
                    help="what the clusters are for: identifying the geometry or rebasing a fitted model "
                         "(D-optimal on the 12 frame directions cellcal rebase fits, no spread term)")

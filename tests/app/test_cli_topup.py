@@ -1,0 +1,100 @@
+"""``cellcal select --given TRAIN --task TASK --poses K``: the candidate rows a task needs beyond TRAIN."""
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from app.cli.commands import main
+from calibration.recording import write_recording, write_table
+from cell_config import load_cell
+from tests.app.test_jbi import crlf, pulses
+from tests.calibration.test_standalone_poses import wide_poses
+from tests.conftest import assert_bad_input, cluster_design, measure
+
+
+@pytest.fixture(scope="module")
+def files(synthetic_arm, tmp_path_factory):
+    _, _, truth = synthetic_arm
+    folder = tmp_path_factory.mktemp("topup")
+    q, _ = cluster_design(step_deg=30.0, spread_wrist=False)
+    write_recording(measure(truth.fk, q, 0.02, 0.01, 1), folder / "grid.csv")
+    write_recording(measure(truth.fk, wide_poses(30, seed=11), 0.02, 0.01, 2), folder / "cand.csv")
+    q_task = wide_poses(12, seed=12)
+    write_table(folder / "task.csv", {f"q{i + 1}": q_task[:, i] for i in range(6)})
+    return folder, q_task
+
+
+def select(folder, task, *extra):
+    return ["select", "--robot", "R1", "--data", str(folder / "cand.csv"), "--given", str(folder / "grid.csv"),
+            "--task", str(task), *extra]
+
+
+def test_the_chosen_rows_are_written_as_they_are_in_the_candidates(files):
+    folder, _ = files
+    out, js = folder / "picked.csv", folder / "picked.json"
+    assert main(select(folder, folder / "task.csv", "--poses", "5", "--out", str(out), "--json", str(js))) == 0
+    result = json.loads(js.read_text())
+    with open(folder / "cand.csv") as f:
+        rows = list(csv.reader(f))
+    with open(out) as f:
+        picked = list(csv.reader(f))
+    assert picked[0] == rows[0] and len(picked) == 6
+    assert picked[1:] == [rows[1 + i] for i in result["rows"]]  # the candidates' own text, in their order
+    assert sorted(result["order"]) == result["rows"]
+    assert result["predicted_sigma_mm"]["after"]["mean"] < result["predicted_sigma_mm"]["before"]["mean"]
+
+
+def test_a_dual_plan_and_a_job_give_the_same_choice_as_their_joints(files):
+    folder, q_task = files
+    cell = load_cell()
+    q_task_pulsed = cell.robot("R1").robot.from_pulses(cell.robot("R1").robot.to_pulses(q_task))
+    write_table(folder / "pulsed.csv", {f"q{i + 1}": q_task_pulsed[:, i] for i in range(6)})
+    plan = {"schema": "cellcal.plan/1", "kind": "dual", "models": {}, "T_wp_gun": None, "converged": True,
+            "waypoints": [{"R1": q.tolist(), "R2": [0.0] * 6, "converged": True} for q in q_task_pulsed]}
+    (folder / "task.json").write_text(json.dumps(plan))
+    p = pulses(cell, "R1", np.degrees(q_task))
+    (folder / "task.jbi").write_bytes(crlf(
+        ["/JOB", "//NAME TASK", "//POS", f"///NPOS {len(p)},0,0,0,0,0", "///TOOL 0", "///POSTYPE PULSE", "///PULSE",
+         *(f"C{i:05d}={v}" for i, v in enumerate(p)), "//INST", "///DATE 2026/12/01 12:00", "///ATTR SC,RW",
+         "///GROUP1 RB1", "NOP", *(f"MOVJ C{i:05d} VJ=10.00" for i in range(len(p))), "END"]))
+    orders = []
+    for task in ("pulsed.csv", "task.json", "task.jbi"):
+        js = folder / f"{task}.out.json"
+        assert main(select(folder, folder / task, "--poses", "4", "--out", str(folder / f"{task}.out.csv"),
+                           "--json", str(js))) == 0
+        orders.append(json.loads(js.read_text())["order"])
+    assert orders[0] == orders[1] == orders[2]
+
+
+@pytest.mark.parametrize("extra, fragments", [
+    (["--poses", "31"], ("--poses", "1..30")),
+    (["--poses", "0"], ("--poses", "1..30")),
+    (["--poses", "3", "--budget", "3"], ("--budget", "top-up")),
+])
+def test_bad_top_up_requests_are_refused_and_nothing_is_written(files, capsys, extra, fragments):
+    folder, _ = files
+    out = folder / "bad.csv"
+    assert_bad_input(capsys, select(folder, folder / "task.csv", *extra, "--out", str(out)), *fragments)
+    assert not out.exists()
+
+
+def test_a_missing_part_of_a_top_up_is_named(files, capsys):
+    folder, _ = files
+    out = folder / "bad.csv"
+    assert_bad_input(capsys, ["select", "--robot", "R1", "--data", str(folder / "cand.csv"), "--given",
+                              str(folder / "grid.csv"), "--poses", "3", "--out", str(out)], "missing --task")
+    assert_bad_input(capsys, ["select", "--robot", "R1", "--data", str(folder / "cand.csv"), "--out", str(out)],
+                     "--budget", "--given")
+    assert not out.exists()
+
+
+def test_a_task_outside_the_joint_limits_is_refused(files, capsys):
+    folder, q_task = files
+    far = q_task.copy()
+    far[3, 1] = 4.0  # q2 at 229 deg
+    write_table(folder / "far.csv", {f"q{i + 1}": far[:, i] for i in range(6)})
+    out = folder / "bad.csv"
+    assert_bad_input(capsys, select(folder, folder / "far.csv", "--poses", "2", "--out", str(out)), "far.csv", "q2")
+    assert not out.exists()
