@@ -27,7 +27,7 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
                  json_path: str | Path | None = None, report_dir: str | Path | None = None,
                  model_out: str | Path | None = None, cell: str | Path | None = None,
                  options: DiagnoseOptions | None = None, tolerance: Any = None, progress: bool = False,
-                 added: Sequence[str | Path] = ()) -> Diagnosis:
+                 added: Sequence[str | Path] = (), add_weight: int = 1) -> Diagnosis:
     """Diagnose one robot's model against recordings and write the requested outputs.
 
     Args:
@@ -47,7 +47,7 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
         tolerance: the report's acceptance :class:`~app.analysis.report.Tolerance` (None: 1 mm and 1 deg).
         progress: show a progress bar over the diagnosis steps.
         added: recordings of extra poses joined to the one training recording as stand-alone poses
-            (:func:`calibration.recording.with_added`; ``--add``).
+            (:func:`calibration.recording.with_added`; ``--add``), each with weight ``add_weight``.
 
     Returns:
         The diagnosis.
@@ -75,7 +75,7 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
         if days is not None:
             raise DataError(paths[0], None, None, f"--add joins the poses to one training recording; {len(paths)} "
                                                   "given (diagnose each day with its own --add)")
-        rec = with_added(rec, [read_recording(p, *limits) for p in added])
+        rec = with_added(rec, [read_recording(p, *limits) for p in added], weight=add_weight)
     ho = read_recording(heldout, *limits) if heldout is not None else None
     from app.analysis.fitting import refuse_another_arms
 

@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any, Callable, Literal
 
 from app.analysis.fitting import fitter_for
-from app.cli.common import ADD_HELP, add_report_options, cell_spec, command_line, epoch_bar, log, non_negative_int, \
+from app.cli.common import add_topup_options, add_report_options, cell_spec, command_line, epoch_bar, log, non_negative_int, \
     positive_float, read_recording_arg, show_progress, tolerance_from_args, validation_count, write_json
 from calibration.errors import CellCalError
 
@@ -350,7 +350,7 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         cpa = read(work / "cpa.csv")
     export(work / "validation", work / "validation.csv")
     rebased = None
-    train = with_added(read(work / "train.csv"), added)  # --add: the extra poses stand alone beside the clusters
+    train = with_added(read(work / "train.csv"), added, weight=args.add_weight)  # --add: the extra poses stand alone beside the clusters
     if args.rebase:
         model, rebased = rebase_candidate(model_dir, service, train)
         print(rebased.summary())
@@ -514,7 +514,7 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                                                          "service on the training poses (a few clusters of a new day) "
                                                          "instead of fitting a new model (--method is not used)")
     p.add_argument("--validation", type=validation_count, default=30, help="fresh validation poses to measure")
-    p.add_argument("--add", action="append", default=[], metavar="PICKED.csv", help=ADD_HELP)
+    add_topup_options(p)
     p.add_argument("--validation-seed", type=non_negative_int, help="seed of the validation poses (default: from the clock)")
     p.add_argument("--json", help="write the decision with both figures as JSON")
     add_report_options(p, "candidate and model in service on the validation poses",

@@ -11,7 +11,7 @@ import sys
 from typing import Any, Callable
 
 from app.cli.cell import add_cell_parsers
-from app.cli.common import (ADD_HELP, CELL_HELP, DefaultsHelpFormatter, OneLineErrorParser, add_cell_option, add_report_options, cell_spec,
+from app.cli.common import (add_topup_options, CELL_HELP, DefaultsHelpFormatter, OneLineErrorParser, add_cell_option, add_report_options, cell_spec,
                              check_output_args, command_line, fitter_from_args, load_model_for, model_and_robot,
                              read_recording_arg, resolve_cell, show_progress, tolerance_from_args, write_json)
 from app.cli.dual import add_dual_parsers
@@ -333,7 +333,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
     from calibration.diagnosis import DiagnoseOptions
 
-    result = run_diagnose(args.robot, args.train, added=args.add, heldout=args.test, model=args.model, json_path=args.json,
+    result = run_diagnose(args.robot, args.train, added=args.add, add_weight=args.add_weight, heldout=args.test, model=args.model, json_path=args.json,
                           report_dir=args.report, model_out=args.out, cell=args.cell,
                           options=DiagnoseOptions(compliance_form=args.compliance_form, weighting=args.weighting),
                           tolerance=tolerance_from_args(args), progress=show_progress(args))
@@ -350,7 +350,7 @@ def _add_fit_inputs(p: argparse.ArgumentParser) -> None:
     p.add_argument("--train", required=True, action="append",
                    help="training recording CSV or Welding_Motoman folder; repeat it to fit several recordings "
                         "(days) as one arm with a pair of frames per recording")
-    p.add_argument("--add", action="append", default=[], metavar="PICKED.csv", help=ADD_HELP)
+    add_topup_options(p)
     p.add_argument("--cpa", help="single-joint sweep recording for circular point analysis")
     p.add_argument("--a", type=float, default=1641.0, help="orientation weight (default %(default)g: 1 mm ~ 1 deg)")
 
@@ -440,7 +440,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="recording CSV or Welding_Motoman folder to fit on (--data: the old name); repeat it for "
                         "several days of one arm: what differs between them (frames, parameters, drift) is reported "
                         "and the diagnosis runs on them pooled, each with its frames taken out")
-    p.add_argument("--add", action="append", default=[], metavar="PICKED.csv", help=ADD_HELP)
+    add_topup_options(p)
     p.add_argument("--test", "--heldout", dest="test",
                    help="recording the selection never fits on (default: held-out clusters of --train; --heldout: "
                         "the old name)")

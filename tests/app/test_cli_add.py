@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from app.cli.commands import main
-from calibration.recording import write_recording
+from calibration.recording import DEFAULT_ADD_WEIGHT, write_recording
 from tests.calibration.test_standalone_poses import wide_poses
 from tests.conftest import assert_bad_input, cluster_design, measure
 
@@ -27,9 +27,12 @@ def test_fit_counts_the_added_poses_and_they_help_where_the_grid_never_went(file
     folder, n_grid = files
     base = ["fit", "--robot", "R1", "--train", str(folder / "grid.csv"), "--method", "pi"]
     assert main(base + ["--out", str(folder / "grid.yaml"), "--json", str(folder / "grid.json")]) == 0
-    assert main(base + ["--add", str(folder / "picked.csv"), "--add", str(folder / "more.csv"),
+    assert main(base + ["--add", str(folder / "picked.csv"), "--add", str(folder / "more.csv"), "--add-weight", "1",
                         "--out", str(folder / "added.yaml"), "--json", str(folder / "added.json")]) == 0
     assert json.loads((folder / "added.json").read_text())["samples"] == n_grid + 14
+    assert main(base + ["--add", str(folder / "picked.csv"), "--out", str(folder / "w.yaml"),
+                        "--json", str(folder / "w.json")]) == 0
+    assert json.loads((folder / "w.json").read_text())["samples"] == n_grid + 10 * DEFAULT_ADD_WEIGHT
     means = []
     for name in ("grid", "added"):
         assert main(["evaluate", "--model", str(folder / f"{name}.yaml"), "--test", str(folder / "test.csv"),
@@ -69,19 +72,26 @@ def test_diagnose_takes_the_added_poses(files):
     assert main(["diagnose", "--robot", "R1", "--train", str(folder / "grid.csv"), "--add", str(folder / "picked.csv"),
                  "--json", str(folder / "diag.json")]) == 0
     samples = json.loads((folder / "diag.json").read_text())["samples"]
-    assert samples["fit"] + samples["heldout"] == n_grid + 10  # held-out clusters split off the grid and added poses
+    assert samples["fit"] + samples["heldout"] == n_grid + 10 * DEFAULT_ADD_WEIGHT  # the split: clusters and poses
 
 
-def test_recalibrate_fits_the_added_poses_with_the_session(tmp_path, files, capsys):
+def test_recalibrate_fits_the_added_poses_with_the_session(tmp_path, capsys):
     from calibration.models import load_model
+    from calibration.recording import read_recording
     from tests.app.test_recalibrate import _sim_recalibrate
 
-    folder, _ = files
     args, models = _sim_recalibrate(tmp_path, "nls1", 6)
     bad = tmp_path / "bad.csv"
     bad.write_text("q1,q2\n0,0\n")
     assert_bad_input(capsys, args + ["--add", str(bad)], "bad.csv")  # refused before any motion
-    assert not models.exists() or not (models / "current.yaml").exists()
-    assert main(args + ["--add", str(folder / "picked.csv")]) == 0
-    text = json.dumps(load_model(models / "current.yaml").info, default=str)
+    assert not (models / "current.yaml").exists()
+    assert main(args) == 0
+    (stamp,) = (models / "sessions").iterdir()
+    picked = tmp_path / "picked.csv"  # poses of the same simulated arm, as a top-up would measure them
+    write_recording(read_recording(stamp / "train.csv").subset(np.arange(0, 60, 6)), picked)
+    again = [a if a != "--plan" else "--session" for a in args]
+    again[again.index("--session") + 1] = str(stamp / "train")
+    again[again.index("--model-dir") + 1] = str(tmp_path / "fresh")  # installed there: no model to beat
+    assert main(again + ["--add", str(picked)]) == 0
+    text = json.dumps(load_model(tmp_path / "fresh" / "current.yaml").info, default=str)
     assert "picked.csv" in text  # the added poses are named among the model's inputs

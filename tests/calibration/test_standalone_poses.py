@@ -40,7 +40,29 @@ def test_added_poses_are_never_grouped_into_clusters(grid_and_wide, n_added):
     np.testing.assert_array_equal(ids[: len(grid)], grid.clusters())  # the grid's clusters as they were
     assert len(np.unique(ids)) == n_grid + n_added  # each added pose a unit of its own
     assert standalone_mask(both).sum() == n_added and not standalone_mask(both)[: len(grid)].any()
-    np.testing.assert_array_equal(both.extra["cluster"][len(grid):], STANDALONE)
+    np.testing.assert_array_equal(both.extra["cluster"][len(grid):], STANDALONE - np.arange(n_added))
+
+
+@pytest.mark.parametrize("weight", [1, 3, 7])
+def test_a_weighted_pose_is_repeated_under_one_id_and_stays_one_unit(grid_and_wide, weight):
+    grid, wide, _ = grid_and_wide
+    once = with_added(grid, [wide.subset(np.arange(5))])
+    both = with_added(once, [wide.subset(np.arange(5, 9))], weight=weight)  # added to a recording holding some
+    assert len(both) == len(grid) + 5 + 4 * weight
+    ids = both.clusters()
+    assert len(np.unique(ids)) == len(np.unique(grid.clusters())) + 5 + 4
+    tail = both.extra["cluster"][len(grid) + 5:]
+    assert len(np.unique(tail)) == 4 and np.all(tail < once.extra["cluster"].min())
+    np.testing.assert_array_equal(both.q[len(grid) + 5:], np.repeat(wide.q[5:9], weight, axis=0))
+
+
+@pytest.mark.parametrize("weight", [0, -1, 1.5, True])
+def test_a_bad_weight_is_refused(grid_and_wide, weight):
+    from calibration.errors import ModelError
+
+    grid, wide, _ = grid_and_wide
+    with pytest.raises(ModelError, match="weight"):
+        with_added(grid, [wide], weight=weight)
 
 
 def test_an_added_recording_with_its_own_cluster_column_still_stands_alone(grid_and_wide):
