@@ -42,8 +42,8 @@ sys.path.insert(0, str(ROOT))
 
 from calibration.methods import Fitter  # noqa: E402
 from calibration.metrics import errors  # noqa: E402
-from calibration.recording import Recording, read_recording, with_added  # noqa: E402
-from calibration.topup import TopupPrior, choose, farthest_points  # noqa: E402
+from calibration.recording import DEFAULT_ADD_WEIGHT, Recording, read_recording, with_added  # noqa: E402
+from calibration.topup import TopupPrior, choose, predicted_sigma  # noqa: E402
 from cell_config import load_cell  # noqa: E402
 
 DATA = next((d / "shared" / "data" / "welding_motoman" for d in ROOT.parents
@@ -85,9 +85,9 @@ class Cache:
         return self.data[key]
 
 
-def fit_and_judge(nominal: Any, train: Recording, added: Recording | None, task: Recording, method: str
-                  ) -> list[float]:
-    rec = train if added is None or not len(added) else with_added(train, [added])
+def fit_and_judge(nominal: Any, train: Recording, added: Recording | None, task: Recording, method: str,
+                  weight: int = 1) -> list[float]:
+    rec = train if added is None or not len(added) else with_added(train, [added], weight=weight)
     model, _ = Fitter("R1", nominal, rec).fit(method)
     e = errors(model, task).position_mm
     return [float(e.mean()), float(e.max())]
@@ -100,7 +100,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                           if v is not None})
     tag = hashlib.sha1(json.dumps(asdict(prior), sort_keys=True).encode()).hexdigest()[:10]
     cache = Cache(args.cache)
-    out: dict[str, Any] = {"prior": asdict(prior), "rows": []}
+    out: dict[str, Any] = {"prior": asdict(prior), "weight": args.weight, "rows": []}
     for day in args.days:
         train_dir, test_dir = DAYS[day]
         train = read_recording(DATA / "PH_grad_data" / train_dir)
@@ -116,31 +116,49 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             spread = farthest_from(train.q, cand.q, kmax)
             for method in args.methods:
                 key = f"{day}|{split}|{method}"
+                wkey = f"{key}|w{args.weight}"
+                w = args.weight
                 base = cache.get(f"{key}|grid", lambda: fit_and_judge(nominal, train, None, task, method))
                 every = cache.get(f"{key}|all", lambda: fit_and_judge(nominal, train, cand, task, method))
                 for k in args.k:
-                    row: dict[str, Any] = {"day": day, "split": split, "method": method, "k": k,
+                    row: dict[str, Any] = {"day": day, "split": split, "method": method, "k": k, "weight": w,
                                            "grid": base, "all": every}
                     if k == 0:
                         row.update(chosen=base, farthest=base, random=base)
                     else:
                         order = pick["order"][:k]
-                        row["chosen"] = cache.get(f"{key}|chosen|{tag}|{k}", lambda: fit_and_judge(
-                            nominal, train, cand.subset(np.asarray(order)), task, method))
-                        row["farthest"] = cache.get(f"{key}|farthest|{k}", lambda: fit_and_judge(
-                            nominal, train, cand.subset(spread[:k]), task, method))
-                        draws = [cache.get(f"{key}|random|{k}|{s}", lambda: fit_and_judge(
+                        row["chosen"] = cache.get(f"{wkey}|chosen|{tag}|{k}", lambda: fit_and_judge(
+                            nominal, train, cand.subset(np.asarray(order)), task, method, w))
+                        row["farthest"] = cache.get(f"{wkey}|farthest|{k}", lambda: fit_and_judge(
+                            nominal, train, cand.subset(spread[:k]), task, method, w))
+                        draws = [cache.get(f"{wkey}|random|{k}|{s}", lambda: fit_and_judge(
                             nominal, train, cand.subset(np.random.default_rng(s).choice(len(cand), k, replace=False)),
-                            task, method)) for s in range(args.random)]
+                            task, method, w)) for s in range(args.random)]
                         row["random"] = [float(np.median([d[0] for d in draws])),
                                          float(np.median([d[1] for d in draws]))] if draws else None
                         row["random_worse_share"] = (float(np.mean([d[0] > row["chosen"][0] for d in draws]))
                                                      if draws else None)
-                    row["sigma_mm"] = pick["sigma"][str(k)] if str(k) in pick["sigma"] else None
+                    if k in args.sigma_k:
+                        row["sigma"] = cache.get(f"{wkey}|sigma|{tag}|{k}", lambda: sigma_check(
+                            nominal, train, cand, task, pick["order"][:k], method, w, prior))
                     out["rows"].append(row)
                     print(_line(row), flush=True)
             print(f"# {day} {split}: design {design_s:.1f} s (cached or computed)", flush=True)
     return out
+
+
+def sigma_check(nominal: Any, train: Recording, cand: Recording, task: Recording, order: list[int], method: str,
+                weight: int, prior: TopupPrior) -> dict[str, float]:
+    """The design's predicted position sigma (RMS of the error norm) at every task pose after ``order``, against the
+    errors of ``method`` fitted with those poses: the share of task poses whose error exceeds 2 sigma (for a
+    Gaussian error of that RMS norm, isotropic: P(chi2_3 > 12) = 0.74 %), and over 1 sigma (Gaussian: 39 %)."""
+    added = cand.subset(np.asarray(order, dtype=int))
+    sigma = predicted_sigma(nominal, np.concatenate([train.q, added.q]), task.q, prior)
+    model, _ = Fitter("R1", nominal, with_added(train, [added], weight=weight)).fit(method)
+    e = errors(model, task).position_mm
+    return {"sigma_mean_mm": float(sigma.mean()), "sigma_max_mm": float(sigma.max()),
+            "share_over_1_sigma": float(np.mean(e > sigma)), "share_over_2_sigma": float(np.mean(e > 2 * sigma)),
+            "corr_sigma_error": float(np.corrcoef(sigma, e)[0, 1])}
 
 
 def farthest_from(q_train: np.ndarray, q_cand: np.ndarray, k: int) -> np.ndarray:
@@ -168,7 +186,9 @@ def _fmt(v: Any) -> str:
 
 def _line(r: dict[str, Any]) -> str:
     return (f"{r['day']:<12} {r['split']:<20} {r['method']:<5} k={r['k']:>3}  chosen {_fmt(r['chosen'])}  random "
-            f"{_fmt(r['random'])}  farthest {_fmt(r['farthest'])}  grid {_fmt(r['grid'])}  all {_fmt(r['all'])}")
+            f"{_fmt(r['random'])}  farthest {_fmt(r['farthest'])}  grid {_fmt(r['grid'])}  all {_fmt(r['all'])}"
+            + ("" if "sigma" not in r else f"  sigma {r['sigma']['sigma_mean_mm']:.3f} >2s "
+               f"{100 * r['sigma']['share_over_2_sigma']:.1f}% >1s {100 * r['sigma']['share_over_1_sigma']:.0f}%"))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -178,10 +198,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--k", default=",".join(map(str, DEFAULT_K)), help="comma-separated pose counts")
     p.add_argument("--random", type=int, default=20, help="random picks per k (their median is reported)")
     p.add_argument("--methods", default="pi", help="comma-separated methods fitted on grid + picks")
+    p.add_argument("--weight", type=int, default=DEFAULT_ADD_WEIGHT,
+                   help="weight of each added pose (fit --add-weight); 'all' is always fitted at weight 1")
     p.add_argument("--kind", choices=("pi", "geometric"), help="the design's parametric part (default pi)")
     p.add_argument("--gp-scale-mm", type=float, help="the design's GP scale (default: calibration.topup)")
     p.add_argument("--length-rad", type=float, help="the design's GP length scale (default: calibration.topup)")
     p.add_argument("--tail-weight", type=float, help="the design's G-term weight (default: calibration.topup)")
+    p.add_argument("--sigma-k", default="0,21", help="pose counts whose predicted sigma is checked against the errors")
     p.add_argument("--cache", type=Path, default=Path("/tmp/bench_topup_cache.json"), help="fit cache (JSON)")
     p.add_argument("--json", type=Path, help="write every row as JSON")
     args = p.parse_args(argv)
@@ -191,6 +214,7 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit(f"unknown day {bad[0]!r}; valid: {', '.join(DAYS)}")
     args.splits = [s.strip() for s in args.splits.split(",")]
     args.k = [int(k) for k in args.k.split(",")]
+    args.sigma_k = [int(k) for k in args.sigma_k.split(",") if k.strip()]
     args.methods = [m.strip() for m in args.methods.split(",")]
     out = run(args)
     if args.json:
