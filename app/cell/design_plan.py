@@ -299,3 +299,85 @@ def read_task(path: str, robot: str, cell: object) -> np.ndarray:
         raise DataError(path, i + 1, f"q{j + 1}", f"{math.degrees(q_task[i, j]):.6g} deg is outside {robot}'s joint "
                                                   "limits")
     return q_task
+
+
+#: Candidate configurations a top-up plan draws, half next to the task's configurations, half over the workspace.
+TOPUP_CANDIDATES = 1500
+#: Standard deviation of the jitter around a task configuration [deg] of the candidates drawn next to the task.
+TOPUP_JITTER_DEG = 5.0
+
+
+@dataclass(frozen=True)
+class TopupPlan:
+    """A top-up collection plan and what the design predicts for the task.
+
+    Attributes:
+        plan: the poses to measure next (kind ``anchor``, each its own cluster id: they stand alone).
+        sigma_before_mm, sigma_after_mm: predicted position error (RMS norm) at the task configurations the criterion
+            read, with the given poses alone and after the plan's, shape (T,).
+        n_candidates: safe candidates the poses were chosen from.
+    """
+
+    plan: Plan
+    sigma_before_mm: np.ndarray
+    sigma_after_mm: np.ndarray
+    n_candidates: int
+
+
+def _safe_poses(robot: str, safety: CellSafety, others: Mapping[str, np.ndarray], q: np.ndarray,
+                index: np.ndarray) -> list[int]:
+    """The configurations of ``index`` that pass ``safety.check_configs`` (bisecting failing batches)."""
+    try:
+        safety.check_configs(robot, q[index], others)
+        return [int(i) for i in index]
+    except CellCalError:
+        if len(index) == 1:
+            return []
+    half = len(index) // 2
+    return (_safe_poses(robot, safety, others, q, index[:half])
+            + _safe_poses(robot, safety, others, q, index[half:]))
+
+
+def topup_candidates(robot: str, safety: CellSafety, others: Mapping[str, np.ndarray], q_task: np.ndarray,
+                     n: int = TOPUP_CANDIDATES, seed: int = 0) -> np.ndarray:
+    """Safe candidate configurations [rad] (K, 6): half the task's configurations jittered by
+    ``TOPUP_JITTER_DEG``, half drawn as :func:`candidate_anchors` draws (q2 and q3 over the paper's band, q1 and the
+    wrist wide), all within the joint limits and passing the cell's safety checks with the other arms parked."""
+    rng = np.random.default_rng(seed)
+    lo, hi = safety.limits(robot)
+    near = q_task[rng.integers(0, len(q_task), n // 2)] + rng.normal(0, math.radians(TOPUP_JITTER_DEG), (n // 2, 6))
+    wide = np.zeros((n - n // 2, 6))
+    wide[:, 1] = np.radians(rng.uniform(*Q2_RANGE_DEG, len(wide)))
+    for i in range(len(wide)):
+        lo3, hi3 = paper_q3_bounds(math.degrees(wide[i, 1]))
+        wide[i, 2] = math.radians(rng.uniform(lo3, hi3))
+    for j, w in zip((0, 3, 4, 5), DesignSpec().wide_deg):
+        wide[:, j] = rng.uniform(max(-math.radians(w), lo[j]), min(math.radians(w), hi[j]), len(wide))
+    q = np.clip(np.concatenate([near, wide]), lo, hi)
+    return q[_safe_poses(robot, safety, others, q, np.arange(len(q)))]
+
+
+def topup_plan(robot: str, nominal: object, safety: CellSafety, others: Mapping[str, np.ndarray],
+               q_given: np.ndarray, q_task: np.ndarray, budget: int, noise_mm: float = 0.05, seed: int = 0,
+               q_start: np.ndarray | None = None) -> TopupPlan:
+    """``budget`` poses to measure next for the task ``q_task`` given the poses ``q_given`` already measured: the
+    top-up criterion (:func:`calibration.topup.choose`) on safe candidates (:func:`topup_candidates`), visited in a
+    short nearest-neighbour tour; the whole plan passes :meth:`CellSafety.check_plan`.
+
+    Raises:
+        CellCalError: a budget below 1 or above the safe candidates.
+        UnsafeTarget: the plan's targets or paths fail the whole-plan check.
+    """
+    from calibration.topup import TopupPrior, choose
+
+    cands = topup_candidates(robot, safety, others, q_task, seed=seed)
+    if not 1 <= budget <= len(cands):
+        raise CellCalError(f"--budget must be in 1..{len(cands)} poses (the safe candidates drawn), got {budget}")
+    res = choose(nominal, q_given, cands, q_task, budget, TopupPrior(noise_mm=noise_mm))
+    picked = cands[list(res.order)]
+    order = design.visiting_order(picked, q_start)
+    targets = [Target(robot, picked[i], k, "anchor") for k, i in enumerate(order)]
+    plan = build_plan(targets, robot=robot, design="topup", budget=budget, candidates=len(cands), seed=seed,
+                      jitter_deg=TOPUP_JITTER_DEG)
+    safety.check_plan(robot, plan.q, others, q_start)
+    return TopupPlan(plan, res.sigma_before_mm, res.sigma_after_mm, len(cands))

@@ -57,6 +57,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
     safety = CellSafety(cell)
     for option, step in (("--q2-step", args.q2_step), ("--q3-step", args.q3_step)):
         _check_grid_step(option, step)
+    if args.given is not None or args.task is not None:
+        return _plan_topup(args, cell, robot, safety, others)
     spec = PlanSpec(q2_step_deg=args.q2_step, q3_step_deg=args.q3_step, cpa=args.cpa,
                     n_validation=args.validation, seed=args.seed)
     anchors, figs = None, None
@@ -80,6 +82,39 @@ def cmd_plan(args: argparse.Namespace) -> int:
     write_json(args.json, {"robot": args.robot, "design": args.design, "targets": len(plan), "kinds": kinds,
                            "params": plan.params, "out": str(args.out),
                            **({"figures": {k: f.to_json() for k, f in figs.items()}} if figs else {})})
+    return 0
+
+
+def _plan_topup(args: argparse.Namespace, cell: Any, robot: Any, safety: Any, others: dict[str, Any]) -> int:
+    """``plan --design optimal --given TRAIN --task TASK --budget K``: the K poses the task needs beyond TRAIN."""
+    from app.cell.design_plan import read_task, topup_plan
+    from app.cell.runtime import park_q
+
+    missing = [o for o, v in (("--given", args.given), ("--task", args.task), ("--budget", args.budget)) if v is None]
+    if args.design != "optimal" or missing:
+        raise CellCalError("a top-up plan needs --design optimal --given TRAIN --task TASK --budget POSES"
+                           + (f"; missing {', '.join(missing)}" if missing else ""))
+    if args.target != "identification" or args.cpa or args.validation:
+        raise CellCalError("--for, --cpa and --validation do not apply to a top-up plan (--given, --task)")
+    import numpy as np
+
+    given = read_recording_arg(args.given, robot)
+    q_task = read_task(args.task, args.robot, cell)
+    top = topup_plan(args.robot, robot.model(), safety, others, given.q, q_task, args.budget, args.noise_mm,
+                     args.seed, park_q(args.robot))
+    top.plan.save(args.out)
+    b, a = top.sigma_before_mm, top.sigma_after_mm
+    print(f"{args.robot}: {len(top.plan)} top-up poses chosen from {top.n_candidates} safe candidates, checked safe "
+          f"with the other arms parked -> {args.out}")
+    print(f"predicted position error over the task (sigma, RMS of the error norm, over its configurations: mean, "
+          f"10-90 % range, worst): before {b.mean():.3f} ({np.percentile(b, 10):.3f}-{np.percentile(b, 90):.3f}, "
+          f"worst {b.max():.3f}) mm -> after {a.mean():.3f} ({np.percentile(a, 10):.3f}-{np.percentile(a, 90):.3f}, "
+          f"worst {a.max():.3f}) mm")
+    write_json(args.json, {"robot": args.robot, "design": "topup", "targets": len(top.plan),
+                           "candidates": top.n_candidates, "params": top.plan.params, "out": str(args.out),
+                           "predicted_sigma_mm": {
+                               "before": {"mean": float(b.mean()), "max": float(b.max())},
+                               "after": {"mean": float(a.mean()), "max": float(a.max())}}})
     return 0
 
 
@@ -459,6 +494,10 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                    help="--design optimal: what the poses are for: identifying the geometry or rebasing a "
                         "fitted model onto a new day (its frames and the joint offsets of joints 4 and 5; "
                         "cellcal rebase --offsets)")
+    p.add_argument("--given", metavar="TRAIN", help="--design optimal top-up: the training recording already "
+                                                    "measured; --budget POSES are then chosen for --task")
+    p.add_argument("--task", help="--design optimal top-up: the configurations the cell will run: a joints CSV "
+                                  "(q1..q6 [rad]), a dual plan (.json: this robot's waypoints) or a JBI job (.jbi)")
     p.add_argument("--noise-mm", type=positive_float, default=0.05,
                    help="measurement noise assumed for the predicted parameter uncertainty [mm]")
     p.add_argument("--json", help="write the plan summary (target counts per kind, and the design figures: each "

@@ -98,3 +98,33 @@ def test_a_task_outside_the_joint_limits_is_refused(files, capsys):
     out = folder / "bad.csv"
     assert_bad_input(capsys, select(folder, folder / "far.csv", "--poses", "2", "--out", str(out)), "far.csv", "q2")
     assert not out.exists()
+
+
+def test_plan_tops_up_a_given_recording_for_a_task_with_safe_poses(files):
+    from app.cell.plan_file import read_plan
+    from app.cell.runtime import park_q
+    from app.cell.safety import CellSafety
+
+    folder, _ = files
+    out, js = folder / "topup-plan.json", folder / "topup-plan.out.json"
+    assert main(["plan", "--robot", "R1", "--design", "optimal", "--given", str(folder / "grid.csv"), "--task",
+                 str(folder / "task.csv"), "--budget", "6", "--out", str(out), "--json", str(js)]) == 0
+    plan = read_plan(out, "collection")
+    assert len(plan) == 6 and {t.kind for t in plan.targets} == {"anchor"}
+    assert len({t.cluster for t in plan.targets}) == 6  # each pose its own id: they stand alone
+    cell = load_cell()
+    CellSafety(cell).check_plan("R1", plan.q, {n: park_q(n) for n in cell.robots if n != "R1"}, park_q("R1"))
+    sigma = json.loads(js.read_text())["predicted_sigma_mm"]
+    assert sigma["after"]["mean"] < 0.5 * sigma["before"]["mean"]
+
+
+@pytest.mark.parametrize("extra, fragment", [(["--budget", "6"], "missing --task"),
+                                             (["--task", "TASK", "--budget", "6", "--for", "rebase"], "--for"),
+                                             (["--task", "TASK"], "missing --budget")])
+def test_a_bad_top_up_plan_is_refused_and_nothing_is_written(files, capsys, extra, fragment):
+    folder, _ = files
+    out = folder / "bad-plan.json"
+    extra = [str(folder / "task.csv") if e == "TASK" else e for e in extra]
+    assert_bad_input(capsys, ["plan", "--robot", "R1", "--design", "optimal", "--given", str(folder / "grid.csv"),
+                              *extra, "--out", str(out)], fragment)
+    assert not out.exists()
