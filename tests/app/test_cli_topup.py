@@ -128,3 +128,29 @@ def test_a_bad_top_up_plan_is_refused_and_nothing_is_written(files, capsys, extr
     assert_bad_input(capsys, ["plan", "--robot", "R1", "--design", "optimal", "--given", str(folder / "grid.csv"),
                               *extra, "--out", str(out)], fragment)
     assert not out.exists()
+
+
+def test_evaluate_and_predict_give_the_predicted_sigma_lower_where_the_poses_were_added(files, synthetic_arm,
+                                                                                       capsys):
+    _, _, truth = synthetic_arm
+    folder, q_task = files
+    write_recording(measure(truth.fk, q_task, 0.02, 0.01, 7), folder / "task-measured.csv")
+    assert main(["fit", "--robot", "R1", "--train", str(folder / "grid.csv"), "--method", "pi",
+                 "--out", str(folder / "grid-pi.yaml")]) == 0
+    shares = {}
+    for extra in ([], ["--add", str(folder / "task-measured.csv")]):
+        js = folder / "ev.json"
+        assert main(["evaluate", "--model", str(folder / "grid-pi.yaml"), "--test", str(folder / "task-measured.csv"),
+                     "--given", str(folder / "grid.csv"), *extra, "--json", str(js)]) == 0
+        shares[len(extra)] = json.loads(js.read_text())["predicted_sigma"]
+    assert shares[2]["mean_mm"] < 0.5 * shares[0]["mean_mm"]  # measured there: the model is known there
+    assert 0.0 <= shares[0]["share_over_2_sigma"] <= 1.0 and shares[0]["gaussian_share_over_2_sigma"] == 0.0074
+    assert main(["predict", "--model", str(folder / "grid-pi.yaml"), "--joints", str(folder / "task.csv"),
+                 "--given", str(folder / "grid.csv"), "--out", str(folder / "pred.csv")]) == 0
+    with open(folder / "pred.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == len(q_task) and all(float(r["sigma_mm"]) > 0 for r in rows)
+    capsys.readouterr()  # the extrapolation warnings of the commands above
+    assert_bad_input(capsys, ["predict", "--model", str(folder / "grid-pi.yaml"), "--joints", str(folder / "task.csv"),
+                              "--add", str(folder / "cand.csv"), "--out", str(folder / "p2.csv")], "--given")
+    assert not (folder / "p2.csv").exists()
