@@ -313,8 +313,9 @@ class TopupPlan:
 
     Attributes:
         plan: the poses to measure next (kind ``anchor``, each its own cluster id: they stand alone).
-        sigma_before_mm, sigma_after_mm: predicted position error (RMS norm) at the task configurations the criterion
-            read, with the given poses alone and after the plan's, shape (T,).
+        sigma_before_mm, sigma_after_mm: predicted position error (RMS norm) of a global fit at every task
+            configuration (:func:`calibration.topup.predicted_sigma`), with the given poses alone and after the
+            plan's, shape (T,).
         n_candidates: safe candidates the poses were chosen from.
     """
 
@@ -368,16 +369,18 @@ def topup_plan(robot: str, nominal: object, safety: CellSafety, others: Mapping[
         CellCalError: a budget below 1 or above the safe candidates.
         UnsafeTarget: the plan's targets or paths fail the whole-plan check.
     """
-    from calibration.topup import TopupPrior, choose
+    from calibration.topup import TopupPrior, choose, predicted_sigma
 
     cands = topup_candidates(robot, safety, others, q_task, seed=seed)
     if not 1 <= budget <= len(cands):
         raise CellCalError(f"--budget must be in 1..{len(cands)} poses (the safe candidates drawn), got {budget}")
-    res = choose(nominal, q_given, cands, q_task, budget, TopupPrior(noise_mm=noise_mm))
+    prior = TopupPrior(noise_mm=noise_mm)
+    res = choose(nominal, q_given, cands, q_task, budget, prior)
     picked = cands[list(res.order)]
     order = design.visiting_order(picked, q_start)
     targets = [Target(robot, picked[i], k, "anchor") for k, i in enumerate(order)]
     plan = build_plan(targets, robot=robot, design="topup", budget=budget, candidates=len(cands), seed=seed,
                       jitter_deg=TOPUP_JITTER_DEG)
     safety.check_plan(robot, plan.q, others, q_start)
-    return TopupPlan(plan, res.sigma_before_mm, res.sigma_after_mm, len(cands))
+    return TopupPlan(plan, predicted_sigma(nominal, q_given, q_task, prior),
+                     predicted_sigma(nominal, np.concatenate([q_given, picked]), q_task, prior), len(cands))

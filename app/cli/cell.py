@@ -177,7 +177,7 @@ def _select_topup(args: argparse.Namespace) -> int:
 
     from app.cell.design_plan import read_task
     from calibration.recording import copy_rows
-    from calibration.topup import TopupPrior, choose
+    from calibration.topup import TopupPrior, choose, predicted_sigma
 
     missing = [o for o, v in (("--given", args.given), ("--task", args.task), ("--poses", args.poses)) if v is None]
     if missing:
@@ -193,14 +193,16 @@ def _select_topup(args: argparse.Namespace) -> int:
     q_task = read_task(args.task, args.robot, cell)
     if not 1 <= args.poses <= len(cands):
         raise CellCalError(f"--poses must be in 1..{len(cands)} (the rows of {args.data}), got {args.poses}")
-    res = choose(robot.model(), given.q, cands.q, q_task, args.poses, TopupPrior(noise_mm=args.noise_mm))
+    prior = TopupPrior(noise_mm=args.noise_mm)
+    res = choose(robot.model(), given.q, cands.q, q_task, args.poses, prior)
     rows = np.sort(np.asarray(res.order))
+    before = predicted_sigma(robot.model(), given.q, q_task, prior)
+    after = predicted_sigma(robot.model(), np.concatenate([given.q, cands.q[rows]]), q_task, prior)
     copy_rows(args.data, rows, args.out, cands)
-    before, after = res.sigma_before_mm, res.sigma_after_mm
     print(f"{args.robot}: {len(rows)} of {len(cands)} candidate poses -> {args.out}")
-    print(f"predicted position error over the task's {len(q_task)} configurations (sigma, RMS of the error norm; "
-          f"{len(res.task_rows)} read): mean {before.mean():.3f} -> {after.mean():.3f} mm, worst {before.max():.3f} "
-          f"-> {after.max():.3f} mm")
+    print(f"predicted position error of a global fit (pi) over the task's {len(q_task)} configurations (sigma, RMS of "
+          f"the error norm): mean {before.mean():.3f} -> {after.mean():.3f} mm, worst {before.max():.3f} -> "
+          f"{after.max():.3f} mm")
     write_json(args.json, {"robot": args.robot, "data": str(args.data), "given": str(args.given),
                            "task": str(args.task), "out": str(args.out), "poses": len(rows),
                            "rows": rows.tolist(), "order": list(res.order),
