@@ -139,7 +139,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                         row["random_worse_share"] = (float(np.mean([d[0] > row["chosen"][0] for d in draws]))
                                                      if draws else None)
                     if k in args.sigma_k:
-                        row["sigma"] = cache.get(f"{wkey}|sigma|{tag}|{k}", lambda: sigma_check(
+                        row["sigma"] = cache.get(f"{wkey}|sigma-global|{tag}|{k}", lambda: sigma_check(
                             nominal, train, cand, task, pick["order"][:k], method, w, prior))
                     out["rows"].append(row)
                     print(_line(row), flush=True)
