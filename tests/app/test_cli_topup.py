@@ -8,6 +8,7 @@ import pytest
 
 from app.cli.commands import main
 from calibration.recording import write_recording, write_table
+from calibration.topup import SIGMA_RESIDUAL_MM
 from cell_config import load_cell
 from tests.app.test_jbi import crlf, pulses
 from tests.calibration.test_standalone_poses import wide_poses
@@ -115,7 +116,8 @@ def test_plan_tops_up_a_given_recording_for_a_task_with_safe_poses(files):
     cell = load_cell()
     CellSafety(cell).check_plan("R1", plan.q, {n: park_q(n) for n in cell.robots if n != "R1"}, park_q("R1"))
     sigma = json.loads(js.read_text())["predicted_sigma_mm"]
-    assert sigma["after"]["mean"] < 0.5 * sigma["before"]["mean"]
+    floor = np.sqrt(3) * SIGMA_RESIDUAL_MM  # what a global fit never learns, however close its poses
+    assert floor - 1e-9 <= sigma["after"]["mean"] < sigma["before"]["mean"] - 0.05
 
 
 @pytest.mark.parametrize("extra, fragment", [(["--budget", "6"], "missing --task"),
