@@ -145,7 +145,8 @@ def test_evaluate_and_predict_give_the_predicted_sigma_lower_where_the_poses_wer
         assert main(["evaluate", "--model", str(folder / "grid-pi.yaml"), "--test", str(folder / "task-measured.csv"),
                      "--given", str(folder / "grid.csv"), *extra, "--json", str(js)]) == 0
         shares[len(extra)] = json.loads(js.read_text())["predicted_sigma"]
-    assert shares[2]["mean_mm"] < 0.5 * shares[0]["mean_mm"]  # measured there: the model is known there
+    # measured there: only the residual a global fit never learns is left
+    assert np.sqrt(3) * SIGMA_RESIDUAL_MM - 1e-9 <= shares[2]["mean_mm"] < shares[0]["mean_mm"] - 0.05
     assert 0.0 <= shares[0]["share_over_2_sigma"] <= 1.0 and shares[0]["gaussian_share_over_2_sigma"] == 0.0074
     assert main(["predict", "--model", str(folder / "grid-pi.yaml"), "--joints", str(folder / "task.csv"),
                  "--given", str(folder / "grid.csv"), "--out", str(folder / "pred.csv")]) == 0
