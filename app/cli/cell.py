@@ -7,8 +7,8 @@ from pathlib import Path
 from typing import Any, Callable, Literal
 
 from app.analysis.fitting import fitter_for
-from app.cli.common import add_topup_options, add_report_options, cell_spec, command_line, epoch_bar, log, non_negative_int, \
-    positive_float, read_recording_arg, show_progress, tolerance_from_args, validation_count, write_json
+from app.cli.common import add_report_options, add_topup_options, cell_spec, command_line, epoch_bar, log, \
+    non_negative_int, positive_float, read_recording_arg, show_progress, tolerance_from_args, validation_count, write_json
 from calibration.errors import CellCalError
 
 #: The anchor-grid steps ``plan --q2-step/--q3-step`` and ``demo --anchor-step`` accept [deg].
@@ -387,7 +387,7 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         cpa = read(work / "cpa.csv")
     export(work / "validation", work / "validation.csv")
     rebased = None
-    train = with_added(read(work / "train.csv"), added, weight=args.add_weight)  # --add: the extra poses stand alone beside the clusters
+    train = with_added(read(work / "train.csv"), added, weight=args.add_weight)  # --add: stand-alone poses
     if args.rebase:
         model, rebased = rebase_candidate(model_dir, service, train)
         print(rebased.summary())
@@ -396,7 +396,8 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
 
         fitter = fitter_for(robot, train, cpa, FitOptions(epoch_progress=epoch_bar(args)))
         model, _ = fitter.fit(args.method)
-    inputs = [("train", work / "train.csv"), *(("add", a) for a in args.add), ("cpa", work / "cpa.csv" if cpa else None),
+    inputs = [("train", work / "train.csv"), *(("add", a) for a in args.add),
+              ("cpa", work / "cpa.csv" if cpa else None),
               ("validation", work / "validation.csv")]
     if args.rebase:
         inputs.append(("model rebased", model_dir / "current.yaml"))

@@ -11,7 +11,7 @@ import sys
 from typing import Any, Callable
 
 from app.cli.cell import add_cell_parsers
-from app.cli.common import (add_topup_options, CELL_HELP, DefaultsHelpFormatter, OneLineErrorParser, add_cell_option, add_report_options, cell_spec,
+from app.cli.common import (CELL_HELP, DefaultsHelpFormatter, add_topup_options, OneLineErrorParser, add_cell_option, add_report_options, cell_spec,
                              check_output_args, command_line, fitter_from_args, load_model_for, model_and_robot,
                              read_recording_arg, resolve_cell, show_progress, tolerance_from_args, write_json)
 from app.cli.dual import add_dual_parsers
@@ -379,7 +379,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
     from calibration.diagnosis import DiagnoseOptions
 
-    result = run_diagnose(args.robot, args.train, added=args.add, add_weight=args.add_weight, heldout=args.test, model=args.model, json_path=args.json,
+    result = run_diagnose(args.robot, args.train, added=args.add, add_weight=args.add_weight, heldout=args.test,
+                          model=args.model, json_path=args.json,
                           report_dir=args.report, model_out=args.out, cell=args.cell,
                           options=DiagnoseOptions(compliance_form=args.compliance_form, weighting=args.weighting),
                           tolerance=tolerance_from_args(args), progress=show_progress(args))
