@@ -6,7 +6,7 @@ gravity-driven joint compliance of ``--compliance-mm``). The task is a dual plan
 --path sweep:N``). Designs, each measured with Gaussian noise (0.03 mm, 0.02 deg) and fitted with pi:
 
 - ``grid``: the paper's anchor grid (5 deg steps, 248 clusters of 7 = 1736 poses);
-- ``optimal``: ``plan --design optimal --given (none) --task PLAN --budget K`` (:func:`app.cell.design_plan.topup_plan`
+- ``optimal``: ``plan --design optimal --task PLAN --budget K`` (:func:`app.cell.design_plan.topup_plan`
   with no poses given): K poses chosen by the top-up criterion among safe candidates.
 
     python scripts/bench_topup_sim.py --plan PLAN.json [--budget 100] [--seeds 0,1,2] [--compliance-mm 0.1]

@@ -86,21 +86,23 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
 
 def _plan_topup(args: argparse.Namespace, cell: Any, robot: Any, safety: Any, others: dict[str, Any]) -> int:
-    """``plan --design optimal --given TRAIN --task TASK --budget K``: the K poses the task needs beyond TRAIN."""
+    """``plan --design optimal [--given TRAIN] --task TASK --budget K``: the K poses the task needs beyond TRAIN
+    (without --given: from scratch, the task's whole calibration)."""
     from app.cell.design_plan import read_task, topup_plan
     from app.cell.runtime import park_q
 
-    missing = [o for o, v in (("--given", args.given), ("--task", args.task), ("--budget", args.budget)) if v is None]
+    missing = [o for o, v in (("--task", args.task), ("--budget", args.budget)) if v is None]
     if args.design != "optimal" or missing:
-        raise CellCalError("a top-up plan needs --design optimal --given TRAIN --task TASK --budget POSES"
+        raise CellCalError("a task-driven plan needs --design optimal --task TASK --budget POSES (and --given TRAIN to "
+                           "top up a training recording)"
                            + (f"; missing {', '.join(missing)}" if missing else ""))
     if args.target != "identification" or args.cpa or args.validation:
         raise CellCalError("--for, --cpa and --validation do not apply to a top-up plan (--given, --task)")
     import numpy as np
 
-    given = read_recording_arg(args.given, robot)
+    q_given = read_recording_arg(args.given, robot).q if args.given is not None else np.zeros((0, 6))
     q_task = read_task(args.task, args.robot, cell)
-    top = topup_plan(args.robot, robot.model(), safety, others, given.q, q_task, args.budget, args.noise_mm,
+    top = topup_plan(args.robot, robot.model(), safety, others, q_given, q_task, args.budget, args.noise_mm,
                      args.seed, park_q(args.robot))
     top.plan.save(args.out)
     b, a = top.sigma_before_mm, top.sigma_after_mm

@@ -120,6 +120,15 @@ def test_plan_tops_up_a_given_recording_for_a_task_with_safe_poses(files):
     assert floor - 1e-9 <= sigma["after"]["mean"] < sigma["before"]["mean"] - 0.05
 
 
+def test_plan_from_scratch_for_a_task_without_given_poses(files):
+    folder, _ = files
+    js = folder / "scratch.json"
+    assert main(["plan", "--robot", "R1", "--design", "optimal", "--task", str(folder / "task.csv"), "--budget", "30",
+                 "--out", str(folder / "scratch-plan.json"), "--json", str(js)]) == 0
+    sigma = json.loads(js.read_text())["predicted_sigma_mm"]
+    assert sigma["after"]["mean"] < sigma["before"]["mean"]
+
+
 @pytest.mark.parametrize("extra, fragment", [(["--budget", "6"], "missing --task"),
                                              (["--task", "TASK", "--budget", "6", "--for", "rebase"], "--for"),
                                              (["--task", "TASK"], "missing --budget")])
