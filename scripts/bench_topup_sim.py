@@ -9,6 +9,9 @@ gravity-driven joint compliance of ``--compliance-mm``). The task is a dual plan
 - ``optimal``: ``plan --design optimal --task PLAN --budget K`` (:func:`app.cell.design_plan.topup_plan`
   with no poses given): K poses chosen by the top-up criterion among safe candidates.
 
+It also prints the cell time each plan needs by the dry run's estimate (:func:`app.cell.dry_run.summarize_plan`, 20 %
+speed, ``--dwell-s`` at each target): the grid, the optimal plan from scratch, and a 21-pose top-up of the grid.
+
     python scripts/bench_topup_sim.py --plan PLAN.json [--budget 100] [--seeds 0,1,2] [--compliance-mm 0.1]
 """
 
@@ -24,7 +27,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from app.cell.design_plan import read_task, topup_plan  # noqa: E402
-from app.cell.planning import plan_anchor_grid  # noqa: E402
+from app.cell.dry_run import summarize_plan  # noqa: E402
+from app.cell.planning import build_plan, plan_anchor_grid  # noqa: E402
 from app.cell.runtime import park_q  # noqa: E402
 from app.cell.safety import CellSafety  # noqa: E402
 from calibration import so3  # noqa: E402
@@ -48,6 +52,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--budget", type=int, default=100)
     ap.add_argument("--seeds", default="0,1,2")
     ap.add_argument("--compliance-mm", type=float, default=0.1)
+    ap.add_argument("--dwell-s", type=float, default=1.0, help="time at each target for the cell-time estimate [s]")
     args = ap.parse_args(argv)
     cell = load_cell()
     cr = cell.robot("R1")
@@ -63,6 +68,12 @@ def main(argv: list[str] | None = None) -> int:
     print(f"task: {len(q_task)} R1 waypoints; grid {len(q_grid)} poses; optimal {len(q_opt)} poses "
           f"(predicted sigma of a global fit over the task: {top.sigma_after_mm.mean():.3f} mean, "
           f"{top.sigma_after_mm.max():.3f} worst)")
+    top21 = topup_plan("R1", nominal, safety, others, q_grid, q_task, 21, q_start=park_q("R1"))
+    for name, plan in (("grid", build_plan(grid)), (f"optimal from scratch ({len(q_opt)} poses)", top.plan),
+                       ("top-up of the grid (21 poses)", top21.plan)):
+        dry = summarize_plan(plan, safety, others, park_q("R1"), per_target_s=args.dwell_s)
+        print(f"cell time, {name}: {dry.duration_s / 60:.1f} min ({dry.motion_s / 60:.1f} min in motion, "
+              f"{args.dwell_s:g} s at each of {dry.n_targets} targets, 20 % speed)")
     gravity = GravityModel.from_spec(cr.robot, nominal)
     for seed in (int(s) for s in args.seeds.split(",")):
         twin = planted_twin(nominal, PlantedErrors(compliance_mm=args.compliance_mm), seed, gravity=gravity)
