@@ -40,7 +40,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from calibration.design import select_recording  # noqa: E402
 from calibration.methods import Fitter  # noqa: E402
+from calibration.parameterisation import MinimalParameterisation  # noqa: E402
 from calibration.metrics import errors  # noqa: E402
 from calibration.recording import DEFAULT_ADD_WEIGHT, Recording, read_recording, with_added  # noqa: E402
 from calibration.topup import TopupPrior, choose, predicted_sigma  # noqa: E402
@@ -100,22 +102,28 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                           if v is not None})
     tag = hashlib.sha1(json.dumps(asdict(prior), sort_keys=True).encode()).hexdigest()[:10]
     cache = Cache(args.cache)
-    out: dict[str, Any] = {"prior": asdict(prior), "weight": args.weight, "rows": []}
+    out: dict[str, Any] = {"prior": asdict(prior), "weight": args.weight, "train_clusters": args.train_clusters,
+                           "rows": []}
     for day in args.days:
         train_dir, test_dir = DAYS[day]
         train = read_recording(DATA / "PH_grad_data" / train_dir)
         test = read_recording(DATA / "kinematic_raw_data" / test_dir)
+        day_key = day
+        if args.train_clusters:  # the clusters cellcal select --budget N keeps (joint angles only)
+            sel = select_recording(MinimalParameterisation(nominal, fit_tool=True), train, args.train_clusters, 0.05)
+            train = train.subset(sel.rows)
+            day_key = f"{day}|select{args.train_clusters}"
         for split in args.splits:
             cand_rows, task_rows = split_rows(split, len(test))
             cand, task = test.subset(cand_rows), test.subset(task_rows)
             t0 = time.perf_counter()
             kmax = max(args.k)
-            pick = cache.get(f"{day}|{split}|choose|{tag}|{kmax}", lambda: _choose(nominal, train, cand, task, kmax,
+            pick = cache.get(f"{day_key}|{split}|choose|{tag}|{kmax}", lambda: _choose(nominal, train, cand, task, kmax,
                                                                                  prior))
             design_s = time.perf_counter() - t0
             spread = farthest_from(train.q, cand.q, kmax)
             for method in args.methods:
-                key = f"{day}|{split}|{method}"
+                key = f"{day_key}|{split}|{method}"
                 wkey = f"{key}|w{args.weight}"
                 w = args.weight
                 base = cache.get(f"{key}|grid", lambda: fit_and_judge(nominal, train, None, task, method))
@@ -205,6 +213,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--length-rad", type=float, help="the design's GP length scale (default: calibration.topup)")
     p.add_argument("--tail-weight", type=float, help="the design's G-term weight (default: calibration.topup)")
     p.add_argument("--sigma-k", default="0,21", help="pose counts whose predicted sigma is checked against the errors")
+    p.add_argument("--train-clusters", type=int, help="train on the N clusters cellcal select --budget N keeps "
+                                                        "(the cell-time comparison: 16 clusters = 112 poses)")
     p.add_argument("--cache", type=Path, default=Path("/tmp/bench_topup_cache.json"), help="fit cache (JSON)")
     p.add_argument("--json", type=Path, help="write every row as JSON")
     args = p.parse_args(argv)
