@@ -509,7 +509,8 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                                   "parameter's sigma in the unit sigma_units gives it) as JSON")
 
     p = add("select", cmd_select, "choose the most informative clusters of a recording (the plan --design optimal "
-                                  "criterion) and write them as a recording subset")
+                                  "criterion), or the poses of a candidate recording a task needs beyond a training "
+                                  "recording (--given, --task, --poses), and write them as a recording subset")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
     p.add_argument("--data", required=True, help="training recording CSV or Welding_Motoman folder")
     p.add_argument("--budget", type=int, metavar="CLUSTERS",
