@@ -22,7 +22,7 @@ from calibration.identification import GeometricProblem
 from calibration.models.cdc import CDC_INPUTS, CdcModel
 from calibration.parameterisation import MinimalParameterisation
 from calibration.physics_informed import ExtendedKinematics
-from calibration.recording import Recording
+from calibration.recording import Recording, standalone_mask
 
 log = logging.getLogger("cellcal.calibration")
 __all__ = ["CDC_INPUTS", "CdcModel", "LocalFits", "build_cdc", "cluster_anchors", "expand_anchors", "fit_local",
@@ -79,13 +79,16 @@ def fit_local(kin: ExtendedKinematics, rec: Recording, theta_ref: np.ndarray, a:
 
     Args:
         kin: the extended kinematics of the global reference model.
-        rec: training recording with clusters.
+        rec: training recording with clusters (its stand-alone poses, if any, are left out).
         theta_ref: global fit; its non-geometric terms stay fixed, its geometry is each cluster's reference.
         a: orientation weight.
         prior: ridge strength toward the reference geometry [1/mm-equivalent].
     """
     if prior <= 0:
         raise ModelError(f"local prior must be > 0 (clusters cannot see every direction), got {prior}")
+    alone = standalone_mask(rec)
+    if alone.any():  # a stand-alone pose is no cluster: a local fit needs a cluster's poses around one anchor
+        rec = rec.subset(~alone)
     groups, anchor_q = cluster_anchors(rec, cluster_size)
     view = kin.geometry_view(theta_ref)
     start = time.perf_counter()

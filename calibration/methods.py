@@ -43,7 +43,7 @@ from calibration.physics.gravity import GravityModel
 from calibration.models.pi import PhysicsInformedModel
 from calibration.physics_informed import ExtendedKinematics
 from calibration.poe import PoeModel, pose_error
-from calibration.recording import Recording
+from calibration.recording import Recording, standalone_mask
 
 log = logging.getLogger("cellcal.calibration")
 
@@ -222,6 +222,16 @@ class Fitter:
         return fitter
 
     @property
+    def clustered(self) -> Recording:
+        """The training poses in clusters (stand-alone poses left out, :func:`calibration.recording.standalone_mask`):
+        what the local (per-cluster) fits of the CDC methods, their held-out checks and nls0 read; the global fits
+        (nls1, pi, geometric, diagnosed) and the held-out folds use every pose, a stand-alone pose as its own unit."""
+        if "clustered" not in self._cache:
+            alone = standalone_mask(self.train)
+            self._cache["clustered"] = self.train.subset(~alone) if alone.any() else self.train
+        return self._cache["clustered"]
+
+    @property
     def par(self) -> MinimalParameterisation:
         if "par" not in self._cache:
             self._cache["par"] = MinimalParameterisation(self.nominal, self.options.fit_tool)
@@ -332,12 +342,12 @@ class Fitter:
 
         grid = tuple(self.options.local_prior_grid)
         kin, theta = self.reference(reference)
-        groups, _ = cluster_anchors(self.train, self.options.cluster_size)
+        groups, _ = cluster_anchors(self.clustered, self.options.cluster_size)
         scores, ratios = [], []
         for prior in grid:
             local = self._local_at(prior, reference)
             scores.append(robust.held_out(lambda: make_interpolator("linear"), kin, theta, local.anchors, local.x,
-                                          groups, self.train, CDC_INPUTS, seed=self.options.seed))
+                                          groups, self.clustered, CDC_INPUTS, seed=self.options.seed))
             model = build_cdc(self.robot, "linear", kin, local)
             ratios.append(robust.workspace_ratio(model.fk, self._reference_fk(reference), self.train.q,
                                                  self._workspace_probes())[0])
@@ -436,7 +446,9 @@ class Fitter:
             ModelError: the recording has fewer than 2 clusters beyond the ones nls0 fits (nothing to check on).
         """
         groups, anchors = cluster_anchors(self.train, self.options.cluster_size)
-        nearest = np.argsort(np.linalg.norm(anchors, axis=1))[: self.options.nls0_clusters]
+        in_cluster = np.bincount(groups[~standalone_mask(self.train)], minlength=len(anchors)) > 0
+        distance = np.where(in_cluster, np.linalg.norm(anchors, axis=1), np.inf)  # stand-alone poses: no cluster
+        nearest = np.argsort(distance)[: min(self.options.nls0_clusters, int(in_cluster.sum()))]
         used = np.isin(groups, nearest)
         sub = self.train.subset(used)
         obs = analyse(self.par, sub.q, a=self.options.a, tolerance=self.options.tolerance)
@@ -603,9 +615,9 @@ class Fitter:
 
         reference, kind = cdc_method(method)
         (kin, theta), local = self.reference(reference), self.local_fits(reference)
-        groups, _ = cluster_anchors(self.train, self.options.cluster_size)
+        groups, _ = cluster_anchors(self.clustered, self.options.cluster_size)
         return robust.HeldOutCheck(lambda: make_interpolator(kind, **options), kin, theta,
-                                   local.anchors, local.x, groups, self.train, CDC_INPUTS, seed=self.options.seed)
+                                   local.anchors, local.x, groups, self.clustered, CDC_INPUTS, seed=self.options.seed)
 
     def _neural_check(self, method: str) -> robust.HeldOut:
         """The neural kinds' held-out check: the method and its constant reference (``nls1`` / ``pi``) refitted
@@ -804,7 +816,7 @@ class Fitter:
         Raises:
             DataError: naming the recording, the count and the need.
         """
-        _, anchors = cluster_anchors(self.train, self.options.cluster_size)
+        _, anchors = cluster_anchors(self.clustered, self.options.cluster_size)  # stand-alone poses are no cluster
         if len(anchors) < n:
             raise DataError(self.train.source, None, None,
                             f"{len(anchors)} cluster{'s' if len(anchors) != 1 else ''} of training poses; {what} "
@@ -821,7 +833,7 @@ class Fitter:
         """
         from calibration.interpolation.support import AnchorSupport
 
-        _, anchor_q = cluster_anchors(self.train, self.options.cluster_size)
+        _, anchor_q = cluster_anchors(self.clustered, self.options.cluster_size)
         x = anchor_q[:, list(CDC_INPUTS)]
         folds = robust.cluster_folds(len(x), robust.N_FOLDS, self.options.seed)
         names = "(" + ", ".join(f"q{i + 1}" for i in CDC_INPUTS) + ")"
@@ -839,7 +851,7 @@ class Fitter:
 
     def _workspace_probes(self) -> np.ndarray:
         if "workspace_probes" not in self._cache:
-            _, anchor_q = cluster_anchors(self.train, self.options.cluster_size)
+            _, anchor_q = cluster_anchors(self.clustered, self.options.cluster_size)
             self._cache["workspace_probes"] = robust.workspace_probes(
                 anchor_q[:, list(CDC_INPUTS)], self.joint_limits, self.par.n_joints, CDC_INPUTS,
                 seed=self.options.seed)
@@ -856,13 +868,13 @@ class Fitter:
             return self.warm._cache["strengths"][method][name]
         ref_name, kind = cdc_method(method)
         (kin, theta), local = self.reference(ref_name), self.local_fits(ref_name)
-        groups, _ = cluster_anchors(self.train, self.options.cluster_size)
+        groups, _ = cluster_anchors(self.clustered, self.options.cluster_size)
         scores: list[robust.HeldOut | None] = []
-        reference = robust.position_errors(kin, theta, self.train)
+        reference = robust.position_errors(kin, theta, self.clustered)
         for v in grid:
             try:
                 scores.append(robust.held_out(lambda: make_interpolator(kind, **{**options, name: v}),
-                                              kin, theta, local.anchors, local.x, groups, self.train,
+                                              kin, theta, local.anchors, local.x, groups, self.clustered,
                                               CDC_INPUTS, seed=self.options.seed, reference_mm=reference))
             except ModelError as e:  # e.g. ridge 0 with fewer than 13 anchors in a fold: that strength is out
                 log.info("%s %s=%g cannot be fitted on the held-out folds: %s", method, name, v, e)

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from calibration import so3
-from calibration.errors import DataError
+from calibration.errors import DataError, ModelError
 from calibration.files import atomic_write_text, read_input_text
 
 JOINT_COLUMNS = tuple(f"q{i}" for i in range(1, 7))
@@ -89,11 +89,20 @@ class Recording:
     def clusters(self, size: int = DEFAULT_CLUSTER_SIZE) -> np.ndarray:
         """Cluster id of every sample: the ``cluster`` column, else consecutive groups of ``size`` rows.
 
+        A negative id in the column marks a stand-alone pose (e.g. one added by :func:`with_added`): each distinct
+        negative id gets an id of its own above the others, so no two stand-alone poses are ever taken for one
+        cluster (rows sharing a negative id are one pose given weight by repetition, one unit wherever units count).
+
         Raises:
             DataError: no cluster column and the row count is not a multiple of ``size``.
         """
         if "cluster" in self.extra:
-            return self.extra["cluster"].astype(int)
+            ids = self.extra["cluster"].astype(int)
+            alone = ids < 0
+            if alone.any():
+                ids = ids.copy()
+                ids[alone] = max(int(ids.max()), -1) + 1 + np.unique(ids[alone], return_inverse=True)[1]
+            return ids
         if len(self) % size:
             raise DataError(self.source, None, "cluster",
                             f"no cluster column and {len(self)} rows are not a multiple of the "
@@ -313,6 +322,79 @@ def read_recording(path: str | Path, lower: np.ndarray | None = None, upper: np.
                                               "per recording; rows in the order they were measured)")
     return Recording(q, np.stack([col["x"], col["y"], col["z"]], 1),
                      quat / np.linalg.norm(quat, axis=1, keepdims=True), extra, str(path))
+
+
+#: Stand-alone poses (measured on their own, e.g. top-up poses; no anchor's cluster) have ``cluster`` ids below 0:
+#: pose j added by :func:`with_added` has ``STANDALONE - j``.
+STANDALONE = -1
+#: Weight of an added stand-alone pose against one training pose in the fits (:func:`with_added`): it stands for as
+#: much as one of the training grid's clusters of 7, whose poses share an anchor and so most of their error. The
+#: value is the cluster size; it was checked (not searched) on the top-up protocol's task figures of the two
+#: tuning days 0725 and 0620 after (pi, 21 chosen poses, weights 1 / 7 / 20): weighting lowers the task mean on 6
+#: of their 8 splits and raises it on 0725's halves splits (0.192 -> 0.220 mm on halves-swapped).
+DEFAULT_ADD_WEIGHT = 7
+
+
+def standalone_mask(rec: Recording) -> np.ndarray:
+    """Which samples of ``rec`` stand alone (a negative ``cluster`` id), shape (N,) bool."""
+    if "cluster" not in rec.extra:
+        return np.zeros(len(rec), dtype=bool)
+    return np.asarray(rec.extra["cluster"]) < 0
+
+
+def with_added(train: Recording, added: list[Recording], size: int = DEFAULT_CLUSTER_SIZE, weight: int = 1
+               ) -> Recording:
+    """``train`` with the poses of ``added`` appended as stand-alone poses, fitted as one day.
+
+    The training samples keep their cluster ids (:meth:`Recording.clusters`: the column, else consecutive groups
+    of ``size`` rows); added pose j gets ``STANDALONE - j`` whatever cluster column it has, so global fits use it
+    and local (per-cluster) fits never group it. Extra columns are kept only when every recording has them.
+
+    Args:
+        weight: each added pose's weight against a training pose in the least-squares fits, given by repeating it
+            ``weight`` times under its one id (one unit for held-out folds and paired tests).
+
+    Raises:
+        DataError: ``train`` has no cluster column and not whole ``size``-row clusters.
+        ModelError: ``weight`` is not a positive integer.
+    """
+    if isinstance(weight, bool) or not isinstance(weight, (int, np.integer)) or weight < 1:
+        raise ModelError(f"the weight of added poses must be a positive integer, got {weight!r}")
+    if not added:
+        return train
+    own = standalone_mask(train)
+    ids = np.where(own, train.extra["cluster"] if own.any() else 0, train.clusters(size)).astype(float)
+    start = STANDALONE - (int(-ids[own].min()) if own.any() else 0)  # below the training's own stand-alone ids
+    n_added = sum(len(r) for r in added)
+    repeat = np.repeat(np.arange(n_added), weight)  # pose j's rows, weight of them, in the added order
+    common = [k for k in train.extra if k != "cluster" and all(k in r.extra for r in added)]
+    extra = {k: np.concatenate([np.asarray(train.extra[k], dtype=float),
+                                np.concatenate([np.asarray(r.extra[k], dtype=float) for r in added])[repeat]])
+             for k in common}
+    extra["cluster"] = np.concatenate([ids, (start - np.arange(n_added, dtype=float))[repeat]])
+    q_add, p_add, quat_add = (np.concatenate([getattr(r, f) for r in added])[repeat] for f in ("q", "p", "quat"))
+    source = " + ".join([train.source] + [r.source for r in added])
+    return Recording(np.concatenate([train.q, q_add]), np.concatenate([train.p, p_add]),
+                     np.concatenate([train.quat, quat_add]), extra, source)
+
+
+def copy_rows(source: str | Path, rows: np.ndarray, path: str | Path, rec: Recording | None = None) -> None:
+    """Write rows ``rows`` (0-based data rows, as :func:`read_recording` numbers the samples) of the recording
+    ``source`` to ``path`` as they are there: a CSV's header and those lines' fields unchanged (no number is
+    reformatted), atomically. A Welding_Motoman folder has no one file to copy from: its samples ``rec`` (read
+    from it) are written as a recording CSV (:func:`write_recording`)."""
+    rows = np.asarray(rows, dtype=int)
+    if Path(source).is_dir():
+        if rec is None:
+            raise DataError(source, None, None, "a folder's rows are written from its recording; none given")
+        write_recording(rec.subset(rows), path)
+        return
+    table = _read_rows(Path(source))
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(table[0])
+    w.writerows(table[1 + int(i)] for i in rows)
+    atomic_write_text(path, buf.getvalue())
 
 
 def read_joints(path: str | Path, lower: np.ndarray | None = None, upper: np.ndarray | None = None) -> np.ndarray:

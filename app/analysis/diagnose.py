@@ -17,7 +17,7 @@ import numpy as np
 
 from app.analysis.plots import save_figure
 from calibration.diagnosis import DiagnoseOptions, Diagnosis, diagnose
-from calibration.errors import ModelError
+from calibration.errors import DataError, ModelError
 from calibration.files import atomic_write_text
 
 log = logging.getLogger("cellcal.app")
@@ -26,7 +26,8 @@ log = logging.getLogger("cellcal.app")
 def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: str | Path | None = None, model: str | Path | None = None,
                  json_path: str | Path | None = None, report_dir: str | Path | None = None,
                  model_out: str | Path | None = None, cell: str | Path | None = None,
-                 options: DiagnoseOptions | None = None, tolerance: Any = None, progress: bool = False) -> Diagnosis:
+                 options: DiagnoseOptions | None = None, tolerance: Any = None, progress: bool = False,
+                 added: Sequence[str | Path] = (), add_weight: int = 1) -> Diagnosis:
     """Diagnose one robot's model against recordings and write the requested outputs.
 
     Args:
@@ -45,6 +46,8 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
         options: diagnosis settings.
         tolerance: the report's acceptance :class:`~app.analysis.report.Tolerance` (None: 1 mm and 1 deg).
         progress: show a progress bar over the diagnosis steps.
+        added: recordings of extra poses joined to the one training recording as stand-alone poses
+            (:func:`calibration.recording.with_added`; ``--add``), each with weight ``add_weight``.
 
     Returns:
         The diagnosis.
@@ -54,7 +57,7 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
     """
     from calibration.models import load_model, save_model
     from calibration.physics.gravity import GravityModel
-    from calibration.recording import check_quaternion_order, read_recording
+    from calibration.recording import check_quaternion_order, read_recording, with_added
     from cell_config import load_cell
 
     cr = (load_cell(cell) if cell else load_cell()).robot(robot)
@@ -69,6 +72,14 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
     else:
         rec = read_recording(paths[0], *limits)
         check_quaternion_order(rec, nominal)
+    if added:
+        if days is not None:
+            raise DataError(paths[0], None, None, f"--add joins the poses to one training recording; {len(paths)} "
+                                                  "given (diagnose each day with its own --add)")
+        extra = [read_recording(p, *limits) for p in added]
+        for r in extra:
+            check_quaternion_order(r, nominal)
+        rec = with_added(rec, extra, weight=add_weight)
     ho = read_recording(heldout, *limits) if heldout is not None else None
     if ho is not None:
         check_quaternion_order(ho, nominal)
@@ -93,7 +104,7 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
 
         result = diagnose(robot, nominal, rec, ho, used, gravity, limits, options, progress=step)
         steps.update(steps.total - steps.n)
-    inputs = [*(("data", p) for p in paths), ("heldout", heldout), ("model", model)]
+    inputs = [*(("data", p) for p in paths), *(("add", p) for p in added), ("heldout", heldout), ("model", model)]
     if days is not None:
         result = replace(result, days=days)
     if model_out is not None:

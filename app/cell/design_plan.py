@@ -241,3 +241,146 @@ def figures_table(figs: Mapping[str, design.DesignFigures]) -> str:
         row("sigma flange shift [mm]", [g(float(np.max(f.sigma[4 * n:])), ".4f") for f in figs.values()])
     lines.append(f"(sigma: predicted standard deviation for {first.noise_mm:g} mm of noise per measured coordinate)")
     return "\n".join(lines)
+
+
+#: File name endings of a task given as a JBI job, and as a dual plan; any other is a joints CSV.
+JOB_SUFFIXES = (".jbi",)
+PLAN_SUFFIXES = (".json",)
+
+
+def read_task(path: str, robot: str, cell: object) -> np.ndarray:
+    """The joint angles [rad] (T, 6) of the task ``robot`` will run: a joints CSV (``q1..q6`` in rad, header or 6
+    headerless columns), a dual plan (``.json``: the robot's waypoints; refused waypoints left out) or a JBI job
+    (``.jbi``: the robot's PULSE positions, by the cell's pulse convention). Every configuration is checked against
+    the robot's joint limits.
+
+    Raises:
+        DataError, JobError: an unreadable task, one without a configuration of ``robot``, a Cartesian job position
+            (its joint angles depend on the model; teach it in pulses or give the joints), or a joint out of limits.
+    """
+    from pathlib import Path
+
+    from app.cell.plan_file import read_plan
+    from app.jobs.jbi import JobError, read_job
+    from calibration.errors import DataError
+    from calibration.recording import read_joints
+
+    spec = cell.robot(robot).robot  # type: ignore[attr-defined]
+    lower, upper = spec.lower_rad, spec.upper_rad
+    suffix = Path(path).suffix.lower()
+    if suffix in JOB_SUFFIXES:
+        job = read_job(path)
+        units = {f"RB{i}": name for i, name in enumerate(cell.robots, start=1)}  # type: ignore[attr-defined]
+        q = []
+        for pos in job.positions:
+            if units.get(pos.unit) != robot:
+                continue
+            if pos.postype != "PULSE":
+                raise JobError(job.path, pos.line, f"{pos.name} is a Cartesian position ({pos.postype}); the top-up "
+                                                   "design reads joint angles: teach the task in pulses or give a "
+                                                   "joints CSV")
+            q.append(spec.from_pulses(np.asarray(pos.values[:6])))
+        if not q:
+            raise JobError(job.path, None, f"no position of {robot} in the job (units: "
+                                           f"{', '.join(f'{u} = {r}' for u, r in units.items())})")
+        q_task = np.array(q)
+    elif suffix in PLAN_SUFFIXES:
+        plan = read_plan(path, "dual")
+        if robot not in ("R1", "R2"):
+            raise DataError(path, None, None, f"a dual plan holds the waypoints of R1 and R2, not of {robot}")
+        q_task = np.array([getattr(w, f"q_{robot}") for w in plan.waypoints if w.converged])  # type: ignore[union-attr]
+        if not len(q_task):
+            raise DataError(path, None, None, f"the plan holds no solved waypoint of {robot}")
+    else:
+        return read_joints(path, lower, upper)
+    outside = (q_task < lower - 1e-9) | (q_task > upper + 1e-9)
+    if outside.any():
+        i, j = (int(v) for v in np.argwhere(outside)[0])
+        raise DataError(path, i + 1, f"q{j + 1}", f"{math.degrees(q_task[i, j]):.6g} deg is outside {robot}'s joint "
+                                                  "limits")
+    return q_task
+
+
+#: Candidate configurations a top-up plan draws, half next to the task's configurations, half over the workspace.
+TOPUP_CANDIDATES = 1500
+#: Standard deviation of the jitter around a task configuration [deg] of the candidates drawn next to the task.
+TOPUP_JITTER_DEG = 5.0
+
+
+@dataclass(frozen=True)
+class TopupPlan:
+    """A top-up collection plan and what the design predicts for the task.
+
+    Attributes:
+        plan: the poses to measure next (kind ``anchor``, each its own cluster id: they stand alone).
+        sigma_before_mm, sigma_after_mm: predicted position error (RMS norm) of a global fit at every task
+            configuration (:func:`calibration.topup.predicted_sigma`), with the given poses alone and after the
+            plan's, shape (T,).
+        n_candidates: safe candidates the poses were chosen from.
+    """
+
+    plan: Plan
+    sigma_before_mm: np.ndarray
+    sigma_after_mm: np.ndarray
+    n_candidates: int
+
+
+def _safe_poses(robot: str, safety: CellSafety, others: Mapping[str, np.ndarray], q: np.ndarray,
+                index: np.ndarray) -> list[int]:
+    """The configurations of ``index`` that pass ``safety.check_configs`` (bisecting failing batches)."""
+    try:
+        safety.check_configs(robot, q[index], others)
+        return [int(i) for i in index]
+    except CellCalError:
+        if len(index) == 1:
+            return []
+    half = len(index) // 2
+    return (_safe_poses(robot, safety, others, q, index[:half])
+            + _safe_poses(robot, safety, others, q, index[half:]))
+
+
+def topup_candidates(robot: str, safety: CellSafety, others: Mapping[str, np.ndarray], q_task: np.ndarray,
+                     n: int = TOPUP_CANDIDATES, seed: int = 0) -> np.ndarray:
+    """Safe candidate configurations [rad] (K, 6): half the task's configurations jittered by
+    ``TOPUP_JITTER_DEG``, half drawn as :func:`candidate_anchors` draws (q2 and q3 over the paper's band, q1 and the
+    wrist wide), all within the joint limits and passing the cell's safety checks with the other arms parked."""
+    rng = np.random.default_rng(seed)
+    lo, hi = safety.limits(robot)
+    near = q_task[rng.integers(0, len(q_task), n // 2)] + rng.normal(0, math.radians(TOPUP_JITTER_DEG), (n // 2, 6))
+    wide = np.zeros((n - n // 2, 6))
+    wide[:, 1] = np.radians(rng.uniform(*Q2_RANGE_DEG, len(wide)))
+    for i in range(len(wide)):
+        lo3, hi3 = paper_q3_bounds(math.degrees(wide[i, 1]))
+        wide[i, 2] = math.radians(rng.uniform(lo3, hi3))
+    for j, w in zip((0, 3, 4, 5), DesignSpec().wide_deg):
+        wide[:, j] = rng.uniform(max(-math.radians(w), lo[j]), min(math.radians(w), hi[j]), len(wide))
+    q = np.clip(np.concatenate([near, wide]), lo, hi)
+    return q[_safe_poses(robot, safety, others, q, np.arange(len(q)))]
+
+
+def topup_plan(robot: str, nominal: object, safety: CellSafety, others: Mapping[str, np.ndarray],
+               q_given: np.ndarray, q_task: np.ndarray, budget: int, noise_mm: float = 0.05, seed: int = 0,
+               q_start: np.ndarray | None = None) -> TopupPlan:
+    """``budget`` poses to measure next for the task ``q_task`` given the poses ``q_given`` already measured: the
+    top-up criterion (:func:`calibration.topup.choose`) on safe candidates (:func:`topup_candidates`), visited in a
+    short nearest-neighbour tour; the whole plan passes :meth:`CellSafety.check_plan`.
+
+    Raises:
+        CellCalError: a budget below 1 or above the safe candidates.
+        UnsafeTarget: the plan's targets or paths fail the whole-plan check.
+    """
+    from calibration.topup import TopupPrior, choose, predicted_sigma
+
+    cands = topup_candidates(robot, safety, others, q_task, seed=seed)
+    if not 1 <= budget <= len(cands):
+        raise CellCalError(f"--budget must be in 1..{len(cands)} poses (the safe candidates drawn), got {budget}")
+    prior = TopupPrior(noise_mm=noise_mm)
+    res = choose(nominal, q_given, cands, q_task, budget, prior)
+    picked = cands[list(res.order)]
+    order = design.visiting_order(picked, q_start)
+    targets = [Target(robot, picked[i], k, "anchor") for k, i in enumerate(order)]
+    plan = build_plan(targets, robot=robot, design="topup", budget=budget, candidates=len(cands), seed=seed,
+                      jitter_deg=TOPUP_JITTER_DEG)
+    safety.check_plan(robot, plan.q, others, q_start)
+    return TopupPlan(plan, predicted_sigma(nominal, q_given, q_task, prior),
+                     predicted_sigma(nominal, np.concatenate([q_given, picked]), q_task, prior), len(cands))

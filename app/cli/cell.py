@@ -7,8 +7,8 @@ from pathlib import Path
 from typing import Any, Callable, Literal
 
 from app.analysis.fitting import fitter_for
-from app.cli.common import add_report_options, cell_spec, command_line, epoch_bar, log, non_negative_int, \
-    positive_float, show_progress, tolerance_from_args, validation_count, write_json
+from app.cli.common import add_report_options, add_topup_options, cell_spec, command_line, epoch_bar, log, \
+    non_negative_int, positive_float, read_recording_arg, show_progress, tolerance_from_args, validation_count, write_json
 from calibration.errors import CellCalError
 
 #: The anchor-grid steps ``plan --q2-step/--q3-step`` and ``demo --anchor-step`` accept [deg].
@@ -57,6 +57,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
     safety = CellSafety(cell)
     for option, step in (("--q2-step", args.q2_step), ("--q3-step", args.q3_step)):
         _check_grid_step(option, step)
+    if args.given is not None or args.task is not None:
+        return _plan_topup(args, cell, robot, safety, others)
     spec = PlanSpec(q2_step_deg=args.q2_step, q3_step_deg=args.q3_step, cpa=args.cpa,
                     n_validation=args.validation, seed=args.seed)
     anchors, figs = None, None
@@ -80,6 +82,41 @@ def cmd_plan(args: argparse.Namespace) -> int:
     write_json(args.json, {"robot": args.robot, "design": args.design, "targets": len(plan), "kinds": kinds,
                            "params": plan.params, "out": str(args.out),
                            **({"figures": {k: f.to_json() for k, f in figs.items()}} if figs else {})})
+    return 0
+
+
+def _plan_topup(args: argparse.Namespace, cell: Any, robot: Any, safety: Any, others: dict[str, Any]) -> int:
+    """``plan --design optimal [--given TRAIN] --task TASK --budget K``: the K poses the task needs beyond TRAIN
+    (without --given: from scratch, the task's whole calibration)."""
+    from app.cell.design_plan import read_task, topup_plan
+    from app.cell.runtime import park_q
+
+    missing = [o for o, v in (("--task", args.task), ("--budget", args.budget)) if v is None]
+    if args.design != "optimal" or missing:
+        raise CellCalError("a task-driven plan needs --design optimal --task TASK --budget POSES (and --given TRAIN to "
+                           "top up a training recording)"
+                           + (f"; missing {', '.join(missing)}" if missing else ""))
+    if args.target != "identification" or args.cpa or args.validation:
+        raise CellCalError("--for, --cpa and --validation do not apply to a top-up plan (--given, --task)")
+    import numpy as np
+
+    q_given = read_recording_arg(args.given, robot).q if args.given is not None else np.zeros((0, 6))
+    q_task = read_task(args.task, args.robot, cell)
+    top = topup_plan(args.robot, robot.model(), safety, others, q_given, q_task, args.budget, args.noise_mm,
+                     args.seed, park_q(args.robot))
+    top.plan.save(args.out)
+    b, a = top.sigma_before_mm, top.sigma_after_mm
+    print(f"{args.robot}: {len(top.plan)} top-up poses chosen from {top.n_candidates} safe candidates, checked safe "
+          f"with the other arms parked -> {args.out}")
+    print(f"predicted position error over the task (sigma, RMS of the error norm, over its configurations: mean, "
+          f"10-90 % range, worst): before {b.mean():.3f} ({np.percentile(b, 10):.3f}-{np.percentile(b, 90):.3f}, "
+          f"worst {b.max():.3f}) mm -> after {a.mean():.3f} ({np.percentile(a, 10):.3f}-{np.percentile(a, 90):.3f}, "
+          f"worst {a.max():.3f}) mm")
+    write_json(args.json, {"robot": args.robot, "design": "topup", "targets": len(top.plan),
+                           "candidates": top.n_candidates, "params": top.plan.params, "out": str(args.out),
+                           "predicted_sigma_mm": {
+                               "before": {"mean": float(b.mean()), "max": float(b.max())},
+                               "after": {"mean": float(a.mean()), "max": float(a.max())}}})
     return 0
 
 
@@ -112,6 +149,11 @@ def cmd_select(args: argparse.Namespace) -> int:
     from calibration.parameterisation import MinimalParameterisation
     from calibration.recording import write_recording
 
+    if args.given is not None or args.task is not None or args.poses is not None:
+        return _select_topup(args)
+    if args.budget is None:
+        raise CellCalError("select needs --budget CLUSTERS (clusters of --data to keep), or --given TRAIN --task TASK "
+                           "--poses K (the poses of --data a task needs beyond TRAIN)")
     robot = cell_spec(args).robot(args.robot)
     rec = read_recording_arg(args.data, robot)
     refuse_another_arms(robot, rec)  # another arm's clusters would be chosen by this arm's Jacobian
@@ -127,6 +169,49 @@ def cmd_select(args: argparse.Namespace) -> int:
     write_json(args.json, {"robot": args.robot, "data": str(args.data), "out": str(args.out), "budget": args.budget,
                            "clusters": list(sel.clusters), "samples": int(len(sel.rows)),
                            "figures": {"selected": sel.selected.to_json(), "all": sel.every.to_json()}})
+    return 0
+
+
+def _select_topup(args: argparse.Namespace) -> int:
+    """``select --given TRAIN --task TASK --poses K``: the K rows of --data (candidates) that most lower the predicted
+    position variance over the task's configurations given TRAIN (:mod:`calibration.topup`); joint angles only."""
+    import numpy as np
+
+    from app.cell.design_plan import read_task
+    from calibration.recording import copy_rows
+    from calibration.topup import TopupPrior, choose, predicted_sigma
+
+    missing = [o for o, v in (("--given", args.given), ("--task", args.task), ("--poses", args.poses)) if v is None]
+    if missing:
+        raise CellCalError(f"a top-up selection needs --given TRAIN, --task TASK and --poses K; missing "
+                           f"{', '.join(missing)}")
+    if args.budget is not None or args.target != "identification":
+        raise CellCalError("--budget and --for choose clusters of one recording; a top-up selection (--given, --task, "
+                           "--poses) takes neither")
+    cell = cell_spec(args)
+    robot = cell.robot(args.robot)
+    cands = read_recording_arg(args.data, robot)
+    given = read_recording_arg(args.given, robot)
+    q_task = read_task(args.task, args.robot, cell)
+    if not 1 <= args.poses <= len(cands):
+        raise CellCalError(f"--poses must be in 1..{len(cands)} (the rows of {args.data}), got {args.poses}")
+    prior = TopupPrior(noise_mm=args.noise_mm)
+    res = choose(robot.model(), given.q, cands.q, q_task, args.poses, prior)
+    rows = np.sort(np.asarray(res.order))
+    before = predicted_sigma(robot.model(), given.q, q_task, prior)
+    after = predicted_sigma(robot.model(), np.concatenate([given.q, cands.q[rows]]), q_task, prior)
+    copy_rows(args.data, rows, args.out, cands)
+    print(f"{args.robot}: {len(rows)} of {len(cands)} candidate poses -> {args.out}")
+    print(f"predicted position error of a global fit (pi) over the task's {len(q_task)} configurations (sigma, RMS of "
+          f"the error norm): mean {before.mean():.3f} -> {after.mean():.3f} mm, worst {before.max():.3f} -> "
+          f"{after.max():.3f} mm")
+    write_json(args.json, {"robot": args.robot, "data": str(args.data), "given": str(args.given),
+                           "task": str(args.task), "out": str(args.out), "poses": len(rows),
+                           "rows": rows.tolist(), "order": list(res.order),
+                           "predicted_sigma_mm": {"before": {"mean": float(before.mean()), "max": float(before.max())},
+                                                  "after": {"mean": float(after.mean()), "max": float(after.max())}},
+                           "criterion": "mean + mean of the worst 10 % of the predicted task position variance "
+                                        "(calibration.topup)"})
     return 0
 
 
@@ -263,7 +348,7 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         model_to_rebase, rebase_candidate
     from app.provenance import provenance, with_provenance
     from app.cell.session_plan import validation_plan
-    from calibration.recording import read_recording
+    from calibration.recording import read_recording, with_added
 
     cell = cell_spec(args)
     robot = cell.robot(args.robot)
@@ -276,6 +361,7 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     if args.session:
         _require_session(args.session, args.robot, ("anchor", "perturb", "cpa") if args.method == "cpa" else
                          ("anchor", "perturb"), purpose="recalibrate")
+    added = [read_recording_arg(path, robot) for path in args.add]  # bad extra poses: refused before any motion
     service = model_in_service(model_dir, args.robot, robot.model())  # another robot's model: stop before motion
     if args.rebase:
         model_to_rebase(model_dir, service)  # nothing to rebase: stop before motion
@@ -312,15 +398,17 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         cpa = read(work / "cpa.csv")
     export(work / "validation", work / "validation.csv")
     rebased = None
+    train = with_added(read(work / "train.csv"), added, weight=args.add_weight)  # --add: stand-alone poses
     if args.rebase:
-        model, rebased = rebase_candidate(model_dir, service, read(work / "train.csv"))
+        model, rebased = rebase_candidate(model_dir, service, train)
         print(rebased.summary())
     else:
         from calibration.methods import FitOptions
 
-        fitter = fitter_for(robot, read(work / "train.csv"), cpa, FitOptions(epoch_progress=epoch_bar(args)))
+        fitter = fitter_for(robot, train, cpa, FitOptions(epoch_progress=epoch_bar(args)))
         model, _ = fitter.fit(args.method)
-    inputs = [("train", work / "train.csv"), ("cpa", work / "cpa.csv" if cpa else None),
+    inputs = [("train", work / "train.csv"), *(("add", a) for a in args.add),
+              ("cpa", work / "cpa.csv" if cpa else None),
               ("validation", work / "validation.csv")]
     if args.rebase:
         inputs.append(("model rebased", model_dir / "current.yaml"))
@@ -420,19 +508,31 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                    help="--design optimal: what the poses are for: identifying the geometry or rebasing a "
                         "fitted model onto a new day (its frames and the joint offsets of joints 4 and 5; "
                         "cellcal rebase --offsets)")
+    p.add_argument("--given", metavar="TRAIN", help="--design optimal top-up: the training recording already "
+                                                    "measured; --budget POSES are then chosen for --task")
+    p.add_argument("--task", help="--design optimal top-up: the configurations the cell will run: a joints CSV "
+                                  "(q1..q6 [rad]), a dual plan (.json: this robot's waypoints) or a JBI job (.jbi)")
     p.add_argument("--noise-mm", type=positive_float, default=0.05,
                    help="measurement noise assumed for the predicted parameter uncertainty [mm]")
     p.add_argument("--json", help="write the plan summary (target counts per kind, and the design figures: each "
                                   "parameter's sigma in the unit sigma_units gives it) as JSON")
 
     p = add("select", cmd_select, "choose the most informative clusters of a recording (the plan --design optimal "
-                                  "criterion) and write them as a recording subset")
+                                  "criterion), or the poses of a candidate recording a task needs beyond a training "
+                                  "recording (--given, --task, --poses), and write them as a recording subset")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
     p.add_argument("--data", required=True, help="training recording CSV or Welding_Motoman folder")
-    p.add_argument("--budget", required=True, type=int, metavar="CLUSTERS",
+    p.add_argument("--budget", type=int, metavar="CLUSTERS",
                    help="the number of CLUSTERS of the recording to keep (not poses, as plan --budget counts; a "
-                        "cluster is usually 7 poses): at least 3, at most the recording's; no default (required)")
-    p.add_argument("--out", required=True, help="the subset recording CSV")
+                        "cluster is usually 7 poses): at least 3, at most the recording's; no default (required "
+                        "unless --given/--task/--poses choose a top-up)")
+    p.add_argument("--given", metavar="TRAIN", help="top-up: the training recording already measured (its joint "
+                                                    "angles); --data is then the candidate poses (no clusters needed)")
+    p.add_argument("--task", help="top-up: the configurations the cell will run: a joints CSV (q1..q6 [rad]), a dual "
+                                  "plan (.json: this robot's waypoints) or a JBI job (.jbi: its PULSE positions)")
+    p.add_argument("--poses", type=int, metavar="K", help="top-up: how many candidate poses to choose")
+    p.add_argument("--out", required=True, help="the subset recording CSV (top-up: the chosen rows of --data as they "
+                                                "are there)")
     p.add_argument("--for", dest="target", choices=("identification", "rebase"), default="identification",
                    help="what the clusters are for: identifying the geometry or rebasing a fitted model "
                         "(D-optimal on the 12 frame directions cellcal rebase fits, no spread term)")
@@ -476,6 +576,7 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                                                          "service on the training poses (a few clusters of a new day) "
                                                          "instead of fitting a new model (--method is not used)")
     p.add_argument("--validation", type=validation_count, default=30, help="fresh validation poses to measure")
+    add_topup_options(p)
     p.add_argument("--validation-seed", type=non_negative_int, help="seed of the validation poses (default: from the clock)")
     p.add_argument("--json", help="write the decision with both figures as JSON")
     add_report_options(p, "candidate and model in service on the validation poses",

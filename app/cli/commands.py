@@ -12,7 +12,7 @@ import sys
 from typing import Any, Callable
 
 from app.cli.cell import add_cell_parsers
-from app.cli.common import (CELL_HELP, DefaultsHelpFormatter, OneLineErrorParser, add_cell_option, add_report_options, cell_spec,
+from app.cli.common import (CELL_HELP, DefaultsHelpFormatter, add_topup_options, OneLineErrorParser, add_cell_option, add_report_options, cell_spec,
                              check_output_args, command_line, fitter_from_args, load_model_for, model_and_robot,
                              read_recording_arg, resolve_cell, show_progress, tolerance_from_args, write_json)
 from app.cli.dual import add_dual_parsers
@@ -53,6 +53,7 @@ def cmd_predict(args: argparse.Namespace) -> int:
     from calibration.models.guard import extrapolation
     from calibration.recording import read_joints, write_table
 
+    _check_sigma_options(args)
     model, robot = _model_arg(args)
     q = read_joints(args.joints, *((robot.robot.lower_rad, robot.robot.upper_rad) if robot else ()))
     outside = model.out_of_range(q)
@@ -64,13 +65,41 @@ def cmd_predict(args: argparse.Namespace) -> int:
     _warn_extrapolation(model, ex)
     R, p = model.fk(q)
     quat = so3.R_to_quat(R)
+    sigma = _predicted_sigma(args, robot, q)
     write_table(args.out, {"x": p[:, 0], "y": p[:, 1], "z": p[:, 2], "qw": quat[:, 0], "qx": quat[:, 1],
-                           "qy": quat[:, 2], "qz": quat[:, 3]})
+                           "qy": quat[:, 2], "qz": quat[:, 3], **({} if sigma is None else {"sigma_mm": sigma})})
     print(f"{len(q)} pose{'' if len(q) == 1 else 's'} -> {args.out}")
     write_json(args.json, {"robot": model.robot, "method": model.method, "poses": len(q),
                            "outside_fitted_region": int(outside.sum()), "out": str(args.out),
                            "extrapolation": ex, "counts_explained": _counts_explained(predict=True)})
     return 0
+
+
+def _check_sigma_options(args: argparse.Namespace) -> None:
+    """Refuse ``--add`` without ``--given`` before any output (the poses it names join the training recording)."""
+    if args.add and args.given is None:
+        raise CellCalError("--add names poses the model was fitted on beside --given TRAIN; give --given too")
+
+
+def _predicted_sigma(args: argparse.Namespace, robot: Any, q: Any) -> Any:
+    """With ``--given TRAIN`` (and ``--add``): the top-up design's predicted position sigma [mm] (RMS of the error
+    norm, :func:`calibration.topup.predicted_sigma`) at each configuration q, given the poses the model was fitted
+    on; None without ``--given``.
+
+    Raises:
+        CellCalError: ``--given`` for a model of a robot the cell does not describe (no nominal arm to take the
+            Jacobian of).
+    """
+    if getattr(args, "given", None) is None:
+        return None
+    from calibration.recording import with_added
+    from calibration.topup import predicted_sigma
+
+    if robot is None:
+        raise CellCalError("--given needs the model's robot in the cell (its nominal arm); give --robot or --cell")
+    given = read_recording_arg(args.given, robot)
+    given = with_added(given, [read_recording_arg(a, robot) for a in args.add]) if args.add else given
+    return predicted_sigma(robot.model(), given.q, q)
 
 
 def _counts_explained(*, predict: bool = False) -> dict[str, str]:
@@ -125,6 +154,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     tolerance = tolerance_from_args(args)
     from calibration.models.guard import extrapolation
 
+    _check_sigma_options(args)
     model, robot = _model_arg(args)
     test = read_recording_arg(args.test, robot)
     frames = _test_frame_check(model, test, "recording, against the data the model was fitted on,",
@@ -136,6 +166,18 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     pos, ori = result["test"]["position_mm"], result["test"]["orientation_deg"]
     print(f"{model.method} on {len(test)} samples: position mean {pos['mean']:.3f} std {pos['std']:.3f} "
           f"max {pos['max']:.3f} mm; orientation mean {ori['mean']:.3f} max {ori['max']:.3f} deg")
+    sigma = _predicted_sigma(args, robot, test.q)
+    if sigma is not None:
+        import numpy as np
+
+        e = errors(model, test).position_mm
+        over = float(np.mean(e > 2 * sigma))
+        result["predicted_sigma"] = {
+            "mean_mm": float(sigma.mean()), "max_mm": float(sigma.max()), "share_over_2_sigma": over,
+            "share_over_1_sigma": float(np.mean(e > sigma)), "gaussian_share_over_2_sigma": GAUSSIAN_OVER_2_SIGMA,
+            "sigma": "RMS of the position error norm the top-up design's error model predicts given --given/--add"}
+        print(f"predicted position sigma mean {sigma.mean():.3f} max {sigma.max():.3f} mm; {100 * over:.1f} % of the "
+              f"poses err by more than 2 sigma (an isotropic Gaussian error: {100 * GAUSSIAN_OVER_2_SIGMA:.1f} %)")
     result["frames"] = frames
     result["counts_explained"] = _counts_explained()
     write_json(args.json, result)
@@ -147,6 +189,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
                                        [("model", args.model), ("test", args.test)], "the test recording")
         print(f"report: {page}")
     return 0
+
+
+#: Share of an isotropic 3-D Gaussian error whose norm exceeds twice its RMS norm: P(chi2_3 > 12).
+GAUSSIAN_OVER_2_SIGMA = 0.0074
 
 
 def _test_frame_check(model: Any, test: Any, subject: str, against: str) -> dict[str, Any]:
@@ -337,7 +383,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
     from calibration.diagnosis import DiagnoseOptions
 
-    result = run_diagnose(args.robot, args.train, heldout=args.test, model=args.model, json_path=args.json,
+    result = run_diagnose(args.robot, args.train, added=args.add, add_weight=args.add_weight, heldout=args.test,
+                          model=args.model, json_path=args.json,
                           report_dir=args.report, model_out=args.out, cell=args.cell,
                           options=DiagnoseOptions(compliance_form=args.compliance_form, weighting=args.weighting),
                           tolerance=tolerance_from_args(args), progress=show_progress(args))
@@ -354,8 +401,16 @@ def _add_fit_inputs(p: argparse.ArgumentParser) -> None:
     p.add_argument("--train", required=True, action="append",
                    help="training recording CSV or Welding_Motoman folder; repeat it to fit several recordings "
                         "(days) as one arm with a pair of frames per recording")
+    add_topup_options(p)
     p.add_argument("--cpa", help="single-joint sweep recording for circular point analysis")
     p.add_argument("--a", type=float, default=1641.0, help="orientation weight (default %(default)g: 1 mm ~ 1 deg)")
+
+
+def _add_sigma_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--given", metavar="TRAIN", help="the training recording the model was fitted on: adds each pose's "
+                                                    "predicted position sigma [mm] (the top-up design's error model)")
+    p.add_argument("--add", action="append", default=[], metavar="PICKED.csv",
+                   help="poses fitted with --given (fit --add); repeatable")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -390,6 +445,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--robot", help="the arm the model is for (R1, R2): refuse a model of another robot (joints "
                                    "are checked against the limits of the model's robot either way)")
     p.add_argument("--joints", required=True, help="CSV with q1..q6 [rad] (header) or 6 headerless columns")
+    _add_sigma_options(p)
     p.add_argument("--out", required=True, help="poses CSV to write (x, y, z [mm], qw, qx, qy, qz)")
     p.add_argument("--json", help="write the pose count, how many lie outside the model's (q2, q3) interpolation "
                                   "region (outside_fitted_region: 0 for a constant model) and beyond the training "
@@ -401,6 +457,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "are checked against the limits of the model's robot either way)")
     p.add_argument("--test", required=True, help="recording CSV or Welding_Motoman folder to evaluate on")
     p.add_argument("--json", help="write the statistics as JSON")
+    _add_sigma_options(p)
     add_report_options(p, "the model's errors and plots")
     p = add("rebase", cmd_rebase, "move a fitted model of any kind onto a new day: refit only its base and tool-marker "
                                   "frames on a few poses")
@@ -447,6 +504,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="recording CSV or Welding_Motoman folder to fit on (--data: the old name); repeat it for "
                         "several days of one arm: what differs between them (frames, parameters, drift) is reported "
                         "and the diagnosis runs on them pooled, each with its frames taken out")
+    add_topup_options(p)
     p.add_argument("--test", "--heldout", dest="test",
                    help="recording the selection never fits on (default: held-out clusters of --train; --heldout: "
                         "the old name)")

@@ -129,6 +129,15 @@ def non_negative_int(text: str) -> int:
     return _checked_number(text, int, lambda v: v >= 0, "an integer >= 0")
 
 
+def positive_int(text: str) -> int:
+    """argparse type of a weight or a count that must be an integer >= 1.
+
+    Raises:
+        argparse.ArgumentTypeError: naming the value (the parser's one line names the option).
+    """
+    return _checked_number(text, int, lambda v: v >= 1, "an integer >= 1")
+
+
 def positive_float(text: str) -> float:
     """argparse type of a size, an angle or a time that must be a finite number > 0 (``nan`` passes every ``<``
     test and ``inf`` every ``>`` test, so a bound given as either was silently no bound).
@@ -238,6 +247,40 @@ def model_and_robot(args: argparse.Namespace, path: str, *, needs_robot: bool = 
     return model, robot
 
 
+ADD_HELP = ("extra poses (a recording CSV or Welding_Motoman folder, no cluster column needed, e.g. cellcal select "
+            "--out) fitted with the training recording as one day, each pose standing alone: the global fits use "
+            "them, the local (per-cluster) fits of the CDC methods do not; repeatable")
+ADD_WEIGHT_HELP = ("weight of each --add pose against one training pose in the fits (a positive integer; the default "
+                   "counts a stand-alone pose as much as one training cluster of 7 poses)")
+
+
+def add_topup_options(p: argparse.ArgumentParser) -> None:
+    """``--add`` and ``--add-weight`` of fit, compare, diagnose and recalibrate."""
+    from calibration.recording import DEFAULT_ADD_WEIGHT
+
+    p.add_argument("--add", action="append", default=[], metavar="PICKED.csv", help=ADD_HELP)
+    p.add_argument("--add-weight", type=positive_int, default=DEFAULT_ADD_WEIGHT, help=ADD_WEIGHT_HELP)
+
+
+def added_poses(args: argparse.Namespace, trains: list[Any], robot: Any) -> Any:
+    """The first training recording with ``--add``'s poses appended as stand-alone poses
+    (:func:`calibration.recording.with_added`); unchanged without ``--add``.
+
+    Raises:
+        CellCalError: ``--add`` with several ``--train`` recordings (which day would they join?).
+    """
+    from calibration.errors import CellCalError
+    from calibration.recording import with_added
+
+    added = list(getattr(args, "add", None) or ())
+    if not added:
+        return trains[0]
+    if len(trains) > 1:
+        raise CellCalError(f"--add joins the poses to one training recording; {len(trains)} --train recordings given "
+                           "(fit each day with its own --add, or add the poses to the day's recording)")
+    return with_added(trains[0], [read_recording_arg(path, robot) for path in added], weight=args.add_weight)
+
+
 def fitter_from_args(args: argparse.Namespace) -> Any:
     """A Fitter for ``--robot``/``--train``/``--cpa``/``--a``, and the robot's cell entry.
 
@@ -254,6 +297,7 @@ def fitter_from_args(args: argparse.Namespace) -> Any:
 
     robot = cell_spec(args).robot(args.robot)
     trains = [read_recording_arg(path, robot) for path in args.train]
+    trains[0] = added_poses(args, trains, robot)
     cpa = read_recording_arg(args.cpa, robot) if args.cpa else None
     args.days = None
     if len(trains) > 1:
@@ -289,7 +333,7 @@ OUTPUT_FILE_OPTIONS = ("out", "json", "html")
 
 #: Options that name files a command reads (``--models`` as ``R1=FILE,R2=FILE``, ``--model`` also as ``R2=FILE``;
 #: ``--cell`` is the packaged cell when left out).
-INPUT_FILE_OPTIONS = ("train", "test", "cpa", "data", "model", "models", "joints", "plan", "job", "relative_pose",
+INPUT_FILE_OPTIONS = ("train", "add", "test", "cpa", "data", "model", "models", "joints", "plan", "job", "relative_pose",
                       "path", "cell", CELL_AFTER)
 
 
