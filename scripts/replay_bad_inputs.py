@@ -9,10 +9,12 @@ JBI job. Each case runs ``python -m app.cli ...`` and is judged:
 - **traceback**: a Python traceback on stderr, or an exit code other than 0, 2 and 130;
 - **hang**: still running at the timeout (killed);
 - **wrote on failure**: a failed case (exit != 0) left an output file it was given, or changed one that existed;
+- **marked**: exit 0 printing the mark the case expects (``preview`` draws an unsafe plan, marks each unsafe
+  waypoint red and lists it on stderr: issue 30 asks it to show, not refuse);
 - **accepted**: exit 0 (a case the spec allows, or a check missing: listed so a reader can tell which);
 - **unclear**: exit 2 with more than one line on stderr.
 
-Prints tried / clean exit 2 / accepted / traceback / hang / wrote on failure / unclear per family and in total, then
+Prints tried / clean exit 2 / marked / accepted / traceback / hang / wrote on failure / unclear per family and in total, then
 every case that was not clean. Exit 1 when any case is a traceback, a hang or wrote on failure.
 
     python scripts/replay_bad_inputs.py [--json FILE] [--families recordings,plans,...] [--timeout-s 30]
@@ -55,6 +57,7 @@ class Case:
     outputs: list[str] = field(default_factory=list)
     setup: Callable[[Path], None] | None = None
     note: str = ""
+    marks: str = ""  # text an exit 0 must print on stderr to count as handled (preview draws and marks, by design)
 
 
 @dataclass
@@ -285,7 +288,7 @@ def cases() -> list[Case]:
     fit("positions in metres", "{W}/metres.csv", scaled("metres.csv", 1e-3))
     fit("positions in inches", "{W}/inches.csv", scaled("inches.csv", 1 / 25.4))
     fit("quaternions stored x, y, z, w", "{W}/xyzw.csv", quat_xyzw("xyzw.csv"), method="pi",
-        note="another engineer (model files / quaternion order)")
+        note="quaternion order check")
     out.append(Case("recordings", "diagnose on 7 rows", ["diagnose", "--robot", "R1", "--train", "{W}/seven.csv",
                                                          "--json", "{W}/out/d.json"], ["{W}/out/d.json"],
                     subset("seven.csv", np.arange(7))))
@@ -307,7 +310,7 @@ def cases() -> list[Case]:
                                          "{W}/out/p.csv", "--json", "{W}/out/p.json"],
                         ["{W}/out/p.csv", "{W}/out/p.json"], setup, note))
 
-    other = "another engineer (model files)"
+    other = "model-file number and structure checks"
     predict("missing file", "{W}/nothing.yaml")
     predict("empty file", "{W}/empty.yaml", text("empty.yaml", ""))
     predict("not YAML", "{W}/bad.yaml", text("bad.yaml", "a: [1, 2\n"))
@@ -331,16 +334,16 @@ def cases() -> list[Case]:
     predict("a 2-million-element list", "{W}/long.yaml", edited("m.yaml", "long.yaml", lambda t: t.replace(
         "\n  P:\n", "\n  P: [" + "0.0, " * 2_000_000 + "0.0]\n  P_was:\n", 1)), note=other)
 
-    def plan_cmd(cmd: str, name: str, plan: str, setup=None, note: str = "") -> None:
+    def plan_cmd(cmd: str, name: str, plan: str, setup=None, note: str = "", marks: str = "") -> None:
         argv = {"export-targets": ["export-targets", "--plan", plan, "--out", "{W}/out/t.csv", "--json",
                                    "{W}/out/t.json"],
                 "preview": ["preview", "--plan", plan, "--html", "{W}/out/p.html", "--json", "{W}/out/p.json"],
                 "collect": ["collect", "--robot", "R1", "--plan", plan, "--session", "{W}/out/s", "--sim",
                             "--dry-run"]}[cmd]
         outputs = [a for a in argv if a.startswith("{W}/out/")]
-        out.append(Case("plans", f"{cmd}: {name}", argv, outputs, setup, note))
+        out.append(Case("plans", f"{cmd}: {name}", argv, outputs, setup, note, marks if cmd == "preview" else ""))
 
-    safety = "another engineer (plan safety)"
+    safety = "plan safety (app.cell.plan_safety)"
     for cmd in ("export-targets", "preview"):
         plan_cmd(cmd, "missing file", "{W}/nothing.json")
         plan_cmd(cmd, "not JSON", "{W}/bad.json", text("bad.json", "{"))
@@ -359,9 +362,11 @@ def cases() -> list[Case]:
         plan_cmd(cmd, "a string angle", "{W}/str.json", json_edit("dual.json", "str.json", lambda d: with_item(
             d, ["waypoints", 1, "R1", 2], "0.1")))
         plan_cmd(cmd, "R2 26 mm below the floor", "{W}/floor.json", json_edit("dual.json", "floor.json", lambda d: {
-            **d, "waypoints": [{**wp, "R2": [0, 1.2, -0.5, 0, 0, 0]} for wp in d["waypoints"]]}), note=safety)
+            **d, "waypoints": [{**wp, "R2": [0, 1.2, -0.5, 0, 0, 0]} for wp in d["waypoints"]]}), note=safety,
+            marks="UNSAFE waypoint")
         plan_cmd(cmd, "residual 50 mm marked converged", "{W}/resid.json", json_edit(
-            "dual.json", "resid.json", lambda d: with_item(d, ["waypoints", 2, "residual_mm"], 50.0)), note=safety)
+            "dual.json", "resid.json", lambda d: with_item(d, ["waypoints", 2, "residual_mm"], 50.0)), note=safety,
+            marks="UNSAFE waypoint")
     plan_cmd("collect", "a collection plan with a string angle", "{W}/cstr.json", json_edit(
         "plan.json", "cstr.json", lambda d: with_item(d, ["targets", 0, "q_rad", 1], "x")))
     plan_cmd("collect", "a FIFO", "{W}/fifo.json", fifo("fifo.json"))
@@ -543,6 +548,8 @@ def replay(case: Case, w: Path, timeout_s: float) -> Outcome:
         verdict = "traceback"
     elif wrote:
         verdict = "wrote on failure"
+    elif code == 0 and case.marks and case.marks in err:
+        verdict = "marked"
     elif code == 0:
         verdict = "accepted"
     elif len(lines) == 1:
@@ -553,11 +560,11 @@ def replay(case: Case, w: Path, timeout_s: float) -> Outcome:
                    wrote)
 
 
-VERDICTS = ("clean", "accepted", "traceback", "hang", "wrote on failure", "unclear")
+VERDICTS = ("clean", "marked", "accepted", "traceback", "hang", "wrote on failure", "unclear")
 
 
 def table(outcomes: list[Outcome]) -> str:
-    head = f"{'family':<12} {'tried':>5} {'clean exit 2':>12} {'accepted':>8} {'traceback':>9} {'hang':>4} " \
+    head = f"{'family':<12} {'tried':>5} {'clean exit 2':>12} {'marked':>6} {'accepted':>8} {'traceback':>9} {'hang':>4} " \
            f"{'wrote on failure':>16} {'unclear':>7}"
     rows = [head, "-" * len(head)]
     for fam in [*FAMILIES, "total"]:
@@ -565,7 +572,7 @@ def table(outcomes: list[Outcome]) -> str:
         if not sel:
             continue
         n = {v: sum(o.verdict == v for o in sel) for v in VERDICTS}
-        rows.append(f"{fam:<12} {len(sel):>5} {n['clean']:>12} {n['accepted']:>8} {n['traceback']:>9} "
+        rows.append(f"{fam:<12} {len(sel):>5} {n['clean']:>12} {n['marked']:>6} {n['accepted']:>8} {n['traceback']:>9} "
                     f"{n['hang']:>4} {n['wrote on failure']:>16} {n['unclear']:>7}")
     return "\n".join(rows)
 

@@ -144,7 +144,32 @@ def parse_job(data: bytes, path: str | Path = "<job>") -> Job:
         raise JobError(path, None, "no //POS section before //INST")
     positions, variables = _positions(texts, pos_end, path)
     groups, refs = _instructions(texts, pos_end, path)
-    return Job(path, raw, name, groups, _assign(positions, refs, groups, path), tuple(variables))
+    job = Job(path, raw, name, groups, _assign(positions, refs, groups, path), tuple(variables))
+    _check_npos(texts, pos_end, positions, variables, path)
+    return job
+
+
+#: The kinds ``///NPOS`` counts, in its order.
+NPOS_KINDS = ("C", "BC", "EC", "P", "BP", "EX")
+
+
+def _check_npos(texts: list[str], end: int, positions: list[JobPosition], variables: list[tuple[str, int]],
+                path: Path) -> None:
+    """Refuse a job whose ``///NPOS`` header disagrees with the positions the //POS section holds: the controller
+    refuses to load such a job, and a count that disagrees means positions were lost or pasted in by hand."""
+    line = next((i for i in range(end) if texts[i].strip().startswith("///NPOS")), None)
+    if line is None:
+        return
+    declared = _ints(texts[line].strip()[7:], line + 1, path, "///NPOS")
+    found = {k: 0 for k in NPOS_KINDS}
+    found["C"] = len(positions)
+    for name, _ in variables:
+        kind = name.rstrip("0123456789")
+        found[kind] = found.get(kind, 0) + 1
+    counts = tuple(found[k] for k in NPOS_KINDS)
+    if declared[:len(NPOS_KINDS)] + (0,) * (len(NPOS_KINDS) - len(declared)) != counts:
+        raise JobError(path, line + 1, f"///NPOS {','.join(map(str, declared))} disagrees with the //POS section, "
+                                       f"which holds {', '.join(f'{n} {k}' for k, n in zip(NPOS_KINDS, counts))}")
 
 
 def _section(texts: list[str], marker: str, path: Path) -> int:

@@ -300,7 +300,11 @@ def test_pulse_conversion_round_trips_through_the_job(cell):
     (lambda d: d.replace(b"MOVL C00003", b"MOVL C00002"), 11, "C00003 is not used by any move instruction"),
     (lambda d: d.replace(b"///POSTYPE PULSE", b"///POSTYPE ANGLE"), 6, "unknown ///POSTYPE 'ANGLE'"),
     (lambda d: d.replace(b"/JOB", b"JOB"), 1, "expected '/JOB'"),
-    (lambda d: d.replace(b"//INST", b"P00100=0,0,0,0,0,0\r\n//INST"), 12, "P00100 is a robot position variable"),
+    (lambda d: d.replace(b"//INST", b"P00100=0,0,0,0,0,0\r\n//INST").replace(b"NPOS 4,0,0,0", b"NPOS 4,0,0,1"), 12,
+     "P00100 is a robot position variable"),
+    (lambda d: d.replace(b"NPOS 4,", b"NPOS 5,"), 4, "///NPOS 5,0,0,0,0,0 disagrees with the //POS section, which "
+                                                    "holds 4 C, 0 BC, 0 EC, 0 P, 0 BP, 0 EX"),
+    (lambda d: d.replace(b"//INST", b"P00100=0,0,0,0,0,0\r\n//INST"), 4, "which holds 4 C, 0 BC, 0 EC, 1 P"),
 ])
 def test_bad_job_exits_2_naming_file_and_line(cell, tmp_path, capsys, edit, line, reason):
     model = tmp_path / "r1.yaml"
