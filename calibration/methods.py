@@ -94,12 +94,13 @@ class FitOptions:
         fit_tool: identify the flange-point shift too (3 parameters).
         local_prior: ridge strength of local cluster fits toward the pi reference geometry [1/mm-equivalent];
             None (default) chooses it from ``local_prior_grid`` on clusters held out from the training recording
-            (the ``linear`` interpolator, one-standard-error rule toward the stronger prior) among the priors
+            (the ``linear`` interpolator, one-standard-error rule toward the stronger prior, the error paired over the
+            held-out clusters: :func:`robust.paired_one_se_choice`) among the priors
             whose corrections over the workspace stay within ``robust.WORKSPACE_RATIO_LIMIT`` times those on
             the training poses (the strongest when none does). 0.1 was the fixed value before.
         local_prior_grid: candidate local priors.
         fourier_ridge_grid: candidate ridge strengths of fbf13/fbf7 (0 = the paper's least squares), chosen on
-            held-out clusters by the same rule. It reaches 10 (times the basis Gram matrix's mean diagonal), where
+            held-out clusters by the same (paired) rule. It reaches 10 (times the basis Gram matrix's mean diagonal), where
             the fit is nearly the anchors' mean, so sparse anchors can always fall back to a smooth fit; strengths a
             fold cannot fit (ridge 0 with fewer than 13 anchors) are left out of the choice.
         nls0_clusters: number of clusters nearest q = 0 used by ``nls0``.
@@ -313,12 +314,13 @@ class Fitter:
                                                  self._workspace_probes())[0])
         ok = [i for i, r in enumerate(ratios) if r <= robust.WORKSPACE_RATIO_LIMIT]
         if ok:
-            chosen = grid[ok[robust.one_se_choice(tuple(grid[i] for i in ok), [scores[i] for i in ok])]]
+            chosen = grid[ok[robust.paired_one_se_choice(tuple(grid[i] for i in ok), [scores[i] for i in ok])]]
         else:
             chosen = max(grid)
         self._cache.setdefault("local_prior_cv", {})[reference] = {
             "chosen": chosen, "grid": list(grid), "heldout_rms_mm": [round(s.rms_mm, 4) for s in scores],
-            "se_mm": [round(s.se_rms_mm, 4) for s in scores], "workspace_ratio": [round(r, 2) for r in ratios]}
+            "se_mm": [round(s.se_rms_mm, 4) for s in scores], "workspace_ratio": [round(r, 2) for r in ratios],
+            "within_workspace_limit": bool(ok)}
         log.info("local prior %g (%s reference) chosen on held-out clusters: %s", chosen, reference,
                  self._cache["local_prior_cv"][reference])
         return chosen
@@ -839,7 +841,8 @@ class Fitter:
         if not usable:
             raise ModelError(f"{method}: no {name} of {list(grid)} can be fitted on the held-out folds of "
                              f"{len(local.anchors)} clusters")
-        chosen = grid[usable[robust.one_se_choice(tuple(grid[i] for i in usable), [scores[i] for i in usable])]]
+        chosen = grid[usable[robust.paired_one_se_choice(tuple(grid[i] for i in usable),
+                                                          [scores[i] for i in usable])]]
         self._cache.setdefault("strengths", {})[method] = {
             name: chosen, "grid": list(grid),
             "heldout_rms_mm": [None if s is None else round(s.rms_mm, 4) for s in scores]}
@@ -877,6 +880,11 @@ class Fitter:
                             f"percentile) at configurations spread over the joint limits against {train_mm:.3f} mm "
                             f"on the training poses (x{ratio:.1f}): the local fits carry directions the clusters "
                             f"cannot see")
+        if not info["local_prior"].get("within_workspace_limit", True):
+            problems.append(f"no local prior of {info['local_prior']['grid']} kept its correction over the workspace "
+                            f"within {robust.WORKSPACE_RATIO_LIMIT:g} times that on the training poses (ratios "
+                            f"{info['local_prior']['workspace_ratio']}), so the strongest was taken: the local fits "
+                            f"are held near the {reference} reference and the method gives about what it gives")
         if excess.max() > robust.RANGE_EXCESS_LIMIT:
             problems.append(f"at {np.mean(excess > robust.RANGE_EXCESS_LIMIT):.0%} of {len(probes)} probe "
                             f"configurations within 10 deg of the anchors' (q2, q3) box its raw parameters leave "

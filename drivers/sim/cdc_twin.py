@@ -53,6 +53,8 @@ class CdcSize:
         compliance_mm: own-weight joint compliance (joints 2, 3, 5).
         cdc_mm: the configuration-dependent error (transmission errors and axis wobble of joints 2, 3); 0: none.
         noise_mm: measurement noise per axis [mm]; noise_deg: orientation noise per axis [deg].
+        backlash_deg: lost motion of every joint [deg]: each pose is reached from one side, the same for a
+            cluster's poses (and along a test-path line), drawn per cluster, line and joint.
         gross: training poses given a gross marker error (a mocap glitch: ``gross_mm`` in a random direction), as
             a real recording has a few.
     """
@@ -62,6 +64,7 @@ class CdcSize:
     cdc_mm: float = 0.7
     noise_mm: float = 0.04
     noise_deg: float = 0.01
+    backlash_deg: float = 0.0
     gross: int = 3
     gross_mm: float = 2.0
 
@@ -290,9 +293,10 @@ def test_path(anchors: np.ndarray, n: int, lower_rad: np.ndarray, upper_rad: np.
 
 
 def measure(arm: ConcealedArm, q: np.ndarray, size: CdcSize, rng: np.random.Generator, source: str,
-            extra: dict[str, np.ndarray] | None = None) -> Recording:
-    """A recording of the arm at q with Gaussian position and orientation noise."""
-    R, p = arm.pose(q)
+            side: np.ndarray, extra: dict[str, np.ndarray] | None = None) -> Recording:
+    """A recording of the arm at q with Gaussian position and orientation noise, each pose reached from the side
+    ``side`` (N, 6) (+-1: half the lost motion :attr:`CdcSize.backlash_deg` one way or the other)."""
+    R, p = arm.pose(q + side * np.radians(size.backlash_deg) / 2.0)
     p = p + rng.normal(0.0, size.noise_mm, p.shape)
     R = so3.exp(rng.normal(0.0, np.radians(size.noise_deg), p.shape)) @ R
     return Recording(q, p, so3.R_to_quat(R), dict(extra or {}), source)
@@ -332,8 +336,13 @@ def simulated_day(robot: Any, tool: Any, seed: int | None = None, size: CdcSize 
     q_train, cluster = cluster_design(anchors)
     q_test = test_path(anchors, grid.n_test, robot.lower_rad, robot.upper_rad, rng)
     arm = draw_arm(robot, tool.R_flange_tool, tool.p_flange_tool, size, q_test, rng)
-    train = measure(arm, q_train, size, rng, f"{label} training (seed {seed})", {"cluster": cluster.astype(float)})
+    side_train = rng.choice([-1.0, 1.0], (len(anchors), 6))[cluster]
+    n_lines = max(4, grid.n_test // 40) - 1
+    side_test = rng.choice([-1.0, 1.0], (n_lines, 6))[np.minimum(np.arange(grid.n_test) * n_lines // grid.n_test,
+                                                                   n_lines - 1)]
+    train = measure(arm, q_train, size, rng, f"{label} training (seed {seed})", side_train,
+                    {"cluster": cluster.astype(float)})
     glitch = rng.choice(len(train), size.gross, replace=False)
     train.p[glitch] += size.gross_mm * _unit(rng.normal(size=(size.gross, 3)))
-    test = measure(arm, q_test, size, rng, f"{label} test (seed {seed})")
+    test = measure(arm, q_test, size, rng, f"{label} test (seed {seed})", side_test)
     return SimDay(seed, arm, train, test)
