@@ -94,13 +94,12 @@ class FitOptions:
         fit_tool: identify the flange-point shift too (3 parameters).
         local_prior: ridge strength of local cluster fits toward the pi reference geometry [1/mm-equivalent];
             None (default) chooses it from ``local_prior_grid`` on clusters held out from the training recording
-            (the ``linear`` interpolator, one-standard-error rule toward the stronger prior, the error paired over the
-            held-out clusters: :func:`robust.paired_one_se_choice`) among the priors
+            (the ``linear`` interpolator, one-standard-error rule toward the stronger prior) among the priors
             whose corrections over the workspace stay within ``robust.WORKSPACE_RATIO_LIMIT`` times those on
             the training poses (the strongest when none does). 0.1 was the fixed value before.
         local_prior_grid: candidate local priors.
         fourier_ridge_grid: candidate ridge strengths of fbf13/fbf7 (0 = the paper's least squares), chosen on
-            held-out clusters by the same (paired) rule. It reaches 10 (times the basis Gram matrix's mean diagonal), where
+            held-out clusters by the same rule. It reaches 10 (times the basis Gram matrix's mean diagonal), where
             the fit is nearly the anchors' mean, so sparse anchors can always fall back to a smooth fit; strengths a
             fold cannot fit (ridge 0 with fewer than 13 anchors) are left out of the choice.
         nls0_clusters: number of clusters nearest q = 0 used by ``nls0``.
@@ -314,7 +313,7 @@ class Fitter:
                                                  self._workspace_probes())[0])
         ok = [i for i, r in enumerate(ratios) if r <= robust.WORKSPACE_RATIO_LIMIT]
         if ok:
-            chosen = grid[ok[robust.paired_one_se_choice(tuple(grid[i] for i in ok), [scores[i] for i in ok])]]
+            chosen = grid[ok[robust.one_se_choice(tuple(grid[i] for i in ok), [scores[i] for i in ok])]]
         else:
             chosen = max(grid)
         self._cache.setdefault("local_prior_cv", {})[reference] = {
@@ -841,8 +840,7 @@ class Fitter:
         if not usable:
             raise ModelError(f"{method}: no {name} of {list(grid)} can be fitted on the held-out folds of "
                              f"{len(local.anchors)} clusters")
-        chosen = grid[usable[robust.paired_one_se_choice(tuple(grid[i] for i in usable),
-                                                          [scores[i] for i in usable])]]
+        chosen = grid[usable[robust.one_se_choice(tuple(grid[i] for i in usable), [scores[i] for i in usable])]]
         self._cache.setdefault("strengths", {})[method] = {
             name: chosen, "grid": list(grid),
             "heldout_rms_mm": [None if s is None else round(s.rms_mm, 4) for s in scores]}

@@ -23,7 +23,7 @@ from __future__ import annotations
 import multiprocessing as mp
 import os
 from concurrent.futures import Future, ProcessPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -62,9 +62,6 @@ class HeldOut:
         max_mm: worst held-out position error of the CDC model [mm].
         reference_max_mm: same for the reference.
         se_rms_mm: standard error of rms_mm over clusters [mm] (delta method on the per-cluster mean squares).
-        cluster_ms_mm2: mean squared position error per held-out cluster [mm^2], shape (K,), in the order of the
-            cluster labels (None when the figures were not computed from errors): what :func:`paired_one_se_choice`
-            pairs between fits scored on the same clusters.
     """
 
     rms_mm: float
@@ -72,7 +69,6 @@ class HeldOut:
     max_mm: float
     reference_max_mm: float
     se_rms_mm: float
-    cluster_ms_mm2: np.ndarray | None = field(default=None, compare=False, repr=False)
 
     @property
     def ratio(self) -> float:
@@ -87,7 +83,7 @@ class HeldOut:
         per_cluster = np.bincount(groups, err ** 2) / np.bincount(groups)
         rms = float(np.sqrt(np.mean(err ** 2)))
         se = float(per_cluster.std(ddof=1) / np.sqrt(len(per_cluster)) / (2.0 * max(rms, 1e-12)))
-        return cls(rms, float(np.sqrt(np.mean(ref ** 2))), float(err.max()), float(ref.max()), se, per_cluster)
+        return cls(rms, float(np.sqrt(np.mean(ref ** 2))), float(err.max()), float(ref.max()), se)
 
 
 def cluster_folds(n_clusters: int, n_folds: int = N_FOLDS, seed: int = 0) -> np.ndarray:
@@ -245,36 +241,6 @@ def one_se_choice(strengths: tuple[float, ...], scores: list[HeldOut]) -> int:
     best = int(np.argmin([s.rms_mm for s in scores]))
     limit = scores[best].rms_mm + scores[best].se_rms_mm
     ok = [i for i, s in enumerate(scores) if s.rms_mm <= limit]
-    return max(ok, key=lambda i: strengths[i])
-
-
-def paired_one_se_choice(strengths: tuple[float, ...], scores: list[HeldOut]) -> int:
-    """Index of the strongest regularisation whose held-out RMS is within one *paired* standard error of the best.
-
-    The one-standard-error rule of :func:`one_se_choice`, with the standard error of each strength's difference from
-    the best over the same held-out clusters (delta method on the per-cluster differences of mean squares,
-    :attr:`HeldOut.cluster_ms_mm2`) instead of the best's own standard error. Every strength is scored on the same
-    clusters, so what varies from cluster to cluster (a cluster far harder than the others: a gross marker error, a
-    corner of the workspace) moves all scores alike and cancels in the difference; the unpaired error counted it,
-    and on a recording whose clusters differ much (3 gross 2 mm marker errors among 256 clusters multiplied it by
-    10 on the simulated R2 of :mod:`drivers.sim.cdc_twin`) it called fits far apart tied and chose the strongest:
-    local fits shrunk onto their reference, every CDC method what the constant fit gives.
-
-    Raises:
-        ModelError: a score without its per-cluster figures, or scores on different numbers of clusters.
-    """
-    ms = [s.cluster_ms_mm2 for s in scores]
-    if any(m is None for m in ms) or len({len(m) for m in ms}) != 1:  # type: ignore[arg-type]
-        raise ModelError("paired_one_se_choice: every score needs its per-cluster figures on the same clusters "
-                         "(HeldOut.of_errors)")
-    best = int(np.argmin([s.rms_mm for s in scores]))
-    rms_best = max(scores[best].rms_mm, 1e-12)
-    ok = []
-    for i, s in enumerate(scores):
-        d = ms[i] - ms[best]  # type: ignore[operator]
-        se = float(d.std(ddof=1) / np.sqrt(len(d)) / (2.0 * rms_best)) if len(d) > 1 else np.inf
-        if s.rms_mm <= scores[best].rms_mm + se:
-            ok.append(i)
     return max(ok, key=lambda i: strengths[i])
 
 

@@ -41,45 +41,6 @@ def test_one_se_rule_takes_the_strongest_tied_strength():
     assert robust.one_se_choice((0.1, 1.0, 3.0, 10.0), h) == 2
 
 
-def _scores(per_cluster_ms: list[np.ndarray]) -> list[robust.HeldOut]:
-    """HeldOut figures of per-cluster mean squares [mm^2] (one cluster per pose, so the errors are their roots)."""
-    groups = np.arange(len(per_cluster_ms[0]))
-    return [robust.HeldOut.of_errors(np.sqrt(ms), np.sqrt(ms), groups) for ms in per_cluster_ms]
-
-
-@pytest.mark.parametrize("seed", range(6))
-def test_paired_one_se_choice_ignores_what_every_strength_shares(seed):
-    """The family: strengths scored on the same clusters, the weaker ones consistently better on every cluster by a
-    little. Hard clusters (a gross marker error: the same large error under every strength) inflate the unpaired
-    standard error until the strongest strength looks tied; the paired choice is the same with or without them."""
-    rng = np.random.default_rng(seed)
-    K = 200
-    base = rng.uniform(0.01, 0.03, K)  # [mm^2] per cluster
-    penalty = np.array([0.0, 0.0005, 0.002, 0.006, 0.015])  # stronger prior: worse on every cluster
-    ms = [base + p * rng.uniform(0.5, 1.5, K) for p in penalty]
-    strengths = (0.1, 0.3, 1.0, 3.0, 10.0)
-    clean = robust.paired_one_se_choice(strengths, _scores(ms))
-    hard = np.zeros(K)
-    hard[rng.choice(K, 6, replace=False)] = 2.0 ** 2 / 7  # 2 mm on one pose of a 7-pose cluster
-    with_hard = _scores([m + hard for m in ms])
-    assert robust.paired_one_se_choice(strengths, with_hard) == clean <= 1
-    assert robust.one_se_choice(strengths, with_hard) > clean  # the unpaired rule shrinks harder
-
-
-def test_paired_one_se_choice_keeps_the_strongest_when_the_strengths_are_tied():
-    rng = np.random.default_rng(0)
-    base = rng.uniform(0.01, 0.03, 100)
-    noise = [rng.normal(0.0, 1e-4, 100) for _ in range(4)]
-    ms = [base + n - n.mean() for n in noise]  # the same RMS, the clusters shuffled among them by noise
-    assert robust.paired_one_se_choice((0.1, 1.0, 3.0, 10.0), _scores(ms)) == 3
-
-
-def test_paired_one_se_choice_refuses_scores_without_their_clusters():
-    h = [robust.HeldOut(r, 1.0, 0.0, 0.0, 0.01) for r in (0.50, 0.495)]
-    with pytest.raises(ModelError, match="per-cluster figures"):
-        robust.paired_one_se_choice((0.1, 1.0), h)
-
-
 def test_cdc_model_clips_to_its_bounds_and_keeps_them_in_its_file(tmp_path, r1_nominal):
     par = MinimalParameterisation(r1_nominal)
     rng = np.random.default_rng(2)
@@ -325,3 +286,16 @@ def test_the_unstable_fit_warning_says_what_a_user_can_do(synthetic_arm, r1_nomi
     warning = fitter.fit("linear")[0].info["warning"]
     assert "linear may be unstable" in warning and "--method pi" in warning
     assert "FitOptions" not in warning and "local_prior" not in warning
+
+
+def test_a_cdc_fit_says_when_no_local_prior_passed_the_workspace_check(synthetic_arm, r1_nominal, monkeypatch):
+    """No prior within the limit: the strongest is taken, which holds the local fits at the reference; the fit said
+    nothing of it (the final fit's own ratio is then small), and a CDC method quietly gave what pi gives."""
+    _, _, truth = synthetic_arm
+    q, cluster = cluster_design(step_deg=15.0)
+    monkeypatch.setattr(robust, "WORKSPACE_RATIO_LIMIT", 0.0)
+    fitter = Fitter("R1", r1_nominal, measure(truth.fk, q, 0.02, 0.01, 1, cluster),
+                    FitOptions(local_prior_grid=(0.3, 10.0)))
+    model, _ = fitter.fit("pi+nearest")
+    assert model.info["local_prior"]["chosen"] == 10.0
+    assert "no local prior of [0.3, 10.0] kept its correction over the workspace" in model.info["warning"]
