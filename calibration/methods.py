@@ -358,7 +358,8 @@ class Fitter:
             chosen = max(grid)
         self._cache.setdefault("local_prior_cv", {})[reference] = {
             "chosen": chosen, "grid": list(grid), "heldout_rms_mm": [round(s.rms_mm, 4) for s in scores],
-            "se_mm": [round(s.se_rms_mm, 4) for s in scores], "workspace_ratio": [round(r, 2) for r in ratios]}
+            "se_mm": [round(s.se_rms_mm, 4) for s in scores], "workspace_ratio": [round(r, 2) for r in ratios],
+            "within_workspace_limit": bool(ok)}
         log.info("local prior %g (%s reference) chosen on held-out clusters: %s", chosen, reference,
                  self._cache["local_prior_cv"][reference])
         return chosen
@@ -921,6 +922,11 @@ class Fitter:
                             f"percentile) at configurations spread over the joint limits against {train_mm:.3f} mm "
                             f"on the training poses (x{ratio:.1f}): the local fits carry directions the clusters "
                             f"cannot see")
+        if not info["local_prior"].get("within_workspace_limit", True):
+            problems.append(f"no local prior of {info['local_prior']['grid']} kept its correction over the workspace "
+                            f"within {robust.WORKSPACE_RATIO_LIMIT:g} times that on the training poses (ratios "
+                            f"{info['local_prior']['workspace_ratio']}), so the strongest was taken: the local fits "
+                            f"are held near the {reference} reference and the method gives about what it gives")
         if excess.max() > robust.RANGE_EXCESS_LIMIT:
             problems.append(f"at {np.mean(excess > robust.RANGE_EXCESS_LIMIT):.0%} of {len(probes)} probe "
                             f"configurations within 10 deg of the anchors' (q2, q3) box its raw parameters leave "

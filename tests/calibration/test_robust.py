@@ -286,3 +286,16 @@ def test_the_unstable_fit_warning_says_what_a_user_can_do(synthetic_arm, r1_nomi
     warning = fitter.fit("linear")[0].info["warning"]
     assert "linear may be unstable" in warning and "--method pi" in warning
     assert "FitOptions" not in warning and "local_prior" not in warning
+
+
+def test_a_cdc_fit_says_when_no_local_prior_passed_the_workspace_check(synthetic_arm, r1_nominal, monkeypatch):
+    """No prior within the limit: the strongest is taken, which holds the local fits at the reference; the fit said
+    nothing of it (the final fit's own ratio is then small), and a CDC method quietly gave what pi gives."""
+    _, _, truth = synthetic_arm
+    q, cluster = cluster_design(step_deg=15.0)
+    monkeypatch.setattr(robust, "WORKSPACE_RATIO_LIMIT", 0.0)
+    fitter = Fitter("R1", r1_nominal, measure(truth.fk, q, 0.02, 0.01, 1, cluster),
+                    FitOptions(local_prior_grid=(0.3, 10.0)))
+    model, _ = fitter.fit("pi+nearest")
+    assert model.info["local_prior"]["chosen"] == 10.0
+    assert "no local prior of [0.3, 10.0] kept its correction over the workspace" in model.info["warning"]
