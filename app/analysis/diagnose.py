@@ -18,7 +18,7 @@ import numpy as np
 from app.analysis.plots import save_figure
 from calibration.diagnosis import DiagnoseOptions, Diagnosis, diagnose
 from calibration.errors import DataError, ModelError
-from calibration.files import atomic_write_text
+from calibration.files import atomic_write_text, make_folders
 
 log = logging.getLogger("cellcal.app")
 
@@ -210,7 +210,7 @@ def write_report(result: Diagnosis, out_dir: str | Path, tolerance: Any = None, 
     plt = _pyplot()
     tol = tolerance or Tolerance()
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    make_folders(out)  # removed again when a staged set of outputs fails (calibration.files.staged_outputs)
     files, images = [], []
     pd = result.plots
     if pd is not None:

@@ -535,7 +535,8 @@ def version() -> str:
 #: Commands whose outputs (files, a report folder, a JSON summary) are one set: they take their names together when
 #: the command succeeds, and a failure (a full disk) leaves none of them, not even a folder
 #: (:func:`calibration.files.staged_outputs`). Commands that read back what they wrote (recalibrate, demo) are not.
-STAGED_COMMANDS = frozenset({"evaluate", "compare", "fit", "predict", "select", "plan", "export"})
+STAGED_COMMANDS = frozenset({"evaluate", "compare", "fit", "predict", "select", "plan", "export", "diagnose",
+                             "plan-dual", "export-targets", "export-urdf", "compensate-job"})
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -121,3 +121,51 @@ def test_fit_on_a_full_disk_leaves_no_model_without_its_json(tmp_path, fitted, c
                  str(tmp_path / "m" / "m.yaml"), "--json", str(tmp_path / "m" / "fit.json")]) == 2
     assert "No space left on device" in capsys.readouterr().err
     assert left_in(tmp_path) == []
+
+
+@pytest.fixture(scope="module")
+def dual_plan(tmp_path_factory):
+    root = tmp_path_factory.mktemp("dual")
+    assert main(["plan-dual", "--path", "sweep:20", "--out", str(root / "plan.json")]) == 0
+    return root / "plan.json"
+
+
+def _job(tmp_path) -> str:
+    from cell_config import load_cell
+
+    spec = load_cell().robot("R1").robot
+    pulses = ",".join(str(int(v)) for v in spec.to_pulses(np.radians([[5.0, 10.0, -5.0, 20.0, -30.0, 10.0]]))[0])
+    job = tmp_path / "IN.JBI"
+    job.write_bytes("\r\n".join(["/JOB", "//NAME T", "//POS", "///NPOS 1,0,0,0,0,0", "///TOOL 0", "///POSTYPE PULSE",
+                                 "///PULSE", f"C00000={pulses}", "//INST", "///DATE 2026/12/01 12:00", "///ATTR SC,RW",
+                                 "///GROUP1 RB1", "NOP", "MOVJ C00000 VJ=10.00", "END", ""]).encode())
+    return str(job)
+
+
+@pytest.mark.parametrize("command", ["diagnose", "plan-dual", "export-targets", "export-urdf", "compensate-job"])
+def test_every_command_writing_a_set_leaves_nothing_on_a_full_disk(tmp_path, fitted, dual_plan, capsys, monkeypatch,
+                                                                  command):
+    """The class: each command of STAGED_COMMANDS that writes more than one file, its second file failing."""
+    from app.cli.commands import STAGED_COMMANDS
+
+    assert command in STAGED_COMMANDS
+    out = tmp_path / "new" / "out"
+    model = str(fitted / "m.yaml")
+    argv = {"diagnose": ["diagnose", "--robot", "R1", "--data", str(fitted / "train.csv"), "--report",
+                         str(out / "report"), "--json", str(out / "d.json")],
+            "plan-dual": ["plan-dual", "--path", "sweep:20", "--out", str(out / "p.json"), "--json",
+                          str(out / "s.json")],
+            "export-targets": ["export-targets", "--plan", str(dual_plan), "--out", str(out / "t.csv"), "--json",
+                               str(out / "t.json")],
+            "export-urdf": ["export-urdf", "--model", model, "--out", str(out / "r1.urdf"), "--json",
+                            str(out / "u.json")],
+            "compensate-job": ["compensate-job", "--model", model, "--job", _job(tmp_path), "--out",
+                               str(out / "OUT.JBI"), "--json", str(out / "c.json")]}[command]
+    disk_full_at(monkeypatch, 2)
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "No space left on device" in err and "Traceback" not in err
+    assert not (tmp_path / "new").exists()
+    monkeypatch.setattr(files.os, "fsync", os.fsync)  # room again
+    assert main(argv) == 0
+    assert sum(1 for p in out.rglob("*") if p.is_file()) >= 2
