@@ -40,7 +40,7 @@ def _required(parser: argparse.ArgumentParser, tmp_path) -> list[str]:
 
 
 #: What a command needs beyond its required options to get as far as the cell file.
-EXTRA = {"preview": ["--html", "p.html"]}
+EXTRA = {"preview": ["--html", "p.html"], "select": ["--budget", "3"]}
 
 COMMANDS = [name for name in _commands() if name not in NO_CELL]
 
