@@ -328,7 +328,7 @@ def _warn_gross_rows(fitter: Any) -> None:
 
 
 #: File outputs every subcommand may take; ``demo --out`` is a folder and is left to the demo.
-OUTPUT_FILE_OPTIONS = ("out", "json", "html")
+OUTPUT_FILE_OPTIONS = ("out", "json", "html", "xacro", "jbi")
 
 
 #: Options that name files a command reads (``--models`` as ``R1=FILE,R2=FILE``, ``--model`` also as ``R2=FILE``;
