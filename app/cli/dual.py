@@ -211,9 +211,12 @@ def cmd_export_targets(args: argparse.Namespace) -> int:
 
     cell = cell_spec(args)
     n = export_targets(args.plan, cell, args.out, args.frame, args.skip_failed,
-                       models=_model_pair(args.models, "--models", cell))
+                       models=_model_pair(args.models, "--models", cell), jbi=args.jbi, speed_pct=args.speed)
     print(f"{n} targets ({args.frame} frame) -> {args.out}")
-    write_json(args.json, {"plan": str(args.plan), "targets": n, "frame": args.frame, "out": str(args.out)})
+    if args.jbi:
+        print(f"{n // 2} coordinated joint moves (R1 = RB1, R2 = RB2, pulses, VJ={args.speed:.2f}) -> {args.jbi}")
+    write_json(args.json, {"plan": str(args.plan), "targets": n, "frame": args.frame, "out": str(args.out),
+                           "jbi": args.jbi})
     return 0
 
 
@@ -264,4 +267,10 @@ def add_dual_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--frame", choices=("flange", "tool"), default="flange", help="pose frame of the targets")
     p.add_argument("--skip-failed", action="store_true", help="leave out unsolved waypoints instead of refusing")
     p.add_argument("--models", help=PLAN_MODELS_HELP)
+    p.add_argument("--jbi", metavar="NAME.JBI",
+                   help="also write an INFORM job: one two-group job (GROUP1 RB1 = R1, GROUP2 RB2 = R2), one "
+                        "coordinated MOVJ line per waypoint so both arms reach it together, positions in pulses "
+                        "(pulse = pulse_zero + pulse_sign * q_deg * pulses_per_deg, from the robot YAML); the job "
+                        "is named after the file")
+    p.add_argument("--speed", type=float, default=10.0, help="the job's joint speed VJ [%% of maximum]")
     p.add_argument("--json", help="write the target count and frame as JSON")
