@@ -489,10 +489,28 @@ def _demo_methods(text: str | None) -> tuple[str, ...] | None:
     return tuple(parse_methods(text))
 
 
+def cmd_init_cell(args: argparse.Namespace) -> int:
+    from app.cell.init_cell import init_cell
+
+    written = init_cell(args.folder)
+    print(f"cell folder {args.folder}: {', '.join(written.files)}")
+    print(f"edit {written.cell} for your cell (its header and each file's say the units), then e.g.\n"
+          f"  cellcal --cell {written.cell} plan --robot R1 --out r1_plan.json")
+    write_json(args.json, {"folder": str(args.folder), "cell": str(written.cell), "files": list(written.files)})
+    return 0
+
+
 def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     """Register the cell-workflow subcommands."""
     from app.cli.cell_options import add_motion_options
     from calibration.methods import METHODS
+
+    p = add("init-cell", cmd_init_cell, "write an editable cell folder (cell.yaml with its devices, robots/, tools/) "
+                                        "that loads as written; never overwrites", reads_cell=False)
+    p.add_argument("folder", metavar="DIR", help="the folder to write (new or without these files): DIR/cell.yaml, "
+                                                 "DIR/robots/*.yaml, DIR/tools/*.yaml; use it as cellcal --cell "
+                                                 "DIR/cell.yaml ...")
+    p.add_argument("--json", help="write the files written as JSON")
 
     p = add("plan", cmd_plan, "make a collection plan for one arm (anchor grid, CPA sweeps, validation poses)")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
