@@ -500,6 +500,38 @@ def cmd_init_cell(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_import_motive(args: argparse.Namespace) -> int:
+    from app.cell.motive_import import import_motive
+    from calibration.recording import check_quaternion_order, write_recording
+
+    robot = cell_spec(args).robot(args.robot)
+    rigid_body = args.rigid_body or robot.tool.rigid_body
+    rec = import_motive(args.motive, args.joints, rigid_body, args.min_frames)
+    _check_joint_limits(args.joints, rec.q, robot)
+    check_quaternion_order(rec, robot.model(), "Motive's X, Y, Z, W (converted to qw, qx, qy, qz)")
+    write_recording(rec, args.out)
+    frames = rec.extra["frames"]
+    print(f"{len(rec)} poses of {args.robot} ({rigid_body!r}, {int(frames.min())}-{int(frames.max())} frames each) "
+          f"-> {args.out}")
+    write_json(args.json, {"robot": args.robot, "rigid_body": rigid_body, "poses": len(rec), "out": str(args.out),
+                           "frames_min": int(frames.min()), "frames_max": int(frames.max())})
+    return 0
+
+
+def _check_joint_limits(path: str, q: Any, robot: Any) -> None:
+    """DataError naming the row and joint of the first angle outside ``robot``'s limits."""
+    import numpy as np
+
+    from calibration.errors import DataError
+
+    bad = np.argwhere((q < robot.robot.lower_rad) | (q > robot.robot.upper_rad))
+    if bad.size:
+        i, j = (int(v) for v in bad[0])
+        raise DataError(path, i + 2, f"q{j + 1}", f"{np.degrees(q[i, j]):.2f} deg is outside {robot.name}'s joint "
+                                                  f"{j + 1} limits [{np.degrees(robot.robot.lower_rad[j]):g}, "
+                                                  f"{np.degrees(robot.robot.upper_rad[j]):g}] deg")
+
+
 def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     """Register the cell-workflow subcommands."""
     from app.cli.cell_options import add_motion_options
@@ -511,6 +543,23 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                                                  "DIR/robots/*.yaml, DIR/tools/*.yaml; use it as cellcal --cell "
                                                  "DIR/cell.yaml ...")
     p.add_argument("--json", help="write the files written as JSON")
+
+    p = add("import-motive", cmd_import_motive, "make a recording from Motive's CSV export of a take and the joint "
+                                                "angles of its poses")
+    p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2): its tool YAML names the rigid "
+                                                  "body, its limits check the joints")
+    p.add_argument("--motive", required=True, metavar="TAKE.csv",
+                   help="Motive's CSV export with Header information on and Rotation Type Quaternion (X, Y, Z, W: "
+                        "scalar last; positions in the header's Length Units, converted to mm)")
+    p.add_argument("--joints", required=True, metavar="JOINTS.csv",
+                   help="one row per pose: q1..q6 [rad] or q1_deg..q6_deg [deg], and t_start_s, t_end_s: its dwell "
+                        "window in the take's Time (Seconds)")
+    p.add_argument("--rigid-body", help="the Motive rigid-body name (default: the robot's tool YAML rigid_body)")
+    p.add_argument("--min-frames", type=non_negative_int, default=1,
+                   help="refuse a pose whose window holds fewer tracked frames")
+    p.add_argument("--out", required=True, help="recording CSV to write (q1..q6, x, y, z [mm], qw, qx, qy, qz, "
+                                                "frames, t)")
+    p.add_argument("--json", help="write the pose count and frames per pose as JSON")
 
     p = add("plan", cmd_plan, "make a collection plan for one arm (anchor grid, CPA sweeps, validation poses)")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")

@@ -558,7 +558,8 @@ def version() -> str:
 #: the command succeeds, and a failure (a full disk) leaves none of them, not even a folder
 #: (:func:`calibration.files.staged_outputs`). Commands that read back what they wrote (recalibrate, demo) are not.
 STAGED_COMMANDS = frozenset({"evaluate", "compare", "fit", "predict", "select", "plan", "export", "diagnose",
-                             "plan-dual", "export-targets", "export-urdf", "compensate-job", "init-cell"})
+                             "plan-dual", "export-targets", "export-urdf", "compensate-job", "init-cell",
+                             "import-motive"})
 
 
 def main(argv: list[str] | None = None) -> int:
