@@ -561,7 +561,8 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                                                 "frames, t)")
     p.add_argument("--json", help="write the pose count and frames per pose as JSON")
 
-    p = add("plan", cmd_plan, "make a collection plan for one arm (anchor grid, CPA sweeps, validation poses)")
+    p = add("plan", cmd_plan, "make a collection plan for one arm (the optimal design or the paper's grid, CPA sweeps, "
+                                "validation poses)")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
     p.add_argument("--out", required=True, help="plan file (JSON)")
     p.add_argument("--q2-step", type=float,

@@ -494,8 +494,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="fit both frames and the joint offsets of joints 4 and 5 (14): for poses that move the "
                             "wrist widely (cellcal plan --design optimal --for rebase); a still wrist cannot see "
                             "them")
-    p = add("export-urdf", cmd_export_urdf, "write a model's calibrated geometry as a URDF (revolute chain, flange "
-                                            "and tool-marker frames, joint limits; says what a URDF cannot hold)")
+    p = add("export-urdf", cmd_export_urdf, "write a model's calibrated geometry as a URDF with the ROS-Industrial "
+                                            "Motoman names (or a xacro macro), joint limits and efforts; says what "
+                                            "a URDF cannot hold")
     p.add_argument("--model", required=True, help="the model file (constant, pi, cdc, physics, diagnosed, rebased)")
     p.add_argument("--robot", help="robot name in the cell (R1, R2; default: the robot the model records); its YAML "
                                    "gives the joint limits")
