@@ -164,7 +164,7 @@ def _fixed(robot: ET.Element, name: str, parent: str, child: str, T_mm: np.ndarr
     ET.SubElement(j, "child", link=prefix + child)
 
 
-def _robot_element(geometry: UrdfGeometry, limits: JointLimits, name: str, source: str, layout: UrdfLayout,
+def _robot_element(geometry: UrdfGeometry, limits: JointLimits, source: str, layout: UrdfLayout,
                    root: ET.Element, prefix: str) -> None:
     """Append the links and joints of ``geometry`` to ``root`` (names prefixed with ``prefix``)."""
     arm = geometry.arm
@@ -232,7 +232,7 @@ def urdf_text(geometry: UrdfGeometry, limits: JointLimits, name: str, source: st
         ModelError: not a 6-axis arm, limits of the wrong size, a mesh folder that is not a URI.
     """
     robot = ET.Element("robot", name=name)
-    _robot_element(geometry, limits, name, source, layout, robot, "")
+    _robot_element(geometry, limits, source, layout, robot, "")
     ET.indent(robot)
     return '<?xml version="1.0"?>\n' + ET.tostring(robot, encoding="unicode") + "\n"
 
@@ -250,7 +250,7 @@ def xacro_text(geometry: UrdfGeometry, limits: JointLimits, macro: str, source: 
     """
     robot = ET.Element("robot", {"xmlns:xacro": XACRO_NS})
     body = ET.SubElement(robot, "xacro:macro", name=macro, params="prefix")
-    _robot_element(geometry, limits, macro, source, layout, body, "${prefix}")
+    _robot_element(geometry, limits, source, layout, body, "${prefix}")
     ET.indent(robot)
     return '<?xml version="1.0"?>\n' + ET.tostring(robot, encoding="unicode") + "\n"
 

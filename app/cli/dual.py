@@ -207,11 +207,17 @@ def cmd_preview(args: argparse.Namespace) -> int:
 
 
 def cmd_export_targets(args: argparse.Namespace) -> int:
-    from app.dual.export_targets import export_targets
+    from app.dual.export_targets import checked_rows, write_targets
+    from app.jobs.plan_job import job_bytes
+    from calibration.files import atomic_write_bytes
 
     cell = cell_spec(args)
-    n = export_targets(args.plan, cell, args.out, args.frame, args.skip_failed,
-                       models=_model_pair(args.models, "--models", cell), jbi=args.jbi, speed_pct=args.speed)
+    rows = checked_rows(args.plan, cell, args.frame, args.skip_failed, models=_model_pair(args.models, "--models", cell))
+    job = None if args.jbi is None else job_bytes(rows, args.jbi, args.speed)  # before writing: a bad name, nothing
+    write_targets(rows, args.out, args.frame)  # refuses an unknown file type before writing
+    if job is not None:
+        atomic_write_bytes(args.jbi, job)
+    n = len(rows)
     print(f"{n} targets ({args.frame} frame) -> {args.out}")
     if args.jbi:
         print(f"{n // 2} coordinated joint moves (R1 = RB1, R2 = RB2, pulses, VJ={args.speed:.2f}) -> {args.jbi}")

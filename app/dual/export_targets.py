@@ -4,12 +4,7 @@ Rows are written as CSV (one line per waypoint and robot) or JSON, and optionall
 joint moves in pulses; an unsolved waypoint or a joint beyond its limit refuses the whole export before anything
 is written.
 
-The job (:func:`job_bytes`) is ONE two-group job, ``///GROUP1 RB1`` (R1) and ``///GROUP2 RB2`` (R2), one
-coordinated line per waypoint (``MOVJ C00000 VJ=.. +MOVJ C00001 VJ=..``): a dual plan's waypoints are pairs that
-hold the relative tool pose only together, and two separate jobs would let one arm run ahead of the other. The
-pulses are the robot YAML's convention, ``pulse = pulse_zero + pulse_sign * q_deg * pulses_per_deg`` rounded
-(:meth:`cell_config.loader.RobotSpec.to_pulses`, the same numbers as the CSV's pulse columns); R1 is RB1 and R2 is
-RB2, the controller's robot numbering of this cell (its MotoROS groups 0 and 1).
+The job (``export-targets --jbi``) is written by :mod:`app.jobs.plan_job` from the same rows.
 """
 
 from __future__ import annotations
@@ -18,7 +13,6 @@ import csv
 import io
 import json
 from collections.abc import Mapping
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
@@ -27,9 +21,8 @@ import numpy as np
 from app.cell.plan_file import read_plan
 from app.cell.plan_safety import check_plan_safe
 from app.dual.plan_result import PlanResult
-from app.jobs.jbi import pulse_job
 from calibration.errors import DataError, ModelError, UnsafeTarget
-from calibration.files import atomic_write_bytes, atomic_write_text
+from calibration.files import atomic_write_text
 from cell_config.loader import CellSpec
 
 
@@ -113,66 +106,41 @@ def write_targets(rows: list[dict[str, Any]], path: str | Path, frame: str = "fl
     atomic_write_text(path, buf.getvalue())
 
 
-#: The controller's robot unit of each arm of the cell (one control group each, in this order).
-JOB_UNITS: dict[str, str] = {"R1": "RB1", "R2": "RB2"}
-#: Default joint speed of the job's moves [% of each joint's maximum speed]: slow, for a first run on the cell.
-JOB_SPEED_PCT = 10.0
-
-
-def job_bytes(rows: list[dict[str, Any]], path: str | Path, speed_pct: float = JOB_SPEED_PCT,
-              date: datetime | None = None) -> bytes:
-    """The two-group INFORM job of export rows (see the module docstring), named after ``path``'s stem.
-
-    Raises:
-        JobError: ``path`` is not a ``.JBI`` file, a stem that is not a job name, a speed outside VJ's range.
-    """
-    from app.jobs.jbi import JobError
-
-    path = Path(path)
-    if path.suffix.upper() != ".JBI":
-        raise JobError(path, None, f"unknown job file type {path.suffix!r}; valid: .JBI")
-    steps: dict[int, dict[str, list[int]]] = {}
-    for r in rows:
-        steps.setdefault(r["index"], {})[JOB_UNITS[r["robot"]]] = [int(v) for v in r["pulses"]]
-    return pulse_job(path.stem, list(steps.values()), speed_pct, date or datetime.now(timezone.utc))
+def checked_rows(plan: PlanResult | str | Path, cell: CellSpec, frame: str = "flange", skip_failed: bool = False,
+                 models: Mapping[str, Any] | None = None) -> list[dict[str, Any]]:
+    """The rows of :func:`export_rows` of a plan (object or plan file) that passed
+    :func:`app.cell.plan_safety.check_plan_safe` (see :func:`export_targets` for the checks and errors)."""
+    source = "<plan>" if isinstance(plan, PlanResult) else str(plan)
+    if not isinstance(plan, PlanResult):
+        plan = read_plan(plan, "dual")
+    check_plan_safe(cell, plan, source, models=models, skip_failed=skip_failed)
+    rows = export_rows(plan, cell, frame, skip_failed)
+    if not rows:  # a header-only target file, exit 0, read as a job with nothing to do
+        raise DataError(source, None, None, "no targets to export: the plan has no waypoints" if not plan.waypoints
+                        else f"no targets to export: none of its {len(plan.waypoints)} waypoints was solved")
+    return rows
 
 
 def export_targets(plan: PlanResult | str | Path, cell: CellSpec, out: str | Path, frame: str = "flange",
-                   skip_failed: bool = False, models: Mapping[str, Any] | None = None,
-                   jbi: str | Path | None = None, speed_pct: float = JOB_SPEED_PCT) -> int:
+                   skip_failed: bool = False, models: Mapping[str, Any] | None = None) -> int:
     """Export a plan (object or plan file) as controller targets to ``out`` (.csv or .json).
 
     The plan must first pass :func:`app.cell.plan_safety.check_plan_safe`, the checks plan-dual made when it
     solved it (clearances and floor along every move, the step between waypoints, the relative pose recomputed
     from ``models``, the nominal ones for a robot not given), so a plan edited since cannot leave unchecked.
 
-    Args:
-        jbi: also write the waypoints as a two-group INFORM job of joint moves in pulses (:func:`job_bytes`).
-        speed_pct: the job's joint speed ``VJ`` [%].
-
     Returns:
         The number of rows written (waypoints x 2 robots).
 
     Raises:
-        JobError: a ``jbi`` path that is not a ``NAME.JBI`` job name, a speed outside VJ's range.
         UnsafeTarget: an unsolved waypoint (unless ``skip_failed``), a joint beyond its limit, or any defect of
             :func:`~app.cell.plan_safety.check_plan_safe` (an :class:`~app.cell.plan_safety.UnsafePlan` naming the
             waypoint); nothing is written.
         DataError, ModelError: unreadable plan, nothing to export (no waypoints, or none solved with
             ``skip_failed``), unknown frame or file type.
     """
-    source = "<plan>" if isinstance(plan, PlanResult) else str(plan)
-    if not isinstance(plan, PlanResult):
-        plan = read_plan(plan, "dual")
     if Path(out).suffix.lower() not in (".csv", ".json"):
         raise ModelError(f"unknown target file type {Path(out).suffix!r}; valid: .csv, .json")
-    check_plan_safe(cell, plan, source, models=models, skip_failed=skip_failed)
-    rows = export_rows(plan, cell, frame, skip_failed)
-    if not rows:  # a header-only target file, exit 0, read as a job with nothing to do
-        raise DataError(source, None, None, "no targets to export: the plan has no waypoints" if not plan.waypoints
-                        else f"no targets to export: none of its {len(plan.waypoints)} waypoints was solved")
-    job = None if jbi is None else job_bytes(rows, jbi, speed_pct)  # built first: a bad job name writes nothing
+    rows = checked_rows(plan, cell, frame, skip_failed, models)
     write_targets(rows, out, frame)
-    if job is not None:
-        atomic_write_bytes(jbi, job)
     return len(rows)
