@@ -135,3 +135,14 @@ def test_the_example_job_in_docs_parses_as_a_two_group_job():
     job = read_job(Path(__file__).resolve().parents[2] / "docs" / "examples" / "SWEEP4.JBI")
     assert job.name == "SWEEP4" and job.groups == (("RB1",), ("RB2",)) and len(job.positions) == 8
     assert [p.unit for p in job.positions] == ["RB1", "RB2"] * 4
+
+
+@pytest.mark.parametrize("module", ["app.dual.export_targets", "app.jobs.plan_job", "app.jobs"])
+def test_each_module_imports_on_its_own(module):
+    """export_targets once imported app.jobs, whose compensate imports export_targets: a circle that failed when
+    export_targets was imported first."""
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-c", f"import {module}"], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
