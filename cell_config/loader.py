@@ -63,6 +63,8 @@ class RobotSpec:
     capsules_mm: Mapping[str, float] = field(default_factory=dict)  # collision capsule radius per segment [mm]
     pulse_sign: np.ndarray = field(default_factory=lambda: np.ones(6))  # (6,) +1 or -1
     pulse_zero: np.ndarray = field(default_factory=lambda: np.zeros(6))  # (6,) [pulses] at q = 0
+    base_height_mm: float = 0.0  # floor (the ROS-I base_link) to this robot frame [mm]
+    max_torque_Nm: np.ndarray | None = None  # (6,) joint torque limits [N m] (the URDF's effort), None: not known
 
     def to_pulses(self, q: np.ndarray) -> np.ndarray:
         """Controller encoder pulses of joint angles, the robot YAML's pulse convention (the one definition).
@@ -217,6 +219,10 @@ def load_robot(path: str | Path) -> RobotSpec:
     if np.any(pulse_zero != np.rint(pulse_zero)):
         raise r.error("pulse_zero", f"expected whole pulses, got {pulse_zero.tolist()}")
     payload = None if r.get("payload_kg", None) is None else r.number("payload_kg", lo=0.0)
+    base_height = 0.0 if r.get("base_height_mm", None) is None else r.number("base_height_mm", lo=0.0)
+    torque = None if r.get("max_torque_Nm", None) is None else r.array("max_torque_Nm", (6,))
+    if torque is not None and not np.all(torque > 0):
+        raise r.error("max_torque_Nm", f"expected positive torques [N m], got {torque.tolist()}")
     caps = r.child("capsules_mm")
     caps.only(CAPSULE_SEGMENTS)
     capsules = {s: caps.number(s, lo=0.0, lo_open=True) for s in CAPSULE_SEGMENTS}
@@ -225,7 +231,7 @@ def load_robot(path: str | Path) -> RobotSpec:
         lower_rad=np.radians(lower), upper_rad=np.radians(upper), max_speed_rad_s=np.radians(speeds),
         pulses_per_rad=pulses * 180.0 / np.pi, links=tuple(links),
         payload_kg=payload, capsules_mm=capsules,
-        pulse_sign=pulse_sign, pulse_zero=pulse_zero,
+        pulse_sign=pulse_sign, pulse_zero=pulse_zero, base_height_mm=base_height, max_torque_Nm=torque,
     )
 
 

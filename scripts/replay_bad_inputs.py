@@ -98,7 +98,8 @@ def make_base(w: Path) -> None:
 
     for argv in (["fit", "--robot", "R1", "--train", str(w / "train.csv"), "--method", "nls1", "--out",
                   str(w / "m.yaml")],
-                 ["plan", "--robot", "R1", "--q2-step", "60", "--q3-step", "60", "--out", str(w / "plan.json")],
+                 ["plan", "--design", "grid", "--robot", "R1", "--q2-step", "60", "--q3-step", "60", "--out",
+                  str(w / "plan.json")],
                  ["plan-dual", "--path", "sweep:5", "--out", str(w / "dual.json")]):
         with contextlib.redirect_stdout(sys.stderr):  # stdout is the table
             code = cellcal(["--quiet", *argv])
@@ -380,8 +381,9 @@ def cases() -> list[Case]:
                     text("pdeep.json", "[" * 200_000 + "]" * 200_000)))
 
     def cell(name: str, cell_file: str, setup=None) -> None:
-        out.append(Case("cells", name, ["plan", "--cell", cell_file, "--robot", "R1", "--q2-step", "60", "--q3-step",
-                                        "60", "--out", "{W}/out/plan.json"], ["{W}/out/plan.json"], setup))
+        out.append(Case("cells", name, ["plan", "--design", "grid", "--cell", cell_file, "--robot", "R1", "--q2-step",
+                                        "60", "--q3-step", "60", "--out", "{W}/out/plan.json"], ["{W}/out/plan.json"],
+                        setup))
 
     cell("missing file", "{W}/cell/nothing.yaml")
     cell("empty file", "{W}/cell/empty.yaml", text("cell/empty.yaml", ""))
@@ -433,7 +435,7 @@ def cases() -> list[Case]:
     opt("--tolerance-mm nan", ["evaluate", "--model", "{W}/m.yaml", "--test", "{W}/train.csv", "--tolerance-mm",
                                "nan", "--report", "{W}/out/rep"])
     opt("plan --validation 1e9", ["plan", "--robot", "R1", "--validation", "1000000000", "--out", "{W}/out/p.json"])
-    opt("plan --q2-step 0", ["plan", "--robot", "R1", "--q2-step", "0", "--out", "{W}/out/p.json"])
+    opt("plan --q2-step 0", ["plan", "--design", "grid", "--robot", "R1", "--q2-step", "0", "--out", "{W}/out/p.json"])
     opt("plan --seed -1", ["plan", "--robot", "R1", "--seed", "-1", "--out", "{W}/out/p.json"])
     opt("plan-dual sweep:abc", ["plan-dual", "--path", "sweep:abc", "--out", "{W}/out/d.json"])
     opt("plan-dual sweep:1000000000", ["plan-dual", "--path", "sweep:1000000000", "--out", "{W}/out/d.json"])

@@ -159,3 +159,27 @@ def relative_bases(cell: Any, registrations: Mapping[str, Any], reference: str =
         d_mm, d_deg = transform_difference(T, T_yaml)
         out[name] = {"T_ref_base": T.tolist(), "cell_yaml_diff_mm": float(d_mm), "cell_yaml_diff_deg": float(d_deg)}
     return out
+
+
+#: A registered base that differs from cell.yaml's by more than this gets a hint to update the cell file [mm, deg]:
+#: well above a registration's uncertainty (its sigma_world_base, hundredths of a mm on the rehearsal cell) and the
+#: size at which the planner's relative pose, the safety checks and the preview (all from cell.yaml) are visibly off.
+BASE_HINT_MM, BASE_HINT_DEG = 0.5, 0.05
+
+
+def base_update_hint(cell: Any, name: str, diff: Mapping[str, Any], reference: str = "R1") -> str | None:
+    """What to do when ``name``'s registered base differs from cell.yaml's (``diff``: a :func:`relative_bases`
+    entry): the block to put into cell.yaml as ``robots.<name>.T_cell_base`` (the registered base in the cell
+    frame, ``T_cell_ref @ T_ref_base``) and where. None when the difference is within BASE_HINT_MM/DEG."""
+    if diff["cell_yaml_diff_mm"] <= BASE_HINT_MM and diff["cell_yaml_diff_deg"] <= BASE_HINT_DEG:
+        return None
+    T_cell_base = np.asarray(cell.robot(reference).T_cell_base, dtype=float) @ np.asarray(diff["T_ref_base"])
+    rows = "\n".join(f"      - [{', '.join(f'{v:.9g}' if j < 3 else f'{v:.6f}' for j, v in enumerate(row))}]"
+                     for row in T_cell_base[:3])
+    return (f"{name}'s registered base differs from {cell.path}'s by {diff['cell_yaml_diff_mm']:.3f} mm / "
+            f"{diff['cell_yaml_diff_deg']:.4f} deg (hint above {BASE_HINT_MM:g} mm / {BASE_HINT_DEG:g} deg): the "
+            f"planner, the safety checks and the preview use the cell file's. Update it: in {cell.path}, replace "
+            f"robots.{name}.T_cell_base with\n"
+            f"    T_cell_base:  # {name}'s base in the cell frame, from cellcal register\n{rows}\n"
+            f"      - [0, 0, 0, 1]\n"
+            f"then check it: cellcal --cell {cell.path} plan-dual --path sweep:10 --out /tmp/check_plan.json")

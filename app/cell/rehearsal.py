@@ -175,7 +175,8 @@ def small_plan(cell: Path, robot: str, out: Path, n: int = 14) -> Path:
     from app.cell.planning import Plan
 
     full = out.with_suffix(".full.json")
-    done = run_cellcal(cell, "plan", "--robot", robot, "--q2-step", "50", "--q3-step", "50", "--out", str(full))
+    done = run_cellcal(cell, "plan", "--design", "grid", "--robot", robot, "--q2-step", "50", "--q3-step", "50",
+                       "--out", str(full))
     if done.returncode != 0:
         raise RuntimeError(f"cellcal plan failed: {done.stderr}")
     plan = read_plan(full, "collection")

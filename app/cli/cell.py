@@ -13,6 +13,12 @@ from calibration.errors import CellCalError
 
 #: The anchor-grid steps ``plan --q2-step/--q3-step`` and ``demo --anchor-step`` accept [deg].
 MIN_GRID_STEP_DEG, MAX_GRID_STEP_DEG = 0.5, 90.0
+#: ``plan --design grid``'s default step [deg]: the paper's 5-degree grid (248 anchors, 1736 poses on R1).
+GRID_STEP_DEG = 5.0
+#: ``plan``'s default --budget [poses] per purpose: 196 (28 clusters, about a ninth of the paper's grid, which sees
+#: all 27 directions on the packaged R1 where the grid sees 11) for identification; 21 (3 clusters, the rebase
+#: design's least) for --for rebase.
+DEFAULT_BUDGET = {"identification": 196, "rebase": 21}
 
 
 def _load_plan(path: str, robot: str) -> Any:
@@ -56,11 +62,14 @@ def cmd_plan(args: argparse.Namespace) -> int:
     others = {n: park_q(n) for n in cell.robots if n != args.robot}
     safety = CellSafety(cell)
     for option, step in (("--q2-step", args.q2_step), ("--q3-step", args.q3_step)):
-        _check_grid_step(option, step)
+        if step is not None and args.design != "grid":
+            raise CellCalError(f"{option} applies to --design grid only (the paper's anchor grid; the default design "
+                               "is optimal): add --design grid")
+        _check_grid_step(option, GRID_STEP_DEG if step is None else step)
     if args.given is not None or args.task is not None:
         return _plan_topup(args, cell, robot, safety, others)
-    spec = PlanSpec(q2_step_deg=args.q2_step, q3_step_deg=args.q3_step, cpa=args.cpa,
-                    n_validation=args.validation, seed=args.seed)
+    spec = PlanSpec(q2_step_deg=args.q2_step or GRID_STEP_DEG, q3_step_deg=args.q3_step or GRID_STEP_DEG,
+                    cpa=args.cpa, n_validation=args.validation, seed=args.seed)
     anchors, figs = None, None
     if args.design == "optimal":
         anchors, figs = _optimal_anchors(args, robot, safety, others, park_q(args.robot))
@@ -125,11 +134,10 @@ def _optimal_anchors(args: argparse.Namespace, robot: Any, safety: Any, others: 
     from app.cell.design_plan import DesignSpec, check_budget, optimal_plan
     from calibration.parameterisation import MinimalParameterisation
 
-    if args.budget is None:
-        raise CellCalError("--design optimal needs --budget N (poses to measure, clusters of 7)")
-    check_budget(args.budget)
-    spec = DesignSpec.for_rebase(args.budget, args.noise_mm, args.seed) if args.target == "rebase" else \
-        DesignSpec(budget=args.budget, noise_mm=args.noise_mm, seed=args.seed)
+    budget = args.budget if args.budget is not None else DEFAULT_BUDGET[args.target]
+    check_budget(budget)
+    spec = DesignSpec.for_rebase(budget, args.noise_mm, args.seed) if args.target == "rebase" else \
+        DesignSpec(budget=budget, noise_mm=args.noise_mm, seed=args.seed)
     return optimal_plan(args.robot, MinimalParameterisation(robot.model(), fit_tool=True), safety, others, spec,
                         q_start)
 
@@ -481,29 +489,99 @@ def _demo_methods(text: str | None) -> tuple[str, ...] | None:
     return tuple(parse_methods(text))
 
 
+def cmd_init_cell(args: argparse.Namespace) -> int:
+    from app.cell.init_cell import init_cell
+
+    written = init_cell(args.folder)
+    print(f"cell folder {args.folder}: {', '.join(written.files)}")
+    print(f"edit {written.cell} for your cell (its header and each file's say the units), then e.g.\n"
+          f"  cellcal --cell {written.cell} plan --robot R1 --out r1_plan.json")
+    write_json(args.json, {"folder": str(args.folder), "cell": str(written.cell), "files": list(written.files)})
+    return 0
+
+
+def cmd_import_motive(args: argparse.Namespace) -> int:
+    from app.cell.motive_import import import_motive
+    from calibration.recording import check_quaternion_order, write_recording
+
+    robot = cell_spec(args).robot(args.robot)
+    rigid_body = args.rigid_body or robot.tool.rigid_body
+    rec = import_motive(args.motive, args.joints, rigid_body, args.min_frames)
+    _check_joint_limits(args.joints, rec.q, robot)
+    check_quaternion_order(rec, robot.model(), "Motive's X, Y, Z, W (converted to qw, qx, qy, qz)")
+    write_recording(rec, args.out)
+    frames = rec.extra["frames"]
+    print(f"{len(rec)} poses of {args.robot} ({rigid_body!r}, {int(frames.min())}-{int(frames.max())} frames each) "
+          f"-> {args.out}")
+    write_json(args.json, {"robot": args.robot, "rigid_body": rigid_body, "poses": len(rec), "out": str(args.out),
+                           "frames_min": int(frames.min()), "frames_max": int(frames.max())})
+    return 0
+
+
+def _check_joint_limits(path: str, q: Any, robot: Any) -> None:
+    """DataError naming the row and joint of the first angle outside ``robot``'s limits."""
+    import numpy as np
+
+    from calibration.errors import DataError
+
+    bad = np.argwhere((q < robot.robot.lower_rad) | (q > robot.robot.upper_rad))
+    if bad.size:
+        i, j = (int(v) for v in bad[0])
+        raise DataError(path, i + 2, f"q{j + 1}", f"{np.degrees(q[i, j]):.2f} deg is outside {robot.name}'s joint "
+                                                  f"{j + 1} limits [{np.degrees(robot.robot.lower_rad[j]):g}, "
+                                                  f"{np.degrees(robot.robot.upper_rad[j]):g}] deg")
+
+
 def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     """Register the cell-workflow subcommands."""
     from app.cli.cell_options import add_motion_options
     from calibration.methods import METHODS
 
-    p = add("plan", cmd_plan, "make a collection plan for one arm (anchor grid, CPA sweeps, validation poses)")
+    p = add("init-cell", cmd_init_cell, "write an editable cell folder (cell.yaml with its devices, robots/, tools/) "
+                                        "that loads as written; never overwrites", reads_cell=False)
+    p.add_argument("folder", metavar="DIR", help="the folder to write (new or without these files): DIR/cell.yaml, "
+                                                 "DIR/robots/*.yaml, DIR/tools/*.yaml; use it as cellcal --cell "
+                                                 "DIR/cell.yaml ...")
+    p.add_argument("--json", help="write the files written as JSON")
+
+    p = add("import-motive", cmd_import_motive, "make a recording from Motive's CSV export of a take and the joint "
+                                                "angles of its poses")
+    p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2): its tool YAML names the rigid "
+                                                  "body, its limits check the joints")
+    p.add_argument("--motive", required=True, metavar="TAKE.csv",
+                   help="Motive's CSV export with Header information on and Rotation Type Quaternion (X, Y, Z, W: "
+                        "scalar last; positions in the header's Length Units, converted to mm)")
+    p.add_argument("--joints", required=True, metavar="JOINTS.csv",
+                   help="one row per pose: q1..q6 [rad] or q1_deg..q6_deg [deg], and t_start_s, t_end_s: its dwell "
+                        "window in the take's Time (Seconds)")
+    p.add_argument("--rigid-body", help="the Motive rigid-body name (default: the robot's tool YAML rigid_body)")
+    p.add_argument("--min-frames", type=non_negative_int, default=1,
+                   help="refuse a pose whose window holds fewer tracked frames")
+    p.add_argument("--out", required=True, help="recording CSV to write (q1..q6, x, y, z [mm], qw, qx, qy, qz, "
+                                                "frames, t)")
+    p.add_argument("--json", help="write the pose count and frames per pose as JSON")
+
+    p = add("plan", cmd_plan, "make a collection plan for one arm (the optimal design or the paper's grid, CPA sweeps, "
+                                "validation poses)")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
     p.add_argument("--out", required=True, help="plan file (JSON)")
-    p.add_argument("--q2-step", type=float, default=5.0,
-                   help="anchor grid q2 step [deg], 0.5 to 90 (default %(default)g: the paper's design)")
-    p.add_argument("--q3-step", type=float, default=5.0, help="anchor grid q3 step [deg], 0.5 to 90")
+    p.add_argument("--q2-step", type=float,
+                   help="--design grid: anchor grid q2 step [deg], 0.5 to 90 (default 5: the paper's design)")
+    p.add_argument("--q3-step", type=float, help="--design grid: anchor grid q3 step [deg], 0.5 to 90 (default 5)")
     p.add_argument("--cpa", action="store_true", help="add single-joint sweeps (needed by the cpa method)")
     p.add_argument("--validation", type=validation_count, default=0, help="random validation poses to add (the test set)")
     p.add_argument("--seed", type=non_negative_int, default=0, help="seed of the validation poses (and of the optimal design's "
                                                         "candidates)")
-    p.add_argument("--design", choices=("grid", "optimal"), default="grid",
-                   help="grid: the paper's anchor grid; optimal: D-optimal clusters that move joints 1, 4, "
-                        "5, 6 widely and spread over (q2, q3), within the limits and the safety model")
+    p.add_argument("--design", choices=("grid", "optimal"), default="optimal",
+                   help="optimal: D-optimal clusters that move joints 1, 4, 5, 6 widely and spread over (q2, q3), "
+                        "within the limits and the safety model (on the packaged R1 its 196 poses see all 27 "
+                        "parameter directions); grid: the paper's anchor grid (1736 poses at 5 deg, sees 11 of 27)")
     p.add_argument("--budget", type=int, metavar="POSES",
                    help="--design optimal: the number of POSES to measure (not clusters, as select --budget counts), "
                         "taken as whole clusters of 7 (rounded down; at least 21, 3 clusters, and enough clusters "
                         "to see every identifiable direction: an identification design needs more, about 49 on "
-                        "the packaged R1); no default: --design optimal needs it")
+                        "the packaged R1); default 196 (28 clusters, about a ninth of the paper's grid), 21 with "
+                        "--for rebase")
     p.add_argument("--for", dest="target", choices=("identification", "rebase"), default="identification",
                    help="--design optimal: what the poses are for: identifying the geometry or rebasing a "
                         "fitted model onto a new day (its frames and the joint offsets of joints 4 and 5; "

@@ -313,23 +313,34 @@ def _check_rebase_tolerance(tolerance: float) -> None:
 
 
 def cmd_export_urdf(args: argparse.Namespace) -> int:
-    from calibration.urdf import JointLimits, write_urdf
+    from calibration.urdf import (BASE_LINK, ROS_JOINTS, TOOL_LINK, JointLimits, UrdfLayout, write_urdf,
+                                  xacro_text)
+    from calibration.files import atomic_write_text
 
     model, robot = model_and_robot(args, args.model, needs_robot=True)
     geometry = model.urdf_geometry()
     spec = robot.robot
-    write_urdf(args.out, geometry, JointLimits(spec.lower_rad, spec.upper_rad, spec.max_speed_rad_s), robot.name,
-               str(args.model))
+    limits = JointLimits(spec.lower_rad, spec.upper_rad, spec.max_speed_rad_s, spec.max_torque_Nm)
+    layout = UrdfLayout(spec.base_height_mm, args.meshes)
+    xacro = None
+    if args.xacro:  # built before anything is written: a refused model or mesh URI leaves neither file
+        xacro = xacro_text(geometry, limits, args.macro or f"cellcal_{spec.name.lower()}", str(args.model), layout)
+    write_urdf(args.out, geometry, limits, robot.name, str(args.model), layout)
+    if xacro is not None:
+        atomic_write_text(args.xacro, xacro)
     label = model.method if model.kind == model.method else f"{model.kind} {model.method}"  # not "pi pi model"
     print(f"{label} model of {robot.name}: exported {geometry.exported} -> {args.out}")
+    if args.xacro:
+        print(f"  xacro macro {args.macro or f'cellcal_{spec.name.lower()}'} (prefix parameter) -> {args.xacro}")
     for item in geometry.lost:
         print(f"  lost: {item}")
     if not geometry.lost:
         print("  lost: nothing (the model is one constant geometry)")
     write_json(args.json, {"robot": robot.name, "model": str(args.model), "kind": model.kind, "method": model.method,
                            "exported": geometry.exported, "lost": list(geometry.lost), "out": str(args.out),
-                           "base_link": "base_link", "tool_link": "tool_marker",
-                           "joints": [f"joint_{i + 1}" for i in range(geometry.arm.n_joints)]})
+                           "xacro": args.xacro, "base_link": BASE_LINK, "robot_frame_link": "base",
+                           "base_height_mm": spec.base_height_mm, "tool_link": TOOL_LINK,
+                           "joints": list(ROS_JOINTS[:geometry.arm.n_joints])})
     return 0
 
 
@@ -483,12 +494,24 @@ def build_parser() -> argparse.ArgumentParser:
                        help="fit both frames and the joint offsets of joints 4 and 5 (14): for poses that move the "
                             "wrist widely (cellcal plan --design optimal --for rebase); a still wrist cannot see "
                             "them")
-    p = add("export-urdf", cmd_export_urdf, "write a model's calibrated geometry as a URDF (revolute chain, flange "
-                                            "and tool-marker frames, joint limits; says what a URDF cannot hold)")
+    p = add("export-urdf", cmd_export_urdf, "write a model's calibrated geometry as a URDF with the ROS-Industrial "
+                                            "Motoman names (or a xacro macro), joint limits and efforts; says what "
+                                            "a URDF cannot hold")
     p.add_argument("--model", required=True, help="the model file (constant, pi, cdc, physics, diagnosed, rebased)")
     p.add_argument("--robot", help="robot name in the cell (R1, R2; default: the robot the model records); its YAML "
                                    "gives the joint limits")
-    p.add_argument("--out", required=True, help="the URDF file to write (lengths in metres)")
+    p.add_argument("--out", required=True, help="the URDF file to write (lengths in metres; ROS-Industrial Motoman "
+                                                "names: base_link on the floor, joint_1_s .. joint_6_t, link_1_s .. "
+                                                "link_6_t, base = the robot frame, tool0; then flange and "
+                                                "tool_marker)")
+    p.add_argument("--meshes", metavar="URI",
+                   help="mesh folder by package URI, e.g. package://motoman_ma2010_support/meshes/ma2010: each link "
+                        "gets URI/visual/LINK.stl and URI/collision/LINK.stl (default: no geometry)")
+    p.add_argument("--xacro", metavar="FILE",
+                   help="also write the description as a xacro macro with a prefix parameter, for motoman_support / "
+                        "MotoROS2 users: include it and call <xacro:MACRO prefix=\"\"/> in place of the support "
+                        "package's macro (e.g. motoman_ma2010): same names, calibrated joint origins")
+    p.add_argument("--macro", help="the xacro macro's name (default cellcal_<robot model>, e.g. cellcal_ma2010)")
     p.add_argument("--json", help="write what was exported and what was lost as JSON")
     p = add("compare", cmd_compare, "the paper's comparison table for every method")
     _add_fit_inputs(p)
@@ -536,7 +559,8 @@ def version() -> str:
 #: the command succeeds, and a failure (a full disk) leaves none of them, not even a folder
 #: (:func:`calibration.files.staged_outputs`). Commands that read back what they wrote (recalibrate, demo) are not.
 STAGED_COMMANDS = frozenset({"evaluate", "compare", "fit", "predict", "select", "plan", "export", "diagnose",
-                             "plan-dual", "export-targets", "export-urdf", "compensate-job"})
+                             "plan-dual", "export-targets", "export-urdf", "compensate-job", "init-cell",
+                             "import-motive"})
 
 
 def main(argv: list[str] | None = None) -> int:

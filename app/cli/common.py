@@ -328,13 +328,13 @@ def _warn_gross_rows(fitter: Any) -> None:
 
 
 #: File outputs every subcommand may take; ``demo --out`` is a folder and is left to the demo.
-OUTPUT_FILE_OPTIONS = ("out", "json", "html")
+OUTPUT_FILE_OPTIONS = ("out", "json", "html", "xacro", "jbi")
 
 
 #: Options that name files a command reads (``--models`` as ``R1=FILE,R2=FILE``, ``--model`` also as ``R2=FILE``;
 #: ``--cell`` is the packaged cell when left out).
 INPUT_FILE_OPTIONS = ("train", "add", "test", "cpa", "data", "model", "models", "joints", "plan", "job", "relative_pose",
-                      "path", "cell", CELL_AFTER)
+                      "motive", "path", "cell", CELL_AFTER)
 
 
 def _folder_files(args: argparse.Namespace) -> list[tuple[str, str, str]]:

@@ -207,13 +207,22 @@ def cmd_preview(args: argparse.Namespace) -> int:
 
 
 def cmd_export_targets(args: argparse.Namespace) -> int:
-    from app.dual.export_targets import export_targets
+    from app.dual.export_targets import checked_rows, write_targets
+    from app.jobs.plan_job import job_bytes
+    from calibration.files import atomic_write_bytes
 
     cell = cell_spec(args)
-    n = export_targets(args.plan, cell, args.out, args.frame, args.skip_failed,
-                       models=_model_pair(args.models, "--models", cell))
+    rows = checked_rows(args.plan, cell, args.frame, args.skip_failed, models=_model_pair(args.models, "--models", cell))
+    job = None if args.jbi is None else job_bytes(rows, args.jbi, args.speed)  # before writing: a bad name, nothing
+    write_targets(rows, args.out, args.frame)  # refuses an unknown file type before writing
+    if job is not None:
+        atomic_write_bytes(args.jbi, job)
+    n = len(rows)
     print(f"{n} targets ({args.frame} frame) -> {args.out}")
-    write_json(args.json, {"plan": str(args.plan), "targets": n, "frame": args.frame, "out": str(args.out)})
+    if args.jbi:
+        print(f"{n // 2} coordinated joint moves (R1 = RB1, R2 = RB2, pulses, VJ={args.speed:.2f}) -> {args.jbi}")
+    write_json(args.json, {"plan": str(args.plan), "targets": n, "frame": args.frame, "out": str(args.out),
+                           "jbi": args.jbi})
     return 0
 
 
@@ -264,4 +273,10 @@ def add_dual_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--frame", choices=("flange", "tool"), default="flange", help="pose frame of the targets")
     p.add_argument("--skip-failed", action="store_true", help="leave out unsolved waypoints instead of refusing")
     p.add_argument("--models", help=PLAN_MODELS_HELP)
+    p.add_argument("--jbi", metavar="NAME.JBI",
+                   help="also write an INFORM job: one two-group job (GROUP1 RB1 = R1, GROUP2 RB2 = R2), one "
+                        "coordinated MOVJ line per waypoint so both arms reach it together, positions in pulses "
+                        "(pulse = pulse_zero + pulse_sign * q_deg * pulses_per_deg, from the robot YAML); the job "
+                        "is named after the file")
+    p.add_argument("--speed", type=float, default=10.0, help="the job's joint speed VJ [%% of maximum]")
     p.add_argument("--json", help="write the target count and frame as JSON")

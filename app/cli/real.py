@@ -136,7 +136,7 @@ def cmd_fake_motive(args: argparse.Namespace) -> int:
 
 def cmd_register(args: argparse.Namespace) -> int:
     from app.cli.cell_options import confirm_motion, motion_config, open_runtime, safety_for
-    from app.cell.register import measure_registration, plan_registration, relative_bases
+    from app.cell.register import base_update_hint, measure_registration, plan_registration, relative_bases
     from cell_config.loader import load_registration, save_registration
 
     cell = cell_spec(args)
@@ -178,6 +178,10 @@ def cmd_register(args: argparse.Namespace) -> int:
         for name, d in rel.items():
             print(f"{name} base in R1's frame from the registrations differs from cell.yaml by "
                   f"{d['cell_yaml_diff_mm']:.3f} mm / {d['cell_yaml_diff_deg']:.4f} deg")
+            hint = base_update_hint(cell, name, d)
+            if hint is not None:
+                print(hint)
+                d["hint"] = hint
         out["relative_bases"] = rel
     write_json(args.json, out)
     return 0

@@ -1,7 +1,10 @@
 """Controller targets from a dual plan: joint angles, encoder pulses and "filtered" nominal poses.
 
-Rows are written as CSV (one line per waypoint and robot) or JSON; an unsolved waypoint or a joint beyond its
-limit refuses the whole export before anything is written.
+Rows are written as CSV (one line per waypoint and robot) or JSON, and optionally as an INFORM job (``.JBI``) of
+joint moves in pulses; an unsolved waypoint or a joint beyond its limit refuses the whole export before anything
+is written.
+
+The job (``export-targets --jbi``) is written by :mod:`app.jobs.plan_job` from the same rows.
 """
 
 from __future__ import annotations
@@ -103,6 +106,20 @@ def write_targets(rows: list[dict[str, Any]], path: str | Path, frame: str = "fl
     atomic_write_text(path, buf.getvalue())
 
 
+def checked_rows(plan: PlanResult | str | Path, cell: CellSpec, frame: str = "flange", skip_failed: bool = False,
+                 models: Mapping[str, Any] | None = None) -> list[dict[str, Any]]:
+    """The rows of :func:`export_rows` of a plan (object or plan file) that passed
+    :func:`app.cell.plan_safety.check_plan_safe` (see :func:`export_targets` for the checks and errors)."""
+    source = "<plan>" if isinstance(plan, PlanResult) else str(plan)
+    if not isinstance(plan, PlanResult):
+        plan = read_plan(plan, "dual")
+    check_plan_safe(cell, plan, source, models=models, skip_failed=skip_failed)
+    rows = export_rows(plan, cell, frame, skip_failed)
+    if not rows:  # a header-only target file, exit 0, read as a job with nothing to do
+        raise DataError(source, None, None, "no targets to export: the plan has no waypoints" if not plan.waypoints
+                        else f"no targets to export: none of its {len(plan.waypoints)} waypoints was solved")
+    return rows
+
 
 def export_targets(plan: PlanResult | str | Path, cell: CellSpec, out: str | Path, frame: str = "flange",
                    skip_failed: bool = False, models: Mapping[str, Any] | None = None) -> int:
@@ -122,15 +139,8 @@ def export_targets(plan: PlanResult | str | Path, cell: CellSpec, out: str | Pat
         DataError, ModelError: unreadable plan, nothing to export (no waypoints, or none solved with
             ``skip_failed``), unknown frame or file type.
     """
-    source = "<plan>" if isinstance(plan, PlanResult) else str(plan)
-    if not isinstance(plan, PlanResult):
-        plan = read_plan(plan, "dual")
     if Path(out).suffix.lower() not in (".csv", ".json"):
         raise ModelError(f"unknown target file type {Path(out).suffix!r}; valid: .csv, .json")
-    check_plan_safe(cell, plan, source, models=models, skip_failed=skip_failed)
-    rows = export_rows(plan, cell, frame, skip_failed)
-    if not rows:  # a header-only target file, exit 0, read as a job with nothing to do
-        raise DataError(source, None, None, "no targets to export: the plan has no waypoints" if not plan.waypoints
-                        else f"no targets to export: none of its {len(plan.waypoints)} waypoints was solved")
+    rows = checked_rows(plan, cell, frame, skip_failed, models)
     write_targets(rows, out, frame)
     return len(rows)

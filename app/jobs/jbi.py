@@ -34,14 +34,16 @@ reproduces the file byte for byte except the lines it is told to replace.
 from __future__ import annotations
 
 import re
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from datetime import datetime
 from pathlib import Path
 from typing import Literal
 
 from calibration.errors import CellCalError
 from calibration.files import read_input_bytes
 
-__all__ = ["JOB_POSTYPES", "Job", "JobError", "JobPosition", "parse_job", "read_job", "write_job"]
+__all__ = ["JOB_POSTYPES", "Job", "JobError", "JobPosition", "parse_job", "pulse_job", "read_job", "write_job"]
 
 JOB_POSTYPES = ("PULSE", "BASE", "ROBOT", "TOOL", "USER", "MTOOL")
 PosType = Literal["PULSE", "BASE", "ROBOT", "TOOL", "USER", "MTOOL"]
@@ -302,3 +304,63 @@ def write_job(job: Job, replacements: dict[int, str] | None = None) -> bytes:
         else:
             out.append(raw)
     return b"".join(out)
+
+
+_JOB_NAME = re.compile(r"^[A-Za-z0-9_-]{1,32}$")
+_UNIT = re.compile(r"^RB[1-8]$")
+#: The joint-speed range of ``VJ=`` [% of each joint's maximum speed] the controller accepts.
+VJ_RANGE_PCT = (0.01, 100.0)
+
+
+def pulse_job(name: str, steps: Sequence[Mapping[str, Sequence[int]]], speed_pct: float, date: datetime) -> bytes:
+    """A new INFORM job of joint moves in pulses: one move line per step, every robot of the step in it.
+
+    Each robot is its own control group in the order of its first appearance (``///GROUP1 RB1``,
+    ``///GROUP2 RB2``); a step that moves two robots is one coordinated line ``MOVJ C00000 VJ=.. +MOVJ C00001
+    VJ=..``, so both reach the step together. Positions are numbered in step order (C00000, C00001, ...), all
+    ``///POSTYPE PULSE`` with ``///TOOL 0`` (pulses do not depend on the tool). Lines end in CRLF, as the
+    controller writes them. :func:`parse_job` reads the result back to the same pulses.
+
+    Args:
+        name: the job name (``//NAME``; the controller wants the file named ``NAME.JBI``), 1-32 of A-Z a-z 0-9 _ -.
+        steps: per step, robot unit (``RB1``) -> 6 joint pulses, in the order the job moves through them.
+        speed_pct: ``VJ``, the joint speed [% of each joint's maximum], in [0.01, 100].
+        date: the ``///DATE`` line.
+
+    Raises:
+        JobError: a bad name, speed, unit or pulse count, a step that leaves out a robot of another step, or no
+            step (the job would move nothing).
+    """
+    where = f"{name}.JBI"
+    if not _JOB_NAME.match(name):
+        raise JobError(where, None, f"job name {name!r} is not 1-32 letters, digits, _ or -; name the file so")
+    if not VJ_RANGE_PCT[0] <= speed_pct <= VJ_RANGE_PCT[1]:
+        raise JobError(where, None, f"joint speed VJ={speed_pct:g} % outside [{VJ_RANGE_PCT[0]}, {VJ_RANGE_PCT[1]:g}]")
+    if not steps:
+        raise JobError(where, None, "no positions to move to")
+    units: list[str] = []
+    for k, step in enumerate(steps):
+        for unit, pulses in step.items():
+            if not _UNIT.match(unit):
+                raise JobError(where, None, f"step {k}: unknown robot unit {unit!r}; expected RB1 .. RB8")
+            if len(pulses) != 6 or not all(isinstance(v, int) for v in pulses):
+                raise JobError(where, None, f"step {k}, {unit}: expected 6 integer pulses, got {list(pulses)}")
+            if unit not in units:
+                units.append(unit)
+    for k, step in enumerate(steps):  # the k-th '+' segment of a line is group k: a line cannot leave a group out
+        if sorted(step) != sorted(units):
+            raise JobError(where, None, f"step {k} moves {', '.join(step) or 'nothing'}; every step must move "
+                                        f"{', '.join(units)} (a move line's segments are the groups in order)")
+    positions, moves, c = [], [], 0
+    for step in steps:
+        segments = []
+        for unit in units:
+            if unit in step:
+                positions.append(f"C{c:05d}=" + ",".join(str(int(v)) for v in step[unit]))
+                segments.append(f"MOVJ C{c:05d} VJ={speed_pct:.2f}")
+                c += 1
+        moves.append("  +".join(segments))
+    lines = ["/JOB", f"//NAME {name}", "//POS", f"///NPOS {c},0,0,0,0,0", "///TOOL 0", "///POSTYPE PULSE",
+             "///PULSE", *positions, "//INST", f"///DATE {date:%Y/%m/%d %H:%M}", "///ATTR SC,RW",
+             *(f"///GROUP{g} {unit}" for g, unit in enumerate(units, start=1)), "NOP", *moves, "END"]
+    return ("\r\n".join(lines) + "\r\n").encode("ascii")

@@ -262,7 +262,7 @@ def test_ctrl_c_during_a_collection_is_one_line_exit_130_and_resumable(tmp_path)
     from app.cell.rehearsal import REPO, sample_count
 
     plan, session = tmp_path / "plan.json", tmp_path / "s"
-    assert main(["plan", "--robot", "R1", "--q2-step", "50", "--q3-step", "50", "--out", str(plan)]) == 0
+    assert main(["plan", "--robot", "R1", "--design", "grid", "--q2-step", "50", "--q3-step", "50", "--out", str(plan)]) == 0
     # Ctrl-C as a terminal delivers it: a suite started as a background job of a non-interactive shell runs with
     # SIGINT ignored, and a child inherits that (Python then never raises KeyboardInterrupt)
     proc = subprocess.Popen([sys.executable, "-m", "app.cli", "collect", "--robot", "R1", "--plan", str(plan),

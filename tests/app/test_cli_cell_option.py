@@ -11,8 +11,8 @@ from app.cli.commands import build_parser, main
 from calibration.errors import CellCalError
 from tests.conftest import assert_bad_input
 
-#: Commands that never read the cell file (they take no --cell after their name).
-NO_CELL = ("export",)
+#: Commands that never read the cell file (they take no --cell after their name; init-cell copies the packaged one).
+NO_CELL = ("export", "init-cell")
 
 
 class CellLoaded(CellCalError):
@@ -68,8 +68,8 @@ def test_every_command_that_reads_the_cell_takes_cell_before_and_after_its_name(
 def test_the_commands_without_cell_never_read_it(tmp_path, capsys, fake_cell):
     for command in NO_CELL:
         assert "--cell" not in _commands()[command]._option_string_actions
-        rest = _required(_commands()[command], tmp_path)
-        main([command, *rest])  # fails on the missing session, not on the cell
+        rest = _required(_commands()[command], tmp_path) + ([str(tmp_path / "new")] if command == "init-cell" else [])
+        main([command, *rest])  # fails on the missing session (init-cell: copies the packaged cell), not on --cell
         assert "cell file read" not in capsys.readouterr().err
 
 

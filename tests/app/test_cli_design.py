@@ -74,17 +74,47 @@ def test_plan_optimal_respects_limits_and_safety_and_moves_joints_1_4_5_6(tmp_pa
     assert "paper_grid" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("extra, fragment", [(["--budget", "10"], "at least 21 poses"),
-                                             ([], "needs --budget")])
-def test_plan_optimal_refuses_a_bad_budget_and_writes_nothing(tmp_path, capsys, extra, fragment):
+@pytest.mark.parametrize("design", [["--design", "optimal"], []])
+def test_plan_optimal_refuses_a_bad_budget_and_writes_nothing(tmp_path, capsys, design):
     out = tmp_path / "plan.json"
-    assert_bad_input(capsys, ["plan", "--robot", "R1", "--design", "optimal", *extra, "--out", str(out)], fragment)
+    assert_bad_input(capsys, ["plan", "--robot", "R1", *design, "--budget", "10", "--out", str(out)],
+                     "at least 21 poses")
     assert not out.exists()
 
 
 def test_budget_belongs_to_the_optimal_design(tmp_path, capsys):
     out = tmp_path / "plan.json"
-    assert_bad_input(capsys, ["plan", "--robot", "R1", "--budget", "70", "--out", str(out)], "--design optimal")
+    assert_bad_input(capsys, ["plan", "--robot", "R1", "--design", "grid", "--budget", "70", "--out", str(out)],
+                     "--design optimal")
+    assert not out.exists()
+
+
+def test_plan_defaults_to_the_optimal_design_of_196_poses(monkeypatch):
+    """The default design is the optimal one (issue 34: the paper's grid sees 11 of 27 directions on R1) with a
+    budget of 196 poses, 21 for a rebase design; the grid needs --design grid and its steps belong to it."""
+    import app.cli.cell as cell_cli
+    from app.cli.commands import build_parser
+
+    args = build_parser().parse_args(["plan", "--robot", "R1", "--out", "p.json"])
+    assert args.design == "optimal" and args.budget is None and args.q2_step is None
+    seen = {}
+
+    def fake_optimal_plan(robot, par, safety, others, spec, q_start):
+        seen[spec.target] = spec.budget
+        raise cell_cli.CellCalError("stop here")
+
+    monkeypatch.setattr("app.cell.design_plan.optimal_plan", fake_optimal_plan)
+    for extra in ([], ["--for", "rebase"]):
+        args = build_parser().parse_args(["plan", "--robot", "R1", "--out", "p.json", *extra])
+        with pytest.raises(cell_cli.CellCalError, match="stop here"):
+            cell_cli.cmd_plan(args)
+    assert seen == {"identification": 196, "rebase": 21}
+
+
+def test_grid_steps_belong_to_the_grid_design(tmp_path, capsys):
+    out = tmp_path / "plan.json"
+    assert_bad_input(capsys, ["plan", "--robot", "R1", "--q2-step", "30", "--out", str(out)],
+                     "--q2-step applies to --design grid only", "add --design grid")
     assert not out.exists()
 
 
@@ -123,7 +153,7 @@ def test_budget_help_says_its_unit_and_that_the_other_command_counts_the_other(c
     text = _budget_help(command)
     assert text.startswith(f"--budget {unit} "), text  # the unit in the usage line
     assert f"number of {unit}" in text and f"not {other}" in text, text
-    assert "no default" in text, text
+    assert ("default 196" if command == "plan" else "no default") in text, text
 
 
 @pytest.mark.parametrize("option, value", [("--q2-step", "0"), ("--q3-step", "nan"), ("--q3-step", "inf"),
@@ -131,7 +161,7 @@ def test_budget_help_says_its_unit_and_that_the_other_command_counts_the_other(c
 def test_plan_refuses_a_grid_step_outside_its_range_naming_the_option_and_value(tmp_path, capsys, option, value):
     # 0 and nan were refused as "plan: q2_range_deg/steps: expected positive steps ...", inf gave a one-row grid
     out = tmp_path / "plan.json"
-    assert_bad_input(capsys, ["plan", "--robot", "R1", "--out", str(out), option, value],
+    assert_bad_input(capsys, ["plan", "--design", "grid", "--robot", "R1", "--out", str(out), option, value],
                      f"{option} must be in [0.5, 90] deg, got {value}")
     assert not out.exists()
 

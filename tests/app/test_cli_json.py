@@ -51,7 +51,7 @@ def test_fit_and_predict_json_hold_the_printed_figures(tmp_path, data, capsys):
 
 def test_plan_collect_export_json_hold_the_printed_figures(tmp_path, capsys):
     plan = tmp_path / "plan.json"
-    assert main(["plan", "--robot", "R1", "--out", str(plan), "--q2-step", "50", "--q3-step", "50",
+    assert main(["plan", "--robot", "R1", "--out", str(plan), "--design", "grid", "--q2-step", "50", "--q3-step", "50",
                  "--validation", "2", "--json", str(tmp_path / "plan_summary.json")]) == 0
     line = capsys.readouterr().out.strip().splitlines()[-1]
     summary = json.loads((tmp_path / "plan_summary.json").read_text())

@@ -173,7 +173,7 @@ def test_a_symlinked_model_in_service_is_refused_before_anything_moves(tmp_path,
 
 def test_recalibrate_cli_replaces_a_nan_model_in_service(tmp_path, files, capsys, caplog):
     plan = tmp_path / "plan.json"
-    assert main(["plan", "--robot", "R1", "--out", str(plan), "--q2-step", "35", "--q3-step", "30"]) == 0
+    assert main(["plan", "--robot", "R1", "--out", str(plan), "--design", "grid", "--q2-step", "35", "--q3-step", "30"]) == 0
     models = tmp_path / "models"
     models.mkdir()
     (models / "current.yaml").write_bytes((files / "nan.yaml").read_bytes())

@@ -9,7 +9,7 @@ import pytest
 from app.cli.commands import main
 from tests.conftest import assert_bad_input
 
-PLAN = ["plan", "--robot", "R1", "--q2-step", "30", "--q3-step", "30", "--out"]
+PLAN = ["plan", "--design", "grid", "--robot", "R1", "--q2-step", "30", "--q3-step", "30", "--out"]
 
 
 def _mode(path):
@@ -67,7 +67,7 @@ def test_a_failed_plan_write_leaves_the_old_plan_whole_and_no_temporary(tmp_path
     def full(*args, **kwargs):
         raise OSError(28, "No space left on device")
     monkeypatch.setattr(os, "fsync", full)
-    assert_bad_input(capsys, PLAN[:4] + ["15", "--q3-step", "15", "--out", str(path)],
+    assert_bad_input(capsys, PLAN[:6] + ["15", "--q3-step", "15", "--out", str(path)],
                      "plan.json: cannot write (No space left on device)")
     monkeypatch.undo()
     assert path.read_bytes() == before and os.listdir(tmp_path) == ["plan.json"]

@@ -41,7 +41,7 @@ def test_utf8_bom_accepted_in_csv_model_and_plan_files(tmp_path, data):
         assert main(["predict", "--model", str(model), "--joints", str(joints), "--out", str(out)]) == 0
         assert len(out.read_text().splitlines()) == 6
     plan = tmp_path / "plan.json"
-    assert main(["plan", "--robot", "R1", "--q2-step", "50", "--q3-step", "50", "--out", str(plan)]) == 0
+    assert main(["plan", "--robot", "R1", "--design", "grid", "--q2-step", "50", "--q3-step", "50", "--out", str(plan)]) == 0
     from app.cell.plan_file import read_plan
 
     read_plan(with_bom(plan, tmp_path / "bom-plan.json"))

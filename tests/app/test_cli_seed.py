@@ -45,7 +45,7 @@ def test_a_negative_seed_or_count_is_one_line_naming_the_option(command, option,
 
 def test_plan_takes_seed_zero_and_a_validation_count(tmp_path):
     out = tmp_path / "plan.json"
-    assert main(["plan", "--robot", "R1", "--out", str(out), "--q2-step", "30", "--q3-step", "30", "--seed", "0",
+    assert main(["plan", "--robot", "R1", "--out", str(out), "--design", "grid", "--q2-step", "30", "--q3-step", "30", "--seed", "0",
                  "--validation", "2"]) == 0
     assert out.exists()
 

@@ -40,6 +40,8 @@ def test_export_urdf_reproduces_the_saved_model(models, robot, tmp_path, capsys)
     assert "constant nls1 model of " + robot in stdout and "lost: nothing" in stdout
     report = json.loads(js.read_text())
     assert report["robot"] == robot and report["lost"] == [] and report["tool_link"] == "tool_marker"
+    assert report["joints"] == ["joint_1_s", "joint_2_l", "joint_3_u", "joint_4_r", "joint_5_b", "joint_6_t"]
+    assert report["base_height_mm"] == load_cell().robot(robot).robot.base_height_mm
     q = random_q(robot, seed=2)
     dp, dR = differences(*urdf_fk(out.read_text(), q), *load_model(models / f"{robot}.yaml").fk(q))
     print(f"\ncellcal export-urdf {robot} nls1 (planted), {N_POSES} poses: max position {dp:.3e} mm, "
@@ -78,3 +80,29 @@ def test_export_urdf_options_all_have_help():
     options = [a for a in sub._actions if a.dest != "help"]
     assert {a.dest for a in options} >= {"model", "robot", "out", "json"}
     assert all(a.help for a in options), [a.dest for a in options if not a.help]
+
+
+def test_export_urdf_writes_the_xacro_and_meshes(models, tmp_path, capsys):
+    out, xacro = tmp_path / "r1.urdf", tmp_path / "r1_calibration.xacro"
+    uri = "package://motoman_ma2010_support/meshes/ma2010"
+    assert main(["export-urdf", "--model", str(models / "R1.yaml"), "--out", str(out), "--xacro", str(xacro),
+                 "--meshes", uri]) == 0
+    assert "xacro macro cellcal_ma2010 (prefix parameter) -> " in capsys.readouterr().out
+    text = xacro.read_text()
+    assert '<xacro:macro name="cellcal_ma2010" params="prefix">' in text
+    assert 'name="${prefix}joint_1_s"' in text and f'filename="{uri}/visual/link_1_s.stl"' in text
+    assert f'filename="{uri}/collision/base_link.stl"' in out.read_text()
+
+
+def test_export_urdf_with_a_bad_mesh_uri_exits_2_and_writes_neither_file(models, tmp_path, capsys):
+    out, xacro = tmp_path / "r1.urdf", tmp_path / "r1.xacro"
+    assert_bad_input(capsys, ["export-urdf", "--model", str(models / "R1.yaml"), "--out", str(out), "--xacro",
+                              str(xacro), "--meshes", "meshes/ma2010"], "meshes/ma2010", "not a URI")
+    assert not out.exists() and not xacro.exists()
+
+
+def test_export_urdf_refuses_the_xacro_on_the_urdf(models, tmp_path, capsys):
+    out = tmp_path / "r1.urdf"
+    assert_bad_input(capsys, ["export-urdf", "--model", str(models / "R1.yaml"), "--out", str(out), "--xacro",
+                              str(out)], "--xacro")
+    assert not out.exists()

@@ -15,7 +15,7 @@ from conftest import SIM_FAST
 @pytest.fixture(scope="module")
 def plan(tmp_path_factory):
     path = tmp_path_factory.mktemp("plan") / "plan.json"
-    assert main(["plan", "--robot", "R1", "--out", str(path), "--q2-step", "90", "--q3-step", "90"]) == 0
+    assert main(["plan", "--robot", "R1", "--out", str(path), "--design", "grid", "--q2-step", "90", "--q3-step", "90"]) == 0
     return path
 
 

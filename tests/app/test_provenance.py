@@ -98,7 +98,7 @@ def test_diagnose_and_recalibrate_record_their_inputs(tmp_path):
                                                               ("heldout", _sha(tmp_path / "ho.csv"))]
 
     plan, models = tmp_path / "plan.json", tmp_path / "models"
-    assert main(["plan", "--robot", "R1", "--out", str(plan), "--q2-step", "35", "--q3-step", "30"]) == 0
+    assert main(["plan", "--robot", "R1", "--out", str(plan), "--design", "grid", "--q2-step", "35", "--q3-step", "30"]) == 0
     assert main(["recalibrate", "--robot", "R1", "--plan", str(plan), "--model-dir", str(models), "--method", "nls1",
                  "--validation", "6", "--validation-seed", "2", "--sim", *SIM_FAST, "--no-progress"]) == 0
     p = model_provenance(load_model(models / "current.yaml"))

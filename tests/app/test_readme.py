@@ -93,10 +93,10 @@ def test_the_real_data_block_runs_as_written(tmp_path, monkeypatch):
     assert (tmp_path / "cmp.json").stat().st_size > 0 and (tmp_path / "report" / "report.md").exists()
 
 
-def test_the_step_by_step_block_runs_as_written_on_a_coarse_grid(tmp_path, monkeypatch):
+def test_the_step_by_step_block_runs_as_written_on_a_small_optimal_design(tmp_path, monkeypatch):
     block = block_with("cellcal plan --robot R1 --out r1_plan.json")
     monkeypatch.chdir(tmp_path)
-    ran = run_block(block, {}, {"plan": ["--q2-step", "50", "--q3-step", "50", "--validation", "6"],
+    ran = run_block(block, {}, {"plan": ["--budget", "49", "--validation", "6"],
                                 "collect": ["--time-scale", "200", "--no-progress"],
                                 "compare": ["--methods", "nominal,base,nls1,cpa"],
                                 "recalibrate": ["--method", "nls1", "--validation", "3", "--time-scale", "200",

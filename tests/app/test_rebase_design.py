@@ -34,7 +34,8 @@ def test_plan_for_rebase_moves_the_wrist_and_sees_every_rebase_direction(tmp_pat
 
 
 def test_for_rebase_needs_the_optimal_design(tmp_path, capsys):
-    assert_bad_input(capsys, ["plan", "--robot", "R1", "--out", str(tmp_path / "p.json"), "--for", "rebase"],
+    assert_bad_input(capsys, ["plan", "--design", "grid", "--robot", "R1", "--out", str(tmp_path / "p.json"),
+                              "--for", "rebase"],
                      "--for applies to --design optimal only")
     assert not (tmp_path / "p.json").exists()
 

@@ -84,7 +84,7 @@ def test_model_in_service_for_another_robot_is_refused(tmp_path, arm):
 def _sim_recalibrate(tmp_path, method: str, validation: int) -> tuple[list[str], Path]:
     """``recalibrate`` arguments on the simulated cell with a small grid plan, and its model folder."""
     plan = tmp_path / "plan.json"
-    assert main(["plan", "--robot", "R1", "--out", str(plan), "--q2-step", "35", "--q3-step", "30"]) == 0
+    assert main(["plan", "--robot", "R1", "--out", str(plan), "--design", "grid", "--q2-step", "35", "--q3-step", "30"]) == 0
     models = tmp_path / "models"
     return ["recalibrate", "--robot", "R1", "--plan", str(plan), "--model-dir", str(models), "--method", method,
             "--validation", str(validation), "--validation-seed", "2", "--sim", *SIM_FAST, "--no-progress"], models
@@ -216,7 +216,7 @@ def test_bad_inputs_exit_2_and_write_nothing(tmp_path, capsys):
     not_json = tmp_path / "not_json.json"
     not_json.write_text("{nope")
     r2_plan = tmp_path / "r2.json"
-    assert main(["plan", "--robot", "R2", "--out", str(r2_plan), "--q2-step", "50", "--q3-step", "50"]) == 0
+    assert main(["plan", "--robot", "R2", "--out", str(r2_plan), "--design", "grid", "--q2-step", "50", "--q3-step", "50"]) == 0
     capsys.readouterr()
     before = sorted(p.name for p in tmp_path.iterdir())
     session, out, models = tmp_path / "s", tmp_path / "rec.csv", tmp_path / "models"
@@ -248,7 +248,7 @@ def test_bad_inputs_exit_2_and_write_nothing(tmp_path, capsys):
          "unknown robot 'R9'")
     assert_bad_input(capsys, ["recalibrate", "--robot", "R1", "--plan", str(bad_plan), "--model-dir", str(bad_plan), "--sim"],
          "model folder is a file")
-    assert_bad_input(capsys, ["plan", "--robot", "R1", "--out", str(tmp_path / "p.json"), "--q2-step", "-5"],
+    assert_bad_input(capsys, ["plan", "--robot", "R1", "--out", str(tmp_path / "p.json"), "--design", "grid", "--q2-step", "-5"],
                      "--q2-step must be in [0.5, 90] deg, got -5")
     assert_bad_input(capsys, ["demo", "--out", str(bad_plan)], "must be a folder")
     assert sorted(p.name for p in tmp_path.iterdir()) == before
@@ -258,7 +258,7 @@ def test_bad_inputs_exit_2_and_write_nothing(tmp_path, capsys):
 def test_a_sim_time_scale_out_of_range_is_refused_before_anything_is_written(tmp_path, capsys, scale):
     """Every --sim command checks --time-scale as demo does: ``inf`` made the bridge's timeouts infinite (a hang)."""
     plan = tmp_path / "plan.json"
-    assert main(["plan", "--robot", "R1", "--out", str(plan), "--q2-step", "50", "--q3-step", "50"]) == 0
+    assert main(["plan", "--robot", "R1", "--out", str(plan), "--design", "grid", "--q2-step", "50", "--q3-step", "50"]) == 0
     capsys.readouterr()
     before = sorted(p.name for p in tmp_path.iterdir())
     for argv in (["collect", "--robot", "R1", "--plan", str(plan), "--session", str(tmp_path / "s"), "--sim"],

@@ -13,7 +13,7 @@ from tests.conftest import SIM_FAST, assert_bad_input
 
 def test_rebase_refits_the_frames_of_the_model_in_service(tmp_path, capsys):
     plan = tmp_path / "plan.json"
-    assert main(["plan", "--robot", "R1", "--out", str(plan), "--q2-step", "35", "--q3-step", "30"]) == 0
+    assert main(["plan", "--robot", "R1", "--out", str(plan), "--design", "grid", "--q2-step", "35", "--q3-step", "30"]) == 0
     models = tmp_path / "models"
     args = ["recalibrate", "--robot", "R1", "--plan", str(plan), "--model-dir", str(models), "--validation", "6",
             "--validation-seed", "2", "--sim", *SIM_FAST, "--no-progress"]

@@ -93,6 +93,8 @@ def test_register_then_collect_both_arms_in_separate_processes(tmp_path: Path, p
         d_true_mm, _ = transform_difference(T_true, cell.robot("R2").T_cell_base)
         found_mm = report["relative_bases"]["R2"]["cell_yaml_diff_mm"]
         assert d_true_mm > 0.5 and abs(found_mm - d_true_mm) < 0.1, (found_mm, d_true_mm)  # hidden survey error
+        assert f"in {cell_path}, replace robots.R2.T_cell_base with" in done.stdout, done.stdout  # what to do
+        assert "T_cell_base" in report["relative_bases"]["R2"]["hint"]
         for robot in ("R1", "R2"):
             session = tmp_path / f"s_{robot}"
             done = run_cellcal(cell_path, "collect", "--robot", robot, "--plan", str(plans[robot]), "--session",

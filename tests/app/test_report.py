@@ -227,7 +227,7 @@ def test_diagnose_report(tmp_path):
 
 def test_recalibrate_report(tmp_path):
     plan, models, report = tmp_path / "plan.json", tmp_path / "models", tmp_path / "rep"
-    assert main(["plan", "--robot", "R1", "--out", str(plan), "--q2-step", "35", "--q3-step", "30"]) == 0
+    assert main(["plan", "--robot", "R1", "--out", str(plan), "--design", "grid", "--q2-step", "35", "--q3-step", "30"]) == 0
     assert main(["recalibrate", "--robot", "R1", "--plan", str(plan), "--model-dir", str(models), "--method", "nls1",
                  "--validation", "6", "--validation-seed", "2", "--sim", *SIM_FAST, "--no-progress",
                  "--report", str(report)]) == 0

@@ -1,5 +1,7 @@
 """URDF export: pinocchio's URDF parser reads the written file back and its forward kinematics to the
-tool-marker frame agrees with cellcal's on 1000 random configurations within the joint limits.
+tool-marker frame, relative to the ``base`` link (the robot frame), agrees with cellcal's on 1000 random
+configurations within the joint limits; the ROS-Industrial Motoman names, floor height, efforts and meshes are
+those of the robot YAML and ros-industrial/motoman's descriptions.
 
 The figures (max position / rotation difference per case) are printed; run with ``-s`` to see them.
 """
@@ -18,7 +20,10 @@ from calibration.models.rebased import RebasedModel, wrap_pose
 from calibration.parameterisation import MinimalParameterisation
 from calibration.physics import PhysicsModel
 from calibration.physics_informed import PhysicsInformedModel
-from calibration.urdf import JointLimits, R_from_rpy, rpy_from_R, urdf_text, write_urdf
+import xml.etree.ElementTree as ET
+
+from calibration.urdf import (ROS_JOINTS, ROS_LINKS, JointLimits, R_from_rpy, UrdfLayout, rpy_from_R, urdf_text,
+                              write_urdf, xacro_text)
 from cell_config import load_cell
 from tests.calibration.kinds import T_BASE, T_TOOL, models_of_every_kind
 from tests.conftest import planted_parameters
@@ -32,7 +37,11 @@ ROTATION_TOL_RAD = 1e-9
 
 def limits_of(robot) -> JointLimits:
     spec = load_cell().robot(robot).robot
-    return JointLimits(spec.lower_rad, spec.upper_rad, spec.max_speed_rad_s)
+    return JointLimits(spec.lower_rad, spec.upper_rad, spec.max_speed_rad_s, spec.max_torque_Nm)
+
+
+def layout_of(robot) -> UrdfLayout:
+    return UrdfLayout(load_cell().robot(robot).robot.base_height_mm)
 
 
 def random_q(robot: str, seed: int = 0) -> np.ndarray:
@@ -41,14 +50,16 @@ def random_q(robot: str, seed: int = 0) -> np.ndarray:
 
 
 def urdf_fk(text: str, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Tool-marker pose (R (N, 3, 3), p (N, 3) [mm]) of a URDF document, computed by pinocchio."""
+    """Tool-marker pose in the ``base`` link (R (N, 3, 3), p (N, 3) [mm]) of a URDF document, by pinocchio."""
     model = pin.buildModelFromXML(text)
     data = model.createData()
     frame = model.getFrameId("tool_marker", pin.FrameType.BODY)
+    base = model.getFrameId("base", pin.FrameType.BODY)
     R, p = np.empty((len(q), 3, 3)), np.empty((len(q), 3))
     for k, qk in enumerate(q):
         pin.framesForwardKinematics(model, data, qk)
-        R[k], p[k] = data.oMf[frame].rotation, data.oMf[frame].translation * 1e3
+        T = data.oMf[base].actInv(data.oMf[frame])
+        R[k], p[k] = T.rotation, T.translation * 1e3
     return R, p
 
 
@@ -70,7 +81,7 @@ def test_urdf_fk_matches_constant_model(robot, case, tmp_path):
     model = (ConstantModel(robot, "nominal", load_cell().robot(robot).model()) if case == "nominal"
              else planted(robot))
     path = tmp_path / "robot.urdf"
-    write_urdf(path, model.urdf_geometry(), limits_of(robot), robot)
+    write_urdf(path, model.urdf_geometry(), limits_of(robot), robot, layout=layout_of(robot))
     q = random_q(robot)
     pm = pin.buildModelFromUrdf(str(path))
     assert pm.nq == 6
@@ -162,3 +173,77 @@ def test_lost_names_only_the_blocks_a_model_uses(kinds):
     theta[par.size + 3] = 1e-4  # one compliance parameter: the compliance is lost, the (zero) deflection is not
     lost = PhysicsInformedModel("R1", "pi", pi.kinematics, theta, pi.rank).urdf_geometry().lost
     assert len(lost) == 1 and "compliance" in lost[0]
+
+
+@pytest.mark.parametrize("robot", ["R1", "R2"])
+def test_urdf_has_the_ros_industrial_names_floor_height_and_efforts(robot):
+    spec = load_cell().robot(robot).robot
+    text = urdf_text(ConstantModel(robot, "nominal", spec.model()).urdf_geometry(), limits_of(robot), robot,
+                     layout=layout_of(robot))
+    pm = pin.buildModelFromXML(text)
+    assert list(pm.names)[1:] == list(ROS_JOINTS)
+    for link in ("base_link", *ROS_LINKS, "base", "tool0", "flange", "tool_marker"):
+        assert pm.existFrame(link), link
+    data = pm.createData()
+    pin.framesForwardKinematics(pm, data, np.zeros(6))
+    base = data.oMf[pm.getFrameId("base")]
+    np.testing.assert_allclose(base.translation, [0, 0, spec.base_height_mm * 1e-3], atol=1e-15)
+    np.testing.assert_allclose(base.rotation, np.eye(3), atol=0)
+    # tool0 has link_6_t's orientation (the robot frame's at q = 0) and lies p6T along it (ROS-I: 0.100 m along x)
+    tool0 = base.actInv(data.oMf[pm.getFrameId("tool0")])
+    np.testing.assert_allclose(tool0.rotation, np.eye(3), atol=0)
+    np.testing.assert_allclose(tool0.translation * 1e3, spec.P[:, :7].sum(axis=1), atol=1e-12)
+    efforts = [float(j.find("limit").get("effort")) for j in ET.fromstring(text.split("\n", 1)[1]).iter("joint")
+               if j.get("type") == "revolute"]
+    if spec.max_torque_Nm is None:
+        assert efforts == [0.0] * 6 and "effort: 0, the robot YAML gives no torque limits" in text
+    else:
+        assert efforts == spec.max_torque_Nm.tolist()
+    np.testing.assert_allclose(pm.velocityLimit, spec.max_speed_rad_s, rtol=0, atol=0)
+
+
+def test_ma2010_yaml_holds_the_ros_industrial_facts():
+    """The MA2010's floor height and efforts as ros-industrial/motoman's ma2010_macro.xacro gives them."""
+    spec = load_cell().robot("R1").robot
+    assert spec.name == "MA2010" and spec.base_height_mm == 505.0
+    assert spec.max_torque_Nm.tolist() == [3087, 2744, 874.65, 78.4, 59.58, 29.6]
+    np.testing.assert_allclose(spec.max_speed_rad_s, [3.4383, 3.3161, 3.6652, 7.1558, 7.1558, 10.6465], atol=1e-4)
+
+
+def test_meshes_by_package_uri_for_every_link():
+    uri = "package://motoman_ma2010_support/meshes/ma2010"
+    text = urdf_text(ConstantModel("R1", "nominal", load_cell().robot("R1").model()).urdf_geometry(), limits_of("R1"),
+                     "R1", layout=UrdfLayout(505.0, uri))
+    root = ET.fromstring(text.split("\n", 1)[1])
+    meshes = {(link.get("name"), kind.tag): kind.find("geometry/mesh").get("filename")
+              for link in root.iter("link") for kind in link if kind.tag in ("visual", "collision")}
+    assert meshes == {(name, kind): f"{uri}/{kind}/{name}.stl"
+                      for name in ("base_link", *ROS_LINKS) for kind in ("visual", "collision")}
+    pin.buildModelFromXML(text)  # still a URDF pinocchio reads
+
+
+@pytest.mark.parametrize("bad", ["", "meshes/ma2010", "package://x/meshes/ma2010/", "package://x y/meshes"])
+def test_a_mesh_folder_that_is_not_a_uri_is_refused(bad):
+    with pytest.raises(ModelError, match="is not a URI"):
+        urdf_text(ConstantModel("R1", "nominal", load_cell().robot("R1").model()).urdf_geometry(), limits_of("R1"),
+                  "R1", layout=UrdfLayout(505.0, bad))
+
+
+def test_xacro_macro_expands_to_the_same_description_with_a_prefix():
+    """The xacro is the URDF as a macro: substituting the prefix (what xacro does) gives the URDF's elements with
+    every link and joint name prefixed; pinocchio's FK of the expansion equals the URDF's."""
+    geometry = planted("R1").urdf_geometry()
+    text = xacro_text(geometry, limits_of("R1"), "cellcal_ma2010", "m.yaml", layout_of("R1"))
+    root = ET.fromstring(text.split("\n", 1)[1])
+    macro = root.find("{http://ros.org/wiki/xacro}macro")
+    assert macro.get("name") == "cellcal_ma2010" and macro.get("params") == "prefix"
+    expanded = ET.Element("robot", name="R1")
+    for child in macro:
+        expanded.append(child)
+    doc = '<?xml version="1.0"?>\n' + ET.tostring(expanded, encoding="unicode").replace("${prefix}", "r1_")
+    pm = pin.buildModelFromXML(doc)
+    assert list(pm.names)[1:] == ["r1_" + j for j in ROS_JOINTS]
+    urdf = urdf_text(geometry, limits_of("R1"), "R1", layout=layout_of("R1"))
+    q = random_q("R1", seed=4)[:50]
+    dp, dR = differences(*urdf_fk(doc.replace("r1_", ""), q), *urdf_fk(urdf, q))
+    assert dp == 0.0 and dR == 0.0
