@@ -159,6 +159,9 @@ def library(model: PoeModel, q: np.ndarray, context: Context, gravity: GravityMo
         else:
             cands += [Candidate("payload_compliance", f"joint {j}", (j,), PayloadCompliance((j,), np.zeros(1)))
                       for j in range(2, n + 1)]
+            # The shoulder and the elbow carry the payload together: as a pair their deflections are tested at once
+            # (the elbow's alone is often too weak beside the shoulder's to pass on its own).
+            cands.append(Candidate("payload_compliance", "joints 2-3", (2, 3), PayloadCompliance((2, 3), np.zeros(2))))
     if "gear_transmission" in kinds:
         cands += [Candidate("gear_transmission", f"joint {j}", (j,), GearTransmission(((j, (1, 2)),), np.zeros(4)))
                   for j in range(1, n + 1)]

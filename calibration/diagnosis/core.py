@@ -483,7 +483,8 @@ def _screen(cands: list[Candidate], A: np.ndarray, sig: Signatures, q_ref: np.nd
 
 def select_effects(hypotheses: Hypotheses) -> Selection:
     """Forward selection on the fit data, confirmed backward per kind (see :mod:`.selection`)."""
-    return forward_select(hypotheses.problem, hypotheses.pool, hypotheses.signature, hypotheses.flexible_columns)
+    return forward_select(hypotheses.problem, hypotheses.pool, hypotheses.signature, hypotheses.flexible_columns,
+                          {k: tuple(getattr(e, "joints", ())) for k, (e, _) in hypotheses.flexible.items()})
 
 
 def confirm_on_heldout(base: FittedInUse, split: Split, hypotheses: Hypotheses, selection: Selection,

@@ -335,7 +335,8 @@ def tune_warmup(pool: list[tuple[Candidate, np.ndarray]], problem: LinearSelecti
 
 
 def forward_select(problem: LinearSelection, pool: list[tuple[Candidate, np.ndarray]], signature: Signature,
-                   flexible: dict[str, np.ndarray] | None = None) -> Selection:
+                   flexible: dict[str, np.ndarray] | None = None,
+                   flexible_joints: dict[str, tuple[int, ...]] | None = None) -> Selection:
     """Greedy forward selection (fallback kinds only when nothing else passes), then backward confirmation
     per kind.
 
@@ -348,6 +349,8 @@ def forward_select(problem: LinearSelection, pool: list[tuple[Candidate, np.ndar
             kind with a flexible form is selected, a candidate of another kind joins (and stays) only if it is
             accepted on top of that flexible form too: a shape the named kind's flexible form explains is not a
             second kind.
+        flexible_joints: per kind, the joints its flexible form acts on: a candidate of that kind on other joints
+            (a YAML-shaped compliance of joint 5) is held to the same test.
 
     Returns:
         The accepted steps in order and their column indices.
@@ -359,7 +362,7 @@ def forward_select(problem: LinearSelection, pool: list[tuple[Candidate, np.ndar
         dof = sum(s.candidate.extra_dof for s in steps)
         found_kinds = {s.candidate.kind for s in steps}
         cv_base = problem.cv(columns)
-        shape = _shape_check(problem, columns, dof, found_kinds, flexible)
+        shape = _shape_check(problem, columns, dof, found_kinds, flexible, flexible_joints or {})
         best = _best(problem, pool, columns, dof, found_kinds, cv_base, shape)
         if best is None:
             break
@@ -373,26 +376,27 @@ def forward_select(problem: LinearSelection, pool: list[tuple[Candidate, np.ndar
     return _confirm(problem, Selection(tuple(steps), tuple(columns)), flexible)
 
 
-#: ``(kind, columns, extra_dof) -> accepted``: whether a candidate is accepted beyond the flexible forms of the kinds
+#: ``(candidate, columns) -> accepted``: whether a candidate is accepted beyond the flexible forms of the kinds
 #: already selected (always True when none has one).
-ShapeCheck = Callable[[str, np.ndarray, int], bool]
+ShapeCheck = Callable[[Candidate, np.ndarray], bool]
 
 
 def _shape_check(problem: LinearSelection, columns: list[np.ndarray], dof: int, found_kinds: set[str],
-                 flexible: dict[str, np.ndarray]) -> ShapeCheck:
-    """The test a candidate of another kind passes on top of the flexible forms of the selected kinds."""
+                 flexible: dict[str, np.ndarray], flexible_joints: dict[str, tuple[int, ...]]) -> ShapeCheck:
+    """The test a candidate of another kind (or of that kind on other joints) passes on top of the flexible forms of
+    the selected kinds."""
     flex = [flexible[k] for k in sorted(found_kinds) if k in flexible]
     if not flex:
-        return lambda kind, S, extra_dof: True
+        return lambda cand, S: True
     cv_flex: list[tuple[np.ndarray, np.ndarray]] = []
 
-    def check(kind: str, S: np.ndarray, extra_dof: int) -> bool:
-        if kind in flexible:
+    def check(cand: Candidate, S: np.ndarray) -> bool:
+        if cand.kind in flexible and set(cand.joints) <= set(flexible_joints.get(cand.kind, cand.joints)):
             return True
         if not cv_flex:
             cv_flex.append(problem.cv(columns + flex))
-        ev = problem.compare(columns + flex, dof, [S], extra_dof, cv_flex[0])
-        return ev.accepted(problem.options, extends(kind, found_kinds))
+        ev = problem.compare(columns + flex, dof, [S], cand.extra_dof, cv_flex[0])
+        return ev.accepted(problem.options, extends(cand.kind, found_kinds))
 
     return check
 
@@ -410,7 +414,7 @@ def _best(problem: LinearSelection, pool: list[tuple[Candidate, np.ndarray]], co
             ev = problem.compare(columns, dof, [S], cand.extra_dof, cv_base)
             if (ev.accepted(problem.options, extends(cand.kind, found_kinds))
                     and (best is None or ev.delta_bic < best[2].delta_bic)
-                    and (shape is None or shape(cand.kind, S, cand.extra_dof))):
+                    and (shape is None or shape(cand, S))):
                 best = (cand, S, ev)
         if best is not None:
             break
@@ -430,8 +434,8 @@ def _rebuild(problem: LinearSelection, signature: Signature, c: Candidate, S: np
              ) -> tuple[Candidate, np.ndarray] | None:
     """A pool entry in its version compatible with the chosen candidates (thermal: the chosen mode and time
     constant), or None when it can no longer join."""
-    if any(o.kind == c.kind and o.label == c.label for o in chosen):
-        return None
+    if any(o.kind == c.kind and (o.label == c.label or set(o.joints) & set(c.joints)) for o in chosen):
+        return None  # chosen already, or on a joint a chosen candidate of its kind acts on
     if c.kind != "thermal_drift":
         return c, S
     th = [o for o in chosen if o.kind == "thermal_drift"]

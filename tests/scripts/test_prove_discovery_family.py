@@ -64,3 +64,12 @@ def test_a_switching_payload_is_told_apart_from_the_own_weight():
 def test_null_with_gross_marker_errors_names_nothing():
     v = diagnosed("R2", "null", 13)
     assert v["found"] == {}, v
+
+
+def test_the_verdict_unites_the_joints_of_one_kind_and_ignores_geometry():
+    planted = [{"kind": "joint_compliance", "joints": [2, 3]}]
+    two = [{"kind": "joint_compliance", "joints": [2, 3]}, {"kind": "joint_compliance", "joints": [5]},
+           {"kind": "tool_frame", "joints": []}]
+    v = judge(two, planted)
+    assert not v["ok"] and v["found"] == {"joint_compliance": [2, 3, 5]} and v["wrong_joints"] == ["joint_compliance"]
+    assert judge(two[:1] + two[2:], planted)["ok"]
