@@ -77,3 +77,34 @@ def test_unphysical_sign_rule_drops_only_the_wrong_joints_and_keeps_other_kinds(
     res = diagnose("R1", nominal, fit, ho, gravity=gravity, joint_limits=(cr.robot.lower_rad, cr.robot.upper_rad))
     assert sorted(e.kind for e in res.effects) == ["backlash", "gear_transmission"]
     assert all(v > 0 for e in res.effects if e.kind == "backlash" for v in e.parameters.values())
+
+
+def test_the_lumped_form_holds_the_yaml_shape_and_casadi_gives_its_pose():
+    import casadi as ca
+
+    from calibration.physics import LumpedCompliance, PhysicsModel
+
+    _, nominal, gravity = arm("R2")
+    lumped = LumpedCompliance.for_arm(nominal)
+    q = np.random.default_rng(2).uniform(-2.0, 2.0, (40, 6))
+    yaml = JointCompliance(gravity, (2, 3), np.array([3e-6, 5e-6])).delta_q(nominal, q)
+    Y = lumped.regressor(nominal, q)
+    b = np.linalg.lstsq(Y[:, 1:3].reshape(-1, lumped.size), yaml[:, 1:3].ravel(), rcond=None)[0]
+    np.testing.assert_allclose(lumped.with_values(b).delta_q(nominal, q), yaml, atol=1e-12)
+    model = PhysicsModel("R2", "diagnose", nominal, (lumped.with_values(b * 40.0),))
+    qs = ca.SX.sym("q", 6)
+    pose = model.casadi(qs)
+    f = ca.Function("p", [qs], [pose.p])
+    _, p = model.fk(q[:5])
+    np.testing.assert_allclose(np.array([np.asarray(f(qi)).ravel() for qi in q[:5]]), p, atol=1e-9)
+
+
+def test_a_constant_payload_is_own_weight_not_a_payload_compliance():
+    from calibration.diagnosis.candidates import library
+
+    _, nominal, gravity = arm("R1")
+    q = np.zeros((20, 6))
+    cands, untested = library(nominal, q, {"payload_kg": np.full(20, 2.0)}, gravity, ("payload_compliance",))
+    assert cands == [] and "does not change" in untested[0].reason
+    cands, _ = library(nominal, q, {"payload_kg": np.repeat([0.0, 6.0], 10)}, gravity, ("payload_compliance",))
+    assert {c.joints for c in cands} >= {(2,), (3,), (2, 3)}
