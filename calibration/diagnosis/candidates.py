@@ -23,7 +23,7 @@ from calibration.diagnosis.extended import ExtendedEffect, MassFreeCompliance, S
 from calibration.diagnosis.inuse import InUse
 from calibration.errors import ModelError
 from calibration.physics.base import Context, Effect
-from calibration.physics.compliance import JointCompliance, PayloadCompliance
+from calibration.physics.compliance import JointCompliance, LumpedCompliance, PayloadCompliance
 from calibration.physics.gravity import GravityModel
 from calibration.physics.joint_effects import Backlash, GearTransmission, JointOffset, MocapLatency
 from calibration.physics.thermal import ThermalDrift, link_names
@@ -38,8 +38,10 @@ MIN_LINK_MM = 10.0
 #: Order in which kinds are listed (and tie-broken).
 KINDS = ("joint_compliance", "payload_compliance", "gear_transmission", "backlash", "thermal_drift",
          "mocap_latency", "joint_offset", "tool_frame", "structural_deflection")
-#: ``joint_compliance`` forms: per joint with the link masses, the 5-term mass-free form, or masses when known.
-COMPLIANCE_FORMS = ("auto", "masses", "mass_free")
+#: ``joint_compliance`` forms: per joint with the link masses, the 5-term mass-free form, the lumped form of joints
+#: 2-3 (free link masses and centres of mass, :class:`~calibration.physics.compliance.LumpedCompliance`), or masses
+#: when known.
+COMPLIANCE_FORMS = ("auto", "masses", "mass_free", "lumped")
 
 
 @dataclass(frozen=True)
@@ -136,6 +138,9 @@ def library(model: PoeModel, q: np.ndarray, context: Context, gravity: GravityMo
     if "joint_compliance" in kinds:
         if compliance_form == "mass_free" or (compliance_form == "auto" and gravity is None):
             cands.append(Candidate("joint_compliance", "joints 2-3 (mass-free form)", (2, 3), MassFreeCompliance()))
+        elif compliance_form == "lumped":
+            cands.append(Candidate("joint_compliance", "joints 2-3 (lumped form)", (2, 3),
+                                   LumpedCompliance.for_arm(model, (2, 3))))
         else:
             tau = gravity.torque(model, q)
             for j in range(2, n + 1):
@@ -144,9 +149,19 @@ def library(model: PoeModel, q: np.ndarray, context: Context, gravity: GravityMo
     if "payload_compliance" in kinds:
         if "payload_kg" not in context or not np.any(np.asarray(context["payload_kg"]) != 0):
             skipped.append(Untested("payload_compliance", "joints 2-6", (), "no payload_kg column (or no payload carried)"))
+        elif not _varies(context, "payload_kg"):
+            # A payload that never changes is a load on the last link like the tool's: its deflection is part of the
+            # own-weight compliance, whose lumped form takes any such load. Only a payload that changes shows a
+            # deflection of its own (the difference between payloads).
+            skipped.append(Untested("payload_compliance", "joints 2-6", (),
+                                    "the payload_kg column does not change (a constant payload is part of the own "
+                                    "weight)"))
         else:
             cands += [Candidate("payload_compliance", f"joint {j}", (j,), PayloadCompliance((j,), np.zeros(1)))
                       for j in range(2, n + 1)]
+            # The shoulder and the elbow carry the payload together: as a pair their deflections are tested at once
+            # (the elbow's alone is often too weak beside the shoulder's to pass on its own).
+            cands.append(Candidate("payload_compliance", "joints 2-3", (2, 3), PayloadCompliance((2, 3), np.zeros(2))))
     if "gear_transmission" in kinds:
         cands += [Candidate("gear_transmission", f"joint {j}", (j,), GearTransmission(((j, (1, 2)),), np.zeros(4)))
                   for j in range(1, n + 1)]
@@ -226,7 +241,8 @@ def merged_effect(kind: str, cands: list[Candidate]) -> Effect:
     if kind == "thermal_drift":
         links = tuple(c.effect.links[0] for c in cands)  # type: ignore[attr-defined]
         return ThermalDrift(links, np.zeros(len(links)), first.mode, first.tau_s, first.ref_temp_c)  # type: ignore[attr-defined]
-    if kind in ("mocap_latency", "tool_frame", "structural_deflection") or isinstance(first, ExtendedEffect):
+    if kind in ("mocap_latency", "tool_frame", "structural_deflection") or isinstance(first, (ExtendedEffect,
+                                                                                               LumpedCompliance)):
         return first
     joints = tuple(sorted(j for c in cands for j in c.joints))
     if kind == "gear_transmission":

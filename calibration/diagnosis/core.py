@@ -42,7 +42,7 @@ from calibration.diagnosis.noise import NoiseFloor, channel_weight, noise_floor
 from calibration.diagnosis.refit import JointFit, JointProblem, filter_prior
 from calibration.diagnosis.report import Accuracy, Diagnosis, EffectEvidence, FoundEffect, PlotData
 from calibration.diagnosis.selection import (Evidence, LinearSelection, Selection, SelectionOptions, blocked_folds,
-                                             forward_select, tune_warmup)
+                                             extends, forward_select, tune_warmup)
 from calibration.errors import DataError, ModelError
 from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, rotation_residual_scale, weighted_residuals
 from calibration.models import KinematicModel
@@ -194,6 +194,15 @@ class Hypotheses:
     untested: list[Untested]
     signature: Signatures
     flexible: dict[str, tuple[Effect, np.ndarray]] = field(default_factory=dict)
+    flexible_columns: dict[str, np.ndarray] = field(default_factory=dict)
+    forms: dict[str, list[tuple[Effect, np.ndarray]]] = field(default_factory=dict)
+
+
+#: The further forms of ``joint_compliance`` on joints 2-3, least flexible first: the 5-term mass-free form of a planar
+#: shoulder and elbow, then the lumped form (any link masses and centres of mass, the wrist's position included). The
+#: most flexible is the reference every other kind must beat (:func:`.selection.forward_select`,
+#: :func:`_beyond_flexible`); the YAML-shaped compliance is replaced by the least flexible form the data confirm.
+FLEXIBLE_FORMS = ("mass_free", "lumped")
 
 
 @dataclass(frozen=True)
@@ -416,18 +425,23 @@ def candidate_signatures(base: FittedInUse, split: Split, residual: ResidualDriv
     cands, untested = library(inuse.geometry(inuse.theta), fit.q, ctx, gravity, kinds, options.compliance_form)
     q_ref, ctx_ref = _reference(None if split.source == "split" else split.heldout, fit.q, ctx, joint_limits, options)
     pool, hidden, bases = _screen(cands, A, sig, q_ref, ctx_ref, options.selection.visible_min)
-    flexible = {}
+    flexible, forms = {}, {}
     if "joint_compliance" in kinds and gravity is not None and options.compliance_form == "auto":
-        free = library(inuse.geometry(inuse.theta), fit.q, ctx, gravity, ("joint_compliance",), "mass_free")[0]
-        seen, _, free_bases = _screen(free, A, sig, q_ref, ctx_ref, options.selection.visible_min)
-        if seen:
-            flexible["joint_compliance"] = (free[0].effect, free_bases[free[0].key()])
+        steps = []
+        for form in FLEXIBLE_FORMS:  # least flexible first
+            free = library(inuse.geometry(inuse.theta), fit.q, ctx, gravity, ("joint_compliance",), form)[0]
+            seen, _, free_bases = _screen(free, A, sig, q_ref, ctx_ref, options.selection.visible_min)
+            if seen:
+                steps.append((free[0].effect, free_bases[free[0].key()]))
+        if steps:
+            flexible["joint_compliance"], forms["joint_compliance"] = steps[-1], steps
     problem = LinearSelection(A, residual.residual, split.groups, options.selection)
     pool = tune_warmup(pool, problem, sig)
     pool = [(c, problem.add(S)) for c, S in pool]
+    flexible_columns = {k: problem.add(sig(e) @ B) for k, (e, B) in flexible.items()}
     hidden = dedupe(hidden, {c.label for c, _ in pool})
     log.info("diagnose: %d candidates testable, %d not identifiable, %d untested", len(pool), len(hidden), len(untested))
-    return Hypotheses(problem, pool, bases, hidden, untested, sig, flexible)
+    return Hypotheses(problem, pool, bases, hidden, untested, sig, flexible, flexible_columns, forms)
 
 
 def _present_kinds(base: FittedInUse) -> set[str]:
@@ -470,7 +484,8 @@ def _screen(cands: list[Candidate], A: np.ndarray, sig: Signatures, q_ref: np.nd
 
 def select_effects(hypotheses: Hypotheses) -> Selection:
     """Forward selection on the fit data, confirmed backward per kind (see :mod:`.selection`)."""
-    return forward_select(hypotheses.problem, hypotheses.pool, hypotheses.signature)
+    return forward_select(hypotheses.problem, hypotheses.pool, hypotheses.signature, hypotheses.flexible_columns,
+                          {k: tuple(getattr(e, "joints", ())) for k, (e, _) in hypotheses.flexible.items()})
 
 
 def confirm_on_heldout(base: FittedInUse, split: Split, hypotheses: Hypotheses, selection: Selection,
@@ -502,22 +517,25 @@ def _confirm(base: FittedInUse, split: Split, hypotheses: Hypotheses, selection:
                                         trial.effects, split.heldout, split.heldout_context, options)
         rule, reported = _heldout_evidence(hypotheses.problem, selection, kind, kept_kinds, (acc, loss), (t_acc, t_loss))
         item = explain.found(trial.effects[-1], trial.effect_std[-1], reported)
-        if rule.accepted(options.selection) and _beyond_flexible(base, split, flex, kept, (e0, B), options, fits):
+        if (rule.accepted(options.selection, extends(kind, kept_kinds))
+                and _beyond_flexible(base, split, flex, kept, (e0, B), options, fits, extends(kind, kept_kinds))):
             kept.append((e0, B))
             kept_kinds.append(kind)
             found.append(item)
             final, acc, dp, loss = trial, t_acc, t_dp, t_loss
         else:
             rejected.append(item)
-    if "joint_compliance" in kept_kinds and "joint_compliance" in hypotheses.flexible:
-        # The mass-free form replaces the YAML-shaped one on joints 2-3 when the data show a shape it cannot.
-        flex = _flexible(kept, hypotheses)
+    yaml_kept = kept
+    for form in hypotheses.forms.get("joint_compliance", []) if "joint_compliance" in kept_kinds else []:
+        # A further form replaces the YAML-shaped one on joints 2-3 when the data show a shape the form before cannot.
+        flex = _flexible(yaml_kept, hypotheses, form)
         trial = fits.get(flex)
         name = "+".join([base.name] + kept_kinds)
         t_acc, t_dp, t_loss = _accuracy(name, base.inuse, base.theta_at(trial.x), trial.effects, split.heldout,
                                         split.heldout_context, options)
         if _joint_evidence(final, trial, split, (acc, loss), (t_acc, t_loss)).accepted(options.selection, extends=True):
-            log.info("diagnose: the mass-free compliance explains what the YAML inertias' shape cannot; it replaces it")
+            log.info("diagnose: the %s compliance explains what the shape before it cannot; it replaces it",
+                     form[0].form)
             kept, final, acc, dp, loss = flex, trial, t_acc, t_dp, t_loss
             kept_kinds = [e.kind for e, _ in kept]
             found = [found[[i.kind for i in found].index(k)] for k in kept_kinds]
@@ -563,12 +581,13 @@ def _subset_joints(effect: Effect, B: np.ndarray, keep: list[int]) -> tuple[Effe
     return e, rows[:, cols]
 
 
-def _flexible(kept: list[tuple[Effect, np.ndarray]], hypotheses: Hypotheses) -> list[tuple[Effect, np.ndarray]]:
-    """The kept effects in their most flexible form: a joint compliance from the YAML's inertias becomes the
-    mass-free form on joints 2-3 (its other joints keep the YAML's form)."""
+def _flexible(kept: list[tuple[Effect, np.ndarray]], hypotheses: Hypotheses,
+              form: tuple[Effect, np.ndarray] | None = None) -> list[tuple[Effect, np.ndarray]]:
+    """The kept effects in their most flexible form (or in ``form``): a joint compliance from the YAML's inertias
+    becomes the lumped form on joints 2-3 (its other joints keep the YAML's form)."""
     out = []
     for e, B in kept:
-        flex = hypotheses.flexible.get(e.kind)
+        flex = form if form is not None and e.kind == form[0].kind else hypotheses.flexible.get(e.kind)
         if flex is None or e is flex[0] or not isinstance(e, JointCompliance):
             out.append((e, B))
             continue
@@ -586,10 +605,11 @@ def _same(a: list[tuple[Effect, np.ndarray]], b: list[tuple[Effect, np.ndarray]]
 
 def _beyond_flexible(base: FittedInUse, split: Split, flex: list[tuple[Effect, np.ndarray]],
                      kept: list[tuple[Effect, np.ndarray]], new: tuple[Effect, np.ndarray], options: DiagnoseOptions,
-                     joint_fits: JointFits) -> bool:
+                     joint_fits: JointFits, extending: bool = False) -> bool:
     """Whether ``new`` explains what the kinds kept cannot even in their most flexible form ``flex``
     (:func:`_flexible`; True when they have no further form): a shape mismatch of the YAML's inertias is not a
-    second kind."""
+    second kind. ``extending``: ``new`` extends physics already kept (:func:`.selection.extends`), judged at
+    ``z_extend``."""
     if _same(flex, kept):
         return True
     fits, held = [], []
@@ -599,7 +619,7 @@ def _beyond_flexible(base: FittedInUse, split: Split, flex: list[tuple[Effect, n
         held.append(_accuracy("+".join([base.name] + [e.kind for e, _ in chosen]), base.inuse, base.theta_at(f.x),
                               f.effects, split.heldout, split.heldout_context, options))
     ok = _joint_evidence(fits[0], fits[1], split, (held[0][0], held[0][2]), (held[1][0], held[1][2])
-                         ).accepted(options.selection)
+                         ).accepted(options.selection, extending)
     if not ok:
         log.info("diagnose: %s is explained by the flexible form of %s; not added", new[0].kind,
                  ", ".join(e.kind for e, _ in kept))

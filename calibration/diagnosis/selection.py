@@ -97,6 +97,17 @@ class Evidence:
         return self.heldout_z > (options.z_extend if extends else options.z_min) and lower
 
 
+#: Kinds that are another kind's physics under another load: the compliance under the payload is the joints' own-weight
+#: compliance carrying the payload's torque. Once the other kind is established, such a kind only asks where it acts
+#: and how strongly, so it is held to ``z_extend`` like one more joint of a kind already selected.
+SAME_PHYSICS = {"payload_compliance": "joint_compliance"}
+
+
+def extends(kind: str, established: Collection[str]) -> bool:
+    """Whether ``kind`` extends physics already ``established`` (the same kind, or :data:`SAME_PHYSICS`)."""
+    return kind in established or SAME_PHYSICS.get(kind) in established
+
+
 @dataclass(frozen=True)
 class Step:
     """One accepted candidate with the evidence that admitted it.
@@ -323,8 +334,9 @@ def tune_warmup(pool: list[tuple[Candidate, np.ndarray]], problem: LinearSelecti
     return out
 
 
-def forward_select(problem: LinearSelection, pool: list[tuple[Candidate, np.ndarray]], signature: Signature
-                   ) -> Selection:
+def forward_select(problem: LinearSelection, pool: list[tuple[Candidate, np.ndarray]], signature: Signature,
+                   flexible: dict[str, np.ndarray] | None = None,
+                   flexible_joints: dict[str, tuple[int, ...]] | None = None) -> Selection:
     """Greedy forward selection (fallback kinds only when nothing else passes), then backward confirmation
     per kind.
 
@@ -332,40 +344,77 @@ def forward_select(problem: LinearSelection, pool: list[tuple[Candidate, np.ndar
         problem: the linearised problem.
         pool: identifiable candidates with the indices of their columns in ``problem``.
         signature: an effect's signature on the fit data (columns for refined warm-up candidates).
+        flexible: per kind, the column indices (in ``problem``) of its most flexible form (``joint_compliance``:
+            the lumped form of joints 2-3, whose gravity shape is the data's rather than the robot YAML's). Once a
+            kind with a flexible form is selected, a candidate of another kind joins (and stays) only if it is
+            accepted on top of that flexible form too: a shape the named kind's flexible form explains is not a
+            second kind.
+        flexible_joints: per kind, the joints its flexible form acts on: a candidate of that kind on other joints
+            (a YAML-shaped compliance of joint 5) is held to the same test.
 
     Returns:
         The accepted steps in order and their column indices.
     """
+    flexible = flexible or {}
     steps: list[Step] = []
     columns: list[np.ndarray] = []
     while pool and len(steps) < problem.options.max_steps:
         dof = sum(s.candidate.extra_dof for s in steps)
         found_kinds = {s.candidate.kind for s in steps}
         cv_base = problem.cv(columns)
-        best = _best(problem, pool, columns, dof, found_kinds, cv_base)
+        shape = _shape_check(problem, columns, dof, found_kinds, flexible, flexible_joints or {})
+        best = _best(problem, pool, columns, dof, found_kinds, cv_base, shape)
         if best is None:
             break
         cand, S = _refine(problem, signature, best[0], best[1], columns)
         ev = problem.compare(columns, dof, [S], cand.extra_dof, cv_base)
-        if not ev.accepted(problem.options, cand.kind in found_kinds):
+        if not ev.accepted(problem.options, extends(cand.kind, found_kinds)):
             cand, S, ev = best
         steps.append(Step(cand, ev))
         columns.append(S)
         pool = _rebuild_pool(problem, signature, pool, [s.candidate for s in steps])
-    return _confirm(problem, Selection(tuple(steps), tuple(columns)))
+    return _confirm(problem, Selection(tuple(steps), tuple(columns)), flexible)
+
+
+#: ``(candidate, columns) -> accepted``: whether a candidate is accepted beyond the flexible forms of the kinds
+#: already selected (always True when none has one).
+ShapeCheck = Callable[[Candidate, np.ndarray], bool]
+
+
+def _shape_check(problem: LinearSelection, columns: list[np.ndarray], dof: int, found_kinds: set[str],
+                 flexible: dict[str, np.ndarray], flexible_joints: dict[str, tuple[int, ...]]) -> ShapeCheck:
+    """The test a candidate of another kind (or of that kind on other joints) passes on top of the flexible forms of
+    the selected kinds."""
+    flex = [flexible[k] for k in sorted(found_kinds) if k in flexible]
+    if not flex:
+        return lambda cand, S: True
+    cv_flex: list[tuple[np.ndarray, np.ndarray]] = []
+
+    def check(cand: Candidate, S: np.ndarray) -> bool:
+        if cand.kind in flexible and set(cand.joints) <= set(flexible_joints.get(cand.kind, cand.joints)):
+            return True
+        if not cv_flex:
+            cv_flex.append(problem.cv(columns + flex))
+        ev = problem.compare(columns + flex, dof, [S], cand.extra_dof, cv_flex[0])
+        return ev.accepted(problem.options, extends(cand.kind, found_kinds))
+
+    return check
 
 
 def _best(problem: LinearSelection, pool: list[tuple[Candidate, np.ndarray]], columns: list[np.ndarray], dof: int,
-          found_kinds: set[str], cv_base: tuple[np.ndarray, np.ndarray]
+          found_kinds: set[str], cv_base: tuple[np.ndarray, np.ndarray], shape: ShapeCheck | None = None
           ) -> tuple[Candidate, np.ndarray, Evidence] | None:
-    """The accepted candidate with the lowest BIC; fallback kinds only when no other is accepted."""
+    """The accepted candidate with the lowest BIC; fallback kinds only when no other is accepted. ``shape``: the
+    further test beyond the flexible forms of the selected kinds (:func:`_shape_check`)."""
     best = None
     for tier in (False, True):
         for cand, S in pool:
             if (cand.kind in problem.options.fallback_kinds) != tier:
                 continue
             ev = problem.compare(columns, dof, [S], cand.extra_dof, cv_base)
-            if ev.accepted(problem.options, cand.kind in found_kinds) and (best is None or ev.delta_bic < best[2].delta_bic):
+            if (ev.accepted(problem.options, extends(cand.kind, found_kinds))
+                    and (best is None or ev.delta_bic < best[2].delta_bic)
+                    and (shape is None or shape(cand, S))):
                 best = (cand, S, ev)
         if best is not None:
             break
@@ -385,8 +434,8 @@ def _rebuild(problem: LinearSelection, signature: Signature, c: Candidate, S: np
              ) -> tuple[Candidate, np.ndarray] | None:
     """A pool entry in its version compatible with the chosen candidates (thermal: the chosen mode and time
     constant), or None when it can no longer join."""
-    if any(o.kind == c.kind and o.label == c.label for o in chosen):
-        return None
+    if any(o.kind == c.kind and (o.label == c.label or set(o.joints) & set(c.joints)) for o in chosen):
+        return None  # chosen already, or on a joint a chosen candidate of its kind acts on
     if c.kind != "thermal_drift":
         return c, S
     th = [o for o in chosen if o.kind == "thermal_drift"]
@@ -412,16 +461,32 @@ def _rebuild_pool(problem: LinearSelection, signature: Signature, pool: list[tup
     return new_pool
 
 
-def _confirm(problem: LinearSelection, sel: Selection) -> Selection:
-    """Drop, weakest first, every kind whose removal from the final set the nested tests do not reject."""
+def _confirm(problem: LinearSelection, sel: Selection, flexible: dict[str, np.ndarray] | None = None) -> Selection:
+    """Drop, weakest first, every kind whose removal from the final set the nested tests do not reject; a kind
+    without a flexible form is judged with the flexible forms of the other kinds in the set (``flexible``, see
+    :func:`forward_select`)."""
+    flexible = flexible or {}
     while sel.steps:
         worst = None
         kinds = {s.candidate.kind for s in sel.steps}
         for kind in kinds:
-            ev = sel.fit_evidence(problem, kind, kinds - {kind})
+            flex = [] if kind in flexible else [flexible[k] for k in sorted(kinds) if k in flexible]
+            ev = _removal_evidence(problem, sel, kind, kinds - {kind}, flex)
             if not ev.accepted(problem.options) and (worst is None or ev.delta_bic > worst[1]):
                 worst = (kind, ev.delta_bic)
         if worst is None:
             break
         sel = sel.without(worst[0])
     return sel
+
+
+def _removal_evidence(problem: LinearSelection, sel: Selection, kind: str, given: Collection[str],
+                      flex: list[np.ndarray]) -> Evidence:
+    """Nested tests on the fit data of adding the steps of ``kind`` to those of ``given`` and the columns ``flex``."""
+    if not flex:
+        return sel.fit_evidence(problem, kind, given)
+    base = [i for i, s in enumerate(sel.steps) if s.candidate.kind in given]
+    extra = [i for i, s in enumerate(sel.steps) if s.candidate.kind == kind]
+    return problem.fit_evidence([sel.columns[i] for i in base] + flex,
+                                sum(sel.steps[i].candidate.extra_dof for i in base),
+                                [sel.columns[i] for i in extra], sum(sel.steps[i].candidate.extra_dof for i in extra))

@@ -10,6 +10,13 @@ link masses are unknown: the shape of the shoulder and elbow gravity torques of 
 unknown lumped masses, ``u = q2 - q3``, ``dq2 = c1 sin q2 + c2 cos u + c3 sin u``, ``dq3 = c4 cos u + c5 sin u``
 [rad]. It is also the compliance block of the ``pi`` model (:mod:`calibration.physics_informed`).
 
+``joint_compliance`` in the lumped form (``form: lumped``, :class:`LumpedCompliance`), for when the link masses
+and centres of mass are not the robot YAML's: each listed joint deflects by a free combination of the columns of
+the gravity regressor it carries (:func:`calibration.physics.gravity.gravity_regressor`: a mass at each link's
+joint point and its first moments along the link's axes), ``dq_j = sum_l b_jl Y_jl(q)``. Any rigid distribution of
+mass on the links (point masses anywhere along and off each link, a tool load) gives a torque in that span, so the
+shape of the own-weight deflection is the data's, not the YAML's; the wrist's position moves it too.
+
 Each writes its regressor once (:meth:`~calibration.physics.base.Effect.joint_terms`) for numpy and casadi;
 the torques come from :func:`calibration.physics.gravity.chain_torques`. Each extrapolates by its formula (no
 fitted joints for the extrapolation guard, :meth:`~calibration.physics.base.Effect.fitted_joints`): the torque's
@@ -24,8 +31,10 @@ from typing import Any, ClassVar
 import numpy as np
 
 from calibration.casadi_expr import Ops
+from calibration.errors import ModelError
 from calibration.physics.base import Context, Effect, ExtendedEffect, Term, check_joints, context_array
-from calibration.physics.gravity import GravityModel, chain_torques
+from calibration.physics.gravity import GravityModel, chain_torque_columns, chain_torques, independent_link_columns
+from calibration.poe import PoeModel
 
 COMPLIANCE_NAMES = ("c2_sin_q2_rad", "c2_cos_u_rad", "c2_sin_u_rad", "c3_cos_u_rad", "c3_sin_u_rad")
 
@@ -135,3 +144,68 @@ class MassFreeCompliance(ExtendedEffect):
 
     def pose_jacobian(self, model: Any, q: np.ndarray, context: Context | None = None) -> np.ndarray:
         return Effect.pose_jacobian(self, model, q, context)  # a joint effect: jacobian_q @ regressor
+
+
+_LUMPED_PARTS = (("m", "rad_kg_per_Nm"), ("mx", "rad_kg_mm_per_Nm"), ("my", "rad_kg_mm_per_Nm"),
+                 ("mz", "rad_kg_mm_per_Nm"))
+
+
+@dataclass(frozen=True, eq=False)
+class LumpedCompliance(Effect):
+    """Deflection under the arm's own weight with unknown link masses and centres of mass (the lumped form).
+
+    Attributes:
+        joints: 1-based joints that deflect, default (2, 3).
+        columns: per joint, the lumped gravity columns it deflects along (0-based indices into the 4n lumped
+            parameters, of links it carries; :func:`~calibration.physics.gravity.independent_link_columns`).
+        values: ``c{j}_{m|mx|my|mz}{k}_rad_kg[_mm]_per_Nm``: joint j's compliance times link k's lumped parameter,
+            one per column.
+    """
+
+    kind = "joint_compliance"
+    form: ClassVar[str] = "lumped"
+    context_keys = frozenset()
+    joints: tuple[int, ...] = (2, 3)
+    columns: tuple[tuple[int, ...], ...] = ()
+    values: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "joints", check_joints(self.joints))
+        columns = tuple(tuple(int(c) for c in cols) for cols in self.columns)
+        if len(columns) != len(self.joints) or any(c < 4 * (j - 1) for j, cols in zip(self.joints, columns)
+                                                    for c in cols):
+            raise ModelError(f"joint_compliance (lumped): one list of columns of carried links per joint "
+                             f"{list(self.joints)}, got {[list(c) for c in columns]}")
+        object.__setattr__(self, "columns", columns)
+        super().__post_init__()
+
+    @classmethod
+    def for_arm(cls, model: PoeModel, joints: tuple[int, ...] = (2, 3)) -> "LumpedCompliance":
+        """The lumped form on ``joints`` of ``model``'s arm with every independent column, values zero."""
+        columns = tuple(independent_link_columns(model, j - 1) for j in joints)
+        return cls(joints, columns, np.zeros(sum(len(c) for c in columns)))
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(f"c{j}_{_LUMPED_PARTS[c % 4][0]}{c // 4 + 1}_{_LUMPED_PARTS[c % 4][1]}"
+                     for j, cols in zip(self.joints, self.columns) for c in cols)
+
+    def fitted_joints(self, n: int) -> tuple[int, ...]:
+        return ()  # a gravity torque's shape: it extrapolates by its formula
+
+    def joint_terms(self, ops: Ops, q: list[Any], chain: Any, context: Context | None, N: int) -> list[Term]:
+        frames = chain()
+        terms: list[Term] = []
+        col = 0
+        for j, cols in zip(self.joints, self.columns):
+            for t in chain_torque_columns(ops, frames, j - 1, cols):
+                terms.append((j - 1, col, t))
+                col += 1
+        return terms
+
+    def _config(self) -> dict[str, Any]:
+        return {"joints": list(self.joints), "columns": [list(c) for c in self.columns]}
+
+    @classmethod
+    def _from_config(cls, config: dict[str, Any], values: np.ndarray) -> "LumpedCompliance":
+        return cls(tuple(config["joints"]), tuple(tuple(c) for c in config["columns"]), values)

@@ -109,6 +109,51 @@ def chain_torques(ops: Any, chain: Any, lumped: np.ndarray | None, g: float = G_
     return tau
 
 
+def chain_torque_columns(ops: Any, chain: Any, joint: int, columns: tuple[int, ...], g: float = G_STANDARD
+                         ) -> list[Any]:
+    """Columns of :func:`gravity_regressor` for one joint, from a chain of frames, written once for numpy and casadi.
+
+    Column ``4k`` is the torque on ``joint`` [N m] of 1 kg at joint k+1's axis point, ``4k + 1..3`` that of
+    1 kg mm of first moment along link k+1's x, y, z axes: ``a . (o_k - o_i) / 1000`` and ``a . R_k e_c / 1000``
+    with ``a = g_vec x w_i``.
+
+    Args:
+        ops: the backend (:data:`calibration.casadi_expr.NUMPY` or ``casadi_ops()``).
+        chain: a :class:`calibration.poe.Chain` or :class:`calibration.casadi_expr.SxChain`.
+        joint: 0-based joint index i.
+        columns: lumped column indices (0-based, of links k >= i).
+    """
+    a = ops.cross(np.array([0.0, 0.0, -g]), chain.axes_base[joint])
+    o = chain.p_base_origin
+    out = []
+    for c in columns:
+        k, comp = divmod(int(c), 4)
+        lever = o[k] - o[joint] if comp == 0 else ops.matvec(chain.R_base_link[k + 1], np.eye(3)[comp - 1])
+        out.append(ops.dot(a, lever) / 1000.0)
+    return out
+
+
+def independent_link_columns(model: PoeModel, joint: int, tol: float = 1e-3, n_samples: int = 400) -> tuple[int, ...]:
+    """The lumped columns of the links joint ``joint`` (0-based) carries whose torques on that joint are independent
+    functions of q: a pivoted QR of the unit-normalised columns at ``n_samples`` fixed joint angles spread over a
+    full turn of every joint (a column within ``tol`` of the others' span is left out). The geometry's small
+    deviations from the nominal arm (a fitted link a fraction of a millimetre off) stay below ``tol``.
+    """
+    from scipy.linalg import qr
+
+    q = np.random.default_rng(0).uniform(-np.pi, np.pi, (n_samples, model.n_joints))
+    cols = np.arange(4 * joint, 4 * model.n_joints)
+    A = gravity_regressor(model, q)[:, joint, cols]
+    norm = np.linalg.norm(A, axis=0)
+    live = norm > 1e-9 * max(float(norm.max()), 1e-300)
+    if not live.any():
+        return ()
+    _, Rm, piv = qr(A[:, live] / norm[live], mode="economic", pivoting=True)
+    d = np.abs(np.diag(Rm))
+    rank = int(np.sum(d > tol * d[0]))
+    return tuple(int(c) for c in np.sort(cols[live][piv[:rank]]))
+
+
 @dataclass(frozen=True, eq=False)
 class GravityModel:
     """Lumped inertial parameters of the moving links, enough for gravity torques.
