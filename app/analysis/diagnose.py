@@ -257,13 +257,13 @@ def write_report(result: Diagnosis, out_dir: str | Path, tolerance: Any = None, 
     section = Section(f"Diagnosis: {result.robot}",
                       [acceptance_from_max(f"{fit.model} ({when})", result.n_heldout, fit.max_mm, fit.max_deg, tol)
                        for fit, when in ((b, "before"), (f, "after"))],
-                      f"the {result.n_heldout} held-out poses ({result.heldout_source})", iso, None,
-                      [result.verdict, f"Samples: {result.n_fit} fit, {result.n_heldout} held out. Noise floor "
-                                       f"{result.noise.floor_mm:.3f} mm. Details in report.md."],
+                      f"the {result.n_heldout} held-out poses ({result.heldout_source})", iso, f"{f.model} (after)",
+                      [f"Samples: {result.n_fit} fit, {result.n_heldout} held out. Noise floor "
+                       f"{result.noise.floor_mm:.3f} mm. Details in report.md."],
                       [Table("Held-out accuracy", ["model", "RMS mm", "max mm", "RMS deg", "max deg"], rows),
                        Table("Effects found", ["kind", "on", "delta BIC", "held-out RMS before -> after mm"], effects,
                              [] if effects else ["None confirmed on the held-out data."]), *_days_tables(result)],
-                      images)
+                      images, why=[result.verdict, *result.notes])
     files.append(write_html(Page(section.title, command, tol, provenance(inputs), [section]), out))
     return files
 

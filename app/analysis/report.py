@@ -169,10 +169,21 @@ class Section:
     tables: list[Table] = field(default_factory=list)
     images: list[Image] = field(default_factory=list)
     details: list[Table] = field(default_factory=list)  # after the plots
+    why: list[str] = field(default_factory=list)  # why this model: the held-out figures, the test used
+    why_table: Table | None = None
+    conditions: list[str] = field(default_factory=list)  # this section's own warnings (beside the command's)
+    next_steps: list[str] = field(default_factory=list)
 
     @property
     def recommended_acceptance(self) -> Acceptance | None:
         return next((a for a in self.acceptance if a.model == self.recommended), None)
+
+    @property
+    def in_service(self) -> str | None:
+        """The model the page judges for service: the recommended one, or the only one evaluated."""
+        if self.recommended is not None:
+            return self.recommended
+        return self.acceptance[0].model if len(self.acceptance) == 1 else None
 
 
 @dataclass
@@ -187,22 +198,96 @@ class Page:
     notes: list[str] = field(default_factory=list)
 
 
+ACCEPTED, CONDITIONAL, NOT_ACCEPTED = "accepted", "accepted with conditions", "not accepted"
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """The sign-off verdict on the model one section puts into service.
+
+    Attributes:
+        subject: what is judged (the section's title: a robot, a question).
+        model: the model put into service, or None when the section names none.
+        status: :data:`ACCEPTED`, :data:`CONDITIONAL` (within the tolerance, with warnings) or :data:`NOT_ACCEPTED`
+            (outside the tolerance, or no model to judge).
+        reason: the figures behind it, in one sentence.
+        conditions: every warning the run gave (the command's and this section's), each once.
+    """
+
+    subject: str
+    model: str | None
+    status: str
+    reason: str
+    conditions: tuple[str, ...]
+
+    @property
+    def css(self) -> str:
+        return {ACCEPTED: "accepted", CONDITIONAL: "conditional"}.get(self.status, "rejected")
+
+
+def verdict(section: Section, tol: Tolerance, command_warnings: list[str]) -> Verdict:
+    """The verdict on ``section``'s model for service against ``tol``, its conditions the warnings given."""
+    conditions = tuple(dict.fromkeys([*command_warnings, *section.conditions]))
+    model = section.in_service
+    acc = next((a for a in section.acceptance if a.model == model), None)
+    if acc is None:
+        return Verdict(section.title, model, NOT_ACCEPTED, "no model was chosen to put into service", conditions)
+    figures = (f"{acc.model}: largest errors {acc.max_position_mm:.3f} mm and {acc.max_orientation_deg:.3f} deg on "
+               f"{section.acceptance_data}, against {tol.position_mm:g} mm and {tol.orientation_deg:g} deg")
+    if not acc.passed:
+        return Verdict(section.title, model, NOT_ACCEPTED, figures + ": outside the tolerance", conditions)
+    return Verdict(section.title, model, CONDITIONAL if conditions else ACCEPTED, figures + ": within the tolerance",
+                   conditions)
+
+
+def page_verdict(verdicts: list[Verdict]) -> str:
+    """One status for the page: the worst of its sections'."""
+    order = [ACCEPTED, CONDITIONAL, NOT_ACCEPTED]
+    return max((v.status for v in verdicts), key=order.index, default=NOT_ACCEPTED)
+
+
+def default_next_steps(v: Verdict) -> list[str]:
+    """What to do after a verdict when the command gave no more specific step."""
+    if v.status == NOT_ACCEPTED:
+        return [f"Do not put {v.model or 'a model'} into service. Find what the model misses where it fails "
+                "(cellcal diagnose --robot ROBOT --train TRAIN --test TEST) and collect more poses there."]
+    if v.status == CONDITIONAL:
+        return ["Resolve each condition listed (or state why it does not matter for this cell) before signing; "
+                f"then put {v.model} into service (cellcal export-urdf, compensate-job or export-targets with this "
+                "model)."]
+    return [f"Sign below and put {v.model} into service (cellcal export-urdf, compensate-job or export-targets with "
+            "this model)."]
+
+
 def render_html(page: Page) -> str:
-    """The page as one self-contained HTML document (jinja2, autoescaped)."""
+    """The page as one self-contained HTML document (jinja2, autoescaped); its verdicts carry every warning the
+    running command gave so far (:mod:`app.analysis.command_warnings`)."""
     import jinja2
 
+    from app.analysis.command_warnings import warnings_so_far
+
+    given = warnings_so_far()
+    verdicts = [verdict(s, page.tolerance, given) for s in page.sections]
+    steps = [s.next_steps or default_next_steps(v) for s, v in zip(page.sections, verdicts)]
     env = jinja2.Environment(loader=jinja2.PackageLoader("app.analysis", "templates"),
                              autoescape=jinja2.select_autoescape(["html", "j2"]), undefined=jinja2.StrictUndefined,
                              trim_blocks=False)
-    return env.get_template("report.html.j2").render(page=page)
+    return env.get_template("report.html.j2").render(
+        page=page, verdicts=verdicts, steps=steps, overall=page_verdict(verdicts),
+        overall_css={ACCEPTED: "accepted", CONDITIONAL: "conditional"}.get(page_verdict(verdicts), "rejected"),
+        conditions=list(dict.fromkeys(c for v in verdicts for c in v.conditions)))
 
 
 def write_html(page: Page, out_dir: str | Path) -> Path:
-    """Write ``out_dir/report.html`` atomically (the folder is created); returns its path."""
+    """Write ``out_dir/report.html`` atomically (the folder is created); returns its path. A warning the command
+    gives after this is written still reaches the page: it is written again when the command ends."""
+    from app.analysis.command_warnings import register_page
+
     out = Path(out_dir)
     make_folders(out)  # removed again when a staged set of outputs fails (calibration.files.staged_outputs)
     path = out / REPORT_HTML
     atomic_write_text(path, render_html(page))
+    register_page(lambda: atomic_write_text(path, render_html(page)))
     return path
 
 
@@ -272,24 +357,85 @@ def analysis_tables(cmp: Comparison) -> list[Table]:
     return tables
 
 
-def error_plots(errs: dict[str, Errors], rec: Recording, out: Path, tol: Tolerance) -> list[Image]:
-    """Workspace map and CDFs of ``errs`` on ``rec``, saved as PNG in ``out`` and returned for embedding."""
-    files = [(plots.save_figure(plots.workspace_figure(errs, rec.p, tol.position_mm), out / "error_workspace.png"),
-              "position error over the workspace: measured tool x against height, coloured by error"),
-             (plots.save_figure(plots.cdf_figure(errs, tol.position_mm, tol.orientation_deg), out / "error_cdf.png"),
-              "cumulative distribution of the position and orientation errors per model, with the tolerance")]
+#: Most series a plot draws (issue 34: 23 series of repeating colours could not be read).
+MAX_SERIES = 6
+
+
+def shown_series(names: list[str], recommended: str | None = None, best: str | None = None) -> list[str]:
+    """The rows a plot draws, at most :data:`MAX_SERIES`: nominal, the paper's method (fbf13), nls1, the recommended
+    and the best on held-out clusters, in the table's order; with none of these, the first rows."""
+    wanted = {"nominal", "fbf13", "nls1", recommended, best} - {None}
+    chosen = [n for n in names if n in wanted]
+    return (chosen or list(names))[:MAX_SERIES]
+
+
+def error_plots(errs: dict[str, Errors], rec: Recording, out: Path, tol: Tolerance, recommended: str | None = None,
+                best: str | None = None) -> list[Image]:
+    """Workspace map and CDFs of ``errs`` on ``rec`` (at most :data:`MAX_SERIES` rows: :func:`shown_series`, the
+    recommended one highlighted), saved as PNG in ``out`` and returned for embedding."""
+    names = shown_series(list(errs), recommended, best)
+    shown = {n: errs[n] for n in names}
+    left = len(errs) - len(names)
+    more = f" ({left} more in the table)" if left else ""
+    files = [(plots.save_figure(plots.workspace_figure(shown, rec.p, tol.position_mm, recommended),
+                                out / "error_workspace.png"),
+              f"position error over the workspace: measured tool x against height, coloured by error; "
+              f"{', '.join(names)}{more}"),
+             (plots.save_figure(plots.cdf_figure(shown, tol.position_mm, tol.orientation_deg, recommended),
+                                out / "error_cdf.png"),
+              f"cumulative distribution of the position and orientation errors, with the tolerance; "
+              f"{', '.join(names)}{more}")]
     return [Image.from_file(caption, path) for path, caption in files]
+
+
+def recommendation_why(cmp: Comparison, test_label: str) -> tuple[list[str], Table | None]:
+    """Why ``cmp`` recommends its model: the rule, the held-out figures that decided, and the test figures beside
+    them (which played no part); a table of the recommended model, the best and the cheaper candidates."""
+    rec = cmp.analysis.get("recommendation")
+    if not rec or cmp.recommended is None:
+        return ["No recommendation made."], None
+    cands, m, best = rec["candidates"], rec["method"], rec["best"]
+    c = cands[m]
+    text = [f"{m} ({c['n_parameters']} parameters) is recommended by the rule: {rec['rule']}. It was chosen on the "
+            f"training data alone (k-fold over whole clusters); {test_label} played no part."]
+    if m == best:
+        text.append(f"{m} has the smallest held-out position RMS: {c['heldout_rms_mm']:.3f} mm.")
+    else:
+        b = cands[best]
+        text.append(f"Held-out RMS {c['heldout_rms_mm']:.3f} mm, tied with the best, {best} ({b['heldout_rms_mm']:.3f} "
+                    f"mm, {b['n_parameters']} parameters; p = {c['p_worse_than_best']:.2f} that {m} is worse).")
+    cheaper = sorted((n for n, v in cands.items() if v["n_parameters"] < c["n_parameters"]),
+                     key=lambda n: -cands[n]["n_parameters"])[:4]
+    if cheaper:
+        text.append("Models with fewer parameters were worse than the best on held-out clusters: "
+                    + "; ".join(f"{n} ({cands[n]['n_parameters']} parameters, {cands[n]['heldout_rms_mm']:.3f} mm, "
+                                f"p = {cands[n]['p_worse_than_best']:.2g})" for n in cheaper) + ".")
+    rows = []
+    for n in dict.fromkeys([m, best, *cheaper]):
+        v = cands[n]
+        te = cmp.test_errors.get(n)
+        role = "recommended" if n == m else "best held-out" if n == best else "fewer parameters"
+        rows.append([n, role, str(v["n_parameters"]), f"{v['heldout_rms_mm']:.3f}", f"{v['p_worse_than_best']:.2g}",
+                     "tied" if v["tied"] else "worse", "–" if te is None else
+                     f"{float(np.sqrt(np.mean(np.asarray(te.position_mm) ** 2))):.3f}"])
+    table = Table("The held-out figures that decided", ["model", "role", "params", "held-out RMS mm",
+                                                        "p worse than best", "against the best",
+                                                        f"RMS on {test_label} mm (not used)"], rows)
+    return text, table
 
 
 def comparison_section(cmp: Comparison, test: Recording, out_dir: str | Path, tol: Tolerance,
                        with_paper: bool = False, title: str | None = None, test_label: str = "the test set",
                        paragraphs: list[str] | None = None) -> Section:
     """One arm's comparison: writes ``report.md`` and the PNG plots into ``out_dir`` and returns the section."""
+    from app.analysis.compare import comparison_warnings
+
     out = Path(out_dir)
     make_folders(out)  # removed again when a staged set of outputs fails (calibration.files.staged_outputs)
-    images = error_plots(cmp.test_errors, test, out, tol)
-    interp = cmp.models["fbf13"].interpolation() if "fbf13" in cmp.models else None
-    if interp is not None:  # any kind answers: a frames-first fit wraps fbf13 in a rebased model
+    best = (cmp.analysis.get("recommendation") or {}).get("best")
+    images = error_plots(cmp.test_errors, test, out, tol, cmp.recommended, best)
+    interp = cmp.models["fbf13"].interpolation() if cmp.recommended == "fbf13" else None
+    if interp is not None:  # the Fourier model's own plots, only when it is the one put into service
         path = plots.save_figure(plots.singular_values_figure(np.asarray(interp.singular_values())),
                                  out / "fourier_singular_values.png")
         images.append(Image.from_file("singular values of the fbf13 coefficient matrix", path))
@@ -298,12 +444,14 @@ def comparison_section(cmp: Comparison, test: Recording, out_dir: str | Path, to
                                                                  "fbf13 - nominal"), out / "fourier_correction_map.png")
             images.append(Image.from_file("position correction of the Fourier CDC over (q2, q3)", path))
     tables = [comparison_rows(cmp, with_paper)] + analysis_tables(cmp)
+    why, why_table = recommendation_why(cmp, test_label)
     section = Section(title or f"Calibration comparison: {cmp.robot}",
                       [acceptance(m, e, tol) for m, e in cmp.test_errors.items()],
                       f"the {len(test)} poses of {test_label}", iso_table(cmp.models, test, test_label),
-                      cmp.recommended, list(paragraphs or []), tables[:1], images, tables[1:])
-    md = [f"# {section.title}", ""] + acceptance_markdown(section, tol)
-    for t in tables:
+                      cmp.recommended, list(paragraphs or []), tables[:1], images, tables[1:], why, why_table,
+                      comparison_warnings(cmp))
+    md = [f"# {section.title}", ""] + acceptance_markdown(section, tol) + why + [""]
+    for t in ([why_table] if why_table else []) + tables:
         md += t.markdown()
     md += ["## Plots", ""] + [f"![{im.caption}]({im.file})" for im in images] + [""]
     atomic_write_text(out / "report.md", "\n".join(md))
@@ -337,7 +485,8 @@ def write_report(cmp: Comparison, test: Recording, out_dir: str | Path, with_pap
 
 
 def evaluation_section(title: str, models: dict[str, Any], rec: Recording, out_dir: str | Path, tol: Tolerance,
-                       label: str, paragraphs: list[str] | None = None) -> Section:
+                       label: str, paragraphs: list[str] | None = None, recommended: str | None = None,
+                       why: list[str] | None = None, next_steps: list[str] | None = None) -> Section:
     """Models evaluated on one recording (``evaluate``, ``recalibrate``): statistics, pass/fail, ISO, plots."""
     from calibration.metrics import error_stats
 
@@ -351,20 +500,21 @@ def evaluation_section(title: str, models: dict[str, Any], rec: Recording, out_d
     table = Table(f"Errors on {label}", ["model", "method", "params", "pos mean mm", "pos std mm", "pos RMS mm",
                                          "pos max mm", "ori mean deg", "ori max deg"], rows)
     return Section(title, [acceptance(n, e, tol) for n, e in errs.items()], f"the {len(rec)} poses of {label}",
-                   iso_table(models, rec, label), None, list(paragraphs or []), [table],
-                   error_plots(errs, rec, Path(out_dir), tol))
+                   iso_table(models, rec, label), recommended, list(paragraphs or []), [table],
+                   error_plots(errs, rec, Path(out_dir), tol, recommended), why=list(why or []),
+                   next_steps=list(next_steps or []))
 
 
 def write_evaluation_report(title: str, command: str, models: dict[str, Any], rec: Recording, out_dir: str | Path,
                             tol: Tolerance, inputs: list[tuple[str, Any]], label: str,
-                            paragraphs: list[str] | None = None) -> Path:
+                            paragraphs: list[str] | None = None, next_steps: list[str] | None = None) -> Path:
     """``evaluate``/``recalibrate --report``: ``report.html`` (+ its PNGs) in ``out_dir``; returns the page."""
     from app.provenance import provenance
 
     out = Path(out_dir)
     make_folders(out)  # removed again when a staged set of outputs fails (calibration.files.staged_outputs)
     record = provenance(inputs)
-    section = evaluation_section(title, models, rec, out, tol, label, paragraphs)
+    section = evaluation_section(title, models, rec, out, tol, label, paragraphs, next_steps=next_steps)
     return write_html(Page(title, command, tol, record, [section]), out)
 
 
