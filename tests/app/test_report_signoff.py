@@ -188,3 +188,19 @@ def test_the_first_screen_holds_the_verdict_and_the_warnings_in_chromium(tmp_pat
              & (img[..., 2] < 0.1)).sum()  # the "with conditions" border (or the red of "not accepted")
     red = ((np.abs(img[..., 0] - 0xBB / 255) < 0.06) & (img[..., 1] < 0.2) & (img[..., 2] < 0.2)).sum()
     assert amber + red > 500, (amber, red)
+
+
+def test_the_demo_folds_the_methods_it_skipped_for_one_reason_into_one_line():
+    from app.demo.run import summary_table
+    from calibration.methods import METHODS
+
+    stats = {"test": {"position_mm": {"mean": 0.3, "max": 0.9}, "orientation_deg": {"mean": 0.01}}}
+    skipped = {m: "not requested" for m in list(METHODS)[3:]}
+    skipped["cpa"] = "no single-joint sweep data given (--cpa DATA)"
+    arm = {"methods": {m: stats for m in list(METHODS)[:3]}, "skipped_methods": skipped, "recommended": "nls1"}
+    lines = summary_table({"robots": {"R1": arm, "R2": arm}}).splitlines()
+    per_arm = [ln for ln in lines if ln.startswith("R1") and "skipped" in ln]
+    assert len(per_arm) == 2, per_arm  # one line per reason, not one per method
+    folded = next(ln for ln in per_arm if "not requested" in ln)
+    assert all(m in folded for m in list(METHODS)[3:] if m != "cpa")
+    assert sum("R2" in ln for ln in lines) == 3 + 2 + 1
