@@ -388,6 +388,11 @@ def error_plots(errs: dict[str, Errors], rec: Recording, out: Path, tol: Toleran
     return [Image.from_file(caption, path) for path, caption in files]
 
 
+def _p(p: float) -> str:
+    """A p-value as stored (rounded to 4 decimals): "< 0.0001" rather than "0"."""
+    return "< 0.0001" if p < 1e-4 else f"= {p:.2g}"
+
+
 def recommendation_why(cmp: Comparison, test_label: str) -> tuple[list[str], Table | None]:
     """Why ``cmp`` recommends its model: the rule, the held-out figures that decided, and the test figures beside
     them (which played no part); a table of the recommended model, the best and the cheaper candidates."""
@@ -409,13 +414,14 @@ def recommendation_why(cmp: Comparison, test_label: str) -> tuple[list[str], Tab
     if cheaper:
         text.append("Models with fewer parameters were worse than the best on held-out clusters: "
                     + "; ".join(f"{n} ({cands[n]['n_parameters']} parameters, {cands[n]['heldout_rms_mm']:.3f} mm, "
-                                f"p = {cands[n]['p_worse_than_best']:.2g})" for n in cheaper) + ".")
+                                f"p {_p(cands[n]['p_worse_than_best'])})" for n in cheaper) + ".")
     rows = []
     for n in dict.fromkeys([m, best, *cheaper]):
         v = cands[n]
         te = cmp.test_errors.get(n)
         role = "recommended" if n == m else "best held-out" if n == best else "fewer parameters"
-        rows.append([n, role, str(v["n_parameters"]), f"{v['heldout_rms_mm']:.3f}", f"{v['p_worse_than_best']:.2g}",
+        p = _p(v["p_worse_than_best"]).removeprefix("= ")
+        rows.append([n, role, str(v["n_parameters"]), f"{v['heldout_rms_mm']:.3f}", p,
                      "tied" if v["tied"] else "worse", "–" if te is None else
                      f"{float(np.sqrt(np.mean(np.asarray(te.position_mm) ** 2))):.3f}"])
     table = Table("The held-out figures that decided", ["model", "role", "params", "held-out RMS mm",
