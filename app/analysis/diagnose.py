@@ -27,7 +27,7 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
                  json_path: str | Path | None = None, report_dir: str | Path | None = None,
                  model_out: str | Path | None = None, cell: str | Path | None = None,
                  options: DiagnoseOptions | None = None, tolerance: Any = None, progress: bool = False,
-                 added: Sequence[str | Path] = (), add_weight: int = 1) -> Diagnosis:
+                 added: Sequence[str | Path] = (), add_weight: int = 1, command: str = "cellcal diagnose") -> Diagnosis:
     """Diagnose one robot's model against recordings and write the requested outputs.
 
     Args:
@@ -48,6 +48,7 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
         progress: show a progress bar over the diagnosis steps.
         added: recordings of extra poses joined to the one training recording as stand-alone poses
             (:func:`calibration.recording.with_added`; ``--add``), each with weight ``add_weight``.
+        command: the command line the report shows.
 
     Returns:
         The diagnosis.
@@ -117,7 +118,7 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
         models = {f"{result.final.model} (after)": result.model}
         if used is not None:
             models = {f"{result.baseline.model} (before)": used, **models}
-        write_report(result, report_dir, tolerance, ho, models, inputs)
+        write_report(result, report_dir, tolerance, ho, models, inputs, command)
     return result
 
 

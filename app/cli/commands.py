@@ -404,7 +404,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                           model=args.model, json_path=args.json,
                           report_dir=args.report, model_out=args.out, cell=args.cell,
                           options=DiagnoseOptions(compliance_form=args.compliance_form, weighting=args.weighting),
-                          tolerance=tolerance_from_args(args), progress=show_progress(args))
+                          tolerance=tolerance_from_args(args), progress=show_progress(args),
+                          command=command_line(args))
     if result.days is not None:
         print(result.days.summary())
     print(result.verdict)

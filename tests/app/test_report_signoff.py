@@ -83,6 +83,7 @@ def test_diagnose_report_carries_its_warnings(tmp_path, capsys):
                           str(tmp_path / "ho.csv"), "--report", str(tmp_path / "rep")])
     html = tmp_path / "rep" / "report.html"
     assert set(given) <= set(_conditions(html))
+    assert f"--train {tmp_path / 'fit.csv'}" in html.read_text()  # the command line, not just "cellcal diagnose"
     headings = re.findall(r"<h[1-6][^>]*>(.*?)</h[1-6]>", html.read_text(), re.S)
     assert headings.count("Diagnosis: R1") == 1 and len(headings) == len(set(headings))  # every title once
 
