@@ -247,7 +247,7 @@ def test_recalibrate_report(tmp_path):
     page = _Page((report / "report.html").read_text())
     assert list(page.rows("acceptance")) == ["candidate base", "in service nls1"]
     # the verdict is on the model in service after the decision, not on a candidate that was turned down
-    verdict_model = re.search(r'<div class="verdict [a-z]+" data-status="[^"]+">\s*<h2>.*?</span>: ([^<]+)</h2>',
+    verdict_model = re.search(r'<div class="verdict [a-z]+" id="verdict" data-status="[^"]+">\s*<h2>.*?</span>: ([^<]+)</h2>',
                               (report / "report.html").read_text(), re.S).group(1)
     replaced = "R1: replaced" in page.all_text
     assert verdict_model == ("candidate base" if replaced else "in service nls1"), (verdict_model, replaced)
