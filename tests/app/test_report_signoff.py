@@ -205,3 +205,34 @@ def test_the_demo_folds_the_methods_it_skipped_for_one_reason_into_one_line():
     folded = next(ln for ln in per_arm if "not requested" in ln)
     assert all(m in folded for m in list(METHODS)[3:] if m != "cpa")
     assert sum("R2" in ln for ln in lines) == 3 + 2 + 1
+
+
+def test_a_two_arm_demo_page_holds_both_verdicts_and_the_warnings_in_the_first_screen(tmp_path, recs):
+    """The demo's page (one section per arm): the overall verdict, each arm's line and every warning given end within
+    the first 1280 x 900 screen, though each arm also explains its choice below them."""
+    from app.analysis.compare import run_comparison
+    from app.analysis.fitting import fitter_for
+    from app.analysis.report import write_demo_report
+    from calibration.recording import read_recording
+    from cell_config import load_cell
+
+    browser_or_skip()
+    test = read_recording(recs / "wide.csv")
+    cmps = {r: run_comparison(fitter_for(load_cell().robot("R1"), read_recording(recs / "train.csv")), test,
+                              ["nominal", "nls1", "pi"]) for r in ("R1", "R2")}
+    arm = {"samples": 10, "targets": 10, "skipped_targets": 0, "train_samples": 5, "cpa_samples": 0,
+           "test_samples": 5, "collect_seconds": 1.0}
+    summary = {"robots": {"R1": arm, "R2": arm}, "mocap_frames_received": 100,
+               "config": {"full": False, "seed": 0, "time_scale": 5.0, "mocap_rate_hz": 120.0, "anchor_step_deg": 10.0,
+                          "validation_poses": 5},
+               "planted": {"origin_std_mm": 0.5, "tilt_std_deg": 0.05, "compliance_rms_mm": 1.0, "mocap_noise_mm": 0.02}}
+    with collecting():
+        print("warning: R2's mocap lost 3 % of its frames", file=sys.stderr)
+        path = write_demo_report(tmp_path, cmps, {"R1": test, "R2": test}, summary)
+    _, dom = screenshot_and_dom(tmp_path, path.as_uri(), "demo_first_screen.png", size=(1280, 900), budget_ms=3000)
+    page = _Page(dom)
+    text = " ".join(page.all_text.split())
+    assert "R2's mocap lost 3 % of its frames" in text
+    arms = re.findall(r'<li class="(accepted|conditional|rejected)"><b>(R\d)</b>', dom)
+    assert [a for _, a in arms] == ["R1", "R2"] and all(c == "conditional" or c == "rejected" for c, _ in arms)
+    assert 0 < int(page.body_attrs["data-conditions-bottom"]) <= 900
