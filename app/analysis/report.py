@@ -1,7 +1,10 @@
 """The acceptance report: one self-contained ``report.html`` per run (and ``report.md`` + PNGs for compare).
 
 ``compare``, ``evaluate``, ``diagnose``, ``recalibrate`` and ``demo`` write ``report.html`` into ``--report DIR``
-from the jinja2 template ``templates/report.html.j2``. A page holds, for each arm or question:
+from the jinja2 template ``templates/report.html.j2``. Its first screen (and printed page) is the sign-off: one
+:class:`Verdict` per arm or question on the model to put into service, its conditions being every warning the
+command gave (:mod:`app.analysis.command_warnings`) and the section's own, the next step, and why the model was
+chosen (:func:`recommendation_why`). Then, folded, a page holds for each arm or question:
 
 - the tolerance (default 1 mm and 1 deg, cold spray) and pass/fail per model: a model passes when its largest
   position error and its largest orientation error on the evaluation poses are within the tolerance; the
