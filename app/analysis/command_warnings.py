@@ -55,6 +55,10 @@ class _Tee:
         self._stream, self._collector, self._line = stream, collector, ""
 
     def write(self, s: str) -> int:
+        if not self._line and s.startswith(PREFIX):  # one print(): the whole warning, also when it spans lines
+            self._collector.add(s[len(PREFIX):])
+            self._line = "" if s.endswith("\n") else "\0"  # "\0": inside a kept warning until its newline
+            return self._stream.write(s)
         self._line += s
         *done, self._line = self._line.split("\n")
         for line in done:

@@ -236,3 +236,11 @@ def test_a_two_arm_demo_page_holds_both_verdicts_and_the_warnings_in_the_first_s
     arms = re.findall(r'<li class="(accepted|conditional|rejected)"><b>(R\d)</b>', dom)
     assert [a for _, a in arms] == ["R1", "R2"] and all(c == "conditional" or c == "rejected" for c, _ in arms)
     assert 0 < int(page.body_attrs["data-conditions-bottom"]) <= 900
+
+
+def test_a_warning_over_several_lines_is_kept_whole():
+    with collecting():
+        print("warning: first line\nsecond line", file=sys.stderr)
+        print("not a warning", file=sys.stderr)
+        sys.stderr.write("progress 10%\rwarning: after a bar\n")
+        assert warnings_so_far() == ["first line second line", "after a bar"]
