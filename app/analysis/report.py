@@ -2,7 +2,7 @@
 
 ``compare``, ``evaluate``, ``diagnose``, ``recalibrate`` and ``demo`` write ``report.html`` into ``--report DIR``
 from the jinja2 template ``templates/report.html.j2``. Its first screen (and printed page) is the sign-off: one
-:class:`Verdict` per arm or question on the model to put into service, its conditions being every warning the
+:class:`~app.analysis.verdict.Verdict` per arm or question on the model to put into service, its conditions being every warning the
 command gave (:mod:`app.analysis.command_warnings`) and the section's own, the next step, and why the model was
 chosen (:func:`recommendation_why`). Then, folded, a page holds for each arm or question:
 
@@ -27,7 +27,9 @@ from typing import Any
 import numpy as np
 
 from app.analysis import plots
+from app.analysis.command_warnings import register_page, warnings_so_far
 from app.analysis.compare import Comparison
+from app.analysis.verdict import ACCEPTED, CONDITIONAL, default_next_steps, page_verdict, verdict
 from calibration.errors import CellCalError
 from calibration.files import atomic_write_text, make_folders, read_output_bytes
 from calibration.iso9283 import RepeatedPose, accuracy_per_pose, repeated_poses
@@ -201,73 +203,10 @@ class Page:
     notes: list[str] = field(default_factory=list)
 
 
-ACCEPTED, CONDITIONAL, NOT_ACCEPTED = "accepted", "accepted with conditions", "not accepted"
-
-
-@dataclass(frozen=True)
-class Verdict:
-    """The sign-off verdict on the model one section puts into service.
-
-    Attributes:
-        subject: what is judged (the section's title: a robot, a question).
-        model: the model put into service, or None when the section names none.
-        status: :data:`ACCEPTED`, :data:`CONDITIONAL` (within the tolerance, with warnings) or :data:`NOT_ACCEPTED`
-            (outside the tolerance, or no model to judge).
-        reason: the figures behind it, in one sentence.
-        conditions: every warning the run gave (the command's and this section's), each once.
-    """
-
-    subject: str
-    model: str | None
-    status: str
-    reason: str
-    conditions: tuple[str, ...]
-
-    @property
-    def css(self) -> str:
-        return {ACCEPTED: "accepted", CONDITIONAL: "conditional"}.get(self.status, "rejected")
-
-
-def verdict(section: Section, tol: Tolerance, command_warnings: list[str]) -> Verdict:
-    """The verdict on ``section``'s model for service against ``tol``, its conditions the warnings given."""
-    conditions = tuple(dict.fromkeys([*command_warnings, *section.conditions]))
-    model = section.in_service
-    acc = next((a for a in section.acceptance if a.model == model), None)
-    if acc is None:
-        return Verdict(section.title, model, NOT_ACCEPTED, "no model was chosen to put into service", conditions)
-    figures = (f"{acc.model}: largest errors {acc.max_position_mm:.3f} mm and {acc.max_orientation_deg:.3f} deg on "
-               f"{section.acceptance_data}, against {tol.position_mm:g} mm and {tol.orientation_deg:g} deg")
-    if not acc.passed:
-        return Verdict(section.title, model, NOT_ACCEPTED, figures + ": outside the tolerance", conditions)
-    return Verdict(section.title, model, CONDITIONAL if conditions else ACCEPTED, figures + ": within the tolerance",
-                   conditions)
-
-
-def page_verdict(verdicts: list[Verdict]) -> str:
-    """One status for the page: the worst of its sections'."""
-    order = [ACCEPTED, CONDITIONAL, NOT_ACCEPTED]
-    return max((v.status for v in verdicts), key=order.index, default=NOT_ACCEPTED)
-
-
-def default_next_steps(v: Verdict) -> list[str]:
-    """What to do after a verdict when the command gave no more specific step."""
-    if v.status == NOT_ACCEPTED:
-        return [f"Do not put {v.model or 'a model'} into service. Find what the model misses where it fails "
-                "(cellcal diagnose --robot ROBOT --train TRAIN --test TEST) and collect more poses there."]
-    if v.status == CONDITIONAL:
-        return ["Resolve each condition listed (or state why it does not matter for this cell) before signing; "
-                f"then put {v.model} into service (cellcal export-urdf, compensate-job or export-targets with this "
-                "model)."]
-    return [f"Sign below and put {v.model} into service (cellcal export-urdf, compensate-job or export-targets with "
-            "this model)."]
-
-
 def render_html(page: Page) -> str:
     """The page as one self-contained HTML document (jinja2, autoescaped); its verdicts carry every warning the
     running command gave so far (:mod:`app.analysis.command_warnings`)."""
     import jinja2
-
-    from app.analysis.command_warnings import warnings_so_far
 
     given = warnings_so_far()
     verdicts = [verdict(s, page.tolerance, given) for s in page.sections]
@@ -284,8 +223,6 @@ def render_html(page: Page) -> str:
 def write_html(page: Page, out_dir: str | Path) -> Path:
     """Write ``out_dir/report.html`` atomically (the folder is created); returns its path. A warning the command
     gives after this is written still reaches the page: it is written again when the command ends."""
-    from app.analysis.command_warnings import register_page
-
     out = Path(out_dir)
     make_folders(out)  # removed again when a staged set of outputs fails (calibration.files.staged_outputs)
     path = out / REPORT_HTML

@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 
 from app.analysis.command_warnings import collecting, warnings_so_far
-from app.analysis.report import (ACCEPTED, CONDITIONAL, MAX_SERIES, NOT_ACCEPTED, Acceptance, Page, Section,
-                                 Tolerance, iso_unavailable, shown_series, verdict, write_html)
+from app.analysis.report import (MAX_SERIES, Acceptance, Page, Section, Tolerance, iso_unavailable, shown_series,
+                                 write_html)
+from app.analysis.verdict import ACCEPTED, CONDITIONAL, NOT_ACCEPTED, verdict
 from app.cli.commands import main
 from calibration.recording import write_recording
 from tests.app.browser import browser_or_skip, screenshot_and_dom
