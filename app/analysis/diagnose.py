@@ -27,7 +27,8 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
                  json_path: str | Path | None = None, report_dir: str | Path | None = None,
                  model_out: str | Path | None = None, cell: str | Path | None = None,
                  options: DiagnoseOptions | None = None, tolerance: Any = None, progress: bool = False,
-                 added: Sequence[str | Path] = (), add_weight: int = 1, command: str = "cellcal diagnose") -> Diagnosis:
+                 added: Sequence[str | Path] = (), add_weight: int = 1,
+                 command: str = "cellcal diagnose") -> Diagnosis:
     """Diagnose one robot's model against recordings and write the requested outputs.
 
     Args:

@@ -2,9 +2,9 @@
 
 ``compare``, ``evaluate``, ``diagnose``, ``recalibrate`` and ``demo`` write ``report.html`` into ``--report DIR``
 from the jinja2 template ``templates/report.html.j2``. Its first screen (and printed page) is the sign-off: one
-:class:`~app.analysis.verdict.Verdict` per arm or question on the model to put into service, its conditions being every warning the
-command gave (:mod:`app.analysis.command_warnings`) and the section's own, the next step, and why the model was
-chosen (:func:`recommendation_why`). Then, folded, a page holds for each arm or question:
+:class:`~app.analysis.verdict.Verdict` per arm or question on the model to put into service, its conditions being
+every warning the command gave (:mod:`app.analysis.command_warnings`) and the section's own, the next step, and why
+the model was chosen (:func:`recommendation_why`). Then, folded, a page holds for each arm or question:
 
 - the tolerance (default 1 mm and 1 deg, cold spray) and pass/fail per model: a model passes when its largest
   position error and its largest orientation error on the evaluation poses are within the tolerance; the
@@ -217,7 +217,13 @@ def render_html(page: Page) -> str:
     return env.get_template("report.html.j2").render(
         page=page, verdicts=verdicts, steps=steps, overall=page_verdict(verdicts),
         overall_css={ACCEPTED: "accepted", CONDITIONAL: "conditional"}.get(page_verdict(verdicts), "rejected"),
-        conditions=list(dict.fromkeys(c for v in verdicts for c in v.conditions)))
+        conditions=list(dict.fromkeys([*given, *_section_conditions(page)])))
+
+
+def _section_conditions(page: Page) -> list[str]:
+    """The sections' own warnings (those no command printed: the demo's comparisons), named by section when several."""
+    several = len(page.sections) > 1
+    return [" ".join((f"{s.title}: {c}" if several else c).split()) for s in page.sections for c in s.conditions]
 
 
 def write_html(page: Page, out_dir: str | Path) -> Path:
