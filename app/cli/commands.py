@@ -196,13 +196,13 @@ def _evaluate_next_steps(args: argparse.Namespace, model: Any, ex: dict[str, Any
     """The report's next step when the test poses leave the model's training joint range: a top-up that covers them
     (``cellcal select``, the training recording named from the model's provenance); none otherwise (the verdict's
     default step then)."""
-    if not ex["outside_training_range"]:
-        return []
-    from app.provenance import PROVENANCE_KEY
-
-    trained = [i["path"] for i in (model.info.get(PROVENANCE_KEY) or {}).get("inputs", []) if i.get("role") == "train"]
     from pathlib import Path
 
+    from app.provenance import PROVENANCE_KEY
+
+    if not ex["outside_training_range"]:
+        return []
+    trained = [i["path"] for i in (model.info.get(PROVENANCE_KEY) or {}).get("inputs", []) if i.get("role") == "train"]
     folders = {str(Path(t).parent) for t in trained}  # a Welding_Motoman recording is a folder of two files
     given = trained[0] if len(trained) == 1 else folders.pop() if len(folders) == 1 else "TRAIN.csv"
     return [f"{ex['outside_training_range']} of the {ex['poses']} poses lie outside the joint range the model was "
