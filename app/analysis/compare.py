@@ -114,6 +114,16 @@ def _run_comparison(fitter: Fitter, test: Recording, methods: list[str] | tuple[
     return out
 
 
+def comparison_warnings(cmp: Comparison) -> list[str]:
+    """The comparison's own warnings, each once: observability, measurement shifts, then each method's own check
+    (nls0's other clusters, a CDC fit's held-out and range checks: "fbf13 may be unstable" ...). ``compare``
+    prints them; the report lists them among the conditions of its verdict (the demo prints none of them)."""
+    a = cmp.analysis
+    texts = [a.get("observability", {}).get("warning"), (a.get("measurement_shift") or {}).get("warning")]
+    texts += [m.info.get("warning") for m in cmp.models.values()]
+    return [t for t in dict.fromkeys(texts) if t]
+
+
 def recommendation_line(cmp: Comparison) -> str:
     """One line naming the recommended method and why (for the CLI)."""
     rec = cmp.analysis["recommendation"]

@@ -27,7 +27,8 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
                  json_path: str | Path | None = None, report_dir: str | Path | None = None,
                  model_out: str | Path | None = None, cell: str | Path | None = None,
                  options: DiagnoseOptions | None = None, tolerance: Any = None, progress: bool = False,
-                 added: Sequence[str | Path] = (), add_weight: int = 1) -> Diagnosis:
+                 added: Sequence[str | Path] = (), add_weight: int = 1,
+                 command: str = "cellcal diagnose") -> Diagnosis:
     """Diagnose one robot's model against recordings and write the requested outputs.
 
     Args:
@@ -48,6 +49,7 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
         progress: show a progress bar over the diagnosis steps.
         added: recordings of extra poses joined to the one training recording as stand-alone poses
             (:func:`calibration.recording.with_added`; ``--add``), each with weight ``add_weight``.
+        command: the command line the report shows.
 
     Returns:
         The diagnosis.
@@ -117,7 +119,7 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
         models = {f"{result.final.model} (after)": result.model}
         if used is not None:
             models = {f"{result.baseline.model} (before)": used, **models}
-        write_report(result, report_dir, tolerance, ho, models, inputs)
+        write_report(result, report_dir, tolerance, ho, models, inputs, command)
     return result
 
 
@@ -257,13 +259,13 @@ def write_report(result: Diagnosis, out_dir: str | Path, tolerance: Any = None, 
     section = Section(f"Diagnosis: {result.robot}",
                       [acceptance_from_max(f"{fit.model} ({when})", result.n_heldout, fit.max_mm, fit.max_deg, tol)
                        for fit, when in ((b, "before"), (f, "after"))],
-                      f"the {result.n_heldout} held-out poses ({result.heldout_source})", iso, None,
-                      [result.verdict, f"Samples: {result.n_fit} fit, {result.n_heldout} held out. Noise floor "
-                                       f"{result.noise.floor_mm:.3f} mm. Details in report.md."],
+                      f"the {result.n_heldout} held-out poses ({result.heldout_source})", iso, f"{f.model} (after)",
+                      [f"Samples: {result.n_fit} fit, {result.n_heldout} held out. Noise floor "
+                       f"{result.noise.floor_mm:.3f} mm. Details in report.md."],
                       [Table("Held-out accuracy", ["model", "RMS mm", "max mm", "RMS deg", "max deg"], rows),
                        Table("Effects found", ["kind", "on", "delta BIC", "held-out RMS before -> after mm"], effects,
                              [] if effects else ["None confirmed on the held-out data."]), *_days_tables(result)],
-                      images)
+                      images, why=[result.verdict, *result.notes])
     files.append(write_html(Page(section.title, command, tol, provenance(inputs), [section]), out))
     return files
 

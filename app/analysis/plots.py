@@ -86,13 +86,15 @@ def save_figure(fig: Any, path: Path) -> Path:
     return path
 
 
-def workspace_figure(errs: dict[str, Errors], p_mm: np.ndarray, tolerance_mm: float | None = None) -> Any:
+def workspace_figure(errs: dict[str, Errors], p_mm: np.ndarray, tolerance_mm: float | None = None,
+                     highlight: str | None = None) -> Any:
     """Position error over the workspace: measured tool x against height z, one panel per row, shared colours.
 
     Args:
         errs: row name -> errors on the poses ``p_mm``.
         p_mm: measured tool-marker positions in the robot base frame [mm], shape (N, 3).
         tolerance_mm: drawn as a tick on the colour bar when given.
+        highlight: the row whose panel is framed and titled "(recommended)".
     """
     plt = _pyplot()
     names = list(errs)
@@ -110,7 +112,12 @@ def workspace_figure(errs: dict[str, Errors], p_mm: np.ndarray, tolerance_mm: fl
     for ax, n in zip(axes.flat, names):
         sc = ax.scatter(p_mm[:, 0], p_mm[:, 2], c=np.clip(errs[n].position_mm, vmin, None), s=9, cmap="viridis",
                         norm=norm)
-        ax.set_title(n, fontsize=9)
+        ax.set_title(f"{n} (recommended)" if n == highlight else n, fontsize=9,
+                     fontweight="bold" if n == highlight else "normal")
+        if n == highlight:
+            for spine in ax.spines.values():
+                spine.set_color("#e0b000")
+                spine.set_linewidth(2.5)
         ax.grid(alpha=0.3)
     for ax in axes.flat[len(names):]:
         ax.remove()
@@ -127,20 +134,26 @@ def workspace_figure(errs: dict[str, Errors], p_mm: np.ndarray, tolerance_mm: fl
     return fig
 
 
-def cdf_figure(errs: dict[str, Errors], tolerance_mm: float, tolerance_deg: float) -> Any:
-    """Cumulative distribution of the position and orientation errors per row, with the tolerances."""
+def cdf_figure(errs: dict[str, Errors], tolerance_mm: float, tolerance_deg: float, highlight: str | None = None) -> Any:
+    """Cumulative distribution of the position and orientation errors per row, with the tolerances.
+
+    ``highlight`` (the recommended row) is drawn thick, on top, and named so in the legend; the legend sits below
+    the panels, clear of the curves.
+    """
     from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter
 
     plt = _pyplot()
     styles = styles_for(list(errs))
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 4.6))
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 4.9), layout="constrained")
     for n, e in errs.items():
         s = styles[n]
+        top = n == highlight
         for ax, values in ((a1, e.position_mm), (a2, e.orientation_deg)):
             v = np.sort(np.clip(values, 1e-6, None))  # log axis: an exact zero drawn at 1e-6
             frac = np.arange(1, len(v) + 1) / len(v)
-            ax.step(v, frac, where="post", color=s.color, ls=s.linestyle, lw=1.4, label=n,
-                    marker=s.marker, markevery=max(1, len(v) // 6), ms=5)
+            ax.step(v, frac, where="post", color=s.color, ls="-" if top else s.linestyle, lw=3.2 if top else 1.3,
+                    label=f"{n} (recommended)" if top else n, marker=s.marker, markevery=max(1, len(v) // 6),
+                    ms=7 if top else 5, zorder=5 if top else 2, alpha=1.0 if top or highlight is None else 0.85)
     for ax, tol, unit in ((a1, tolerance_mm, "position error [mm]"), (a2, tolerance_deg, "orientation error [deg]")):
         ax.axvline(tol, color="r", ls="--", lw=1.0, label=f"tolerance {tol:g}")
         ax.set_xscale("log")
@@ -151,7 +164,8 @@ def cdf_figure(errs: dict[str, Errors], tolerance_mm: float, tolerance_deg: floa
         ax.set_ylabel("fraction of poses with a smaller error [-]")
         ax.set_ylim(0, 1.02)
         ax.grid(alpha=0.3)
-    a2.legend(fontsize=7, ncol=2, loc="lower right")
+    handles, labels = a1.get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncol=min(len(labels), 7), fontsize=9, frameon=False)
     return fig
 
 

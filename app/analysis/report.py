@@ -1,7 +1,10 @@
 """The acceptance report: one self-contained ``report.html`` per run (and ``report.md`` + PNGs for compare).
 
 ``compare``, ``evaluate``, ``diagnose``, ``recalibrate`` and ``demo`` write ``report.html`` into ``--report DIR``
-from the jinja2 template ``templates/report.html.j2``. A page holds, for each arm or question:
+from the jinja2 template ``templates/report.html.j2``. Its first screen (and printed page) is the sign-off: one
+:class:`~app.analysis.verdict.Verdict` per arm or question on the model to put into service, its conditions being
+every warning the command gave (:mod:`app.analysis.command_warnings`) and the section's own, the next step, and why
+the model was chosen (:func:`recommendation_why`). Then, folded, a page holds for each arm or question:
 
 - the tolerance (default 1 mm and 1 deg, cold spray) and pass/fail per model: a model passes when its largest
   position error and its largest orientation error on the evaluation poses are within the tolerance; the
@@ -24,7 +27,9 @@ from typing import Any
 import numpy as np
 
 from app.analysis import plots
+from app.analysis.command_warnings import register_page, warnings_so_far
 from app.analysis.compare import Comparison
+from app.analysis.verdict import ACCEPTED, CONDITIONAL, default_next_steps, page_verdict, verdict
 from calibration.errors import CellCalError
 from calibration.files import atomic_write_text, make_folders, read_output_bytes
 from calibration.iso9283 import RepeatedPose, accuracy_per_pose, repeated_poses
@@ -169,10 +174,21 @@ class Section:
     tables: list[Table] = field(default_factory=list)
     images: list[Image] = field(default_factory=list)
     details: list[Table] = field(default_factory=list)  # after the plots
+    why: list[str] = field(default_factory=list)  # why this model: the held-out figures, the test used
+    why_table: Table | None = None
+    conditions: list[str] = field(default_factory=list)  # this section's own warnings (beside the command's)
+    next_steps: list[str] = field(default_factory=list)
 
     @property
     def recommended_acceptance(self) -> Acceptance | None:
         return next((a for a in self.acceptance if a.model == self.recommended), None)
+
+    @property
+    def in_service(self) -> str | None:
+        """The model the page judges for service: the recommended one, or the only one evaluated."""
+        if self.recommended is not None:
+            return self.recommended
+        return self.acceptance[0].model if len(self.acceptance) == 1 else None
 
 
 @dataclass
@@ -188,21 +204,36 @@ class Page:
 
 
 def render_html(page: Page) -> str:
-    """The page as one self-contained HTML document (jinja2, autoescaped)."""
+    """The page as one self-contained HTML document (jinja2, autoescaped); its verdicts carry every warning the
+    running command gave so far (:mod:`app.analysis.command_warnings`)."""
     import jinja2
 
+    given = warnings_so_far()
+    verdicts = [verdict(s, page.tolerance, given) for s in page.sections]
+    steps = [s.next_steps or default_next_steps(v) for s, v in zip(page.sections, verdicts)]
     env = jinja2.Environment(loader=jinja2.PackageLoader("app.analysis", "templates"),
                              autoescape=jinja2.select_autoescape(["html", "j2"]), undefined=jinja2.StrictUndefined,
                              trim_blocks=False)
-    return env.get_template("report.html.j2").render(page=page)
+    return env.get_template("report.html.j2").render(
+        page=page, verdicts=verdicts, steps=steps, overall=page_verdict(verdicts),
+        overall_css={ACCEPTED: "accepted", CONDITIONAL: "conditional"}.get(page_verdict(verdicts), "rejected"),
+        conditions=list(dict.fromkeys([*given, *_section_conditions(page)])))
+
+
+def _section_conditions(page: Page) -> list[str]:
+    """The sections' own warnings (those no command printed: the demo's comparisons), named by section when several."""
+    several = len(page.sections) > 1
+    return [" ".join((f"{s.title}: {c}" if several else c).split()) for s in page.sections for c in s.conditions]
 
 
 def write_html(page: Page, out_dir: str | Path) -> Path:
-    """Write ``out_dir/report.html`` atomically (the folder is created); returns its path."""
+    """Write ``out_dir/report.html`` atomically (the folder is created); returns its path. A warning the command
+    gives after this is written still reaches the page: it is written again when the command ends."""
     out = Path(out_dir)
     make_folders(out)  # removed again when a staged set of outputs fails (calibration.files.staged_outputs)
     path = out / REPORT_HTML
     atomic_write_text(path, render_html(page))
+    register_page(lambda: atomic_write_text(path, render_html(page)))
     return path
 
 
@@ -272,24 +303,90 @@ def analysis_tables(cmp: Comparison) -> list[Table]:
     return tables
 
 
-def error_plots(errs: dict[str, Errors], rec: Recording, out: Path, tol: Tolerance) -> list[Image]:
-    """Workspace map and CDFs of ``errs`` on ``rec``, saved as PNG in ``out`` and returned for embedding."""
-    files = [(plots.save_figure(plots.workspace_figure(errs, rec.p, tol.position_mm), out / "error_workspace.png"),
-              "position error over the workspace: measured tool x against height, coloured by error"),
-             (plots.save_figure(plots.cdf_figure(errs, tol.position_mm, tol.orientation_deg), out / "error_cdf.png"),
-              "cumulative distribution of the position and orientation errors per model, with the tolerance")]
+#: Most series a plot draws (issue 34: 23 series of repeating colours could not be read).
+MAX_SERIES = 6
+
+
+def shown_series(names: list[str], recommended: str | None = None, best: str | None = None) -> list[str]:
+    """The rows a plot draws, at most :data:`MAX_SERIES`: nominal, the paper's method (fbf13), nls1, the recommended
+    and the best on held-out clusters, in the table's order; with none of these, the first rows."""
+    wanted = {"nominal", "fbf13", "nls1", recommended, best} - {None}
+    chosen = [n for n in names if n in wanted]
+    return (chosen or list(names))[:MAX_SERIES]
+
+
+def error_plots(errs: dict[str, Errors], rec: Recording, out: Path, tol: Tolerance, recommended: str | None = None,
+                best: str | None = None) -> list[Image]:
+    """Workspace map and CDFs of ``errs`` on ``rec`` (at most :data:`MAX_SERIES` rows: :func:`shown_series`, the
+    recommended one highlighted), saved as PNG in ``out`` and returned for embedding."""
+    names = shown_series(list(errs), recommended, best)
+    shown = {n: errs[n] for n in names}
+    left = len(errs) - len(names)
+    more = f" ({left} more in the table)" if left else ""
+    files = [(plots.save_figure(plots.workspace_figure(shown, rec.p, tol.position_mm, recommended),
+                                out / "error_workspace.png"),
+              f"position error over the workspace: measured tool x against height, coloured by error; "
+              f"{', '.join(names)}{more}"),
+             (plots.save_figure(plots.cdf_figure(shown, tol.position_mm, tol.orientation_deg, recommended),
+                                out / "error_cdf.png"),
+              f"cumulative distribution of the position and orientation errors, with the tolerance; "
+              f"{', '.join(names)}{more}")]
     return [Image.from_file(caption, path) for path, caption in files]
+
+
+def _p(p: float) -> str:
+    """A p-value as stored (rounded to 4 decimals): "< 0.0001" rather than "0"."""
+    return "< 0.0001" if p < 1e-4 else f"= {p:.2g}"
+
+
+def recommendation_why(cmp: Comparison, test_label: str) -> tuple[list[str], Table | None]:
+    """Why ``cmp`` recommends its model: the rule, the held-out figures that decided, and the test figures beside
+    them (which played no part); a table of the recommended model, the best and the cheaper candidates."""
+    rec = cmp.analysis.get("recommendation")
+    if not rec or cmp.recommended is None:
+        return ["No recommendation made."], None
+    cands, m, best = rec["candidates"], rec["method"], rec["best"]
+    c = cands[m]
+    text = [f"{m} ({c['n_parameters']} parameters) is recommended by the rule: {rec['rule']}. It was chosen on the "
+            f"training data alone (k-fold over whole clusters); {test_label} played no part."]
+    if m == best:
+        text.append(f"{m} has the smallest held-out position RMS: {c['heldout_rms_mm']:.3f} mm.")
+    else:
+        b = cands[best]
+        text.append(f"Held-out RMS {c['heldout_rms_mm']:.3f} mm, tied with the best, {best} ({b['heldout_rms_mm']:.3f} "
+                    f"mm, {b['n_parameters']} parameters; p = {c['p_worse_than_best']:.2f} that {m} is worse).")
+    cheaper = sorted((n for n, v in cands.items() if v["n_parameters"] < c["n_parameters"]),
+                     key=lambda n: -cands[n]["n_parameters"])[:4]
+    if cheaper:  # their figures are in the table
+        text.append(f"The models with fewer parameters ({', '.join(cheaper)}) were worse than the best on held-out "
+                    "clusters (one-sided p below 5 %), so the rule passed over them.")
+    rows = []
+    for n in dict.fromkeys([m, best, *cheaper]):
+        v = cands[n]
+        te = cmp.test_errors.get(n)
+        role = "recommended" if n == m else "best held-out" if n == best else "fewer parameters"
+        p = _p(v["p_worse_than_best"]).removeprefix("= ")
+        rows.append([n, role, str(v["n_parameters"]), f"{v['heldout_rms_mm']:.3f}", p,
+                     "tied" if v["tied"] else "worse", "–" if te is None else
+                     f"{float(np.sqrt(np.mean(np.asarray(te.position_mm) ** 2))):.3f}"])
+    table = Table("The held-out figures that decided", ["model", "role", "params", "held-out RMS mm",
+                                                        "p worse than best", "against the best",
+                                                        f"RMS on {test_label} mm (not used)"], rows)
+    return text, table
 
 
 def comparison_section(cmp: Comparison, test: Recording, out_dir: str | Path, tol: Tolerance,
                        with_paper: bool = False, title: str | None = None, test_label: str = "the test set",
                        paragraphs: list[str] | None = None) -> Section:
     """One arm's comparison: writes ``report.md`` and the PNG plots into ``out_dir`` and returns the section."""
+    from app.analysis.compare import comparison_warnings
+
     out = Path(out_dir)
     make_folders(out)  # removed again when a staged set of outputs fails (calibration.files.staged_outputs)
-    images = error_plots(cmp.test_errors, test, out, tol)
-    interp = cmp.models["fbf13"].interpolation() if "fbf13" in cmp.models else None
-    if interp is not None:  # any kind answers: a frames-first fit wraps fbf13 in a rebased model
+    best = (cmp.analysis.get("recommendation") or {}).get("best")
+    images = error_plots(cmp.test_errors, test, out, tol, cmp.recommended, best)
+    interp = cmp.models["fbf13"].interpolation() if cmp.recommended == "fbf13" else None
+    if interp is not None:  # the Fourier model's own plots, only when it is the one put into service
         path = plots.save_figure(plots.singular_values_figure(np.asarray(interp.singular_values())),
                                  out / "fourier_singular_values.png")
         images.append(Image.from_file("singular values of the fbf13 coefficient matrix", path))
@@ -298,12 +395,14 @@ def comparison_section(cmp: Comparison, test: Recording, out_dir: str | Path, to
                                                                  "fbf13 - nominal"), out / "fourier_correction_map.png")
             images.append(Image.from_file("position correction of the Fourier CDC over (q2, q3)", path))
     tables = [comparison_rows(cmp, with_paper)] + analysis_tables(cmp)
+    why, why_table = recommendation_why(cmp, test_label)
     section = Section(title or f"Calibration comparison: {cmp.robot}",
                       [acceptance(m, e, tol) for m, e in cmp.test_errors.items()],
                       f"the {len(test)} poses of {test_label}", iso_table(cmp.models, test, test_label),
-                      cmp.recommended, list(paragraphs or []), tables[:1], images, tables[1:])
-    md = [f"# {section.title}", ""] + acceptance_markdown(section, tol)
-    for t in tables:
+                      cmp.recommended, list(paragraphs or []), tables[:1], images, tables[1:], why, why_table,
+                      comparison_warnings(cmp))
+    md = [f"# {section.title}", ""] + acceptance_markdown(section, tol) + why + [""]
+    for t in ([why_table] if why_table else []) + tables:
         md += t.markdown()
     md += ["## Plots", ""] + [f"![{im.caption}]({im.file})" for im in images] + [""]
     atomic_write_text(out / "report.md", "\n".join(md))
@@ -337,7 +436,8 @@ def write_report(cmp: Comparison, test: Recording, out_dir: str | Path, with_pap
 
 
 def evaluation_section(title: str, models: dict[str, Any], rec: Recording, out_dir: str | Path, tol: Tolerance,
-                       label: str, paragraphs: list[str] | None = None) -> Section:
+                       label: str, paragraphs: list[str] | None = None, recommended: str | None = None,
+                       why: list[str] | None = None, next_steps: list[str] | None = None) -> Section:
     """Models evaluated on one recording (``evaluate``, ``recalibrate``): statistics, pass/fail, ISO, plots."""
     from calibration.metrics import error_stats
 
@@ -351,20 +451,21 @@ def evaluation_section(title: str, models: dict[str, Any], rec: Recording, out_d
     table = Table(f"Errors on {label}", ["model", "method", "params", "pos mean mm", "pos std mm", "pos RMS mm",
                                          "pos max mm", "ori mean deg", "ori max deg"], rows)
     return Section(title, [acceptance(n, e, tol) for n, e in errs.items()], f"the {len(rec)} poses of {label}",
-                   iso_table(models, rec, label), None, list(paragraphs or []), [table],
-                   error_plots(errs, rec, Path(out_dir), tol))
+                   iso_table(models, rec, label), recommended, list(paragraphs or []), [table],
+                   error_plots(errs, rec, Path(out_dir), tol, recommended), why=list(why or []),
+                   next_steps=list(next_steps or []))
 
 
 def write_evaluation_report(title: str, command: str, models: dict[str, Any], rec: Recording, out_dir: str | Path,
                             tol: Tolerance, inputs: list[tuple[str, Any]], label: str,
-                            paragraphs: list[str] | None = None) -> Path:
+                            paragraphs: list[str] | None = None, next_steps: list[str] | None = None) -> Path:
     """``evaluate``/``recalibrate --report``: ``report.html`` (+ its PNGs) in ``out_dir``; returns the page."""
     from app.provenance import provenance
 
     out = Path(out_dir)
     make_folders(out)  # removed again when a staged set of outputs fails (calibration.files.staged_outputs)
     record = provenance(inputs)
-    section = evaluation_section(title, models, rec, out, tol, label, paragraphs)
+    section = evaluation_section(title, models, rec, out, tol, label, paragraphs, next_steps=next_steps)
     return write_html(Page(title, command, tol, record, [section]), out)
 
 

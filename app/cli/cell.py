@@ -444,7 +444,14 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         if in_service is not None:
             models[f"in service {in_service.method}"] = in_service
         section = evaluation_section(f"Recalibration of {args.robot}", models, validation, args.report, tolerance,
-                                     "the fresh validation poses", [decision.summary()])
+                                     "the fresh validation poses",  # the model in service after the decision
+                                     recommended=f"candidate {model.method}" if decision.replaced or in_service is None
+                                     else f"in service {in_service.method}", why=[decision.summary()],
+                                     next_steps=[f"{decision.current_path} now holds the {model.method} candidate "
+                                                 "(the previous model archived); sign below to accept it."
+                                                 if decision.replaced or in_service is None else
+                                                 f"Nothing to install: {decision.current_path} still holds the model "
+                                                 "in service; sign below to accept that it stays."])
         page = write_html(Page(section.title, command_line(args), tolerance, report_record, [section]), args.report)
         print(f"report: {page}")
     return 0

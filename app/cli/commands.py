@@ -186,9 +186,30 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
         page = write_evaluation_report(f"Evaluation of {args.model} on {args.test}", command_line(args),
                                        {model.method: model}, test, args.report, tolerance,
-                                       [("model", args.model), ("test", args.test)], "the test recording")
+                                       [("model", args.model), ("test", args.test)], "the test recording",
+                                       next_steps=_evaluate_next_steps(args, model, ex))
         print(f"report: {page}")
     return 0
+
+
+def _evaluate_next_steps(args: argparse.Namespace, model: Any, ex: dict[str, Any]) -> list[str]:
+    """The report's next step when the test poses leave the model's training joint range: a top-up that covers them
+    (``cellcal select``, the training recording named from the model's provenance); none otherwise (the verdict's
+    default step then)."""
+    from pathlib import Path
+
+    from app.provenance import PROVENANCE_KEY
+
+    if not ex["outside_training_range"]:
+        return []
+    trained = [i["path"] for i in (model.info.get(PROVENANCE_KEY) or {}).get("inputs", []) if i.get("role") == "train"]
+    folders = {str(Path(t).parent) for t in trained}  # a Welding_Motoman recording is a folder of two files
+    given = trained[0] if len(trained) == 1 else folders.pop() if len(folders) == 1 else "TRAIN.csv"
+    return [f"{ex['outside_training_range']} of the {ex['poses']} poses lie outside the joint range the model was "
+            f"trained on (by up to {ex['max_excess_deg']:.1f} deg): the model extrapolates there. Collect poses that "
+            f"cover the task and refit: cellcal select --robot {model.robot} --data CANDIDATES.csv --given {given} "
+            f"--task {args.test} --poses 21 --out topup.csv, measure them (cellcal collect), then cellcal fit with "
+            f"--add topup.csv."]
 
 
 #: Share of an isotropic 3-D Gaussian error whose norm exceeds twice its RMS norm: P(chi2_3 > 12).
@@ -345,7 +366,7 @@ def cmd_export_urdf(args: argparse.Namespace) -> int:
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    from app.analysis.compare import parse_methods, recommendation_line, run_comparison
+    from app.analysis.compare import comparison_warnings, parse_methods, recommendation_line, run_comparison
     from app.analysis.report import comparison_table, shows_paper, write_report
 
     from pathlib import Path
@@ -369,12 +390,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
         cmp.analysis["frames"]["test"] = {"model": checked, **_test_frame_check(
             cmp.models[checked], test, f"test recording, against the {checked} fit of the training recording,",
             f"the {checked} fit of the training recording")}
-    analysis = cmp.analysis
-    warnings = [analysis["observability"]["warning"], analysis.get("measurement_shift", {}).get("warning")]
-    # then each method's own check (nls0's other clusters, a CDC fit's held-out and range checks), once each
-    for text in dict.fromkeys(warnings + [m.info.get("warning") or "" for m in cmp.models.values()]):
-        if text:
-            print(f"warning: {text}", file=sys.stderr)
+    for text in comparison_warnings(cmp):
+        print(f"warning: {text}", file=sys.stderr)
     with_paper = shows_paper(args.robot, test)  # the paper's figures only beside a test recording of its own cell
     print(comparison_table(cmp, with_paper=with_paper))
     print(recommendation_line(cmp))
@@ -398,7 +415,8 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
                           model=args.model, json_path=args.json,
                           report_dir=args.report, model_out=args.out, cell=args.cell,
                           options=DiagnoseOptions(compliance_form=args.compliance_form, weighting=args.weighting),
-                          tolerance=tolerance_from_args(args), progress=show_progress(args))
+                          tolerance=tolerance_from_args(args), progress=show_progress(args),
+                          command=command_line(args))
     if result.days is not None:
         print(result.days.summary())
     print(result.verdict)
@@ -568,6 +586,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     args.argv = list(argv) if argv is not None else sys.argv[1:]
+    from app.analysis.command_warnings import collecting
     from app.progress import configure, install_logging
 
     install_logging(logging.INFO if args.verbose else logging.WARNING)  # log lines go through the bars
@@ -575,8 +594,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         resolve_cell(args)
         check_output_args(args)
-        with staged_outputs() if args.command in STAGED_COMMANDS else contextlib.nullcontext():
-            return args.func(args)
+        with staged_outputs() if args.command in STAGED_COMMANDS else contextlib.nullcontext(), collecting():
+            return args.func(args)  # every warning it gives reaches its report (app.analysis.command_warnings)
     except CellCalError as e:
         print(f"cellcal {args.command}: {e}", file=sys.stderr)
         return 2

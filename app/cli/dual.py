@@ -198,12 +198,26 @@ def cmd_preview(args: argparse.Namespace) -> int:
     for d in result.defects:  # drawn in red with the reason in the readout; said here too
         print(f"UNSAFE {d}", file=sys.stderr)
     if result.url:
-        print(f"live viewer at {result.url}; press Enter to stop", flush=True)
-        try:
-            input()
-        except (EOFError, KeyboardInterrupt):
-            pass
+        print(f"live viewer at {result.url}; Ctrl-C (SIGINT) or SIGTERM stops it", flush=True)
+        serve_until_stopped()
     return 0
+
+
+def serve_until_stopped() -> None:
+    """Wait until SIGINT (Ctrl-C) or SIGTERM. Waiting for Enter returned at once without a terminal (stdin at end
+    of file under nohup, a service or a test), taking the viewer down as soon as it was up."""
+    import signal
+    import threading
+
+    stop = threading.Event()
+    previous = signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:
+        while not stop.wait(0.5):
+            pass
+    except KeyboardInterrupt:
+        pass
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def cmd_export_targets(args: argparse.Namespace) -> int:
@@ -264,7 +278,7 @@ def add_dual_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p = add("preview", cmd_preview, "meshcat preview of a plan (static HTML page or live viewer)")
     p.add_argument("--plan", required=True, help="plan file (dual or collection)")
     p.add_argument("--html", help="write a self-contained HTML page")
-    p.add_argument("--serve", action="store_true", help="start a live meshcat viewer and wait for Enter")
+    p.add_argument("--serve", action="store_true", help="start a live meshcat viewer on 127.0.0.1 and serve it until Ctrl-C (SIGINT) or SIGTERM")
     p.add_argument("--json", help="write a summary as JSON (waypoints, largest residual, files, joint-limit check)")
     p.add_argument("--models", help=PLAN_MODELS_HELP)
     p = add("export-targets", cmd_export_targets, "controller targets (rad, pulses, poses) from a dual plan")

@@ -293,14 +293,18 @@ def run_demo(out_dir: str | Path, cell: CellSpec, config: DemoConfig = DemoConfi
 
 def summary_table(summary: dict[str, Any]) -> str:
     """Plain-text table: per robot and method, test position mean / max [mm] and orientation mean [deg]."""
-    width = max([6] + [len(m) for r in summary["robots"].values() for m in (*r["methods"], *r["skipped_methods"])])
+    width = max([6] + [len(m) for r in summary["robots"].values() for m in r["methods"]])
     lines = [f"{'robot':<5} {'method':<{width}} {'pos mean mm':>11} {'pos max mm':>10} {'ori mean deg':>12}"]
     for robot, r in summary["robots"].items():
         for m, v in r["methods"].items():
             p, o = v["test"]["position_mm"], v["test"]["orientation_deg"]
             lines.append(f"{robot:<5} {m:<{width}} {p['mean']:>11.3f} {p['max']:>10.3f} {o['mean']:>12.4f}")
+        by_reason: dict[str, list[str]] = {}
         for m, reason in r["skipped_methods"].items():
-            lines.append(f"{robot:<5} {m:<{width}} skipped: {reason}")
+            by_reason.setdefault(reason, []).append(m)
+        for reason, ms in by_reason.items():  # one line per reason, not one per method (20 "not requested")
+            lines.append(f"{robot:<5} skipped ({reason}): {', '.join(ms)}" if len(ms) > 1
+                         else f"{robot:<5} {ms[0]:<{width}} skipped: {reason}")
         lines.append(f"{robot:<5} recommended (chosen on clusters held out from training): {r['recommended']}")
     return "\n".join(lines)
 

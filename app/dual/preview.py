@@ -209,7 +209,7 @@ def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve
     capsules = CellCapsules(cell)
     q_deg = {n: np.degrees(p.q[n]) for n in ("R1", "R2")}
     overlay = readout_html(readout_data(q_deg, p.residual_mm, p.residual_deg, converged, notes, fps),
-                           {**scene.COLORS, **scene.TRACE_COLORS})
+                           {**scene.COLORS, **scene.TRACE_COLORS}) + scene.FIT_CAMERA_JS
     windows, url = _windows(html_out is not None, serve, overlay)
     for window in windows:
         top, vis = scene.scene(window, capsules)

@@ -489,3 +489,45 @@ def test_the_live_viewer_carries_the_readout(cell, real_plan, tmp_path):
     last = len(d["waypoints"]) - 1
     _assert_readout_is_waypoint(_readout(run_browser(tmp_path, result.url + f"#waypoint={last}", "--dump-dom")),
                                 real_plan, last)
+
+
+@pytest.mark.parametrize("size", [(600, 1000)])
+def test_the_camera_frames_both_arms_in_any_window_shape(cell, real_plan, tmp_path, size):
+    """Issue 34: a portrait window cropped the arms at its sides; the page now fits the camera to the window."""
+    import matplotlib.image as mpimg
+
+    out = tmp_path / "preview.html"
+    preview(cell, real_plan, html_out=out)
+    png, _ = screenshot_and_dom(tmp_path, out.as_uri(), f"preview_{size[0]}x{size[1]}.png", size=size)
+    img = mpimg.imread(png)[..., :3]
+    assert img.shape == (size[1], size[0], 3)
+    masks = _masks(img)
+    edge = max(2, size[0] // 100)  # the outermost 1 % of columns on either side
+    for arm in ("R1 arm", "R2 arm"):
+        assert masks[arm].sum() > 1000, f"{arm} not drawn"
+        cols = np.flatnonzero(masks[arm].any(axis=0))
+        assert cols.min() >= edge and cols.max() < size[0] - edge, (arm, cols.min(), cols.max())
+
+
+def test_serve_keeps_serving_without_a_terminal_until_sigint(real_plan, tmp_path):
+    """Issue 34: `preview --serve` waited for Enter and so exited at once when stdin was not a terminal."""
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-m", "app.cli", "preview", "--plan", str(real_plan), "--serve"],
+                            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            start_new_session=True)
+    try:
+        line = ""
+        deadline = time.monotonic() + 60
+        while "live viewer at" not in line and time.monotonic() < deadline:
+            line = proc.stdout.readline()
+            assert line or proc.poll() is None, "preview --serve exited before serving"
+        assert "live viewer at http://127.0.0.1:" in line
+        time.sleep(1.5)
+        assert proc.poll() is None, "preview --serve stopped serving with stdin at end of file"
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=20) == 0
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
