@@ -318,17 +318,23 @@ class RebaseProblem:
                 noise = float(np.sqrt(res.cost[0] / max(rows - self.basis.shape[1], 1)))
             self._prior_weight = noise / self.prior_sd
             res = solve(self, None, settings)
+        return self.result_at(res.z[0], bool(res.converged[0]), res.reason[0], int(res.iterations[0]),
+                              time.perf_counter() - start)
+
+    def result_at(self, z: np.ndarray, converged: bool, reason: StopReason, iterations: int, seconds: float
+                  ) -> RebaseResult:
+        """The result of the move ``basis @ z`` (the solution, or a move scaled back from it)."""
         r0 = self.residuals(np.zeros((1, self.basis.shape[1]))).r
-        r1 = self.residuals(res.z).r
-        delta = self.basis @ res.z[0]
+        r1 = self.residuals(z[None]).r
+        delta = self.basis @ z
         T_b, T_t = corrections(delta)
         R0, p0 = self.frames.R_bf, self.frames.p_bf
         R1, p1 = self._frames_for(delta).predict(T_b, T_t)
         R_meas, p_meas = self.frames.R_meas, self.frames.p_meas
         before, after = pose_error(R_meas, p_meas, R0, p0), pose_error(R_meas, p_meas, R1, p1)
         return RebaseResult(T_b, T_t, delta, self.observability.rank, self.held, self.observability,
-                            before[0], after[0], before[1], after[1], bool(res.converged[0]), res.reason[0],
-                            int(res.iterations[0]), time.perf_counter() - start, self.n_samples,
+                            before[0], after[0], before[1], after[1], converged, reason, iterations, seconds,
+                            self.n_samples,
                             self._joint_offsets(delta), float(np.sqrt(np.sum(r0 * r0) / r0.size)),
                             float(np.sqrt(np.sum(r1 * r1) / r0.size)))
 
@@ -515,8 +521,30 @@ def workspace_spread(problem: RebaseProblem, result: RebaseResult, noise_mm: flo
     return np.sqrt(np.maximum(np.einsum("mij,jk,mik->m", G, cov, G), 0.0))
 
 
+#: Configurations of the workspace check of :func:`rebase_auto` (uniform within the joint limits, a fixed seed so
+#: that the same data always gets the same answer).
+N_WORKSPACE = 300
+
+
+def workspace_configurations(lower_rad: np.ndarray, upper_rad: np.ndarray, n: int = N_WORKSPACE, seed: int = 0
+                             ) -> np.ndarray:
+    """``n`` joint configurations (n, 6) [rad] uniform within the joint limits: where a rebased model will be used,
+    the wrist turned as a grid of clusters never turns it."""
+    return np.random.default_rng(seed).uniform(np.asarray(lower_rad, float), np.asarray(upper_rad, float), (n, 6))
+
+
+def shrink_factor(problem: RebaseProblem, result: RebaseResult, noise_mm: float, q_workspace: np.ndarray) -> float:
+    """The factor in [0, 1] that scales a fitted frame move back so that its expected squared error over
+    ``q_workspace`` is least, if the fit is the true move plus its uncertainty: ``1 - E|spread|^2 / E|move|^2``
+    (James-Stein in the workspace's metric; 0 when the move is no larger than its uncertainty there)."""
+    G = rebase_rows(problem.model, q_workspace, problem.offsets)[:, :3]
+    move = float(np.mean(np.sum((G @ result.delta) ** 2, axis=1)))
+    spread = float(np.mean(workspace_spread(problem, result, noise_mm, q_workspace) ** 2))
+    return float(np.clip(1.0 - spread / move, 0.0, 1.0)) if move > 0 else 0.0
+
+
 def rebase_auto(model: KinematicModel, rec: Recording, cluster_size: int = 7, q_workspace: np.ndarray | None = None,
-                **options: Any) -> tuple[RebasedModel, RebaseResult, str]:
+                workspace_rule: str = "shrink", **options: Any) -> tuple[RebasedModel, RebaseResult, str]:
     """:func:`rebase` along the directions :func:`choose_directions` picks; also returns the choice.
 
     With ``q_workspace`` (M, 6) [rad], configurations of the robot's workspace (within its joint limits, not poses
@@ -546,6 +574,23 @@ def rebase_auto(model: KinematicModel, rec: Recording, cluster_size: int = 7, q_
     if q_workspace is None:
         rebased, result = rebase(model, rec, **choice_options(choice, **options))
         return rebased, result, choice
+    if workspace_rule in ("shrink", "shrink (held-out noise)"):
+        problem = RebaseProblem.from_recording(model, rec, **choice_options(choice, **options))
+        result = problem.solve()
+        if workspace_rule == "shrink":  # the fit's own residual scale, per weighted component, over its dof
+            rows = result.n_samples * 6
+            noise = result.objective_after * float(np.sqrt(rows / max(rows - result.fitted, 1)))
+        else:
+            noise = float(np.sqrt(np.mean(errs[choice] ** 2) / 3.0))
+        factor = shrink_factor(problem, result, noise, q_workspace)
+        if factor <= 0.0:
+            raise RebaseRefused(
+                f"rebase refused: on the poses of {rec.source or 'the data'} held out in turn {choice} gains "
+                f"{means['none'] - means[choice]:.3f} mm, but its frame move is no larger than its uncertainty at the "
+                "robot's other configurations; nothing written")
+        z = np.linalg.lstsq(problem.basis, result.delta, rcond=None)[0] * factor
+        result = problem.result_at(z, result.converged, result.reason, result.iterations, result.seconds)
+        return result.model(model), result, choice
     harms = {}
     for name in reversed(candidates[1:candidates.index(choice) + 1]):
         gain = means["none"] - means[name]

@@ -60,16 +60,22 @@ RULES = ("auto",)
 
 def hand_back(rule: str, model: Any, rec: Recording, q_workspace: np.ndarray) -> tuple[str, Any]:
     """The choice and the model a rule hands back (the model as given when it refuses)."""
-    if rule == "auto":
+    if rule.startswith("auto"):
+        how = {"auto": {"q_workspace": q_workspace}, "auto:refuse": {"q_workspace": q_workspace, "workspace_rule": "refuse"},
+               "auto:shrink": {"q_workspace": q_workspace, "workspace_rule": "shrink"},
+               "auto:shrink-held-out": {"q_workspace": q_workspace, "workspace_rule": "shrink (held-out noise)"},
+               "auto:none": {}}[rule]
         try:
-            rebased, _, choice = rebase_auto(model, rec, q_workspace=q_workspace)
+            rebased, _, choice = rebase_auto(model, rec, **how)
         except RebaseRefused:
             return "none", model
         return choice, rebased
     if rule.startswith("candidates:"):
         choice, _ = choose_directions(model, rec, candidates=tuple(rule.split(":", 1)[1].split("|")))
         return choice, model if choice == "none" else rebase(model, rec, **choice_options(choice))[0]
-    raise SystemExit(f"unknown rule {rule!r}; valid: auto, candidates:NAME|NAME|...")
+    raise SystemExit(f"unknown rule {rule!r}; valid: auto, auto:refuse, auto:shrink, "
+                     "auto:shrink-held-out, auto:none, "
+                     "candidates:NAME|NAME|...")
 
 
 def workspace_error(model: Any, reference: Any, q: np.ndarray) -> dict[str, float]:

@@ -400,7 +400,7 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     rebased = None
     train = with_added(read(work / "train.csv"), added, weight=args.add_weight)  # --add: stand-alone poses
     if args.rebase:
-        model, rebased = rebase_candidate(model_dir, service, train)
+        model, rebased = rebase_candidate(model_dir, service, train, (robot.robot.lower_rad, robot.robot.upper_rad))
         print(rebased.summary())
     else:
         from calibration.methods import FitOptions

@@ -247,7 +247,7 @@ def cmd_rebase(args: argparse.Namespace) -> int:
     import numpy as np
 
     from calibration.design import REBASE_OFFSETS
-    from calibration.rebase import rebase, rebase_auto
+    from calibration.rebase import rebase, rebase_auto, workspace_configurations
     from calibration.recording import DEFAULT_CLUSTER_SIZE
 
     _check_rebase_tolerance(args.tolerance)
@@ -260,7 +260,8 @@ def cmd_rebase(args: argparse.Namespace) -> int:
         rebased, result = rebase(model, data, tolerance=args.tolerance, rotations=args.all_directions)
         choice = "translations" if args.translation_only else "frames"
     else:
-        rebased, result, choice = rebase_auto(model, data, tolerance=args.tolerance)
+        rebased, result, choice = rebase_auto(model, data, tolerance=args.tolerance, q_workspace=workspace_configurations(
+            robot.robot.lower_rad, robot.robot.upper_rad))
     if not result.converged:
         raise CellCalError(f"rebase of {args.model} on {args.data} did not converge ({result.reason.value}); "
                            "nothing written")
