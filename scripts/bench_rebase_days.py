@@ -17,6 +17,17 @@ and ``--triples`` more, one cluster from each third of the recording in file ord
 - worse on the day's other training clusters: the training-side figure (B's training recording without the
   triple; never a test recording) the rebase rule was chosen on.
 
+- workspace (training-side, sees the wrist turned): the mean and max distance of the tool position over 300
+  configurations uniform within R1's joint limits between the model handed back and the model of A rebased on B's
+  full training recording (all its clusters: the day's frames as well as the training data tell them); the model as
+  given is the baseline. The same rebases give the day-to-day frame spread printed first (``DAY_FRAME_SD``).
+
+Rules (``--rules``, one table each): ``auto`` is ``cellcal rebase`` (the held-out choice, its move scaled back by its
+uncertainty over the workspace; ``auto:shrink-held-out`` and ``auto:refuse`` the other workspace rules of
+:func:`calibration.rebase.rebase_auto`, ``auto:none`` no workspace check); ``candidates:A|B|...`` the held-out choice
+among those candidates alone (``candidates:none|translations|frames (well seen)|frames``: the rule before the
+workspace check).
+
 "before issue 31" is the rule it replaced (the translations, or both frames in full when their held-out mean beats
 the translations' by more than a standard error; never refused), on the same triples.
 
@@ -25,6 +36,7 @@ minutes. Methods: pi, nls1 and pi+fbf13 (the recommended model needs every metho
 slow here; pi+fbf13 stands for the CDC models).
 
     python scripts/bench_rebase_days.py [--json FILE] [--methods pi,nls1,pi+fbf13] [--triples 5] [--cache DIR]
+        [--rules auto,...] [--training-only]
 """
 
 from __future__ import annotations
@@ -55,13 +67,14 @@ DEFAULT_METHODS = ("pi", "nls1", "pi+fbf13")
 #: grid never turns it; not the test poses).
 N_WORKSPACE = 300
 #: The rules compared (``--rules``): each a function (model, poses, workspace) -> (choice, model handed back).
-RULES = ("auto",)
+RULES = ("auto", "candidates:none|translations|frames (well seen)|frames")
 
 
 def hand_back(rule: str, model: Any, rec: Recording, q_workspace: np.ndarray) -> tuple[str, Any]:
     """The choice and the model a rule hands back (the model as given when it refuses)."""
     if rule.startswith("auto"):
-        how = {"auto": {"q_workspace": q_workspace}, "auto:refuse": {"q_workspace": q_workspace, "workspace_rule": "refuse"},
+        how = {"auto": {"q_workspace": q_workspace},
+               "auto:refuse": {"q_workspace": q_workspace, "workspace_rule": "refuse"},
                "auto:shrink": {"q_workspace": q_workspace, "workspace_rule": "shrink"},
                "auto:shrink-held-out": {"q_workspace": q_workspace, "workspace_rule": "shrink (held-out noise)"},
                "auto:none": {}}[rule]

@@ -260,8 +260,8 @@ def cmd_rebase(args: argparse.Namespace) -> int:
         rebased, result = rebase(model, data, tolerance=args.tolerance, rotations=args.all_directions)
         choice = "translations" if args.translation_only else "frames"
     else:
-        rebased, result, choice = rebase_auto(model, data, tolerance=args.tolerance, q_workspace=workspace_configurations(
-            robot.robot.lower_rad, robot.robot.upper_rad))
+        workspace = workspace_configurations(robot.robot.lower_rad, robot.robot.upper_rad)
+        rebased, result, choice = rebase_auto(model, data, tolerance=args.tolerance, q_workspace=workspace)
     if not result.converged:
         raise CellCalError(f"rebase of {args.model} on {args.data} did not converge ({result.reason.value}); "
                            "nothing written")
