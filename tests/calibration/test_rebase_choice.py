@@ -121,3 +121,13 @@ def test_the_move_handed_back_is_scaled_back_by_its_uncertainty_over_the_workspa
     assert same == choice and 0.0 < factor < 1.0
     np.testing.assert_allclose(plain.delta, fitted.delta, atol=1e-9)
     np.testing.assert_allclose(result.delta, factor * fitted.delta, atol=1e-9)
+
+
+def test_an_unknown_workspace_rule_is_refused_naming_the_valid_ones(r1_nominal):
+    from calibration.errors import ModelError
+
+    model = ConstantModel("R1", "nls1", r1_nominal)
+    rec = _three_clusters(model, make_T(np.eye(3), np.array([1.5, -0.8, 0.6])), np.eye(4), 2)
+    with pytest.raises(ModelError, match="unknown workspace rule 'clamp'; valid: shrink, shrink \\(held-out noise\\), "
+                                         "refuse"):
+        rebase_auto(model, rec, q_workspace=np.zeros((3, 6)), workspace_rule="clamp")
