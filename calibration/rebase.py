@@ -27,7 +27,7 @@ the wrist still (the paper's grid) cannot see them and the SVD holds them, while
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -102,6 +102,8 @@ class RebaseResult:
         objective_before, objective_after: RMS of the weighted residual the solve minimises (position and
             a-weighted orientation, [mm]) with the model as is / rebased; LM takes only steps that lower it, so
             after <= before always (the position mean alone need not fall when the frames were already right).
+        shrink: the fraction of the fitted move handed back (1: all of it; below 1 when :func:`rebase_auto` scaled
+            it back by its uncertainty over the robot's workspace).
     """
 
     T_base_correction: np.ndarray
@@ -122,6 +124,7 @@ class RebaseResult:
     joint_offsets: np.ndarray = field(default_factory=lambda: np.zeros(6))
     objective_before: float = float("nan")
     objective_after: float = float("nan")
+    shrink: float = 1.0
 
     @property
     def mean_before_mm(self) -> float:
@@ -150,6 +153,9 @@ class RebaseResult:
             if unseen:
                 text += (" Collect poses that rotate the tool more widely to determine "
                          + ("them." if len(unseen) == len(self.held) else "those not excluded."))
+        if self.shrink < 1.0:
+            text += (f" The move is {self.shrink:.2f} of the fitted one: scaled back by its uncertainty over the "
+                     "robot's workspace, where the wrist turns as these poses do not.")
         if not self.converged:
             text += f" The solver did not converge ({self.reason.value})."
         return text
@@ -158,7 +164,7 @@ class RebaseResult:
         """``inner`` with these corrections (kind ``rebased``), the rebase recorded in its info."""
         info = {"rebase": {"n_samples": self.n_samples, "held": list(self.held), "fitted": self.fitted,
                            "mean_before_mm": self.mean_before_mm, "mean_after_mm": self.mean_after_mm,
-                           "converged": self.converged}}
+                           "converged": self.converged, "shrink": self.shrink}}
         return RebasedModel(inner.robot, inner.method, inner, self.T_base_correction, self.T_tool_correction,
                             self.fitted, info, self.joint_offsets)
 
@@ -610,7 +616,8 @@ def rebase_auto(model: KinematicModel, rec: Recording, cluster_size: int = 7, q_
                 f"{means['none'] - means[choice]:.3f} mm, but its frame move is no larger than its uncertainty at the "
                 "robot's other configurations; nothing written")
         z = np.linalg.lstsq(problem.basis, result.delta, rcond=None)[0] * factor
-        result = problem.result_at(z, result.converged, result.reason, result.iterations, result.seconds)
+        result = replace(problem.result_at(z, result.converged, result.reason, result.iterations, result.seconds),
+                         shrink=factor)
         return result.model(model), result, choice
     harms = {}
     for name in reversed(candidates[1:candidates.index(choice) + 1]):

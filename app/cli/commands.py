@@ -292,6 +292,7 @@ def cmd_rebase(args: argparse.Namespace) -> int:
                            "held": list(result.held),
                            "position_mean_mm": {"before": result.mean_before_mm, "after": result.mean_after_mm},
                            "objective_rms": {"before": result.objective_before, "after": result.objective_after},
+                           "shrink": result.shrink,
                            "T_base_correction": result.T_base_correction.tolist(),
                            "T_tool_correction": result.T_tool_correction.tolist(),
                            "joint_offsets_deg": [math.degrees(v) for v in result.joint_offsets], "out": str(args.out)})

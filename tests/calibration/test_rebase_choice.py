@@ -121,6 +121,8 @@ def test_the_move_handed_back_is_scaled_back_by_its_uncertainty_over_the_workspa
     assert same == choice and 0.0 < factor < 1.0
     np.testing.assert_allclose(plain.delta, fitted.delta, atol=1e-9)
     np.testing.assert_allclose(result.delta, factor * fitted.delta, atol=1e-9)
+    assert result.shrink == pytest.approx(factor) and f"The move is {factor:.2f} of the fitted one" in result.summary()
+    assert plain.shrink == 1.0 and "of the fitted one" not in plain.summary()
 
 
 def test_an_unknown_workspace_rule_is_refused_naming_the_valid_ones(r1_nominal):
