@@ -428,7 +428,8 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     write_json(args.json, {**decision.to_json(), **({} if rebased is None else {"rebase": {
         "samples": rebased.n_samples, "fitted_directions": rebased.fitted, "held": list(rebased.held),
         "position_mean_mm": {"before": rebased.mean_before_mm, "after": rebased.mean_after_mm},
-        "objective_rms": {"before": rebased.objective_before, "after": rebased.objective_after}}})})
+        "objective_rms": {"before": rebased.objective_before, "after": rebased.objective_after},
+        "shrink": rebased.shrink}})})
     if args.report:
         from app.analysis.report import Page, evaluation_section, write_html
 
