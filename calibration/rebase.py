@@ -22,6 +22,12 @@ rotations). Joint 1's and joint 6's offsets are frame rotations (base about axis
 held as such; the wrist's (4, 5) differ from a tool-frame change only where the wrist moves, so poses that hold
 the wrist still (the paper's grid) cannot see them and the SVD holds them, while a design that moves the wrist
 (``cellcal plan --design optimal --for rebase``, :func:`calibration.design.rebase_candidates`) fits them.
+
+What a rebase may move is chosen on clusters held out in turn (:func:`choose_directions`), and the chosen move is
+then judged where the poses cannot judge it: its uncertainty, propagated to configurations across the joint limits
+(:func:`workspace_spread`), scales it back (:func:`shrink_factor`), since a grid whose wrist stays still cannot show
+what a frame move does where the wrist turns (issue 31). :func:`rebase_auto` does both; ``cellcal rebase`` and
+``recalibrate --rebase`` call it.
 """
 
 from __future__ import annotations
