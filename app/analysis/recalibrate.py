@@ -254,10 +254,12 @@ def model_to_rebase(model_dir: str | Path, service: InService) -> KinematicModel
     return service.model
 
 
-def rebase_candidate(model_dir: str | Path, service: InService, train: Recording) -> tuple[KinematicModel, Any]:
+def rebase_candidate(model_dir: str | Path, service: InService, train: Recording,
+                     joint_limits_rad: tuple[Any, Any] | None = None) -> tuple[KinematicModel, Any]:
     """The candidate of ``recalibrate --rebase``: the model in service with only its base and tool-marker frames
-    refitted on ``train`` (a few clusters of the new day, :func:`calibration.rebase.rebase_auto`: the translations,
-    or the full frames when they do better on held-out clusters).
+    refitted on ``train`` (a few clusters of the new day, :func:`calibration.rebase.rebase_auto`, as ``cellcal
+    rebase``: the candidate the held-out clusters confirm, checked over configurations within ``joint_limits_rad``
+    (lower, upper) when given).
 
     Returns:
         The rebased model (kind ``rebased``) and the :class:`~calibration.rebase.RebaseResult`.
@@ -266,10 +268,11 @@ def rebase_candidate(model_dir: str | Path, service: InService, train: Recording
         DataError: there is no usable model in service to rebase.
         ModelError: the frame fit did not converge (nothing is installed).
     """
-    from calibration.rebase import rebase_auto
+    from calibration.rebase import rebase_auto, workspace_configurations
 
     model = model_to_rebase(model_dir, service)
-    rebased, result, _ = rebase_auto(model, train)
+    workspace = None if joint_limits_rad is None else workspace_configurations(*joint_limits_rad)
+    rebased, result, _ = rebase_auto(model, train, q_workspace=workspace)
     if not result.converged:
         raise ModelError(f"the rebase of the model in service on {train.source} did not converge "
                          f"({result.reason.value}); nothing installed")

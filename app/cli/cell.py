@@ -408,7 +408,7 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     rebased = None
     train = with_added(read(work / "train.csv"), added, weight=args.add_weight)  # --add: stand-alone poses
     if args.rebase:
-        model, rebased = rebase_candidate(model_dir, service, train)
+        model, rebased = rebase_candidate(model_dir, service, train, (robot.robot.lower_rad, robot.robot.upper_rad))
         print(rebased.summary())
     else:
         from calibration.methods import FitOptions
@@ -436,7 +436,8 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     write_json(args.json, {**decision.to_json(), **({} if rebased is None else {"rebase": {
         "samples": rebased.n_samples, "fitted_directions": rebased.fitted, "held": list(rebased.held),
         "position_mean_mm": {"before": rebased.mean_before_mm, "after": rebased.mean_after_mm},
-        "objective_rms": {"before": rebased.objective_before, "after": rebased.objective_after}}})})
+        "objective_rms": {"before": rebased.objective_before, "after": rebased.objective_after},
+        "shrink": rebased.shrink}})})
     if args.report:
         from app.analysis.report import Page, evaluation_section, write_html
 

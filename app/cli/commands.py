@@ -268,7 +268,7 @@ def cmd_rebase(args: argparse.Namespace) -> int:
     import numpy as np
 
     from calibration.design import REBASE_OFFSETS
-    from calibration.rebase import rebase, rebase_auto
+    from calibration.rebase import rebase, rebase_auto, workspace_configurations
     from calibration.recording import DEFAULT_CLUSTER_SIZE
 
     _check_rebase_tolerance(args.tolerance)
@@ -281,7 +281,8 @@ def cmd_rebase(args: argparse.Namespace) -> int:
         rebased, result = rebase(model, data, tolerance=args.tolerance, rotations=args.all_directions)
         choice = "translations" if args.translation_only else "frames"
     else:
-        rebased, result, choice = rebase_auto(model, data, tolerance=args.tolerance)
+        workspace = workspace_configurations(robot.robot.lower_rad, robot.robot.upper_rad)
+        rebased, result, choice = rebase_auto(model, data, tolerance=args.tolerance, q_workspace=workspace)
     if not result.converged:
         raise CellCalError(f"rebase of {args.model} on {args.data} did not converge ({result.reason.value}); "
                            "nothing written")
@@ -312,6 +313,7 @@ def cmd_rebase(args: argparse.Namespace) -> int:
                            "held": list(result.held),
                            "position_mean_mm": {"before": result.mean_before_mm, "after": result.mean_after_mm},
                            "objective_rms": {"before": result.objective_before, "after": result.objective_after},
+                           "shrink": result.shrink,
                            "T_base_correction": result.T_base_correction.tolist(),
                            "T_tool_correction": result.T_tool_correction.tolist(),
                            "joint_offsets_deg": [math.degrees(v) for v in result.joint_offsets], "out": str(args.out)})

@@ -30,3 +30,30 @@ def test_rebase_refits_the_frames_of_the_model_in_service(tmp_path, capsys):
     assert len(err) == 1 and "rebase refused" in err[0] and "nothing written" in err[0], err
     assert not (tmp_path / "d.json").exists()
     assert {p.name: p.read_bytes() for p in models.rglob("*.yaml")} == current
+
+
+def test_recalibrate_rebase_hands_back_what_cellcal_rebase_does(tmp_path):
+    """recalibrate --rebase and cellcal rebase share calibration.rebase.rebase_auto with the arm's workspace: on the
+    same noisy shifted poses both hand back the same move, scaled back by its uncertainty over the workspace."""
+    import numpy as np
+
+    from app.analysis.recalibrate import InService, rebase_candidate
+    from calibration import so3
+    from calibration.frames import put_in
+    from calibration.models import ConstantModel
+    from calibration.models.rebased import make_T
+    from calibration.rebase import rebase_auto, workspace_configurations
+    from cell_config import load_cell
+    from tests.conftest import cluster_design, measure
+
+    robot = load_cell().robot("R1")
+    model = ConstantModel("R1", "nls1", robot.model())
+    q, cluster = cluster_design(step_deg=30.0, spread_wrist=False)
+    keep = cluster < 3
+    rec = put_in(measure(model.fk, q[keep], 0.15, 0.05, 1, cluster[keep]),
+                 make_T(so3.exp(np.radians([0.05, -0.1, 0.3])), np.array([1.5, -0.8, 0.6])), np.eye(4))
+    limits = (robot.robot.lower_rad, robot.robot.upper_rad)
+    _, result = rebase_candidate(tmp_path, InService(model), rec, limits)
+    _, expected, _ = rebase_auto(model, rec, q_workspace=workspace_configurations(*limits))
+    assert result.shrink < 1.0
+    np.testing.assert_allclose(result.delta, expected.delta, atol=1e-12)

@@ -96,3 +96,40 @@ def test_a_rebase_is_never_worse_on_the_new_day_than_the_model_given(seed, expec
     rebased, result, _ = rebase_auto(given, rec)
     assert _test_mean(rebased, test) < _test_mean(given, test)
     assert result.fitted < full_result.fitted  # the barely seen directions held
+
+
+def test_the_move_handed_back_is_scaled_back_by_its_uncertainty_over_the_workspace(r1_nominal):
+    """With the robot's workspace (configurations within its joint limits), rebase_auto hands back the chosen move
+    times :func:`calibration.rebase.shrink_factor` (the fit's own residual scale as the noise), in (0, 1] and below 1
+    when the poses are noisy; without it, the fitted move as before."""
+    from calibration.rebase import RebaseProblem, choice_options, shrink_factor, workspace_configurations
+    from cell_config import load_cell
+
+    limits = load_cell().robot("R1").robot
+    q_ws = workspace_configurations(limits.lower_rad, limits.upper_rad)
+    model = ConstantModel("R1", "nls1", r1_nominal)
+    T_base = make_T(so3.exp(np.radians([0.05, -0.1, 0.3])), np.array([1.5, -0.8, 0.6]))
+    q, cluster = cluster_design(step_deg=30.0, spread_wrist=False)
+    keep = cluster < 3
+    rec = put_in(measure(model.fk, q[keep], 0.15, 0.05, 1, cluster[keep]), T_base, np.eye(4))
+    _, plain, choice = rebase_auto(model, rec)
+    _, result, same = rebase_auto(model, rec, q_workspace=q_ws)
+    problem = RebaseProblem.from_recording(model, rec, **choice_options(choice))
+    fitted = problem.solve()
+    rows = fitted.n_samples * 6
+    factor = shrink_factor(problem, fitted, fitted.objective_after * np.sqrt(rows / (rows - fitted.fitted)), q_ws)
+    assert same == choice and 0.0 < factor < 1.0
+    np.testing.assert_allclose(plain.delta, fitted.delta, atol=1e-9)
+    np.testing.assert_allclose(result.delta, factor * fitted.delta, atol=1e-9)
+    assert result.shrink == pytest.approx(factor) and f"The move is {factor:.2f} of the fitted one" in result.summary()
+    assert plain.shrink == 1.0 and "of the fitted one" not in plain.summary()
+
+
+def test_an_unknown_workspace_rule_is_refused_naming_the_valid_ones(r1_nominal):
+    from calibration.errors import ModelError
+
+    model = ConstantModel("R1", "nls1", r1_nominal)
+    rec = _three_clusters(model, make_T(np.eye(3), np.array([1.5, -0.8, 0.6])), np.eye(4), 2)
+    with pytest.raises(ModelError, match="unknown workspace rule 'clamp'; valid: shrink, shrink \\(held-out noise\\), "
+                                         "refuse"):
+        rebase_auto(model, rec, q_workspace=np.zeros((3, 6)), workspace_rule="clamp")
