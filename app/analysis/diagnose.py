@@ -23,6 +23,20 @@ from calibration.files import atomic_write_text, make_folders
 log = logging.getLogger("cellcal.app")
 
 
+def _without_gross_rows(robot: Any, rec: Any) -> tuple[Any, Any]:
+    """The recording less its gross measurement errors, screened as ``fit`` screens its training recording
+    (:meth:`calibration.methods.Fitter.without_gross_rows`, under the geometric fit): one marker swap of 50 mm would
+    otherwise be explained by whatever effect fits it best. Warns naming the rows; returns the screening (None when
+    it is turned off)."""
+    from app.analysis.fitting import fitter_for
+
+    screened = fitter_for(robot, rec)
+    gross = screened.gross
+    if gross is not None and (gross.rows or gross.too_many):
+        log.warning("%s", gross.message())
+    return (screened.train if gross is not None and gross.rows else rec), gross
+
+
 def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: str | Path | None = None, model: str | Path | None = None,
                  json_path: str | Path | None = None, report_dir: str | Path | None = None,
                  model_out: str | Path | None = None, cell: str | Path | None = None,
@@ -87,8 +101,10 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
         check_quaternion_order(ho, nominal)
     from app.analysis.fitting import refuse_another_arms
 
+    gross = None
     if days is None:  # another arm's recording is refused, as fit does (several recordings: by _days)
         refuse_another_arms(cr, rec)
+        rec, gross = _without_gross_rows(cr, rec)
     if ho is not None:
         refuse_another_arms(cr, ho, "test recording")
     try:
@@ -114,7 +130,10 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
 
         save_model(with_provenance(result.model, provenance(inputs)), model_out)
     if json_path is not None:
-        atomic_write_text(Path(json_path), json.dumps(result.to_json(), indent=1))
+        doc = result.to_json()
+        if gross is not None:
+            doc["gross_rows"] = gross.to_json()
+        atomic_write_text(Path(json_path), json.dumps(doc, indent=1))
     if report_dir is not None:
         models = {f"{result.final.model} (after)": result.model}
         if used is not None:

@@ -83,3 +83,16 @@ def test_fit_warns_naming_the_rows_and_carries_them_in_the_json(clean, tmp_path,
     assert len(warnings) == 1 and warnings[0].startswith("warning: 2 of") and "8 (" in warnings[0] \
         and "9 (" in warnings[0]
     assert json.loads((tmp_path / "j.json").read_text())["gross_rows"]["rows"] == [8, 9]
+
+
+def test_diagnose_screens_its_recording_as_fit_does(clean, tmp_path, capsys):
+    """diagnose fitted its effects on the rows as read: a 50 mm marker swap was left for an effect to explain."""
+    from app.cli.commands import main
+
+    write_recording(planted(clean, [7, 8]), tmp_path / "t.csv")
+    assert main(["diagnose", "--robot", "R1", "--train", str(tmp_path / "t.csv"), "--json",
+                 str(tmp_path / "d.json")]) == 0
+    warnings = [line for line in capsys.readouterr().err.splitlines() if "gross" in line]
+    assert len(warnings) == 1 and "2 of 84 training rows" in warnings[0] and "8 (" in warnings[0]
+    doc = json.loads((tmp_path / "d.json").read_text())
+    assert doc["gross_rows"]["rows"] == [8, 9] and doc["samples"]["fit"] + doc["samples"]["heldout"] == len(clean) - 2
