@@ -110,18 +110,23 @@ class ArmIk:
             e, J = self._eval(q, T)
             if np.linalg.norm(e[:3]) < 0.1 * self.tol_mm and np.linalg.norm(e[3:]) < 0.1 * self.tol_mm:
                 break
-            dq = np.linalg.lstsq(J, -e, rcond=1e-12)[0]
-            big = np.abs(dq).max()
-            if big > self.max_step_rad:
-                dq *= self.max_step_rad / big
-            q_new = np.clip(q + dq, self.lower, self.upper)
-            if np.abs(q_new - q).max() < 1e-15:
+            q_new = self._step(q, np.linalg.lstsq(J, -e, rcond=1e-12)[0])
+            if q_new is None:
                 break
             q = q_new
         res_mm, res_deg = pose_error(self.model, q, np.asarray(R_target, dtype=float), np.asarray(p_target))
         at = tuple(int(j) + 1 for j in np.flatnonzero((q <= self.lower) | (q >= self.upper)))
         ok = res_mm <= self.tol_mm and np.radians(res_deg) <= tol_rad * 10
         return IkResult(q, res_mm, res_deg, it, bool(ok), at)
+
+    def _step(self, q: np.ndarray, dq: np.ndarray) -> np.ndarray | None:
+        """``q + dq`` with the step's largest joint move capped at ``max_step_rad`` and the joints kept within their
+        limits; None when the step no longer moves any joint."""
+        big = np.abs(dq).max()
+        if big > self.max_step_rad:
+            dq = dq * (self.max_step_rad / big)
+        q_new = np.clip(q + dq, self.lower, self.upper)
+        return None if np.abs(q_new - q).max() < 1e-15 else q_new
 
     def solve_near(self, R_target: np.ndarray, p_target: np.ndarray, q_start: np.ndarray,
                    rcond: float = NEAR_RCOND) -> IkResult:
@@ -142,12 +147,8 @@ class ArmIk:
             P = np.linalg.pinv(J_p)
             dq = P @ -e[:3]
             N = np.eye(6) - P @ J_p
-            dq = dq + N @ (np.linalg.pinv(J_r @ N, rcond=rcond) @ (-e[3:] - J_r @ dq))
-            big = np.abs(dq).max()
-            if big > self.max_step_rad:
-                dq *= self.max_step_rad / big
-            q_new = np.clip(q + dq, self.lower, self.upper)
-            if np.abs(q_new - q).max() < 1e-15:
+            q_new = self._step(q, dq + N @ (np.linalg.pinv(J_r @ N, rcond=rcond) @ (-e[3:] - J_r @ dq)))
+            if q_new is None:
                 break
             q = q_new
         res_mm, res_deg = pose_error(self.model, q, np.asarray(R_target, dtype=float), np.asarray(p_target))
