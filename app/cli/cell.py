@@ -8,7 +8,8 @@ from typing import Any, Callable, Literal
 
 from app.analysis.fitting import fitter_for
 from app.cli.common import add_report_options, add_topup_options, cell_spec, command_line, epoch_bar, log, \
-    non_negative_int, positive_float, read_recording_arg, show_progress, tolerance_from_args, validation_count, write_json
+    non_negative_int, positive_float, read_recording_arg, show_progress, tolerance_from_args, validation_count, \
+    warn_gross_rows, write_json
 from calibration.errors import CellCalError
 
 #: The anchor-grid steps ``plan --q2-step/--q3-step`` and ``demo --anchor-step`` accept [deg].
@@ -414,6 +415,7 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         from calibration.methods import FitOptions
 
         fitter = fitter_for(robot, train, cpa, FitOptions(epoch_progress=epoch_bar(args)))
+        warn_gross_rows(fitter)  # the rows are in the model's info too
         model, _ = fitter.fit(args.method)
     inputs = [("train", work / "train.csv"), *(("add", a) for a in args.add),
               ("cpa", work / "cpa.csv" if cpa else None),

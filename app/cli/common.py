@@ -306,7 +306,7 @@ def fitter_from_args(args: argparse.Namespace) -> Any:
         args.days = days_fitter_for(robot, trains, cpa, FitOptions(a=args.a, epoch_progress=epoch_bar(args)))
         print(args.days.summary(), file=sys.stderr)
         args.frame_check = None
-        _warn_gross_rows(args.days.fitter)
+        warn_gross_rows(args.days.fitter)
         return args.days.fitter, robot
     options = FitOptions(a=args.a, epoch_progress=epoch_bar(args))
     fitter, args.frame_check = checked_fitter_for(robot, trains[0], cpa, options)
@@ -314,11 +314,11 @@ def fitter_from_args(args: argparse.Namespace) -> Any:
         frame = args.frame_check.frame
         print(f"warning: {args.frame_check.message()} The {frame} frame{'s are' if ' and ' in frame else ' is'} "
               "fitted first, then the kinematics.", file=sys.stderr)
-    _warn_gross_rows(fitter)
+    warn_gross_rows(fitter)
     return fitter, robot
 
 
-def _warn_gross_rows(fitter: Any) -> None:
+def warn_gross_rows(fitter: Any) -> None:
     """Print the training rows the fitter set aside as gross measurement errors (``Fitter.gross``), if any."""
     import sys
 

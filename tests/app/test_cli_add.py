@@ -88,10 +88,15 @@ def test_recalibrate_fits_the_added_poses_with_the_session(tmp_path, capsys):
     assert main(args) == 0
     (stamp,) = (models / "sessions").iterdir()
     picked = tmp_path / "picked.csv"  # poses of the same simulated arm, as a top-up would measure them
-    write_recording(read_recording(stamp / "train.csv").subset(np.arange(0, 60, 6)), picked)
+    top_up = read_recording(stamp / "train.csv").subset(np.arange(0, 60, 6))
+    top_up.p[3] += [50.0, 0.0, 0.0]  # one marker swap among the added poses: warned about, as fit warns
+    write_recording(top_up, picked)
     again = [a if a != "--plan" else "--session" for a in args]
     again[again.index("--session") + 1] = str(stamp / "train")
     again[again.index("--model-dir") + 1] = str(tmp_path / "fresh")  # installed there: no model to beat
+    capsys.readouterr()
     assert main(again + ["--add", str(picked)]) == 0
+    gross = [line for line in capsys.readouterr().err.splitlines() if "gross" in line]
+    assert len(gross) == 1 and gross[0].startswith("warning: "), gross
     text = json.dumps(load_model(tmp_path / "fresh" / "current.yaml").info, default=str)
     assert "picked.csv" in text  # the added poses are named among the model's inputs
