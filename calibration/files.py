@@ -167,12 +167,16 @@ def make_folders(folder: str | Path) -> list[Path]:
     """Create ``folder`` and its missing parents; returns the ones created (parents first). Inside
     :func:`staged_outputs` they are removed again if the block fails."""
     folder = Path(folder)
-    missing = []
-    for f in (folder, *folder.parents):
-        if f.exists() or f.is_symlink():
-            break
-        missing.append(f)
-    folder.mkdir(parents=True, exist_ok=True)
+    missing: list[Path] = []
+    try:
+        for f in (folder, *folder.parents):
+            if f.exists() or f.is_symlink():
+                break
+            missing.append(f)
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as e:  # a parent that is a file, a name too long, no permission: one line naming the folder
+        _remove_folders(missing[::-1])  # the parents it made before failing (each removed only if empty)
+        raise OutputError(folder, f"cannot create this folder ({e.strerror or e})") from e
     created = missing[::-1]
     stage = _STAGE.get()
     if stage is not None:

@@ -75,10 +75,14 @@ def init_cell(folder: str | Path, source: str | Path = DEFAULT_CELL) -> CellFold
         CellCalError: ``folder`` is a file, or already holds one of the files (nothing is written).
     """
     folder, source = Path(folder), Path(source)
-    if folder.exists() and not folder.is_dir():
+    try:
+        is_file = folder.exists() and not folder.is_dir()
+    except OSError as e:  # a name too long, a loop of links
+        raise CellCalError(f"{folder}: cannot be a cell folder ({e.strerror or e})") from e
+    if is_file:
         raise CellCalError(f"{folder}: is a file; init-cell writes a folder (give a new or empty folder)")
     cell_file = folder / "cell.yaml"
-    texts = _texts(source, str(cell_file))
+    texts = _texts(source, str(cell_file).encode("unicode_escape").decode("ascii"))  # one comment line
     clash = [rel for rel in texts if (folder / rel).exists() or (folder / rel).is_symlink()]
     if clash:
         raise CellCalError(f"{folder / clash[0]}: already exists; init-cell does not overwrite a cell folder's files "

@@ -66,3 +66,18 @@ def test_a_new_cell_from_init_to_an_evaluation_report(tmp_path, monkeypatch, cap
     out = capsys.readouterr().out
     assert "49 samples of R1 -> train.csv" in out and "nls1 on 6 samples" in out, out
     assert json.dumps(stats)  # the evaluation's statistics were written
+
+
+@pytest.mark.parametrize("rel", ["afile/sub", "afile/sub/deeper", "a" * 300, "x/" + "a" * 300])
+def test_a_folder_that_cannot_be_made_is_one_line_and_nothing_is_left(tmp_path, monkeypatch, capsys, rel):
+    """A folder under a file or with a name too long: one line naming it, exit 2, no folder left behind."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "afile").write_text("x")
+    assert_bad_input(capsys, ["init-cell", rel], rel[:40])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
+
+
+def test_a_folder_name_with_a_newline_gives_a_cell_that_loads(tmp_path):
+    folder = tmp_path / "a\nb"
+    assert main(["init-cell", str(folder)]) == 0
+    assert load_cell(folder / "cell.yaml").robot("R1").name == "R1"
