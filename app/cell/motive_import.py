@@ -63,6 +63,28 @@ def _cells(row: list[str]) -> list[str]:
     return [c.strip() for c in row]
 
 
+def _csv_rows(path: Path) -> list[list[str]]:
+    """The rows of the CSV file ``path``, cells stripped.
+
+    Raises:
+        DataError: the file is missing, a folder, not UTF-8 text, not CSV or unreadable (one line naming it).
+    """
+    reader = None
+    try:
+        reader = csv.reader(io.StringIO(read_input_text(path), newline=""))
+        return [_cells(r) for r in reader]
+    except csv.Error as e:  # a NUL byte, a field over csv's limit
+        raise DataError(path, reader.line_num if reader else None, None, f"not a CSV file ({e})") from None
+    except FileNotFoundError:
+        raise DataError(path, None, None, "file not found") from None
+    except IsADirectoryError:
+        raise DataError(path, None, None, "is a folder, expected a CSV file") from None
+    except UnicodeDecodeError as e:
+        raise DataError(path, None, None, f"not UTF-8 text ({e.reason})") from None
+    except OSError as e:
+        raise DataError(path, None, None, f"cannot read ({e.strerror or e})") from None
+
+
 def read_motive_csv(path: str | Path, rigid_body: str) -> MotiveRigidBody:
     """The frames of ``rigid_body`` in a Motive CSV export.
 
@@ -71,7 +93,7 @@ def read_motive_csv(path: str | Path, rigid_body: str) -> MotiveRigidBody:
             units, the rigid body missing (the message lists those present) or a malformed number.
     """
     path = Path(path)
-    rows = [_cells(r) for r in csv.reader(io.StringIO(read_input_text(path)))]
+    rows = _csv_rows(path)
     if not rows or not rows[0] or rows[0][0] != "Format Version":
         raise DataError(path, 1, None, "not a Motive CSV export: expected 'Format Version,...' on the first row "
                                        "(export with Header information on)")
@@ -143,7 +165,7 @@ def _number(path: Path, row: int, column: str, text: str) -> float:
 def read_pose_windows(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """Joint angles [rad] (N, 6) and dwell windows [s] (N, 2) of a joint file (see the module docstring)."""
     path = Path(path)
-    rows = [_cells(r) for r in csv.reader(io.StringIO(read_input_text(path))) if any(c.strip() for c in r)]
+    rows = [r for r in _csv_rows(path) if any(r)]
     if not rows:
         raise DataError(path, None, None, "empty joint file")
     header = rows[0]
@@ -153,6 +175,8 @@ def read_pose_windows(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         if name not in header:
             raise DataError(path, 1, name, "required column missing (required: q1..q6 [rad] or q1_deg..q6_deg "
                                            "[deg], t_start_s, t_end_s [s of the Motive take])")
+    if len(rows) < 2:
+        raise DataError(path, None, None, "no poses: the joint file has a header and no rows")
     table = np.empty((len(rows) - 1, 8))
     for k, r in enumerate(rows[1:]):
         for j, name in enumerate([*joint_names, *WINDOW_COLUMNS]):
@@ -178,10 +202,10 @@ def poses_in_windows(body: MotiveRigidBody, windows_s: np.ndarray, source: str =
     count = np.empty(len(windows_s))
     for k, (t0, t1) in enumerate(windows_s):
         sel = tracked & (body.t_s >= t0) & (body.t_s <= t1)
-        if sel.sum() < min_frames:
+        if sel.sum() < max(min_frames, 1):  # a window without a frame has no pose, whatever min_frames says
             raise DataError(source, k + 2, "t_start_s", f"the window [{t0:g}, {t1:g}] s holds {int(sel.sum())} "
                                                         f"tracked frames of {body.name!r}, expected at least "
-                                                        f"{min_frames}")
+                                                        f"{max(min_frames, 1)}")
         qs = body.quat_wxyz[sel]
         qs = qs * np.where(qs @ qs[0] < 0, -1.0, 1.0)[:, None]  # q and -q are one rotation
         mean = qs.mean(axis=0)

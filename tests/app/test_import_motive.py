@@ -128,3 +128,36 @@ def test_bad_input_is_one_line_and_nothing_written(tmp_path, capsys, edit, fragm
     assert_bad_input(capsys, ["import-motive", "--robot", "R1", "--motive", str(motive), "--joints", str(joints),
                               "--out", str(out)], *fragments)
     assert not out.exists()
+
+
+@pytest.mark.parametrize(("which", "content", "fragment"), [
+    ("motive", None, "file not found"),
+    ("joints", None, "file not found"),
+    ("motive", "folder", "is a folder"),
+    ("joints", "folder", "is a folder"),
+    ("motive", b"\x94\xff\x00binary", "not UTF-8 text"),
+    ("joints", b"\x94\xff\x00binary", "not UTF-8 text"),
+    ("joints", b"q1_deg,q2_deg,q3_deg,q4_deg,q5_deg,q6_deg,t_start_s,t_end_s\n", "no poses"),
+])
+def test_an_unreadable_input_file_is_one_line_naming_it(tmp_path, capsys, which, content, fragment):
+    """Missing, a folder, binary, or a joint file with no rows: one line naming the file, not a traceback."""
+    files = dict(zip(("motive", "joints"), take(tmp_path)[:2]))
+    bad = tmp_path / "bad.csv"
+    if content == "folder":
+        bad.mkdir()
+    elif content is not None:
+        bad.write_bytes(content)
+    files[which] = bad
+    out = tmp_path / "rec.csv"
+    assert_bad_input(capsys, ["import-motive", "--robot", "R1", "--motive", str(files["motive"]), "--joints",
+                              str(files["joints"]), "--out", str(out)], "bad.csv", fragment)
+    assert not out.exists()
+
+
+def test_min_frames_0_still_refuses_a_window_without_frames(tmp_path, capsys):
+    motive, joints, _, _ = take(tmp_path)
+    joints.write_text(joints.read_text() + "0,0,0,0,0,0,100,101\n")
+    out = tmp_path / "rec.csv"
+    assert_bad_input(capsys, ["import-motive", "--robot", "R1", "--motive", str(motive), "--joints", str(joints),
+                              "--out", str(out), "--min-frames", "0"], "joints.csv", "row 7", "0 tracked frames")
+    assert not out.exists()
