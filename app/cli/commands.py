@@ -340,6 +340,14 @@ def cmd_export_urdf(args: argparse.Namespace) -> int:
                                   xacro_text)
     from calibration.files import atomic_write_text
 
+    if args.macro is not None:  # before any work: the name is called as <xacro:NAME .../>, an XML name
+        import re
+
+        if not args.xacro:
+            raise CellCalError(f"--macro {args.macro!r} names the xacro macro; give --xacro FILE too")
+        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_.-]*", args.macro):
+            raise CellCalError(f"--macro {args.macro!r}: not a macro name; expected a letter or _ then letters, "
+                               "digits, _ . - (it is called as <xacro:NAME prefix=.../>)")
     model, robot = model_and_robot(args, args.model, needs_robot=True)
     geometry = model.urdf_geometry()
     spec = robot.robot

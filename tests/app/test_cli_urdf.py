@@ -106,3 +106,18 @@ def test_export_urdf_refuses_the_xacro_on_the_urdf(models, tmp_path, capsys):
     assert_bad_input(capsys, ["export-urdf", "--model", str(models / "R1.yaml"), "--out", str(out), "--xacro",
                               str(out)], "--xacro")
     assert not out.exists()
+
+
+@pytest.mark.parametrize("macro", ["my macro", 'a"b', "a<b&c>", "", "1abc", "ns:name"])
+def test_a_macro_name_xacro_cannot_call_is_refused_and_nothing_written(models, tmp_path, capsys, macro):
+    out, xacro = tmp_path / "r1.urdf", tmp_path / "r1.xacro"
+    assert_bad_input(capsys, ["export-urdf", "--model", str(models / "R1.yaml"), "--out", str(out), "--xacro",
+                              str(xacro), "--macro", macro], "--macro", repr(macro))
+    assert not out.exists() and not xacro.exists()
+
+
+def test_macro_without_xacro_is_refused(models, tmp_path, capsys):
+    out = tmp_path / "r1.urdf"
+    assert_bad_input(capsys, ["export-urdf", "--model", str(models / "R1.yaml"), "--out", str(out), "--macro",
+                              "abc"], "--macro", "--xacro")
+    assert not out.exists()
