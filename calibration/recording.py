@@ -333,6 +333,10 @@ STANDALONE = -1
 #: tuning days 0725 and 0620 after (pi, 21 chosen poses, weights 1 / 7 / 20): weighting lowers the task mean on 6
 #: of their 8 splits and raises it on 0725's halves splits (0.192 -> 0.220 mm on halves-swapped).
 DEFAULT_ADD_WEIGHT = 7
+#: Largest weight of an added pose: 100 training poses (about 14 clusters). The weight repeats the pose's rows, so
+#: an unbounded one ran out of memory (1e9) or ran for minutes (1e5); beyond this the training recording no
+#: longer counts in the fit and a recording of the added poses alone says that more plainly.
+MAX_ADD_WEIGHT = 100
 
 
 def standalone_mask(rec: Recording) -> np.ndarray:
@@ -358,8 +362,8 @@ def with_added(train: Recording, added: list[Recording], size: int = DEFAULT_CLU
         DataError: ``train`` has no cluster column and not whole ``size``-row clusters.
         ModelError: ``weight`` is not a positive integer.
     """
-    if isinstance(weight, bool) or not isinstance(weight, (int, np.integer)) or weight < 1:
-        raise ModelError(f"the weight of added poses must be a positive integer, got {weight!r}")
+    if isinstance(weight, bool) or not isinstance(weight, (int, np.integer)) or not 1 <= weight <= MAX_ADD_WEIGHT:
+        raise ModelError(f"the weight of added poses must be an integer in 1..{MAX_ADD_WEIGHT}, got {weight!r}")
     if not added:
         return train
     own = standalone_mask(train)

@@ -138,6 +138,18 @@ def positive_int(text: str) -> int:
     return _checked_number(text, int, lambda v: v >= 1, "an integer >= 1")
 
 
+def add_weight(text: str) -> int:
+    """argparse type of ``--add-weight``: an integer in 1..MAX_ADD_WEIGHT (the weight repeats each added pose's
+    rows, so a huge one exhausted memory or ran for minutes).
+
+    Raises:
+        argparse.ArgumentTypeError: naming the value.
+    """
+    from calibration.recording import MAX_ADD_WEIGHT
+
+    return _checked_number(text, int, lambda v: 1 <= v <= MAX_ADD_WEIGHT, f"an integer in 1..{MAX_ADD_WEIGHT}")
+
+
 def positive_float(text: str) -> float:
     """argparse type of a size, an angle or a time that must be a finite number > 0 (``nan`` passes every ``<``
     test and ``inf`` every ``>`` test, so a bound given as either was silently no bound).
@@ -250,7 +262,7 @@ def model_and_robot(args: argparse.Namespace, path: str, *, needs_robot: bool = 
 ADD_HELP = ("extra poses (a recording CSV or Welding_Motoman folder, no cluster column needed, e.g. cellcal select "
             "--out) fitted with the training recording as one day, each pose standing alone: the global fits use "
             "them, the local (per-cluster) fits of the CDC methods do not; repeatable")
-ADD_WEIGHT_HELP = ("weight of each --add pose against one training pose in the fits (a positive integer; the default "
+ADD_WEIGHT_HELP = ("weight of each --add pose against one training pose in the fits (an integer in 1..100; the default "
                    "counts a stand-alone pose as much as one training cluster of 7 poses)")
 
 
@@ -259,7 +271,7 @@ def add_topup_options(p: argparse.ArgumentParser) -> None:
     from calibration.recording import DEFAULT_ADD_WEIGHT
 
     p.add_argument("--add", action="append", default=[], metavar="PICKED.csv", help=ADD_HELP)
-    p.add_argument("--add-weight", type=positive_int, default=DEFAULT_ADD_WEIGHT, help=ADD_WEIGHT_HELP)
+    p.add_argument("--add-weight", type=add_weight, default=DEFAULT_ADD_WEIGHT, help=ADD_WEIGHT_HELP)
 
 
 def added_poses(args: argparse.Namespace, trains: list[Any], robot: Any) -> Any:

@@ -100,3 +100,27 @@ def test_recalibrate_fits_the_added_poses_with_the_session(tmp_path, capsys):
     assert len(gross) == 1 and gross[0].startswith("warning: "), gross
     text = json.dumps(load_model(tmp_path / "fresh" / "current.yaml").info, default=str)
     assert "picked.csv" in text  # the added poses are named among the model's inputs
+
+
+@pytest.mark.parametrize("command", ["fit", "compare", "diagnose", "recalibrate"])
+@pytest.mark.parametrize("weight", ["101", "100000", "1000000000"])
+def test_a_weight_beyond_the_bound_is_refused_before_any_work(tmp_path, capsys, command, weight):
+    """The weight repeats each added pose's rows: 1e9 exhausted memory with a traceback, 1e5 ran for minutes."""
+    with pytest.raises(SystemExit) as stop:  # argparse's one line
+        main([command, "--robot", "R1", "--train", str(tmp_path / "grid.csv"), "--add", str(tmp_path / "picked.csv"),
+              "--add-weight", weight])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--add-weight" in err[0] and "1..100" in err[0] and weight in err[0], err
+
+
+def test_with_added_refuses_a_weight_beyond_the_bound(synthetic_arm):
+    from calibration.errors import ModelError
+    from calibration.recording import MAX_ADD_WEIGHT, with_added
+
+    _, _, truth = synthetic_arm
+    q, _ = cluster_design(step_deg=45.0, spread_wrist=False)
+    rec = measure(truth.fk, q, 0.0, 0.0, 1)
+    assert len(with_added(rec, [rec.subset(np.arange(2))], weight=MAX_ADD_WEIGHT)) == len(rec) + 2 * MAX_ADD_WEIGHT
+    with pytest.raises(ModelError, match="1..100"):
+        with_added(rec, [rec.subset(np.arange(2))], weight=MAX_ADD_WEIGHT + 1)
