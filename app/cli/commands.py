@@ -56,6 +56,7 @@ def cmd_predict(args: argparse.Namespace) -> int:
     _check_sigma_options(args)
     model, robot = _model_arg(args)
     q = read_joints(args.joints, *((robot.robot.lower_rad, robot.robot.upper_rad) if robot else ()))
+    given = _given_recording(args, robot)
     outside = model.out_of_range(q)
     if outside.any():
         print(f"warning: {int(outside.sum())} of {len(q)} configurations lie outside the (q2, q3) region the "
@@ -65,7 +66,7 @@ def cmd_predict(args: argparse.Namespace) -> int:
     _warn_extrapolation(model, ex)
     R, p = model.fk(q)
     quat = so3.R_to_quat(R)
-    sigma = _predicted_sigma(args, robot, q)
+    sigma = _predicted_sigma(robot, given, q)
     write_table(args.out, {"x": p[:, 0], "y": p[:, 1], "z": p[:, 2], "qw": quat[:, 0], "qx": quat[:, 1],
                            "qy": quat[:, 2], "qz": quat[:, 3], **({} if sigma is None else {"sigma_mm": sigma})})
     print(f"{len(q)} pose{'' if len(q) == 1 else 's'} -> {args.out}")
@@ -81,24 +82,32 @@ def _check_sigma_options(args: argparse.Namespace) -> None:
         raise CellCalError("--add names poses the model was fitted on beside --given TRAIN; give --given too")
 
 
-def _predicted_sigma(args: argparse.Namespace, robot: Any, q: Any) -> Any:
-    """With ``--given TRAIN`` (and ``--add``): the top-up design's predicted position sigma [mm] (RMS of the error
-    norm, :func:`calibration.topup.predicted_sigma`) at each configuration q, given the poses the model was fitted
-    on; None without ``--given``.
+def _given_recording(args: argparse.Namespace, robot: Any) -> Any:
+    """``--given TRAIN`` with ``--add``'s poses (None without ``--given``), read before any warning or output so a
+    bad file is the command's one line.
 
     Raises:
         CellCalError: ``--given`` for a model of a robot the cell does not describe (no nominal arm to take the
-            Jacobian of).
+            Jacobian of), or a bad file (naming it).
     """
     if getattr(args, "given", None) is None:
         return None
     from calibration.recording import with_added
-    from calibration.topup import predicted_sigma
 
     if robot is None:
         raise CellCalError("--given needs the model's robot in the cell (its nominal arm); give --robot or --cell")
     given = read_recording_arg(args.given, robot)
-    given = with_added(given, [read_recording_arg(a, robot) for a in args.add]) if args.add else given
+    return with_added(given, [read_recording_arg(a, robot) for a in args.add]) if args.add else given
+
+
+def _predicted_sigma(robot: Any, given: Any, q: Any) -> Any:
+    """The top-up design's predicted position sigma [mm] (RMS of the error norm,
+    :func:`calibration.topup.predicted_sigma`) at each configuration q, given the poses the model was fitted on
+    (:func:`_given_recording`); None without them."""
+    if given is None:
+        return None
+    from calibration.topup import predicted_sigma
+
     return predicted_sigma(robot.model(), given.q, q)
 
 
@@ -157,6 +166,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     _check_sigma_options(args)
     model, robot = _model_arg(args)
     test = read_recording_arg(args.test, robot)
+    given = _given_recording(args, robot)
     frames = _test_frame_check(model, test, "recording, against the data the model was fitted on,",
                                f"the model {args.model}")  # another arm's recording: refused before any output
     ex = extrapolation(model, test.q, test.context())
@@ -166,7 +176,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     pos, ori = result["test"]["position_mm"], result["test"]["orientation_deg"]
     print(f"{model.method} on {len(test)} samples: position mean {pos['mean']:.3f} std {pos['std']:.3f} "
           f"max {pos['max']:.3f} mm; orientation mean {ori['mean']:.3f} max {ori['max']:.3f} deg")
-    sigma = _predicted_sigma(args, robot, test.q)
+    sigma = _predicted_sigma(robot, given, test.q)
     if sigma is not None:
         import numpy as np
 

@@ -166,3 +166,27 @@ def test_evaluate_and_predict_give_the_predicted_sigma_lower_where_the_poses_wer
     assert_bad_input(capsys, ["predict", "--model", str(folder / "grid-pi.yaml"), "--joints", str(folder / "task.csv"),
                               "--add", str(folder / "cand.csv"), "--out", str(folder / "p2.csv")], "--given")
     assert not (folder / "p2.csv").exists()
+
+
+@pytest.mark.parametrize("bad", ["missing", "nan"])
+@pytest.mark.parametrize("command", ["predict", "evaluate"])
+def test_a_bad_given_is_the_one_line_before_any_warning_or_output(files, tmp_path, capsys, bad, command):
+    """The task's poses leave the grid model's joint range (a warning); a bad --given used to be read after that
+    warning (and after evaluate's summary on stdout), so the refusal was not the command's one line."""
+    folder, _ = files
+    model = tmp_path / "m.yaml"
+    assert main(["fit", "--robot", "R1", "--train", str(folder / "grid.csv"), "--method", "nls1",
+                 "--out", str(model)]) == 0
+    given = tmp_path / "given.csv"
+    if bad == "nan":
+        given.write_text("q1,q2,q3,q4,q5,q6,x,y,z,qw,qx,qy,qz\nnan,0,0,0,0,0,1,2,3,1,0,0,0\n")
+    out = tmp_path / "p.csv"
+    argv = (["predict", "--model", str(model), "--joints", str(folder / "task.csv"), "--out", str(out)]
+            if command == "predict" else ["evaluate", "--model", str(model), "--test", str(folder / "cand.csv"),
+                                          "--json", str(out)])
+    capsys.readouterr()
+    assert main([*argv, "--given", str(given)]) == 2
+    captured = capsys.readouterr()
+    err = captured.err.strip().splitlines()
+    assert len(err) == 1 and "given.csv" in err[0], err
+    assert captured.out == "" and not out.exists()
