@@ -59,6 +59,12 @@ class MotiveRigidBody:
     quat_wxyz: np.ndarray
 
 
+#: A tracked frame's quaternion norm may differ from 1 by this much (Motive writes 6 decimals of a unit quaternion).
+QUAT_NORM_TOL = 1e-3
+#: Largest coordinate of a tracked frame [mm]: 1 km, far beyond any capture volume (a larger one is a corrupt cell).
+MAX_POSITION_MM = 1e6
+
+
 def _cells(row: list[str]) -> list[str]:
     return [c.strip() for c in row]
 
@@ -189,6 +195,21 @@ def read_pose_windows(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     return q, table[:, 6:]
 
 
+def _check_frames(body: MotiveRigidBody, frames: np.ndarray, source: str, row: int) -> None:
+    """DataError naming the joint-file row of a window whose frames hold a quaternion that is not a unit one (a zero,
+    a corrupt cell) or a position beyond any capture volume."""
+    quat, p = body.quat_wxyz[frames], body.p_mm[frames]
+    with np.errstate(over="ignore", invalid="ignore"):
+        norm = np.linalg.norm(quat, axis=1)
+        bad = (np.abs(norm - 1.0) > QUAT_NORM_TOL) | (np.abs(p) > MAX_POSITION_MM).any(axis=1)
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise DataError(source, row, "t_start_s", f"the window's frame at {body.t_s[frames[k]]:g} s of {body.name!r} "
+                                                  f"has a quaternion of norm {norm[k]:.6g} (not 1) or a position "
+                                                  f"{np.abs(p[k]).max():.6g} mm from the origin (over "
+                                                  f"{MAX_POSITION_MM:g}); not a tracked pose")
+
+
 def poses_in_windows(body: MotiveRigidBody, windows_s: np.ndarray, source: str = "",
                      min_frames: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Mean position [mm] (N, 3), mean quaternion (N, 4) and frame count (N,) of ``body`` in each window.
@@ -206,6 +227,7 @@ def poses_in_windows(body: MotiveRigidBody, windows_s: np.ndarray, source: str =
             raise DataError(source, k + 2, "t_start_s", f"the window [{t0:g}, {t1:g}] s holds {int(sel.sum())} "
                                                         f"tracked frames of {body.name!r}, expected at least "
                                                         f"{max(min_frames, 1)}")
+        _check_frames(body, np.flatnonzero(sel), source, k + 2)
         qs = body.quat_wxyz[sel]
         qs = qs * np.where(qs @ qs[0] < 0, -1.0, 1.0)[:, None]  # q and -q are one rotation
         mean = qs.mean(axis=0)

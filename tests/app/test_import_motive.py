@@ -161,3 +161,20 @@ def test_min_frames_0_still_refuses_a_window_without_frames(tmp_path, capsys):
     assert_bad_input(capsys, ["import-motive", "--robot", "R1", "--motive", str(motive), "--joints", str(joints),
                               "--out", str(out), "--min-frames", "0"], "joints.csv", "row 7", "0 tracked frames")
     assert not out.exists()
+
+
+@pytest.mark.parametrize("cells", [{-1: "0", -2: "0", -3: "0", -4: "0"}, {-1: "1e300"}, {-5: "1e300"}])
+def test_a_frame_that_is_no_tracked_pose_is_one_line_naming_the_window(tmp_path, capsys, cells):
+    """A zero quaternion, a huge one, or a position beyond any volume in a window's frame: refused (a zero one was
+    averaged into the pose; 1e300 gave a LinAlgError traceback)."""
+    motive, joints, _, _ = take(tmp_path)
+    with open(motive, newline="") as f:
+        rows = list(csv.reader(f))
+    for c, text in cells.items():
+        rows[9][c] = text  # frame 2: inside the first pose's window
+    with open(motive, "w", newline="") as f:
+        csv.writer(f).writerows(rows)
+    out = tmp_path / "rec.csv"
+    assert_bad_input(capsys, ["import-motive", "--robot", "R1", "--motive", str(motive), "--joints", str(joints),
+                              "--out", str(out)], "joints.csv", "row 2", "not a tracked pose")
+    assert not out.exists()
