@@ -8,8 +8,8 @@ from typing import Any, Callable, Literal
 
 from app.analysis.fitting import fitter_for
 from app.cli.common import add_report_options, add_topup_options, cell_spec, command_line, epoch_bar, log, \
-    non_negative_int, positive_float, read_recording_arg, show_progress, tolerance_from_args, validation_count, \
-    warn_gross_rows, write_json
+    non_negative_int, positive_float, read_given_arg, read_recording_arg, show_progress, tolerance_from_args, \
+    validation_count, warn_gross_rows, write_json
 from calibration.errors import CellCalError
 
 #: The anchor-grid steps ``plan --q2-step/--q3-step`` and ``demo --anchor-step`` accept [deg].
@@ -110,7 +110,7 @@ def _plan_topup(args: argparse.Namespace, cell: Any, robot: Any, safety: Any, ot
         raise CellCalError("--for, --cpa and --validation do not apply to a top-up plan (--given, --task)")
     import numpy as np
 
-    q_given = read_recording_arg(args.given, robot).q if args.given is not None else np.zeros((0, 6))
+    q_given = read_given_arg(args.given, robot).q if args.given is not None else np.zeros((0, 6))
     q_task = read_task(args.task, args.robot, cell)
     top = topup_plan(args.robot, robot.model(), safety, others, q_given, q_task, args.budget, args.noise_mm,
                      args.seed, park_q(args.robot))
@@ -200,7 +200,7 @@ def _select_topup(args: argparse.Namespace) -> int:
     cell = cell_spec(args)
     robot = cell.robot(args.robot)
     cands = read_recording_arg(args.data, robot)
-    given = read_recording_arg(args.given, robot)
+    given = read_given_arg(args.given, robot)
     q_task = read_task(args.task, args.robot, cell)
     if not 1 <= args.poses <= len(cands):
         raise CellCalError(f"--poses must be in 1..{len(cands)} (the rows of {args.data}), got {args.poses}")

@@ -14,7 +14,8 @@ from typing import Any, Callable
 from app.cli.cell import add_cell_parsers
 from app.cli.common import (CELL_HELP, DefaultsHelpFormatter, add_topup_options, OneLineErrorParser, add_cell_option, add_report_options, cell_spec,
                              check_output_args, command_line, fitter_from_args, load_model_for, model_and_robot,
-                             read_recording_arg, resolve_cell, show_progress, tolerance_from_args, write_json)
+                             read_given_arg, read_recording_arg, resolve_cell, show_progress, tolerance_from_args,
+                             write_json)
 from app.cli.dual import add_dual_parsers
 from app.cli.real import add_real_parsers
 from app.jobs.cli import add_job_parsers
@@ -96,7 +97,7 @@ def _given_recording(args: argparse.Namespace, robot: Any) -> Any:
 
     if robot is None:
         raise CellCalError("--given needs the model's robot in the cell (its nominal arm); give --robot or --cell")
-    given = read_recording_arg(args.given, robot)
+    given = read_given_arg(args.given, robot)
     return with_added(given, [read_recording_arg(a, robot) for a in args.add]) if args.add else given
 
 

@@ -212,6 +212,17 @@ def read_recording_arg(path: str, robot: Any | None = None) -> Any:
     return rec
 
 
+def read_given_arg(path: str, robot: Any) -> Any:
+    """``--given TRAIN`` (the poses a top-up builds on): :func:`read_recording_arg`, and refused when it is not
+    ``robot``'s poses (:func:`app.analysis.fitting.refuse_another_arms`), as a training recording is: another arm's
+    joint angles would make the design, and the predicted sigma, those of the wrong arm."""
+    from app.analysis.fitting import refuse_another_arms
+
+    rec = read_recording_arg(path, robot)
+    refuse_another_arms(robot, rec, "--given recording")
+    return rec
+
+
 def _quaternion_columns(path: str) -> str:
     """How a recording names its quaternion columns: qw..qz, or a Welding_Motoman pose file's columns 4-7."""
     from calibration.recording import welding_layout

@@ -8,6 +8,10 @@ from typing import Any, Callable
 
 from app.cli.cell_options import add_motion_options
 from app.cli.common import cell_spec, show_progress, write_json
+from calibration.errors import CellCalError
+
+#: export-targets --jbi's joint speed VJ [% of maximum] when --speed is not given.
+DEFAULT_JOB_SPEED = 10.0
 
 
 def _model_pair(spec: str | None, where: str, cell: Any) -> dict[str, Any]:
@@ -227,14 +231,18 @@ def cmd_export_targets(args: argparse.Namespace) -> int:
 
     cell = cell_spec(args)
     rows = checked_rows(args.plan, cell, args.frame, args.skip_failed, models=_model_pair(args.models, "--models", cell))
-    job = None if args.jbi is None else job_bytes(rows, args.jbi, args.speed)  # before writing: a bad name, nothing
+    if args.speed is not None and args.jbi is None:
+        raise CellCalError("--speed sets the speed of the JBI job; it needs --jbi NAME.JBI (the targets file has no "
+                           "speed)")
+    speed = DEFAULT_JOB_SPEED if args.speed is None else args.speed
+    job = None if args.jbi is None else job_bytes(rows, args.jbi, speed)  # before writing: a bad name, nothing
     write_targets(rows, args.out, args.frame)  # refuses an unknown file type before writing
     if job is not None:
         atomic_write_bytes(args.jbi, job)
     n = len(rows)
     print(f"{n} targets ({args.frame} frame) -> {args.out}")
     if args.jbi:
-        print(f"{n // 2} coordinated joint moves (R1 = RB1, R2 = RB2, pulses, VJ={args.speed:.2f}) -> {args.jbi}")
+        print(f"{n // 2} coordinated joint moves (R1 = RB1, R2 = RB2, pulses, VJ={speed:.2f}) -> {args.jbi}")
     write_json(args.json, {"plan": str(args.plan), "targets": n, "frame": args.frame, "out": str(args.out),
                            "jbi": args.jbi})
     return 0
@@ -292,5 +300,6 @@ def add_dual_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                         "coordinated MOVJ line per waypoint so both arms reach it together, positions in pulses "
                         "(pulse = pulse_zero + pulse_sign * q_deg * pulses_per_deg, from the robot YAML); the job "
                         "is named after the file")
-    p.add_argument("--speed", type=float, default=10.0, help="the job's joint speed VJ [%% of maximum]")
+    p.add_argument("--speed", type=float, default=None,
+                   help=f"the job's joint speed VJ [%% of maximum] (--jbi only; default {DEFAULT_JOB_SPEED:g})")
     p.add_argument("--json", help="write the target count and frame as JSON")

@@ -190,3 +190,31 @@ def test_a_bad_given_is_the_one_line_before_any_warning_or_output(files, tmp_pat
     err = captured.err.strip().splitlines()
     assert len(err) == 1 and "given.csv" in err[0], err
     assert captured.out == "" and not out.exists()
+
+
+@pytest.mark.parametrize("command", ["select", "plan", "predict", "evaluate"])
+def test_another_arms_given_poses_are_refused(files, tmp_path, capsys, command):
+    """--given is the poses a top-up builds on: another arm's (R2's poses given for R1) was accepted, and the design
+    and the predicted sigma were those of the wrong arm (hostile-input pass)."""
+    from cell_config import load_cell
+
+    folder, _ = files
+    q, _ = cluster_design(step_deg=30.0, spread_wrist=False)
+    r2 = tmp_path / "r2.csv"
+    write_recording(measure(load_cell().robot("R2").model().fk, q, 0.02, 0.01, 1), r2)
+    model = folder / "grid-nls1-given.yaml"
+    if not model.exists():
+        assert main(["fit", "--robot", "R1", "--train", str(folder / "grid.csv"), "--method", "nls1",
+                     "--out", str(model)]) == 0
+    out = tmp_path / "out.csv"
+    argv = {"select": [*select(folder, folder / "task.csv", "--poses", "3", "--out", str(out))],
+            "plan": ["plan", "--robot", "R1", "--design", "optimal", "--given", str(folder / "grid.csv"), "--task",
+                     str(folder / "task.csv"), "--budget", "3", "--out", str(out)],
+            "predict": ["predict", "--model", str(model), "--joints", str(folder / "task.csv"), "--out", str(out),
+                        "--given", str(folder / "grid.csv")],
+            "evaluate": ["evaluate", "--model", str(model), "--test", str(folder / "cand.csv"), "--json", str(out),
+                         "--given", str(folder / "grid.csv")]}[command]
+    argv[argv.index(str(folder / "grid.csv"))] = str(r2)
+    capsys.readouterr()
+    assert_bad_input(capsys, argv, "r2.csv", "not R1's poses")
+    assert not out.exists()

@@ -97,6 +97,13 @@ def test_bad_job_name_or_speed_exits_2_and_writes_nothing(planned, tmp_path, cap
     assert not out.exists() and not jbi.exists()
 
 
+def test_speed_without_a_job_is_refused_not_ignored(planned, tmp_path, capsys):
+    out = tmp_path / "t.csv"
+    assert_bad_input(capsys, ["export-targets", "--plan", str(planned / "plan.json"), "--out", str(out), "--speed",
+                              "5"], "--speed", "needs --jbi")
+    assert not out.exists()
+
+
 def test_an_unsafe_plan_writes_no_job(planned, tmp_path, capsys):
     plan = json.loads((planned / "plan.json").read_text())
     plan["waypoints"][2]["R1"][1] = 3.0  # beyond joint 2's upper limit (155 deg)
