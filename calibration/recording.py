@@ -16,6 +16,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -149,23 +150,22 @@ def _number_or_nan(text: str) -> float:
         return math.nan
 
 
-def _read_rows(path: Path) -> list[list[str]]:
-    """The non-blank CSV rows of ``path``; a UTF-8 byte-order mark (as Excel writes) is accepted.
+def csv_rows(path: str | Path, max_bytes: int = MAX_RECORDING_BYTES,
+             what: str = "CSV file") -> Iterator[list[str]]:
+    """The rows of the CSV text file ``path`` (at most ``max_bytes``, a regular file: :func:`read_input_text`), as
+    ``csv.reader`` gives them; every reading failure is one :class:`DataError` naming the file (and the line for a
+    CSV error: a NUL byte, a field over csv's 131072-character limit, an unclosed quote).
 
     Raises:
-        DataError: more than ``MAX_ROWS`` data rows (counted while reading, so a huge file stops early).
+        DataError: the file is missing, a folder, not UTF-8 text, not CSV (``what`` names what was expected) or
+            unreadable.
     """
-    rows: list[list[str]] = []
+    reader = None
     try:
-        reader = csv.reader(io.StringIO(read_input_text(path, MAX_RECORDING_BYTES), newline=""))
-        for r in reader:
-            if r and any(c.strip() for c in r):
-                rows.append(r)
-                if len(rows) > MAX_ROWS + 1:
-                    raise DataError(path, None, None, f"more than {MAX_ROWS} data rows (the limit bounds "
-                                                      f"memory; split the recording or subsample it)")
-    except csv.Error as e:  # a field over csv's 131072-character limit, a NUL byte, an unclosed quote
-        raise DataError(path, reader.line_num, None, f"not a CSV recording ({e})") from None
+        reader = csv.reader(io.StringIO(read_input_text(path, max_bytes), newline=""))
+        yield from reader
+    except csv.Error as e:
+        raise DataError(path, reader.line_num if reader else None, None, f"not a {what} ({e})") from None
     except FileNotFoundError:
         raise DataError(path, None, None, "file not found") from None
     except IsADirectoryError:
@@ -174,6 +174,21 @@ def _read_rows(path: Path) -> list[list[str]]:
         raise DataError(path, None, None, f"not UTF-8 text ({e.reason})") from None
     except OSError as e:
         raise DataError(path, None, None, f"cannot read ({e.strerror or e})") from None
+
+
+def _read_rows(path: Path) -> list[list[str]]:
+    """The non-blank CSV rows of ``path``; a UTF-8 byte-order mark (as Excel writes) is accepted.
+
+    Raises:
+        DataError: more than ``MAX_ROWS`` data rows (counted while reading, so a huge file stops early).
+    """
+    rows: list[list[str]] = []
+    for r in csv_rows(path, MAX_RECORDING_BYTES, "CSV recording"):
+        if r and any(c.strip() for c in r):
+            rows.append(r)
+            if len(rows) > MAX_ROWS + 1:
+                raise DataError(path, None, None, f"more than {MAX_ROWS} data rows (the limit bounds "
+                                                  f"memory; split the recording or subsample it)")
     return rows
 
 

@@ -24,8 +24,6 @@ stays in Motive's frame, as ``cellcal collect`` records it (the fit identifies t
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,8 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from calibration.errors import DataError
-from calibration.files import read_input_text
-from calibration.recording import JOINT_COLUMNS, Recording
+from calibration.files import MAX_INPUT_BYTES
+from calibration.recording import JOINT_COLUMNS, Recording, csv_rows
 
 #: Motive's ``Length Units`` -> millimetres per unit.
 LENGTH_UNITS_MM = {"Meters": 1000.0, "Centimeters": 10.0, "Millimeters": 1.0}
@@ -70,25 +68,9 @@ def _cells(row: list[str]) -> list[str]:
 
 
 def _csv_rows(path: Path) -> list[list[str]]:
-    """The rows of the CSV file ``path``, cells stripped.
-
-    Raises:
-        DataError: the file is missing, a folder, not UTF-8 text, not CSV or unreadable (one line naming it).
-    """
-    reader = None
-    try:
-        reader = csv.reader(io.StringIO(read_input_text(path), newline=""))
-        return [_cells(r) for r in reader]
-    except csv.Error as e:  # a NUL byte, a field over csv's limit
-        raise DataError(path, reader.line_num if reader else None, None, f"not a CSV file ({e})") from None
-    except FileNotFoundError:
-        raise DataError(path, None, None, "file not found") from None
-    except IsADirectoryError:
-        raise DataError(path, None, None, "is a folder, expected a CSV file") from None
-    except UnicodeDecodeError as e:
-        raise DataError(path, None, None, f"not UTF-8 text ({e.reason})") from None
-    except OSError as e:
-        raise DataError(path, None, None, f"cannot read ({e.strerror or e})") from None
+    """The rows of the CSV file ``path``, cells stripped (:func:`calibration.recording.csv_rows`: every reading
+    failure is one line naming the file)."""
+    return [_cells(r) for r in csv_rows(path, MAX_INPUT_BYTES)]
 
 
 def read_motive_csv(path: str | Path, rigid_body: str) -> MotiveRigidBody:
