@@ -399,9 +399,7 @@ class SessionStore:
         values = np.concatenate([s.q, s.p, s.quat, [s.std_pos_mm, s.std_rot_deg, s.marker_err, s.t]])
         if values.shape != (17,) or not np.all(np.isfinite(values)):
             raise DataError(self.path, None, f"target {s.target_index}", "sample has non-finite or missing values")
-        norm = float(np.linalg.norm(s.quat))
-        if abs(norm - 1.0) > QUAT_NORM_TOL:
-            raise DataError(self.path, None, f"target {s.target_index}", f"quaternion norm {norm:.6f} is not 1")
+        self._check_quat(s.quat, f"target {s.target_index}")
         if lower is not None and upper is not None:
             bad = np.flatnonzero((s.q < lower) | (s.q > upper))
             if bad.size:
@@ -505,9 +503,13 @@ class SessionStore:
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
                 raise DataError(self.path, None, f"{where}, column {c}", f"expected a finite number, found {v!r}")
         if r["status"] == "ok":
-            norm = math.sqrt(sum(r[c] ** 2 for c in ("qw", "qx", "qy", "qz")))
-            if abs(norm - 1.0) > QUAT_NORM_TOL:
-                raise DataError(self.path, None, where, f"quaternion norm {norm:.6f} is not 1")
+            self._check_quat([r[c] for c in ("qw", "qx", "qy", "qz")], where)
+
+    def _check_quat(self, quat: Any, where: str) -> None:
+        """Refuse a quaternion whose norm is off 1 by more than :data:`QUAT_NORM_TOL` (written or read back)."""
+        norm = float(np.linalg.norm(np.asarray(quat, dtype=float)))
+        if abs(norm - 1.0) > QUAT_NORM_TOL:
+            raise DataError(self.path, None, where, f"quaternion norm {norm:.6f} is not 1")
 
 
 def _refuse_special(path: Path) -> None:
