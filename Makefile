@@ -22,7 +22,7 @@ $(VENV): pyproject.toml constraints.txt
 # The docs site is built first, strictly (a broken link, a page left out of the navigation or a module the API pages
 # cannot read fails the tests), into a temporary folder that is removed afterwards; `make docs` keeps it in site/.
 test: $(VENV)
-	site=$$(mktemp -d) && trap 'rm -rf "$$site"' EXIT && $(DOCS_ENV) $(BIN)/mkdocs build --strict --quiet --site-dir "$$site"
+	site=$$(mktemp -d) && trap 'rm -rf "$$site"' EXIT && $(DOCS_ENV) $(BIN)/mkdocs build --strict --site-dir "$$site"
 	PYTHONDONTWRITEBYTECODE= $(BIN)/python -m pytest -q -n auto --dist loadscope --no-loadscope-reorder
 
 docs: $(VENV)
