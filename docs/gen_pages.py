@@ -85,19 +85,26 @@ def api_page(module: str) -> str:
     return f"# `{module}`\n\n::: {module}\n    options:\n      members: false\n"
 
 
+def api_path(module: str) -> str:
+    """A module's page under api/: a package's is its folder's index.md, so its section opens on it."""
+    parts = module.split(".")
+    if ROOT.joinpath(*parts).is_dir():
+        return Path(*parts, "index.md").as_posix()
+    return Path(*parts).with_suffix(".md").as_posix()
+
+
 def write_pages() -> None:
     import mkdocs_gen_files
 
     with mkdocs_gen_files.open("reference/cli.md", "w") as page:
         page.write(cli_page())
     for module in api_modules():
-        with mkdocs_gen_files.open(Path("api", *module.split(".")).with_suffix(".md"), "w") as page:
+        with mkdocs_gen_files.open(Path("api", api_path(module)), "w") as page:
             page.write(api_page(module))
     with mkdocs_gen_files.open("api/index.md", "w") as page:
         page.write("# API\n\nThe Python modules, from their docstrings. The command line (`cellcal`) is the supported "
                    "interface; these pages are for readers of the code.\n\n"
-                   + "\n".join(f"* [`{m}`]({Path(*m.split('.')).with_suffix('.md').as_posix()})"
-                               for m in api_modules()) + "\n")
+                   + "\n".join(f"* [`{m}`]({api_path(m)})" for m in api_modules()) + "\n")
 
 
 if __name__ == "__main__":
