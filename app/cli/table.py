@@ -1,7 +1,7 @@
-"""The README's table of commands, generated from the parser: ``python -m app.cli.table`` prints it.
+"""The table of commands, generated from the parser: ``python -m app.cli.table`` prints it.
 
 Per subcommand: its required options, the options it writes to, whether it takes ``--json``, and its summary.
-A test checks that the README holds exactly this table, so a new option shows up there or fails the tests.
+The docs' CLI reference (docs/gen_pages.py) holds it, and a test checks that it does.
 """
 
 from __future__ import annotations
