@@ -144,10 +144,24 @@ def test_session_tables_are_the_stores(tmp_path):
     assert_documents("session.md", "session-meta", meta)
 
 
-def test_diagnose_effect_kinds_are_the_candidate_librarys():
+class _Days:
+    """Stands for the several-days result, whose own keys are not this page's."""
+
+    def to_json(self) -> dict:
+        return {}
+
+
+def test_diagnose_keys_and_effect_kinds_are_the_reports():
     from calibration.diagnosis.candidates import KINDS
+    from calibration.diagnosis.noise import NoiseFloor
+    from calibration.diagnosis.report import Accuracy, Diagnosis
 
     assert_documents("diagnose-json.md", "diagnose-kinds", KINDS)
+    acc = Accuracy("geometric", 0.3, 0.9, 0.04, 0.09)
+    report = Diagnosis("R1", 10, 5, "split", NoiseFloor(0.08, 0.08, 0.1, 0.03, 0.03, 0.04), acc, acc, (), (), (), (),
+                       "", None, days=_Days(), extrapolation={})  # type: ignore[arg-type]
+    # every key, optional ones included; gross_rows is added by app.analysis.diagnose beside the report's own
+    assert_documents("diagnose-json.md", "diagnose", [*report.to_json(), "gross_rows"])
 
 
 def test_command_json_blocks_are_the_writers():
