@@ -154,7 +154,7 @@ class _Days:
 def test_diagnose_keys_and_effect_kinds_are_the_reports():
     from calibration.diagnosis.candidates import KINDS
     from calibration.diagnosis.noise import NoiseFloor
-    from calibration.diagnosis.report import Accuracy, Diagnosis
+    from calibration.diagnosis.report import Accuracy, Diagnosis, EffectEvidence, FoundEffect
 
     assert_documents("diagnose-json.md", "diagnose-kinds", KINDS)
     acc = Accuracy("geometric", 0.3, 0.9, 0.04, 0.09)
@@ -162,6 +162,9 @@ def test_diagnose_keys_and_effect_kinds_are_the_reports():
                        "", None, days=_Days(), extrapolation={})  # type: ignore[arg-type]
     # every key, optional ones included; gross_rows is added by app.analysis.diagnose beside the report's own
     assert_documents("diagnose-json.md", "diagnose", [*report.to_json(), "gross_rows"])
+    evidence = EffectEvidence(-10.0, 0.01, 3.0, acc, acc, 4.0)
+    effect = FoundEffect("thermal_drift", (), ("p12",), {"k_per_s": 1.0}, {"k_per_s": 0.1}, evidence, "grows")
+    assert_documents("diagnose-json.md", "diagnose-effect", effect.to_json())
 
 
 def test_command_json_blocks_are_the_writers():
