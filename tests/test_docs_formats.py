@@ -175,6 +175,25 @@ def test_command_json_blocks_are_the_writers():
     assert_documents("command-json.md", "compare", Comparison("R1").to_json())
 
 
+def test_fit_and_evaluate_json_keys_are_the_commands(tmp_path):
+    """The two command outputs assembled in the CLI, from a run on a small synthetic recording (about 0.5 s)."""
+    import json
+
+    from app.cli import main
+    from calibration.recording import write_recording
+    from cell_config import load_cell
+    from tests.conftest import cluster_design, measure
+
+    q, cluster = cluster_design(30.0)
+    write_recording(measure(load_cell().robot("R1").model().fk, q, 0.05, 0.01, 0, cluster), tmp_path / "r.csv")
+    fit = ["fit", "--robot", "R1", "--train", str(tmp_path / "r.csv"), "--method", "nls1"]
+    assert main(fit + ["--out", str(tmp_path / "m.yaml"), "--json", str(tmp_path / "fit.json")]) == 0
+    assert main(["evaluate", "--model", str(tmp_path / "m.yaml"), "--test", str(tmp_path / "r.csv"),
+                 "--json", str(tmp_path / "evaluate.json")]) == 0
+    assert_documents("command-json.md", "fit", json.loads((tmp_path / "fit.json").read_text()))
+    assert_documents("command-json.md", "evaluate", json.loads((tmp_path / "evaluate.json").read_text()))
+
+
 def test_targets_columns_are_the_writers(tmp_path):
     from app.dual.export_targets import write_targets
 
