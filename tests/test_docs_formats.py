@@ -102,7 +102,7 @@ def test_model_kinds_and_common_keys_are_the_registrys():
 
 def test_cell_robot_tool_and_device_keys_are_the_loaders():
     from cell_config.devices import CONTROLLER_KEYS, MOCAP_KEYS, PROBE_KEYS, ZENOH_KEYS
-    from cell_config.loader import CELL_KEYS, ROBOT_ENTRY_KEYS, ROBOT_KEYS, TOOL_KEYS
+    from cell_config.loader import CAPSULE_SEGMENTS, CELL_KEYS, ROBOT_ENTRY_KEYS, ROBOT_KEYS, TOOL_KEYS
 
     assert_documents("cell.md", "cell", CELL_KEYS)
     assert_documents("cell.md", "cell-robot", ROBOT_ENTRY_KEYS)
@@ -112,6 +112,7 @@ def test_cell_robot_tool_and_device_keys_are_the_loaders():
     assert_documents("cell.md", "cell-zenoh", ZENOH_KEYS + ("roles",))
     assert_documents("robot-tool.md", "robot", ROBOT_KEYS)
     assert_documents("robot-tool.md", "tool", TOOL_KEYS)
+    assert_documents("robot-tool.md", "capsules", CAPSULE_SEGMENTS)
 
 
 def test_registration_keys_are_the_files():
