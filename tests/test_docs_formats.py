@@ -244,3 +244,13 @@ def test_every_docs_page_the_product_names_exists(folder):
     named = {m for p in (REPO / folder).rglob("*.py") for m in re.findall(r"docs/[\w./-]+\.md", p.read_text())}
     missing = sorted(m for m in named if not (REPO / m).is_file())
     assert not missing, f"{folder}/ names docs pages that do not exist: {missing}"
+
+
+def test_every_repository_path_the_pages_name_exists():
+    """The format pages and tutorials name the modules that read and write each file (``calibration/recording.py``);
+    a module moved or renamed (issue 32's restructure) leaves a page pointing nowhere: this names the page and path."""
+    pattern = re.compile(r"`((?:app|calibration|drivers|cell_config|tests|scripts|docs)/[\w/.-]+?)(?:::\w+)?`")
+    pages = sorted(FORMATS.glob("*.md")) + sorted((REPO / "docs" / "tutorials").glob("*.md"))
+    stale = sorted({f"{page.relative_to(REPO)}: {path}" for page in pages for path in pattern.findall(page.read_text())
+                    if not (REPO / path).exists()})
+    assert not stale, f"pages name paths that do not exist: {stale}"
