@@ -32,7 +32,7 @@ deviations from the nominal arm) and ``delta_d`` the 12 frame corrections of :fu
    link's length, a uniform growth of every link, the way heat would act) while one still reduces the chi-square
    significantly; what remains beyond the noise is reported as unexplained.
 6. **Drift within a recording**: only when it carries time order (``t`` or ``temp_c``, see
-   ``../shared/spec/recording-format.md``): its early and late halves (whole clusters) are compared the same way.
+   ``docs/formats/recording.md``): its early and late halves (whole clusters) are compared the same way.
 """
 
 from __future__ import annotations

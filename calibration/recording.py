@@ -1,13 +1,13 @@
 """Recordings: static samples of one robot (joint angles + measured tool-marker pose).
 
-Reads the project's recording CSV (``../shared/spec/recording-format.md``) and the Welding_Motoman folder
+Reads the project's recording CSV (documented in ``docs/formats/recording.md``) and the Welding_Motoman folder
 layout, validates every value, and writes recordings atomically. Errors name the file, the 1-based row
 (header = row 1) and the column.
 
-Beyond the spec's "non-numeric or non-finite" errors, a value is refused as physically absurd when
+Beyond the format's "non-numeric or non-finite" errors, a value is refused as physically absurd when
 |x|, |y| or |z| > ``MAX_ABS_POSITION_MM`` (1e5 mm = 100 m), |q_i| > ``MAX_ABS_ANGLE_RAD`` (100 rad, checked
 even when the joint limits are not known), or any other known column's |value| > ``MAX_ABS_OTHER`` (1e9).
-Columns outside the spec's table are ignored: their content is never checked, and they are kept (for
+Columns outside the format's table are ignored: their content is never checked, and they are kept (for
 rewriting) only when every value is a finite number.
 """
 
@@ -44,6 +44,8 @@ MAX_ABS_ANGLE_RAD = 100.0
 """Largest |q_i| accepted [rad] before the joint limits are known: ~16 turns, beyond any joint."""
 MAX_ABS_OTHER = 1e9
 """Largest magnitude accepted in any other known column (t [s], temp_c, payload_kg, ...)."""
+#: The page that documents the recording CSV, named by the messages of a file in another layout (in the repository).
+FORMAT_DOC = "docs/formats/recording.md"
 MAX_ROWS = 200_000
 """Largest number of data rows read from one file: a calibration session holds a few thousand samples;
 a bigger file is refused while it is read, before any of it is parsed, so memory stays bounded."""
@@ -227,7 +229,7 @@ def _read_table(path: Path, columns: tuple[str, ...] | None,
     return names, data, first
 
 
-#: Separators a file saved by a spreadsheet in another locale may use instead of the spec's comma: (separator, how
+#: Separators a file saved by a spreadsheet in another locale may use instead of the format's comma: (separator, how
 #: the message names its fields, how it names the separator).
 OTHER_SEPARATORS = ((";", "';'-separated", "';'"), ("\t", "tab-separated", "tabs"))
 
@@ -248,13 +250,12 @@ def _check_separator(path: Path, first: list[str], expected: int) -> None:
     for sep, fields, name in OTHER_SEPARATORS:
         if len(first) == 1 and len([part for part in first[0].split(sep) if part.strip()]) > 1:
             raise DataError(path, 1, None, f"one column holding {fields} fields: the file seems to be separated by "
-                                           f"{name}, but recordings are comma-separated (see "
-                                           "../shared/spec/recording-format.md)")
+                                           f"{name}, but recordings are comma-separated (see {FORMAT_DOC})")
         # Decimal commas too (a headerless "0,5;1,25;..."): the comma reader split the numbers, not the fields.
         if len(first) > 1 and len(",".join(first).split(sep)) == expected:
             raise DataError(path, 1, None, f"{expected} {fields} fields with decimal commas: the file seems to be "
                                            f"separated by {name}, but recordings are comma-separated with decimal "
-                                           "points (see ../shared/spec/recording-format.md)")
+                                           f"points (see {FORMAT_DOC})")
 
 
 def _check_pose(path: Path, q: np.ndarray, quat: np.ndarray, first_row: int,
@@ -323,14 +324,14 @@ def read_recording(path: str | Path, lower: np.ndarray | None = None, upper: np.
     q = np.stack([col[c] for c in JOINT_COLUMNS], axis=1)
     quat = np.stack([col[c] for c in ("qw", "qx", "qy", "qz")], axis=1)
     _check_pose(path, q, quat, first, lower, upper)
-    # unknown columns are ignored (spec); kept for rewriting only when every value is a finite number
+    # unknown columns are ignored (the format); kept for rewriting only when every value is a finite number
     extra = {n: v for n, v in col.items()
              if n not in REQUIRED_COLUMNS and (n in KNOWN_OPTIONAL_COLUMNS or np.isfinite(v).all())}
     if "cluster" in extra and np.any(extra["cluster"] != np.round(extra["cluster"])):
         i = int(np.flatnonzero(extra["cluster"] != np.round(extra["cluster"]))[0])
         raise DataError(path, first + i, "cluster", "expected an integer cluster id")
     back = np.flatnonzero(np.diff(extra["t"]) < 0) if "t" in extra else ()
-    if len(back):  # the spec: t is the time since the session started, monotonic
+    if len(back):  # the format: t is the time since the session started, monotonic
         i = int(back[0]) + 1
         raise DataError(path, first + i, "t", f"time goes backwards ({extra['t'][i - 1]:g} s, then {extra['t'][i]:g} "
                                               "s): t is the time since the session started, monotonic (one session "
@@ -464,7 +465,7 @@ def write_recording(rec: Recording, path: str | Path) -> None:
     write_table(path, cols)
 
 
-#: The quaternion order check refuses a recording whose orientations, read in the spec's (w, x, y, z) order, scatter
+#: The quaternion order check refuses a recording whose orientations, read in the format's (w, x, y, z) order, scatter
 #: by more than this around their best constant tool offset from the nominal model [deg] (median) ...
 QUAT_ORDER_SPREAD_DEG = 2.0
 #: ... while read in Motive's own (x, y, z, w) order they scatter this many times less. Every Welding_Motoman day
@@ -483,11 +484,11 @@ def _offset_spread_deg(R_nominal: np.ndarray, R_measured: np.ndarray) -> float:
 
 
 def check_quaternion_order(rec: Recording, nominal: object, columns: str = "qw, qx, qy, qz") -> None:
-    """Refuse a recording whose quaternions are stored x, y, z, w (Motive's order) under the spec's w, x, y, z
+    """Refuse a recording whose quaternions are stored x, y, z, w (Motive's order) under the format's w, x, y, z
     columns: read as they are, its orientations would fit a model ~20-40 deg off.
 
     Both orders are compared against the nominal model (the arm's geometry and tool from the cell): the one the
-    spec says must fit it (up to a constant tool offset) at least :data:`QUAT_ORDER_RATIO` times better than the
+    format says must fit it (up to a constant tool offset) at least :data:`QUAT_ORDER_RATIO` times better than the
     other whenever it is off by more than :data:`QUAT_ORDER_SPREAD_DEG`.
 
     Args:

@@ -103,6 +103,14 @@ class ProbeConfig:
     base_id: int
 
 
+#: The keys of the ``controller``, ``mocap`` and ``probe`` blocks of a cell file (any other key is refused).
+CONTROLLER_KEYS = ("host", "motion_port", "state_port", "groups", "connect_timeout_s", "reply_timeout_s",
+                   "start_traj_timeout_s", "max_speed_fraction", "joint_margin_deg")
+MOCAP_KEYS = ("server_address", "local_address", "multicast", "multicast_group", "command_port", "data_port",
+              "rigid_bodies", "dwell_s", "stream_wait_s")
+PROBE_KEYS = ("interface", "channel", "bitrate", "base_id")
+
+
 def _robot_names(node: Node, key: str, robots: Mapping[str, Any]) -> Node:
     """The mapping under ``key`` whose keys must be robots of the cell (non-empty)."""
     if not isinstance(node.get(key), dict) or not node.get(key):
@@ -126,8 +134,7 @@ def parse_controller(node: Node | None, robots: Mapping[str, Any]) -> Controller
     if node is None:
         return None
     d = ControllerConfig("", groups={})
-    node.only(("host", "motion_port", "state_port", "groups", "connect_timeout_s", "reply_timeout_s",
-               "start_traj_timeout_s", "max_speed_fraction", "joint_margin_deg"))
+    node.only(CONTROLLER_KEYS)
     g = _robot_names(node, "groups", robots)
     groups = {str(name): g.integer(name, lo=0, hi=MAX_MOTOROS_GROUPS - 1) for name in g.data}
     if len(set(groups.values())) != len(groups):
@@ -150,8 +157,7 @@ def parse_mocap(node: Node | None, robots: Mapping[str, Any]) -> MocapConfig | N
     if node is None:
         return None
     d = MocapConfig("", "", False, {})
-    node.only(("server_address", "local_address", "multicast", "multicast_group", "command_port", "data_port",
-               "rigid_bodies", "dwell_s", "stream_wait_s"))
+    node.only(MOCAP_KEYS)
     b = _robot_names(node, "rigid_bodies", robots)
     bodies = {str(name): b.string(name) for name in b.data}
     if len(set(bodies.values())) != len(bodies):
@@ -179,7 +185,7 @@ def parse_probe(node: Node | None) -> ProbeConfig | None:
     """The ``probe`` block (None when absent)."""
     if node is None:
         return None
-    node.only(("interface", "channel", "bitrate", "base_id"))
+    node.only(PROBE_KEYS)
     return ProbeConfig(
         interface=node.string("interface"), channel=node.string("channel"),
         bitrate=node.integer("bitrate", lo=1),
@@ -187,11 +193,12 @@ def parse_probe(node: Node | None) -> ProbeConfig | None:
     )
 
 
-_ZENOH_KEYS = ("mode", "listen", "connect", "multicast_scouting")
+#: The keys of one Zenoh session (the ``zenoh`` block, which adds ``roles``, and each of its roles).
+ZENOH_KEYS = ("mode", "listen", "connect", "multicast_scouting")
 
 
 def _zenoh_session(node: Node, extra: tuple[str, ...] = ()) -> ZenohConfig:
-    node.only(_ZENOH_KEYS + extra)
+    node.only(ZENOH_KEYS + extra)
     d = ZenohConfig()
     mode = node.get("mode", d.mode)
     if mode not in ZENOH_MODES:

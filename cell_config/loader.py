@@ -182,9 +182,23 @@ class CellSpec:
         return self.zenoh_roles.get(role, self.zenoh)
 
 
+#: The keys of a robot YAML (``repeatability_mm``: the datasheet's figure, kept for the record, read by no command),
+#: and of its ``joint_limits_deg``. A misspelt key (``pulse_zeros``) is refused, not ignored.
+ROBOT_KEYS = ("name", "H", "P", "R_flange", "joint_limits_deg", "max_speed_deg_s", "base_height_mm", "max_torque_Nm",
+              "pulses_per_deg", "pulse_sign", "pulse_zero", "payload_kg", "repeatability_mm", "links", "capsules_mm")
+JOINT_LIMIT_KEYS = ("lower", "upper")
+#: The keys of a tool YAML.
+TOOL_KEYS = ("name", "rigid_body", "position_mm", "quaternion_wxyz", "geometry")
+
+
 def load_robot(path: str | Path) -> RobotSpec:
-    """Load a robot YAML (``robots/MA2010.yaml``)."""
+    """Load a robot YAML (``robots/MA2010.yaml``).
+
+    Raises:
+        ConfigError: an unknown key (naming the valid ones) or a bad value.
+    """
     r = Node.load(path)
+    r.only(ROBOT_KEYS)
     H = r.array("H", (6, 3)).T
     norms = np.linalg.norm(H, axis=0)
     if np.any(np.abs(norms - 1.0) > 1e-9):
@@ -195,6 +209,7 @@ def load_robot(path: str | Path) -> RobotSpec:
     if not isinstance(r.get("joint_limits_deg"), dict):
         raise r.error("joint_limits_deg", "expected a mapping with 'lower' and 'upper'")
     limits = r.child("joint_limits_deg")
+    limits.only(JOINT_LIMIT_KEYS)
     lower = limits.array("lower", (6,))
     upper = limits.array("upper", (6,))
     if np.any(lower >= upper):
@@ -236,8 +251,13 @@ def load_robot(path: str | Path) -> RobotSpec:
 
 
 def load_tool(path: str | Path) -> ToolSpec:
-    """Load a tool YAML (``tools/weldgun_marker.yaml``)."""
+    """Load a tool YAML (``tools/weldgun_marker.yaml``).
+
+    Raises:
+        ConfigError: an unknown key (naming the valid ones) or a bad value.
+    """
     r = Node.load(path)
+    r.only(TOOL_KEYS)
     quat = r.array("quaternion_wxyz", (4,))
     if abs(np.linalg.norm(quat) - 1.0) > 1e-3:
         raise r.error("quaternion_wxyz", f"expected a unit quaternion, norm is {np.linalg.norm(quat):.6f}")

@@ -137,12 +137,16 @@ def verdict(effects: list[FoundEffect], baseline: Accuracy, final: Accuracy, flo
         names = _and([f"{PHYSICS[e.kind]} on {_on(e)}" for e in rejected])
         text += (f" Rejected: {names} fitted the fit data but did not improve the held-out data beyond noise "
                  "(not confirmed: it does not extrapolate beyond the poses it was fitted on, or is too weak).")
-    by_kind: dict[str, list[str]] = {}
+    by_kind: dict[str, tuple[list[str], list[str]]] = {}  # kind -> (its joints, what it acts on without joints)
     for u in hidden:
         if u.kind != "joint_offset":  # an absorbed offset is simply part of the fitted geometry
-            by_kind.setdefault(u.kind, []).extend(str(j) for j in u.joints)
+            joints, others = by_kind.setdefault(u.kind, ([], []))
+            joints.extend(str(j) for j in u.joints)
+            if not u.joints:  # thermal drift of a link, a frame, latency: named by its label
+                others.append(u.label)
     if by_kind:
-        parts = [f"{PHYSICS[k]} on joint{'s' if len(js) > 1 else ''} {_and(js)}" for k, js in by_kind.items()]
+        parts = [f"{PHYSICS[k]} on " + _and(([f"joint{'s' if len(js) > 1 else ''} {_and(js)}"] if js else []) + other)
+                 for k, (js, other) in by_kind.items()]
         text += (f" Not identifiable from this data (the fit data barely move those joints, or the geometric fit "
                  f"absorbs the effect): {_and(parts)}.")
     kinds = sorted({u.kind for u in untested})

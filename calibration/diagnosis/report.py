@@ -1,7 +1,7 @@
 """The results of a diagnosis as frozen dataclasses, and their ``cellcal.diagnose/1`` JSON form.
 
-The JSON keys follow ``shared/spec/diagnose-report.md``; keys are added for what the data could not
-show: ``not_identifiable`` (candidates the geometric fit absorbs or the data barely excite),
+The JSON keys are documented in ``docs/formats/diagnose-json.md``. Beyond the first report's keys, keys say what
+the data could not show: ``not_identifiable`` (candidates the geometric fit absorbs or the data barely excite),
 ``untested`` (candidates whose driving column is missing from the data) and ``rejected_on_heldout``
 (selected on the fit data, not confirmed on the held-out data), plus ``noise_estimates_mm`` and ``notes``; the orientation channel's floor (``noise_floor_deg``,
 ``noise_estimates_deg``) and the weight both channels were weighed with (``orientation_weight``).

@@ -16,7 +16,7 @@ from calibration.recording import Recording, write_recording
 from cell_config import load_cell
 from tests.conftest import assert_bad_input, backlash_case, cluster_design, measure
 
-#: Keys of ``../shared/spec/diagnose-report.md`` that must stay.
+#: Keys of the diagnose report (``docs/formats/diagnose-json.md``) that must stay.
 SPEC_KEYS = {"schema", "robot", "samples", "noise_floor_mm", "baseline", "mismatch", "effects", "final", "verdict"}
 
 

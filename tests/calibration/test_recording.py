@@ -1,10 +1,12 @@
 """Recordings: both layouts read, and every bad input named by file, row and column."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from calibration.errors import DataError
-from calibration.recording import read_joints, read_recording, write_recording
+from calibration.recording import FORMAT_DOC, read_joints, read_recording, write_recording
 from tests.conftest import cluster_design, measure
 
 HEADER = "q1,q2,q3,q4,q5,q6,x,y,z,qw,qx,qy,qz"
@@ -211,6 +213,8 @@ def test_other_separator_is_named(tmp_path, sep, name):
         read_recording(path)
     assert f"seems to be separated by {name}" in str(e.value) and "comma-separated" in str(e.value)
     assert str(path) in str(e.value) and e.value.row == 1 and "\n" not in str(e.value)
+    # the page it points to is in the repository (it pointed to ../shared/spec, outside it)
+    assert FORMAT_DOC in str(e.value) and (Path(__file__).resolve().parents[2] / FORMAT_DOC).is_file()
     for text in ("q1,q2,q3,q4,q5,q6\n0,1,2,3,4,5\n", "0,1,2,3,4,5\n"):  # joint files, with and without a header
         with pytest.raises(DataError, match=f"seems to be separated by {name}"):
             read_joints(write(tmp_path, text.replace(",", sep), "j.csv"))
@@ -225,6 +229,7 @@ def test_other_separator_with_decimal_commas_is_named(tmp_path, sep, name):
     msg = str(e.value)
     assert f"6 {'tab' if sep == chr(9) else chr(39) + ';' + chr(39)}-separated fields with decimal commas" in msg
     assert f"seems to be separated by {name}" in msg and "decimal points" in msg and e.value.row == 1
+    assert FORMAT_DOC in msg
     assert "\n" not in msg
     # A comma file whose row merely has a wrong field count keeps the plain message
     with pytest.raises(DataError, match="expected 6 fields, found 7"):

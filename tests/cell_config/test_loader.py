@@ -612,3 +612,27 @@ def test_the_cli_refuses_an_unknown_top_level_key_in_one_line(tmp_path, capsys):
     assert_bad_input(capsys, ["--cell", str(path), "plan", "--robot", "R1", "--out", str(out)], str(path),
                      "registraton", "valid keys: name, robots")
     assert not out.exists()
+
+
+@pytest.mark.parametrize("kind, name, extra, key", [
+    ("robots", "MA2010.yaml", "pulse_zeros: [0, 0, 0, 0, 0, 0]\n", "pulse_zeros"),  # a misspelt convention
+    ("robots", "MA1440.yaml", "base_height: 450\n", "base_height"),  # the unit left out of the name
+    ("robots", "MA2010.yaml", None, "joint_limits_deg.lowr"),  # a misspelt limit under its block
+    ("tools", "weldgun_marker.yaml", "positon_mm: [0, 0, 0]\n", "positon_mm"),
+    ("tools", "mti_marker.yaml", "quaternion_xyzw: [0, 0, 0, 1]\n", "quaternion_xyzw"),
+])
+def test_robot_and_tool_yaml_refuse_an_unknown_key(tmp_path, kind, name, extra, key):
+    """A robot or tool YAML ignored keys it did not know: a misspelt ``pulse_zeros`` left the pulse convention at its
+    default with no word (the cell file refused its own misspelt keys). Every key of the packaged files is known."""
+    from cell_config import load_tool
+    from cell_config.loader import ROBOT_KEYS, TOOL_KEYS
+
+    text = (DEFAULT_CELL.parent / kind / name).read_text()
+    load = load_robot if kind == "robots" else load_tool
+    assert set(yaml.safe_load(text)) <= set(ROBOT_KEYS if kind == "robots" else TOOL_KEYS)
+    bad = tmp_path / name
+    bad.write_text(text + extra if extra else text.replace("  lower:", "  lowr:"))
+    with pytest.raises(ConfigError) as e:
+        load(bad)
+    assert e.value.key == key and "unknown key" in e.value.reason and "valid keys:" in e.value.reason
+    assert e.value.path == str(bad) and "\n" not in str(e.value)
