@@ -7,8 +7,8 @@ from pathlib import Path
 from typing import Any, Callable, Literal
 
 from app.analysis.fitting import fitter_for
-from app.cli.common import add_report_options, add_topup_options, cell_spec, command_line, epoch_bar, log, \
-    non_negative_int, positive_float, read_given_arg, read_recording_arg, show_progress, tolerance_from_args, \
+from app.cli.common import add_report_options, add_topup_options, cell_spec, command_line, epoch_bar, \
+    load_model_for, log, non_negative_int, positive_float, read_given_arg, read_recording_arg, show_progress, tolerance_from_args, \
     validation_count, warn_gross_rows, write_json
 from calibration.errors import CellCalError
 
@@ -244,6 +244,7 @@ def cmd_collect(args: argparse.Namespace) -> int:
     from app.cell.collect import SessionAborted
     from app.demo.run import collect_arm
     from app.cell.session_store import SessionStore
+    from calibration.models import ConstantModel
 
     cell = cell_spec(args)
     cell.robot(args.robot)
@@ -260,6 +261,9 @@ def cmd_collect(args: argparse.Namespace) -> int:
         raise CellCalError(f"{args.session}: --session is a file; a session is a folder: choose a new folder")
     plan = _load_plan(args.plan, args.robot) if args.plan else None
     config, safety = motion_config(cell, args), safety_for(cell, args)
+    robot = cell.robot(args.robot)
+    model = (load_model_for(args.model, robot) if args.model else  # the -v lines' residuals
+             ConstantModel(robot.name, "nominal", robot.model(), 0, {}))
     with runtime as rt:
         if args.dry_run:
             return _dry_run(args, rt, safety, plan, config)
@@ -267,7 +271,8 @@ def cmd_collect(args: argparse.Namespace) -> int:
                              f"{config.speed_fraction:g} of full speed")
         try:
             result = collect_arm(rt, safety, args.robot, plan, Path(args.session), config,
-                                 resume=args.resume, retry_skipped=args.retry_skipped, progress=show_progress(args))
+                                 resume=args.resume, retry_skipped=args.retry_skipped, progress=show_progress(args),
+                                 model=model, model_name=args.model or f"the nominal {args.robot}")
         except SessionAborted:
             _print_events(args.session)
             raise
@@ -643,6 +648,8 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                    help="exit 0 even when targets stay skipped (without it a run that ends with targets not measured "
                         "says so and exits 2)")
     p.add_argument("--json", help="write the session outcome as JSON")
+    p.add_argument("--model", help="model file in use for this arm: with -v each measured target's line gives its "
+                                   "residual against it (default: the cell's nominal arm)")
     add_motion_options(p)
     p = add("export", cmd_export, "write a session's measured samples as a recording CSV", reads_cell=False)
     p.add_argument("--session", required=True, help="session folder")
