@@ -454,7 +454,8 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         section = evaluation_section(f"Recalibration of {args.robot}", models, validation, args.report, tolerance,
                                      "the fresh validation poses",  # the model in service after the decision
                                      recommended=f"candidate {model.method}" if decision.replaced or in_service is None
-                                     else f"in service {in_service.method}", why=[decision.summary()],
+                                     else f"in service {in_service.method}",
+                                     why=[decision.summary(), recalibration_rule(model, in_service, tolerance)],
                                      next_steps=[f"{decision.current_path} now holds the {model.method} candidate "
                                                  "(the previous model archived); sign below to accept it."
                                                  if decision.replaced or in_service is None else
@@ -463,6 +464,18 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         page = write_html(Page(section.title, command_line(args), tolerance, report_record, [section]), args.report)
         print(f"report: {page}")
     return 0
+
+
+def recalibration_rule(candidate: Any, in_service: Any, tolerance: Any) -> str:
+    """The report's why for a recalibration: the models' parameter counts and the test that decided."""
+    new = f"The candidate {candidate.method} has {candidate.n_parameters} parameters, fitted on the training poses"
+    if in_service is None:
+        return (f"{new}. With no model in service, the rule is the tolerance: it is installed when its position RMS "
+                f"on the fresh validation poses (measured after the fit, not used by it) is at most "
+                f"{tolerance.position_mm:g} mm.")
+    return (f"{new}; the model in service ({in_service.method}) has {in_service.n_parameters}. The rule: the candidate "
+            "replaces it only when its position RMS on the fresh validation poses (measured after the fit, used by "
+            "neither) is lower.")
 
 
 def cmd_demo(args: argparse.Namespace) -> int:

@@ -342,3 +342,37 @@ def test_the_printed_first_page_is_the_sign_off_page(kind, rendered):
     method_table = re.search(r'<details class="results">.*?<h3>(.*?)</h3>', r.dom, re.S).group(1)
     assert _flat(method_table) not in first, (kind, method_table)
     assert any(_flat(method_table) in p for p in rest), (kind, method_table)
+
+
+def test_diagnose_warns_of_unseen_parameter_directions_and_its_report_carries_it(tmp_path, recs, capsys):
+    """A training set that leaves directions unseen: fit and compare warn, and so does diagnose now (its report had
+    the observability note only under "why", not among the conditions to sign)."""
+    capsys.readouterr()
+    assert main(["diagnose", "--robot", "R1", "--train", str(recs / "narrow.csv"), "--test", str(recs / "wide.csv"),
+                 "--report", str(tmp_path / "rep")]) == 0
+    err = " ".join(capsys.readouterr().err.split())
+    unseen = [c for c in _conditions(tmp_path / "rep" / "report.html") if "parameter directions" in c]
+    assert len(unseen) == 1 and unseen[0] in err, (unseen, err[-1500:])
+
+
+@pytest.mark.parametrize("kind", REPORT_KINDS)
+def test_the_sign_off_page_says_why_with_the_parameter_count_and_the_test(kind, rendered):
+    """Every report's why box names the parameter count of the model it judges (the count in its method table's row)
+    and the test that decided: evaluate and recalibrate had no count, evaluate no why at all, diagnose no count."""
+    r = rendered(kind)
+    boxes = re.findall(r'<div class="why-box"[^>]*>(.*?)</div>', r.dom, re.S)
+    assert boxes, kind
+    why = " ".join(html_lib.unescape(re.sub(r"<[^>]+>", " ", b)) for b in boxes)
+    why = " ".join(why.split())
+    page = _Page(r.dom)
+    judged = re.search(r'data-status="[^"]+">\s*<h2><span class="status">[^<]+</span>: ([^<]+)</h2>', r.dom)
+    names = [judged.group(1)] if judged else re.findall(r"— (\S+): largest errors", page.all_text)
+    counts = [row[table[0].index("params")] for table in page.tables.values() if table and "params" in table[0]
+              for row in table[1:] if row[0] in names]  # the judged model's row in the method table
+    counts = [c for c in counts if c.isdigit()]  # (_Page runs the rows of a page's unclassed tables together)
+    assert counts or kind == "diagnose", (kind, names)  # diagnose's tables have no params column
+    assert all(f"{c} parameters" in why for c in counts), (kind, counts, why)
+    assert re.search(r"\d+ parameters", why), (kind, why)
+    test_used = {"evaluate": "tolerance", "compare": "t-test", "diagnose": "held-out", "recalibrate": "validation poses",
+                 "demo": "t-test"}[kind]
+    assert test_used in why, (kind, why)
