@@ -143,6 +143,12 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
     return result
 
 
+#: How :meth:`calibration.observability.Observability.summary` opens: the diagnosis's own note on the directions its
+#: geometry cannot see (on its damped basis) is left out of the report's why, where it stood beside the condition
+#: :func:`warn_unobservable` gives with another condition number.
+UNSEEN = "The data cannot see "
+
+
 def warn_unobservable(cr: Any, rec: Any, gravity: Any, options: Any) -> None:
     """Warn, as ``fit`` and ``compare`` do, when the training poses leave parameter directions of the geometry unseen
     (:meth:`calibration.methods.Fitter.observability`, the orientation weight of ``options``): the report's
@@ -299,7 +305,8 @@ def write_report(result: Diagnosis, out_dir: str | Path, tolerance: Any = None, 
                       [Table("Held-out accuracy", ["model", "RMS mm", "max mm", "RMS deg", "max deg"], rows),
                        Table("Effects found", ["kind", "on", "delta BIC", "held-out RMS before -> after mm"], effects,
                              [] if effects else ["None confirmed on the held-out data."]), *_days_tables(result)],
-                      images, why=[_why(result, models or {}), result.verdict, *result.notes])
+                      images, why=[_why(result, models or {}), result.verdict,
+                                   *(n for n in result.notes if not n.startswith(UNSEEN))])
     files.append(write_html(Page(section.title, command, tol, provenance(inputs), [section]), out))
     return files
 

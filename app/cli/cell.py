@@ -452,12 +452,13 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         if in_service is not None:
             models[f"in service {in_service.method}"] = in_service
         section = evaluation_section(f"Recalibration of {args.robot}", models, validation, args.report, tolerance,
-                                     "the fresh validation poses",  # the model in service after the decision
+                                     "the fresh validation recording",  # the model in service after the decision
                                      recommended=f"candidate {model.method}" if decision.replaced or in_service is None
                                      else f"in service {in_service.method}",
                                      why=[decision.summary(), recalibration_rule(model, in_service, tolerance)],
-                                     next_steps=[f"{decision.current_path} now holds the {model.method} candidate "
-                                                 "(the previous model archived); sign below to accept it."
+                                     next_steps=[f"{decision.current_path} now holds the {model.method} candidate"
+                                                 + (f" (the previous model archived as {decision.archived})"
+                                                    if decision.archived else "") + "; sign below to accept it."
                                                  if decision.replaced or in_service is None else
                                                  f"Nothing to install: {decision.current_path} still holds the model "
                                                  "in service; sign below to accept that it stays."])

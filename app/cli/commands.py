@@ -193,9 +193,12 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     result["counts_explained"] = _counts_explained()
     write_json(args.json, result)
     if args.report:
+        from pathlib import Path
+
         from app.analysis.report import write_evaluation_report
 
-        page = write_evaluation_report(f"Evaluation of {args.model} on {args.test}", command_line(args),
+        page = write_evaluation_report(f"Evaluation of {Path(args.model).name} on {Path(args.test).name}",
+                                       command_line(args),  # the full paths: in the command and the inputs table
                                        {model.method: model}, test, args.report, tolerance,
                                        [("model", args.model), ("test", args.test)], "the test recording",
                                        next_steps=_evaluate_next_steps(args, model, ex),

@@ -353,6 +353,8 @@ def test_diagnose_warns_of_unseen_parameter_directions_and_its_report_carries_it
     err = " ".join(capsys.readouterr().err.split())
     unseen = [c for c in _conditions(tmp_path / "rep" / "report.html") if "parameter directions" in c]
     assert len(unseen) == 1 and unseen[0] in err, (unseen, err[-1500:])
+    why = re.search(r'<div class="why-box".*?</div>', (tmp_path / "rep" / "report.html").read_text(), re.S).group(0)
+    assert "parameter directions" not in why  # once, among the conditions (not again with another figure)
 
 
 @pytest.mark.parametrize("kind", REPORT_KINDS)
@@ -376,3 +378,34 @@ def test_the_sign_off_page_says_why_with_the_parameter_count_and_the_test(kind, 
     test_used = {"evaluate": "tolerance", "compare": "t-test", "diagnose": "held-out", "recalibrate": "validation poses",
                  "demo": "t-test"}[kind]
     assert test_used in why, (kind, why)
+
+
+@pytest.mark.parametrize("kind", REPORT_KINDS)
+def test_every_report_prints_each_title_once_and_no_empty_within_column(kind, rendered):
+    """Within each part of the page (the sign-off page, each arm's section) no heading or fold title is repeated and
+    none repeats the page's title; the acceptance table shows "within tolerance" only with a figure in every row
+    (the diagnose report had "not available" beside PASS); the plots name at most MAX_SERIES rows; the recommended
+    model's row is highlighted."""
+    r = rendered(kind)
+    dom = r.dom.split("<script>")[0]
+    title = " ".join(re.search(r"<h1>(.*?)</h1>", dom, re.S).group(1).split())
+    parts = dom.split('<section class="report-section">')
+    for part in parts:
+        heads = [" ".join(html_lib.unescape(re.sub(r"<[^>]+>", "", h)).split())
+                 for h in re.findall(r"<(?:h[1-6]|summary)[^>]*>(.*?)</(?:h[1-6]|summary)>", part, re.S)]
+        assert len(heads) == len(set(heads)), (kind, heads)
+        assert part is parts[0] or title not in heads, (kind, title)
+    page = _Page(r.dom)
+    acc = page.tables.get("acceptance", [])
+    assert acc, kind
+    header = [h for h in acc if h and h[0] == "model"][0]
+    if "within tolerance" in header:
+        col = header.index("within tolerance")
+        assert all(re.fullmatch(r"\d+\.\d %", row[col]) for row in acc if row[0] != "model"), (kind, acc)
+    assert not re.search(r"not available[^<]{0,80}</td>\s*<td class=\"(?:pass|fail)\"", r.dom), kind
+    for caption in re.findall(r"<figcaption>(.*?)</figcaption>", r.dom):
+        if "; " in caption:  # the error plots name their rows after the last "; "
+            rows = caption.rsplit("; ", 1)[1].split(" (")[0].split(", ")
+            assert len(rows) <= MAX_SERIES, (kind, caption)
+    recommended = re.findall(r'<tr class="recommended-row"><td>([^<]+)</td>', r.dom)
+    assert recommended, kind
