@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any, Callable, Literal
 
@@ -422,6 +423,8 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         fitter = fitter_for(robot, train, cpa, FitOptions(epoch_progress=epoch_bar(args)))
         warn_gross_rows(fitter)  # the rows are in the model's info too
         model, _ = fitter.fit(args.method)
+        if model.info.get("warning"):  # as fit warns (the directions the training poses leave unseen)
+            print(f"warning: {model.info['warning']}", file=sys.stderr)
     inputs = [("train", work / "train.csv"), *(("add", a) for a in args.add),
               ("cpa", work / "cpa.csv" if cpa else None),
               ("validation", work / "validation.csv")]

@@ -409,3 +409,12 @@ def test_every_report_prints_each_title_once_and_no_empty_within_column(kind, re
             assert len(rows) <= MAX_SERIES, (kind, caption)
     recommended = re.findall(r'<tr class="recommended-row"><td>([^<]+)</td>', r.dom)
     assert recommended, kind
+
+
+def test_recalibrate_warns_as_fit_does_and_its_report_carries_it(rendered):
+    """recalibrate fitted without a word about the parameter directions its (grid) training poses leave unseen, which
+    fit warns of on the same data; the warning is now given and among the report's conditions."""
+    r = rendered("recalibrate")
+    unseen = [w for w in r.given if "parameter directions" in w]
+    assert len(unseen) == 1 and unseen[0] in _conditions(r.html), r.given
+    assert 'data-status="accepted with conditions"' in r.dom or 'data-status="not accepted"' in r.dom
