@@ -363,6 +363,7 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         model_to_rebase, rebase_candidate
     from app.provenance import provenance, with_provenance
     from app.cell.session_plan import validation_plan
+    from calibration.models import ConstantModel
     from calibration.recording import read_recording, with_added
 
     cell = cell_spec(args)
@@ -387,6 +388,9 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     work = model_dir / "sessions" / stamp
     seed = args.validation_seed if args.validation_seed is not None else int(_time.time()) % 100_000
     config, safety = motion_config(cell, args), safety_for(cell, args)
+    in_use = ({"model": service.model, "model_name": "the model in service"} if service.model is not None else
+              {"model": ConstantModel(robot.name, "nominal", robot.model(), 0, {}),
+               "model_name": f"the nominal {args.robot}"})  # what -v's line per target compares with
     with runtime as rt:
         session = Path(args.session) if args.session else work / "train"
         parked = {n: d.read_joints().q for n, d in rt.others(args.robot).items()}
@@ -402,9 +406,11 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
             args.stop_hint = (f" (nothing installed; the training session so far is {session}: finish it with "
                               f"cellcal collect --robot {args.robot} --session {session} --resume, then "
                               f"recalibrate --session {session})")
-            collect_arm(rt, safety, args.robot, plan, session, config, progress=show_progress(args))
+            collect_arm(rt, safety, args.robot, plan, session, config, progress=show_progress(args),
+                        **in_use)
         args.stop_hint = f" (nothing installed; recalibrate --session {session} reuses the training session)"
-        collect_arm(rt, safety, args.robot, val_plan, work / "validation", config, progress=show_progress(args))
+        collect_arm(rt, safety, args.robot, val_plan, work / "validation", config, progress=show_progress(args),
+                    **in_use)
     read = lambda p: read_recording(p, robot.robot.lower_rad, robot.robot.upper_rad)  # noqa: E731
     export(session, work / "train.csv", kinds=("anchor", "perturb"))
     cpa = None

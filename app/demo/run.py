@@ -36,6 +36,7 @@ from app.cell.session_plan import PlanSpec, session_plan
 from calibration.errors import ConfigError
 from calibration.files import atomic_write_text
 from calibration.methods import METHODS
+from calibration.models import ConstantModel
 from cell_config.loader import CellSpec
 
 log = logging.getLogger("cellcal.app")
@@ -269,7 +270,9 @@ def run_demo(out_dir: str | Path, cell: CellSpec, config: DemoConfig = DemoConfi
             plan.save(out / robot / "plan.json")
             log.info("%s: %d targets (%s)", robot, len(plan), plan.params)
             sessions[robot] = collect_arm(sim, safety, robot, plan, out / robot / "session", config.collect,
-                                          progress=config.progress, clock=sim.clock.now)
+                                          progress=config.progress, clock=sim.clock.now,
+                                          model=ConstantModel(robot, "nominal", cell.robot(robot).model(), 0, {}),
+                                          model_name=f"the nominal {robot}")  # -v: each target's residual
         frames = sim.frames_received
     for robot in config.robots:
         rec = export_recordings(out / robot / "session", out / robot, cell, robot)

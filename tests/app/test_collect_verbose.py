@@ -71,3 +71,17 @@ def test_collect_v_takes_the_residual_against_the_model_given(tmp_path, capsys, 
     np.testing.assert_allclose([float(m.group(5)) for m in lines], e.position_mm, atol=6e-4)
     assert np.mean(e.position_mm) < 0.5 * np.mean(errors(ConstantModel("R1", "nominal", load_cell().robot(
         "R1").model(), 0, {}), first).position_mm)  # the fitted model's residuals, not the nominal's
+
+
+def test_recalibrate_v_shows_the_lines_against_the_model_in_service(tmp_path, capsys, verbose_logging):
+    """recalibrate collects too: with -v its targets' lines compare with the model in service (the nominal arm when
+    there is none)."""
+    plan = tmp_path / "plan.json"
+    assert main(["plan", "--robot", "R1", "--out", str(plan), "--design", "grid", "--q2-step", "35",
+                 "--q3-step", "30"]) == 0
+    argv = ["recalibrate", "--robot", "R1", "--plan", str(plan), "--model-dir", str(tmp_path / "models"), "--method",
+            "nls1", "--validation", "4", "--validation-seed", "2", "--sim", *SIM_FAST, "--no-progress"]
+    capsys.readouterr()
+    assert main(["-v", *argv]) == 0
+    lines = [LINE.fullmatch(ln) for ln in capsys.readouterr().err.splitlines() if re.match(r"R1 target \d+/", ln)]
+    assert len(lines) == 77 + 4 and all(lines) and {m.group(7) for m in lines} == {"the nominal R1"}
