@@ -52,19 +52,9 @@ def _conditions(html: Path) -> list[str]:
     return [" ".join(h.unescape(i).split()) for i in items]
 
 
-def _run(capsys, argv: list[str]) -> list[str]:
-    capsys.readouterr()
-    assert main(argv) == 0
-    return _warnings(capsys.readouterr().err)
-
-
-def test_evaluate_report_carries_the_extrapolation_warning(tmp_path, recs, capsys):
-    model = tmp_path / "m.yaml"
-    assert main(["fit", "--robot", "R1", "--train", str(recs / "train.csv"), "--method", "nls1", "--out", str(model)]) == 0
-    given = _run(capsys, ["evaluate", "--model", str(model), "--test", str(recs / "wide.csv"), "--report",
-                          str(tmp_path / "rep")])
+def test_evaluate_report_carries_the_extrapolation_warning(written, recs):
+    html, given = written("evaluate")
     assert any("outside the joint range" in w for w in given), given
-    html = tmp_path / "rep" / "report.html"
     assert _conditions(html) == given  # each warning, once, in the order given
     page = _Page(html.read_text())
     assert "accepted with conditions" in page.all_text.lower() or "not accepted" in page.all_text.lower()
@@ -72,22 +62,18 @@ def test_evaluate_report_carries_the_extrapolation_warning(tmp_path, recs, capsy
     assert "cellcal select" in steps and str(recs / "wide.csv") in steps and str(recs / "train.csv") in steps
 
 
-def test_compare_report_carries_the_comparison_warnings(tmp_path, recs, capsys):
-    given = _run(capsys, ["compare", "--robot", "R1", "--train", str(recs / "narrow.csv"), "--test",
-                          str(recs / "wide.csv"), "--methods", "nominal,nls1,pi", "--report",
-                          str(tmp_path / "rep")])
+def test_compare_report_carries_the_comparison_warnings(written):
+    html, given = written("compare")
     assert given, "the narrow training set gave no warning: this test checks nothing"
-    conditions = _conditions(tmp_path / "rep" / "report.html")
+    conditions = _conditions(html)
     assert set(given) <= set(conditions) and len(conditions) == len(set(conditions))
 
 
-def test_diagnose_report_carries_its_warnings(tmp_path, capsys):
-    write_backlash_case(tmp_path)
-    given = _run(capsys, ["diagnose", "--robot", "R1", "--train", str(tmp_path / "fit.csv"), "--test",
-                          str(tmp_path / "ho.csv"), "--report", str(tmp_path / "rep")])
-    html = tmp_path / "rep" / "report.html"
+def test_diagnose_report_carries_its_warnings(written):
+    html, given = written("diagnose")
     assert set(given) <= set(_conditions(html))
-    assert f"--train {tmp_path / 'fit.csv'}" in html.read_text()  # the command line, not just "cellcal diagnose"
+    root = html.parent.parent
+    assert f"--train {root / 'fit.csv'}" in html.read_text()  # the command line, not just "cellcal diagnose"
     headings = re.findall(r"<h[1-6][^>]*>(.*?)</h[1-6]>", html.read_text(), re.S)
     assert headings.count("Diagnosis: R1") == 1 and len(headings) == len(set(headings))  # every title once
 
@@ -221,8 +207,9 @@ def _demo_page(root: Path, recs: Path) -> list[str]:
     from cell_config import load_cell
 
     test = read_recording(recs / "wide.csv")
-    cmps = {r: run_comparison(fitter_for(load_cell().robot("R1"), read_recording(recs / "train.csv")), test,
-                              ["nominal", "nls1", "pi"]) for r in ("R1", "R2")}
+    cmp = run_comparison(fitter_for(load_cell().robot("R1"), read_recording(recs / "train.csv")), test,
+                         ["nominal", "nls1", "pi"])
+    cmps = {"R1": cmp, "R2": cmp}  # the page's layout is under test: one comparison serves as both arms'
     arm = {"samples": 10, "targets": 10, "skipped_targets": 0, "train_samples": 5, "cpa_samples": 0,
            "test_samples": 5, "collect_seconds": 1.0}
     summary = {"robots": {"R1": arm, "R2": arm}, "mocap_frames_received": 100,
@@ -280,17 +267,31 @@ def _flat(text: str) -> str:
 
 
 @pytest.fixture(scope="module")
-def rendered(tmp_path_factory, recs) -> Callable[[str], Rendered]:
-    """Each report kind written and rendered once (screenshot, DOM and PDF from one browser run), on first use."""
+def written(tmp_path_factory, recs) -> Callable[[str], tuple[Path, list[str]]]:
+    """Each report kind written once, on first use: its report.html and the warnings the run printed."""
+    cache: dict[str, tuple[Path, list[str]]] = {}
+
+    def get(kind: str) -> tuple[Path, list[str]]:
+        if kind not in cache:
+            root = tmp_path_factory.mktemp(kind)
+            given = _write_report(kind, root, recs)
+            cache[kind] = (root / "rep" / "report.html", given)
+        return cache[kind]
+
+    return get
+
+
+@pytest.fixture(scope="module")
+def rendered(written) -> Callable[[str], Rendered]:
+    """Each report kind rendered once (screenshot, DOM and PDF from one browser run), on first use."""
     browser_or_skip()
     pypdf = pytest.importorskip("pypdf", reason="pypdf (the dev extras) reads the printed pages")
     cache: dict[str, Rendered] = {}
 
     def get(kind: str) -> Rendered:
         if kind not in cache:
-            root = tmp_path_factory.mktemp(kind)
-            given = _write_report(kind, root, recs)
-            html = root / "rep" / "report.html"
+            html, given = written(kind)
+            root = html.parent.parent
             shot, dom, pdf = screenshot_dom_pdf(root, html.as_uri(), f"{kind}_first_screen.png", SCREEN)
             pages = [p.extract_text() or "" for p in pypdf.PdfReader(pdf).pages]
             cache[kind] = Rendered(html, given, shot, dom, pages)
