@@ -112,7 +112,6 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
     except ModelError as e:
         log.warning("joint compliance cannot be tested: %s", e)
         gravity = None
-    warn_unobservable(cr, rec, gravity, options)
     from app.progress import bar
     from calibration.diagnosis.core import DIAGNOSE_STEPS
 
@@ -123,6 +122,7 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
 
         result = diagnose(robot, nominal, rec, ho, used, gravity, limits, options, progress=step)
         steps.update(steps.total - steps.n)
+    warn_unobservable(cr, rec, gravity, options)  # once the data passed the diagnosis's checks: a refusal is one line
     inputs = [*(("data", p) for p in paths), *(("add", p) for p in added), ("heldout", heldout), ("model", model)]
     if days is not None:
         result = replace(result, days=days)
