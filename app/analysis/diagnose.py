@@ -122,6 +122,7 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
 
         result = diagnose(robot, nominal, rec, ho, used, gravity, limits, options, progress=step)
         steps.update(steps.total - steps.n)
+    warn_unobservable(cr, rec, gravity, options)  # once the data passed the diagnosis's checks: a refusal is one line
     inputs = [*(("data", p) for p in paths), *(("add", p) for p in added), ("heldout", heldout), ("model", model)]
     if days is not None:
         result = replace(result, days=days)
@@ -140,6 +141,26 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
             models = {f"{result.baseline.model} (before)": used, **models}
         write_report(result, report_dir, tolerance, ho, models, inputs, command)
     return result
+
+
+#: How :meth:`calibration.observability.Observability.summary` opens: the diagnosis's own note on the directions its
+#: geometry cannot see (on its damped basis) is left out of the report's why, where it stood beside the condition
+#: :func:`warn_unobservable` gives with another condition number.
+UNSEEN = "The data cannot see "
+
+
+def warn_unobservable(cr: Any, rec: Any, gravity: Any, options: Any) -> None:
+    """Warn, as ``fit`` and ``compare`` do, when the training poses leave parameter directions of the geometry unseen
+    (:meth:`calibration.methods.Fitter.observability`, the orientation weight of ``options``): the report's
+    conditions carry it (it was only among the diagnosis's notes, under "why")."""
+    from calibration.methods import FitOptions, Fitter
+
+    a = getattr(options, "a", None)
+    fit_options = FitOptions() if a is None else FitOptions(a=a)
+    text = Fitter(cr.name, cr.model(), rec, fit_options, None, gravity,
+                  (cr.robot.lower_rad, cr.robot.upper_rad)).observability().summary()
+    if text:
+        log.warning("%s", text)
 
 
 def _days(robot: str, nominal: Any, paths: list[str | Path], limits: tuple[np.ndarray, np.ndarray]) -> tuple[Any, Any]:
@@ -284,9 +305,19 @@ def write_report(result: Diagnosis, out_dir: str | Path, tolerance: Any = None, 
                       [Table("Held-out accuracy", ["model", "RMS mm", "max mm", "RMS deg", "max deg"], rows),
                        Table("Effects found", ["kind", "on", "delta BIC", "held-out RMS before -> after mm"], effects,
                              [] if effects else ["None confirmed on the held-out data."]), *_days_tables(result)],
-                      images, why=[result.verdict, *result.notes])
+                      images, why=[_why(result, models or {}), result.verdict,
+                                   *(n for n in result.notes if not n.startswith(UNSEEN))])
     files.append(write_html(Page(section.title, command, tol, provenance(inputs), [section]), out))
     return files
+
+
+def _why(result: Diagnosis, models: dict[str, Any]) -> str:
+    """The test that chose the effects and the parameter counts, before the diagnosis's own verdict."""
+    counts = ", ".join(f"{name}: {m.n_parameters} parameters" for name, m in models.items())
+    return (f"An effect is kept only when it lowers the BIC on the fit data and improves the held-out error ("
+            f"{result.heldout_source}) beyond the noise floor; the held-out position RMS goes from "
+            f"{result.baseline.rms_mm:.3f} mm ({result.baseline.model}) to {result.final.rms_mm:.3f} mm "
+            f"({result.final.model}). {counts}.")
 
 
 def _days_tables(result: Diagnosis) -> list[Any]:

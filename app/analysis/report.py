@@ -458,14 +458,15 @@ def evaluation_section(title: str, models: dict[str, Any], rec: Recording, out_d
 
 def write_evaluation_report(title: str, command: str, models: dict[str, Any], rec: Recording, out_dir: str | Path,
                             tol: Tolerance, inputs: list[tuple[str, Any]], label: str,
-                            paragraphs: list[str] | None = None, next_steps: list[str] | None = None) -> Path:
+                            paragraphs: list[str] | None = None, next_steps: list[str] | None = None,
+                            why: list[str] | None = None) -> Path:
     """``evaluate``/``recalibrate --report``: ``report.html`` (+ its PNGs) in ``out_dir``; returns the page."""
     from app.provenance import provenance
 
     out = Path(out_dir)
     make_folders(out)  # removed again when a staged set of outputs fails (calibration.files.staged_outputs)
     record = provenance(inputs)
-    section = evaluation_section(title, models, rec, out, tol, label, paragraphs, next_steps=next_steps)
+    section = evaluation_section(title, models, rec, out, tol, label, paragraphs, why=why, next_steps=next_steps)
     return write_html(Page(title, command, tol, record, [section]), out)
 
 

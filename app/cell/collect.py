@@ -37,6 +37,7 @@ from app.cell.planning import Plan
 from app.cell.safety import CellSafety
 from app.cell.session_store import EventKind, Sample, SessionStore
 from calibration.errors import CellCalError, ConfigError, DataError
+from calibration.metrics import errors
 from calibration.recording import Recording, write_recording
 from drivers.base import MocapSource, RobotDriver
 from drivers.errors import DriverDisconnected, DriverError, DriverTimeout, InvalidArgument, RobotFault
@@ -154,14 +155,40 @@ def _check_readback(q: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> None
                              transient=False)
 
 
+def target_line(robot: str, index: int, n_targets: int, kind: str, cluster: int, sample: Sample, model: Any,
+                model_name: str, max_marker_error_mm: float) -> str:
+    """One line on a measured target (``collect -v``): its residual against ``model`` and the mocap's health.
+
+    Args:
+        robot, index, n_targets, kind, cluster: which target (0-based ``index`` of ``n_targets``).
+        sample: the averaged measurement.
+        model: the model the residual is taken against (``fk(q) -> (R, p)``); None for no residual.
+        model_name: how the line names it (e.g. ``nominal``, a model file).
+        max_marker_error_mm: the frame rejection threshold, shown beside the marker error.
+    """
+    if model is None:
+        residual = "no model to compare with"
+    else:
+        rec = Recording(sample.q[None, :], np.asarray(sample.p, dtype=float)[None, :],
+                        np.asarray(sample.quat, dtype=float)[None, :], {}, f"target {index}")
+        e = errors(model, rec)
+        residual = (f"residual {float(e.position_mm[0]):.3f} mm / {float(e.orientation_deg[0]):.3f} deg against "
+                    f"{model_name}")
+    again = f", {sample.attempts} attempts" if sample.attempts > 1 else ""
+    return (f"{robot} target {index + 1}/{n_targets} ({kind}, cluster {cluster}): {residual}; mocap {sample.frames} "
+            f"frames in the window, tracking spread {sample.std_pos_mm:.3f} mm / {sample.std_rot_deg:.3f} deg, marker "
+            f"error {sample.marker_err:.3f} mm (frames above {max_marker_error_mm:g} mm rejected){again}")
+
+
 class _Session:
     """State of one run: devices, store, direction memory, counters."""
 
     def __init__(self, store: SessionStore, plan: Plan, driver: RobotDriver, mocap: MocapSource, body_id: int,
                  safety: CellSafety, others: Mapping[str, np.ndarray], other_drivers: Mapping[str, RobotDriver],
                  config: CollectConfig, clock: Callable[[], float] = time.monotonic,
-                 retry: set[int] | None = None) -> None:
+                 retry: set[int] | None = None, model: Any = None, model_name: str = "the model") -> None:
         self.store, self.plan, self.driver, self.mocap = store, plan, driver, mocap
+        self.model, self.model_name = model, model_name  # each target's residual in the -v line
         self.retry = set(retry or ())  # skipped targets this run measures again (a new row replaces the skip)
         self.body_id, self.safety, self.config = body_id, safety, config
         self.static_others = {k: np.asarray(v, dtype=float) for k, v in others.items()}
@@ -274,6 +301,9 @@ class _Session:
                 sample = self.measure_here(index, attempts) if at_target else self.measure(index, attempts)
                 self.store.add_sample(sample, target.robot, target.kind, target.cluster, self.lower, self.upper,
                                       replace_skip=again)
+                if log.isEnabledFor(logging.INFO):  # collect -v: one line per target
+                    log.info(target_line(target.robot, index, len(self.plan), target.kind, target.cluster, sample,
+                                         self.model, self.model_name, c.max_marker_error_mm))
                 return None
             except _MeasureFailed as e:
                 measure_faults += 1
@@ -424,7 +454,8 @@ def run_session(session_dir: str | Path, driver: RobotDriver, mocap: MocapSource
                 body_id: int, plan: Plan | None = None, others: Mapping[str, np.ndarray] | None = None,
                 other_drivers: Mapping[str, RobotDriver] | None = None, config: CollectConfig = CollectConfig(),
                 resume: bool = False, retry_skipped: bool = False, progress: bool = True,
-                clock: Callable[[], float] = time.monotonic) -> SessionResult:
+                clock: Callable[[], float] = time.monotonic, model: Any = None,
+                model_name: str = "the model") -> SessionResult:
     """Run (or resume) a guided collection session. Devices must be connected.
 
     Args:
@@ -444,6 +475,9 @@ def run_session(session_dir: str | Path, driver: RobotDriver, mocap: MocapSource
         progress: show a progress bar with an ETA.
         clock: time source of the sample stamps [s] (a simulated cell passes its simulated clock, so a seeded
             run stamps the same times).
+        model: the model in use for this arm (``fk(q) -> (R, p)``): with INFO logging on (``collect -v``) each
+            measured target logs one line with its residual against it and the mocap's health (:func:`target_line`).
+        model_name: how that line names the model.
 
     Raises:
         SessionLocked: another process uses the folder (refused before anything is read or moved).
@@ -464,7 +498,7 @@ def run_session(session_dir: str | Path, driver: RobotDriver, mocap: MocapSource
         done = store.done() - retry
         pending = [i for i in range(len(plan)) if i not in done]
         session = _Session(store, plan, driver, mocap, body_id, safety, others or {}, other_drivers or {}, config,
-                           clock, retry)
+                           clock, retry, model, model_name)
         try:
             n_new = session.run(pending, len(done), progress)
         except _Halt as h:

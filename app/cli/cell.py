@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any, Callable, Literal
 
 from app.analysis.fitting import fitter_for
-from app.cli.common import add_report_options, add_topup_options, cell_spec, command_line, epoch_bar, log, \
-    non_negative_int, positive_float, read_given_arg, read_recording_arg, show_progress, tolerance_from_args, \
+from app.cli.common import add_report_options, add_topup_options, cell_spec, command_line, epoch_bar, \
+    load_model_for, log, non_negative_int, positive_float, read_given_arg, read_recording_arg, show_progress, tolerance_from_args, \
     validation_count, warn_gross_rows, write_json
 from calibration.errors import CellCalError
 
@@ -244,6 +245,7 @@ def cmd_collect(args: argparse.Namespace) -> int:
     from app.cell.collect import SessionAborted
     from app.demo.run import collect_arm
     from app.cell.session_store import SessionStore
+    from calibration.models import ConstantModel
 
     cell = cell_spec(args)
     cell.robot(args.robot)
@@ -260,6 +262,9 @@ def cmd_collect(args: argparse.Namespace) -> int:
         raise CellCalError(f"{args.session}: --session is a file; a session is a folder: choose a new folder")
     plan = _load_plan(args.plan, args.robot) if args.plan else None
     config, safety = motion_config(cell, args), safety_for(cell, args)
+    robot = cell.robot(args.robot)
+    model = (load_model_for(args.model, robot) if args.model else  # the -v lines' residuals
+             ConstantModel(robot.name, "nominal", robot.model(), 0, {}))
     with runtime as rt:
         if args.dry_run:
             return _dry_run(args, rt, safety, plan, config)
@@ -267,7 +272,8 @@ def cmd_collect(args: argparse.Namespace) -> int:
                              f"{config.speed_fraction:g} of full speed")
         try:
             result = collect_arm(rt, safety, args.robot, plan, Path(args.session), config,
-                                 resume=args.resume, retry_skipped=args.retry_skipped, progress=show_progress(args))
+                                 resume=args.resume, retry_skipped=args.retry_skipped, progress=show_progress(args),
+                                 model=model, model_name=args.model or f"the nominal {args.robot}")
         except SessionAborted:
             _print_events(args.session)
             raise
@@ -357,6 +363,7 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         model_to_rebase, rebase_candidate
     from app.provenance import provenance, with_provenance
     from app.cell.session_plan import validation_plan
+    from calibration.models import ConstantModel
     from calibration.recording import read_recording, with_added
 
     cell = cell_spec(args)
@@ -381,6 +388,9 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     work = model_dir / "sessions" / stamp
     seed = args.validation_seed if args.validation_seed is not None else int(_time.time()) % 100_000
     config, safety = motion_config(cell, args), safety_for(cell, args)
+    in_use = ({"model": service.model, "model_name": "the model in service"} if service.model is not None else
+              {"model": ConstantModel(robot.name, "nominal", robot.model(), 0, {}),
+               "model_name": f"the nominal {args.robot}"})  # what -v's line per target compares with
     with runtime as rt:
         session = Path(args.session) if args.session else work / "train"
         parked = {n: d.read_joints().q for n, d in rt.others(args.robot).items()}
@@ -396,9 +406,11 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
             args.stop_hint = (f" (nothing installed; the training session so far is {session}: finish it with "
                               f"cellcal collect --robot {args.robot} --session {session} --resume, then "
                               f"recalibrate --session {session})")
-            collect_arm(rt, safety, args.robot, plan, session, config, progress=show_progress(args))
+            collect_arm(rt, safety, args.robot, plan, session, config, progress=show_progress(args),
+                        **in_use)
         args.stop_hint = f" (nothing installed; recalibrate --session {session} reuses the training session)"
-        collect_arm(rt, safety, args.robot, val_plan, work / "validation", config, progress=show_progress(args))
+        collect_arm(rt, safety, args.robot, val_plan, work / "validation", config, progress=show_progress(args),
+                    **in_use)
     read = lambda p: read_recording(p, robot.robot.lower_rad, robot.robot.upper_rad)  # noqa: E731
     export(session, work / "train.csv", kinds=("anchor", "perturb"))
     cpa = None
@@ -417,6 +429,8 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         fitter = fitter_for(robot, train, cpa, FitOptions(epoch_progress=epoch_bar(args)))
         warn_gross_rows(fitter)  # the rows are in the model's info too
         model, _ = fitter.fit(args.method)
+        if model.info.get("warning"):  # as fit warns (the directions the training poses leave unseen)
+            print(f"warning: {model.info['warning']}", file=sys.stderr)
     inputs = [("train", work / "train.csv"), *(("add", a) for a in args.add),
               ("cpa", work / "cpa.csv" if cpa else None),
               ("validation", work / "validation.csv")]
@@ -447,17 +461,31 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         if in_service is not None:
             models[f"in service {in_service.method}"] = in_service
         section = evaluation_section(f"Recalibration of {args.robot}", models, validation, args.report, tolerance,
-                                     "the fresh validation poses",  # the model in service after the decision
+                                     "the fresh validation recording",  # the model in service after the decision
                                      recommended=f"candidate {model.method}" if decision.replaced or in_service is None
-                                     else f"in service {in_service.method}", why=[decision.summary()],
-                                     next_steps=[f"{decision.current_path} now holds the {model.method} candidate "
-                                                 "(the previous model archived); sign below to accept it."
+                                     else f"in service {in_service.method}",
+                                     why=[decision.summary(), recalibration_rule(model, in_service, tolerance)],
+                                     next_steps=[f"{decision.current_path} now holds the {model.method} candidate"
+                                                 + (f" (the previous model archived as {decision.archived})"
+                                                    if decision.archived else "") + "; sign below to accept it."
                                                  if decision.replaced or in_service is None else
                                                  f"Nothing to install: {decision.current_path} still holds the model "
                                                  "in service; sign below to accept that it stays."])
         page = write_html(Page(section.title, command_line(args), tolerance, report_record, [section]), args.report)
         print(f"report: {page}")
     return 0
+
+
+def recalibration_rule(candidate: Any, in_service: Any, tolerance: Any) -> str:
+    """The report's why for a recalibration: the models' parameter counts and the test that decided."""
+    new = f"The candidate {candidate.method} has {candidate.n_parameters} parameters, fitted on the training poses"
+    if in_service is None:
+        return (f"{new}. With no model in service, the rule is the tolerance: it is installed when its position RMS "
+                f"on the fresh validation poses (measured after the fit, not used by it) is at most "
+                f"{tolerance.position_mm:g} mm.")
+    return (f"{new}; the model in service ({in_service.method}) has {in_service.n_parameters}. The rule: the candidate "
+            "replaces it only when its position RMS on the fresh validation poses (measured after the fit, used by "
+            "neither) is lower.")
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -643,6 +671,8 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                    help="exit 0 even when targets stay skipped (without it a run that ends with targets not measured "
                         "says so and exits 2)")
     p.add_argument("--json", help="write the session outcome as JSON")
+    p.add_argument("--model", help="model file in use for this arm: with -v each measured target's line gives its "
+                                   "residual against it (default: the cell's nominal arm)")
     add_motion_options(p)
     p = add("export", cmd_export, "write a session's measured samples as a recording CSV", reads_cell=False)
     p.add_argument("--session", required=True, help="session folder")

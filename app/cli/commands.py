@@ -193,29 +193,49 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     result["counts_explained"] = _counts_explained()
     write_json(args.json, result)
     if args.report:
+        from pathlib import Path
+
         from app.analysis.report import write_evaluation_report
 
-        page = write_evaluation_report(f"Evaluation of {args.model} on {args.test}", command_line(args),
+        page = write_evaluation_report(f"Evaluation of {Path(args.model).name} on {Path(args.test).name}",
+                                       command_line(args),  # the full paths: in the command and the inputs table
                                        {model.method: model}, test, args.report, tolerance,
                                        [("model", args.model), ("test", args.test)], "the test recording",
-                                       next_steps=_evaluate_next_steps(args, model, ex))
+                                       next_steps=_evaluate_next_steps(args, model, ex),
+                                       why=[_evaluate_why(args, model)])
         print(f"report: {page}")
     return 0
+
+
+def _training_recording(model: Any) -> str:
+    """The training recording the model's provenance names (a Welding_Motoman folder for its two files), or
+    ``TRAIN.csv`` when it names none or several."""
+    from pathlib import Path
+
+    from app.provenance import PROVENANCE_KEY
+
+    trained = [i["path"] for i in (model.info.get(PROVENANCE_KEY) or {}).get("inputs", []) if i.get("role") == "train"]
+    folders = {str(Path(t).parent) for t in trained}  # a Welding_Motoman recording is a folder of two files
+    return trained[0] if len(trained) == 1 else folders.pop() if len(folders) == 1 else "TRAIN.csv"
+
+
+def _evaluate_why(args: argparse.Namespace, model: Any) -> str:
+    """The report's why for ``evaluate``: the model judged is the one given, nothing was chosen among others; what
+    it is (method, parameter count, training recording when its provenance names one) and the test used."""
+    trained = _training_recording(model)
+    on = "" if trained == "TRAIN.csv" else f", fitted on {trained}"
+    return (f"evaluate chooses no model: it judges the one given, {args.model} ({model.method}, {model.n_parameters} "
+            f"parameters{on}), on {args.test}, a recording it was not fitted on; the test is the tolerance on the "
+            "largest position and orientation errors there.")
 
 
 def _evaluate_next_steps(args: argparse.Namespace, model: Any, ex: dict[str, Any]) -> list[str]:
     """The report's next step when the test poses leave the model's training joint range: a top-up that covers them
     (``cellcal select``, the training recording named from the model's provenance); none otherwise (the verdict's
     default step then)."""
-    from pathlib import Path
-
-    from app.provenance import PROVENANCE_KEY
-
     if not ex["outside_training_range"]:
         return []
-    trained = [i["path"] for i in (model.info.get(PROVENANCE_KEY) or {}).get("inputs", []) if i.get("role") == "train"]
-    folders = {str(Path(t).parent) for t in trained}  # a Welding_Motoman recording is a folder of two files
-    given = trained[0] if len(trained) == 1 else folders.pop() if len(folders) == 1 else "TRAIN.csv"
+    given = _training_recording(model)
     return [f"{ex['outside_training_range']} of the {ex['poses']} poses lie outside the joint range the model was "
             f"trained on (by up to {ex['max_excess_deg']:.1f} deg): the model extrapolates there. Collect poses that "
             f"cover the task and refit: cellcal select --robot {model.robot} --data CANDIDATES.csv --given {given} "

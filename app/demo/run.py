@@ -36,6 +36,7 @@ from app.cell.session_plan import PlanSpec, session_plan
 from calibration.errors import ConfigError
 from calibration.files import atomic_write_text
 from calibration.methods import METHODS
+from calibration.models import ConstantModel
 from cell_config.loader import CellSpec
 
 log = logging.getLogger("cellcal.app")
@@ -120,17 +121,19 @@ class Recordings:
 
 def collect_arm(sim: SimCell, safety: CellSafety, robot: str, plan: Plan | None, session_dir: Path,
                 config: CollectConfig, *, resume: bool = False, retry_skipped: bool = False, progress: bool = True,
-                clock: Callable[[], float] | None = None) -> SessionResult:
+                clock: Callable[[], float] | None = None, model: Any = None,
+                model_name: str = "the model") -> SessionResult:
     """Collect one arm's session while the other arms stay parked, then park the arm again.
 
     The other arms' live poses (their drivers) feed every safety check. ``plan`` may be None on resume.
-    ``clock`` stamps the samples (default: wall time; the demo passes the simulated clock).
+    ``clock`` stamps the samples (default: wall time; the demo passes the simulated clock). ``model`` is the model
+    each measured target's residual is logged against with INFO logging on (:func:`app.cell.collect.target_line`).
     """
     driver = sim.drivers[robot]
     others = sim.others(robot)
     result = run_session(session_dir, driver, sim.mocap_for(robot), safety, body_id=sim.body_ids[robot], plan=plan,
                          other_drivers=others, config=config, resume=resume, retry_skipped=retry_skipped,
-                         progress=progress,
+                         progress=progress, model=model, model_name=model_name,
                          **({} if clock is None else {"clock": clock}))
     move_safely(driver, sim.park_q(robot), safety, others, config.speed_fraction, config.settle_timeout_s)
     return result
@@ -267,7 +270,9 @@ def run_demo(out_dir: str | Path, cell: CellSpec, config: DemoConfig = DemoConfi
             plan.save(out / robot / "plan.json")
             log.info("%s: %d targets (%s)", robot, len(plan), plan.params)
             sessions[robot] = collect_arm(sim, safety, robot, plan, out / robot / "session", config.collect,
-                                          progress=config.progress, clock=sim.clock.now)
+                                          progress=config.progress, clock=sim.clock.now,
+                                          model=ConstantModel(robot, "nominal", cell.robot(robot).model(), 0, {}),
+                                          model_name=f"the nominal {robot}")  # -v: each target's residual
         frames = sim.frames_received
     for robot in config.robots:
         rec = export_recordings(out / robot / "session", out / robot, cell, robot)

@@ -62,17 +62,30 @@ def run_browser(work: Path, url: str, *mode: str, size: tuple[int, int] = (1024,
 
 
 def screenshot_and_dom(work: Path, url: str, name: str, size: tuple[int, int] = (1024, 768),
-                       budget_ms: int = 5000) -> tuple[Path, str]:
+                       budget_ms: int = 5000, extra: tuple[str, ...] = ()) -> tuple[Path, str]:
     """A PNG screenshot of ``url`` as ``work/name`` (kept in ``$CELLCAL_SCREENSHOT_DIR`` too when set) and the DOM
     after the page's scripts ran, from one browser run (each run costs seconds of a core: SwiftShader WebGL)."""
     png = work / name
-    dom = run_browser(work, url, f"--screenshot={png}", "--dump-dom", size=size, budget_ms=budget_ms)
+    dom = run_browser(work, url, f"--screenshot={png}", "--dump-dom", *extra, size=size, budget_ms=budget_ms)
     assert png.exists(), (work / "browser.log").read_text()[-2000:]
     keep = os.environ.get("CELLCAL_SCREENSHOT_DIR")  # to look at them: CELLCAL_SCREENSHOT_DIR=DIR pytest ...
     if keep:
         os.makedirs(keep, exist_ok=True)
         shutil.copy(png, os.path.join(keep, name))
     return png, dom
+
+
+def screenshot_dom_pdf(work: Path, url: str, name: str, size: tuple[int, int] = (1280, 800),
+                       budget_ms: int = 3000) -> tuple[Path, str, Path]:
+    """One browser run: a first-screen PNG ``work/name`` (see :func:`screenshot_and_dom`), the DOM after the page's
+    scripts ran and the page printed to PDF (``work/name`` with ``.pdf``, no header or footer, the page's own
+    ``@page`` size). Chromium prints before it takes the shot, so the shot shows the page as printed (what the print
+    stylesheet's script unfolded stays open); the DOM positions of the sign-off parts are read on load, before."""
+    pdf = work / Path(name).with_suffix(".pdf").name
+    png, dom = screenshot_and_dom(work, url, name, size, budget_ms, extra=(f"--print-to-pdf={pdf}",
+                                                                           "--no-pdf-header-footer"))
+    assert pdf.exists(), (work / "browser.log").read_text()[-2000:]
+    return png, dom, pdf
 
 
 def screenshot(work: Path, url: str, name: str, size: tuple[int, int] = (1024, 768), budget_ms: int = 5000) -> Path:
