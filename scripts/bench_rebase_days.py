@@ -57,8 +57,8 @@ sys.path.insert(0, str(ROOT / "scripts"))
 from bench_days import CLUSTER_SIZE, DATA, GOAL_RATIO, UNITS, make_fitter, spread_clusters  # noqa: E402
 from calibration.models import load_model, save_model  # noqa: E402
 from calibration.poe import pose_error  # noqa: E402
-from calibration.rebase import (AUTO_CHOICES, CHOICES, RebaseProblem, RebaseRefused, choice_options,  # noqa: E402
-                               choose_directions, rebase, rebase_auto)
+from calibration.rebase import (AUTO_CHOICES, CHOICES, PROJECTED, RebaseProblem, RebaseRefused,  # noqa: E402
+                               choice_options, choose_directions, rebase, rebase_auto)
 from calibration.recording import Recording, read_recording  # noqa: E402
 from cell_config import load_cell  # noqa: E402
 
@@ -234,7 +234,7 @@ def summarise(rows: list[dict[str, Any]], methods: list[str]) -> dict[str, Any]:
                                                if r["test"] != "0620 before"),
             "worst_ratio_to_given": max(r["rebased"]["mean"] / r["given"]["mean"] for r in rs),
             "old_worst_ratio_to_given": max(r["old_rebased"]["mean"] / r["given"]["mean"] for r in rs),
-            "choices": {c: sum(r["choice"] == c for r in uniq) for c in CHOICES},
+            "choices": {c: sum(r["choice"] == c for r in uniq) for c in (*CHOICES, PROJECTED)},
             "worse_workspace_mean": sum(r["workspace"]["rebased"]["mean"] > r["workspace"]["given"]["mean"]
                                         for r in uniq),
             "worse_workspace_max": sum(r["workspace"]["rebased"]["max"] > r["workspace"]["given"]["max"]
