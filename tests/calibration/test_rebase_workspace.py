@@ -58,3 +58,32 @@ def test_a_rebase_on_a_still_wrist_grid_is_never_farther_from_the_day_over_the_w
     except RebaseRefused:
         return  # nothing handed back: the model as given stays
     assert _rms_mm(rebased, truth_fk, q_judge) <= _rms_mm(model, truth_fk, q_judge)
+
+
+
+def test_poses_that_turn_the_wrist_get_more_frame_directions_fitted(r1_nominal):
+    """The projection holds what the poses cannot place over the workspace, not a fixed set of directions: three
+    clusters whose wrist and joint 1 turn (within 40 deg) see more combinations at half their effect over the joint
+    limits than a still grid does, so more are fitted and the rebased model lands nearer the new day there; both
+    nearer than the model as given. (Not all 12: the joint limits turn the wrist far beyond 40 deg.)"""
+    from calibration.rebase import RebaseProblem
+
+    model = ConstantModel("R1", "nls1", r1_nominal)
+    T_base, T_tool = _day_move(3)
+    still, cluster = cluster_design(step_deg=30.0, spread_wrist=False)
+    keep = np.isin(cluster, [0, 5, 11])
+    turned, turned_cluster = cluster_design(step_deg=30.0, spread_wrist=True, seed=2)
+    turned_keep = np.isin(turned_cluster, [0, 5, 11])
+    q_ws, q_judge = _workspace(seed=0), _workspace(seed=1)
+
+    def truth_fk(q_: np.ndarray):
+        day = put_in(measure(model.fk, q_, 0.0, 0.0, 0), T_base, T_tool)
+        return day.R, day.p
+
+    ranks, distances = [], []
+    for q, c in ((still[keep], cluster[keep]), (turned[turned_keep], turned_cluster[turned_keep])):
+        rec = put_in(measure(model.fk, q, 0.02, 0.007, 3, c), T_base, T_tool)
+        ranks.append(RebaseProblem.from_recording(model, rec, q_workspace=q_ws).observability.rank)
+        distances.append(_rms_mm(rebase_auto(model, rec, q_workspace=q_ws)[0], truth_fk, q_judge))
+    assert ranks[0] < ranks[1]
+    assert distances[1] < distances[0] < _rms_mm(model, truth_fk, q_judge)
