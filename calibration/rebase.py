@@ -666,10 +666,14 @@ def rebase_auto(model: KinematicModel, rec: Recording, cluster_size: int = 7, q_
       less than 3 (held out against the model as given, a clean shifted day with a turned wrist was refused). Not the
       chosen candidate's own directions: a translations-only fit takes up a rotation of the day in its shifts, and
       the projection's bound holds only for a move within the directions it fits. On
-      ``scripts/bench_rebase_days.py``'s training-side figures (pi, 42 ordered day pairs x 6 grid triples) the model
+      ``scripts/bench_rebase_days.py``'s training-side figures (42 ordered day pairs x 6 grid triples) the model
       handed back is farther over the workspace from the day's own full-recording frames than the model as given in
-      0 of 252 rebases (``shrink``: 46), and worse on the day's other training clusters in 0 (mean 0.216 mm against
-      0.231).
+      0 of 252 rebases for pi (``shrink``: 46) and 3 for nls1 (82), and its mean on the day's other training clusters
+      is 0.215 mm for pi (0.231). Measured afterwards on the days' test recordings (288 per method; not used for any
+      choice): worse than the model given on the mean in 27 for pi (``shrink``: 22), 19 for nls1 (25), 27 for
+      pi+fbf13 (23), on the max in 24 (27), 45 (54), 26 (29); 18 of pi's 27 are the 0620 before test recording,
+      which is off its own day's training recording by a frame; within 1.25x of the day's own calibration in 181
+      (163), 228 (204), 179 (169).
     - ``"shrink"`` (the default before): the move is scaled back by
       :func:`shrink_factor`, its uncertainty over the workspace (:func:`workspace_spread`) against its size there,
       the noise the fit's own residual scale per weighted component over its degrees of freedom; a factor of 0
