@@ -545,10 +545,11 @@ def build_parser() -> argparse.ArgumentParser:
                        help="fit only the two translations (6 parameters), unchecked on held-out clusters")
     which.add_argument("--all-directions", action="store_true",
                        help="fit both frames' translations and rotations (12), unchecked on held-out clusters; "
-                            "default: chosen on clusters held out in turn (poses, with fewer than 2 clusters): the "
-                            "translations, both frames with their barely seen directions held, or both frames, the "
-                            "fewest within a standard error of the best; refused (exit 2, nothing written) when the "
-                            "model as given does as well there")
+                            "default: clusters held out in turn (poses, with fewer than 2 clusters) confirm a frame "
+                            "change or it is refused (exit 2, nothing written: the model as given does as well "
+                            "there); both frames are then fitted along the combinations the poses see at least half "
+                            "as much as configurations across the joint limits do (where the wrist turns), the rest "
+                            "held, unless every direction leaves a tenth of that fit's residual")
     which.add_argument("--offsets", action="store_true",
                        help="fit both frames and the joint offsets of joints 4 and 5 (14): for poses that move the "
                             "wrist widely (cellcal plan --design optimal --for rebase); a still wrist cannot see "

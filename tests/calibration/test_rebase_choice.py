@@ -99,9 +99,9 @@ def test_a_rebase_is_never_worse_on_the_new_day_than_the_model_given(seed, expec
 
 
 def test_the_move_handed_back_is_scaled_back_by_its_uncertainty_over_the_workspace(r1_nominal):
-    """With the robot's workspace (configurations within its joint limits), rebase_auto hands back the chosen move
-    times :func:`calibration.rebase.shrink_factor` (the fit's own residual scale as the noise), in (0, 1] and below 1
-    when the poses are noisy; without it, the fitted move as before."""
+    """With the robot's workspace (configurations within its joint limits) and the shrink rule, rebase_auto hands back
+    the chosen move times :func:`calibration.rebase.shrink_factor` (the fit's own residual scale as the noise), in
+    (0, 1] and below 1 when the poses are noisy; without it, the fitted move as before."""
     from calibration.rebase import RebaseProblem, choice_options, shrink_factor, workspace_configurations
     from cell_config import load_cell
 
@@ -113,7 +113,7 @@ def test_the_move_handed_back_is_scaled_back_by_its_uncertainty_over_the_workspa
     keep = cluster < 3
     rec = put_in(measure(model.fk, q[keep], 0.15, 0.05, 1, cluster[keep]), T_base, np.eye(4))
     _, plain, choice = rebase_auto(model, rec)
-    _, result, same = rebase_auto(model, rec, q_workspace=q_ws)
+    _, result, same = rebase_auto(model, rec, q_workspace=q_ws, workspace_rule="shrink")
     problem = RebaseProblem.from_recording(model, rec, **choice_options(choice))
     fitted = problem.solve()
     rows = fitted.n_samples * 6
@@ -130,6 +130,7 @@ def test_an_unknown_workspace_rule_is_refused_naming_the_valid_ones(r1_nominal):
 
     model = ConstantModel("R1", "nls1", r1_nominal)
     rec = _three_clusters(model, make_T(np.eye(3), np.array([1.5, -0.8, 0.6])), np.eye(4), 2)
-    with pytest.raises(ModelError, match="unknown workspace rule 'clamp'; valid: shrink, shrink \\(held-out noise\\), "
+    with pytest.raises(ModelError, match="unknown workspace rule 'clamp'; valid: project, shrink, "
+                                         "shrink \\(held-out noise\\), "
                                          "refuse"):
         rebase_auto(model, rec, q_workspace=np.zeros((3, 6)), workspace_rule="clamp")
