@@ -3,7 +3,8 @@
 Any plan file (:func:`app.cell.plan_file.read_plan`): a dual plan draws both arms per waypoint; a single-robot
 collection plan moves its arm target by target while the other keeps its previous configuration (its parking pose,
 :func:`app.cell.runtime.park_q`, at the start: where ``cellcal plan`` checked the plan with it, and where the
-simulated and the fake controller's arms stand). A plan with a joint beyond its limit is refused, as export-targets refuses it.
+simulated and the fake controller's arms stand). A plan with a joint beyond its limit is refused, as
+export-targets refuses it.
 """
 
 from __future__ import annotations
