@@ -11,7 +11,8 @@ single-robot collection plan moves its arm target by target while the other keep
 (its parking pose at the start, where ``cellcal plan`` checked the plan with it; the safety checks start there
 too). A plan with a joint beyond its limit is refused, as export-targets refuses it. Any other defect of
 :func:`app.cell.plan_safety.plan_defects` (the checks every exit of a plan runs: relative pose recomputed from the
-models, the step between waypoints, floor and clearances, ...) is drawn, so the person sees it: red dots on the unsafe waypoints, ``UNSAFE`` and the reason in the readout.
+models, the step between waypoints, floor and clearances, ...) is drawn, so the person sees it: red dots on the
+unsafe waypoints, ``UNSAFE`` and the reason in the readout.
 
 What is drawn (viewer units are metres):
 
