@@ -10,6 +10,7 @@ DOCS_ENV := NO_MKDOCS_2_WARNING=1 DISABLE_MKDOCS_2_WARNING=true
 # versions the figures in the notes were measured with, so an install is repeatable (a diagnosis can still differ
 # between machines in its floating-point rounding: 0627 after, ninth stop's note).
 $(VENV): pyproject.toml constraints.txt
+	@echo "creating $(VENV): cellcal and every package at the version constraints.txt pins (about 2 min, quiet)"
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet -c constraints.txt -e '.[dev]'

@@ -1,6 +1,7 @@
 """The ``cellcal`` command line: one function per subcommand.
 
-Exit codes: 0 success, 2 bad input (one clear line on stderr, nothing written), 1 unexpected failure.
+Exit codes: 0 success, 2 bad input (one clear line on stderr, nothing written), 1 unexpected failure, 130 Ctrl-C.
+A standard output closed by its reader (`cellcal ... | head`) changes nothing but where the rest of the text goes.
 """
 
 from __future__ import annotations
@@ -624,7 +625,84 @@ STAGED_COMMANDS = frozenset({"evaluate", "compare", "fit", "predict", "select", 
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run one subcommand: 0 on success, 2 on bad input or a refused action, 130 on Ctrl-C."""
+    """Run one subcommand: 0 on success, 2 on bad input or a refused action, 130 on Ctrl-C.
+
+    A standard output whose reader has gone (``cellcal ... | head``) changes nothing but where the rest of the text
+    goes: the command finishes as it would have (its files written), printing into the null device, and exits with
+    its own status, with no BrokenPipeError traceback. Python ignores SIGPIPE, so that error would otherwise come
+    from whichever print met the closed pipe (unbuffered) or from the interpreter's last flush (a pipe is
+    block-buffered, so most commands had finished by then): handled here once, for every command.
+    """
+    guard = _StdoutGuard(sys.stdout)
+    sys.stdout = guard  # type: ignore[assignment]
+    try:
+        try:
+            return _run(argv)
+        finally:
+            guard.flush()  # a closed pipe shows here, not in the interpreter's final flush
+    finally:
+        if sys.stdout is guard:
+            sys.stdout = guard.stream
+
+
+class _StdoutGuard:
+    """sys.stdout while a command runs: once the reader of the pipe has gone, stdout (and stderr, when it is closed
+    too) is pointed at the null device, so what is still printed goes nowhere instead of raising. A BrokenPipeError
+    while stdout is open (a socket whose peer left) is not this one and propagates."""
+
+    def __init__(self, stream: Any) -> None:
+        self.stream = stream
+
+    def write(self, text: str) -> int:
+        try:
+            return self.stream.write(text)
+        except BrokenPipeError:
+            if not _discard_closed_streams(self.stream):
+                raise
+            return len(text)
+
+    def flush(self) -> None:
+        try:
+            self.stream.flush()
+        except BrokenPipeError:
+            if not _discard_closed_streams(self.stream):
+                raise
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.stream, name)
+
+
+def _discard_closed_streams(stdout: Any) -> bool:
+    """Point ``stdout``'s descriptor (and stderr's, when its reader has gone too) at the null device if its reader
+    has gone; True if it had."""
+    import os
+    import select
+
+    def closed_fd(stream: Any) -> int | None:
+        try:
+            fd = stream.fileno()
+        except (AttributeError, OSError, ValueError):  # io.UnsupportedOperation is an OSError and a ValueError
+            return None
+        poller = select.poll()
+        poller.register(fd, select.POLLOUT)
+        masks = [mask for _, mask in poller.poll(0)]
+        return fd if masks and masks[0] & (select.POLLERR | select.POLLHUP) else None
+
+    stdout_fd = closed_fd(stdout)
+    if stdout_fd is None:
+        return False
+    stderr_fd = closed_fd(sys.stderr)
+    null = os.open(os.devnull, os.O_WRONLY)
+    try:
+        for fd in (stdout_fd, stderr_fd):
+            if fd is not None:
+                os.dup2(null, fd)
+    finally:
+        os.close(null)
+    return True
+
+
+def _run(argv: list[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     args.argv = list(argv) if argv is not None else sys.argv[1:]

@@ -8,10 +8,11 @@ a live view in the browser, bound to 127.0.0.1; :mod:`app.dual.meshcat_server`).
 
 Plans: any plan file (:func:`app.cell.plan_file.read_plan`): a dual plan draws both arms per waypoint; a
 single-robot collection plan moves its arm target by target while the other keeps its previous configuration
-(the home configuration q = 0 at the start). A plan with a joint beyond its limit is refused, as
-export-targets refuses it. Any other defect of :func:`app.cell.plan_safety.plan_defects` (the checks every exit of
-a plan runs: relative pose recomputed from the models, the step between waypoints, floor and clearances, ...) is
-drawn, so the person sees it: red dots on the unsafe waypoints, ``UNSAFE`` and the reason in the readout.
+(its parking pose at the start, where ``cellcal plan`` checked the plan with it; the safety checks start there
+too). A plan with a joint beyond its limit is refused, as export-targets refuses it. Any other defect of
+:func:`app.cell.plan_safety.plan_defects` (the checks every exit of a plan runs: relative pose recomputed from the
+models, the step between waypoints, floor and clearances, ...) is drawn, so the person sees it: red dots on the
+unsafe waypoints, ``UNSAFE`` and the reason in the readout.
 
 What is drawn (viewer units are metres):
 
@@ -199,7 +200,10 @@ def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve
         raise ModelError("preview needs html_out (a static page) or serve=True (a live viewer)")
     p = read_preview_plan(plan)
     margin, margin_at = limit_margin(cell, p)
-    defects = tuple(plan_defects(cell, read_plan(plan), models=plan_models))
+    from app.cell.runtime import park_q
+
+    start = None if p.kind == "dual" else {n: park_q(n) for n in cell.robots}  # where plan checked it from
+    defects = tuple(plan_defects(cell, read_plan(plan), models=plan_models, q_start=start))
     unsafe = _unsafe_frames(p.n_frames, defects)
     said = [[r for r in unsafe[f] if not r.startswith(NOT_SOLVED)] for f in range(p.n_frames)]  # the note says it
     notes = [f"UNSAFE: {'; '.join(said[f])} | {n}" if said[f] else n for f, n in enumerate(p.notes)]

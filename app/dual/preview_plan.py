@@ -1,8 +1,10 @@
 """A plan as the preview draws it: both arms' joints per frame, the plan's residuals, its joint-limit margin.
 
 Any plan file (:func:`app.cell.plan_file.read_plan`): a dual plan draws both arms per waypoint; a single-robot
-collection plan moves its arm target by target while the other keeps its previous configuration (the home
-configuration q = 0 at the start). A plan with a joint beyond its limit is refused, as export-targets refuses it.
+collection plan moves its arm target by target while the other keeps its previous configuration (its parking pose,
+:func:`app.cell.runtime.park_q`, at the start: where ``cellcal plan`` checked the plan with it, and where the
+simulated and the fake controller's arms stand). A plan with a joint beyond its limit is refused, as
+export-targets refuses it.
 """
 
 from __future__ import annotations
@@ -49,7 +51,7 @@ def read_preview_plan(plan: Any) -> PreviewPlan:
     """Read a dual or collection plan for drawing.
 
     A dual plan draws both arms per waypoint; a collection plan moves its arm target by target while the
-    other keeps its previous configuration (home, q = 0, at the start).
+    other keeps its previous configuration (its parking pose at the start, as ``cellcal plan`` checked it).
 
     Args:
         plan: a plan file path, its parsed content, a :class:`~app.cell.planning.Plan` or a
@@ -72,7 +74,9 @@ def read_preview_plan(plan: Any) -> PreviewPlan:
                            np.array([x.converged for x in w]),
                            tuple("converged" if x.converged else f"NOT converged: {x.reason}" for x in w),
                            plan.T_wp_gun)
-    current = {"R1": np.zeros(6), "R2": np.zeros(6)}
+    from app.cell.runtime import park_q
+
+    current = {"R1": park_q("R1"), "R2": park_q("R2")}
     q: dict[str, list[np.ndarray]] = {"R1": [], "R2": []}
     notes = []
     for i, t in enumerate(plan.targets):

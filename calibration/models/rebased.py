@@ -113,9 +113,26 @@ class RebasedModel(KinematicModel):
     def interpolation(self) -> Any:
         return self.inner.interpolation()
 
+    def region(self) -> Any:
+        """The training region in this model's joint readings: its own (set by :meth:`with_region`), else its inner
+        model's, moved by the joint offsets. A rebase keeps the inner model's data, so it keeps its range: without
+        this, evaluate said nothing of poses far outside it (0725's test recording on a rebased 0801 model, 92 deg)."""
+        own = KinematicModel.region(self)
+        if own is not None:
+            return own
+        inner = self.inner.region()
+        if inner is None or not self.joint_offsets.any():
+            return inner
+        return replace(inner, lower_rad=inner.lower_rad - self.joint_offsets,
+                       upper_rad=inner.upper_rad - self.joint_offsets)
+
     def with_region(self, region: Any) -> "RebasedModel":
-        """The same rebase with another training region, in its own info and its inner model's (the one that holds)."""
+        """The same rebase with another training region (in its joint readings), in its own info and its inner
+        model's (the one that holds), moved by the joint offsets into the inner model's readings."""
         own = KinematicModel.with_region(self, region)
+        if region is not None and self.joint_offsets.any():
+            region = replace(region, lower_rad=region.lower_rad + self.joint_offsets,
+                             upper_rad=region.upper_rad + self.joint_offsets)
         return replace(own, inner=self.inner.with_region(region))  # type: ignore[type-var]
 
     @property

@@ -14,6 +14,7 @@ import pytest
 
 pytest.importorskip("meshcat")
 
+from app.cell.runtime import park_q  # noqa: E402
 from app.dual.preview import plan_frames, preview  # noqa: E402
 from calibration.errors import DataError, ModelError  # noqa: E402
 from cell_config.loader import load_cell  # noqa: E402
@@ -56,7 +57,7 @@ def test_load_dual_and_collection_plans(tmp_path):
     frames = plan_frames(coll)
     assert len(frames) == 2
     np.testing.assert_array_equal(frames[1]["R1"], [0.2] * 6)
-    np.testing.assert_array_equal(frames[1]["R2"], np.zeros(6))  # the other arm stays home
+    np.testing.assert_array_equal(frames[1]["R2"], park_q("R2"))  # the other arm stays parked, as plan checked it
 
 
 def _target(robot: str, q: list) -> dict:
