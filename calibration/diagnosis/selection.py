@@ -458,7 +458,25 @@ def _rebuild_pool(problem: LinearSelection, signature: Signature, pool: list[tup
         if r is not None and r[0].key() not in seen:
             seen.add(r[0].key())
             new_pool.append(r)
-    return new_pool
+    return _as_joint_sets(new_pool, chosen)
+
+
+def _as_joint_sets(pool: list[tuple[Candidate, np.ndarray]], chosen: list[Candidate]
+                   ) -> list[tuple[Candidate, np.ndarray]]:
+    """Once the own-weight compliance of some joints is established, a kind of the same physics under another load
+    (:data:`SAME_PHYSICS`: the payload's deflection is those joints' compliance carrying the payload's torque) is
+    tested on those joints as one set: a candidate of it on a subset of them gives way to the pool's largest candidate
+    within them. One joint alone would otherwise win on the BIC's parameter count whenever the other joint's share of
+    the payload's deflection is small (the elbow's beside the shoulder's), and the set would never be tested."""
+    out = []
+    for c, S in pool:
+        base = SAME_PHYSICS.get(c.kind)
+        compliant = {j for o in chosen if o.kind == base for j in o.joints}
+        inside = set(c.joints) <= compliant
+        larger = any(o.kind == c.kind and set(c.joints) < set(o.joints) <= compliant for o, _ in pool)
+        if base is None or not inside or not larger:
+            out.append((c, S))
+    return out
 
 
 def _confirm(problem: LinearSelection, sel: Selection, flexible: dict[str, np.ndarray] | None = None) -> Selection:

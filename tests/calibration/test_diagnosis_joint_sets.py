@@ -1,0 +1,65 @@
+"""Issue 31: the selection's handling of one physics under two loads (calibration.diagnosis.selection), on small
+linear problems built here: the candidates' columns are random, the residual is planted from them."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from calibration.diagnosis.candidates import Candidate
+from calibration.diagnosis.selection import LinearSelection, SelectionOptions, forward_select
+from calibration.physics import PayloadCompliance
+from calibration.physics.joint_effects import JointOffset
+
+K, SIZE = 60, 7
+N = K * SIZE
+
+
+def problem(seed: int, planted: dict[str, float], noise: float = 1.0):
+    """A selection problem with own-weight compliance candidates on joints 2 and 3, payload candidates on 2, 3 and the
+    pair, and a residual planted as ``planted`` (column name -> coefficient, in noise units per sample)."""
+    rng = np.random.default_rng(seed)
+    cols = {k: rng.normal(size=(6 * N, 1)) for k in ("c2", "c3", "p2", "p3")}
+    r = noise * rng.normal(size=6 * N) + sum(v * cols[k][:, 0] for k, v in planted.items())
+    A = rng.normal(size=(6 * N, 3))
+    prob = LinearSelection(A, r.reshape(N, 6), np.repeat(np.arange(K), SIZE), SelectionOptions())
+
+    def cand(kind, joints):
+        label = f"joint {joints[0]}" if len(joints) == 1 else "joints 2-3"
+        effect = (PayloadCompliance(joints, np.zeros(len(joints))) if kind == "payload_compliance"
+                  else JointOffset(joints, np.zeros(len(joints))))  # the selection reads only the kind
+        return Candidate(kind, label, joints, effect)
+
+    pool = [(cand("joint_compliance", (2,)), prob.add(cols["c2"])), (cand("joint_compliance", (3,)), prob.add(cols["c3"])),
+            (cand("payload_compliance", (2,)), prob.add(cols["p2"])),
+            (cand("payload_compliance", (3,)), prob.add(cols["p3"])),
+            (cand("payload_compliance", (2, 3)), prob.add(np.concatenate([cols["p2"], cols["p3"]], axis=1)))]
+    return prob, pool
+
+
+def selected(prob, pool) -> dict[str, set[int]]:
+    sel = forward_select(prob, pool, lambda e: np.zeros((6 * N, 0)))
+    out: dict[str, set[int]] = {}
+    for s in sel.steps:
+        out.setdefault(s.candidate.kind, set()).update(s.candidate.joints)
+    return out
+
+
+def test_the_payload_is_tested_on_the_compliant_joints_as_one_set():
+    # The elbow's share of the payload's deflection is small beside the shoulder's: alone it would not pass, and the
+    # shoulder alone would win on the parameter count. As a set with the shoulder it is the compliance's joints.
+    for seed in range(4):
+        prob, pool = problem(seed, {"c2": 0.5, "c3": 0.5, "p2": 0.2, "p3": 0.02})
+        assert selected(prob, pool) == {"joint_compliance": {2, 3}, "payload_compliance": {2, 3}}, seed
+
+
+def test_no_payload_is_named_when_none_is_planted():
+    for seed in range(4):
+        prob, pool = problem(seed, {"c2": 0.5, "c3": 0.5})
+        assert selected(prob, pool) == {"joint_compliance": {2, 3}}, seed
+
+
+def test_a_payload_on_joints_without_compliance_is_tested_per_joint():
+    # Only joint 2's own-weight compliance is established: the payload is tested per joint, as before.
+    for seed in range(4):
+        prob, pool = problem(seed, {"c2": 0.5, "p2": 0.2})
+        assert selected(prob, pool) == {"joint_compliance": {2}, "payload_compliance": {2}}, seed
