@@ -480,15 +480,14 @@ def _as_joint_sets(pool: list[tuple[Candidate, np.ndarray]], chosen: list[Candid
 
 
 def _confirm(problem: LinearSelection, sel: Selection, flexible: dict[str, np.ndarray] | None = None) -> Selection:
-    """Drop, weakest first, every kind whose removal from the final set the nested tests do not reject; a kind
-    without a flexible form is judged with the flexible forms of the other kinds in the set (``flexible``, see
-    :func:`forward_select`)."""
+    """Drop, weakest first, every kind whose removal from the final set the nested tests do not reject; a kind is
+    judged with the flexible forms of the other kinds in the set (``flexible``, see :func:`forward_select`)."""
     flexible = flexible or {}
     while sel.steps:
         worst = None
         kinds = {s.candidate.kind for s in sel.steps}
         for kind in kinds:
-            flex = [] if kind in flexible else [flexible[k] for k in sorted(kinds) if k in flexible]
+            flex = [flexible[k] for k in sorted(kinds) if k in flexible and k != kind]
             ev = _removal_evidence(problem, sel, kind, kinds - {kind}, flex)
             if not ev.accepted(problem.options) and (worst is None or ev.delta_bic > worst[1]):
                 worst = (kind, ev.delta_bic)

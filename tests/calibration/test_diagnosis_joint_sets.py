@@ -63,3 +63,23 @@ def test_a_payload_on_joints_without_compliance_is_tested_per_joint():
     for seed in range(4):
         prob, pool = problem(seed, {"c2": 0.5, "p2": 0.2})
         assert selected(prob, pool) == {"joint_compliance": {2}, "payload_compliance": {2}}, seed
+
+
+def test_the_held_out_confirmation_tests_the_payload_on_every_compliant_joint():
+    # The forward pass met the elbow's payload share while only the shoulder's own weight was established (the pair
+    # then left the pool): the confirmation still tests the payload compliance on both compliant joints.
+    from calibration.diagnosis.core import _on_compliant_joints
+    from calibration.diagnosis.selection import Evidence, Selection, Step
+
+    prob, pool = problem(0, {})
+    by_label = {(c.kind, c.label): c for c, _ in pool}
+    steps = [Step(by_label[k], Evidence(0.0, 0.0)) for k in (("joint_compliance", "joint 2"),
+                                                              ("payload_compliance", "joint 3"),
+                                                              ("joint_compliance", "joint 3"))]
+    sel = Selection(tuple(steps), tuple(np.zeros(1, dtype=int) for _ in steps))
+    got = _on_compliant_joints("payload_compliance", sel, pool)
+    assert sorted(j for c in got for j in c.joints) == [2, 3]
+    assert _on_compliant_joints("joint_compliance", sel, pool) == sel.of_kind("joint_compliance")
+    # no own-weight compliance established: the payload stays on the joints it was selected on
+    alone = Selection(steps[1:2], sel.columns[1:2])
+    assert [c.joints for c in _on_compliant_joints("payload_compliance", alone, pool)] == [(3,)]
