@@ -362,7 +362,8 @@ def forward_select(problem: LinearSelection, pool: list[tuple[Candidate, np.ndar
         dof = sum(s.candidate.extra_dof for s in steps)
         found_kinds = {s.candidate.kind for s in steps}
         cv_base = problem.cv(columns)
-        shape = _shape_check(problem, columns, dof, found_kinds, flexible, flexible_joints or {})
+        geometry = [S for c, S in pool if c.kind in GEOMETRIC_KINDS]
+        shape = _shape_check(problem, columns, dof, found_kinds, flexible, flexible_joints or {}, geometry)
         best = _best(problem, pool, columns, dof, found_kinds, cv_base, shape)
         if best is None:
             break
@@ -381,21 +382,31 @@ def forward_select(problem: LinearSelection, pool: list[tuple[Candidate, np.ndar
 ShapeCheck = Callable[[Candidate, np.ndarray], bool]
 
 
+#: Kinds that are geometric parameters by another name (a joint's zero, the tool marker's registration).
+GEOMETRIC_KINDS = ("joint_offset", "tool_frame")
+
+
 def _shape_check(problem: LinearSelection, columns: list[np.ndarray], dof: int, found_kinds: set[str],
-                 flexible: dict[str, np.ndarray], flexible_joints: dict[str, tuple[int, ...]]) -> ShapeCheck:
+                 flexible: dict[str, np.ndarray], flexible_joints: dict[str, tuple[int, ...]],
+                 geometry: list[np.ndarray] | None = None) -> ShapeCheck:
     """The test a candidate of another kind (or of that kind on other joints) passes on top of the flexible forms of
-    the selected kinds."""
+    the selected kinds, and a candidate of a non-geometric kind on top of the geometric candidates not yet selected
+    (``geometry``: a tool marker's registration the model has not yet taken up is not a gear error of joint 2, which
+    took its place on the family's switching-payload twins)."""
     flex = [flexible[k] for k in sorted(found_kinds) if k in flexible]
-    if not flex:
+    geometry = geometry or []
+    if not flex and not geometry:
         return lambda cand, S: True
     cv_flex: list[tuple[np.ndarray, np.ndarray]] = []
 
     def check(cand: Candidate, S: np.ndarray) -> bool:
+        if cand.kind in GEOMETRIC_KINDS:
+            return True
         if cand.kind in flexible and set(cand.joints) <= set(flexible_joints.get(cand.kind, cand.joints)):
             return True
         if not cv_flex:
-            cv_flex.append(problem.cv(columns + flex))
-        ev = problem.compare(columns + flex, dof, [S], cand.extra_dof, cv_flex[0])
+            cv_flex.append(problem.cv(columns + flex + geometry))
+        ev = problem.compare(columns + flex + geometry, dof, [S], cand.extra_dof, cv_flex[0])
         return ev.accepted(problem.options, extends(cand.kind, found_kinds))
 
     return check

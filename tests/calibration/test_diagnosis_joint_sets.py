@@ -83,3 +83,26 @@ def test_the_held_out_confirmation_tests_the_payload_on_every_compliant_joint():
     # no own-weight compliance established: the payload stays on the joints it was selected on
     alone = Selection(steps[1:2], sel.columns[1:2])
     assert [c.joints for c in _on_compliant_joints("payload_compliance", alone, pool)] == [(3,)]
+
+
+def test_a_gear_error_does_not_stand_in_for_the_tool_frame():
+    # A gear error whose signature mixes the shoulder's own-weight deflection and the tool marker's registration
+    # explains both at once and wins the step on the BIC; beyond the compliance's flexible form and the tool frame it
+    # explains nothing, so the compliance and the tool frame are named instead.
+    from calibration.diagnosis.selection import GEOMETRIC_KINDS
+
+    assert "tool_frame" in GEOMETRIC_KINDS
+    for seed in range(4):
+        rng = np.random.default_rng(seed)
+        cols = {k: rng.normal(size=(6 * N, 1)) for k in ("c2", "c3", "tool")}
+        r = rng.normal(size=6 * N) + 0.3 * cols["c3"][:, 0] + 0.2 * cols["c2"][:, 0] + 0.2 * cols["tool"][:, 0]
+        prob = LinearSelection(rng.normal(size=(6 * N, 3)), r.reshape(N, 6), np.repeat(np.arange(K), SIZE),
+                               SelectionOptions())
+        gear = np.concatenate([cols["c2"] + cols["tool"], rng.normal(size=(6 * N, 1))], axis=1)
+        pool = [(Candidate("joint_compliance", "joint 2", (2,), JointOffset((2,), np.zeros(1))), prob.add(cols["c2"])),
+                (Candidate("joint_compliance", "joint 3", (3,), JointOffset((3,), np.zeros(1))), prob.add(cols["c3"])),
+                (Candidate("tool_frame", "tool marker", (), JointOffset((6,), np.zeros(1))), prob.add(cols["tool"])),
+                (Candidate("gear_transmission", "joint 2", (2,), JointOffset((2,), np.zeros(1))), prob.add(gear))]
+        flexible = {"joint_compliance": prob.add(np.concatenate([cols["c2"], cols["c3"]], axis=1))}
+        sel = forward_select(prob, pool, lambda e: np.zeros((6 * N, 0)), flexible, {"joint_compliance": (2, 3)})
+        assert {s.candidate.kind for s in sel.steps} == {"joint_compliance", "tool_frame"}, (seed, sel.kinds())
