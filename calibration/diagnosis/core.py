@@ -433,6 +433,12 @@ def candidate_signatures(base: FittedInUse, split: Split, residual: ResidualDriv
             seen, _, free_bases = _screen(free, A, sig, q_ref, ctx_ref, options.selection.visible_min)
             if seen:
                 steps.append((free[0].effect, free_bases[free[0].key()]))
+                if form == FLEXIBLE_FORMS[-1]:
+                    # The most flexible form is a candidate too: when the YAML's shape is far off, a gear error's
+                    # harmonics of q2 fitted the shoulder's own weight better than it and took its place (family
+                    # training seed 60003, R2); the BIC charges the form's every parameter.
+                    pool += seen
+                    bases.update(free_bases)
         if steps:
             flexible["joint_compliance"], forms["joint_compliance"] = steps[-1], steps
     if any(c.kind == "payload_compliance" for c in cands):
