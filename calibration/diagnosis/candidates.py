@@ -146,6 +146,11 @@ def library(model: PoeModel, q: np.ndarray, context: Context, gravity: GravityMo
             for j in range(2, n + 1):
                 if np.ptp(tau[:, j - 1]) > 1e-6:
                     cands.append(Candidate("joint_compliance", f"joint {j}", (j,), JointCompliance(gravity, (j,), np.zeros(1))))
+            if np.ptp(tau[:, 1]) > 1e-6 and np.ptp(tau[:, 2]) > 1e-6:
+                # The shoulder and the elbow in the YAML's shape as one step: the lumped form of joints 2-3 competes in
+                # the forward pass (see core.candidate_signatures), and this pair is what it is weighed against.
+                cands.append(Candidate("joint_compliance", "joints 2-3", (2, 3),
+                                       JointCompliance(gravity, (2, 3), np.zeros(2))))
     if "payload_compliance" in kinds:
         if "payload_kg" not in context or not np.any(np.asarray(context["payload_kg"]) != 0):
             skipped.append(Untested("payload_compliance", "joints 2-6", (), "no payload_kg column (or no payload carried)"))

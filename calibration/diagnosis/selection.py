@@ -362,7 +362,8 @@ def forward_select(problem: LinearSelection, pool: list[tuple[Candidate, np.ndar
         dof = sum(s.candidate.extra_dof for s in steps)
         found_kinds = {s.candidate.kind for s in steps}
         cv_base = problem.cv(columns)
-        shape = _shape_check(problem, columns, dof, found_kinds, flexible, flexible_joints or {})
+        geometry = [S for c, S in pool if c.kind in GEOMETRIC_KINDS]
+        shape = _shape_check(problem, columns, dof, found_kinds, flexible, flexible_joints or {}, geometry)
         best = _best(problem, pool, columns, dof, found_kinds, cv_base, shape)
         if best is None:
             break
@@ -381,21 +382,31 @@ def forward_select(problem: LinearSelection, pool: list[tuple[Candidate, np.ndar
 ShapeCheck = Callable[[Candidate, np.ndarray], bool]
 
 
+#: Kinds that are geometric parameters by another name (a joint's zero, the tool marker's registration).
+GEOMETRIC_KINDS = ("joint_offset", "tool_frame")
+
+
 def _shape_check(problem: LinearSelection, columns: list[np.ndarray], dof: int, found_kinds: set[str],
-                 flexible: dict[str, np.ndarray], flexible_joints: dict[str, tuple[int, ...]]) -> ShapeCheck:
+                 flexible: dict[str, np.ndarray], flexible_joints: dict[str, tuple[int, ...]],
+                 geometry: list[np.ndarray] | None = None) -> ShapeCheck:
     """The test a candidate of another kind (or of that kind on other joints) passes on top of the flexible forms of
-    the selected kinds."""
+    the selected kinds, and a candidate of a non-geometric kind on top of the geometric candidates not yet selected
+    (``geometry``: a tool marker's registration the model has not yet taken up is not a gear error of joint 2, which
+    took its place on the family's switching-payload twins)."""
     flex = [flexible[k] for k in sorted(found_kinds) if k in flexible]
-    if not flex:
+    geometry = geometry or []
+    if not flex and not geometry:
         return lambda cand, S: True
     cv_flex: list[tuple[np.ndarray, np.ndarray]] = []
 
     def check(cand: Candidate, S: np.ndarray) -> bool:
+        if cand.kind in GEOMETRIC_KINDS:
+            return True
         if cand.kind in flexible and set(cand.joints) <= set(flexible_joints.get(cand.kind, cand.joints)):
             return True
         if not cv_flex:
-            cv_flex.append(problem.cv(columns + flex))
-        ev = problem.compare(columns + flex, dof, [S], cand.extra_dof, cv_flex[0])
+            cv_flex.append(problem.cv(columns + flex + geometry))
+        ev = problem.compare(columns + flex + geometry, dof, [S], cand.extra_dof, cv_flex[0])
         return ev.accepted(problem.options, extends(cand.kind, found_kinds))
 
     return check
@@ -458,19 +469,36 @@ def _rebuild_pool(problem: LinearSelection, signature: Signature, pool: list[tup
         if r is not None and r[0].key() not in seen:
             seen.add(r[0].key())
             new_pool.append(r)
-    return new_pool
+    return _as_joint_sets(new_pool, chosen)
+
+
+def _as_joint_sets(pool: list[tuple[Candidate, np.ndarray]], chosen: list[Candidate]
+                   ) -> list[tuple[Candidate, np.ndarray]]:
+    """Once the own-weight compliance of some joints is established, a kind of the same physics under another load
+    (:data:`SAME_PHYSICS`: the payload's deflection is those joints' compliance carrying the payload's torque) is
+    tested on those joints as one set: a candidate of it on a subset of them gives way to the pool's largest candidate
+    within them. One joint alone would otherwise win on the BIC's parameter count whenever the other joint's share of
+    the payload's deflection is small (the elbow's beside the shoulder's), and the set would never be tested."""
+    out = []
+    for c, S in pool:
+        base = SAME_PHYSICS.get(c.kind)
+        compliant = {j for o in chosen if o.kind == base for j in o.joints}
+        inside = set(c.joints) <= compliant
+        larger = any(o.kind == c.kind and set(c.joints) < set(o.joints) <= compliant for o, _ in pool)
+        if base is None or not inside or not larger:
+            out.append((c, S))
+    return out
 
 
 def _confirm(problem: LinearSelection, sel: Selection, flexible: dict[str, np.ndarray] | None = None) -> Selection:
-    """Drop, weakest first, every kind whose removal from the final set the nested tests do not reject; a kind
-    without a flexible form is judged with the flexible forms of the other kinds in the set (``flexible``, see
-    :func:`forward_select`)."""
+    """Drop, weakest first, every kind whose removal from the final set the nested tests do not reject; a kind is
+    judged with the flexible forms of the other kinds in the set (``flexible``, see :func:`forward_select`)."""
     flexible = flexible or {}
     while sel.steps:
         worst = None
         kinds = {s.candidate.kind for s in sel.steps}
         for kind in kinds:
-            flex = [] if kind in flexible else [flexible[k] for k in sorted(kinds) if k in flexible]
+            flex = [flexible[k] for k in sorted(kinds) if k in flexible and k != kind]
             ev = _removal_evidence(problem, sel, kind, kinds - {kind}, flex)
             if not ev.accepted(problem.options) and (worst is None or ev.delta_bic > worst[1]):
                 worst = (kind, ev.delta_bic)

@@ -9,7 +9,8 @@ from typing import Any
 
 from calibration.physics.base import (EFFECT_KINDS, Context, Effect, ExtendedEffect, apply_effects, context_array,
                                       effect_from_dict)
-from calibration.physics.compliance import JointCompliance, LumpedCompliance, MassFreeCompliance, PayloadCompliance
+from calibration.physics.compliance import (JointCompliance, LumpedCompliance, LumpedPayloadCompliance, MassFreeCompliance,
+                                           PayloadCompliance)
 from calibration.physics.gravity import G_STANDARD, GravityModel, gravity_regressor, point_mass_torque
 from calibration.physics.joint_effects import Backlash, GearTransmission, JointOffset, MocapLatency
 from calibration.physics.thermal import ThermalDrift, link_names
@@ -17,7 +18,8 @@ from calibration.physics.twin import PlantedErrors, Twin, default_effect, plant,
 
 __all__ = [
     "Backlash", "Context", "EFFECT_KINDS", "Effect", "ExtendedEffect", "G_STANDARD", "GearTransmission",
-    "GravityModel", "JointCompliance", "JointOffset", "LumpedCompliance", "MassFreeCompliance", "MocapLatency", "PayloadCompliance",
+    "GravityModel", "JointCompliance", "JointOffset", "LumpedCompliance", "LumpedPayloadCompliance", "MassFreeCompliance",
+    "MocapLatency", "PayloadCompliance",
     "PhysicsModel", "PlantedErrors", "ThermalDrift", "Twin", "apply_effects", "context_array", "default_effect",
     "effect_from_dict", "gravity_regressor", "link_names", "plant", "planted_twin", "point_mass_torque",
     "reference_context",

@@ -209,3 +209,51 @@ class LumpedCompliance(Effect):
     @classmethod
     def _from_config(cls, config: dict[str, Any], values: np.ndarray) -> "LumpedCompliance":
         return cls(tuple(config["joints"]), tuple(tuple(c) for c in config["columns"]), values)
+
+
+@dataclass(frozen=True, eq=False)
+class LumpedPayloadCompliance(Effect):
+    """Deflection under the payload ``payload_kg`` (context) carried at an unknown point of the last link (the lumped
+    form of ``payload_compliance``): joint j deflects by ``payload_kg`` times a free combination of the torques of 1 kg
+    at the wrist point and of 1 kg mm of first moment along the last link's axes
+    (:func:`~calibration.physics.gravity.chain_torque_columns` of the last link). A payload held anywhere on the tool,
+    not only at the tool point, gives a deflection in that span.
+
+    Attributes:
+        joints: 1-based joints that deflect, default (2, 3).
+        values: ``c{j}_{m|mx|my|mz}_rad_per_Nm[_mm]``, four per joint.
+    """
+
+    kind = "payload_compliance"
+    form: ClassVar[str] = "lumped"
+    context_keys = frozenset({"payload_kg"})
+    joints: tuple[int, ...] = (2, 3)
+    values: np.ndarray = field(default_factory=lambda: np.zeros(8))
+    n_joints: int = 6
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "joints", check_joints(self.joints, self.n_joints))
+        super().__post_init__()
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(f"c{j}_{p}_{u}" for j in self.joints
+                     for p, u in zip(("m", "mx", "my", "mz"), ("rad_per_Nm", "rad_per_Nm_mm", "rad_per_Nm_mm",
+                                                               "rad_per_Nm_mm")))
+
+    def fitted_joints(self, n: int) -> tuple[int, ...]:
+        return ()  # a gravity torque's shape: it extrapolates by its formula
+
+    def joint_terms(self, ops: Ops, q: list[Any], chain: Any, context: Context | None, N: int) -> list[Term]:
+        mass = context_array(context, "payload_kg", N)
+        if ops.name != "numpy":
+            if not np.any(mass):
+                return []
+            mass = float(mass[0])
+        frames = chain()
+        last = 4 * (self.n_joints - 1)
+        terms: list[Term] = []
+        for i, j in enumerate(self.joints):
+            cols = chain_torque_columns(ops, frames, j - 1, tuple(range(last, last + 4)))
+            terms += [(j - 1, 4 * i + c, t * mass) for c, t in enumerate(cols)]
+        return terms

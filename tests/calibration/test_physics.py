@@ -12,6 +12,7 @@ from calibration import so3
 from calibration.errors import DataError, ModelError
 from calibration.models import load_model, save_model
 from calibration.physics import (Backlash, GearTransmission, GravityModel, JointCompliance, JointOffset, LumpedCompliance,
+                                 LumpedPayloadCompliance,
                                  MocapLatency, PayloadCompliance, PhysicsModel, ThermalDrift, Twin,
                                  apply_effects, effect_from_dict)
 from cell_config.loader import load_cell
@@ -46,6 +47,7 @@ def all_effects(gravity):
         MocapLatency(values=np.array([0.004])),
         JointOffset((2, 6), np.array([1e-4, -2e-4])),
         LumpedCompliance((2, 3), ((5, 8, 14), (9, 22)), np.array([2e-7, -1e-5, 3e-7, 1e-7, -2e-7])),
+        LumpedPayloadCompliance((2, 3), np.array([3e-7, 2e-9, -1e-9, 3e-9, 5e-7, -2e-9, 1e-9, 2e-9])),
     ]
 
 
@@ -254,7 +256,7 @@ def test_physics_model_file_round_trip_bit_identical(r1, tmp_path, suffix):
     path = tmp_path / f"model{suffix}"
     save_model(pm, path)
     back = load_model(path)
-    assert isinstance(back, PhysicsModel) and back.n_parameters == pm.n_parameters == 24 + 19 + 5
+    assert isinstance(back, PhysicsModel) and back.n_parameters == pm.n_parameters == 24 + 19 + 5 + 8
     q = random_q(cr, 30)
     ctx = context(30)
     for a, b in zip(pm.fk_context(q, ctx), back.fk_context(q, ctx)):
@@ -314,7 +316,7 @@ def test_the_context_groups_are_every_entry_an_effect_can_read():
 
 
 #: How many effects :func:`every_kind` gives (checked by the registry test).
-N_KINDS = 10
+N_KINDS = 11
 
 
 def every_kind(gravity):

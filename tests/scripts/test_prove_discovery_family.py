@@ -73,3 +73,52 @@ def test_the_verdict_unites_the_joints_of_one_kind_and_ignores_geometry():
     v = judge(two, planted)
     assert not v["ok"] and v["found"] == {"joint_compliance": [2, 3, 5]} and v["wrong_joints"] == ["joint_compliance"]
     assert judge(two[:1] + two[2:], planted)["ok"]
+
+
+def test_the_lumped_payload_form_spans_a_payload_anywhere_on_the_tool():
+    # A payload held at any point of the last link (the family's payload point, off the tool point) gives torques on
+    # joints 2 and 3 in the lumped payload form's span; the tool-point form leaves part of them out.
+    from calibration.physics import LumpedPayloadCompliance, PayloadCompliance
+    from scripts.prove_discovery import _draw_masses
+
+    rng = np.random.default_rng(8)
+    for robot in ("R1", "R2"):
+        _, nominal, _ = arm(robot)
+        q = rng.uniform(-2.5, 2.5, (200, 6))
+        ctx = {"payload_kg": rng.choice([0.0, 3.0, 6.0], 200)}
+        Y = LumpedPayloadCompliance((2, 3), np.zeros(8)).regressor(nominal, q, ctx)
+        Yt = PayloadCompliance((2, 3), np.zeros(2)).regressor(nominal, q, ctx)
+        for seed in range(3):
+            masses = {**_draw_masses(robot, np.random.default_rng(seed)), "link_kg": [0.0] * 5, "tool_kg": 0.0}
+            tau = point_mass_torques(nominal, q, masses, ctx["payload_kg"])
+            for i, j in enumerate((1, 2)):
+                def misfit(A):
+                    return np.linalg.norm(A @ np.linalg.lstsq(A, tau[:, j], rcond=None)[0] - tau[:, j])
+                assert misfit(Y[:, j, 4 * i:4 * i + 4]) < 1e-9 * np.linalg.norm(tau[:, j])
+                assert misfit(Yt[:, j, i:i + 1]) > 1e-3 * np.linalg.norm(tau[:, j])
+
+
+def test_the_selection_is_given_the_lumped_forms_of_payload_and_own_weight(monkeypatch):
+    # Every other kind is tested beyond the payload's lumped form (a payload anywhere on the last link), as beyond the
+    # own weight's: what the tool point's shape misses is not a gear error.
+    from calibration.diagnosis import core
+
+    seen = {}
+
+    class Seen(Exception):  # the selection's inputs are all this test reads: the rest of the diagnosis is skipped
+        pass
+
+    def spy(problem, pool, signature, flexible=None, flexible_joints=None):
+        seen.update(flexible=dict(flexible or {}), joints=dict(flexible_joints or {}),
+                    pool=[(c.kind, c.label) for c, _ in pool])
+        raise Seen
+
+    monkeypatch.setattr(core, "forward_select", spy)
+    cr, nominal, gravity = arm("R1")
+    fit, ho, _ = make_family_case("R1", "payload_switch", 3, nominal, Design(n_q2=4, n_q3=3), n_heldout=42)
+    with pytest.raises(Seen):
+        diagnose("R1", nominal, fit, ho, gravity=gravity, joint_limits=(cr.robot.lower_rad, cr.robot.upper_rad))
+    assert "payload_compliance" in seen["flexible"] and seen["joints"]["payload_compliance"] == (2, 3)
+    # the own weight's most flexible form competes in the forward pass itself (a gear error's harmonics of q2 took the
+    # place of a YAML-shaped compliance far off the data's shape)
+    assert ("joint_compliance", "joints 2-3 (lumped form)") in seen["pool"]
