@@ -110,8 +110,10 @@ def test_the_held_out_scales_recover_the_planted_prior_and_residual(setting, r1_
         cov = predicted_position_cov(r1_nominal, q[~m], q[m], param_sd_mm=param_sd_mm, residual_mm=residual_mm)
         errs.append(np.linalg.norm(np.einsum("nij,nj->ni", np.linalg.cholesky(cov),
                                              rng.standard_normal((len(cov), 3))), axis=1))
-    scales = held_out_sigma_scales(r1_nominal, q, folds, errs)
+    scales = held_out_sigma_scales(r1_nominal, q, folds, errs, param_grid_mm=(0.03, 0.1, 0.3, 1.0, 3.0))
     assert (scales.param_sd_mm, scales.residual_mm) == (param_sd_mm, residual_mm)
+    if param_sd_mm == 0.1:  # the default: the prior fixed, the residual chosen
+        assert held_out_sigma_scales(r1_nominal, q, folds, errs).residual_mm == residual_mm
     assert scales.held_out_poses == int(wide.sum() + grid.sum()) and scales.share_over_2_sigma < 0.05
 
 
