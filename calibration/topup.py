@@ -321,7 +321,8 @@ def gaussian_share_over(cov: np.ndarray, factor: float = 2.0) -> float:
 #: the q1/q4-q6 steps, the q2 and q3 edges) the likelihood rises with the prior without a maximum (0613, 0620 after:
 #: 0.03 .. 10 mm-equivalent, ever flatter), since those folds lie where the other poses pin every parameter the
 #: prior would free; a task 40-90 deg beyond them does not. So it stays the fixed SIGMA_PARAM_SD_MM; the residual,
-#: which those folds do measure, is chosen per training recording.
+#: which those folds do measure, is chosen per training recording (the 7 R1 days with a test: 0.08-0.15 mm;
+#: ``scripts/bench_topup.py --sigma-k 0,21`` reports it beside the fixed one on the task poses).
 SIGMA_PARAM_SD_GRID_MM = (SIGMA_PARAM_SD_MM,)
 SIGMA_RESIDUAL_GRID_MM = (0.02, 0.03, 0.04, 0.05, 0.06, 0.08, 0.1, 0.12, 0.15, 0.2, 0.25, 0.3, 0.4)
 
