@@ -169,6 +169,48 @@ def cdf_figure(errs: dict[str, Errors], tolerance_mm: float, tolerance_deg: floa
     return fig
 
 
+def mask_runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """``(first, last)`` row indices of each run of True in ``mask`` (N,), in order."""
+    m = np.concatenate([[False], np.asarray(mask, dtype=bool), [False]])
+    edges = np.flatnonzero(np.diff(m.astype(int)))
+    return [(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2])]
+
+
+def sigma_along_task_figure(sigma_mm: np.ndarray, error_mm: np.ndarray, outside: np.ndarray,
+                            tolerance_mm: float | None = None, model: str = "model") -> Any:
+    """Predicted position uncertainty along the poses, in their order: 2 sigma as a band from zero, the measured
+    error as dots (those beyond 2 sigma marked), the poses outside the training joint range shaded.
+
+    Args:
+        sigma_mm: predicted position sigma (RMS of the error norm) per pose [mm], shape (N,).
+        error_mm: measured position error of ``model`` per pose [mm], shape (N,).
+        outside: poses outside the joint range of the data the sigma was predicted from, shape (N,).
+        tolerance_mm: drawn as a dashed line when given.
+    """
+    plt = _pyplot()
+    sigma, err = np.asarray(sigma_mm, dtype=float), np.asarray(error_mm, dtype=float)
+    x = np.arange(len(sigma))
+    fig, ax = plt.subplots(figsize=(12, 4.2), layout="constrained")
+    for k, (a, b) in enumerate(mask_runs(outside)):
+        ax.axvspan(a - 0.5, b + 0.5, color="#f4a261", alpha=0.25, lw=0,
+                   label="outside the training joint range (extrapolation)" if k == 0 else None)
+    ax.fill_between(x, 0, 2 * sigma, color="#2a6f97", alpha=0.25, step="mid", label="predicted 2 sigma")
+    ax.plot(x, 2 * sigma, color="#2a6f97", lw=1.2, drawstyle="steps-mid")
+    beyond = err > 2 * sigma
+    ax.plot(x[~beyond], err[~beyond], ".", color="#333333", ms=3, label=f"{model}: measured error")
+    ax.plot(x[beyond], err[beyond], "x", color="#d62828", ms=5,
+            label=f"{model}: error beyond 2 sigma ({100 * beyond.mean():.1f} % of the poses)")
+    if tolerance_mm is not None:
+        ax.axhline(tolerance_mm, color="r", ls="--", lw=1.0, label=f"tolerance {tolerance_mm:g} mm")
+    ax.set_xlabel("pose (row of the recording, in order) [-]")
+    ax.set_ylabel("position error [mm]")
+    ax.set_xlim(-0.5, len(sigma) - 0.5)
+    ax.set_ylim(0, None)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper left", fontsize=8, ncol=2)
+    return fig
+
+
 def singular_values_figure(s: np.ndarray) -> Any:
     """Singular values of the Fourier coefficient matrix (log scale)."""
     plt = _pyplot()

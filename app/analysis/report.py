@@ -435,10 +435,72 @@ def write_report(cmp: Comparison, test: Recording, out_dir: str | Path, with_pap
     return sorted(out.glob("*.png")) + [out / "report.md", html]
 
 
+@dataclass(frozen=True)
+class SigmaMap:
+    """The predicted position uncertainty at each pose of the evaluated recording (``evaluate --given``).
+
+    Attributes:
+        sigma_mm: predicted position sigma (RMS of the error norm) per pose [mm], shape (N,).
+        outside: poses outside the joint range of the poses the sigma was predicted from, shape (N,).
+        gaussian_over_2_sigma: the share of poses beyond 2 sigma a Gaussian error of the predicted covariances gives.
+        source: where the sigma comes from, in words.
+    """
+
+    sigma_mm: np.ndarray
+    outside: np.ndarray
+    gaussian_over_2_sigma: float
+    source: str
+
+
+def _runs_text(mask: np.ndarray, most: int = 6) -> str:
+    """Row ranges of the runs of True in ``mask`` (1-based, as a spreadsheet counts), the first ``most`` of them."""
+    runs = plots.mask_runs(mask)
+    text = ", ".join(f"{a + 1}" if a == b else f"{a + 1}-{b + 1}" for a, b in runs[:most])
+    return text + (f" and {len(runs) - most} more runs" if len(runs) > most else "")
+
+
+def sigma_parts(sigma: SigmaMap, model: str, e: Errors, out: Path, tol: Tolerance) -> tuple[str, Table, Image]:
+    """The uncertainty map of one model: a visible paragraph (where 2 sigma is within the tolerance, where not,
+    where the poses leave the training range, the share beyond 2 sigma against the Gaussian's), a table and the
+    sigma-along-the-poses plot."""
+    s, err = np.asarray(sigma.sigma_mm, dtype=float), np.asarray(e.position_mm, dtype=float)
+    n = len(s)
+    wide = 2 * s > tol.position_mm
+    beyond = err > 2 * s
+    text = (f"Predicted position uncertainty ({sigma.source}): 2 sigma is within the {tol.position_mm:g} mm tolerance "
+            f"on {n - int(wide.sum())} of the {n} poses, where the prediction can be trusted"
+            + (f"; beyond it on {int(wide.sum())} (rows {_runs_text(wide)})" if wide.any() else "")
+            + (f". {int(sigma.outside.sum())} poses lie outside the training joint range, where the model extrapolates "
+               f"(rows {_runs_text(sigma.outside)})" if sigma.outside.any() else ". Every pose lies inside the "
+               "training joint range")
+            + f". Measured: {100 * beyond.mean():.1f} % of the poses err by more than 2 sigma ({model}); a Gaussian "
+              f"error of the predicted covariances would put {100 * sigma.gaussian_over_2_sigma:.1f} % there.")
+    inside = ~sigma.outside
+    rows = []
+    for name, m in (("every pose", np.ones(n, dtype=bool)), ("inside the training range", inside),
+                    ("outside the training range", sigma.outside)):
+        if m.any():
+            rows.append([name, str(int(m.sum())), f"{s[m].mean():.3f}", f"{s[m].max():.3f}", f"{err[m].mean():.3f}",
+                         f"{err[m].max():.3f}", f"{100 * np.mean(wide[m]):.1f} %", f"{100 * np.mean(beyond[m]):.1f} %"])
+    table = Table(f"Predicted uncertainty of {model} ({sigma.source})",
+                  ["poses", "count", "sigma mean mm", "sigma max mm", "error mean mm", "error max mm",
+                   "2 sigma over tolerance", "error over 2 sigma"], rows,
+                  [f"sigma is the RMS of the position error norm predicted at each pose; a Gaussian error of the "
+                   f"predicted covariances exceeds 2 sigma on {100 * sigma.gaussian_over_2_sigma:.1f} % of the poses "
+                   f"(0.7 % for an isotropic 3-D error, 4.6 % for one along a single axis)."])
+    path = plots.save_figure(plots.sigma_along_task_figure(s, err, sigma.outside, tol.position_mm, model),
+                             out / "sigma_along_task.png")
+    image = Image.from_file(f"predicted 2 sigma and the measured error of {model} along the poses, in their order; "
+                            f"shaded: outside the training joint range", path)
+    return text, table, image
+
+
 def evaluation_section(title: str, models: dict[str, Any], rec: Recording, out_dir: str | Path, tol: Tolerance,
                        label: str, paragraphs: list[str] | None = None, recommended: str | None = None,
-                       why: list[str] | None = None, next_steps: list[str] | None = None) -> Section:
-    """Models evaluated on one recording (``evaluate``, ``recalibrate``): statistics, pass/fail, ISO, plots."""
+                       why: list[str] | None = None, next_steps: list[str] | None = None,
+                       sigma: SigmaMap | None = None) -> Section:
+    """Models evaluated on one recording (``evaluate``, ``recalibrate``): statistics, pass/fail, ISO, plots; with
+    ``sigma``, the uncertainty map of the first model (:func:`sigma_parts`)."""
     from calibration.metrics import error_stats
 
     errs = {n: errors(m, rec) for n, m in models.items()}
@@ -450,23 +512,31 @@ def evaluation_section(title: str, models: dict[str, Any], rec: Recording, out_d
                      f"{p['rms']:.3f}", f"{p['max']:.3f}", f"{o['mean']:.4f}", f"{o['max']:.4f}"])
     table = Table(f"Errors on {label}", ["model", "method", "params", "pos mean mm", "pos std mm", "pos RMS mm",
                                          "pos max mm", "ori mean deg", "ori max deg"], rows)
+    paragraphs, tables, images = list(paragraphs or []), [table], error_plots(errs, rec, Path(out_dir), tol, recommended)
+    if sigma is not None:
+        first = next(iter(errs))
+        text, sigma_table, sigma_image = sigma_parts(sigma, first, errs[first], Path(out_dir), tol)
+        paragraphs.append(text)
+        tables.append(sigma_table)
+        images.append(sigma_image)
     return Section(title, [acceptance(n, e, tol) for n, e in errs.items()], f"the {len(rec)} poses of {label}",
-                   iso_table(models, rec, label), recommended, list(paragraphs or []), [table],
-                   error_plots(errs, rec, Path(out_dir), tol, recommended), why=list(why or []),
+                   iso_table(models, rec, label), recommended, paragraphs, tables, images, why=list(why or []),
                    next_steps=list(next_steps or []))
 
 
 def write_evaluation_report(title: str, command: str, models: dict[str, Any], rec: Recording, out_dir: str | Path,
                             tol: Tolerance, inputs: list[tuple[str, Any]], label: str,
                             paragraphs: list[str] | None = None, next_steps: list[str] | None = None,
-                            why: list[str] | None = None) -> Path:
-    """``evaluate``/``recalibrate --report``: ``report.html`` (+ its PNGs) in ``out_dir``; returns the page."""
+                            why: list[str] | None = None, sigma: SigmaMap | None = None) -> Path:
+    """``evaluate``/``recalibrate --report``: ``report.html`` (+ its PNGs) in ``out_dir``; returns the page; with
+    ``sigma`` (``evaluate --given``) the uncertainty map along the poses."""
     from app.provenance import provenance
 
     out = Path(out_dir)
     make_folders(out)  # removed again when a staged set of outputs fails (calibration.files.staged_outputs)
     record = provenance(inputs)
-    section = evaluation_section(title, models, rec, out, tol, label, paragraphs, why=why, next_steps=next_steps)
+    section = evaluation_section(title, models, rec, out, tol, label, paragraphs, why=why, next_steps=next_steps,
+                                 sigma=sigma)
     return write_html(Page(title, command, tol, record, [section]), out)
 
 

@@ -156,7 +156,8 @@ def test_evaluate_and_predict_give_the_predicted_sigma_lower_where_the_poses_wer
         shares[len(extra)] = json.loads(js.read_text())["predicted_sigma"]
     # measured there: only the residual a global fit never learns is left
     assert np.sqrt(3) * SIGMA_RESIDUAL_MM - 1e-9 <= shares[2]["mean_mm"] < shares[0]["mean_mm"] - 0.05
-    assert 0.0 <= shares[0]["share_over_2_sigma"] <= 1.0 and shares[0]["gaussian_share_over_2_sigma"] == 0.0074
+    assert 0.0 <= shares[0]["share_over_2_sigma"] <= 1.0
+    assert 0.0070 <= shares[0]["gaussian_share_over_2_sigma"] <= 0.0460  # isotropic .. one axis
     assert main(["predict", "--model", str(folder / "grid-pi.yaml"), "--joints", str(folder / "task.csv"),
                  "--given", str(folder / "grid.csv"), "--out", str(folder / "pred.csv")]) == 0
     with open(folder / "pred.csv") as f:
@@ -218,3 +219,29 @@ def test_another_arms_given_poses_are_refused(files, tmp_path, capsys, command):
     capsys.readouterr()
     assert_bad_input(capsys, argv, "r2.csv", "not R1's poses")
     assert not out.exists()
+
+
+def test_evaluate_report_with_given_shows_where_the_model_can_be_trusted_along_the_task(files, synthetic_arm,
+                                                                                       tmp_path, capsys):
+    """evaluate --report --given: a visible paragraph (2 sigma against the tolerance, the rows outside the training
+    range, the share beyond 2 sigma against the Gaussian's), a table, and the sigma-along-the-task plot; the same
+    share as --json."""
+    _, _, truth = synthetic_arm
+    folder, q_task = files
+    q = np.concatenate([q_task[:4], cluster_design(step_deg=30.0, spread_wrist=False)[0][:4], q_task[4:]])
+    write_recording(measure(truth.fk, q, 0.02, 0.01, 8), tmp_path / "mixed.csv")
+    assert main(["fit", "--robot", "R1", "--train", str(folder / "grid.csv"), "--method", "pi",
+                 "--out", str(tmp_path / "pi.yaml")]) == 0
+    js = tmp_path / "ev.json"
+    assert main(["evaluate", "--model", str(tmp_path / "pi.yaml"), "--test", str(tmp_path / "mixed.csv"),
+                 "--given", str(folder / "grid.csv"), "--json", str(js), "--report", str(tmp_path / "rep")]) == 0
+    sigma = json.loads(js.read_text())["predicted_sigma"]
+    html = (tmp_path / "rep" / "report.html").read_text()
+    assert (tmp_path / "rep" / "sigma_along_task.png").stat().st_size > 1000
+    assert "predicted 2 sigma and the measured error" in html
+    text = next(line for line in html.splitlines() if "Predicted position uncertainty" in line)
+    assert f"{100 * sigma['share_over_2_sigma']:.1f} % of the poses err by more than 2 sigma" in text
+    assert f"would put {100 * sigma['gaussian_share_over_2_sigma']:.1f} %" in text
+    # the wide task poses leave the grid's range, the four grid poses among them do not
+    assert sigma["outside_given_range"] == len(q_task) and "(rows 1-4, 9-" in text
+    capsys.readouterr()
