@@ -11,9 +11,10 @@ from __future__ import annotations
 
 import datetime as _dt
 import hashlib
+from collections.abc import Iterable
 from dataclasses import replace
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
 
 #: The key of a model file's ``info`` that holds the provenance.
 PROVENANCE_KEY = "provenance"
@@ -62,7 +63,7 @@ def provenance(inputs: Iterable[tuple[str, str | Path | None]], now: _dt.datetim
     Returns:
         ``{"created_utc": ISO 8601 "...Z", "cellcal_version": str, "inputs": [{"role", "path", "sha256"}]}``.
     """
-    stamp = (now or _dt.datetime.now(_dt.timezone.utc)).astimezone(_dt.timezone.utc)
+    stamp = (now or _dt.datetime.now(_dt.UTC)).astimezone(_dt.UTC)
     files = []
     for role, path in inputs:
         if path is None:

@@ -14,8 +14,9 @@ casadi is imported only inside the functions that build expressions.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -86,7 +87,7 @@ class CasadiPose:
     frozen: Any = None
     frozen_at: Callable[[np.ndarray], np.ndarray] | None = None
 
-    def transformed(self, E: Any, shift: Any) -> "CasadiPose":
+    def transformed(self, E: Any, shift: Any) -> CasadiPose:
         """Everything rotated by ``E`` (3, 3) then shifted by ``shift`` (3,) (a pose correction)."""
         import casadi as ca
 

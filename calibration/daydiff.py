@@ -155,7 +155,7 @@ class _Day:
     sigma: tuple[float, float] = (1.0, 1.0 / rotation_residual_scale(DEFAULT_ORIENTATION_WEIGHT))
 
     @classmethod
-    def of(cls, rec: Recording, name: str | None = None) -> "_Day":
+    def of(cls, rec: Recording, name: str | None = None) -> _Day:
         return cls(name or rec.source, rec.q, rec.R, rec.p, rec.clusters())
 
 
@@ -286,7 +286,7 @@ class DaysProblem:
         lin = self.reduced(day, x)
         return x, lin, identified(lin["A"])
 
-    def solve(self) -> "DaysResult":
+    def solve(self) -> DaysResult:
         """Shared arm, noise floors, own arms, tests (see the module docstring)."""
         x = self.fit_shared(np.zeros(self.m))
         for d in self.days:  # each recording's own-fit noise floors, then everything again whitened by them
@@ -390,7 +390,7 @@ class Test:
     differs: bool
 
     @classmethod
-    def of(cls, d: np.ndarray, V: np.ndarray, alpha: float) -> "Test":
+    def of(cls, d: np.ndarray, V: np.ndarray, alpha: float) -> Test:
         if d.size == 0:
             return cls(0.0, 0, 1.0, False)
         chi2 = float(d @ np.linalg.solve(V, d))
@@ -514,7 +514,7 @@ class DaysResult:
 
     @classmethod
     def build(cls, problem: DaysProblem, x: np.ndarray, own: list[tuple[np.ndarray, dict, np.ndarray]]
-              ) -> "DaysResult":
+              ) -> DaysResult:
         D = len(own)
         sm = problem.scale[:problem.m]
         covs = [covariance(lin["A"], lin["Bk"], U, lin["cl"].max() + 1) for _, lin, U in own]

@@ -88,7 +88,7 @@ class FrameFit:
     result: RebaseResult
 
     @classmethod
-    def of(cls, frames: str, result: RebaseResult) -> "FrameFit":
+    def of(cls, frames: str, result: RebaseResult) -> FrameFit:
         d = result.delta
         return cls(frames, result.mean_after_mm, float(np.max(result.residual_after_mm)),
                    float(np.linalg.norm(d[0:3])), float(np.degrees(np.linalg.norm(d[3:6]))),

@@ -23,24 +23,25 @@ from __future__ import annotations
 import logging
 import multiprocessing as mp
 import time
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from calibration import robust
 from calibration.cdc import CDC_INPUTS, CdcModel, LocalFits, build_cdc, cluster_anchors, fit_local
-from calibration.identification.cpa import identify_cpa, split_sweeps
 from calibration.errors import DataError, ModelError
 from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, GeometricProblem
+from calibration.identification.cpa import identify_cpa, split_sweeps
 from calibration.identification.geometric import check_orientation_weight
+from calibration.identification.observability import DEFAULT_RELATIVE_TOLERANCE, Observability, analyse, filter_weights
 from calibration.models import ConstantModel, KinematicModel
 from calibration.models.guard import REGION_KEY, Region
-from calibration.identification.observability import DEFAULT_RELATIVE_TOLERANCE, Observability, analyse, filter_weights
+from calibration.models.pi import PhysicsInformedModel
 from calibration.parameterisation import MinimalParameterisation
 from calibration.physics.gravity import GravityModel
-from calibration.models.pi import PhysicsInformedModel
 from calibration.physics_informed import ExtendedKinematics
 from calibration.poe import PoeModel, pose_error
 from calibration.recording import Recording, standalone_mask
@@ -193,11 +194,11 @@ class Fitter:
     cpa_data: Recording | None = None
     gravity: GravityModel | None = None
     joint_limits: tuple[np.ndarray, np.ndarray] | None = None
-    warm: "Fitter | None" = field(default=None, repr=False)
+    warm: Fitter | None = field(default=None, repr=False)
     _cache: dict[str, Any] = field(default_factory=dict, repr=False)
     gross: robust.GrossRows | None = field(default=None, repr=False)
 
-    def without_gross_rows(self) -> "Fitter":
+    def without_gross_rows(self) -> Fitter:
         """This fitter on its training recording less its gross measurement errors (:func:`robust.gross_rows`,
         scored under the geometric fit ``nls1``, refitted without them); ``gross`` says which were set aside. With
         none set aside it is this fitter, still fresh: the scoring fits are made apart (the frames-first fit changes a
@@ -800,7 +801,7 @@ class Fitter:
             self._cache.setdefault("fold_seconds", {})[method, fold] = seconds
         return cached[method, fold]
 
-    def _fold_fitters(self) -> list[tuple[np.ndarray, "Fitter"]]:
+    def _fold_fitters(self) -> list[tuple[np.ndarray, Fitter]]:
         """``(held-out mask, Fitter on the other clusters)`` per fold, shared by every method (cached)."""
         if "folds" not in self._cache:
             self._require_clusters(2, "held-out figures (each fold refitted on the other clusters)")

@@ -27,8 +27,9 @@ is a common pair; :meth:`MultiDayFit.summary` says so in a line of its own.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 

@@ -26,9 +26,8 @@ from typing import Any
 import numpy as np
 
 from calibration import so3
+from calibration.casadi_expr import NUMPY, CasadiPose, Ops, casadi_ops, check_small_rotations, exp_sx, poe_chain, rot_sx
 from calibration.errors import ModelError
-from calibration.casadi_expr import NUMPY, CasadiPose, Ops, casadi_ops, check_small_rotations, exp_sx, poe_chain, \
-    rot_sx
 from calibration.models.base import Block
 from calibration.parameterisation import MinimalParameterisation
 from calibration.physics.compliance import COMPLIANCE_NAMES, MassFreeCompliance
@@ -256,7 +255,7 @@ class ExtendedKinematics:
         """The rotation (N, 3, 3) the structural deflection applies to the whole arm, in the base frame."""
         return so3.exp(self._parts(q, theta)[8])
 
-    def geometry_view(self, theta_ref: np.ndarray) -> "GeometryView":
+    def geometry_view(self, theta_ref: np.ndarray) -> GeometryView:
         """The geometric block alone as kinematics, with every other term fixed at ``theta_ref``."""
         return GeometryView(self, np.asarray(theta_ref, dtype=float))
 

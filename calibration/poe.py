@@ -14,7 +14,6 @@ Pose vectors and Jacobian rows are ordered ``[position (3) mm; rotation (3) rad]
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-
 from typing import Any
 
 import numpy as np
@@ -89,7 +88,7 @@ class PoeModel:
         """Tool position in the last link frame relative to the flange point [mm], shape (3,)."""
         return self.R_flange @ self.p_flange_tool
 
-    def with_geometry(self, H: np.ndarray, P: np.ndarray) -> "PoeModel":
+    def with_geometry(self, H: np.ndarray, P: np.ndarray) -> PoeModel:
         """The same arm and tool with other axes and link vectors."""
         return replace(self, H=H, P=P)
 

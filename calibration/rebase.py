@@ -42,8 +42,12 @@ from calibration import so3
 from calibration.errors import DataError, ModelError
 from calibration.identification import DEFAULT_ORIENTATION_WEIGHT
 from calibration.identification.lm import Groups, Linearisation, LMSettings, Residuals, StopReason, solve
-from calibration.identification.observability import (DEFAULT_REACH_MM, DEFAULT_RELATIVE_TOLERANCE, Observability,
-                                                      analyse_jacobian)
+from calibration.identification.observability import (
+    DEFAULT_REACH_MM,
+    DEFAULT_RELATIVE_TOLERANCE,
+    Observability,
+    analyse_jacobian,
+)
 from calibration.models.base import KinematicModel
 from calibration.models.rebased import RebasedModel, make_T
 from calibration.poe import pose_error
@@ -283,7 +287,7 @@ class RebaseProblem:
         return np.concatenate([J, J_off], axis=2)
 
     @classmethod
-    def from_recording(cls, model: KinematicModel, rec: Recording, **options: Any) -> "RebaseProblem":
+    def from_recording(cls, model: KinematicModel, rec: Recording, **options: Any) -> RebaseProblem:
         """The problem on a recording's poses (``options`` as in the constructor)."""
         return cls(model, rec.q, rec.R, rec.p, **options)  # type: ignore[arg-type]
 

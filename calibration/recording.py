@@ -121,7 +121,7 @@ class Recording:
             ctx["qd"] = np.stack([self.extra[c] for c in SPEED_COLUMNS], axis=1).astype(float)
         return ctx
 
-    def subset(self, index: np.ndarray) -> "Recording":
+    def subset(self, index: np.ndarray) -> Recording:
         """The samples selected by a boolean mask or an index array."""
         return Recording(self.q[index], self.p[index], self.quat[index],
                          {k: v[index] for k, v in self.extra.items()}, self.source)

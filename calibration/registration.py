@@ -139,7 +139,7 @@ class RegistrationProblem:
     @classmethod
     def from_poses(cls, R_base_flange: np.ndarray, p_base_flange: np.ndarray, R_world_marker: np.ndarray,
                    p_world_marker: np.ndarray, T_flange_marker_guess: np.ndarray | None = None,
-                   a: float = DEFAULT_ORIENTATION_WEIGHT, check_motion: bool = True) -> "RegistrationProblem":
+                   a: float = DEFAULT_ORIENTATION_WEIGHT, check_motion: bool = True) -> RegistrationProblem:
         """The same problem around any pose function: ``T_world_marker_i = T_world_base @ T_i @ T_flange_marker``.
 
         Args:

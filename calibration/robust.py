@@ -22,9 +22,9 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
+from collections.abc import Callable
 from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -75,7 +75,7 @@ class HeldOut:
         return self.rms_mm / max(self.reference_rms_mm, 1e-12)
 
     @classmethod
-    def of_errors(cls, err: np.ndarray, ref: np.ndarray, groups: np.ndarray) -> "HeldOut":
+    def of_errors(cls, err: np.ndarray, ref: np.ndarray, groups: np.ndarray) -> HeldOut:
         """The figures of held-out position errors ``err`` [mm] (N,) against the reference's ``ref`` (N,) on the
         same poses, ``groups`` their cluster labels (N,) (any integers) for the standard error over clusters."""
         err, ref = np.asarray(err, dtype=float), np.asarray(ref, dtype=float)

@@ -19,8 +19,19 @@ from calibration import so3
 from calibration.errors import ConfigError
 from calibration.poe import PoeModel
 from cell_config._yaml import Node
-from cell_config.devices import (ZENOH_MODES, ZENOH_ROLES, ControllerConfig, MocapConfig, ProbeConfig, ZenohConfig,
-                                 ZenohRole, parse_controller, parse_mocap, parse_probe, parse_zenoh)
+from cell_config.devices import (
+    ZENOH_MODES,
+    ZENOH_ROLES,
+    ControllerConfig,
+    MocapConfig,
+    ProbeConfig,
+    ZenohConfig,
+    ZenohRole,
+    parse_controller,
+    parse_mocap,
+    parse_probe,
+    parse_zenoh,
+)
 from cell_config.registration import RobotRegistration, load_registration, registrations_for, save_registration
 
 __all__ = [
@@ -83,7 +94,7 @@ class RobotSpec:
         pulses = np.asarray(pulses, dtype=float)
         return (pulses - self.pulse_zero) * self.pulse_sign / self.pulses_per_rad
 
-    def model(self, tool: "ToolSpec | None" = None) -> PoeModel:
+    def model(self, tool: ToolSpec | None = None) -> PoeModel:
         """The nominal POE model of this arm carrying ``tool`` (flange frame when None)."""
         if tool is None:
             return PoeModel(self.H, self.P, self.R_flange)

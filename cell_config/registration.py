@@ -22,7 +22,8 @@ import os
 import stat
 from collections.abc import Mapping
 from dataclasses import dataclass
-from datetime import datetime, date as _date
+from datetime import date as _date
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 

@@ -46,8 +46,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from app.analysis.compare import recommend_fitted  # noqa: E402
-from calibration.methods import CDC_INTERPOLATORS, METHODS, Fitter  # noqa: E402
 from calibration.frames import check_recording, check_test  # noqa: E402
+from calibration.methods import CDC_INTERPOLATORS, METHODS, Fitter  # noqa: E402
 from calibration.metrics import errors  # noqa: E402
 from calibration.models import ConstantModel  # noqa: E402
 from calibration.models.rebased import wrap_pose  # noqa: E402
@@ -322,8 +322,8 @@ def report_r2(methods: list[str], rows: dict[str, dict[str, Any]]) -> None:
     if not rows:
         return
     shown = list(dict.fromkeys(["nominal", *methods]))
-    print(f"\n## R2 simulated (MA1440, configuration-dependent error of the paper's size; drivers/sim/cdc_twin.py): "
-          f"position error mean/max [mm] on its test path\n")
+    print("\n## R2 simulated (MA1440, configuration-dependent error of the paper's size; drivers/sim/cdc_twin.py): "
+          "position error mean/max [mm] on its test path\n")
     print("| day | " + " | ".join(shown) + " | recommended | local prior (pi) |")
     print("|---|" + "---|" * (len(shown) + 2))
     for label, row in rows.items():
@@ -396,7 +396,7 @@ def report(methods: list[str], cross_methods: list[str], same_day: dict, cross: 
         print(f"| {m} | {len(pairs)} | {int(np.sum(ratios <= GOAL_RATIO))} | {np.median(ratios):.2f} | "
               f"{worst[2]['ratio']:.2f} ({worst[0]} → {worst[1]}) | {max_ratio:.2f} | "
               f"{int(np.sum(bound <= GOAL_RATIO))} | {np.median(bound):.2f} |")
-    print(f"\nPairs (model from → tested on) that miss the goal with 21 poses:\n")
+    print("\nPairs (model from → tested on) that miss the goal with 21 poses:\n")
     for m in cross_methods:
         miss = [f"{a} → {lb} ({c['ratio']:.2f})" for a, row in cross[m].items() for lb, c in row.items()
                 if c["ratio"] > GOAL_RATIO]

@@ -42,13 +42,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from scripts.bench_days import DATA, UNITS, make_fitter, mean_max  # noqa: E402
 from calibration import so3  # noqa: E402
 from calibration.design import select_recording  # noqa: E402
 from calibration.metrics import errors  # noqa: E402
 from calibration.parameterisation import MinimalParameterisation  # noqa: E402
 from calibration.recording import Recording, read_recording  # noqa: E402
 from cell_config import load_cell  # noqa: E402
+from scripts.bench_days import DATA, UNITS, make_fitter, mean_max  # noqa: E402
 
 BUDGET_CLUSTERS = 16
 SIM_BUDGET_POSES = 196
@@ -210,11 +210,11 @@ def workspace_validation(safety: Any, others: dict[str, np.ndarray], seed: int, 
 
 
 def bench_sim(seed: int, log: Any) -> dict[str, Any]:
-    from app.cell.design_plan import DesignSpec, optimal_plan, paper_grid_figures
+    from app.cell.design_plan import DesignSpec, optimal_plan
     from app.cell.planning import plan_anchor_grid
     from app.cell.runtime import SimCellOptions, park_q
-    from app.cell.session_plan import validation_plan
     from app.cell.safety import CellSafety
+    from app.cell.session_plan import validation_plan
     from drivers.sim.truth import cell_truths
 
     cell = load_cell()

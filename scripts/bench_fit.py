@@ -31,8 +31,8 @@ TRAIN = ROOT.parent / "shared" / "data" / "welding_motoman" / "PH_grad_data" / "
 
 def synthetic_training(nominal):
     sys.path.insert(0, str(ROOT))
-    from tests.conftest import cluster_design, measure, planted_parameters
     from calibration.parameterisation import MinimalParameterisation
+    from tests.conftest import cluster_design, measure, planted_parameters
 
     par = MinimalParameterisation(nominal, True)
     truth = par.model(planted_parameters(par))

@@ -28,6 +28,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
 from bench_days import DATA, make_fitter  # noqa: E402
+
 from calibration import robust  # noqa: E402
 from calibration.cdc import CDC_INPUTS, LocalFits, build_cdc, cluster_anchors  # noqa: E402
 from calibration.identification import GeometricProblem  # noqa: E402

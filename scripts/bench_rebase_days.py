@@ -55,10 +55,18 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "scripts"))
 
 from bench_days import CLUSTER_SIZE, DATA, GOAL_RATIO, UNITS, make_fitter, spread_clusters  # noqa: E402
+
 from calibration.models import load_model, save_model  # noqa: E402
 from calibration.poe import pose_error  # noqa: E402
-from calibration.rebase import (AUTO_CHOICES, CHOICES, RebaseProblem, RebaseRefused, choice_options,  # noqa: E402
-                               choose_directions, rebase, rebase_auto)
+from calibration.rebase import (  # noqa: E402
+    CHOICES,
+    RebaseProblem,
+    RebaseRefused,
+    choice_options,
+    choose_directions,
+    rebase,
+    rebase_auto,
+)
 from calibration.recording import Recording, read_recording  # noqa: E402
 from cell_config import load_cell  # noqa: E402
 

@@ -43,7 +43,7 @@ from calibration.metrics import errors  # noqa: E402
 from calibration.models.rebased import make_T, wrap_pose  # noqa: E402
 from calibration.rebase import rebase  # noqa: E402
 from cell_config import load_cell  # noqa: E402
-from scripts.bench_days import CLUSTER_SIZE, GOAL_RATIO, make_fitter, spread_clusters  # noqa: E402
+from scripts.bench_days import GOAL_RATIO, make_fitter, spread_clusters  # noqa: E402
 from scripts.bench_design import SIM_BUDGET_POSES, measure, workspace_validation  # noqa: E402
 
 REBASE_BUDGET = 21

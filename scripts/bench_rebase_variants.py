@@ -38,8 +38,9 @@ import argparse
 import json
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -55,8 +56,15 @@ from calibration.poe import pose_error  # noqa: E402
 from calibration.rebase import RebaseProblem, RebaseRefused, corrections, rebase_auto  # noqa: E402
 from calibration.recording import Recording, read_recording  # noqa: E402
 from cell_config import load_cell  # noqa: E402
-from scripts.bench_days import (CLUSTER_SIZE, DATA, GOAL_RATIO, UNITS, design_clusters, make_fitter,  # noqa: E402
-                                spread_clusters)  # noqa: E402
+from scripts.bench_days import (  # noqa: E402
+    CLUSTER_SIZE,
+    DATA,
+    GOAL_RATIO,
+    UNITS,
+    design_clusters,
+    make_fitter,
+    spread_clusters,  # noqa: E402
+)
 
 Predict = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 FRAME_VARIANTS = {"frames": {}, "base": {"frames": ("base",)}, "translations": {"rotations": False}}

@@ -23,8 +23,15 @@ from tqdm import tqdm
 
 from cell_config.loader import ZenohConfig
 from drivers.base import RigidBodyFrame
-from drivers.bus import MocapBridge, ZenohMocapSource, decode_mocap, encode_mocap, mocap_key, open_session
-from drivers.bus import wait_for_subscriber
+from drivers.bus import (
+    MocapBridge,
+    ZenohMocapSource,
+    decode_mocap,
+    encode_mocap,
+    mocap_key,
+    open_session,
+    wait_for_subscriber,
+)
 from drivers.bus.payloads import MOCAP
 
 CELL = "bench"

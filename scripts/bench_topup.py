@@ -42,8 +42,8 @@ sys.path.insert(0, str(ROOT))
 
 from calibration.design import select_recording  # noqa: E402
 from calibration.methods import Fitter  # noqa: E402
-from calibration.parameterisation import MinimalParameterisation  # noqa: E402
 from calibration.metrics import errors  # noqa: E402
+from calibration.parameterisation import MinimalParameterisation  # noqa: E402
 from calibration.recording import DEFAULT_ADD_WEIGHT, Recording, read_recording, with_added  # noqa: E402
 from calibration.topup import TopupPrior, choose, predicted_sigma  # noqa: E402
 from cell_config import load_cell  # noqa: E402

@@ -35,8 +35,14 @@ sys.path.insert(0, str(ROOT))
 from calibration.diagnosis import StructuralDeflection  # noqa: E402
 from calibration.metrics import errors  # noqa: E402
 from calibration.models import load_model, save_model  # noqa: E402
-from calibration.models.guard import DEFAULT_MARGIN_RAD, MIN_MARGIN_RAD, REGION_KEY, RULE_BY_EFFECT, RULE_EVERY_JOINT, \
-    Region  # noqa: E402
+from calibration.models.guard import (
+    DEFAULT_MARGIN_RAD,
+    MIN_MARGIN_RAD,
+    REGION_KEY,
+    RULE_BY_EFFECT,
+    RULE_EVERY_JOINT,
+    Region,  # noqa: E402
+)
 from calibration.poe import pose_error  # noqa: E402
 from calibration.recording import Recording, read_recording  # noqa: E402
 from cell_config import load_cell  # noqa: E402

@@ -15,8 +15,9 @@ import argparse
 import json
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -82,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
             rows.append(row)
             print(f"{day:22s} {kind:3s} ratio 5 folds {full.ratio:.3f} | first k: "
                   + " ".join(f"{k}:{h.ratio:.3f}" for k, h in by_k.items())
-                  + f" | flag same as 5 folds for k=" + ",".join(str(k) for k, h in by_k.items()
+                  + " | flag same as 5 folds for k=" + ",".join(str(k) for k, h in by_k.items()
                                                            if (h.ratio > robust.HELDOUT_RATIO_LIMIT)
                                                            == (full.ratio > robust.HELDOUT_RATIO_LIMIT)),
                   flush=True)

@@ -323,7 +323,7 @@ def power(args, arms, power_seeds, ladder, out, design, results, chosen=tuple(IS
         results["power"][kind] = {"rates": rates, "smallest_mm": smallest}
         ladder_txt = ", ".join(f"{m:g} mm: {100 * r:.0f}%" for m, r in rates.items())
         print(f"  {kind}: smallest magnitude found in >= 90% of seeds: "
-              f"{'> %g' % ladder[-1] if smallest is None else '%g' % smallest} mm RMS  ({ladder_txt})", flush=True)
+              f"{f'> {ladder[-1]:g}' if smallest is None else f'{smallest:g}'} mm RMS  ({ladder_txt})", flush=True)
     for name, (kinds, build, _, unit, steps) in ((k, v) for k, v in ISSUE13.items() if k in chosen and args.only != "kinds"):
         for robot in ROBOTS:
             rates, smallest = {}, None
@@ -337,7 +337,7 @@ def power(args, arms, power_seeds, ladder, out, design, results, chosen=tuple(IS
             results["power"][f"{name}/{robot}"] = {"rates": rates, "smallest": smallest, "unit": unit}
             ladder_txt = ", ".join(f"{m:g} {unit}: {100 * r:.0f}%" for m, r in rates.items())
             print(f"  {name} ({robot}): smallest magnitude found in >= 90% of seeds: "
-                  f"{'> %g' % steps[-1] if smallest is None else '%g' % smallest} {unit} RMS  ({ladder_txt})", flush=True)
+                  f"{f'> {steps[-1]:g}' if smallest is None else f'{smallest:g}'} {unit} RMS  ({ladder_txt})", flush=True)
 
 
 # --- the independent-torque family (issue 31) ----------------------------------------------------------------------
@@ -377,7 +377,7 @@ def point_mass_torques(model, q: np.ndarray, masses: dict, payload_kg: np.ndarra
     g = np.array([0.0, 0.0, -9.80665])
     o = c.p_base_origin  # (n+1, N, 3): joint k+1's axis point, then the flange
     R_flange = np.einsum("nij,jk->nik", c.R_base_link[n], model.R_flange)
-    pts, kg = [], []
+    pts = []
     for i, k in enumerate(range(1, n)):  # links 2..6 (0-based link index k: between axis k and axis k+1)
         p = o[k] + masses["along"][i] * (o[k + 1] - o[k]) + np.einsum("nij,j->ni", c.R_base_link[k + 1],
                                                                       masses["lateral_mm"][i])
@@ -410,9 +410,9 @@ def make_family_case(robot: str, cls: str, seed: int, nominal, design: Design, n
     class has :data:`N_GROSS` gross marker errors per recording; the other classes too with ``gross_all``."""
     from calibration import so3
     from calibration.diagnosis.synthetic import context_of, design_and_context, heldout_design
+    from calibration.physics.twin import plant
     from calibration.poe import PoeModel
     from calibration.recording import Recording
-    from calibration.physics.twin import plant
 
     rng = np.random.default_rng(seed)
     switching = cls in ("payload_switch", "payload_backlash")

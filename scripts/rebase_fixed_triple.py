@@ -24,6 +24,7 @@ sys.path.insert(0, str(ROOT / "scripts"))
 
 from bench_days import CLUSTER_SIZE, DATA, UNITS  # noqa: E402
 from bench_rebase_days import fitted, stats  # noqa: E402
+
 from calibration.rebase import choice_options, choose_directions, rebase  # noqa: E402
 from calibration.recording import read_recording  # noqa: E402
 from cell_config import load_cell  # noqa: E402

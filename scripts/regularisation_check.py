@@ -27,10 +27,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from calibration.diagnosis.selection import blocked_folds  # noqa: E402
 from calibration.identification import GeometricProblem, rotation_residual_scale, weighted_residuals  # noqa: E402
-from calibration.metrics import errors  # noqa: E402
 from calibration.identification.observability import analyse, filter_weights  # noqa: E402
-from calibration.parameterisation import MinimalParameterisation  # noqa: E402
+from calibration.metrics import errors  # noqa: E402
 from calibration.models.pi import PhysicsInformedModel  # noqa: E402
+from calibration.parameterisation import MinimalParameterisation  # noqa: E402
 from calibration.physics_informed import ExtendedKinematics  # noqa: E402
 from calibration.recording import Recording, read_recording  # noqa: E402
 from cell_config import load_cell  # noqa: E402

@@ -34,9 +34,9 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -527,7 +527,9 @@ def _digest(path: Path) -> str | None:
 
 
 def replay(case: Case, w: Path, timeout_s: float) -> Outcome:
-    fill = (lambda s: s.replace("{W}", str(w)))
+    def fill(s: str) -> str:
+        return s.replace("{W}", str(w))
+
     shutil.rmtree(w / "out", ignore_errors=True)
     (w / "out").mkdir()
     if case.setup is not None:

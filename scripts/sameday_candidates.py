@@ -37,7 +37,6 @@ from calibration.diagnosis.shifts import one_sided_shift  # noqa: E402
 from calibration.identification.geometric import rotation_residual_scale, weighted_residuals  # noqa: E402
 from calibration.methods import FitOptions  # noqa: E402
 from calibration.recording import read_recording  # noqa: E402
-from cell_config import load_cell  # noqa: E402
 from scripts.heldout_folds import DATA, run_days  # noqa: E402
 
 MAD_FACTOR = 3.5

@@ -36,9 +36,8 @@ sys.path.insert(0, str(ROOT))
 
 from app.analysis.fitting import fitter_for  # noqa: E402
 from calibration.cdc import cluster_anchors  # noqa: E402
-from calibration.recording import read_recording  # noqa: E402
 from calibration.diagnosis.shifts import OneSidedShift, one_sided_shift  # noqa: E402
-from cell_config import load_cell  # noqa: E402
+from calibration.recording import read_recording  # noqa: E402
 from scripts.heldout_folds import DATA, run_days  # noqa: E402
 
 WINDOW = 70  # rows of the moving mean: 10 clusters

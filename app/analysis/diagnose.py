@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import json
 import logging
-from pathlib import Path
+from collections.abc import Sequence
 from dataclasses import replace
-from typing import Any, Sequence
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -224,8 +225,17 @@ def write_report(result: Diagnosis, out_dir: str | Path, tolerance: Any = None, 
         inputs: (role, path) of the input files, for the provenance.
         command: the command line shown in the report.
     """
-    from app.analysis.report import (Image, Page, Section, Table, Tolerance, acceptance_from_max, iso_table,
-                                     iso_unavailable, write_html)
+    from app.analysis.report import (
+        Image,
+        Page,
+        Section,
+        Table,
+        Tolerance,
+        acceptance_from_max,
+        iso_table,
+        iso_unavailable,
+        write_html,
+    )
     from app.provenance import provenance
 
     plt = _pyplot()

@@ -157,7 +157,7 @@ class Image:
         return "data:image/png;base64," + base64.b64encode(self.png).decode("ascii")
 
     @classmethod
-    def from_file(cls, caption: str, path: Path) -> "Image":
+    def from_file(cls, caption: str, path: Path) -> Image:
         return cls(caption, read_output_bytes(path), Path(path).name)  # a staged plot: under its temporary name
 
 

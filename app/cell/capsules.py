@@ -66,7 +66,7 @@ class ArmCapsules:
     column_mm: float
 
     @classmethod
-    def of(cls, robot: CellRobot, floor_z_mm: float) -> "ArmCapsules":
+    def of(cls, robot: CellRobot, floor_z_mm: float) -> ArmCapsules:
         caps = robot.robot.capsules_mm
         missing = [s for s in SEGMENTS if s not in caps]
         if missing:

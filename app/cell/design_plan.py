@@ -85,7 +85,7 @@ class DesignSpec:
             raise ConfigError("DesignSpec", "target", f"expected one of {', '.join(TARGETS)}, got {self.target!r}")
 
     @classmethod
-    def for_rebase(cls, budget: int, noise_mm: float = 0.05, seed: int = 0) -> "DesignSpec":
+    def for_rebase(cls, budget: int, noise_mm: float = 0.05, seed: int = 0) -> DesignSpec:
         """The rebase design: no spread term, ``REBASE_PERTURB_DEG`` steps."""
         return cls(budget=budget, perturb_deg=REBASE_PERTURB_DEG, spread_weight=0.0, noise_mm=noise_mm, seed=seed,
                    target="rebase")

@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from app.cell.planning import KINDS, Plan
 from app.cell.plan_safety import plan_defects
+from app.cell.planning import KINDS, Plan
 from app.cell.safety import CellSafety
 from calibration.errors import ConfigError
 from drivers.motoros.driver import CUBIC_PEAK_RATIO

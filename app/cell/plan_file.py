@@ -24,8 +24,8 @@ from calibration.files import read_input_text
 if TYPE_CHECKING:
     import numpy as np
 
-    from app.dual.plan_result import PlanResult
     from app.cell.planning import Plan
+    from app.dual.plan_result import PlanResult
 
 PLAN_SCHEMA = "cellcal.plan/1"
 PlanKind = Literal["collection", "dual"]
@@ -67,7 +67,7 @@ def plan_kind(d: Any, source: str | Path = "<plan>", expected: PlanKind | None =
     return str(kind)
 
 
-def plan_from_data(d: Any, source: str | Path = "<plan>", kind: PlanKind | None = None) -> "Plan | PlanResult":
+def plan_from_data(d: Any, source: str | Path = "<plan>", kind: PlanKind | None = None) -> Plan | PlanResult:
     """A plan from a plan file's content, by its kind.
 
     Args:
@@ -78,8 +78,8 @@ def plan_from_data(d: Any, source: str | Path = "<plan>", kind: PlanKind | None 
     Raises:
         DataError: not a plan, not of ``kind``, or a malformed entry (the message names it).
     """
-    from app.dual.plan_result import PlanResult
     from app.cell.planning import Plan
+    from app.dual.plan_result import PlanResult
 
     found = plan_kind(d, source, kind)
     if kind is not None and found != kind:
@@ -91,7 +91,7 @@ def plan_from_data(d: Any, source: str | Path = "<plan>", kind: PlanKind | None 
     return PlanResult.from_dict(d, source) if found == "dual" else Plan.from_dict(d, str(source))
 
 
-def json_numbers(value: Any) -> "np.ndarray | None":
+def json_numbers(value: Any) -> np.ndarray | None:
     """A (nested) list of JSON numbers as a float array, or None when any entry is not a number: a string ("0.1")
     or a boolean (true, which numpy reads as 1 rad) in a plan file is a mistake, not an angle."""
     import numpy as np
@@ -104,8 +104,8 @@ def json_numbers(value: Any) -> "np.ndarray | None":
     return np.asarray(value, dtype=float) if isinstance(value, list) and ok(value) else None
 
 
-def read_plan(source: "str | Path | dict[str, Any] | Plan | PlanResult", kind: PlanKind | None = None
-              ) -> "Plan | PlanResult":
+def read_plan(source: str | Path | dict[str, Any] | Plan | PlanResult, kind: PlanKind | None = None
+              ) -> Plan | PlanResult:
     """Read a plan file (or take parsed content or a plan object) as a :class:`Plan` or :class:`PlanResult`.
 
     Args:
@@ -115,8 +115,8 @@ def read_plan(source: "str | Path | dict[str, Any] | Plan | PlanResult", kind: P
     Raises:
         DataError: missing or unreadable file, not JSON, not a plan, another kind, or a malformed entry.
     """
-    from app.dual.plan_result import PlanResult
     from app.cell.planning import Plan
+    from app.dual.plan_result import PlanResult
 
     if isinstance(source, (Plan, PlanResult)):
         found = "dual" if isinstance(source, PlanResult) else "collection"

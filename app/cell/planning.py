@@ -21,7 +21,8 @@ from typing import Any, Literal
 
 import numpy as np
 
-from app.cell.plan_file import PLAN_SCHEMA as SCHEMA, json_numbers
+from app.cell.plan_file import PLAN_SCHEMA as SCHEMA
+from app.cell.plan_file import json_numbers
 from calibration.errors import ConfigError, DataError, UnsafeTarget
 from calibration.files import atomic_write_text
 
@@ -84,7 +85,7 @@ class Plan:
         return {"schema": SCHEMA, "kind": "collection", "params": self.params, "targets": [t.to_dict() for t in self.targets]}
 
     @staticmethod
-    def from_dict(d: Any, source: str = "<plan>") -> "Plan":
+    def from_dict(d: Any, source: str = "<plan>") -> Plan:
         """Validate and build a plan from its JSON form; raises DataError naming the bad entry."""
         if not isinstance(d, dict) or d.get("schema") != SCHEMA:
             raise DataError(source, None, "schema", f"expected schema {SCHEMA!r}")

@@ -16,7 +16,8 @@ from __future__ import annotations
 
 import logging
 import time
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -199,7 +200,7 @@ class RealCell:
 
         return park_q(robot)
 
-    def open(self) -> "RealCell":
+    def open(self) -> RealCell:
         """Connect the controller and the mocap subscription and wait for each arm's first mocap frame; on failure
         whatever was opened is closed (nothing has moved)."""
         from drivers.bus import ZenohMocapSource, open_session
@@ -272,7 +273,7 @@ class RealCell:
             d.close()
         self.drivers.clear()
 
-    def __enter__(self) -> "RealCell":
+    def __enter__(self) -> RealCell:
         return self.open()
 
     def __exit__(self, *exc: object) -> None:

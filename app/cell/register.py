@@ -14,8 +14,9 @@ from __future__ import annotations
 import datetime as _dt
 import logging
 import time
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, Callable, Mapping
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm
@@ -57,7 +58,7 @@ class RegistrationRun:
         r = self.result
         return RobotRegistration(
             T_world_base=r.T_world_base, T_flange_marker=r.T_flange_marker,
-            date=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"), rms_mm=float(r.rms_mm),
+            date=_dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"), rms_mm=float(r.rms_mm),
             rms_deg=float(r.rms_deg), n_samples=int(r.n_samples), sigma_world_base=np.asarray(r.sigma_world_base),
             sigma_flange_marker=np.asarray(r.sigma_flange_marker))
 

@@ -103,7 +103,7 @@ class Process:
         self.lines: list[str] = []
         self._reader: threading.Thread | None = None
 
-    def start(self, ready: bool = True, timeout_s: float = 30.0) -> "Process":
+    def start(self, ready: bool = True, timeout_s: float = 30.0) -> Process:
         self.lines = []
         self.proc = subprocess.Popen(self.argv, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                      stdin=subprocess.DEVNULL, text=True, env=_env())
@@ -113,7 +113,7 @@ class Process:
             self.wait_ready(timeout_s)
         return self
 
-    def wait_ready(self, timeout_s: float = 30.0) -> "Process":
+    def wait_ready(self, timeout_s: float = 30.0) -> Process:
         """Wait for the started process's ready line (its first stdout line)."""
         if self.proc is None or self._reader is None:
             raise RuntimeError(f"{self.name} was never started")
@@ -193,7 +193,7 @@ class Rehearsal:
         self.motive = Process(cell, "fake-motive", "--seed", str(seed), *motive_args)
         self.bridge = Process(cell, "mocap-bridge")
 
-    def __enter__(self) -> "Rehearsal":
+    def __enter__(self) -> Rehearsal:
         try:
             self.controller.start(ready=False)  # the controller and Motive do not know of each other: start both
             self.motive.start(ready=False)

@@ -18,8 +18,9 @@ import logging
 import math
 import socket
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -241,12 +242,11 @@ class SimCell:
         """Parking pose [rad] of ``robot`` (6,)."""
         return park_q(robot)
 
-    def open(self) -> "SimCell":
+    def open(self) -> SimCell:
         """Build and connect everything; on failure whatever was opened is closed again."""
         from drivers.bus import MocapBridge, ZenohMocapSource, mocap_key, open_session, wait_for_subscriber
         from drivers.errors import DriverError
-        from drivers.sim import SimClock, SimMocapConfig, SimMocapSource, SimRobotConfig, SimRobotDriver
-        from drivers.sim import cell_truths
+        from drivers.sim import SimClock, SimMocapConfig, SimMocapSource, SimRobotConfig, SimRobotDriver, cell_truths
 
         c = self.config
         try:
@@ -354,7 +354,7 @@ class SimCell:
         for d in self.drivers.values():
             d.close()
 
-    def __enter__(self) -> "SimCell":
+    def __enter__(self) -> SimCell:
         return self.open()
 
     def __exit__(self, *exc: object) -> None:

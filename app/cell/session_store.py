@@ -281,7 +281,7 @@ class SessionStore:
         except sqlite3.DatabaseError:  # no meta table yet, or not a database: no created session
             return False
 
-    def __enter__(self) -> "SessionStore":
+    def __enter__(self) -> SessionStore:
         return self
 
     def __exit__(self, *exc: object) -> None:

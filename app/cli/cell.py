@@ -3,13 +3,28 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable, Literal
+from typing import Any, Literal
 
 from app.analysis.fitting import fitter_for
-from app.cli.common import add_report_options, add_topup_options, cell_spec, command_line, epoch_bar, log, \
-    non_negative_int, positive_float, read_given_arg, read_recording_arg, show_progress, tolerance_from_args, \
-    validation_count, warn_gross_rows, write_json
+from app.cli.common import (
+    add_report_options,
+    add_topup_options,
+    cell_spec,
+    command_line,
+    epoch_bar,
+    log,
+    non_negative_int,
+    positive_float,
+    read_given_arg,
+    read_recording_arg,
+    show_progress,
+    tolerance_from_args,
+    validation_count,
+    warn_gross_rows,
+    write_json,
+)
 from calibration.errors import CellCalError
 
 #: The anchor-grid steps ``plan --q2-step/--q3-step`` and ``demo --anchor-step`` accept [deg].
@@ -240,10 +255,10 @@ def _print_events(session: str) -> list[dict[str, Any]]:
 
 
 def cmd_collect(args: argparse.Namespace) -> int:
-    from app.cli.cell_options import confirm_motion, motion_config, open_runtime, safety_for
     from app.cell.collect import SessionAborted
-    from app.demo.run import collect_arm
     from app.cell.session_store import SessionStore
+    from app.cli.cell_options import confirm_motion, motion_config, open_runtime, safety_for
+    from app.demo.run import collect_arm
 
     cell = cell_spec(args)
     cell.robot(args.robot)
@@ -350,13 +365,18 @@ def cmd_export(args: argparse.Namespace) -> int:
 def cmd_recalibrate(args: argparse.Namespace) -> int:
     import time as _time
 
-    from app.cli.cell_options import confirm_motion, motion_config, open_runtime, safety_for
+    from app.analysis.recalibrate import (
+        check_model_dir,
+        decide_and_install,
+        model_in_service,
+        model_to_rebase,
+        rebase_candidate,
+    )
     from app.cell.collect import export
-    from app.demo.run import collect_arm
-    from app.analysis.recalibrate import check_model_dir, decide_and_install, model_in_service, \
-        model_to_rebase, rebase_candidate
-    from app.provenance import provenance, with_provenance
     from app.cell.session_plan import validation_plan
+    from app.cli.cell_options import confirm_motion, motion_config, open_runtime, safety_for
+    from app.demo.run import collect_arm
+    from app.provenance import provenance, with_provenance
     from calibration.recording import read_recording, with_added
 
     cell = cell_spec(args)

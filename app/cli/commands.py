@@ -9,13 +9,30 @@ import argparse
 import contextlib
 import logging
 import sys
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from app.cli.cell import add_cell_parsers
-from app.cli.common import (CELL_HELP, DefaultsHelpFormatter, add_topup_options, OneLineErrorParser, add_cell_option, add_report_options, cell_spec,
-                             check_output_args, command_line, fitter_from_args, load_model_for, model_and_robot,
-                             read_given_arg, read_recording_arg, resolve_cell, show_progress, tolerance_from_args,
-                             write_json)
+from app.cli.common import (
+    CELL_HELP,
+    DefaultsHelpFormatter,
+    OneLineErrorParser,
+    add_cell_option,
+    add_report_options,
+    add_topup_options,
+    cell_spec,
+    check_output_args,
+    command_line,
+    fitter_from_args,
+    load_model_for,
+    model_and_robot,
+    read_given_arg,
+    read_recording_arg,
+    resolve_cell,
+    show_progress,
+    tolerance_from_args,
+    write_json,
+)
 from app.cli.dual import add_dual_parsers
 from app.cli.real import add_real_parsers
 from app.jobs.cli import add_job_parsers
@@ -26,9 +43,8 @@ log = logging.getLogger("cellcal.app")
 
 
 def cmd_fit(args: argparse.Namespace) -> int:
-    from calibration.models import save_model
-
     from app.provenance import provenance, with_provenance
+    from calibration.models import save_model
 
     if args.method == "cpa" and args.cpa is None:  # before the training data is read: nothing to fit it from
         raise CellCalError("--method cpa needs --cpa SWEEPS: a single-joint sweep recording (one cluster id per "
@@ -273,12 +289,12 @@ REBASE_MIN_CLUSTERS = 3
 
 
 def cmd_rebase(args: argparse.Namespace) -> int:
-    from calibration.models import save_model
     import math
 
     import numpy as np
 
     from calibration.design import REBASE_OFFSETS
+    from calibration.models import save_model
     from calibration.rebase import rebase, rebase_auto, workspace_configurations
     from calibration.recording import DEFAULT_CLUSTER_SIZE
 
@@ -347,9 +363,8 @@ def _check_rebase_tolerance(tolerance: float) -> None:
 
 
 def cmd_export_urdf(args: argparse.Namespace) -> int:
-    from calibration.urdf import (BASE_LINK, ROS_JOINTS, TOOL_LINK, JointLimits, UrdfLayout, write_urdf,
-                                  xacro_text)
     from calibration.files import atomic_write_text
+    from calibration.urdf import BASE_LINK, ROS_JOINTS, TOOL_LINK, JointLimits, UrdfLayout, write_urdf, xacro_text
 
     if args.macro is not None:  # before any work: the name is called as <xacro:NAME .../>, an XML name
         import re
@@ -387,12 +402,11 @@ def cmd_export_urdf(args: argparse.Namespace) -> int:
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    from app.analysis.compare import comparison_warnings, parse_methods, recommendation_line, run_comparison
-    from app.analysis.report import comparison_table, shows_paper, write_report
-
     from pathlib import Path
 
+    from app.analysis.compare import comparison_warnings, parse_methods, recommendation_line, run_comparison
     from app.analysis.fitting import refuse_another_arms
+    from app.analysis.report import comparison_table, shows_paper, write_report
 
     methods = parse_methods(args.methods)
     tolerance = tolerance_from_args(args)
@@ -429,7 +443,6 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
     from app.analysis.diagnose import run_diagnose
-
     from calibration.diagnosis import DiagnoseOptions
 
     result = run_diagnose(args.robot, args.train, added=args.add, add_weight=args.add_weight, heldout=args.test,

@@ -201,9 +201,7 @@ def cell_spec(args: argparse.Namespace) -> Any:
 def read_recording_arg(path: str, robot: Any | None = None) -> Any:
     """A recording (CSV or Welding_Motoman folder), checked against ``robot``'s joint limits when given, and its
     quaternion order against ``robot``'s nominal model (:func:`calibration.recording.check_quaternion_order`)."""
-    from calibration.recording import read_recording
-
-    from calibration.recording import check_quaternion_order
+    from calibration.recording import check_quaternion_order, read_recording
 
     if robot is None:
         return read_recording(path)
@@ -390,8 +388,8 @@ def check_output_args(args: argparse.Namespace) -> None:
     """
     import os
 
-    from calibration.files import check_output_path
     from calibration.errors import OutputError
+    from calibration.files import check_output_path
 
     check_input_args(args)
     outputs: list[tuple[str, str]] = []

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from app.cli.cell_options import add_motion_options
 from app.cli.common import cell_spec, show_progress, write_json
@@ -37,8 +38,8 @@ def cmd_plan_dual(args: argparse.Namespace) -> int:
     import numpy as np
 
     from app.dual.paths import Q_REF_DEG, read_path, read_pose, relative_pose
-    from app.dual.planner import DualPlanner, PlannerOptions
     from app.dual.plan_result import save_plan
+    from app.dual.planner import DualPlanner, PlannerOptions
     from calibration.errors import ModelError
 
     cell = cell_spec(args)
@@ -160,8 +161,8 @@ def _validate_real(args: argparse.Namespace, cell: Any) -> Any:
     """The contact validation on the real arms and probe; None after a dry run."""
     import numpy as np
 
-    from app.cli.cell_options import confirm_motion, open_runtime, safety_for, speed_fraction
     from app.cell.motion import live_poses
+    from app.cli.cell_options import confirm_motion, open_runtime, safety_for, speed_fraction
     from app.dual.validate import check_contact_sequence
     from app.dual.validate_real import contact_configurations, open_probe, run_real_validation
     from calibration.errors import ModelError

@@ -24,9 +24,10 @@ import json
 import logging
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from app.cell.collect import CollectConfig, SessionResult, export, run_session
 from app.cell.planning import Plan
@@ -163,8 +164,8 @@ def fit_and_compare(cell: CellSpec, robot: str, rec: Recordings, methods: tuple[
     """Fit ``methods`` on the training set, evaluate them on the test set, save every model as YAML."""
     from app.analysis.compare import run_comparison
     from app.analysis.fitting import fitter_for
-    from app.provenance import provenance, with_provenance
     from app.progress import EpochBar
+    from app.provenance import provenance, with_provenance
     from calibration.methods import FitOptions
     from calibration.models import save_model
 

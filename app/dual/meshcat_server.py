@@ -22,8 +22,13 @@ HOST = "127.0.0.1"
 
 def _bridge_class(page_extra: str = "") -> Any:
     import tornado.web
-    from meshcat.servers.zmqserver import (VIEWER_HTML, VIEWER_ROOT, StaticFileHandlerNoCache, ZMQWebSocketBridge,
-                                           WebSocketHandler)
+    from meshcat.servers.zmqserver import (
+        VIEWER_HTML,
+        VIEWER_ROOT,
+        StaticFileHandlerNoCache,
+        WebSocketHandler,
+        ZMQWebSocketBridge,
+    )
 
     class ViewerPage(tornado.web.RequestHandler):
         """meshcat's viewer page with ``page_extra`` at the end of its body."""

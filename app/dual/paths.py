@@ -22,7 +22,6 @@ from calibration.files import read_input_text
 from calibration.recording import MAX_ABS_POSITION_MM
 from cell_config.loader import CellSpec
 
-
 #: Reference configuration of the cell [deg]: tools about 410 mm apart, facing, 300 mm arm clearance.
 Q_REF_DEG = np.array([0.0, 15.0, 5.0, 0.0, 30.0, 0.0, 0.0, 0.0, 0.0, 0.0, -30.0, 0.0])
 #: Most waypoints a path (``sweep:N`` or a path file) may have: each one is an IK solve and a stored

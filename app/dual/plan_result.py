@@ -20,7 +20,6 @@ from calibration.errors import DataError
 from calibration.files import atomic_write_text
 
 
-
 @dataclass(frozen=True)
 class WaypointResult:
     """One solved (or refused) waypoint.
@@ -90,7 +89,7 @@ class PlanResult:
                 "converged": self.converged, "waypoints": wps}
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any], source: str | Path = "<plan>") -> "PlanResult":
+    def from_dict(cls, d: dict[str, Any], source: str | Path = "<plan>") -> PlanResult:
         """A :class:`PlanResult` from a plan file's content; entries without ``converged: true`` count as unsolved.
 
         Raises:

@@ -130,9 +130,9 @@ class RecordingWindow:
         for node in self.nodes.values():
             for blob in [node["object"], *node["properties"], node["transform"], node["animation"]]:
                 if blob is not None:
-                    cmds.append('fetch("data:application/octet-binary;base64,%s").then(r => r.arrayBuffer())'
-                                ".then(b => viewer.handle_command_bytearray(new Uint8Array(b)));"
-                                % base64.b64encode(blob).decode())
+                    data = base64.b64encode(blob).decode()
+                    cmds.append(f'fetch("data:application/octet-binary;base64,{data}").then(r => r.arrayBuffer())'
+                                ".then(b => viewer.handle_command_bytearray(new Uint8Array(b)));")
         return ("<!DOCTYPE html>\n<html><head><meta charset=utf-8><title>cellcal preview</title>"
                 "<style>body{margin:0}#meshcat-pane{width:100vw;height:100vh;overflow:hidden}</style></head>"
                 f"<body><div id=\"meshcat-pane\"></div><script>{js}</script><script>"

@@ -42,7 +42,7 @@ class DeviationStats:
     max_mm: float
 
     @classmethod
-    def of(cls, d: np.ndarray) -> "DeviationStats":
+    def of(cls, d: np.ndarray) -> DeviationStats:
         return cls(float(np.mean(d)), float(np.std(d)), float(np.max(d)))
 
 
@@ -254,9 +254,9 @@ def run_sim_validation(cell: CellSpec, n: int = 20, model_sets: dict[str, dict[s
     from app.cell.safety import CellSafety
     from app.dual.sim import SIM_METHODS, VALIDATION_CELL, TrainingGrid, fit_model_sets, make_twins
     from drivers.can_probe import CanContactProbe
+    from drivers.sim import SimClock, SimRobotConfig, SimRobotDriver
     from drivers.sim.can_probe import SimulatedProbe
     from drivers.sim.contact import SimContactSensor
-    from drivers.sim import SimClock, SimRobotConfig, SimRobotDriver
 
     if n < 2:
         raise ModelError(f"validation needs at least 2 configurations, got {n}")

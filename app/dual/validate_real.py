@@ -15,8 +15,13 @@ from typing import Any
 
 import numpy as np
 
-from app.dual.validate import (ContactValidation, DeviationStats, check_contact_sequence, collect_contacts,
-                               evaluate_models)
+from app.dual.validate import (
+    ContactValidation,
+    DeviationStats,
+    check_contact_sequence,
+    collect_contacts,
+    evaluate_models,
+)
 from calibration.errors import CellCalError, DataError, ModelError
 
 log = logging.getLogger("cellcal.app")

@@ -14,8 +14,8 @@ set), so the outcome is the same bits with or without workers; only the time cha
 from __future__ import annotations
 
 import multiprocessing as mp
+from collections.abc import Callable
 from concurrent.futures import Future, ProcessPoolExecutor
-from typing import Callable
 
 import numpy as np
 
@@ -99,7 +99,7 @@ class JointFits:
             _STATE = None
         self._pending.clear()
 
-    def __enter__(self) -> "JointFits":
+    def __enter__(self) -> JointFits:
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -49,11 +49,11 @@ class InUse:
     kin: ExtendedKinematics
     theta: np.ndarray
     kind: str = "constant"
-    cdc: "CdcModel | None" = None
+    cdc: CdcModel | None = None
     effects: tuple[Effect, ...] = ()
 
     @classmethod
-    def from_model(cls, model: KinematicModel | None, nominal: PoeModel, x: np.ndarray | None = None) -> "InUse":
+    def from_model(cls, model: KinematicModel | None, nominal: PoeModel, x: np.ndarray | None = None) -> InUse:
         """The in-use form of a model (None: the nominal geometry moved to ``x``)."""
         from calibration.cdc import CdcModel
         from calibration.physics.model import PhysicsModel
@@ -85,7 +85,7 @@ class InUse:
     def n_geometric(self) -> int:
         return self.kin.par.size
 
-    def with_theta(self, theta: np.ndarray, effects: tuple[Effect, ...] | None = None) -> "InUse":
+    def with_theta(self, theta: np.ndarray, effects: tuple[Effect, ...] | None = None) -> InUse:
         return InUse(self.kin, np.asarray(theta, dtype=float), self.kind, self.cdc,
                      self.effects if effects is None else tuple(effects))
 

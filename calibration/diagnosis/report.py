@@ -40,7 +40,7 @@ class Accuracy:
     max_deg: float
 
     @classmethod
-    def of(cls, model: str, position_mm: np.ndarray, orientation_deg: np.ndarray) -> "Accuracy":
+    def of(cls, model: str, position_mm: np.ndarray, orientation_deg: np.ndarray) -> Accuracy:
         return cls(model, float(np.sqrt(np.mean(position_mm**2))), float(np.max(position_mm)),
                    float(np.sqrt(np.mean(orientation_deg**2))), float(np.max(orientation_deg)))
 

@@ -27,7 +27,6 @@ get exact derivatives of the parameters with respect to the joints (casadi is im
 from __future__ import annotations
 
 import abc
-
 from typing import Any, ClassVar
 
 import numpy as np

@@ -17,8 +17,16 @@ Only the base and ``constant`` are imported here; a kind's module is imported wh
 loaded (or by whoever builds one), which registers it.
 """
 
-from calibration.models.base import (MODEL_KIND_MODULES, SCHEMA, Block, KinematicModel, load_model, poe_from_dict,
-                                     poe_to_dict, save_model)
+from calibration.models.base import (
+                                     MODEL_KIND_MODULES,
+                                     SCHEMA,
+                                     Block,
+                                     KinematicModel,
+                                     load_model,
+                                     poe_from_dict,
+                                     poe_to_dict,
+                                     save_model,
+)
 from calibration.models.constant import ConstantModel
 
 __all__ = ["Block", "ConstantModel", "KinematicModel", "MODEL_KIND_MODULES", "SCHEMA", "load_model", "poe_from_dict",

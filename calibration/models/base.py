@@ -28,8 +28,14 @@ import yaml
 
 from calibration.errors import DataError, ModelError, ModelFileError, parse_error_text
 from calibration.files import atomic_write_text, read_input_text
-from calibration.model_checks import (MAX_MODEL_FILE_BYTES, MAX_POSITION_MM, check_model_data, check_model_for,
-                                      check_model_numbers, check_model_structure)
+from calibration.model_checks import (
+    MAX_MODEL_FILE_BYTES,
+    MAX_POSITION_MM,
+    check_model_data,
+    check_model_for,
+    check_model_numbers,
+    check_model_structure,
+)
 from calibration.poe import PoeModel
 from calibration.yamlio import safe_load
 
@@ -73,7 +79,7 @@ class KinematicModel(abc.ABC):
     """A fitted model of one robot: joint angles in, tool-marker pose out."""
 
     kind: ClassVar[str]
-    _registry: ClassVar[dict[str, type["KinematicModel"]]] = {}
+    _registry: ClassVar[dict[str, type[KinematicModel]]] = {}
     robot: str
     method: str
     info: dict[str, Any]
@@ -98,7 +104,7 @@ class KinematicModel(abc.ABC):
         none for a model without context-dependent effects."""
         return frozenset()
 
-    def with_region(self, region: Any) -> "KinematicModel":
+    def with_region(self, region: Any) -> KinematicModel:
         """The same model with another training region (a :class:`calibration.models.guard.Region`, or None: none,
         which turns the extrapolation guard off)."""
         from dataclasses import replace
@@ -138,7 +144,7 @@ class KinematicModel(abc.ABC):
         """The parameters the Jacobians are taken with respect to, shape (m,) (layout of :meth:`blocks`)."""
         return np.zeros(0)
 
-    def with_vector(self, theta: np.ndarray) -> "KinematicModel":
+    def with_vector(self, theta: np.ndarray) -> KinematicModel:
         """The same model with other parameters (m,)."""
         raise ModelError(f"a {self.kind} model has no parameter vector")
 
@@ -203,7 +209,7 @@ class KinematicModel(abc.ABC):
 
     @classmethod
     @abc.abstractmethod
-    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "KinematicModel":
+    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> KinematicModel:
         """Inverse of :meth:`_body`."""
 
     def to_dict(self) -> dict[str, Any]:
@@ -211,7 +217,7 @@ class KinematicModel(abc.ABC):
                 "n_parameters": self.n_parameters, "info": self.info, **self._body()}
 
     @staticmethod
-    def from_dict(d: dict[str, Any]) -> "KinematicModel":
+    def from_dict(d: dict[str, Any]) -> KinematicModel:
         if d.get("schema") not in READABLE_SCHEMAS:
             raise ModelError(f"unsupported model schema {d.get('schema')!r}; expected one of {READABLE_SCHEMAS}")
         kind = d.get("kind")

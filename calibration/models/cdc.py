@@ -84,7 +84,7 @@ class CdcModel(KinematicModel):
     def vector(self) -> np.ndarray:
         return np.asarray(self.theta_ref[self.kinematics.par.size:], dtype=float).copy()
 
-    def with_vector(self, theta: np.ndarray) -> "CdcModel":
+    def with_vector(self, theta: np.ndarray) -> CdcModel:
         g = self.kinematics.par.size
         return replace(self, theta_ref=np.concatenate([self.theta_ref[:g], np.asarray(theta, dtype=float)]))
 
@@ -145,7 +145,7 @@ class CdcModel(KinematicModel):
                 **({} if self.bounds is None else {"bounds": self.bounds.tolist()})}
 
     @classmethod
-    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "CdcModel":
+    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> CdcModel:
         from calibration.interpolation import interpolator_from_dict
 
         kin = ExtendedKinematics(MinimalParameterisation(poe_from_dict(body["nominal"]), bool(body["fit_tool"])))

@@ -45,7 +45,7 @@ class ConstantModel(KinematicModel):
     def vector(self) -> np.ndarray:
         return np.zeros(self._chart().size)
 
-    def with_vector(self, theta: np.ndarray) -> "ConstantModel":
+    def with_vector(self, theta: np.ndarray) -> ConstantModel:
         return replace(self, model=self._chart().model(np.asarray(theta, dtype=float)))
 
     def jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -71,5 +71,5 @@ class ConstantModel(KinematicModel):
         return {"geometry": poe_to_dict(self.model)}
 
     @classmethod
-    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "ConstantModel":
+    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> ConstantModel:
         return cls(robot, method, poe_from_dict(body["geometry"]), int(body.get("n_parameters", 0)), info)

@@ -87,7 +87,7 @@ class DiagnosedModel(KinematicModel):
     def vector(self) -> np.ndarray:
         return np.concatenate([self.base.vector()] + [e.values for e in self.effects])
 
-    def with_vector(self, theta: np.ndarray) -> "DiagnosedModel":
+    def with_vector(self, theta: np.ndarray) -> DiagnosedModel:
         theta = np.asarray(theta, dtype=float)
         k = self.base.vector().size
         values = split_values(self.effects, theta[k:])
@@ -98,7 +98,6 @@ class DiagnosedModel(KinematicModel):
         """The pose at the default context on casadi symbols, exactly as :meth:`fk`: the effects deflect the
         joints on the base model's arm, then the base model's own expression runs at the deflected joints with
         its configuration-dependent parameters at the reading ``q``. Exact in q (no frozen fixed point)."""
-        import casadi as ca
 
         k = self.base.vector().size
         base_theta = None if theta is None else theta[:k]
@@ -121,6 +120,6 @@ class DiagnosedModel(KinematicModel):
         return {"base": self.base.to_dict(), "effects": [e.to_dict() for e in self.effects]}
 
     @classmethod
-    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "DiagnosedModel":
+    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> DiagnosedModel:
         return cls(robot, method, KinematicModel.from_dict(body["base"]),
                    tuple(effect_from_dict(e) for e in body.get("effects", [])), info)

@@ -44,8 +44,9 @@ much (``evaluate`` and ``predict`` report it).
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, Literal, Mapping, Sequence
+from typing import Any, Literal
 
 import numpy as np
 
@@ -173,7 +174,7 @@ class Region:
 
     @classmethod
     def of(cls, q: np.ndarray, margin_rad: float | np.ndarray | None = None,
-           context: Mapping[str, np.ndarray] | None = None) -> "Region":
+           context: Mapping[str, np.ndarray] | None = None) -> Region:
         """The range of joint angles q [rad] (N, n) and of the entries of :data:`GUARDED_CONTEXT` in the training
         ``context`` (a recording's :meth:`~calibration.recording.Recording.context`); by default each joint's
         margin from the data's own spread (:func:`data_margin_rad`)."""
@@ -291,7 +292,7 @@ class Region:
                 out[k] = excess_beyond(context_array(context, k, N), lo, hi)
         return out
 
-    def without_context(self) -> "Region":
+    def without_context(self) -> Region:
         """The same region with no context range: its joint guard alone."""
         return replace(self, context_range={})
 
@@ -305,7 +306,7 @@ class Region:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "Region":
+    def from_dict(cls, d: dict[str, Any]) -> Region:
         """Inverse of :meth:`to_dict`; a region saved before the rule existed (no ``rule``) keeps the guard it had
         then, every effect held in every joint, and one saved before the context rule (no ``context_rule``) keeps
         its hold in time (:data:`CONTEXT_RULE_SPAN`)."""

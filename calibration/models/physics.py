@@ -110,7 +110,7 @@ class PhysicsModel(KinematicModel):
     def vector(self) -> np.ndarray:
         return np.concatenate([e.values for e in self.effects]) if self.effects else np.zeros(0)
 
-    def with_vector(self, theta: np.ndarray) -> "PhysicsModel":
+    def with_vector(self, theta: np.ndarray) -> PhysicsModel:
         values = split_values(self.effects, np.asarray(theta, dtype=float))
         return replace(self, effects=tuple(e.with_values(v) for e, v in zip(self.effects, values)))
 
@@ -135,7 +135,7 @@ class PhysicsModel(KinematicModel):
                 "effects": [e.to_dict() for e in self.effects]}
 
     @classmethod
-    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "PhysicsModel":
+    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> PhysicsModel:
         return cls(robot, method, poe_from_dict(body["geometry"]),
                    tuple(effect_from_dict(e) for e in body.get("effects", [])),
                    int(body.get("geometric_parameters", 0)), info)

@@ -50,7 +50,7 @@ class PhysicsInformedModel(KinematicModel):
     def vector(self) -> np.ndarray:
         return np.asarray(self.theta, dtype=float).copy()
 
-    def with_vector(self, theta: np.ndarray) -> "PhysicsInformedModel":
+    def with_vector(self, theta: np.ndarray) -> PhysicsInformedModel:
         return replace(self, theta=np.asarray(theta, dtype=float))
 
     def jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -93,7 +93,7 @@ class PhysicsInformedModel(KinematicModel):
                 "rank": self.rank, "theta": self.theta.tolist(), "names": self.kinematics.names()}
 
     @classmethod
-    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "PhysicsInformedModel":
+    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> PhysicsInformedModel:
         kin = ExtendedKinematics(MinimalParameterisation(poe_from_dict(body["nominal"]), bool(body["fit_tool"])))
         theta = np.array(body["theta"], dtype=float) if isinstance(body["theta"], list) else None
         if theta is None or theta.shape != (kin.size,):

@@ -113,7 +113,7 @@ class RebasedModel(KinematicModel):
     def interpolation(self) -> Any:
         return self.inner.interpolation()
 
-    def with_region(self, region: Any) -> "RebasedModel":
+    def with_region(self, region: Any) -> RebasedModel:
         """The same rebase with another training region, in its own info and its inner model's (the one that holds)."""
         own = KinematicModel.with_region(self, region)
         return replace(own, inner=self.inner.with_region(region))  # type: ignore[type-var]
@@ -131,7 +131,7 @@ class RebasedModel(KinematicModel):
     def vector(self) -> np.ndarray:
         return np.concatenate([self.inner.vector(), np.zeros(12)])
 
-    def with_vector(self, theta: np.ndarray) -> "RebasedModel":
+    def with_vector(self, theta: np.ndarray) -> RebasedModel:
         theta = np.asarray(theta, dtype=float)
         k = theta.size - 12
         d = theta[k:]
@@ -229,7 +229,7 @@ class RebasedModel(KinematicModel):
                 **({"joint_offsets_rad": self.joint_offsets.tolist()} if self.joint_offsets.any() else {})}
 
     @classmethod
-    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "RebasedModel":
+    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> RebasedModel:
         if not isinstance(body.get("inner"), dict):
             raise ModelFileError("", "inner", "expected the wrapped model (a mapping)")
         inner = KinematicModel.from_dict(body["inner"])

@@ -7,8 +7,15 @@ of geometry plus effects is the ``physics`` model kind, :mod:`calibration.models
 
 from typing import Any
 
-from calibration.physics.base import (EFFECT_KINDS, Context, Effect, ExtendedEffect, apply_effects, context_array,
-                                      effect_from_dict)
+from calibration.physics.base import (
+    EFFECT_KINDS,
+    Context,
+    Effect,
+    ExtendedEffect,
+    apply_effects,
+    context_array,
+    effect_from_dict,
+)
 from calibration.physics.compliance import JointCompliance, LumpedCompliance, MassFreeCompliance, PayloadCompliance
 from calibration.physics.gravity import G_STANDARD, GravityModel, gravity_regressor, point_mass_torque
 from calibration.physics.joint_effects import Backlash, GearTransmission, JointOffset, MocapLatency

@@ -36,8 +36,9 @@ mass-free joint compliance) to its class; effects that are blocks of the ``pi`` 
 from __future__ import annotations
 
 import abc
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, fields, replace
-from typing import Any, Callable, ClassVar, Literal, Mapping, Protocol, Sequence
+from typing import Any, ClassVar, Literal, Protocol
 
 import numpy as np
 
@@ -65,7 +66,7 @@ class FittedSpan:
     sides: Sides = "both"
 
 
-EFFECT_KINDS: dict[str, type["Effect"]] = {}
+EFFECT_KINDS: dict[str, type[Effect]] = {}
 
 
 def check_q(model: PoeModel, q: np.ndarray) -> np.ndarray:
@@ -163,7 +164,7 @@ class Effect(abc.ABC):
         """Parameters as ``{name: value}`` (the report's ``parameters`` entry)."""
         return {k: float(v) for k, v in zip(self.names, self.values)}
 
-    def with_values(self, values: np.ndarray) -> "Effect":
+    def with_values(self, values: np.ndarray) -> Effect:
         """The same effect with other parameter values (m,)."""
         return replace(self, values=np.asarray(values, dtype=float))
 
@@ -256,7 +257,7 @@ class Effect(abc.ABC):
         return out
 
     @classmethod
-    def _from_config(cls, config: dict[str, Any], values: np.ndarray) -> "Effect":
+    def _from_config(cls, config: dict[str, Any], values: np.ndarray) -> Effect:
         kw = {k: tuple(v) if isinstance(v, list) else v for k, v in config.items()}
         return cls(values=values, **kw)
 

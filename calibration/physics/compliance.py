@@ -78,7 +78,7 @@ class JointCompliance(Effect):
         return {"joints": list(self.joints), "gravity": self.gravity.to_dict()}
 
     @classmethod
-    def _from_config(cls, config: dict[str, Any], values: np.ndarray) -> "JointCompliance":
+    def _from_config(cls, config: dict[str, Any], values: np.ndarray) -> JointCompliance:
         return cls(GravityModel.from_dict(config["gravity"]), tuple(config["joints"]), values)
 
 
@@ -180,7 +180,7 @@ class LumpedCompliance(Effect):
         super().__post_init__()
 
     @classmethod
-    def for_arm(cls, model: PoeModel, joints: tuple[int, ...] = (2, 3)) -> "LumpedCompliance":
+    def for_arm(cls, model: PoeModel, joints: tuple[int, ...] = (2, 3)) -> LumpedCompliance:
         """The lumped form on ``joints`` of ``model``'s arm with every independent column, values zero."""
         columns = tuple(independent_link_columns(model, j - 1) for j in joints)
         return cls(joints, columns, np.zeros(sum(len(c) for c in columns)))
@@ -207,5 +207,5 @@ class LumpedCompliance(Effect):
         return {"joints": list(self.joints), "columns": [list(c) for c in self.columns]}
 
     @classmethod
-    def _from_config(cls, config: dict[str, Any], values: np.ndarray) -> "LumpedCompliance":
+    def _from_config(cls, config: dict[str, Any], values: np.ndarray) -> LumpedCompliance:
         return cls(tuple(config["joints"]), tuple(tuple(c) for c in config["columns"]), values)

@@ -176,7 +176,7 @@ class GravityModel:
 
     @classmethod
     def from_links(cls, model: PoeModel, masses_kg: np.ndarray, com_mm: np.ndarray,
-                   g: float = G_STANDARD) -> "GravityModel":
+                   g: float = G_STANDARD) -> GravityModel:
         """From link masses [kg] (n,) and centres of mass in the base frame at q = 0 [mm] (n, 3)."""
         m = np.asarray(masses_kg, dtype=float).reshape(-1)
         com = np.asarray(com_mm, dtype=float)
@@ -187,7 +187,7 @@ class GravityModel:
         return cls(np.concatenate([m[:, None], m[:, None] * s], axis=1).ravel(), g)
 
     @classmethod
-    def from_spec(cls, spec: Any, model: PoeModel | None = None) -> "GravityModel":
+    def from_spec(cls, spec: Any, model: PoeModel | None = None) -> GravityModel:
         """From a :class:`cell_config.loader.RobotSpec` with ``links`` (nominal geometry when model is None)."""
         if not spec.links:
             raise ModelError(f"robot {spec.name} has no 'links' (mass_kg, com_mm) in its YAML")
@@ -263,5 +263,5 @@ class GravityModel:
         return {"lumped": self.lumped.tolist(), "g": float(self.g)}
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "GravityModel":
+    def from_dict(cls, d: dict[str, Any]) -> GravityModel:
         return cls(np.array(d["lumped"], dtype=float), float(d.get("g", G_STANDARD)))

@@ -118,7 +118,7 @@ class GearTransmission(Effect):
         return {"harmonics": [[j, list(ks)] for j, ks in self.harmonics]}
 
     @classmethod
-    def _from_config(cls, config: dict[str, Any], values: np.ndarray) -> "GearTransmission":
+    def _from_config(cls, config: dict[str, Any], values: np.ndarray) -> GearTransmission:
         return cls(tuple((int(j), tuple(ks)) for j, ks in config["harmonics"]), values)
 
 

@@ -18,8 +18,9 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -109,7 +110,7 @@ class PlantedErrors:
 
 
 def planted_twin(nominal: PoeModel, errors: PlantedErrors = PlantedErrors(), seed: int = 0,
-                 gravity: GravityModel | None = None) -> "Twin":
+                 gravity: GravityModel | None = None) -> Twin:
     """The true arm: ``nominal`` with seeded geometric errors and, if asked, a joint compliance under gravity.
 
     Args:
@@ -149,7 +150,7 @@ class Twin:
 
     @classmethod
     def from_parameters(cls, parameterisation: MinimalParameterisation, x: np.ndarray,
-                        effects: tuple[Effect, ...] = (), info: dict[str, Any] | None = None) -> "Twin":
+                        effects: tuple[Effect, ...] = (), info: dict[str, Any] | None = None) -> Twin:
         """Twin whose geometry is the minimal parameter vector ``x`` (m,) around the nominal arm."""
         info = dict(info or {})
         info["geometric"] = dict(zip(parameterisation.names(), np.asarray(x, dtype=float).tolist()))
@@ -175,7 +176,7 @@ class Twin:
     def random(cls, nominal: PoeModel, magnitudes_mm: Mapping[str, float], seed: int,
                gravity: GravityModel | None = None, offset_std_mm: float = 0.0, tilt_std_rad: float = 0.0,
                templates: Mapping[str, Effect] | None = None, q_ref: np.ndarray | None = None,
-               context: Context | None = None) -> "Twin":
+               context: Context | None = None) -> Twin:
         """Plant geometric errors and effects at given magnitudes.
 
         Args:
@@ -212,7 +213,7 @@ class Twin:
                 "effects": [e.to_dict() for e in self.effects], "info": self.info}
 
     @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> "Twin":
+    def from_dict(cls, d: Mapping[str, Any]) -> Twin:
         from calibration.models import poe_from_dict
 
         if d.get("schema") != TWIN_SCHEMA:

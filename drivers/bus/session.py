@@ -62,7 +62,7 @@ def session_settings(config: ZenohConfig) -> dict[str, Any]:
     }
 
 
-def open_session(config: ZenohConfig | None = None) -> "zenoh.Session":
+def open_session(config: ZenohConfig | None = None) -> zenoh.Session:
     """Open a zenoh session for ``config`` (defaults: peer, loopback listener, no multicast scouting).
 
     Raises:
@@ -80,7 +80,7 @@ def open_session(config: ZenohConfig | None = None) -> "zenoh.Session":
         raise DriverError(DEVICE, f"cannot open a session with {settings} ({e})") from e
 
 
-def wait_for_subscriber(session: "zenoh.Session", key: str, timeout_s: float) -> bool:
+def wait_for_subscriber(session: zenoh.Session, key: str, timeout_s: float) -> bool:
     """Block until some subscriber on the network matches ``key``; False after ``timeout_s`` [s].
 
     Samples put before the route exists are lost, so a publisher that must not miss the first frames

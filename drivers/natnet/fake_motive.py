@@ -161,7 +161,7 @@ class FakeMotive:
         if failure is not None:
             raise failure
 
-    def __enter__(self) -> "FakeMotive":
+    def __enter__(self) -> FakeMotive:
         self.start()
         return self
 

@@ -17,15 +17,15 @@ from __future__ import annotations
 
 import math
 import threading
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
 from calibration import so3
 from calibration.physics import PlantedErrors
 from drivers.errors import DriverError
-
 
 
 def rigid(R: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -107,7 +107,7 @@ class StateReader:
         self._stream = StateStream(host, state_port, f"motoros-state@{host}:{state_port}", self._stop,
                                    connect_timeout_s=1.0, backoff_s=0.05, max_backoff_s=0.5, stale_after_s=0.5)
 
-    def start(self) -> "StateReader":
+    def start(self) -> StateReader:
         self._stream.start()
         return self
 

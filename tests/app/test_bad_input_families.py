@@ -54,10 +54,10 @@ def _readers():
     from app.cell.plan_file import read_plan
     from app.dual.paths import read_pose
     from app.jobs.jbi import JobError, read_job
+    from calibration.errors import ConfigError
     from calibration.models import load_model
     from calibration.recording import read_joints
     from cell_config import load_cell
-    from calibration.errors import ConfigError
 
     return [("recording", read_recording, DataError), ("joints", read_joints, DataError),
             ("model", load_model, DataError), ("cell", load_cell, ConfigError), ("plan", read_plan, DataError),

@@ -6,8 +6,17 @@ import numpy as np
 import pytest
 import yaml
 
-from app.cell.capsules import (DEFAULT_FLOOR_Z_MM, FLOOR_CHECKED, PROCESS_ZONE, SEGMENTS, SPANS, CellCapsules,
-                          pairs_outside, segment_distance, segment_distance_casadi)
+from app.cell.capsules import (
+    DEFAULT_FLOOR_Z_MM,
+    FLOOR_CHECKED,
+    PROCESS_ZONE,
+    SEGMENTS,
+    SPANS,
+    CellCapsules,
+    pairs_outside,
+    segment_distance,
+    segment_distance_casadi,
+)
 from app.cell.safety import CellSafety, SafetyConfig
 from calibration.errors import ConfigError
 from cell_config import DEFAULT_CELL, load_cell

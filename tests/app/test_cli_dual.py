@@ -153,9 +153,9 @@ def test_plan_dual_bad_inputs_write_nothing(tmp_path, capsys):
 def test_plan_dual_with_some_waypoints_unsolved_names_them_and_writes_nothing(tmp_path, capsys):
     """Waypoints 1 and 2 of 5 out of reach: the plan is refused whole (no --out, no --json, nothing half-written)
     and the message says which waypoints failed, not only the first."""
-    from calibration import so3
     from app.dual.paths import sweep_path
     from app.dual.planner import DualPlanner, PlannerOptions
+    from calibration import so3
 
     wp = sweep_path(DualPlanner(load_cell(), options=PlannerOptions(compile="off")), 5)
     wp[1:3, :3, 3] += 1000.0  # the workpiece 1.7 m off the sweep: R1 cannot hold the gun to it

@@ -4,8 +4,6 @@ import json
 import os
 import stat
 
-import pytest
-
 from app.cli.commands import main
 from tests.conftest import assert_bad_input
 

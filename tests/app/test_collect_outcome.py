@@ -5,11 +5,11 @@ from __future__ import annotations
 import json
 
 import pytest
+from conftest import SIM_FAST
 
 from app.cell.session_store import SessionStore
 from app.cli.commands import main
 from calibration.errors import DataError
-from conftest import SIM_FAST
 
 
 @pytest.fixture(scope="module")

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from sim_cell import FAST, R2_PARK, make_cell, small_plan
 
 from app.cell.collect import SessionAborted, export, run_session
 from app.cell.mocap_window import quat_average
@@ -23,7 +24,6 @@ from calibration.errors import DataError, UnsafeTarget
 from calibration.recording import read_recording
 from drivers.base import MocapSource
 from drivers.sim import SimFault
-from sim_cell import FAST, R2_PARK, make_cell, small_plan
 
 ROOT = Path(__file__).resolve().parents[2]
 OTHERS = {"R2": R2_PARK}

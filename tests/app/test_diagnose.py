@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from app.analysis.diagnose import run_diagnose
-from calibration.errors import CellCalError, DataError
+from calibration.errors import CellCalError
 from calibration.models import load_model
 from tests.conftest import write_backlash_case
 

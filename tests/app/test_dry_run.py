@@ -7,13 +7,13 @@ import re
 
 import numpy as np
 import pytest
+from sim_cell import R2_PARK, small_plan
 
 from app.cell.dry_run import PlanSummary, summarize_plan
 from app.cell.planning import KINDS, Target, build_plan
 from app.cell.safety import CellSafety
 from calibration.errors import ConfigError, UnsafeTarget
 from cell_config import load_cell
-from sim_cell import R2_PARK, small_plan
 
 Q_START = np.radians([1, -50, -50, 1, 1, 1])
 OTHERS = {"R2": R2_PARK}

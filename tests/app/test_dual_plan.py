@@ -13,6 +13,8 @@ import pytest
 
 pytest.importorskip("casadi")
 
+from test_dual_kinematics import FourierStub, OpaqueStub  # noqa: E402
+
 from app.cell.plan_file import read_plan
 from app.dual.export_targets import export_rows, export_targets, rpy_deg, write_targets  # noqa: E402
 from app.dual.paths import Q_REF_DEG, plan_dual, relative_pose, sweep_path  # noqa: E402
@@ -23,8 +25,6 @@ from calibration.cdc import CdcModel, geometric_cdc  # noqa: E402
 from calibration.errors import DataError, ModelError, UnsafeTarget  # noqa: E402
 from calibration.parameterisation import MinimalParameterisation  # noqa: E402
 from cell_config.loader import load_cell  # noqa: E402
-
-from test_dual_kinematics import FourierStub, OpaqueStub  # noqa: E402
 
 FAST = PlannerOptions(compile="off")
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import csv
 import json
 import shutil
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 
 import numpy as np
 import pytest
@@ -20,7 +20,7 @@ pytest.importorskip("casadi")
 
 from app.cli.commands import main  # noqa: E402
 
-DATE = datetime(2026, 12, 4, 22, 0, tzinfo=timezone.utc)
+DATE = datetime(2026, 12, 4, 22, 0, tzinfo=UTC)
 
 
 @pytest.fixture(scope="module")

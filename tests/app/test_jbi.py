@@ -9,16 +9,16 @@ import pytest
 
 pytest.importorskip("casadi")
 
-from app.dual.export_targets import R_from_rpy_deg, rpy_deg  # noqa: E402
-from calibration import so3  # noqa: E402
+from conftest import assert_bad_input, planted_parameters  # noqa: E402
+from test_dual_kinematics import FourierStub, OpaqueStub  # noqa: E402
+
+from app.dual.export_targets import rpy_deg  # noqa: E402
 from app.jobs import JobCompensator, JobError, parse_job, read_job, write_job  # noqa: E402
+from calibration import so3  # noqa: E402
 from calibration.cdc import CdcModel, geometric_cdc  # noqa: E402
 from calibration.models import ConstantModel, save_model  # noqa: E402
 from calibration.parameterisation import MinimalParameterisation  # noqa: E402
 from cell_config.loader import load_cell  # noqa: E402
-from conftest import assert_bad_input, planted_parameters  # noqa: E402
-
-from test_dual_kinematics import FourierStub, OpaqueStub  # noqa: E402
 
 Q_R1_DEG = [[0, 10, -10, 0, -30, 0], [20, 25, 5, 30, -45, 60], [-35, -20, 30, -60, -20, -120], [5, 40, -30, 10, -70, 200]]
 Q_R2_DEG = [[0, 0, 0, 0, -40, 0], [-30, 20, -10, 45, -30, 90], [40, 35, 20, -20, -60, -150], [10, -30, 40, 0, -25, 15]]
@@ -167,7 +167,7 @@ def test_cartesian_positions_become_the_nominal_pose_of_the_calibrated_solution(
     comp = JobCompensator(cell, {"R1": model}).compensate(job)
     nominal = cell.robot("R1").model()
     for pt, pos in zip(comp.points[:3], job.positions):
-        R_t, p_t = R_from_rpy_deg(np.array(pos.values[3:])), np.array(pos.values[:3])
+        p_t = np.array(pos.values[:3])
         R_c, p_c = model.fk(np.radians(pt.q_after_deg)[None])
         assert np.linalg.norm(p_c[0] - p_t) <= 1e-6 and pt.residual_deg <= 1e-6
         R_w, p_w = nominal.fk(np.radians(pt.q_after_deg)[None])  # what is written: nominal pose at q_cal

@@ -8,6 +8,7 @@ moved carry a marker 1 mm off, so any of them in the average shows in the mean.
 from __future__ import annotations
 
 import math
+
 import numpy as np
 import pytest
 

@@ -12,18 +12,17 @@ from __future__ import annotations
 
 import copy
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 pytest.importorskip("casadi")
 
+from app.cell.capsules import PROCESS_ZONE  # noqa: E402
 from app.cell.plan_file import read_plan  # noqa: E402
 from app.cell.plan_safety import MAX_DRIFT_MM, UnsafePlan, check_plan_safe, plan_defects  # noqa: E402
 from app.cell.rehearsal import write_rehearsal_cell  # noqa: E402
 from app.cell.safety import CellSafety, SafetyConfig  # noqa: E402
-from app.cell.capsules import PROCESS_ZONE  # noqa: E402
 from app.cli.commands import main  # noqa: E402
 from calibration.errors import UnsafeTarget  # noqa: E402
 from cell_config.loader import load_cell  # noqa: E402

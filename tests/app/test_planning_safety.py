@@ -10,8 +10,14 @@ import numpy as np
 import pytest
 
 from app.cell.plan_file import read_plan
-from app.cell.planning import (Plan, anchor_grid, build_plan, paper_q3_bounds, plan_anchor_grid, plan_cpa_sweeps,
-                          plan_validation)
+from app.cell.planning import (
+    anchor_grid,
+    build_plan,
+    paper_q3_bounds,
+    plan_anchor_grid,
+    plan_cpa_sweeps,
+    plan_validation,
+)
 from app.cell.safety import CellSafety, SafetyConfig, segment_distance
 from calibration.errors import ConfigError, DataError, UnsafeTarget
 from cell_config import load_cell

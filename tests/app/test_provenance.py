@@ -11,8 +11,8 @@ import yaml
 
 from app.cli.commands import main
 from app.provenance import input_files, model_provenance, provenance, version
-from calibration.models import load_model, save_model
 from calibration.frames import put_in
+from calibration.models import load_model, save_model
 from calibration.models.rebased import make_T
 from calibration.recording import write_recording
 from tests.conftest import SIM_FAST, cluster_design, measure, write_backlash_case
@@ -42,7 +42,7 @@ def test_provenance_hashes_each_file_and_each_file_of_a_welding_folder(tmp_path)
     (folder / "robot_q_align.csv").write_bytes(b"0,0,0,0,0,0\n")
     (folder / "mocap_T_align.csv").write_bytes(b"1,2,3,1,0,0,0\n")
     (folder / "notes.txt").write_bytes(b"not read by the recording reader")
-    when = dt.datetime(2026, 3, 4, 5, 6, 7, tzinfo=dt.timezone.utc)
+    when = dt.datetime(2026, 3, 4, 5, 6, 7, tzinfo=dt.UTC)
     p = provenance([("train", a), ("cpa", None), ("test", folder)], now=when)
     assert p["created_utc"] == "2026-03-04T05:06:07Z" and p["cellcal_version"] == version()
     assert [(i["role"], i["path"]) for i in p["inputs"]] == [
@@ -59,8 +59,8 @@ def test_fit_records_the_training_file_and_the_file_round_trips_bit_identically(
     p = model_provenance(model)
     assert p is not None and p["cellcal_version"] == version()
     assert p["inputs"] == [{"role": "train", "path": str(data / "train.csv"), "sha256": _sha(data / "train.csv")}]
-    created = dt.datetime.strptime(p["created_utc"], "%Y-%m-%dT%H:%M:%SZ").replace(tzinfo=dt.timezone.utc)
-    assert abs((dt.datetime.now(dt.timezone.utc) - created).total_seconds()) < 600
+    created = dt.datetime.strptime(p["created_utc"], "%Y-%m-%dT%H:%M:%SZ").replace(tzinfo=dt.UTC)
+    assert abs((dt.datetime.now(dt.UTC) - created).total_seconds()) < 600
     again = tmp_path / "again.yaml"
     save_model(model, again)
     assert again.read_bytes() == out.read_bytes()

@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 
 import numpy as np
-import pytest
 
 from app.cell.plan_file import read_plan
 from app.cli.commands import main

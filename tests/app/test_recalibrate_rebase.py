@@ -3,11 +3,7 @@ on the new training poses; without a model in service it stops before any motion
 
 from __future__ import annotations
 
-import json
-from pathlib import Path
-
 from app.cli.commands import main
-from calibration.models import load_model
 from tests.conftest import SIM_FAST, assert_bad_input
 
 

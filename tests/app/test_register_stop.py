@@ -7,11 +7,11 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from sim_cell import FAST, R2_PARK, make_cell
 
 from app.cell.register import measure_registration
 from drivers.errors import RobotFault
 from drivers.sim import SimFault, SimRobotDriver, planted_truth
-from sim_cell import FAST, R2_PARK, make_cell
 
 Q_CENTER = np.radians([1, -50, -50, 1, 1, 1])
 

@@ -20,8 +20,16 @@ from calibration.methods import METHODS
 from calibration.metrics import Errors
 from calibration.recording import write_recording
 from tests.app.browser import browser_or_skip, screenshot_and_dom
-from tests.conftest import (SIM_FAST, assert_bad_input, cluster_design, measure, needs_shared_data, R1_TEST, R1_TRAIN,
-                            write_backlash_case)
+from tests.conftest import (
+    R1_TEST,
+    R1_TRAIN,
+    SIM_FAST,
+    assert_bad_input,
+    cluster_design,
+    measure,
+    needs_shared_data,
+    write_backlash_case,
+)
 
 
 @pytest.fixture(scope="module")
@@ -98,9 +106,10 @@ def _sha(path: Path) -> str:
 
 def _check_common(html_path: Path, inputs: list[Path]) -> _Page:
     """A self-contained page: embedded PNGs that decode, provenance hashes of ``inputs``, version and date."""
-    import matplotlib.image as mpimg
     import base64
     import io
+
+    import matplotlib.image as mpimg
 
     text = html_path.read_text()
     assert not re.search(r"<script[^>]+src=|<link[^>]+href=|<img[^>]+src=\"(?!data:)", text)  # nothing fetched

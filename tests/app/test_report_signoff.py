@@ -12,14 +12,22 @@ import numpy as np
 import pytest
 
 from app.analysis.command_warnings import collecting, warnings_so_far
-from app.analysis.report import (MAX_SERIES, Acceptance, Page, Section, Tolerance, iso_unavailable, shown_series,
-                                 write_html)
+from app.analysis.report import (
+    MAX_SERIES,
+    Acceptance,
+    Page,
+    Section,
+    Tolerance,
+    iso_unavailable,
+    shown_series,
+    write_html,
+)
 from app.analysis.verdict import ACCEPTED, CONDITIONAL, NOT_ACCEPTED, verdict
 from app.cli.commands import main
 from calibration.recording import write_recording
 from tests.app.browser import browser_or_skip, screenshot_and_dom
 from tests.app.test_report import _Page
-from tests.conftest import SIM_FAST, cluster_design, measure, write_backlash_case
+from tests.conftest import cluster_design, measure, write_backlash_case
 
 
 @pytest.fixture(scope="module")
@@ -147,12 +155,12 @@ def test_plots_draw_at_most_six_series_and_always_the_recommended(seed):
 
 
 def test_the_cdf_highlights_the_recommended_and_keeps_colours_apart(recs):
+    import matplotlib.pyplot as plt
+
     from app.analysis import plots
-    from app.analysis.report import error_plots
     from calibration.methods import METHODS
     from calibration.metrics import Errors
     from calibration.recording import read_recording
-    import matplotlib.pyplot as plt
 
     rec = read_recording(recs / "wide.csv")
     rng = np.random.default_rng(1)

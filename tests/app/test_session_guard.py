@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from sim_cell import FAST, R2_PARK, make_cell, small_plan
 
 from app.cell.collect import SessionAborted, run_session
 from app.cell.motion import NonFiniteFeedback, move_safely
@@ -24,7 +25,6 @@ from calibration.errors import DataError
 from drivers.base import MocapSource
 from drivers.errors import DriverError
 from drivers.sim import SimFault, SimRobotConfig, SimRobotDriver, planted_truth
-from sim_cell import FAST, R2_PARK, make_cell, small_plan
 from tests.conftest import SIM_FAST
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -316,7 +316,6 @@ def test_cli_collect_prints_the_recorded_stops_and_refuses_a_locked_session(tmp_
 
 def test_export_of_an_empty_session_file_writes_nothing_into_it(tmp_path, capsys):
     """Issue 12: `export` on an empty session.sqlite used to create the session tables in it."""
-    from app.cli import main
     from tests.conftest import assert_bad_input
 
     session = tmp_path / "s"
@@ -346,7 +345,6 @@ def test_collect_into_a_session_path_that_is_a_file_is_one_line_before_any_motio
     --dry-run passed it as 'every check')."""
     import json
 
-    from app.cli import main
     from tests.conftest import assert_bad_input
 
     plan = tmp_path / "plan.json"

@@ -98,8 +98,8 @@ def test_evaluate_on_a_full_disk_leaves_neither_the_json_nor_part_of_the_report(
 
 
 def test_export_on_a_full_disk_leaves_no_csv_and_no_folder(tmp_path, capsys, monkeypatch):
-    from app.cell.session_store import Sample, SessionStore
     from app.cell.planning import build_plan, plan_anchor_grid
+    from app.cell.session_store import Sample, SessionStore
 
     plan = build_plan(plan_anchor_grid(q2_range_deg=(-55.0, 35.0), q2_step_deg=45.0, q3_step_deg=30.0))
     with SessionStore(tmp_path / "s", create=True) as store:

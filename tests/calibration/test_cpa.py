@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from calibration.identification.cpa import fit_circle, identify_cpa, split_sweeps
 from calibration.errors import ModelError
+from calibration.identification.cpa import fit_circle, identify_cpa, split_sweeps
 from calibration.parameterisation import MinimalParameterisation
 from calibration.poe import pose_error
 from calibration.recording import Recording

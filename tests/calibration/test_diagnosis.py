@@ -8,13 +8,12 @@ import json
 import numpy as np
 import pytest
 
-from calibration.diagnosis import (DiagnoseOptions, JointProblem, blocked_folds, diagnose, locate_mismatch,
-                                   noise_floor)
+from calibration.cdc import CdcModel
+from calibration.diagnosis import DiagnoseOptions, JointProblem, blocked_folds, diagnose, locate_mismatch, noise_floor
 from calibration.diagnosis.drivers import Driver, multiple_correlation
 from calibration.diagnosis.synthetic import Design, make_case
 from calibration.errors import ModelError
 from calibration.identification import StopReason, rotation_residual_scale
-from calibration.cdc import CdcModel
 from calibration.parameterisation import MinimalParameterisation
 from calibration.physics import Backlash, GravityModel
 from cell_config import load_cell

@@ -222,7 +222,6 @@ def test_a_region_saved_before_the_rule_keeps_holding_every_effect_in_every_join
     """A model file whose training region has no ``rule`` predicts what it predicted before: every effect evaluated at
     q clamped in every joint. A region saved now carries its rule and reads back with it, bit for bit."""
     from calibration.models.guard import RULE_BY_EFFECT, RULE_EVERY_JOINT
-    from calibration.physics.base import apply_effects
 
     arm, compliance, gear, model = _mixed(region)
     old_dict = {k: v for k, v in region.to_dict().items() if k != "rule"}

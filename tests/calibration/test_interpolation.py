@@ -13,9 +13,17 @@ import pytest
 import yaml
 
 from calibration.errors import ModelError
-from calibration.interpolation import (FBF13_TERMS, KINDS, AutoencoderInterpolator, Fourier13Interpolator,
-                                       FourierReducedInterpolator, Interpolator, fbf13_basis,
-                                       interpolator_from_dict, make_interpolator)
+from calibration.interpolation import (
+    FBF13_TERMS,
+    KINDS,
+    AutoencoderInterpolator,
+    Fourier13Interpolator,
+    FourierReducedInterpolator,
+    Interpolator,
+    fbf13_basis,
+    interpolator_from_dict,
+    make_interpolator,
+)
 
 FAST_KINDS = ("nearest", "linear", "cubic", "rbf", "fbf13", "fbf7")
 EXACT_KINDS = ("nearest", "linear", "cubic", "rbf")

@@ -19,8 +19,17 @@ from calibration.interpolation.fourier import Fourier13Interpolator
 from calibration.models import ConstantModel
 from calibration.models.guard import REGION_KEY, Region
 from calibration.parameterisation import MinimalParameterisation
-from calibration.physics import (Backlash, GearTransmission, GravityModel, JointCompliance, JointOffset,
-                                 MocapLatency, PayloadCompliance, PhysicsModel, ThermalDrift)
+from calibration.physics import (
+    Backlash,
+    GearTransmission,
+    GravityModel,
+    JointCompliance,
+    JointOffset,
+    MocapLatency,
+    PayloadCompliance,
+    PhysicsModel,
+    ThermalDrift,
+)
 from calibration.physics.compliance import MassFreeCompliance
 from calibration.physics_informed import ExtendedKinematics, PhysicsInformedModel
 from cell_config.loader import load_cell

@@ -11,9 +11,21 @@ import calibration.physics.model  # noqa: F401  (fills the KinematicModel regist
 from calibration import so3
 from calibration.errors import DataError, ModelError
 from calibration.models import load_model, save_model
-from calibration.physics import (Backlash, GearTransmission, GravityModel, JointCompliance, JointOffset, LumpedCompliance,
-                                 MocapLatency, PayloadCompliance, PhysicsModel, ThermalDrift, Twin,
-                                 apply_effects, effect_from_dict)
+from calibration.physics import (
+    Backlash,
+    GearTransmission,
+    GravityModel,
+    JointCompliance,
+    JointOffset,
+    LumpedCompliance,
+    MocapLatency,
+    PayloadCompliance,
+    PhysicsModel,
+    ThermalDrift,
+    Twin,
+    apply_effects,
+    effect_from_dict,
+)
 from cell_config.loader import load_cell
 
 G = 9.80665

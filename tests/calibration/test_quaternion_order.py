@@ -8,7 +8,6 @@ import shutil
 import numpy as np
 import pytest
 
-from app.cli.commands import main
 from calibration.errors import DataError
 from calibration.models import ConstantModel, save_model
 from calibration.recording import Recording, check_quaternion_order, read_recording, write_recording

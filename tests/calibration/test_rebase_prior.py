@@ -11,8 +11,14 @@ from calibration import so3
 from calibration.errors import ModelError
 from calibration.models import ConstantModel
 from calibration.models.rebased import RebasedModel, make_T
-from calibration.rebase import (DAY_FRAME_SD, RebaseProblem, corrections, shrink_factor, workspace_configurations,
-                               workspace_spread)
+from calibration.rebase import (
+    DAY_FRAME_SD,
+    RebaseProblem,
+    corrections,
+    shrink_factor,
+    workspace_configurations,
+    workspace_spread,
+)
 from calibration.recording import Recording
 from cell_config import load_cell
 from tests.conftest import cluster_design

@@ -10,8 +10,15 @@ import pytest
 from calibration import so3
 from calibration.errors import CellCalError, DataError, ModelError, UnsafeTarget
 from calibration.physics import PlantedErrors, planted_twin
-from calibration.registration import (DegenerateRegistration, RegistrationProblem, make_T, registration_plan,
-                                      relative_base, retract, transform_difference)
+from calibration.registration import (
+    DegenerateRegistration,
+    RegistrationProblem,
+    make_T,
+    registration_plan,
+    relative_base,
+    retract,
+    transform_difference,
+)
 from cell_config.loader import load_cell
 
 NOISE_MM, NOISE_DEG = 0.02, 0.005

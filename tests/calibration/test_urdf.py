@@ -8,6 +8,8 @@ The figures (max position / rotation difference per case) are printed; run with 
 
 from __future__ import annotations
 
+import xml.etree.ElementTree as ET
+
 import numpy as np
 import pytest
 
@@ -20,10 +22,17 @@ from calibration.models.rebased import RebasedModel, wrap_pose
 from calibration.parameterisation import MinimalParameterisation
 from calibration.physics import PhysicsModel
 from calibration.physics_informed import PhysicsInformedModel
-import xml.etree.ElementTree as ET
-
-from calibration.urdf import (ROS_JOINTS, ROS_LINKS, JointLimits, R_from_rpy, UrdfLayout, rpy_from_R, urdf_text,
-                              write_urdf, xacro_text)
+from calibration.urdf import (
+    ROS_JOINTS,
+    ROS_LINKS,
+    JointLimits,
+    R_from_rpy,
+    UrdfLayout,
+    rpy_from_R,
+    urdf_text,
+    write_urdf,
+    xacro_text,
+)
 from cell_config import load_cell
 from tests.calibration.kinds import T_BASE, T_TOOL, models_of_every_kind
 from tests.conftest import planted_parameters

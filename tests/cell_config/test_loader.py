@@ -7,8 +7,19 @@ import pytest
 import yaml
 
 from calibration.errors import ConfigError
-from cell_config import (DEFAULT_CELL, REHEARSAL_CELL, ControllerConfig, MocapConfig, ProbeConfig, RobotRegistration,
-                         ZenohConfig, load_cell, load_registration, load_robot, save_registration)
+from cell_config import (
+    DEFAULT_CELL,
+    REHEARSAL_CELL,
+    ControllerConfig,
+    MocapConfig,
+    ProbeConfig,
+    RobotRegistration,
+    ZenohConfig,
+    load_cell,
+    load_registration,
+    load_robot,
+    save_registration,
+)
 
 
 def test_default_cell_loads_both_arms():

@@ -8,8 +8,20 @@ import numpy as np
 import pytest
 
 from drivers.errors import ProtocolError
-from drivers.motoros.codec import (Command, JointFeedback, JointFeedbackEx, JointTrajPtFull, JointTrajPtFullEx,
-                                   MotionCtrl, MotionReply, MsgType, Packet, Result, RobotStatusMsg, decode)
+from drivers.motoros.codec import (
+    Command,
+    JointFeedback,
+    JointFeedbackEx,
+    JointTrajPtFull,
+    JointTrajPtFullEx,
+    MotionCtrl,
+    MotionReply,
+    MsgType,
+    Packet,
+    Result,
+    RobotStatusMsg,
+    decode,
+)
 from drivers.motoros.framing import Framer
 
 Q = np.arange(1, 7) * 0.125  # exactly representable in float32

@@ -12,10 +12,19 @@ import pytest
 
 from drivers.errors import DriverDisconnected, DriverError, DriverTimeout, RobotFault
 from drivers.motoros import FakeMotorosController, MotorosDriver, MotorosLink
-from drivers.motoros.codec import (Command, JointFeedback, JointTrajPtFull, JointTrajPtFullEx, MotionCtrl, MotionReply,
-                                   Result, RobotStatusMsg, decode)
-from drivers.motoros.framing import Framer
+from drivers.motoros.codec import (
+    Command,
+    JointFeedback,
+    JointTrajPtFull,
+    JointTrajPtFullEx,
+    MotionCtrl,
+    MotionReply,
+    Result,
+    RobotStatusMsg,
+    decode,
+)
 from drivers.motoros.errors import ControllerNotReady, InvalidArgument, NonFiniteFeedback
+from drivers.motoros.framing import Framer
 
 SPEED = np.full(6, 4.0)  # rad/s, fake and driver agree
 Q0 = np.array([[0.1, -0.2, 0.3, 0.0, 0.5, -0.6], [-1.0, 0.25, 0.0, 0.5, 0.0, 1.5]])

@@ -12,8 +12,16 @@ from calibration import so3
 from calibration.physics import Twin
 from cell_config import load_cell
 from drivers.errors import DriverDisconnected, DriverTimeout, RobotFault
-from drivers.sim import (SimClock, SimFault, SimMocapConfig, SimMocapSource, SimRobotConfig, SimRobotDriver,
-                         TwinTruth, planted_truth)
+from drivers.sim import (
+    SimClock,
+    SimFault,
+    SimMocapConfig,
+    SimMocapSource,
+    SimRobotConfig,
+    SimRobotDriver,
+    TwinTruth,
+    planted_truth,
+)
 
 
 @pytest.fixture

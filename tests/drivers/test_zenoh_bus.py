@@ -11,8 +11,17 @@ import pytest
 
 from cell_config.loader import ZenohConfig
 from drivers.base import JointState, MocapSource, RigidBodyFrame
-from drivers.bus import (JointStatePublisher, JointStateSubscriber, MocapBridge, ZenohMocapSource, encode_mocap,
-                         joints_key, mocap_key, open_session, wait_for_subscriber)
+from drivers.bus import (
+    JointStatePublisher,
+    JointStateSubscriber,
+    MocapBridge,
+    ZenohMocapSource,
+    encode_mocap,
+    joints_key,
+    mocap_key,
+    open_session,
+    wait_for_subscriber,
+)
 from drivers.errors import DriverDisconnected, DriverError
 from drivers.natnet import FakeBody, FakeFrame, FakeNatNetServer, NatNetSource
 
