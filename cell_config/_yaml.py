@@ -15,9 +15,9 @@ from typing import Any
 import numpy as np
 import yaml
 
+from calibration.data.files import InputRefused, read_input_text
+from calibration.data.yamlio import safe_load
 from calibration.errors import ConfigError, parse_error_text
-from calibration.files import InputRefused, read_input_text
-from calibration.yamlio import safe_load
 
 _REQUIRED: Any = ...
 

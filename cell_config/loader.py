@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from calibration import so3
 from calibration.errors import ConfigError
-from calibration.poe import PoeModel
+from calibration.kinematics import so3
+from calibration.kinematics.poe import PoeModel
 from cell_config._yaml import Node
 from cell_config.devices import (
     ZENOH_MODES,
@@ -45,7 +45,7 @@ PACKAGE_DIR = Path(__file__).resolve().parent
 DEFAULT_CELL = PACKAGE_DIR / "cell.yaml"
 REHEARSAL_CELL = PACKAGE_DIR / "rehearsal.yaml"
 
-#: The collision capsules of an arm (``capsules_mm`` in the robot YAML); app/cell/capsules.py says what each spans.
+#: The collision capsules of an arm (``capsules_mm`` in the robot YAML); cell_config/capsules.py says what each spans.
 CAPSULE_SEGMENTS: tuple[str, ...] = ("base", "shoulder", "upper_arm", "forearm", "wrist", "tool")
 
 

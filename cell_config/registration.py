@@ -30,8 +30,8 @@ from typing import Any
 import numpy as np
 import yaml
 
+from calibration.data.files import atomic_write_text
 from calibration.errors import ConfigError, OutputError
-from calibration.files import atomic_write_text
 from cell_config._yaml import Node, read_yaml
 
 _HEADER = """\

@@ -41,7 +41,7 @@ def _ready(message: str) -> None:
 
 
 def cmd_mocap_bridge(args: argparse.Namespace) -> int:
-    from app.cell.mocap_service import BridgeService
+    from app.collection.mocap_bridge import BridgeService
 
     cell = cell_spec(args)
     stop = stop_on_signals()
@@ -77,7 +77,7 @@ def cmd_router(args: argparse.Namespace) -> int:
 
 
 def cmd_fake_controller(args: argparse.Namespace) -> int:
-    from app.cell.runtime import park_q
+    from app.collection.runtime.sim import park_q
     from drivers.motoros.fake_cell import run_fake_controller
 
     cell = cell_spec(args)
@@ -135,9 +135,9 @@ def cmd_fake_motive(args: argparse.Namespace) -> int:
 
 
 def cmd_register(args: argparse.Namespace) -> int:
-    from app.cell.register import base_update_hint, measure_registration, plan_registration, relative_bases
     from app.cli.cell_options import confirm_motion, motion_config, open_runtime, safety_for
-    from cell_config.loader import load_registration, save_registration
+    from app.collection.register import base_update_hint, measure_registration, plan_registration, relative_bases
+    from cell_config.registration import load_registration, save_registration
 
     cell = cell_spec(args)
     cell.robot(args.robot)

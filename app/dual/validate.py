@@ -150,7 +150,7 @@ def check_contact_sequence(safety: Any, q_plan: np.ndarray, q_start: np.ndarray)
     joint-space path is checked against limits, floor and the other arm's capsules.
 
     Args:
-        safety: the cell's :class:`~app.cell.safety.CellSafety`.
+        safety: the cell's :class:`~app.collection.safety.CellSafety`.
         q_plan: configurations [rad], shape (N, 12) (R1 then R2).
         q_start: both arms' joint angles now [rad], shape (12,).
 
@@ -170,13 +170,13 @@ def collect_contacts(drivers: dict[str, Any], probe: Any, q_plan: np.ndarray, sa
     """Drive both arms through the configurations and record the joint readings where contact is confirmed.
 
     The whole sequence is checked first (:func:`check_contact_sequence`); then each arm moves in turn through
-    :func:`~app.cell.motion.move_safely` (checked again against the other arm's live pose).
+    :func:`~app.collection.motion.move_safely` (checked again against the other arm's live pose).
 
     Args:
         drivers: ``{"R1": RobotDriver, "R2": RobotDriver}``, connected.
         probe: a connected contact probe with ``latest`` and ``wait_for_contact`` (:class:`CanContactProbe`).
         q_plan: configurations [rad], shape (N, 12) (R1 then R2).
-        safety: the cell's :class:`~app.cell.safety.CellSafety`.
+        safety: the cell's :class:`~app.collection.safety.CellSafety`.
         speed_fraction: fraction of the maximum joint speeds.
         settle_timeout_s: per move [s]. contact_timeout_s: how long to wait for a touch after settling [s].
 
@@ -187,7 +187,7 @@ def collect_contacts(drivers: dict[str, Any], probe: Any, q_plan: np.ndarray, sa
         UnsafeTarget: a move is unsafe (refused before the first motion when the plan is, else before that move).
         NonFiniteFeedback: an arm's joint feedback is not finite (nothing more moves).
     """
-    from app.cell.motion import move_safely, read_q
+    from app.collection.motion import move_safely, read_q
     from drivers.errors import DriverTimeout
 
     q_plan = np.atleast_2d(np.asarray(q_plan, dtype=float))
@@ -222,7 +222,7 @@ def contact_plan(cell: CellSpec, twins: dict[str, Any], n: int) -> tuple[np.ndar
     """
     from app.dual.paths import Q_REF_DEG, relative_pose, sweep_path
     from app.dual.planner import DualPlanner, PlannerOptions
-    from calibration.physics import PhysicsModel
+    from calibration.models.physics import PhysicsModel
 
     truth = {k: PhysicsModel(k, "twin", t.geometry, t.effects) for k, t in twins.items()}
     planner = DualPlanner(cell, truth["R1"], truth["R2"], PlannerOptions(compile="off"))
@@ -245,13 +245,13 @@ def run_sim_validation(cell: CellSpec, n: int = 20, model_sets: dict[str, dict[s
         n: number of contact configurations (>= 2).
         model_sets: ``{label: {"R1": model, "R2": model}}``; fitted on twin data when None.
         methods: model sets to fit when ``model_sets`` is None (default ``SIM_METHODS``).
-        options: the simulated cell, :class:`~app.cell.runtime.SimCellOptions` (default
+        options: the simulated cell, :class:`~app.collection.runtime.sim.SimCellOptions` (default
             :data:`~app.dual.sim.VALIDATION_CELL`).
         grid: where the training anchors lie, :class:`~app.dual.sim.TrainingGrid`.
         tolerance_mm: the simulated probe touches within this distance [mm].
         channel: python-can virtual channel shared by the simulated and the reading probe.
     """
-    from app.cell.safety import CellSafety
+    from app.collection.safety import CellSafety
     from app.dual.sim import SIM_METHODS, VALIDATION_CELL, TrainingGrid, fit_model_sets, make_twins
     from drivers.can_probe import CanContactProbe
     from drivers.sim import SimClock, SimRobotConfig, SimRobotDriver

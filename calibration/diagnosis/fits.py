@@ -35,16 +35,6 @@ def _fit_job(chosen: Chosen) -> JointFit:
     return _STATE(chosen)  # type: ignore[misc]
 
 
-def usable_workers(limit: int = 2) -> int:
-    """Worker processes for the check: the usable cores (at most ``limit``), none inside a worker process or
-    without the ``fork`` start method."""
-    from calibration.robust import default_workers
-
-    if mp.parent_process() is not None or "fork" not in mp.get_all_start_methods():
-        return 1
-    return default_workers(limit)
-
-
 class JointFits:
     """Joint fits ``fit(chosen)``, each computed once per set of effect templates and their bases (by identity;
     the sets asked for are kept, so no identity is reused while this lives).

@@ -13,14 +13,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from calibration import so3
+from calibration.data.recording import Recording
+from calibration.kinematics import so3
 from calibration.physics.twin import Twin
-from calibration.recording import Recording
 
 if TYPE_CHECKING:
+    from calibration.kinematics.poe import PoeModel
     from calibration.physics.base import Effect
     from calibration.physics.gravity import GravityModel
-    from calibration.poe import PoeModel
 
 
 @dataclass(frozen=True)
@@ -163,8 +163,8 @@ def tool_error_case(nominal: PoeModel, gravity: GravityModel, shift_mm: float = 
     ``train_design``'s clusters, held-out on random poses of ``test_design``; both measured through the same wrong
     marker frame ``T_tool`` (marker in flange, returned (4, 4) [mm]): ``T_meas = T_true @ T_tool``.
     """
-    from calibration.frames import put_in
-    from calibration.models.rebased import make_T
+    from calibration.data.recording import put_in
+    from calibration.kinematics.so3 import make_T
 
     twin, train, _ = make_case(nominal, gravity, {"joint_compliance": 0.3}, seed, train_design, 1)
     q, cols = heldout_design(test_design, n_heldout, seed + 1)

@@ -2,7 +2,7 @@
 
 Its blocks are the base model's, then one per effect; its numpy pose and its casadi expression take the same
 steps (joint effects deflect q on the base model's arm, the base model runs at the deflected joints), so a
-planner sees its exact derivatives. :func:`calibration.diagnosis.model.result_model` builds it.
+planner sees its exact derivatives. :func:`calibration.diagnosis.refitted_model.result_model` builds it.
 """
 
 from __future__ import annotations
@@ -12,11 +12,13 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from calibration.casadi_expr import CasadiPose, poe_chain
 from calibration.errors import ModelError
-from calibration.models.base import Block, KinematicModel
+from calibration.kinematics.casadi_expr import CasadiPose, poe_chain
+from calibration.models.base import KinematicModel
 from calibration.models.physics import casadi_effects, effect_blocks, split_values
-from calibration.physics.base import NO_GUARD, Context, Effect, effect_from_dict, effects_read, geometry_on_top
+from calibration.physics.base import NO_GUARD, Effect, effect_from_dict, effects_read, geometry_on_top
+from calibration.physics.context import Context
+from calibration.physics.layout import Block
 
 
 @dataclass

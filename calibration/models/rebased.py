@@ -4,11 +4,11 @@
 the base (mocap-to-base registration) on the left and of the tool marker (marker-to-flange registration) on the
 right of the inner model's pose; both constant (4, 4) [mm]; and, optionally, constant joint-angle offsets [rad]
 added to the readings before the inner model sees them (a day whose joint zeros moved; zero by default, and then
-not written to the file). :func:`calibration.rebase.rebase` fits them.
+not written to the file). :func:`calibration.frames.rebase.rebase` fits them.
 
 Its blocks are the inner model's, then ``base_correction`` and ``tool_correction`` (6 each): perturbations
 ``[dp (3) mm, dtheta (3) rad]`` about the stored corrections, ``p <- p + dp``, ``R <- exp(dtheta) R`` (the
-convention of :func:`calibration.registration.retract`), so ``vector()`` ends in 12 zeros. Its pose, its
+convention of :func:`calibration.frames.registration.retract`), so ``vector()`` ends in 12 zeros. Its pose, its
 analytic Jacobians and its casadi expression all wrap the inner model's by the same two transforms.
 """
 
@@ -19,21 +19,16 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from calibration import so3
-from calibration.casadi_expr import CasadiPose
 from calibration.errors import ModelError, ModelFileError
-from calibration.models.base import Block, KinematicModel
-from calibration.poe import PoeModel
+from calibration.kinematics import so3
+from calibration.kinematics.casadi_expr import CasadiPose
+from calibration.kinematics.poe import PoeModel
+from calibration.kinematics.so3 import make_T
+from calibration.models.base import KinematicModel
+from calibration.physics.layout import Block
 
 #: Names of one correction block (perturbation of a transform in its parent frame).
 CORRECTION_NAMES = ("dx", "dy", "dz", "rx", "ry", "rz")
-
-
-def make_T(R: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """Homogeneous transform (4, 4) from a rotation (3, 3) and a translation (3,) [mm]."""
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, p
-    return T
 
 
 def wrap_pose(T_base: np.ndarray, R: np.ndarray, p: np.ndarray, T_tool: np.ndarray
@@ -190,7 +185,7 @@ class RebasedModel(KinematicModel):
         last 12 symbols perturb them as :meth:`with_vector` does); the skeleton moves with the base only."""
         import casadi as ca
 
-        from calibration.casadi_expr import exp_sx
+        from calibration.kinematics.casadi_expr import exp_sx
 
         k = self.inner.vector().size
         pose = self.inner.casadi(self._shifted(q), None if theta is None else theta[:k], self._shifted(q_at))

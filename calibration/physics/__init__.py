@@ -5,18 +5,10 @@ of geometry plus effects is the ``physics`` model kind, :mod:`calibration.models
 ``PhysicsModel``). Pinocchio is imported only for :meth:`GravityModel.torque`.
 """
 
-from typing import Any
-
-from calibration.physics.base import (
-    EFFECT_KINDS,
-    Context,
-    Effect,
-    ExtendedEffect,
-    apply_effects,
-    context_array,
-    effect_from_dict,
-)
-from calibration.physics.compliance import JointCompliance, LumpedCompliance, MassFreeCompliance, PayloadCompliance
+from calibration.physics.base import EFFECT_KINDS, Effect, apply_effects, effect_from_dict
+from calibration.physics.compliance import JointCompliance, LumpedCompliance, PayloadCompliance
+from calibration.physics.context import Context, context_array
+from calibration.physics.extended import ExtendedEffect, MassFreeCompliance
 from calibration.physics.gravity import G_STANDARD, GravityModel, gravity_regressor, point_mass_torque
 from calibration.physics.joint_effects import Backlash, GearTransmission, JointOffset, MocapLatency
 from calibration.physics.thermal import ThermalDrift, link_names
@@ -31,9 +23,3 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> Any:  # the model kind imports this package, so it is re-exported lazily
-    if name == "PhysicsModel":
-        from calibration.models.physics import PhysicsModel
-
-        return PhysicsModel
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from calibration.errors import ModelError
-from calibration.poe import PoeModel
+from calibration.kinematics.poe import PoeModel
 
 G_STANDARD = 9.80665  # [m/s^2]
 _SPHERE_RADIUS_M = 0.05  # point masses get a small sphere inertia so pinocchio's model is regular
@@ -90,8 +90,8 @@ def chain_torques(ops: Any, chain: Any, lumped: np.ndarray | None, g: float = G_
     torque of 1 kg at the tool point, ``a_i . (p_tool - o_i) / 1000`` (see :func:`point_mass_torque`).
 
     Args:
-        ops: :data:`calibration.casadi_expr.NUMPY` (chain of (N, ...) arrays) or ``casadi_ops()``.
-        chain: a :class:`calibration.poe.Chain` or :class:`calibration.casadi_expr.SxChain`.
+        ops: :data:`calibration.kinematics.casadi_expr.NUMPY` (chain of (N, ...) arrays) or ``casadi_ops()``.
+        chain: a :class:`calibration.kinematics.poe.Chain` or :class:`calibration.kinematics.casadi_expr.SxChain`.
     """
     g_vec = np.array([0.0, 0.0, -g])
     n = len(chain.axes_base)
@@ -118,8 +118,8 @@ def chain_torque_columns(ops: Any, chain: Any, joint: int, columns: tuple[int, .
     with ``a = g_vec x w_i``.
 
     Args:
-        ops: the backend (:data:`calibration.casadi_expr.NUMPY` or ``casadi_ops()``).
-        chain: a :class:`calibration.poe.Chain` or :class:`calibration.casadi_expr.SxChain`.
+        ops: the backend (:data:`calibration.kinematics.casadi_expr.NUMPY` or ``casadi_ops()``).
+        chain: a :class:`calibration.kinematics.poe.Chain` or :class:`calibration.kinematics.casadi_expr.SxChain`.
         joint: 0-based joint index i.
         columns: lumped column indices (0-based, of links k >= i).
     """

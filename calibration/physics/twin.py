@@ -11,7 +11,7 @@ true parameters. :meth:`Twin.random` plants effects at given magnitudes with a s
 Planting magnitudes are stated as what a person can check: the RMS tool-position perturbation [mm] each
 effect causes on its own over a reference set of poses, under a context that excites it (see
 :func:`reference_context`). Geometric errors are planted as parameters of
-:class:`~calibration.parameterisation.MinimalParameterisation` (offsets [mm], tilts [rad]).
+:class:`~calibration.kinematics.parameterisation.MinimalParameterisation` (offsets [mm], tilts [rad]).
 """
 
 from __future__ import annotations
@@ -25,13 +25,14 @@ from typing import Any
 import numpy as np
 
 from calibration.errors import ModelError
-from calibration.parameterisation import MinimalParameterisation
-from calibration.physics.base import Context, Effect, apply_effects, context_keys_of, effect_from_dict
+from calibration.kinematics.parameterisation import MinimalParameterisation
+from calibration.kinematics.poe import PoeModel
+from calibration.physics.base import Effect, apply_effects, context_keys_of, effect_from_dict
 from calibration.physics.compliance import JointCompliance, PayloadCompliance
+from calibration.physics.context import Context
 from calibration.physics.gravity import GravityModel
 from calibration.physics.joint_effects import Backlash, GearTransmission, JointOffset, MocapLatency
 from calibration.physics.thermal import ThermalDrift
-from calibration.poe import PoeModel
 
 TWIN_SCHEMA = "cellcal.twin/1"
 log = logging.getLogger("cellcal.calibration")
@@ -207,14 +208,14 @@ class Twin:
 
     def to_dict(self) -> dict[str, Any]:
         """Truth file content (plain Python)."""
-        from calibration.models import poe_to_dict
+        from calibration.kinematics.poe import poe_to_dict
 
         return {"schema": TWIN_SCHEMA, "geometry": poe_to_dict(self.geometry),
                 "effects": [e.to_dict() for e in self.effects], "info": self.info}
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> Twin:
-        from calibration.models import poe_from_dict
+        from calibration.kinematics.poe import poe_from_dict
 
         if d.get("schema") != TWIN_SCHEMA:
             raise ModelError(f"unsupported twin schema {d.get('schema')!r}; expected {TWIN_SCHEMA!r}")

@@ -13,7 +13,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from cell_config.loader import ZenohConfig
+from cell_config.devices import ZenohConfig
 from drivers.base import MocapSource, RigidBodyFrame
 from drivers.bus.inbox import Inbox, InboxStats
 from drivers.bus.payloads import decode_mocap, encode_mocap

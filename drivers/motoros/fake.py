@@ -29,7 +29,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from drivers.errors import DriverError, ProtocolError
+from drivers.errors import DriverError, InvalidArgument, ProtocolError
 from drivers.motoros.codec import (
     JointFeedback,
     JointFeedbackEx,
@@ -37,15 +37,14 @@ from drivers.motoros.codec import (
     JointTrajPtFullEx,
     Message,
     MotionReply,
-    Result,
+    Packet,
     ValidFields,
     decode,
 )
-from drivers.motoros.codes import CommType, InvalidSubcode, MsgType
-from drivers.motoros.errors import InvalidArgument
+from drivers.motoros.codes import CommType, InvalidSubcode, MsgType, Result
 from drivers.motoros.fake_arm import INTERPOLATION_PERIOD_S, SimulatedGroup
 from drivers.motoros.fake_logic import SimulatedController
-from drivers.motoros.framing import Framer, Packet, recv_into_framer
+from drivers.motoros.framing import Framer, recv_into_framer
 
 log = logging.getLogger("cellcal.drivers")
 

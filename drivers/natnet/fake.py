@@ -23,7 +23,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from drivers.errors import DriverError
-from drivers.natnet.packets import MessageId
+from drivers.natnet.messages import MessageId
 
 log = logging.getLogger("cellcal.drivers")
 

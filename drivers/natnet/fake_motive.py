@@ -19,7 +19,7 @@ from collections.abc import Callable, Mapping
 
 import numpy as np
 
-from calibration import so3
+from calibration.kinematics import so3
 from drivers.errors import DriverError
 from drivers.natnet.fake import FakeBody, FakeFrame, FakeNatNetServer
 

@@ -115,7 +115,7 @@ class MocapFrame:
         :data:`PRECISION_FRACTION_PER_S`), and read in the wrong one its sub-second part would run at a quarter of
         real time and jump at each whole second, so a measurement window cut on it would hold the wrong frames.
         The collector needs only a clock that keeps the capture instants' rate (it learns the offset to the host
-        clock itself, :mod:`app.cell.mocap_window`), which the frame time does.
+        clock itself, :mod:`app.collection.mocap_window`), which the frame time does.
         """
         return self.timestamp
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calibration import so3
+from calibration.kinematics import so3
 from drivers.base import MocapSource, RigidBodyFrame
 from drivers.errors import DriverDisconnected, InvalidArgument
 from drivers.sim.robot import SimRobotDriver

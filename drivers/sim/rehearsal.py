@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from calibration import so3
+from calibration.kinematics import so3
 from calibration.physics import PlantedErrors
 from drivers.errors import DriverError
 

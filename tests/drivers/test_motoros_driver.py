@@ -10,20 +10,19 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from drivers.errors import DriverDisconnected, DriverError, DriverTimeout, RobotFault
+from drivers.errors import DriverDisconnected, DriverError, DriverTimeout, InvalidArgument, RobotFault
 from drivers.motoros import FakeMotorosController, MotorosDriver, MotorosLink
 from drivers.motoros.codec import (
-    Command,
     JointFeedback,
     JointTrajPtFull,
     JointTrajPtFullEx,
     MotionCtrl,
     MotionReply,
-    Result,
     RobotStatusMsg,
     decode,
 )
-from drivers.motoros.errors import ControllerNotReady, InvalidArgument, NonFiniteFeedback
+from drivers.motoros.codes import Command, Result
+from drivers.motoros.errors import ControllerNotReady, NonFiniteFeedback
 from drivers.motoros.framing import Framer
 
 SPEED = np.full(6, 4.0)  # rad/s, fake and driver agree

@@ -9,7 +9,7 @@ import time
 import numpy as np
 import pytest
 
-from cell_config.loader import ZenohConfig
+from cell_config.devices import ZenohConfig
 from drivers.base import JointState, MocapSource, RigidBodyFrame
 from drivers.bus import (
     JointStatePublisher,

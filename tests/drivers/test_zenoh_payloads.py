@@ -8,7 +8,7 @@ import struct
 import numpy as np
 import pytest
 
-from cell_config.loader import ZenohConfig
+from cell_config.devices import ZenohConfig
 from drivers.base import JointState, RigidBodyFrame
 from drivers.bus import (
     decode_joints,
