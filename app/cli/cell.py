@@ -24,7 +24,6 @@ from app.cli.common import (
     warn_gross_rows,
     write_json,
 )
-from app.workflows.fit import fitter_for
 from calibration.errors import CellCalError
 
 #: The anchor-grid steps ``plan --q2-step/--q3-step`` and ``demo --anchor-step`` accept [deg].
@@ -434,6 +433,7 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         model, rebased = rebase_candidate(model_dir, service, train, (robot.robot.lower_rad, robot.robot.upper_rad))
         print(rebased.summary())
     else:
+        from app.workflows.fit import fitter_for
         from calibration.methods.options import FitOptions
 
         fitter = fitter_for(robot, train, cpa, FitOptions(epoch_progress=epoch_bar(args)))

@@ -19,7 +19,10 @@ import time
 from dataclasses import asdict, dataclass
 from typing import Any
 
+from calibration.errors import ConfigError
+from drivers.bus import MocapBridge, open_session
 from drivers.errors import DriverError
+from drivers.natnet import NatNetSource
 
 log = logging.getLogger("cellcal.app")
 
@@ -71,7 +74,6 @@ class BridgeService:
 
     def __init__(self, cell: Any, stop: threading.Event, *, frame_timeout_s: float = 2.0,
                  connect_timeout_s: float = 2.0, max_backoff_s: float = 2.0) -> None:
-        from calibration.errors import ConfigError
 
         if cell.mocap is None:
             raise ConfigError(cell.path, "mocap", "no mocap block: the bridge needs Motive's address and the "
@@ -105,7 +107,6 @@ class BridgeService:
         Raises:
             DriverError: the Zenoh session cannot be opened (bad endpoints, port in use).
         """
-        from drivers.bus import open_session
 
         self._session = open_session(self.cell.zenoh_for("bridge"))
         try:
@@ -135,7 +136,6 @@ class BridgeService:
 
     def _connect(self) -> Any:
         """A connected NatNet client with the bodies resolved, or None (the error is kept for the health)."""
-        from drivers.natnet import NatNetSource
 
         m = self.cell.mocap
         source = NatNetSource(m.server_address, local_address=m.local_address, command_port=m.command_port,
@@ -167,7 +167,6 @@ class BridgeService:
 
     def _stream(self, source: Any) -> None:
         """Publish the wanted bodies' frames until Motive goes silent or ``stop`` is set."""
-        from drivers.bus import MocapBridge
 
         bridge = MocapBridge(source, self._session, self.cell.name, self.names)
         try:

@@ -34,8 +34,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from app.collection.plans.dual import PlanResult
 from app.collection.safety import CellSafety, SafetyConfig
 from calibration.errors import CellCalError, ConfigError, UnsafeTarget
+from calibration.models import ConstantModel
 from cell_config.capsules import PROCESS_ZONE
 from cell_config.loader import CellSpec
 
@@ -150,7 +152,6 @@ def _moves(safety: CellSafety, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _dual_defects(cell: CellSpec, plan: PlanResult, models: Mapping[str, Any], skip_failed: bool,
                   first_only: bool) -> list[PlanDefect]:
-    from calibration.models import ConstantModel
 
     out = _kind_defects(plan, models)
     T = plan.T_wp_gun
@@ -293,7 +294,6 @@ def plan_defects(cell: CellSpec, plan: Any, *, models: Mapping[str, Any] | None 
     Returns:
         The defects, plan-wide ones (``waypoint`` None) first, then by waypoint (target for a collection plan).
     """
-    from app.collection.plans.dual import PlanResult
 
     if isinstance(plan, PlanResult):
         return _dual_defects(cell, plan, dict(models or {}), skip_failed, first_only)

@@ -22,8 +22,11 @@ import numpy as np
 from tqdm import tqdm
 
 from app.collection.mocap_window import ClockLink, WindowFailed, average_frames, collect_window
+from app.collection.motion import move_safely, stop_all
 from calibration.errors import CellCalError
+from calibration.frames.registration import RegistrationProblem, registration_plan, transform_difference
 from calibration.kinematics import so3
+from cell_config.registration import RobotRegistration
 
 log = logging.getLogger("cellcal.app")
 
@@ -53,7 +56,6 @@ class RegistrationRun:
 
     def registration(self) -> Any:
         """The result as the cell file's :class:`~cell_config.registration.RobotRegistration`."""
-        from cell_config.registration import RobotRegistration
 
         r = self.result
         return RobotRegistration(
@@ -70,7 +72,6 @@ def plan_registration(cell: Any, robot: str, q_center: np.ndarray, safety: Any, 
     Raises:
         UnsafeTarget: a pose or a path between poses is unsafe (before any motion).
     """
-    from calibration.frames.registration import registration_plan
 
     spec = cell.robot(robot).robot
     lower, upper = safety.limits(robot)
@@ -97,8 +98,6 @@ def measure_registration(rt: Any, safety: Any, robot: str, q_plan: np.ndarray, c
     Raises:
         RegistrationFailed: fewer than 6 poses measured, or the solver did not converge.
     """
-    from app.collection.motion import move_safely, stop_all
-    from calibration.frames.registration import RegistrationProblem
 
     driver, others = rt.drivers[robot], rt.others(robot)
     mocap, body = rt.mocap_for(robot), rt.body_ids[robot]
@@ -145,7 +144,6 @@ def relative_bases(cell: Any, registrations: Mapping[str, Any], reference: str =
         robot -> ``{"T_ref_base": 4x4 list, "cell_yaml_diff_mm": float, "cell_yaml_diff_deg": float}`` for every
         registered arm other than ``reference`` (empty when ``reference`` is not registered).
     """
-    from calibration.frames.registration import transform_difference
 
     if reference not in registrations:
         return {}

@@ -22,6 +22,8 @@ from typing import Any
 
 import yaml
 
+from app.collection.plans.collection import Plan
+from app.collection.plans.reader import read_plan
 from cell_config.loader import PACKAGE_DIR
 
 REPO = Path(__file__).resolve().parents[2]
@@ -171,8 +173,6 @@ class Process:
 
 def small_plan(cell: Path, robot: str, out: Path, n: int = 14) -> Path:
     """The first ``n`` targets (two clusters) of the coarsest anchor grid."""
-    from app.collection.plans.collection import Plan
-    from app.collection.plans.reader import read_plan
 
     full = out.with_suffix(".full.json")
     done = run_cellcal(cell, "plan", "--design", "grid", "--robot", robot, "--q2-step", "50", "--q3-step", "50",

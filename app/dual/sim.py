@@ -24,12 +24,14 @@ from typing import Any
 import numpy as np
 
 from app.collection.runtime.sim import SimCellOptions
+from app.workflows.fit import fitter_for
 from calibration.data.recording import Recording
 from calibration.errors import ModelError
 from calibration.kinematics import so3
+from calibration.method_names import METHODS
 from calibration.methods.cdc import expand_anchors
 from calibration.models import KinematicModel
-from calibration.physics import PlantedErrors
+from calibration.physics import GravityModel, PlantedErrors, planted_twin
 from cell_config.loader import CellSpec
 
 logger = logging.getLogger("cellcal.app")
@@ -58,7 +60,6 @@ class TrainingGrid:
 
 def make_twins(cell: CellSpec, options: SimCellOptions = VALIDATION_CELL) -> dict[str, Any]:
     """The true twin of each arm (R1 seeded ``options.seed``, R2 ``options.seed + 1``), from the one planter."""
-    from calibration.physics import GravityModel, planted_twin
 
     twins = {}
     for k, name in enumerate(ROBOTS):
@@ -110,7 +111,6 @@ def cpa_design(n_per_sweep: int = 15, span_deg: float = 120.0) -> tuple[np.ndarr
 
 def check_methods(methods: tuple[str, ...]) -> None:
     """Raise ModelError naming the first unknown method and the valid ones."""
-    from calibration.method_names import METHODS
 
     bad = [m for m in methods if m not in METHODS]
     if bad:
@@ -128,7 +128,6 @@ def fit_model_sets(cell: CellSpec, twins: dict[str, Any], methods: tuple[str, ..
     Raises:
         ModelError: an unknown method (the message names the valid ones).
     """
-    from app.workflows.fit import fitter_for
 
     check_methods(methods)
     out: dict[str, dict[str, KinematicModel]] = {m: {} for m in methods}

@@ -27,8 +27,20 @@ from typing import Any
 
 import numpy as np
 
+from app.collection.motion import move_safely, read_q
+from app.collection.safety import CellSafety
+from app.dual.paths import Q_REF_DEG, relative_pose, sweep_path
+from app.dual.planner import DualPlanner, PlannerOptions
+from app.dual.sim import SIM_METHODS, VALIDATION_CELL, TrainingGrid, fit_model_sets, make_twins
 from calibration.errors import ModelError
+from calibration.models import ConstantModel
+from calibration.models.physics import PhysicsModel
 from cell_config.loader import CellSpec
+from drivers.can_probe import CanContactProbe
+from drivers.errors import DriverTimeout
+from drivers.sim import SimClock, SimRobotConfig, SimRobotDriver
+from drivers.sim.can_probe import SimulatedProbe
+from drivers.sim.contact import SimContactSensor
 
 logger = logging.getLogger("cellcal.app")
 
@@ -187,8 +199,6 @@ def collect_contacts(drivers: dict[str, Any], probe: Any, q_plan: np.ndarray, sa
         UnsafeTarget: a move is unsafe (refused before the first motion when the plan is, else before that move).
         NonFiniteFeedback: an arm's joint feedback is not finite (nothing more moves).
     """
-    from app.collection.motion import move_safely, read_q
-    from drivers.errors import DriverTimeout
 
     q_plan = np.atleast_2d(np.asarray(q_plan, dtype=float))
     check_contact_sequence(safety, q_plan, np.concatenate([read_q(drivers[n]) for n in CONTACT_ORDER]))
@@ -220,9 +230,6 @@ def contact_plan(cell: CellSpec, twins: dict[str, Any], n: int) -> tuple[np.ndar
     Raises:
         ModelError: a configuration could not be solved (its reason is in the message).
     """
-    from app.dual.paths import Q_REF_DEG, relative_pose, sweep_path
-    from app.dual.planner import DualPlanner, PlannerOptions
-    from calibration.models.physics import PhysicsModel
 
     truth = {k: PhysicsModel(k, "twin", t.geometry, t.effects) for k, t in twins.items()}
     planner = DualPlanner(cell, truth["R1"], truth["R2"], PlannerOptions(compile="off"))
@@ -251,12 +258,6 @@ def run_sim_validation(cell: CellSpec, n: int = 20, model_sets: dict[str, dict[s
         tolerance_mm: the simulated probe touches within this distance [mm].
         channel: python-can virtual channel shared by the simulated and the reading probe.
     """
-    from app.collection.safety import CellSafety
-    from app.dual.sim import SIM_METHODS, VALIDATION_CELL, TrainingGrid, fit_model_sets, make_twins
-    from drivers.can_probe import CanContactProbe
-    from drivers.sim import SimClock, SimRobotConfig, SimRobotDriver
-    from drivers.sim.can_probe import SimulatedProbe
-    from drivers.sim.contact import SimContactSensor
 
     if n < 2:
         raise ModelError(f"validation needs at least 2 configurations, got {n}")
@@ -288,6 +289,5 @@ def run_sim_validation(cell: CellSpec, n: int = 20, model_sets: dict[str, dict[s
 
 
 def _nominal(cell: CellSpec, name: str) -> Any:
-    from calibration.models import ConstantModel
 
     return ConstantModel(name, "nominal", cell.robot(name).model())

@@ -15,6 +15,9 @@ from typing import Any
 
 import numpy as np
 
+from app.collection.motion import live_poses
+from app.collection.plan_safety import check_plan_safe
+from app.collection.plans.reader import read_plan
 from app.dual.validate import (
     ContactValidation,
     DeviationStats,
@@ -22,7 +25,9 @@ from app.dual.validate import (
     collect_contacts,
     evaluate_models,
 )
-from calibration.errors import CellCalError, DataError, ModelError
+from calibration.errors import CellCalError, ConfigError, DataError, ModelError
+from calibration.models import ConstantModel
+from drivers.can_probe import CanContactProbe
 
 log = logging.getLogger("cellcal.app")
 
@@ -43,8 +48,6 @@ def contact_configurations(plan_path: str | Path, cell: Any,
         ModelError: the plan has unsolved waypoints or fewer than 2.
         UnsafeTarget: an :class:`~app.collection.plan_safety.UnsafePlan` naming the waypoint.
     """
-    from app.collection.plan_safety import check_plan_safe
-    from app.collection.plans.reader import read_plan
 
     plan = read_plan(plan_path, "dual")
     check_plan_safe(cell, plan, str(plan_path), models=models)
@@ -66,8 +69,6 @@ def open_probe(cell: Any) -> Any:
     Raises:
         ConfigError: the cell file has no probe block.
     """
-    from calibration.errors import ConfigError
-    from drivers.can_probe import CanContactProbe
 
     p = cell.probe
     if p is None:
@@ -91,8 +92,6 @@ def run_real_validation(cell: Any, rt: Any, safety: Any, q_plan: np.ndarray, p_c
         UnsafeTarget: a move of the sequence is unsafe (before any motion).
         CellCalError: no contact was confirmed at any configuration.
     """
-    from app.collection.motion import live_poses
-    from calibration.models import ConstantModel
 
     now = live_poses(rt.drivers)
     check_contact_sequence(safety, q_plan, np.concatenate([now["R1"], now["R2"]]))

@@ -32,7 +32,9 @@ import numpy as np
 from app.dual.export_targets import R_from_rpy_deg, rpy_deg
 from app.jobs.arm_ik import ArmIk, IkResult, pose_error
 from app.jobs.jbi import Job, JobError, JobPosition, format_values
-from calibration.models import ConstantModel
+from calibration.errors import DataError, ModelError
+from calibration.models import ConstantModel, load_model
+from calibration.models.checks import check_model_for
 from cell_config.loader import CellSpec
 
 _ROBOT_SPEC = re.compile(r"^([A-Za-z][A-Za-z0-9_]*)=(.+)$")
@@ -45,9 +47,6 @@ def load_job_models(specs: list[str], cell: Any) -> dict[str, Any]:
         DataError: unreadable model file, unknown robot, a model fitted for another robot or holding another robot
             type's geometry, or a robot twice.
     """
-    from calibration.errors import DataError, ModelError
-    from calibration.models import load_model
-    from calibration.models.checks import check_model_for
 
     models: dict[str, Any] = {}
     for spec in specs:

@@ -8,6 +8,11 @@ import math
 
 import numpy as np
 
+from app.collection.plans.reader import read_plan
+from app.jobs.jbi import JobError, read_job
+from calibration.data.recording import read_joints
+from calibration.errors import DataError
+
 #: File name endings of a task given as a JBI job, and as a dual plan; any other is a joints CSV.
 JOB_SUFFIXES = (".jbi",)
 PLAN_SUFFIXES = (".json",)
@@ -25,10 +30,6 @@ def read_task(path: str, robot: str, cell: object) -> np.ndarray:
     """
     from pathlib import Path
 
-    from app.collection.plans.reader import read_plan
-    from app.jobs.jbi import JobError, read_job
-    from calibration.data.recording import read_joints
-    from calibration.errors import DataError
 
     spec = cell.robot(robot).robot  # type: ignore[attr-defined]
     lower, upper = spec.lower_rad, spec.upper_rad

@@ -7,7 +7,10 @@ from typing import Any
 
 import numpy as np
 
+from app.reports.acceptance import Tolerance, acceptance_from_max, iso_table, iso_unavailable
+from app.reports.page import Image, Page, Section, Table, write_html
 from app.reports.plots import save_figure
+from app.reports.provenance import provenance
 from calibration.data.files import atomic_write_text, make_folders
 from calibration.diagnosis import Diagnosis
 
@@ -69,9 +72,6 @@ def write_report(result: Diagnosis, out_dir: str | Path, tolerance: Any = None, 
         inputs: (role, path) of the input files, for the provenance.
         command: the command line shown in the report.
     """
-    from app.reports.acceptance import Tolerance, acceptance_from_max, iso_table, iso_unavailable
-    from app.reports.page import Image, Page, Section, Table, write_html
-    from app.reports.provenance import provenance
 
     plt = _pyplot()
     tol = tolerance or Tolerance()
@@ -136,7 +136,6 @@ def write_report(result: Diagnosis, out_dir: str | Path, tolerance: Any = None, 
 
 def _days_tables(result: Diagnosis) -> list[Any]:
     """With several recordings: each one against the first (frames, kinematics, named changes)."""
-    from app.reports.page import Table
 
     if result.days is None:
         return []

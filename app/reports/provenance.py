@@ -16,6 +16,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from calibration.data.recording import WELDING_LAYOUTS
+
 #: The key of a model file's ``info`` that holds the provenance.
 PROVENANCE_KEY = "provenance"
 
@@ -42,7 +44,6 @@ def sha256_file(path: str | Path) -> str:
 
 def input_files(path: str | Path) -> list[Path]:
     """The files an input path stands for: itself, or a Welding_Motoman folder's joint and pose files."""
-    from calibration.data.recording import WELDING_LAYOUTS
 
     path = Path(path)
     if not path.is_dir():

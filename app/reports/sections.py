@@ -10,10 +10,11 @@ import numpy as np
 from app.reports import plots
 from app.reports.acceptance import Tolerance, acceptance, iso_table
 from app.reports.page import Image, Page, Section, Table, _f, recommendation_why, shown_series, write_html
+from app.reports.provenance import provenance
 from calibration.data.files import atomic_write_text, make_folders
-from calibration.data.recording import Recording
-from calibration.evaluation.comparison import Comparison
-from calibration.evaluation.metrics import Errors, errors
+from calibration.data.recording import Recording, welding_layout
+from calibration.evaluation.comparison import Comparison, comparison_warnings
+from calibration.evaluation.metrics import Errors, error_stats, errors
 
 PAPER_R1_TEST = {  # the paper's Table IV (R1 test set, position mean / std / max mm)
     "nominal": (1.29, 0.21, 1.72), "base": (0.53, 0.25, 1.27), "cpa": (0.44, 0.20, 0.99),
@@ -31,7 +32,6 @@ def shows_paper(robot: str, test: Recording) -> bool:
     """Whether a comparison shows the paper's Table IV figures (:data:`PAPER_R1_TEST`) beside its own: only for R1
     tested on a recording in the Welding_Motoman layout, the paper's own cell's data. On a simulated recording, or
     any in the native CSV format, the paper's column stood beside the figures as if they were comparable."""
-    from calibration.data.recording import welding_layout
 
     return robot == "R1" and welding_layout(test.source) is not None
 
@@ -109,7 +109,6 @@ def comparison_section(cmp: Comparison, test: Recording, out_dir: str | Path, to
                        with_paper: bool = False, title: str | None = None, test_label: str = "the test set",
                        paragraphs: list[str] | None = None) -> Section:
     """One arm's comparison: writes ``report.md`` and the PNG plots into ``out_dir`` and returns the section."""
-    from calibration.evaluation.comparison import comparison_warnings
 
     out = Path(out_dir)
     make_folders(out)  # removed again when a staged set of outputs fails (calibration.data.files.staged_outputs)
@@ -157,7 +156,6 @@ def write_report(cmp: Comparison, test: Recording, out_dir: str | Path, with_pap
                  tolerance: Tolerance = Tolerance(), inputs: list[tuple[str, Any]] | tuple = (),
                  command: str = "cellcal compare") -> list[Path]:
     """``compare --report``: ``report.md``, the PNG plots and ``report.html``; returns the files (html last)."""
-    from app.reports.provenance import provenance
 
     out = Path(out_dir)
     section = comparison_section(cmp, test, out, tolerance, with_paper)
@@ -169,7 +167,6 @@ def evaluation_section(title: str, models: dict[str, Any], rec: Recording, out_d
                        label: str, paragraphs: list[str] | None = None, recommended: str | None = None,
                        why: list[str] | None = None, next_steps: list[str] | None = None) -> Section:
     """Models evaluated on one recording (``evaluate``, ``recalibrate``): statistics, pass/fail, ISO, plots."""
-    from calibration.evaluation.metrics import error_stats
 
     errs = {n: errors(m, rec) for n, m in models.items()}
     rows = []
@@ -190,7 +187,6 @@ def write_evaluation_report(title: str, command: str, models: dict[str, Any], re
                             tol: Tolerance, inputs: list[tuple[str, Any]], label: str,
                             paragraphs: list[str] | None = None, next_steps: list[str] | None = None) -> Path:
     """``evaluate``/``recalibrate --report``: ``report.html`` (+ its PNGs) in ``out_dir``; returns the page."""
-    from app.reports.provenance import provenance
 
     out = Path(out_dir)
     make_folders(out)  # removed again when a staged set of outputs fails (calibration.data.files.staged_outputs)
@@ -206,7 +202,6 @@ def write_demo_report(out_dir: Path, comparisons: dict[str, Comparison], tests: 
 
     Each arm's ``report.md`` and PNG plots go to ``out_dir/<robot>/``.
     """
-    from app.reports.provenance import provenance
 
     tolerance = tolerance or Tolerance()
     cfg, planted = summary["config"], summary["planted"]

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from calibration.data.recording import Recording
+from calibration.diagnosis.shifts import one_sided_shift
 from calibration.errors import ModelError
 from calibration.evaluation.comparison import Comparison
 from calibration.evaluation.metrics import (
@@ -141,7 +142,6 @@ def _analysis(fitter: Fitter, test: Recording, cmp: Comparison) -> dict[str, Any
         analysis["paired_tests_vs_fbf13"] = {
             m: paired_tests(e.position_mm, fourier_test) for m, e in cmp.test_errors.items() if m != "fbf13"}
     if "pi" in cmp.models:  # measurement jumps in the training recording, against its most accurate smooth fit
-        from calibration.diagnosis.shifts import one_sided_shift
 
         _, p = cmp.models["pi"].fk(fitter.train.q)
         analysis["measurement_shift"] = one_sided_shift(fitter.train.p - p).to_json()

@@ -32,9 +32,17 @@ from app.collection.collect import DEMO_COLLECT, CollectConfig, SessionResult, c
 from app.collection.plans.session import PlanSpec, session_plan
 from app.collection.runtime.sim import SimCell, SimCellOptions
 from app.collection.safety import CellSafety
+from app.progress import EpochBar
+from app.reports.provenance import provenance, with_provenance
+from app.reports.sections import write_demo_report
+from app.workflows.compare import run_comparison
+from app.workflows.fit import fitter_for
 from calibration.data.files import atomic_write_text
-from calibration.errors import ConfigError
+from calibration.data.recording import read_recording
+from calibration.errors import ConfigError, DataError
 from calibration.method_names import METHODS
+from calibration.methods.options import FitOptions
+from calibration.models import save_model
 from cell_config.loader import CellSpec
 
 log = logging.getLogger("cellcal.app")
@@ -119,8 +127,6 @@ def export_recordings(session_dir: Path, out_dir: Path, cell: CellSpec, robot: s
     Raises:
         DataError: the session has no training or no validation sample.
     """
-    from calibration.data.recording import read_recording
-    from calibration.errors import DataError
 
     spec = cell.robot(robot).robot
     train_csv, cpa_csv, test_csv = out_dir / "train.csv", out_dir / "cpa.csv", out_dir / "test.csv"
@@ -138,12 +144,6 @@ def export_recordings(session_dir: Path, out_dir: Path, cell: CellSpec, robot: s
 def fit_and_compare(cell: CellSpec, robot: str, rec: Recordings, methods: tuple[str, ...], model_dir: Path,
                     progress: bool = True) -> Any:
     """Fit ``methods`` on the training set, evaluate them on the test set, save every model as YAML."""
-    from app.progress import EpochBar
-    from app.reports.provenance import provenance, with_provenance
-    from app.workflows.compare import run_comparison
-    from app.workflows.fit import fitter_for
-    from calibration.methods.options import FitOptions
-    from calibration.models import save_model
 
     epochs = EpochBar(f"{robot} nn/ae training") if progress else None
     fitter = fitter_for(cell.robot(robot), rec.train, rec.cpa, FitOptions(epoch_progress=epochs))
@@ -220,7 +220,6 @@ def run_demo(out_dir: str | Path, cell: CellSpec, config: DemoConfig = DemoConfi
         UnsafeTarget: a planned target is unsafe (nothing moves).
         SessionAborted: a collection session failed repeatedly.
     """
-    from app.reports.sections import write_demo_report
 
     t0 = time.monotonic()
     out = Path(out_dir)

@@ -16,10 +16,22 @@ from typing import Any
 
 import numpy as np
 
+from app.progress import bar
 from app.reports.diagnosis import write_report
+from app.reports.provenance import provenance, with_provenance
+from app.workflows.fit import fitter_for
 from calibration.data.files import atomic_write_text
+from calibration.data.recording import check_quaternion_order, put_in, read_recording, take_out, with_added
 from calibration.diagnosis import DiagnoseOptions, Diagnosis, diagnose
+from calibration.diagnosis.core import DIAGNOSE_STEPS
 from calibration.errors import DataError, ModelError
+from calibration.frames.daydiff import check_same_robot, compare_days, day_names
+from calibration.frames.multiday import pool
+from calibration.frames.policy import refuse_another_arms, refuse_repeated
+from calibration.frames.rebase import corrections
+from calibration.models import load_model, save_model
+from calibration.physics.gravity import GravityModel
+from cell_config import load_cell
 
 log = logging.getLogger("cellcal.app")
 
@@ -29,7 +41,6 @@ def _without_gross_rows(robot: Any, rec: Any) -> tuple[Any, Any]:
     (:meth:`calibration.methods.fitter.Fitter.without_gross_rows`, under the geometric fit): one marker swap of 50 mm would
     otherwise be explained by whatever effect fits it best. Warns naming the rows; returns the screening (None when
     it is turned off)."""
-    from app.workflows.fit import fitter_for
 
     screened = fitter_for(robot, rec)
     gross = screened.gross
@@ -72,10 +83,6 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
     Raises:
         CellCalError: bad input (unknown robot, unreadable data, unusable model); nothing is written.
     """
-    from calibration.data.recording import check_quaternion_order, read_recording, with_added
-    from calibration.models import load_model, save_model
-    from calibration.physics.gravity import GravityModel
-    from cell_config import load_cell
 
     cr = (load_cell(cell) if cell else load_cell()).robot(robot)
     spec = cr.robot
@@ -100,7 +107,6 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
     ho = read_recording(heldout, *limits) if heldout is not None else None
     if ho is not None:
         check_quaternion_order(ho, nominal)
-    from calibration.frames.policy import refuse_another_arms
 
     gross = None
     if days is None:  # another arm's recording is refused, as fit does (several recordings: by _days)
@@ -113,8 +119,6 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
     except ModelError as e:
         log.warning("joint compliance cannot be tested: %s", e)
         gravity = None
-    from app.progress import bar
-    from calibration.diagnosis.core import DIAGNOSE_STEPS
 
     with bar(total=len(DIAGNOSE_STEPS), enabled=progress, desc=f"{robot} diagnose", unit="step") as steps:
         def step(name: str) -> None:  # the bar counts the steps done; its label names the one running
@@ -127,7 +131,6 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
     if days is not None:
         result = replace(result, days=days)
     if model_out is not None:
-        from app.reports.provenance import provenance, with_provenance
 
         save_model(with_provenance(result.model, provenance(inputs)), model_out)
     if json_path is not None:
@@ -150,11 +153,6 @@ def _days(robot: str, nominal: Any, paths: list[str | Path], limits: tuple[np.nd
     Raises:
         DataError: a recording given twice, unreadable, or not of ``robot``.
     """
-    from calibration.data.recording import check_quaternion_order, put_in, read_recording, take_out
-    from calibration.frames.daydiff import check_same_robot, compare_days, day_names
-    from calibration.frames.multiday import pool
-    from calibration.frames.policy import refuse_repeated
-    from calibration.frames.rebase import corrections
 
     refuse_repeated(paths)
     recs = [read_recording(p, *limits) for p in paths]

@@ -10,7 +10,14 @@ from __future__ import annotations
 import logging
 from typing import Any
 
+from calibration.errors import ModelError
+from calibration.frames.check import framed
+from calibration.frames.multiday import fit_days
 from calibration.frames.policy import refuse_another_arms, refuse_repeated
+from calibration.methods.fitter import Fitter
+from calibration.methods.options import FitOptions
+from calibration.models import ConstantModel
+from calibration.physics.gravity import GravityModel
 
 log = logging.getLogger("cellcal.app")
 
@@ -25,10 +32,6 @@ def fitter_for(robot: Any, train: Any, cpa: Any | None = None, options: Any | No
         cpa: the CPA sweeps recording, or None.
         options: :class:`~calibration.methods.options.FitOptions` (default options when None).
     """
-    from calibration.errors import ModelError
-    from calibration.methods.fitter import Fitter
-    from calibration.methods.options import FitOptions
-    from calibration.physics.gravity import GravityModel
 
     nominal = robot.model()
     try:
@@ -55,8 +58,6 @@ def checked_fitter_for(robot: Any, train: Any, cpa: Any | None = None, options: 
     Raises:
         DataError: the training recording is not this arm's (:func:`refuse_unexplained`).
     """
-    from calibration.frames.check import framed
-    from calibration.models import ConstantModel
 
     nominal = ConstantModel(robot.name, "nominal", robot.model(), 0, {})
     check = refuse_another_arms(robot, train)
@@ -76,8 +77,6 @@ def days_fitter_for(robot: Any, trains: list[Any], cpa: Any | None = None, optio
     Raises:
         DataError: a training recording is not this arm's (:func:`refuse_unexplained`), or is given twice.
     """
-    from calibration.frames.multiday import fit_days
-    from calibration.models import ConstantModel
 
     nominal = ConstantModel(robot.name, "nominal", robot.model(), 0, {})
     for rec in trains:

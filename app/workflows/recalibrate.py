@@ -24,6 +24,7 @@ from calibration.data.files import check_output_path
 from calibration.data.recording import Recording
 from calibration.errors import ConfigError, DataError, ModelError
 from calibration.evaluation.metrics import error_stats, errors
+from calibration.frames.rebase import rebase_auto, workspace_configurations
 from calibration.kinematics.poe import PoeModel
 from calibration.models import KinematicModel, load_model, save_model
 from calibration.models.checks import check_model_for
@@ -268,7 +269,6 @@ def rebase_candidate(model_dir: str | Path, service: InService, train: Recording
         DataError: there is no usable model in service to rebase.
         ModelError: the frame fit did not converge (nothing is installed).
     """
-    from calibration.frames.rebase import rebase_auto, workspace_configurations
 
     model = model_to_rebase(model_dir, service)
     workspace = None if joint_limits_rad is None else workspace_configurations(*joint_limits_rad)

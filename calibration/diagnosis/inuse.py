@@ -26,6 +26,9 @@ from calibration.errors import ModelError
 from calibration.kinematics.parameterisation import MinimalParameterisation
 from calibration.kinematics.poe import PoeModel
 from calibration.models import ConstantModel, KinematicModel
+from calibration.models.cdc import CdcModel
+from calibration.models.physics import PhysicsModel
+from calibration.models.pi import PhysicsInformedModel
 from calibration.physics.base import Effect, apply_effects, geometry_on_top
 from calibration.physics.context import Context
 from calibration.physics.extended import ExtendedEffect, ExtendedKinematics
@@ -55,9 +58,6 @@ class InUse:
     @classmethod
     def from_model(cls, model: KinematicModel | None, nominal: PoeModel, x: np.ndarray | None = None) -> InUse:
         """The in-use form of a model (None: the nominal geometry moved to ``x``)."""
-        from calibration.models.cdc import CdcModel
-        from calibration.models.physics import PhysicsModel
-        from calibration.models.pi import PhysicsInformedModel
 
         if model is None or isinstance(model, (ConstantModel, PhysicsModel)):
             kin = ExtendedKinematics(MinimalParameterisation(nominal, fit_tool=True))

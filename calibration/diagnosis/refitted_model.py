@@ -21,8 +21,10 @@ from calibration.diagnosis.inuse import InUse
 from calibration.kinematics import so3
 from calibration.kinematics.poe import PoeModel
 from calibration.models import KinematicModel
+from calibration.models.cdc import CdcModel
 from calibration.models.diagnosed import DiagnosedModel
 from calibration.models.physics import PhysicsModel
+from calibration.models.pi import PhysicsInformedModel
 from calibration.physics.base import Effect
 from calibration.physics.extended import ExtendedEffect
 
@@ -47,8 +49,6 @@ def result_model(robot: str, inuse: InUse, used: KinematicModel | None, theta: n
         n_geometric_free: geometric directions refitted.
         info: metadata for the file.
     """
-    from calibration.models.cdc import CdcModel
-    from calibration.models.pi import PhysicsInformedModel
 
     g = inuse.n_geometric
     full, rest = InUse.split_effects(theta, effects, g)

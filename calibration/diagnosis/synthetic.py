@@ -13,8 +13,18 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from calibration.data.recording import Recording
+from calibration.data.recording import Recording, put_in
 from calibration.kinematics import so3
+from calibration.kinematics.so3 import make_T
+from calibration.physics import (
+    Backlash,
+    GearTransmission,
+    JointCompliance,
+    PayloadCompliance,
+    ThermalDrift,
+    apply_effects,
+)
+from calibration.physics.gravity import GravityModel, joint_origins
 from calibration.physics.twin import Twin
 
 if TYPE_CHECKING:
@@ -122,7 +132,6 @@ def heldout_design(design: Design, n: int, seed: int) -> tuple[np.ndarray, dict[
 def proof_templates(gravity: GravityModel, seed: int) -> dict[str, Effect]:
     """Where the proof plants each kind: compliances on joints 2 and 3, the gear error on a joint that
     changes with the seed, backlash on joints 1-3, growth of links p23 and p34 (warm-up, 1800 s)."""
-    from calibration.physics import Backlash, GearTransmission, JointCompliance, PayloadCompliance, ThermalDrift
 
     j = (1, 2, 3, 4, 5, 6)[seed % 6]
     return {"joint_compliance": JointCompliance(gravity, (2, 3), np.zeros(2)),
@@ -163,8 +172,6 @@ def tool_error_case(nominal: PoeModel, gravity: GravityModel, shift_mm: float = 
     ``train_design``'s clusters, held-out on random poses of ``test_design``; both measured through the same wrong
     marker frame ``T_tool`` (marker in flange, returned (4, 4) [mm]): ``T_meas = T_true @ T_tool``.
     """
-    from calibration.data.recording import put_in
-    from calibration.kinematics.so3 import make_T
 
     twin, train, _ = make_case(nominal, gravity, {"joint_compliance": 0.3}, seed, train_design, 1)
     q, cols = heldout_design(test_design, n_heldout, seed + 1)
@@ -175,7 +182,6 @@ def tool_error_case(nominal: PoeModel, gravity: GravityModel, shift_mm: float = 
 
 def orientation_rms_deg(model: PoeModel, effect: Effect, q: np.ndarray, context: dict[str, np.ndarray]) -> float:
     """RMS tool-rotation change [deg] that ``effect`` causes on its own at q (N, 6) under ``context``."""
-    from calibration.physics import apply_effects
 
     R0, _ = model.fk(q)
     R1, _ = apply_effects(model, [effect], q, context)
@@ -191,7 +197,6 @@ def make_wrist_case(nominal: PoeModel, gravity: GravityModel, orientation_deg: f
 
     Otherwise like :func:`make_case` (planted geometric errors, the same design, the same held-out recording).
     """
-    from calibration.physics import GearTransmission
 
     q, _, cols = design_and_context(design, seed)
     ctx = context_of(cols)
@@ -211,7 +216,6 @@ def perturbed_gravity(gravity: GravityModel, model: PoeModel, relative: float, s
     """Link masses and centres of mass that differ from ``gravity`` by ``relative`` (0.3: 30 %): each mass and
     each component of each centre of mass (relative to its joint's axis point) scaled by ``1 +- relative``, the
     signs drawn with ``seed``. The truth of a twin whose real loading is not the YAML's."""
-    from calibration.physics.gravity import GravityModel, joint_origins
 
     rng = np.random.default_rng(seed + 7_000)
     m, com = gravity.masses_coms(model)

@@ -30,7 +30,9 @@ from typing import Any
 import numpy as np
 
 from calibration.data.recording import Recording, take_out
+from calibration.errors import ModelError
 from calibration.frames.rebase import RebaseProblem, RebaseResult, check_units
+from calibration.methods.fitter import Fitter
 from calibration.models.base import KinematicModel
 from calibration.models.rebased import RebasedModel
 
@@ -290,8 +292,6 @@ def base_free(fitter: Any) -> Any:
     than nls1 (R1 seed 3: 0.922 -> 0.832 mm mean for pi). Not the default of a recording that passes the check: on
     the shared training days' extrapolation folds the damped rigid part does better (``scripts/studies/pi_base_frame.py``).
     """
-    from calibration.errors import ModelError
-    from calibration.methods.fitter import Fitter
 
     if not isinstance(fitter, Fitter) or fitter._cache:
         raise ModelError(f"the frames-first fit needs a fresh Fitter from make_fitter, got {type(fitter).__name__}"

@@ -46,6 +46,7 @@ from scipy import special  # not scipy.stats: its import costs ~1 s per command 
 
 from calibration.data.recording import Recording
 from calibration.errors import DataError
+from calibration.frames.check import fit_frames
 from calibration.frames.day_tests import SAME_POSES, DayDiff, Quantity, Test, pose_overlap
 from calibration.frames.days_problem import (
     IDENTIFIED_TOLERANCE,
@@ -61,6 +62,7 @@ from calibration.frames.days_problem import (
 )
 from calibration.frames.rebase import DIRECTION_NAMES
 from calibration.kinematics.poe import PoeModel
+from calibration.models import ConstantModel
 
 #: A parameter (or named change) is tested when at least this share of it (squared norm) lies in the directions
 #: both recordings identify; otherwise it is reported as unidentified.
@@ -308,8 +310,6 @@ def check_same_robot(nominal: PoeModel, recs: list[Recording], robot: str) -> No
     Raises:
         DataError: the first such recording.
     """
-    from calibration.frames.check import fit_frames
-    from calibration.models import ConstantModel
 
     model = ConstantModel(robot, "nominal", nominal, 0, {})
     for r in recs:

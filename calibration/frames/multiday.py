@@ -37,6 +37,7 @@ from calibration.data.recording import Recording, take_out
 from calibration.errors import ModelError
 from calibration.evaluation.metrics import errors
 from calibration.frames.check import FramedFit, FrameFit, base_free, check_recording, fit_frames
+from calibration.frames.daydiff import compare_days, day_names
 from calibration.models.base import KinematicModel
 from calibration.models.constant import ConstantModel
 from calibration.models.rebased import RebasedModel
@@ -200,7 +201,6 @@ def fit_days(make_fitter: Callable[[Recording], Any], nominal: KinematicModel, r
         arm = fitter.fit(reference)[0]
     if gauge is not None:
         fitter = FramedFit(fitter, pool([recs[0]] + others), gauge, first)
-    from calibration.frames.daydiff import day_names
 
     names = day_names([r.source for r in recs])
     days = []
@@ -214,7 +214,6 @@ def fit_days(make_fitter: Callable[[Recording], Any], nominal: KinematicModel, r
         days.append(Day(names[i], len(r), f, _rms(wrapped, r), _rms(own[i], r)))
     differences = None
     if isinstance(nominal, ConstantModel):
-        from calibration.frames.daydiff import compare_days
 
         differences = compare_days(nominal.model, recs, names)
     return MultiDayFit(fitter, tuple(days), reference, differences)

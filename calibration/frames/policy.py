@@ -5,6 +5,10 @@ from __future__ import annotations
 
 from typing import Any
 
+from calibration.errors import DataError
+from calibration.frames.check import UNEXPLAINED_MM, check_recording
+from calibration.models import ConstantModel
+
 
 def refuse_repeated(paths: list[Any]) -> None:
     """Refuse a recording given twice among several: it would be fitted (or compared) as two days that agree.
@@ -14,7 +18,6 @@ def refuse_repeated(paths: list[Any]) -> None:
     """
     from pathlib import Path
 
-    from calibration.errors import DataError
 
     seen: set[Path] = set()
     for p in paths:
@@ -37,8 +40,6 @@ def refuse_unexplained(source: str, robot: str, against: str, before_mm: float, 
         DataError: ``left_mm`` exceeds :data:`calibration.frames.check.UNEXPLAINED_MM` (the message names the recording,
             both figures and the likely causes).
     """
-    from calibration.errors import DataError
-    from calibration.frames.check import UNEXPLAINED_MM
 
     if not left_mm <= UNEXPLAINED_MM:
         raise DataError(source, None, None,
@@ -59,8 +60,6 @@ def refuse_another_arms(robot: Any, rec: Any, subject: str = "training recording
     Raises:
         DataError: ``rec`` is not this arm's (naming the recording and the arm).
     """
-    from calibration.frames.check import check_recording
-    from calibration.models import ConstantModel
 
     nominal = ConstantModel(robot.name, "nominal", robot.model(), 0, {})
     check = check_recording(nominal, rec, subject)

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from calibration.data.recording import Recording
+from calibration.frames.rebase import delta_scale, direction_names, rebase_rows
 from calibration.identification.design import Candidates, RecordingSelection, candidates_from_rows, recording_selection
 from calibration.identification.geometric import DEFAULT_ORIENTATION_WEIGHT
 from calibration.identification.observability import DEFAULT_REACH_MM, scaled_rows
@@ -27,7 +28,6 @@ def rebase_candidates(model: Any, q: np.ndarray, cluster: np.ndarray, anchors: n
                       reach_mm: float = DEFAULT_REACH_MM, reference_q: np.ndarray | None = None) -> Candidates:
     """The candidate clusters' information about a rebase of ``model`` (a fitted or nominal
     :class:`~calibration.models.base.KinematicModel`): its 12 frame directions and the ``offsets`` (1-based)."""
-    from calibration.frames.rebase import delta_scale, direction_names, rebase_rows
 
     scale = delta_scale(len(offsets), reach_mm)
     rows = scaled_rows(rebase_rows(model, np.asarray(q, dtype=float), offsets), scale, a)

@@ -18,6 +18,7 @@ import numpy as np
 
 from calibration.errors import ModelError
 from calibration.kinematics import so3
+from calibration.kinematics.casadi_expr import rot_sx
 from calibration.kinematics.poe import PoeModel
 
 
@@ -114,7 +115,6 @@ class MinimalParameterisation:
         """:meth:`geometry` on casadi: ``(H (3, n), P (3, n+1))`` for one parameter vector x (m,) of symbols."""
         import casadi as ca
 
-        from calibration.kinematics.casadi_expr import rot_sx
 
         n = self.n_joints
         Hn, Pn = self.nominal.H, self.nominal.P

@@ -20,6 +20,7 @@ import numpy as np
 from calibration.data.recording import Recording, standalone_mask
 from calibration.errors import ModelError
 from calibration.identification import GeometricProblem
+from calibration.interpolation import make_interpolator
 from calibration.kinematics.parameterisation import MinimalParameterisation
 from calibration.models.cdc import CDC_INPUTS, CdcModel
 from calibration.physics.extended import ExtendedKinematics
@@ -114,7 +115,6 @@ def build_cdc(robot: str, method: str, kin: ExtendedKinematics, local: LocalFits
     The model clips the interpolated parameters to the local fits' per-parameter range, so a kind that
     extrapolates (rbf, Fourier, nn) or overshoots between anchors (cubic, ae decoding) stays within what the
     clusters measured."""
-    from calibration.interpolation import make_interpolator
 
     interp = make_interpolator(interpolator or method, **options).fit(local.anchors, local.x)
     g = local.x.shape[1]

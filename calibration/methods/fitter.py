@@ -32,10 +32,14 @@ import numpy as np
 
 from calibration import workers
 from calibration.data.recording import Recording, standalone_mask
+from calibration.diagnosis import DiagnoseOptions, diagnose
 from calibration.errors import DataError, ModelError
+from calibration.evaluation.metrics import errors
 from calibration.identification import GeometricProblem
 from calibration.identification.cpa import identify_cpa, split_sweeps
 from calibration.identification.observability import Observability, analyse, filter_weights
+from calibration.interpolation import make_interpolator
+from calibration.interpolation.support import AnchorSupport
 from calibration.kinematics.parameterisation import MinimalParameterisation
 from calibration.kinematics.poe import PoeModel, pose_error
 from calibration.method_names import CDC_METHODS, CDC_REFERENCES, METHODS, NEURAL_METHODS, REFERENCE_FITS, cdc_method
@@ -44,6 +48,7 @@ from calibration.methods import workspace
 from calibration.methods.cdc import LocalFits, build_cdc, cluster_anchors, fit_local
 from calibration.methods.options import FitOptions
 from calibration.methods.pi import base_free_prior
+from calibration.methods.recommend import off_reference
 from calibration.models import ConstantModel, KinematicModel
 from calibration.models.cdc import CDC_INPUTS, CdcModel
 from calibration.models.guard import REGION_KEY, Region
@@ -225,7 +230,6 @@ class Fitter:
 
     def _choose_local_prior(self, reference: str) -> float:
         """The local prior of ``local_prior_grid`` chosen on held-out training clusters (see FitOptions)."""
-        from calibration.interpolation import make_interpolator
 
         grid = tuple(self.options.local_prior_grid)
         kin, theta = self.reference(reference)
@@ -378,7 +382,6 @@ class Fitter:
         """nls0's cutoff (FitOptions.nls0_damping, else the one of ``nls0_damping_grid`` best on the training
         clusters it does not use: ``~used``, a mask over the training poses, ``groups`` their cluster index), how
         it was chosen, and the held-out figures of that fit against nls1's on those clusters (with a warning)."""
-        from calibration.evaluation.metrics import errors
 
         rest = ~used
         groups = np.unique(groups[rest], return_inverse=True)[1]
@@ -439,7 +442,6 @@ class Fitter:
         return self._diagnose()
 
     def _diagnose(self) -> KinematicModel:
-        from calibration.diagnosis import DiagnoseOptions, diagnose
 
         opts = DiagnoseOptions(a=self.options.a, tolerance=self.options.tolerance, cluster_size=self.options.cluster_size)
         found = diagnose(self.robot, self.nominal, self.train, gravity=self.gravity, joint_limits=self.joint_limits,
@@ -499,7 +501,6 @@ class Fitter:
         return model
 
     def _held_out_check(self, method: str, options: dict[str, Any]) -> robust.HeldOutCheck:
-        from calibration.interpolation import make_interpolator
 
         reference, kind = cdc_method(method)
         (kin, theta), local = self.reference(reference), self.local_fits(reference)
@@ -543,7 +544,6 @@ class Fitter:
         jobs = {m: self._cdc_options(m) for m in neural}
         folds = [(m, f) for m in neural for f in range(robust.NEURAL_EVALUATED_FOLDS)]
         if held_out:
-            from calibration.methods.recommend import off_reference
 
             unread = off_reference({m: (ref, self.held_out_errors(ref)) for m in methods if m in CDC_METHODS
                                     for ref in [REFERENCE_FITS[cdc_method(m)[0]]]})
@@ -656,7 +656,6 @@ class Fitter:
         from, and the local prior and Fourier ridge taken from, this one's fit on every cluster; so the method
         is fitted here first). None for ``diagnosed`` (a fold refit would rerun the whole diagnosis).
         """
-        from calibration.evaluation.metrics import errors
 
         if method == "diagnosed":
             return None
@@ -719,7 +718,6 @@ class Fitter:
         Raises:
             DataError: naming the recording, its cluster count and the fold.
         """
-        from calibration.interpolation.support import AnchorSupport
 
         _, anchor_q = cluster_anchors(self.clustered, self.options.cluster_size)
         x = anchor_q[:, list(CDC_INPUTS)]
@@ -748,7 +746,6 @@ class Fitter:
     def _choose_strength(self, method: str, options: dict[str, Any], name: str, grid: tuple[float, ...]) -> float:
         """Option ``name`` of CDC ``method``'s interpolator from ``grid``, on held-out training clusters (1-SE rule);
         a fold refit takes the :attr:`warm` Fitter's choice."""
-        from calibration.interpolation import make_interpolator
 
         if self.warm is not None:
             if method not in self.warm._cache.get("strengths", {}):
@@ -831,7 +828,6 @@ _FORKED: Fitter | None = None
 def _fold_error_of(fitter: Fitter, method: str, fold: int) -> tuple[np.ndarray, float]:
     """``method`` refitted without fold ``fold``'s clusters of ``fitter``: its position errors [mm] on them and the
     refit's time [s]."""
-    from calibration.evaluation.metrics import errors
 
     start = time.perf_counter()
     held, sub = fitter._fold_fitters()[fold]

@@ -10,6 +10,7 @@ from calibration.errors import ModelError
 from calibration.identification import DEFAULT_ORIENTATION_WEIGHT
 from calibration.identification.geometric import check_orientation_weight
 from calibration.identification.observability import DEFAULT_RELATIVE_TOLERANCE
+from calibration.physics.layout import check_registration_parts
 
 
 @dataclass(frozen=True)
@@ -94,7 +95,6 @@ class FitOptions:
     reject_gross_rows: bool = True
 
     def __post_init__(self) -> None:
-        from calibration.physics.layout import check_registration_parts
 
         check_orientation_weight(self.a, "orientation weight a (--a)")
         check_registration_parts(self.pi_registration_free, "pi_registration_free")

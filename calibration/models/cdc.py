@@ -22,12 +22,13 @@ from typing import Any, ClassVar
 import numpy as np
 
 from calibration.errors import ModelFileError
+from calibration.interpolation import interpolator_from_dict
+from calibration.kinematics.blocks import Block
 from calibration.kinematics.casadi_expr import CasadiPose, interpolator_sx
 from calibration.kinematics.parameterisation import MinimalParameterisation
 from calibration.kinematics.poe import PoeModel, poe_from_dict, poe_to_dict
 from calibration.models.base import KinematicModel
 from calibration.physics.extended import ExtendedKinematics
-from calibration.physics.layout import Block
 
 CDC_INPUTS = (1, 2)  # q2, q3 (0-based)
 
@@ -130,7 +131,7 @@ class CdcModel(KinematicModel):
         return (par.nominal,) + tuple(ca.DM(a) for a in par.geometry(self.theta_ref[: par.size]))
 
     def urdf_geometry(self) -> Any:
-        from calibration.models.urdf import UrdfGeometry
+        from calibration.models.urdf import UrdfGeometry  # xml.etree only when a URDF is asked for
 
         joints = ", ".join(f"q{i + 1}" for i in self.inputs)
         lost = (f"the configuration-dependent geometry (the {self.kinematics.par.size} geometric parameters "
@@ -147,7 +148,6 @@ class CdcModel(KinematicModel):
 
     @classmethod
     def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> CdcModel:
-        from calibration.interpolation import interpolator_from_dict
 
         kin = ExtendedKinematics(MinimalParameterisation(poe_from_dict(body["nominal"]), bool(body["fit_tool"])))
         theta_ref = _vector(body["theta_ref"], kin.size, "theta_ref")

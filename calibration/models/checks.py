@@ -18,6 +18,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from calibration.errors import ModelFileError
+from calibration.kinematics.poe import poe_from_dict
+from calibration.method_names import METHODS
 
 if TYPE_CHECKING:
     from calibration.kinematics.poe import PoeModel
@@ -48,7 +50,6 @@ MAX_MODEL_FILE_BYTES = 64 * 1024 * 1024
 
 def known_methods() -> tuple[str, ...]:
     """Every method a model file may record."""
-    from calibration.method_names import METHODS  # here: calibration.methods imports calibration.models
 
     return tuple(METHODS) + OTHER_METHODS
 
@@ -214,7 +215,6 @@ def check_model_data(data: dict[str, Any], path: str | Path = "") -> None:
 def reference_geometry(model: KinematicModel) -> PoeModel:
     """The geometry a model is built on (its POE geometry, or the nominal of an extended or CDC model; of the
     wrapped model for ``diagnosed`` and ``rebased``)."""
-    from calibration.kinematics.poe import poe_from_dict
 
     d = model.to_dict()
     while True:

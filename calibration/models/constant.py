@@ -11,9 +11,11 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from calibration.kinematics.blocks import Block
+from calibration.kinematics.casadi_expr import chain_pose, poe_chain
+from calibration.kinematics.parameterisation import MinimalParameterisation
 from calibration.kinematics.poe import PoeModel, poe_from_dict, poe_to_dict
 from calibration.models.base import KinematicModel
-from calibration.physics.layout import Block
 
 
 @dataclass
@@ -36,7 +38,6 @@ class ConstantModel(KinematicModel):
 
     def _chart(self) -> Any:
         """Minimal parameters around this geometry (``x = 0`` is this model; the flange point included)."""
-        from calibration.kinematics.parameterisation import MinimalParameterisation
 
         return MinimalParameterisation(self.model, fit_tool=True)
 
@@ -59,12 +60,11 @@ class ConstantModel(KinematicModel):
     def casadi(self, q: Any, theta: Any = None, q_at: Any = None) -> Any:
         if theta is None:
             return self.model.casadi(q, kind="constant")
-        from calibration.kinematics.casadi_expr import chain_pose, poe_chain
 
         return chain_pose(poe_chain(self.model, q, *self._chart().casadi_geometry(theta)), "constant")
 
     def urdf_geometry(self) -> Any:
-        from calibration.models.urdf import UrdfGeometry
+        from calibration.models.urdf import UrdfGeometry  # xml.etree only when a URDF is asked for
 
         return UrdfGeometry(self.model, f"the constant {self.method} geometry")
 

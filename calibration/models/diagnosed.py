@@ -13,12 +13,12 @@ from typing import Any, ClassVar
 import numpy as np
 
 from calibration.errors import ModelError
+from calibration.kinematics.blocks import Block
 from calibration.kinematics.casadi_expr import CasadiPose, poe_chain
 from calibration.models.base import KinematicModel
 from calibration.models.physics import casadi_effects, effect_blocks, split_values
 from calibration.physics.base import NO_GUARD, Effect, effect_from_dict, effects_read, geometry_on_top
 from calibration.physics.context import Context
-from calibration.physics.layout import Block
 
 
 @dataclass

@@ -266,7 +266,9 @@ class Region:
         Raises:
             ModelError: a held entry is neither a scalar nor of shape (N,).
         """
-        from calibration.physics.context import context_array
+        from calibration.physics.context import (
+            context_array,  # not at the top: a model need not load the physics package
+        )
 
         held = {k: sides for k, sides in self.held_context(effect).items()
                 if context is not None and context.get(k) is not None}

@@ -12,13 +12,13 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from calibration.kinematics.blocks import Block
 from calibration.kinematics.casadi_expr import CasadiPose, casadi_ops, chain_pose, poe_chain
 from calibration.kinematics.poe import PoeModel, poe_from_dict, poe_to_dict
 from calibration.models.base import KinematicModel
 from calibration.models.guard import Region
 from calibration.physics.base import Effect, apply_effects, effect_from_dict, effects_read
 from calibration.physics.context import Context
-from calibration.physics.layout import Block
 
 
 def effect_blocks(effects: tuple[Effect, ...]) -> tuple[Block, ...]:
@@ -127,7 +127,7 @@ class PhysicsModel(KinematicModel):
         return chain_pose(poe_chain(self.model, q_chain, H, P_eff), "physics")
 
     def urdf_geometry(self) -> Any:
-        from calibration.models.urdf import UrdfGeometry
+        from calibration.models.urdf import UrdfGeometry  # xml.etree only when a URDF is asked for
 
         lost = tuple(f"the {e.kind} effect ({e.size} parameters)" for e in self.effects)
         return UrdfGeometry(self.model, f"the fitted geometry of the {self.method} model", lost)

@@ -15,12 +15,12 @@ from typing import Any, ClassVar
 import numpy as np
 
 from calibration.errors import ModelFileError
+from calibration.kinematics.blocks import Block
 from calibration.kinematics.casadi_expr import CasadiPose
 from calibration.kinematics.parameterisation import MinimalParameterisation
 from calibration.kinematics.poe import PoeModel, poe_from_dict, poe_to_dict
 from calibration.models.base import KinematicModel
 from calibration.physics.extended import ExtendedKinematics
-from calibration.physics.layout import Block
 
 
 @dataclass
@@ -83,7 +83,7 @@ class PhysicsInformedModel(KinematicModel):
         return (par.nominal,) + par.casadi_geometry(theta[: par.size])
 
     def urdf_geometry(self) -> Any:
-        from calibration.models.urdf import UrdfGeometry
+        from calibration.models.urdf import UrdfGeometry  # xml.etree only when a URDF is asked for
 
         return UrdfGeometry(self.kinematics.constant_arm(self.theta),
                             f"the {self.kinematics.par.size}-parameter geometry block and the tool rotation of the "

@@ -21,11 +21,11 @@ import numpy as np
 
 from calibration.errors import ModelError, ModelFileError
 from calibration.kinematics import so3
-from calibration.kinematics.casadi_expr import CasadiPose
+from calibration.kinematics.blocks import Block
+from calibration.kinematics.casadi_expr import CasadiPose, exp_sx
 from calibration.kinematics.poe import PoeModel
 from calibration.kinematics.so3 import make_T
 from calibration.models.base import KinematicModel
-from calibration.physics.layout import Block
 
 #: Names of one correction block (perturbation of a transform in its parent frame).
 CORRECTION_NAMES = ("dx", "dy", "dz", "rx", "ry", "rz")
@@ -185,7 +185,6 @@ class RebasedModel(KinematicModel):
         last 12 symbols perturb them as :meth:`with_vector` does); the skeleton moves with the base only."""
         import casadi as ca
 
-        from calibration.kinematics.casadi_expr import exp_sx
 
         k = self.inner.vector().size
         pose = self.inner.casadi(self._shifted(q), None if theta is None else theta[:k], self._shifted(q_at))

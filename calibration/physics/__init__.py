@@ -1,8 +1,7 @@
 """Non-geometric physics of the arms: effect models, gravity torques and the digital twin.
 
 Each effect writes its formula once for numpy and casadi (:mod:`calibration.physics.base`). The fitted model
-of geometry plus effects is the ``physics`` model kind, :mod:`calibration.models.physics` (re-exported here as
-``PhysicsModel``). Pinocchio is imported only for :meth:`GravityModel.torque`.
+of geometry plus effects is the ``physics`` model kind, :mod:`calibration.models.physics`. Pinocchio is imported only for :meth:`GravityModel.torque`.
 """
 
 from calibration.physics.base import EFFECT_KINDS, Effect, apply_effects, effect_from_dict
@@ -17,7 +16,7 @@ from calibration.physics.twin import PlantedErrors, Twin, default_effect, plant,
 __all__ = [
     "Backlash", "Context", "EFFECT_KINDS", "Effect", "ExtendedEffect", "G_STANDARD", "GearTransmission",
     "GravityModel", "JointCompliance", "JointOffset", "LumpedCompliance", "MassFreeCompliance", "MocapLatency", "PayloadCompliance",
-    "PhysicsModel", "PlantedErrors", "ThermalDrift", "Twin", "apply_effects", "context_array", "default_effect",
+    "PlantedErrors", "ThermalDrift", "Twin", "apply_effects", "context_array", "default_effect",
     "effect_from_dict", "gravity_regressor", "link_names", "plant", "planted_twin", "point_mass_torque",
     "reference_context",
 ]

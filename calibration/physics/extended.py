@@ -67,14 +67,12 @@ class ExtendedEffect(Effect, register=False):
 
     def block(self, n_geometric: int) -> slice:
         """Where its values sit in ``theta`` of an ``ExtendedKinematics`` with ``n_geometric`` geometry."""
-        from calibration.physics.layout import block_slice
 
         return block_slice(self.block_name, n_geometric)
 
     def pose_jacobian(self, model: PoeModel, q: np.ndarray, context: Context | None = None) -> np.ndarray:
         """First-order pose change per parameter on a POE model: its block's columns of the ``pi`` Jacobian
         at ``theta = 0`` around that model."""
-        from calibration.kinematics.parameterisation import MinimalParameterisation
         pass
 
         q = check_q(model, q)

@@ -4,29 +4,16 @@ the parameter vector they own."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from calibration.errors import ModelError
+from calibration.kinematics.blocks import Block
 from calibration.kinematics.casadi_expr import (
     NUMPY,
     Ops,
 )
-
-
-@dataclass(frozen=True)
-class Block:
-    """One named block of a model's parameter vector (a model kind declares its blocks once)."""
-
-    name: str
-    names: tuple[str, ...]
-
-    @property
-    def size(self) -> int:
-        return len(self.names)
-
 
 DEFLECTION_TERMS = ("1", "sin_q2", "sin_q3", "cos_q2", "cos_q3", "sin_q2q3", "cos_q2q3")
 

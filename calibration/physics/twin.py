@@ -26,7 +26,7 @@ import numpy as np
 
 from calibration.errors import ModelError
 from calibration.kinematics.parameterisation import MinimalParameterisation
-from calibration.kinematics.poe import PoeModel
+from calibration.kinematics.poe import PoeModel, poe_from_dict, poe_to_dict
 from calibration.physics.base import Effect, apply_effects, context_keys_of, effect_from_dict
 from calibration.physics.compliance import JointCompliance, PayloadCompliance
 from calibration.physics.context import Context
@@ -208,14 +208,12 @@ class Twin:
 
     def to_dict(self) -> dict[str, Any]:
         """Truth file content (plain Python)."""
-        from calibration.kinematics.poe import poe_to_dict
 
         return {"schema": TWIN_SCHEMA, "geometry": poe_to_dict(self.geometry),
                 "effects": [e.to_dict() for e in self.effects], "info": self.info}
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> Twin:
-        from calibration.kinematics.poe import poe_from_dict
 
         if d.get("schema") != TWIN_SCHEMA:
             raise ModelError(f"unsupported twin schema {d.get('schema')!r}; expected {TWIN_SCHEMA!r}")

@@ -44,6 +44,8 @@ from calibration.frames import rebase, rebase_design
 from calibration.identification import design
 from calibration.kinematics.parameterisation import MinimalParameterisation
 from calibration.methods.cdc import expand_anchors
+from calibration.methods.topup import TopupPrior, choose, predicted_sigma
+from calibration.models import ConstantModel
 
 CLUSTER_SIZE = 7
 #: What a design is for: identifying the geometry (the default) or rebasing a fitted model onto a new day.
@@ -152,7 +154,6 @@ def _candidates(par: MinimalParameterisation, anchors_q: np.ndarray, perturb_deg
                 ) -> design.Candidates:
     q, cluster = expand_anchors(anchors_q, math.radians(perturb_deg))
     if target == "rebase":
-        from calibration.models import ConstantModel
 
         nominal = ConstantModel(robot, "nominal", par.nominal)
         return rebase_design.rebase_candidates(nominal, q, cluster, anchors_q[:, 1:3], reference_q=reference_q)
@@ -313,7 +314,6 @@ def topup_plan(robot: str, nominal: object, safety: CellSafety, others: Mapping[
         CellCalError: a budget below 1 or above the safe candidates.
         UnsafeTarget: the plan's targets or paths fail the whole-plan check.
     """
-    from calibration.methods.topup import TopupPrior, choose, predicted_sigma
 
     cands = topup_candidates(robot, safety, others, q_task, seed=seed)
     if not 1 <= budget <= len(cands):

@@ -18,6 +18,8 @@ import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from app.collection.plans.collection import Plan
+from app.collection.plans.dual import PlanResult
 from app.collection.plans.schema import _LAYOUTS, PlanKind, plan_kind
 from calibration.data.files import read_input_text
 from calibration.errors import DataError
@@ -47,8 +49,6 @@ def plan_from_data(d: Any, source: str | Path = "<plan>", kind: PlanKind | None 
     Raises:
         DataError: not a plan, not of ``kind``, or a malformed entry (the message names it).
     """
-    from app.collection.plans.collection import Plan
-    from app.collection.plans.dual import PlanResult
 
     found = plan_kind(d, source, kind)
     if kind is not None and found != kind:
@@ -71,8 +71,6 @@ def read_plan(source: str | Path | dict[str, Any] | Plan | PlanResult, kind: Pla
     Raises:
         DataError: missing or unreadable file, not JSON, not a plan, another kind, or a malformed entry.
     """
-    from app.collection.plans.collection import Plan
-    from app.collection.plans.dual import PlanResult
 
     if isinstance(source, (Plan, PlanResult)):
         found = "dual" if isinstance(source, PlanResult) else "collection"

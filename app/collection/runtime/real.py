@@ -21,10 +21,13 @@ from typing import Any
 
 import numpy as np
 
+from app.collection.runtime.sim import park_q
 from calibration.errors import CellCalError, ConfigError
 from calibration.kinematics import so3
 from drivers.base import MocapSource, RigidBodyFrame, RobotDriver
+from drivers.bus import ZenohMocapSource, open_session
 from drivers.errors import DriverDisconnected
+from drivers.motoros import MotorosDriver, MotorosLink
 
 log = logging.getLogger("cellcal.app")
 
@@ -196,15 +199,12 @@ class RealCell:
 
     def park_q(self, robot: str) -> np.ndarray:
         """Parking pose [rad] of ``robot`` (6,)."""
-        from app.collection.runtime.sim import park_q
 
         return park_q(robot)
 
     def open(self) -> RealCell:
         """Connect the controller and the mocap subscription and wait for each arm's first mocap frame; on failure
         whatever was opened is closed (nothing has moved)."""
-        from drivers.bus import ZenohMocapSource, open_session
-        from drivers.motoros import MotorosDriver, MotorosLink
 
         c = self.cell.controller
         try:

@@ -30,6 +30,10 @@ from calibration.physics import PlantedErrors
 from cell_config.devices import ZenohConfig
 from cell_config.loader import CellSpec
 from drivers.base import MocapSource, RobotDriver
+from drivers.bus import MocapBridge, ZenohMocapSource, mocap_key, open_session, wait_for_subscriber
+from drivers.errors import DriverError, DriverTimeout
+from drivers.sim import SimClock, SimMocapConfig, SimMocapSource, SimRobotConfig, SimRobotDriver, cell_truths
+from drivers.sim.rehearsal import hidden_frames
 
 log = logging.getLogger("cellcal.app")
 
@@ -159,7 +163,6 @@ class SettledFrames(MocapSource):
         Raises:
             DriverTimeout: not within ``sync_timeout_s`` [s, real time].
         """
-        from drivers.errors import DriverTimeout
 
         limit = time.monotonic() + self.sync_timeout_s
         while not self.in_sync():  # type: ignore[misc]
@@ -245,9 +248,6 @@ class SimCell:
 
     def open(self) -> SimCell:
         """Build and connect everything; on failure whatever was opened is closed again."""
-        from drivers.bus import MocapBridge, ZenohMocapSource, mocap_key, open_session, wait_for_subscriber
-        from drivers.errors import DriverError
-        from drivers.sim import SimClock, SimMocapConfig, SimMocapSource, SimRobotConfig, SimRobotDriver, cell_truths
 
         c = self.config
         try:
@@ -260,8 +260,6 @@ class SimCell:
                 self.drivers[name], self.truths[name] = driver, truth
             world = None
             if c.mocap_world:
-                from drivers.sim.rehearsal import hidden_frames
-
                 hidden = hidden_frames(self.cell, c.seed)
                 world = {self.body_ids[n]: hidden[n].T_world_base for n in self.robots}
             self._sim_mocap = SimMocapSource(

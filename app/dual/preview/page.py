@@ -41,8 +41,12 @@ import numpy as np
 
 from app.collection.plan_safety import NOT_SOLVED, PlanDefect, plan_defects
 from app.collection.plans.reader import read_plan
+from app.dual.preview import scene
+from app.dual.preview.meshcat_server import start
 from app.dual.preview.plan import PreviewPlan, limit_margin, plan_frames, read_preview_plan
+from app.dual.preview.readout import readout_data, readout_html
 from calibration.data.files import atomic_write_text
+from calibration.errors import ModelError
 from cell_config.capsules import CellCapsules
 from cell_config.loader import CellSpec
 
@@ -153,7 +157,6 @@ def _windows(static: bool, serve: bool, overlay: str) -> tuple[list[Any], str | 
         windows[0].overlay = overlay
     url = None
     if serve:
-        from app.dual.preview.meshcat_server import start
 
         _, zmq_url, _ = start(overlay)  # web server on 127.0.0.1 only (meshcat's own listens on every interface)
         with contextlib.redirect_stdout(io.StringIO()):  # meshcat prints the URL; we return and log it
@@ -191,9 +194,6 @@ def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve
     import meshcat
     from meshcat.animation import Animation
 
-    from app.dual.preview import scene
-    from app.dual.preview.readout import readout_data, readout_html
-    from calibration.errors import ModelError
 
     if html_out is None and not serve:
         raise ModelError("preview needs html_out (a static page) or serve=True (a live viewer)")

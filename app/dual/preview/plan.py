@@ -13,7 +13,9 @@ from typing import Any
 
 import numpy as np
 
-from calibration.errors import DataError
+from app.collection.plans.dual import PlanResult
+from app.collection.plans.reader import read_plan
+from calibration.errors import DataError, UnsafeTarget
 from cell_config.loader import CellSpec
 
 
@@ -58,8 +60,6 @@ def read_preview_plan(plan: Any) -> PreviewPlan:
     Raises:
         DataError: unreadable or malformed plan, a robot other than R1/R2, or no waypoints.
     """
-    from app.collection.plans.dual import PlanResult
-    from app.collection.plans.reader import read_plan
 
     source = str(plan) if isinstance(plan, (str, Path)) else "<plan>"  # the file the messages name
     plan = read_plan(plan)
@@ -105,7 +105,6 @@ def limit_margin(cell: CellSpec, plan: PreviewPlan) -> tuple[float, tuple[int, s
     Raises:
         UnsafeTarget: naming the waypoint, robot, joint, value and limit.
     """
-    from calibration.errors import UnsafeTarget
 
     best: tuple[float, tuple[int, str, int]] = (float("inf"), (0, "R1", 1))
     for name in ("R1", "R2"):
