@@ -94,7 +94,7 @@ def synthetic_arm(r1_nominal):
 
 def assert_bad_input(capsys: pytest.CaptureFixture, argv: list[str], *fragments: str) -> None:
     """The CLI exits 2 on ``argv`` with exactly one stderr line containing every fragment."""
-    from app.cli.main import main
+    from app.cli.commands import main
 
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()

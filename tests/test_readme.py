@@ -2,7 +2,7 @@
 
 A block is a run of 4-space-indented lines. Lines are split like a shell would (comments dropped, ``\\``
 continuations joined, ``$VAR`` expanded from ``VAR=value`` lines); every command is ``cellcal`` (or
-``.venv/bin/cellcal``) and runs through :func:`app.cli.main.main`. Slow blocks run with the reductions the
+``.venv/bin/cellcal``) and runs through :func:`app.cli.commands.main`. Slow blocks run with the reductions the
 README itself announces next to them (appended options: argparse keeps the last value).
 """
 
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from app.cli.main import main
+from app.cli.commands import main
 from app.cli.table import command_table
 from tests.conftest import SHARED_DATA, needs_shared_data
 

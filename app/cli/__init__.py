@@ -1,4 +1,4 @@
-"""The ``cellcal`` command line: the parser and the analysis commands (:mod:`app.cli.main`, holding
+"""The ``cellcal`` command line: the parser and the analysis commands (:mod:`app.cli.commands`, holding
 :func:`main`), the cell commands (:mod:`~app.cli.cell`: plan, collect, export, register, ...), the dual-cell
 commands (:mod:`~app.cli.dual`: plan-dual, export-targets, preview, validate-dual), the real-cell tools
 (:mod:`~app.cli.real`: controller checks, fake Motive), the motion and ``--sim`` options
@@ -18,6 +18,6 @@ import os
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-from app.cli.main import main  # noqa: E402
+from app.cli.commands import main  # noqa: E402
 
 __all__ = ["main"]

@@ -1,5 +1,5 @@
 """The analysis commands: ``fit``, ``predict``, ``evaluate``, ``rebase``, ``export-urdf``, ``compare`` and
-``diagnose`` (their parsers are built by :mod:`app.cli.main`)."""
+``diagnose`` (their parsers are built by :mod:`app.cli.commands`)."""
 
 from __future__ import annotations
 

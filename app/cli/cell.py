@@ -357,7 +357,7 @@ def cmd_export(args: argparse.Namespace) -> int:
         if args.robot:
             store.check_robot(args.robot)
         robots = store.robots()
-    n = export(args.session, args.out, kinds)  # staged with the JSON (app.cli.main.STAGED_COMMANDS)
+    n = export(args.session, args.out, kinds)  # staged with the JSON (app.cli.commands.STAGED_COMMANDS)
     print(f"{n} samples of {', '.join(robots)} -> {args.out}")
     write_json(args.json, {"session": str(args.session), "robot": ", ".join(robots), "samples": n, "kinds": kinds,
                            "out": str(args.out)})
@@ -413,7 +413,7 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
             return _dry_run(args, rt, safety, both, config)
         confirm_motion(args, f"{args.robot} will visit {len(plan) if plan is not None else 0} training and "
                              f"{len(val_plan)} validation targets at {config.speed_fraction:g} of full speed")
-        if plan is not None:  # what Ctrl-C says (app.cli.main.main): recalibrate itself has no --resume
+        if plan is not None:  # what Ctrl-C says (app.cli.commands.main): recalibrate itself has no --resume
             args.stop_hint = (f" (nothing installed; the training session so far is {session}: finish it with "
                               f"cellcal collect --robot {args.robot} --session {session} --resume, then "
                               f"recalibrate --session {session})")
@@ -500,7 +500,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     cell = cell_spec(args)
     try:
         result = run_demo(args.out, cell, config)
-    except KeyboardInterrupt:  # what the stop line says (app.cli.main.main): what was left, what a re-run does
+    except KeyboardInterrupt:  # what the stop line says (app.cli.commands.main): what was left, what a re-run does
         args.stop_hint = stop_note(Path(args.out), tuple(cell.robots))
         raise
     print(summary_table(result.summary))

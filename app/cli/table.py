@@ -38,7 +38,7 @@ def _row(name: str, parser: argparse.ArgumentParser, summary: str) -> str:
 def command_table(parser: argparse.ArgumentParser | None = None) -> str:
     """The Markdown table of every ``cellcal`` subcommand (header included)."""
     if parser is None:
-        from app.cli.main import build_parser
+        from app.cli.commands import build_parser
 
         parser = build_parser()
     return "\n".join([HEADER] + [_row(*entry) for entry in _subcommands(parser)])

@@ -2,7 +2,7 @@
 
 A command warns in two ways: a ``warning: ...`` line on stderr (the CLI's own checks: extrapolation, frames,
 observability, gross rows, quaternion order ...) and a WARNING record on a ``cellcal`` logger (the library's).
-:func:`collecting` (wrapped around every command by :func:`app.cli.main.main`) tees ``sys.stderr`` and adds
+:func:`collecting` (wrapped around every command by :func:`app.cli.commands.main`) tees ``sys.stderr`` and adds
 a logging handler, and keeps both in one list. A report reads that list when it is rendered
 (:func:`warnings_so_far`) and registers itself (:func:`register_page`); a warning given after a page was written
 re-renders the page when the command ends, so a report never misses one, whatever the order of the code.

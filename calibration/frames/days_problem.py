@@ -244,7 +244,7 @@ class DaysProblem:
         lin = self.reduced(day, x)
         return x, lin, identified(lin["A"])
 
-    def solve(self) -> tuple[np.ndarray, list[tuple]]:
+    def solve(self) -> tuple[np.ndarray, list[tuple[np.ndarray, dict, np.ndarray]]]:
         """The shared arm ``x`` and each day's own fit, after the noise floors (see the module docstring);
         :func:`calibration.frames.daydiff.compare_days` builds the tests from them."""
         x = self.fit_shared(np.zeros(self.m))

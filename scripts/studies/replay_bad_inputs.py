@@ -94,7 +94,7 @@ def make_base(w: Path) -> None:
     write_recording(rec, w / "train.csv")
     np.savetxt(w / "q.csv", q[:5], delimiter=",")
     shutil.copytree(Path(DEFAULT_CELL).parent, w / "cell", ignore=shutil.ignore_patterns("__pycache__", "*.py"))
-    from app.cli.main import main as cellcal  # in this process: the good inputs are no case
+    from app.cli.commands import main as cellcal  # in this process: the good inputs are no case
 
     for argv in (["fit", "--robot", "R1", "--train", str(w / "train.csv"), "--method", "nls1", "--out",
                   str(w / "m.yaml")],

@@ -73,7 +73,7 @@ def test_bars_only_on_a_terminal_and_never_with_quiet():
 
 
 def test_the_cli_installs_the_handler_and_takes_quiet(tmp_path):
-    from app.cli.main import main
+    from app.cli.commands import main
 
     assert main(["-q", "plan", "--robot", "R1", "--out", str(tmp_path / "p.json"), "--design", "grid", "--q2-step", "50",
                  "--q3-step", "50"]) == 0

@@ -11,7 +11,7 @@ import threading
 import numpy as np
 import pytest
 
-from app.cli.main import main
+from app.cli.commands import main
 from calibration.data.recording import Recording, read_recording, write_recording
 from calibration.errors import CellCalError, DataError
 from tests.conftest import assert_bad_input, cluster_design, measure

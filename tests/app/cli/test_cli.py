@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from app.cli.main import main
+from app.cli.commands import main
 from calibration.data.recording import write_recording
 from tests.conftest import assert_bad_input, cluster_design, measure
 
@@ -238,7 +238,7 @@ def test_compare_adds_saved_models_as_rows(tmp_path, data, capsys):
 
 def test_version_and_ctrl_c(tmp_path, capsys, monkeypatch):
     """--version prints the package version; Ctrl-C is one line and exit 130, with no traceback."""
-    import app.cli.main as cli
+    import app.cli.commands as cli
 
     with pytest.raises(SystemExit) as e:
         cli.main(["--version"])
@@ -332,7 +332,7 @@ def test_rebase_refuses_a_tolerance_that_is_not_a_fraction_and_writes_nothing(tm
 
 
 def test_diagnose_takes_train_and_test_like_every_command_and_the_old_names_still_work():
-    from app.cli.main import build_parser
+    from app.cli.commands import build_parser
 
     new = build_parser().parse_args(["diagnose", "--robot", "R1", "--train", "a.csv", "--test", "b.csv"])
     old = build_parser().parse_args(["diagnose", "--robot", "R1", "--data", "a.csv", "--heldout", "b.csv"])

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from app.cli.main import main
+from app.cli.commands import main
 from calibration.data.recording import DEFAULT_ADD_WEIGHT, write_recording
 from tests.calibration.methods.test_standalone_poses import wide_poses
 from tests.conftest import assert_bad_input, cluster_design, measure

@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import re
+import sys
+from pathlib import Path
 
 import pytest
 
 import cell_config
-from app.cli.main import build_parser, main
+from app.cli.commands import build_parser, main
 from calibration.errors import CellCalError
 from tests.conftest import assert_bad_input
 
@@ -52,6 +55,13 @@ def fake_cell(monkeypatch):
         raise CellLoaded(f"cell file read: {path}")
 
     monkeypatch.setattr(cell_config, "load_cell", load_cell)
+    # and in every module already imported that took the name from the package at its top (``from cell_config
+    # import load_cell``); ``cell_config.loader.load_cell`` (init-cell checking the packaged cell) stays real
+    for module in list(sys.modules.values()):
+        source = getattr(module, "__file__", None) or ""
+        if getattr(module, "__name__", "").startswith("app.") and source.endswith(".py") and \
+                re.search(r"^from cell_config import [^\n]*\bload_cell\b", Path(source).read_text(), re.M):
+            monkeypatch.setattr(module, "load_cell", load_cell)
 
 
 @pytest.mark.parametrize("command", COMMANDS)

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from app.cli.main import main
+from app.cli.commands import main
 from app.collection.plans.reader import read_plan
 from app.collection.runtime.sim import park_q
 from app.collection.safety import CellSafety
@@ -93,7 +93,7 @@ def test_plan_defaults_to_the_optimal_design_of_196_poses(monkeypatch):
     """The default design is the optimal one (issue 34: the paper's grid sees 11 of 27 directions on R1) with a
     budget of 196 poses, 21 for a rebase design; the grid needs --design grid and its steps belong to it."""
     import app.cli.cell as cell_cli
-    from app.cli.main import build_parser
+    from app.cli.commands import build_parser
 
     args = build_parser().parse_args(["plan", "--robot", "R1", "--out", "p.json"])
     assert args.design == "optimal" and args.budget is None and args.q2_step is None
@@ -125,7 +125,7 @@ def test_grid_steps_belong_to_the_grid_design(tmp_path, capsys):
                                                ("21", ("--budget 21: 3 clusters of 7 see 18 of 27",
                                                        "give a larger --budget"))])
 def test_plan_budget_errors_say_what_to_pass_without_internals(tmp_path, capsys, budget, fragments):
-    from app.cli.main import main
+    from app.cli.commands import main
 
     out = tmp_path / "plan.json"
     assert main(["plan", "--robot", "R1", "--design", "optimal", "--budget", budget, "--out", str(out)]) == 2
@@ -139,7 +139,7 @@ def _budget_help(command: str) -> str:
     """The --budget entry of ``cellcal COMMAND --help``, whitespace joined (argparse wraps it)."""
     import argparse
 
-    from app.cli.main import build_parser
+    from app.cli.commands import build_parser
 
     sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction)).choices[command]
     text = " ".join(sub.format_help().split())

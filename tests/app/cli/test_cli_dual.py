@@ -9,7 +9,7 @@ import pytest
 
 pytest.importorskip("casadi")
 
-from app.cli.main import main  # noqa: E402
+from app.cli.commands import main  # noqa: E402
 from calibration.interpolation.fourier import Fourier13Interpolator  # noqa: E402
 from calibration.kinematics.parameterisation import MinimalParameterisation  # noqa: E402
 from calibration.methods.cdc import geometric_cdc
@@ -272,7 +272,7 @@ def test_validate_dual_help_names_the_default_model_sets_it_accepts():
     import argparse
     import re
 
-    from app.cli.main import build_parser
+    from app.cli.commands import build_parser
     from app.dual.sim import SIM_METHODS
     from calibration.method_names import METHODS
 
@@ -317,7 +317,7 @@ def test_validate_dual_sim_uses_its_seed_and_its_help_names_the_default(tmp_path
     import argparse
     import re
 
-    from app.cli.main import build_parser
+    from app.cli.commands import build_parser
     from app.dual.sim import VALIDATION_CELL
 
     pytest.importorskip("can")

@@ -4,7 +4,7 @@ import json
 
 import numpy as np
 
-from app.cli.main import main
+from app.cli.commands import main
 from calibration.data.recording import read_recording, write_recording
 from tests.conftest import cluster_design, measure
 

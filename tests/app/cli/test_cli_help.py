@@ -5,7 +5,7 @@ import re
 
 import pytest
 
-from app.cli.main import build_parser
+from app.cli.commands import build_parser
 
 #: reStructuredText left in a help string: double backticks, any backtick, or a Sphinx role (:class:, :func:).
 MARKUP = re.compile(r"`|:[a-z]+:(?=`)|:(class|func|mod|meth|attr|data|obj|exc|ref):")

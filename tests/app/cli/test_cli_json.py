@@ -8,7 +8,7 @@ import re
 import numpy as np
 import pytest
 
-from app.cli.main import main
+from app.cli.commands import main
 from calibration.data.recording import write_recording
 from tests.conftest import SIM_FAST, cluster_design, measure
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.cli.main import main
+from app.cli.commands import main
 from calibration.models import ConstantModel, save_model
 from cell_config.loader import load_cell
 from tests.conftest import cluster_design, measure

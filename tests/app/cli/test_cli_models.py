@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import yaml
 
-from app.cli.main import main
+from app.cli.commands import main
 from app.workflows.recalibrate import decide_and_install
 from calibration.errors import ModelError, OutputError
 from calibration.kinematics.parameterisation import MinimalParameterisation

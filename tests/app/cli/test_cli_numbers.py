@@ -4,7 +4,7 @@ numpy as a traceback."""
 
 import pytest
 
-from app.cli.main import main
+from app.cli.commands import main
 
 CASES = [
     (["register", "--robot", "R1", "--sim", "--dry-run"], "--sweep"),  # nan: numpy's uniform raised OverflowError

@@ -4,7 +4,7 @@ import json
 import os
 import stat
 
-from app.cli.main import main
+from app.cli.commands import main
 from tests.conftest import assert_bad_input
 
 PLAN = ["plan", "--design", "grid", "--robot", "R1", "--q2-step", "30", "--q3-step", "30", "--out"]

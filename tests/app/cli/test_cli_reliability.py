@@ -4,7 +4,7 @@ where the spec says it is valid."""
 import numpy as np
 import pytest
 
-from app.cli.main import main
+from app.cli.commands import main
 from calibration.data.recording import write_recording
 from tests.conftest import assert_bad_input, cluster_design, measure
 

@@ -5,7 +5,7 @@ import argparse
 
 import pytest
 
-from app.cli.main import build_parser, main
+from app.cli.commands import build_parser, main
 
 
 def _seed_options() -> list[tuple[str, str]]:

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from app.cli.main import main
+from app.cli.commands import main
 from calibration.data.recording import write_recording, write_table
 from calibration.methods.topup import SIGMA_RESIDUAL_MM
 from cell_config import load_cell

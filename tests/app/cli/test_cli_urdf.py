@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from app.cli.main import build_parser, main
+from app.cli.commands import build_parser, main
 from calibration.kinematics.parameterisation import MinimalParameterisation
 from calibration.models import ConstantModel, load_model, save_model
 from calibration.models.pi import PhysicsInformedModel

@@ -8,7 +8,7 @@ import json
 
 import numpy as np
 
-from app.cli.main import main
+from app.cli.commands import main
 from app.collection.plans.reader import read_plan
 from calibration.data.recording import Recording, write_recording
 from calibration.frames.rebase_design import REBASE_OFFSETS

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import calibration.data.files as files
-from app.cli.main import main
+from app.cli.commands import main
 from calibration.data.files import atomic_write_text, staged_outputs
 from calibration.data.recording import write_recording
 from calibration.errors import OutputError
@@ -115,7 +115,7 @@ def test_export_on_a_full_disk_leaves_no_csv_and_no_folder(tmp_path, capsys, mon
 
 
 def test_fit_on_a_full_disk_leaves_no_model_without_its_json(tmp_path, fitted, capsys, monkeypatch):
-    """The class, not the instance: every command of app.cli.main.STAGED_COMMANDS writes its set staged."""
+    """The class, not the instance: every command of app.cli.commands.STAGED_COMMANDS writes its set staged."""
     disk_full_at(monkeypatch, 2)  # the model is written, the JSON is not
     assert main(["fit", "--robot", "R1", "--train", str(fitted / "train.csv"), "--method", "nls1", "--out",
                  str(tmp_path / "m" / "m.yaml"), "--json", str(tmp_path / "m" / "fit.json")]) == 2
@@ -146,7 +146,7 @@ def _job(tmp_path) -> str:
 def test_every_command_writing_a_set_leaves_nothing_on_a_full_disk(tmp_path, fitted, dual_plan, capsys, monkeypatch,
                                                                   command):
     """The class: each command of STAGED_COMMANDS that writes more than one file, its second file failing."""
-    from app.cli.main import STAGED_COMMANDS
+    from app.cli.commands import STAGED_COMMANDS
 
     assert command in STAGED_COMMANDS
     out = tmp_path / "new" / "out"

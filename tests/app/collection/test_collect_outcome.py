@@ -7,7 +7,7 @@ import json
 import pytest
 from conftest import SIM_FAST
 
-from app.cli.main import main
+from app.cli.commands import main
 from app.collection.session_store import SessionStore
 from calibration.errors import DataError
 

@@ -250,7 +250,7 @@ def test_quat_average_ignores_sign_flips():
 
 def test_sigkill_mid_session_then_resume(tmp_path):
     session = tmp_path / "s"
-    env = dict(os.environ, PYTHONPATH=f"{ROOT}{os.pathsep}{ROOT / 'tests/app'}")
+    env = dict(os.environ, PYTHONPATH=f"{ROOT}{os.pathsep}{ROOT / 'tests/app/collection'}")
     proc = subprocess.Popen([sys.executable, str(ROOT / "tests/app/collection/sim_cell.py"), str(session)], env=env,
                             stderr=subprocess.PIPE)
     db = session / "session.sqlite"

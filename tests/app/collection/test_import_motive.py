@@ -11,7 +11,7 @@ import json
 import numpy as np
 import pytest
 
-from app.cli.main import main
+from app.cli.commands import main
 from calibration.data.recording import read_recording
 from calibration.kinematics import so3
 from cell_config import load_cell

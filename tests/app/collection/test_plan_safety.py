@@ -18,7 +18,7 @@ import pytest
 
 pytest.importorskip("casadi")
 
-from app.cli.main import main  # noqa: E402
+from app.cli.commands import main  # noqa: E402
 from app.collection.plan_safety import MAX_DRIFT_MM, UnsafePlan, check_plan_safe, plan_defects  # noqa: E402
 from app.collection.plans.reader import read_plan  # noqa: E402
 from app.collection.rehearsal import write_rehearsal_cell  # noqa: E402

@@ -56,7 +56,7 @@ def check_recording(cell_path: Path, session: Path, out_csv: Path, n_targets: in
 
     The export runs in this process (``main``): it reads the session file only, no device, and a process of its
     own would cost its start-up and imports (~1 s) per call."""
-    from app.cli.main import main
+    from app.cli.commands import main
 
     printed = io.StringIO()
     with contextlib.redirect_stdout(printed):

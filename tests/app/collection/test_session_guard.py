@@ -29,7 +29,7 @@ from tests.conftest import SIM_FAST
 
 ROOT = Path(__file__).resolve().parents[3]
 OTHERS = {"R2": R2_PARK}
-ENV = dict(os.environ, PYTHONPATH=f"{ROOT}{os.pathsep}{ROOT / 'tests/app'}")
+ENV = dict(os.environ, PYTHONPATH=f"{ROOT}{os.pathsep}{ROOT / 'tests/app/collection'}")
 
 
 def first(n: int):
@@ -286,7 +286,7 @@ def test_nan_joint_feedback_is_a_driver_error_and_never_reaches_move_to(tmp_path
 def test_cli_collect_prints_the_recorded_stops_and_refuses_a_locked_session(tmp_path, capsys):
     import json
 
-    from app.cli.main import main
+    from app.cli.commands import main
     from tests.conftest import assert_bad_input
 
     session = tmp_path / "s"

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from app.cli.main import main
+from app.cli.commands import main
 from app.collection.rehearsal import write_rehearsal_cell
 from app.dual.validate import relative_position
 from calibration.models import ConstantModel

@@ -18,7 +18,7 @@ from tests.conftest import assert_bad_input
 
 pytest.importorskip("casadi")
 
-from app.cli.main import main  # noqa: E402
+from app.cli.commands import main  # noqa: E402
 
 DATE = datetime(2026, 12, 4, 22, 0, tzinfo=UTC)
 

@@ -10,7 +10,6 @@ import pytest
 pytest.importorskip("casadi")
 
 from conftest import assert_bad_input, planted_parameters  # noqa: E402
-from test_dual_kinematics import FourierStub, OpaqueStub  # noqa: E402
 
 from app.dual.export_targets import rpy_deg  # noqa: E402
 from app.jobs import JobCompensator, JobError, parse_job, read_job, write_job  # noqa: E402
@@ -20,6 +19,7 @@ from calibration.methods.cdc import geometric_cdc
 from calibration.models import ConstantModel, save_model  # noqa: E402
 from calibration.models.cdc import CdcModel  # noqa: E402
 from cell_config.loader import load_cell  # noqa: E402
+from tests.app.dual.test_dual_kinematics import FourierStub, OpaqueStub  # noqa: E402
 
 Q_R1_DEG = [[0, 10, -10, 0, -30, 0], [20, 25, 5, 30, -45, 60], [-35, -20, 30, -60, -20, -120], [5, 40, -30, 10, -70, 200]]
 Q_R2_DEG = [[0, 0, 0, 0, -40, 0], [-30, 20, -10, 45, -30, 90], [40, 35, 20, -20, -60, -150], [10, -30, 40, 0, -25, 15]]
@@ -230,7 +230,7 @@ def test_two_robots_in_one_group_are_compensated(cell):
 
 def test_big_joint_change_near_the_wrist_singularity_is_refused_when_the_nearest_solution_leaves_too_much(
         cell, tmp_path, capsys):
-    from app.cli.main import main
+    from app.cli.commands import main
 
     q = [list(r) for r in Q_R1_DEG]
     q[0][4] = -0.5  # q5 ~ 0: the exact orientation fix swings joints 4 and 6 (about 10 deg here)
@@ -368,7 +368,7 @@ def test_a_model_with_another_robot_types_geometry_is_refused_naming_the_file(ce
 # --- the command ------------------------------------------------------------------------------------------------
 
 def test_cli_writes_the_compensated_job_and_its_json(cell, tmp_path, capsys):
-    from app.cli.main import main
+    from app.cli.commands import main
 
     m1, m2 = tmp_path / "r1.yaml", tmp_path / "r2.json"
     save_model(planted(cell, "R1", 1), m1)

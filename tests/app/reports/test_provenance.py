@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from app.cli.main import main
+from app.cli.commands import main
 from app.reports.provenance import input_files, model_provenance, provenance, version
 from calibration.data.recording import put_in, write_recording
 from calibration.kinematics.so3 import make_T

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.cli.main import main
+from app.cli.commands import main
 from app.reports.acceptance import Tolerance, acceptance
 from app.reports.plots import METHOD_STYLES, styles_for
 from calibration.data.recording import write_recording

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.cli.main import main
+from app.cli.commands import main
 from app.reports.acceptance import Acceptance, Tolerance, iso_unavailable
 from app.reports.command_warnings import collecting, warnings_so_far
 from app.reports.page import MAX_SERIES, Page, Section, shown_series, write_html

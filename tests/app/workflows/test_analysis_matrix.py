@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.cli.main import main
+from app.cli.commands import main
 from calibration.data.recording import Recording, put_in, write_recording
 from calibration.diagnosis.synthetic import Design, heldout_design, make_case, measure
 from calibration.kinematics import so3

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from app.cli.main import main
+from app.cli.commands import main
 
 SHORT = ["--anchor-step", "90", "--validation", "3", "--methods", "nominal,nls1", "--no-progress"]
 #: The time scale of runs "a" and "c" (run "b" keeps the default, 20): 10 times faster collections.

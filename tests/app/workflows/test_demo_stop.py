@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import re
 
-from app.cli.main import main
+from app.cli.commands import main
 
 
 def test_ctrl_c_during_demo_names_what_was_left_and_that_a_re_run_replaces_it(tmp_path, capsys, monkeypatch):

@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from app.cli.main import main
+from app.cli.commands import main
 from calibration.data.recording import Recording, put_in, write_recording
 from calibration.kinematics import so3
 from calibration.kinematics.so3 import make_T

@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 
-from app.cli.main import main
+from app.cli.commands import main
 from cell_config import load_cell
 from tests.conftest import assert_bad_input
 

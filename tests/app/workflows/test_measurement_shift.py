@@ -48,7 +48,7 @@ def test_clean_training_recording_gives_no_warning(recordings, r1_nominal):
 
 
 def test_compare_prints_the_warning(recordings, tmp_path, capsys):
-    from app.cli.main import main
+    from app.cli.commands import main
 
     _, jumped, _, test = recordings
     write_recording(jumped, tmp_path / "train.csv")

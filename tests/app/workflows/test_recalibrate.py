@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from app.cli.main import main
+from app.cli.commands import main
 from app.workflows.recalibrate import decide_and_install
 from calibration.errors import DataError
 from calibration.kinematics.parameterisation import MinimalParameterisation
@@ -103,7 +103,7 @@ def test_recalibrate_cli_on_the_simulated_cell(tmp_path, capsys):
 def test_ctrl_c_during_recalibrate_names_the_training_session_not_a_resume_it_lacks(tmp_path, capsys, monkeypatch,
                                                                                      stopped_in):
     # it said "stopped (continue with --resume)" (recalibrate has no --resume), or after --plan only "stopped"
-    import app.workflows.demo
+    import app.collection.collect
 
     calls = []
     collect = app.collection.collect.collect_arm
@@ -114,7 +114,7 @@ def test_ctrl_c_during_recalibrate_names_the_training_session_not_a_resume_it_la
             raise KeyboardInterrupt
         return collect(*args, **kwargs)
 
-    monkeypatch.setattr(app.workflows.demo, "collect_arm", interrupted)
+    monkeypatch.setattr(app.collection.collect, "collect_arm", interrupted)
     args, models = _sim_recalibrate(tmp_path, "nls1", 3)
     capsys.readouterr()
     assert main(args) == 130

@@ -3,7 +3,7 @@ on the new training poses; without a model in service it stops before any motion
 
 from __future__ import annotations
 
-from app.cli.main import main
+from app.cli.commands import main
 from tests.conftest import SIM_FAST, assert_bad_input
 
 

@@ -9,7 +9,7 @@ import pytest
 
 from calibration.data.recording import Recording, put_in
 from calibration.errors import DataError
-from calibration.frames.daydiff import check_same_robot, compare_days
+from calibration.frames.daydiff import DaysResult, check_same_robot, compare_days
 from calibration.frames.days_problem import DaysProblem, named_changes
 from calibration.kinematics import so3
 from calibration.kinematics.parameterisation import MinimalParameterisation
@@ -76,7 +76,8 @@ def test_narrow_design_reports_the_wrist_unidentified(r1_nominal):
     """Joints 1, 4-6 within 2 deg (as the shared training recordings): their tilts are not tested, C stays clean,
     and B still differs beyond the noise."""
     recs = _twins(r1_nominal, False, 3)
-    result = DaysProblem(r1_nominal, recs).solve()
+    problem = DaysProblem(r1_nominal, recs)
+    result = DaysResult.build(problem, *problem.solve())
     b, c = result.days
     unidentified = {p.name for p in c.parameters if p.value is None}
     assert {"tilt4_a_rad", "tilt4_b_rad", "tilt5_a_rad", "tilt5_b_rad", "tilt6_a_rad", "tilt6_b_rad"} <= unidentified

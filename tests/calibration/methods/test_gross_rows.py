@@ -75,7 +75,7 @@ def test_rejection_can_be_turned_off(clean, r1_nominal):
 
 
 def test_fit_warns_naming_the_rows_and_carries_them_in_the_json(clean, tmp_path, capsys):
-    from app.cli.main import main
+    from app.cli.commands import main
 
     write_recording(planted(clean, [7, 8]), tmp_path / "t.csv")
     assert main(["fit", "--robot", "R1", "--train", str(tmp_path / "t.csv"), "--method", "nls1",
@@ -88,7 +88,7 @@ def test_fit_warns_naming_the_rows_and_carries_them_in_the_json(clean, tmp_path,
 
 def test_diagnose_screens_its_recording_as_fit_does(clean, tmp_path, capsys):
     """diagnose fitted its effects on the rows as read: a 50 mm marker swap was left for an effect to explain."""
-    from app.cli.main import main
+    from app.cli.commands import main
 
     write_recording(planted(clean, [7, 8]), tmp_path / "t.csv")
     assert main(["diagnose", "--robot", "R1", "--train", str(tmp_path / "t.csv"), "--json",

@@ -105,7 +105,7 @@ def test_nls0_stays_within_the_issue_bound_on_the_shared_days_where_it_blew_up(d
 
 
 def test_compare_prints_the_nls0_warning(tmp_path, r1_nominal, capsys):
-    from app.cli.main import main
+    from app.cli.commands import main
     from calibration.data.recording import write_recording
     from calibration.kinematics.parameterisation import MinimalParameterisation
     from tests.conftest import planted_parameters

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-import calibration.physics.model  # noqa: F401  (fills the KinematicModel registry with "physics")
+import calibration.models.physics  # noqa: F401  (fills the KinematicModel registry with "physics")
 from calibration.errors import DataError, ModelError
 from calibration.kinematics import so3
 from calibration.models import load_model, save_model
