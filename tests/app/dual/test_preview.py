@@ -514,9 +514,11 @@ def test_serve_keeps_serving_without_a_terminal_until_sigint(real_plan, tmp_path
     """Issue 34: `preview --serve` waited for Enter and so exited at once when stdin was not a terminal."""
     import sys
 
+    # SIGINT as a terminal delivers it: a suite started as a background job of a non-interactive shell runs with
+    # SIGINT ignored, and a child inherits that (as in test_cli.py's Ctrl-C test)
     proc = subprocess.Popen([sys.executable, "-m", "app.cli", "preview", "--plan", str(real_plan), "--serve"],
                             stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            start_new_session=True)
+                            start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         line = ""
         deadline = time.monotonic() + 60

@@ -797,8 +797,14 @@ def rewrite_only(repo: Path, files: list[str], git: bool, ruff: bool) -> int:
             top = rel.split("/")[0]
             if top in ROOTS and mod_of(rel) in moves and moves[mod_of(rel)] != mod_of(rel):
                 rep(f"{rel}: an old path whose module moved, but the file is not in the table: place it by hand")
-            elif top in ROOTS and not (repo / rel).parent.is_dir():
-                rep(f"{rel}: its folder is gone in the new tree: place it by hand and add a row to table.tsv")
+            else:
+                parts = mod_of(rel).split(".")
+                pkgs = [".".join(parts[:i]) for i in range(len(parts) - 1, 0, -1)]
+                gone = next((p for p in pkgs if p in moves and moves[p] != p), None)
+                if top in ROOTS and (gone or not (repo / rel).parent.is_dir()):
+                    rep(f"{rel}: its package {gone or Path(rel).parent} moved or is gone in the new tree: its "
+                        f"imports are rewritten in place; git mv it to its room yourself (a row in table.tsv for "
+                        f"the record) and fix a Path(__file__).parents[N] by the change of depth")
         p = repo / rel
         if not p.exists():
             rep(f"{rel}: not found")
