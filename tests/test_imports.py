@@ -2,7 +2,7 @@
 in turn: a package ``__init__`` that runs into a circle, a name used before a split defined it, or a module that
 needs an optional import nobody declared fails here rather than in a user's command. (The import contracts,
 ``lint-imports`` in ``make test``, hold the absence of circles; ``docs/dev/restructure/tools/import_alone.py``
-imports each module with the others dropped, about 10 s of CPU, too slow for the suite.)"""
+imports each module with the others dropped, 7 to 10 s, too slow for a test.)"""
 
 from __future__ import annotations
 

@@ -20,7 +20,6 @@ import numpy as np
 
 from calibration.errors import ModelError
 from calibration.kinematics import so3
-from calibration.kinematics.casadi_expr import chain_pose, poe_chain
 
 
 def poe_to_dict(m: PoeModel) -> dict[str, Any]:
@@ -163,6 +162,7 @@ class PoeModel:
 
     def casadi(self, q: Any, theta: Any = None, q_at: Any = None, kind: str = "poe") -> Any:
         """The chain on casadi symbols q (n,) as a :class:`calibration.kinematics.casadi_expr.CasadiPose` (no parameters)."""
+        from calibration.kinematics.casadi_expr import chain_pose, poe_chain  # the casadi path only when asked for
 
         return chain_pose(poe_chain(self, q), kind)
 

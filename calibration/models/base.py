@@ -23,9 +23,7 @@ import numpy as np
 
 from calibration.errors import ModelError
 from calibration.kinematics.blocks import Block
-from calibration.kinematics.casadi_expr import pose_jacobians
 from calibration.kinematics.poe import PoeModel
-from calibration.models.guard import REGION_KEY, region_of
 from calibration.models.registry import KINDS, model_class
 
 #: The schema files are written with. /2 since the extrapolation guard's per-effect rule (the training region's
@@ -71,6 +69,7 @@ class KinematicModel(abc.ABC):
         which turns the extrapolation guard off)."""
         from dataclasses import replace
 
+        from calibration.models.guard import REGION_KEY  # the guard loads when a region is asked for, not with a model
 
         info = {k: v for k, v in self.info.items() if k != REGION_KEY}
         return replace(self, info=info if region is None else {**info, REGION_KEY: region.to_dict()})  # type: ignore[type-var]
@@ -89,6 +88,7 @@ class KinematicModel(abc.ABC):
     def region(self) -> Any:
         """The per-joint range of the training data (a :class:`calibration.models.guard.Region`), or None when
         the model was saved without it."""
+        from calibration.models.guard import region_of
 
         return region_of(self.info)
 
@@ -147,12 +147,14 @@ class KinematicModel(abc.ABC):
 
         By default exact, from the model's own casadi expression; kinds with an analytic form override it.
         """
+        from calibration.kinematics.casadi_expr import pose_jacobians  # the casadi path only when asked for
 
         R, p = self.fk(q)
         return R, p, pose_jacobians(lambda qs, ts: self.casadi(qs, ts), q, self.vector())[0]
 
     def jacobian_q(self, q: np.ndarray) -> np.ndarray:
         """``d[p (mm); rotation (rad)] / dq`` (N, 6, 6): exact, from the model's own casadi expression."""
+        from calibration.kinematics.casadi_expr import pose_jacobians
 
         return pose_jacobians(lambda qs, ts: self.casadi(qs, ts), q, self.vector(), wrt_theta=False)[1]
 

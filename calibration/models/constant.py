@@ -12,8 +12,6 @@ from typing import Any, ClassVar
 import numpy as np
 
 from calibration.kinematics.blocks import Block
-from calibration.kinematics.casadi_expr import chain_pose, poe_chain
-from calibration.kinematics.parameterisation import MinimalParameterisation
 from calibration.kinematics.poe import PoeModel, poe_from_dict, poe_to_dict
 from calibration.models.base import KinematicModel
 
@@ -38,6 +36,8 @@ class ConstantModel(KinematicModel):
 
     def _chart(self) -> Any:
         """Minimal parameters around this geometry (``x = 0`` is this model; the flange point included)."""
+        # here, not at the top: the CLI loads this kind with every plan check, the fitting maths only when asked for
+        from calibration.kinematics.parameterisation import MinimalParameterisation
 
         return MinimalParameterisation(self.model, fit_tool=True)
 
@@ -60,6 +60,7 @@ class ConstantModel(KinematicModel):
     def casadi(self, q: Any, theta: Any = None, q_at: Any = None) -> Any:
         if theta is None:
             return self.model.casadi(q, kind="constant")
+        from calibration.kinematics.casadi_expr import chain_pose, poe_chain
 
         return chain_pose(poe_chain(self.model, q, *self._chart().casadi_geometry(theta)), "constant")
 

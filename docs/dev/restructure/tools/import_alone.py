@@ -1,5 +1,5 @@
 """Import every product module alone: the project modules are dropped from sys.modules before each import (third
-party stays loaded), so a module that only imports because another was imported first fails here. About 10 s of
+party stays loaded), so a module that only imports because another was imported first fails here. About 7-10 s of
 CPU; the test suite runs the cheaper one-interpreter walk (tests/test_imports.py). Usage: PYTHONPATH=TREE python import_alone.py"""
 import importlib, pkgutil, sys, time
 ROOTS = ("calibration", "cell_config", "drivers", "app")
