@@ -4,7 +4,7 @@ BIN := $(VENV)/bin
 # mkdocs-material and a plugin print an end-of-life banner on every build; the pins in constraints.txt hold.
 DOCS_ENV := NO_MKDOCS_2_WARNING=1 DISABLE_MKDOCS_2_WARNING=true
 
-.PHONY: test demo docs clean
+.PHONY: test lint typecheck demo docs clean
 
 # The venv is rebuilt whenever pyproject.toml or constraints.txt changes. constraints.txt pins every package to the
 # versions the figures in the notes were measured with, so an install is repeatable (a diagnosis can still differ
@@ -22,9 +22,19 @@ $(VENV): pyproject.toml constraints.txt
 # process the tests start compiles the package again.
 # The docs site is built first, strictly (a broken link, a page left out of the navigation or a module the API pages
 # cannot read fails the tests), into a temporary folder that is removed afterwards; `make docs` keeps it in site/.
-test: $(VENV)
+test: lint
 	site=$$(mktemp -d) && trap 'rm -rf "$$site"' EXIT && $(DOCS_ENV) $(BIN)/mkdocs build --strict --site-dir "$$site"
 	PYTHONDONTWRITEBYTECODE= $(BIN)/python -m pytest -q -n auto --dist loadscope --no-loadscope-reorder
+
+# The lint before the tests, about 1 s each: ruff (the rules in pyproject.toml) and the import contracts
+# (import-linter, [tool.importlinter]: the product's layers, no circle, calibration math only).
+lint: $(VENV)
+	$(BIN)/ruff check --no-cache .
+	$(BIN)/lint-imports --no-cache
+
+# Types (configured in pyproject.toml, not yet clean, so not part of test: issue 32 step 7).
+typecheck: $(VENV)
+	$(BIN)/mypy
 
 docs: $(VENV)
 	$(DOCS_ENV) $(BIN)/mkdocs build --strict --site-dir site
@@ -33,4 +43,4 @@ demo: $(VENV)
 	$(BIN)/cellcal demo --out demo_out
 
 clean:
-	rm -rf $(VENV) demo_out site .pytest_cache
+	rm -rf $(VENV) demo_out site .pytest_cache .mypy_cache .ruff_cache

@@ -1,4 +1,5 @@
 """Workflows and the command-line interface, by room: :mod:`app.cli` (the ``cellcal`` command line),
-:mod:`app.analysis` (fit, compare, report, diagnose, recalibrate), :mod:`app.cell` (plans, safety,
-collection, sessions, the cell at run time), :mod:`app.dual` (dual planner, paths, plan file, export,
-preview, validation), :mod:`app.demo` (the simulated end-to-end demo) and :mod:`app.jobs` (controller jobs)."""
+:mod:`app.workflows` (fit, compare, diagnose, recalibrate, the demo, init-cell), :mod:`app.reports` (the report
+pages, acceptance, plots, provenance), :mod:`app.collection` (plans, safety, collection, sessions, registration,
+the cell at run time), :mod:`app.dual` (dual planner, paths, export, preview, validation) and :mod:`app.jobs`
+(controller jobs)."""

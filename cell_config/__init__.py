@@ -1,19 +1,14 @@
 """The cell described as data (robots, tools, layout, devices, network, registration) and its typed loader."""
 
+from cell_config.devices import ZENOH_ROLES, ControllerConfig, MocapConfig, ProbeConfig, ZenohConfig, ZenohRole
 from cell_config.loader import (
     DEFAULT_CELL,
     REHEARSAL_CELL,
-    ZENOH_ROLES,
     CellRobot,
     CellSpec,
-    ControllerConfig,
     LinkInertia,
-    MocapConfig,
-    ProbeConfig,
     RobotSpec,
     ToolSpec,
-    ZenohConfig,
-    ZenohRole,
     load_cell,
     load_robot,
     load_tool,

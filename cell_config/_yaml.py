@@ -15,9 +15,9 @@ from typing import Any
 import numpy as np
 import yaml
 
+from calibration.data.files import InputRefused, read_input_text
+from calibration.data.yamlio import safe_load
 from calibration.errors import ConfigError, parse_error_text
-from calibration.files import InputRefused, read_input_text
-from calibration.yamlio import safe_load
 
 _REQUIRED: Any = ...
 
@@ -55,7 +55,7 @@ class Node:
         self.data = data
 
     @classmethod
-    def load(cls, path: str | Path) -> "Node":
+    def load(cls, path: str | Path) -> Node:
         """The top-level mapping of the YAML file at ``path``."""
         return cls(Path(path), read_yaml(Path(path)))
 
@@ -84,7 +84,7 @@ class Node:
             return default
         return self.data[key]
 
-    def child(self, key: str, default: Any = _REQUIRED) -> "Node | None":
+    def child(self, key: str, default: Any = _REQUIRED) -> Node | None:
         """The mapping under ``key`` (None when absent and ``default`` is None)."""
         value = self.get(key, default)
         if value is None and key not in self.data:

@@ -77,7 +77,7 @@ class MocapConfig:
         command_port: NatNet command port (UDP).
         data_port: NatNet data port (UDP).
         dwell_s: length of each measurement's averaging window [s of capture time]; None keeps the collection's
-            default (:class:`app.cell.collect.CollectConfig`). It must hold ``min_frames`` frames at the frame rate.
+            default (:class:`app.collection.collect.CollectConfig`). It must hold ``min_frames`` frames at the frame rate.
         stream_wait_s: how long the collector waits for a stopped mocap stream (the bridge restarted, the network
             dropped) before the measurement counts as failed [s].
     """

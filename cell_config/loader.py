@@ -15,12 +15,23 @@ from pathlib import Path
 
 import numpy as np
 
-from calibration import so3
 from calibration.errors import ConfigError
-from calibration.poe import PoeModel
+from calibration.kinematics import so3
+from calibration.kinematics.poe import PoeModel
 from cell_config._yaml import Node
-from cell_config.devices import (ZENOH_MODES, ZENOH_ROLES, ControllerConfig, MocapConfig, ProbeConfig, ZenohConfig,
-                                 ZenohRole, parse_controller, parse_mocap, parse_probe, parse_zenoh)
+from cell_config.devices import (
+    ZENOH_MODES,
+    ZENOH_ROLES,
+    ControllerConfig,
+    MocapConfig,
+    ProbeConfig,
+    ZenohConfig,
+    ZenohRole,
+    parse_controller,
+    parse_mocap,
+    parse_probe,
+    parse_zenoh,
+)
 from cell_config.registration import RobotRegistration, load_registration, registrations_for, save_registration
 
 __all__ = [
@@ -34,7 +45,7 @@ PACKAGE_DIR = Path(__file__).resolve().parent
 DEFAULT_CELL = PACKAGE_DIR / "cell.yaml"
 REHEARSAL_CELL = PACKAGE_DIR / "rehearsal.yaml"
 
-#: The collision capsules of an arm (``capsules_mm`` in the robot YAML); app/cell/capsules.py says what each spans.
+#: The collision capsules of an arm (``capsules_mm`` in the robot YAML); cell_config/capsules.py says what each spans.
 CAPSULE_SEGMENTS: tuple[str, ...] = ("base", "shoulder", "upper_arm", "forearm", "wrist", "tool")
 
 
@@ -83,7 +94,7 @@ class RobotSpec:
         pulses = np.asarray(pulses, dtype=float)
         return (pulses - self.pulse_zero) * self.pulse_sign / self.pulses_per_rad
 
-    def model(self, tool: "ToolSpec | None" = None) -> PoeModel:
+    def model(self, tool: ToolSpec | None = None) -> PoeModel:
         """The nominal POE model of this arm carrying ``tool`` (flange frame when None)."""
         if tool is None:
             return PoeModel(self.H, self.P, self.R_flange)

@@ -22,15 +22,16 @@ import os
 import stat
 from collections.abc import Mapping
 from dataclasses import dataclass
-from datetime import datetime, date as _date
+from datetime import date as _date
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import yaml
 
+from calibration.data.files import atomic_write_text
 from calibration.errors import ConfigError, OutputError
-from calibration.files import atomic_write_text
 from cell_config._yaml import Node, read_yaml
 
 _HEADER = """\

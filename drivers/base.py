@@ -7,9 +7,8 @@ package and real protocol adapters (MotoROS, NatNet).
 from __future__ import annotations
 
 import abc
+from collections.abc import Callable
 from dataclasses import dataclass
-
-from typing import Callable
 
 import numpy as np
 
@@ -102,7 +101,7 @@ class RobotDriver(abc.ABC):
     def close(self) -> None:
         """Release the connection; safe to call twice."""
 
-    def __enter__(self) -> "RobotDriver":
+    def __enter__(self) -> RobotDriver:
         self.connect()
         return self
 
@@ -132,7 +131,7 @@ class MocapSource(abc.ABC):
     def close(self) -> None:
         """Release the stream; safe to call twice."""
 
-    def __enter__(self) -> "MocapSource":
+    def __enter__(self) -> MocapSource:
         self.connect()
         return self
 

@@ -101,7 +101,7 @@ class ContactProbe(abc.ABC):
     def close(self) -> None:
         """Release the device; safe to call twice."""
 
-    def __enter__(self) -> "ContactProbe":
+    def __enter__(self) -> ContactProbe:
         self.connect()
         return self
 

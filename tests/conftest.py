@@ -14,10 +14,10 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 import numpy as np  # noqa: E402
 import pytest
 
-from calibration import so3
-from calibration.cdc import expand_anchors
-from calibration.parameterisation import MinimalParameterisation
-from calibration.recording import Recording
+from calibration.data.recording import Recording
+from calibration.kinematics import so3
+from calibration.kinematics.parameterisation import MinimalParameterisation
+from calibration.methods.cdc import expand_anchors
 from cell_config import load_cell
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "welding_motoman"
@@ -118,7 +118,7 @@ def backlash_case(n_q2: int = 5, n_q3: int = 4, n_heldout: int = 60):
 
 def write_backlash_case(folder: Path, **sizes: int) -> tuple[Path, Path]:
     """:func:`backlash_case`'s fit and held-out recordings written as ``folder/fit.csv`` and ``folder/ho.csv``."""
-    from calibration.recording import write_recording
+    from calibration.data.recording import write_recording
 
     _, _, fit, ho = backlash_case(**sizes)
     write_recording(fit, folder / "fit.csv")
@@ -129,7 +129,7 @@ def write_backlash_case(folder: Path, **sizes: int) -> tuple[Path, Path]:
 
 # ---- running in parallel: `make test` runs `-n auto --dist loadscope --no-loadscope-reorder` (pytest-xdist) ----
 # loadscope hands each worker whole modules, so a module's module-scoped fixtures (a demo run, a fit of the real
-# recordings) are built once, and the rehearsal's real-time OS processes (tests/app/test_rehearsal.py) run one
+# recordings) are built once, and the rehearsal's real-time OS processes (tests/app/collection/test_rehearsal.py) run one
 # test at a time, as in a serial run, while the other worker runs the CPU-bound modules beside them.
 # (loadgroup cannot do the grouping: with pytest 9.2 it silently ignores xdist_group, pytest-xdist issue 1386.)
 
@@ -138,18 +138,18 @@ def write_backlash_case(folder: Path, **sizes: int) -> tuple[Path, Path]:
 #: depends on this list: a module missing from it still runs, later. The rehearsal leads: it waits on real-time
 #: OS processes, so the other worker's CPU-bound modules run beside it. test_preview is placed by its size with a
 #: headless browser (without one its browser tests skip and it is short).
-LONGEST_FIRST = ("tests/app/test_rehearsal.py", "tests/app/test_demo_seed.py", "tests/calibration/test_models.py",
-                 "tests/calibration/test_diagnosis_parsimony.py", "tests/app/test_diagnose.py",
-                 "tests/app/test_readme.py", "tests/calibration/test_robust.py", "tests/app/test_rebase_design.py",
-                 "tests/app/test_report.py", "tests/app/test_report_signoff.py", "tests/app/test_preview.py",
-                 "tests/calibration/test_model_kinds.py",
-                 "tests/calibration/test_diagnosis.py", "tests/app/test_dual_plan.py",
-                 "tests/drivers/test_motoros_driver.py", "tests/app/test_cli_dual.py", "tests/app/test_real_data.py",
-                 "tests/app/test_cli.py", "tests/app/test_diagnose_days.py", "tests/calibration/test_interpolation.py",
-                 "tests/calibration/test_multiday.py", "tests/calibration/test_diagnosis_channels.py",
-                 "tests/app/test_collect_session.py", "tests/app/test_cli_json.py",
-                 "tests/app/test_recalibrate_rebase.py", "tests/calibration/test_daydiff.py",
-                 "tests/calibration/test_nls0.py")
+LONGEST_FIRST = ("tests/app/collection/test_rehearsal.py", "tests/app/workflows/test_demo_seed.py", "tests/calibration/models/test_models.py",
+                 "tests/calibration/diagnosis/test_diagnosis_parsimony.py", "tests/app/workflows/test_diagnose.py",
+                 "tests/test_readme.py", "tests/calibration/methods/test_heldout.py", "tests/app/cli/test_rebase_design_cli.py",
+                 "tests/app/reports/test_report.py", "tests/app/reports/test_report_signoff.py",
+                 "tests/app/dual/test_preview.py", "tests/calibration/models/test_model_kinds.py",
+                 "tests/calibration/diagnosis/test_diagnosis.py", "tests/app/dual/test_dual_plan.py",
+                 "tests/drivers/test_motoros_driver.py", "tests/app/cli/test_cli_dual.py", "tests/app/workflows/test_real_data.py",
+                 "tests/app/cli/test_cli.py", "tests/app/workflows/test_diagnose_days.py", "tests/calibration/interpolation/test_interpolation.py",
+                 "tests/calibration/frames/test_multiday.py", "tests/calibration/diagnosis/test_diagnosis_channels.py",
+                 "tests/app/collection/test_collect_session.py", "tests/app/cli/test_cli_json.py",
+                 "tests/app/workflows/test_recalibrate_rebase.py", "tests/calibration/frames/test_daydiff.py",
+                 "tests/calibration/methods/test_nls0.py")
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

@@ -84,14 +84,14 @@ def test_the_parser_reads_ranges_and_lists():
 
 
 def test_recording_columns_are_the_readers():
-    from calibration.recording import KNOWN_OPTIONAL_COLUMNS, REQUIRED_COLUMNS
+    from calibration.data.recording import KNOWN_OPTIONAL_COLUMNS, REQUIRED_COLUMNS
 
     assert_documents("recording.md", "recording", REQUIRED_COLUMNS + KNOWN_OPTIONAL_COLUMNS)
 
 
 def test_model_kinds_and_common_keys_are_the_registrys():
     from calibration.models import ConstantModel
-    from calibration.models.base import MODEL_KIND_MODULES
+    from calibration.models.registry import KIND_MODULES as MODEL_KIND_MODULES
     from cell_config import load_cell
 
     assert_documents("model.md", "model-kinds", MODEL_KIND_MODULES)
@@ -122,8 +122,8 @@ def test_registration_keys_are_the_files():
 
 
 def test_plan_keys_and_target_kinds_are_the_plans():
-    from app.cell.planning import KINDS, Target
-    from app.dual.plan_result import PlanResult, WaypointResult
+    from app.collection.plans.collection import KINDS, Target
+    from app.collection.plans.dual import PlanResult, WaypointResult
 
     target = Target("R1", np.zeros(6), 0, "anchor")
     assert_documents("plans.md", "plan-target", target.to_dict())
@@ -135,8 +135,8 @@ def test_plan_keys_and_target_kinds_are_the_plans():
 
 
 def test_session_tables_are_the_stores(tmp_path):
-    from app.cell.planning import Plan, Target
-    from app.cell.session_store import _SAMPLE_COLUMNS, SessionStore
+    from app.collection.plans.collection import Plan, Target
+    from app.collection.session_store import _SAMPLE_COLUMNS, SessionStore
 
     assert_documents("session.md", "session-samples", _SAMPLE_COLUMNS)
     with SessionStore(tmp_path / "s", create=True) as store:
@@ -161,7 +161,7 @@ def test_diagnose_keys_and_effect_kinds_are_the_reports():
     acc = Accuracy("geometric", 0.3, 0.9, 0.04, 0.09)
     report = Diagnosis("R1", 10, 5, "split", NoiseFloor(0.08, 0.08, 0.1, 0.03, 0.03, 0.04), acc, acc, (), (), (), (),
                        "", None, days=_Days(), extrapolation={})  # type: ignore[arg-type]
-    # every key, optional ones included; gross_rows is added by app.analysis.diagnose beside the report's own
+    # every key, optional ones included; gross_rows is added by app.workflows.diagnose beside the report's own
     assert_documents("diagnose-json.md", "diagnose", [*report.to_json(), "gross_rows"])
     evidence = EffectEvidence(-10.0, 0.01, 3.0, acc, acc, 4.0)
     effect = FoundEffect("thermal_drift", (), ("p12",), {"k_per_s": 1.0}, {"k_per_s": 0.1}, evidence, "grows")
@@ -169,8 +169,8 @@ def test_diagnose_keys_and_effect_kinds_are_the_reports():
 
 
 def test_command_json_blocks_are_the_writers():
-    from app.analysis.compare import Comparison
-    from calibration.metrics import stats
+    from calibration.evaluation.comparison import Comparison
+    from calibration.evaluation.metrics import stats
 
     assert_documents("command-json.md", "error-stats", stats(np.array([0.1, 0.2, 0.3])))
     assert_documents("command-json.md", "compare", Comparison("R1").to_json())
@@ -181,7 +181,7 @@ def test_fit_and_evaluate_json_keys_are_the_commands(tmp_path):
     import json
 
     from app.cli import main
-    from calibration.recording import write_recording
+    from calibration.data.recording import write_recording
     from cell_config import load_cell
     from tests.conftest import cluster_design, measure
 
@@ -204,10 +204,10 @@ def test_targets_columns_are_the_writers(tmp_path):
 
 
 def test_jbi_position_types_urdf_names_and_motive_units_are_the_codes():
-    from app.cell.motive_import import LENGTH_UNITS_MM, WINDOW_COLUMNS
+    from app.collection.motive_import import LENGTH_UNITS_MM, WINDOW_COLUMNS
     from app.jobs.jbi import JOB_POSTYPES
-    from calibration import urdf
-    from calibration.recording import JOINT_COLUMNS
+    from calibration.data.recording import JOINT_COLUMNS
+    from calibration.models import urdf
 
     assert_documents("jbi.md", "jbi-postypes", JOB_POSTYPES)
     names = urdf.ROS_JOINTS + urdf.ROS_LINKS + (urdf.BASE_LINK, urdf.ROBOT_FRAME_LINK, urdf.TOOL0_LINK,
@@ -247,7 +247,7 @@ def test_every_docs_page_the_product_names_exists(folder):
 
 
 def test_every_repository_path_the_pages_name_exists():
-    """The format pages and tutorials name the modules that read and write each file (``calibration/recording.py``);
+    """The format pages and tutorials name the modules that read and write each file (``calibration/data/recording.py``);
     a module moved or renamed (issue 32's restructure) leaves a page pointing nowhere: this names the page and path."""
     pattern = re.compile(r"`((?:app|calibration|drivers|cell_config|tests|scripts|docs)/[\w/.-]+?)(?:::\w+)?`")
     pages = sorted(FORMATS.glob("*.md")) + sorted((REPO / "docs" / "tutorials").glob("*.md"))

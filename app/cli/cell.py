@@ -4,13 +4,28 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable, Literal
+from typing import Any, Literal
 
-from app.analysis.fitting import fitter_for
-from app.cli.common import add_report_options, add_topup_options, cell_spec, command_line, epoch_bar, \
-    load_model_for, log, non_negative_int, positive_float, read_given_arg, read_recording_arg, show_progress, tolerance_from_args, \
-    validation_count, warn_gross_rows, write_json
+from app.cli.common import (
+    add_report_options,
+    add_topup_options,
+    cell_spec,
+    command_line,
+    epoch_bar,
+    load_model_for,
+    log,
+    non_negative_int,
+    positive_float,
+    read_given_arg,
+    read_recording_arg,
+    show_progress,
+    tolerance_from_args,
+    validation_count,
+    warn_gross_rows,
+    write_json,
+)
 from calibration.errors import CellCalError
 
 #: The anchor-grid steps ``plan --q2-step/--q3-step`` and ``demo --anchor-step`` accept [deg].
@@ -24,7 +39,7 @@ DEFAULT_BUDGET = {"identification": 196, "rebase": 21}
 
 
 def _load_plan(path: str, robot: str) -> Any:
-    from app.cell.plan_file import read_plan
+    from app.collection.plans.reader import read_plan
     from calibration.errors import DataError
 
     plan = read_plan(path, "collection")
@@ -39,7 +54,7 @@ def _require_session(path: str, robot: str, kinds: tuple[str, ...] = (),
     """Refuse at once (before any device opens) a folder without a session, or a session of another arm; with
     ``kinds``, also one whose plan still has targets of those kinds neither measured nor skipped (a collection
     stopped half-way: recalibrate fitted and installed a model on what it had measured, without a word)."""
-    from app.cell.session_store import SessionStore
+    from app.collection.session_store import SessionStore
     from calibration.errors import DataError
 
     with SessionStore(path, purpose=purpose) as store:  # DataError when there is none or another process holds it
@@ -55,9 +70,9 @@ def _require_session(path: str, robot: str, kinds: tuple[str, ...] = (),
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
-    from app.cell.runtime import park_q
-    from app.cell.safety import CellSafety
-    from app.cell.session_plan import PlanSpec, session_plan
+    from app.collection.plans.session import PlanSpec, session_plan
+    from app.collection.runtime.sim import park_q
+    from app.collection.safety import CellSafety
 
     cell = cell_spec(args)
     robot = cell.robot(args.robot)
@@ -87,7 +102,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     print(f"{args.robot}: {len(plan)} targets ({', '.join(f'{v} {k}' for k, v in kinds.items())}), checked safe "
           f"with the other arms parked -> {args.out}")
     if figs is not None:
-        from app.cell.design_plan import figures_table
+        from app.collection.plans.design import figures_table
 
         print(figures_table(figs))
     write_json(args.json, {"robot": args.robot, "design": args.design, "targets": len(plan), "kinds": kinds,
@@ -99,8 +114,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
 def _plan_topup(args: argparse.Namespace, cell: Any, robot: Any, safety: Any, others: dict[str, Any]) -> int:
     """``plan --design optimal [--given TRAIN] --task TASK --budget K``: the K poses the task needs beyond TRAIN
     (without --given: from scratch, the task's whole calibration)."""
-    from app.cell.design_plan import read_task, topup_plan
-    from app.cell.runtime import park_q
+    from app.collection.plans.design import topup_plan
+    from app.collection.runtime.sim import park_q
+    from app.jobs.task import read_task
 
     missing = [o for o, v in (("--task", args.task), ("--budget", args.budget)) if v is None]
     if args.design != "optimal" or missing:
@@ -133,8 +149,8 @@ def _plan_topup(args: argparse.Namespace, cell: Any, robot: Any, safety: Any, ot
 
 def _optimal_anchors(args: argparse.Namespace, robot: Any, safety: Any, others: dict[str, Any], q_start: Any) -> Any:
     """``plan --design optimal``: the D-optimal clusters and their figures beside the paper's grid."""
-    from app.cell.design_plan import DesignSpec, check_budget, optimal_plan
-    from calibration.parameterisation import MinimalParameterisation
+    from app.collection.plans.design import DesignSpec, check_budget, optimal_plan
+    from calibration.kinematics.parameterisation import MinimalParameterisation
 
     budget = args.budget if args.budget is not None else DEFAULT_BUDGET[args.target]
     check_budget(budget)
@@ -152,12 +168,13 @@ def _check_grid_step(option: str, step_deg: float) -> None:
 
 
 def cmd_select(args: argparse.Namespace) -> int:
-    from app.analysis.fitting import refuse_another_arms
-    from app.cell.design_plan import check_budget, figures_table
     from app.cli.common import read_recording_arg
-    from calibration.design import select_recording
-    from calibration.parameterisation import MinimalParameterisation
-    from calibration.recording import write_recording
+    from app.collection.plans.design import check_budget, figures_table
+    from calibration.data.recording import write_recording
+    from calibration.frames.policy import refuse_another_arms
+    from calibration.frames.rebase_design import select_rebase_recording
+    from calibration.identification.design import select_recording
+    from calibration.kinematics.parameterisation import MinimalParameterisation
 
     if args.given is not None or args.task is not None or args.poses is not None:
         return _select_topup(args)
@@ -170,8 +187,10 @@ def cmd_select(args: argparse.Namespace) -> int:
     n_clusters = len(set(rec.clusters().tolist()))
     check_budget(args.budget, n_clusters, unit="clusters")
     par = MinimalParameterisation(robot.model(), fit_tool=True)
-    sel = select_recording(par, rec, args.budget, args.noise_mm,
-                           rebase_offsets=() if args.target == "rebase" else None)
+    if args.target == "rebase":
+        sel = select_rebase_recording(par, rec, args.budget, args.noise_mm, rebase_offsets=())
+    else:
+        sel = select_recording(par, rec, args.budget, args.noise_mm)
     write_recording(rec.subset(sel.rows), args.out)
     print(f"{args.robot}: {len(sel.clusters)} of {n_clusters} clusters ({len(sel.rows)} of {len(rec)} samples) "
           f"-> {args.out}")
@@ -184,12 +203,12 @@ def cmd_select(args: argparse.Namespace) -> int:
 
 def _select_topup(args: argparse.Namespace) -> int:
     """``select --given TRAIN --task TASK --poses K``: the K rows of --data (candidates) that most lower the predicted
-    position variance over the task's configurations given TRAIN (:mod:`calibration.topup`); joint angles only."""
+    position variance over the task's configurations given TRAIN (:mod:`calibration.methods.topup`); joint angles only."""
     import numpy as np
 
-    from app.cell.design_plan import read_task
-    from calibration.recording import copy_rows
-    from calibration.topup import TopupPrior, choose, predicted_sigma
+    from app.jobs.task import read_task
+    from calibration.data.recording import copy_rows
+    from calibration.methods.topup import TopupPrior, choose, predicted_sigma
 
     missing = [o for o, v in (("--given", args.given), ("--task", args.task), ("--poses", args.poses)) if v is None]
     if missing:
@@ -221,7 +240,7 @@ def _select_topup(args: argparse.Namespace) -> int:
                            "predicted_sigma_mm": {"before": {"mean": float(before.mean()), "max": float(before.max())},
                                                   "after": {"mean": float(after.mean()), "max": float(after.max())}},
                            "criterion": "mean + mean of the worst 10 % of the predicted task position variance "
-                                        "(calibration.topup)"})
+                                        "(calibration.methods.topup)"})
     return 0
 
 
@@ -229,7 +248,7 @@ def _print_events(session: str) -> list[dict[str, Any]]:
     """Print why the arms were stopped in this session (every recorded event); returns them for --json."""
     from dataclasses import asdict
 
-    from app.cell.session_store import SessionStore
+    from app.collection.session_store import SessionStore
 
     with SessionStore(session, lock=False) as store:
         events = store.events()
@@ -242,9 +261,8 @@ def _print_events(session: str) -> list[dict[str, Any]]:
 
 def cmd_collect(args: argparse.Namespace) -> int:
     from app.cli.cell_options import confirm_motion, motion_config, open_runtime, safety_for
-    from app.cell.collect import SessionAborted
-    from app.demo.run import collect_arm
-    from app.cell.session_store import SessionStore
+    from app.collection.collect import SessionAborted, collect_arm
+    from app.collection.session_store import SessionStore
     from calibration.models import ConstantModel
 
     cell = cell_spec(args)
@@ -299,10 +317,10 @@ def cmd_collect(args: argparse.Namespace) -> int:
 
 def _dry_run(args: argparse.Namespace, rt: Any, safety: Any, plan: Any, config: Any) -> int:
     """Check the whole plan from where the arm stands against the other arms' live poses; print it; no motion."""
-    from app.cell.dry_run import summarize_plan
-    from app.cell.motion import live_poses, read_q
-    from app.cell.planning import Plan
-    from app.cell.session_store import SessionStore
+    from app.collection.dry_run import summarize_plan
+    from app.collection.motion import live_poses, read_q
+    from app.collection.plans.collection import Plan
+    from app.collection.session_store import SessionStore
 
     if plan is None:
         with SessionStore(args.session) as store:  # what the resume would measure: the same targets
@@ -328,8 +346,8 @@ def _dry_run(args: argparse.Namespace, rt: Any, safety: Any, plan: Any, config: 
 
 
 def cmd_export(args: argparse.Namespace) -> int:
-    from app.cell.collect import export
-    from app.cell.planning import KINDS
+    from app.collection.collect import export
+    from app.collection.plans.collection import KINDS
 
     kinds = None
     if Path(args.out).suffix.lower() != ".csv":  # export-targets refuses an unknown suffix too
@@ -340,7 +358,7 @@ def cmd_export(args: argparse.Namespace) -> int:
         bad = [k for k in kinds if k not in KINDS]
         if bad or not kinds:
             raise CellCalError(f"unknown target kind {bad[0] if bad else args.kinds!r}; valid: {', '.join(KINDS)}")
-    from app.cell.session_store import SessionStore
+    from app.collection.session_store import SessionStore
 
     with SessionStore(args.session, lock=False, purpose="export") as store:  # reading: allowed while a collector runs
         if args.robot:
@@ -357,14 +375,18 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     import time as _time
 
     from app.cli.cell_options import confirm_motion, motion_config, open_runtime, safety_for
-    from app.cell.collect import export
-    from app.demo.run import collect_arm
-    from app.analysis.recalibrate import check_model_dir, decide_and_install, model_in_service, \
-        model_to_rebase, rebase_candidate
-    from app.provenance import provenance, with_provenance
-    from app.cell.session_plan import validation_plan
+    from app.collection.collect import collect_arm, export
+    from app.collection.plans.session import validation_plan
+    from app.reports.provenance import provenance, with_provenance
+    from app.workflows.recalibrate import (
+        check_model_dir,
+        decide_and_install,
+        model_in_service,
+        model_to_rebase,
+        rebase_candidate,
+    )
+    from calibration.data.recording import read_recording, with_added
     from calibration.models import ConstantModel
-    from calibration.recording import read_recording, with_added
 
     cell = cell_spec(args)
     robot = cell.robot(args.robot)
@@ -396,7 +418,7 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         parked = {n: d.read_joints().q for n, d in rt.others(args.robot).items()}
         val_plan = validation_plan(args.robot, safety, parked, args.validation, seed=seed)
         if args.dry_run:
-            from app.cell.planning import Plan
+            from app.collection.plans.collection import Plan
 
             both = Plan((plan.targets if plan is not None else ()) + val_plan.targets, val_plan.params)
             return _dry_run(args, rt, safety, both, config)
@@ -424,7 +446,8 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         model, rebased = rebase_candidate(model_dir, service, train, (robot.robot.lower_rad, robot.robot.upper_rad))
         print(rebased.summary())
     else:
-        from calibration.methods import FitOptions
+        from app.workflows.fit import fitter_for
+        from calibration.methods.options import FitOptions
 
         fitter = fitter_for(robot, train, cpa, FitOptions(epoch_progress=epoch_bar(args)))
         warn_gross_rows(fitter)  # the rows are in the model's info too
@@ -455,7 +478,8 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
         "objective_rms": {"before": rebased.objective_before, "after": rebased.objective_after},
         "shrink": rebased.shrink}})})
     if args.report:
-        from app.analysis.report import Page, evaluation_section, write_html
+        from app.reports.page import Page, write_html
+        from app.reports.sections import evaluation_section
 
         models = {f"candidate {model.method}": model}
         if in_service is not None:
@@ -489,9 +513,9 @@ def recalibration_rule(candidate: Any, in_service: Any, tolerance: Any) -> str:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    from app.cell.runtime import SimCellOptions
     from app.cli.cell_options import checked_time_scale
-    from app.demo.run import DemoConfig, run_demo, stop_note, summary_table
+    from app.collection.runtime.sim import SimCellOptions
+    from app.workflows.demo import DemoConfig, run_demo, stop_note, summary_table
 
     if args.anchor_step is not None:
         _check_grid_step("--anchor-step", args.anchor_step)
@@ -522,13 +546,13 @@ def _demo_methods(text: str | None) -> tuple[str, ...] | None:
     """``--methods`` of the demo: None (every method) or the parsed comma-separated list."""
     if not text:
         return None
-    from app.analysis.compare import parse_methods
+    from app.workflows.compare import parse_methods
 
     return tuple(parse_methods(text))
 
 
 def cmd_init_cell(args: argparse.Namespace) -> int:
-    from app.cell.init_cell import init_cell
+    from app.workflows.init_cell import init_cell
 
     written = init_cell(args.folder)
     print(f"cell folder {args.folder}: {', '.join(written.files)}")
@@ -539,8 +563,8 @@ def cmd_init_cell(args: argparse.Namespace) -> int:
 
 
 def cmd_import_motive(args: argparse.Namespace) -> int:
-    from app.cell.motive_import import import_motive
-    from calibration.recording import check_quaternion_order, write_recording
+    from app.collection.motive_import import import_motive
+    from calibration.data.recording import check_quaternion_order, write_recording
 
     robot = cell_spec(args).robot(args.robot)
     rigid_body = args.rigid_body or robot.tool.rigid_body
@@ -573,7 +597,7 @@ def _check_joint_limits(path: str, q: Any, robot: Any) -> None:
 def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     """Register the cell-workflow subcommands."""
     from app.cli.cell_options import add_motion_options
-    from calibration.methods import METHODS
+    from calibration.method_names import METHODS
 
     p = add("init-cell", cmd_init_cell, "write an editable cell folder (cell.yaml with its devices, robots/, tools/) "
                                         "that loads as written; never overwrites", reads_cell=False)

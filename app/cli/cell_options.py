@@ -1,7 +1,7 @@
 """Operator options shared by every command that moves an arm: where, how fast, with what margins, confirmed.
 
 * ``--sim`` selects the simulated cell; without it the real devices are built from ``cell.yaml``
-  (:class:`app.cell.real_cell.RealCell`).
+  (:class:`app.collection.runtime.real.RealCell`).
 * ``--speed`` is a fraction of the maximum joint speeds, refused (not clamped) above the cell's cap
   (``controller.max_speed_fraction``).
 * Joint margins come from the cell file (``controller.joint_margin_deg``) on the real cell.
@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Sequence
 from dataclasses import replace
-from typing import Any, Sequence
+from typing import Any
 
 from app.cli.common import non_negative_int
 from calibration.errors import CellCalError
@@ -82,10 +83,9 @@ def speed_fraction(cell: Any, args: argparse.Namespace, default: float = DEFAULT
 
 
 def motion_config(cell: Any, args: argparse.Namespace, base: Any = None) -> Any:
-    """The collection options (:class:`~app.cell.collect.CollectConfig`) with the chosen speed; on the real cell
+    """The collection options (:class:`~app.collection.collect.CollectConfig`) with the chosen speed; on the real cell
     with the cell file's dwell window (``mocap.dwell_s``) when it names one."""
-    from app.cell.collect import CollectConfig
-    from app.demo.run import DEMO_COLLECT
+    from app.collection.collect import DEMO_COLLECT, CollectConfig
 
     if base is None:
         base = DEMO_COLLECT if args.sim else CollectConfig()
@@ -96,7 +96,7 @@ def motion_config(cell: Any, args: argparse.Namespace, base: Any = None) -> Any:
 
 def safety_for(cell: Any, args: argparse.Namespace) -> Any:
     """The cell's safety checker; on the real cell with the joint margin of the cell file."""
-    from app.cell.safety import CellSafety, SafetyConfig
+    from app.collection.safety import CellSafety, SafetyConfig
 
     if args.sim or cell.controller is None:
         return CellSafety(cell)
@@ -127,10 +127,10 @@ def open_runtime(cell: Any, args: argparse.Namespace, robots: Sequence[str] | No
     its markers in a hidden world frame derived from ``--seed``, as a real Motive does.
     """
     if args.sim:
-        from app.cell.runtime import SimCell, SimCellOptions
+        from app.collection.runtime.sim import SimCell, SimCellOptions
 
         return SimCell(cell, SimCellOptions(time_scale=checked_time_scale(args.time_scale), seed=args.seed, mocap_world=not registered,
                                             deterministic=True))  # the same --seed measures the same values
-    from app.cell.real_cell import RealCell
+    from app.collection.runtime.real import RealCell
 
     return RealCell(cell, robots, registered=registered, reset_alarms=args.reset_alarms)

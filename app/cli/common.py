@@ -145,7 +145,7 @@ def add_weight(text: str) -> int:
     Raises:
         argparse.ArgumentTypeError: naming the value.
     """
-    from calibration.recording import MAX_ADD_WEIGHT
+    from calibration.data.recording import MAX_ADD_WEIGHT
 
     return _checked_number(text, int, lambda v: 1 <= v <= MAX_ADD_WEIGHT, f"an integer in 1..{MAX_ADD_WEIGHT}")
 
@@ -200,10 +200,8 @@ def cell_spec(args: argparse.Namespace) -> Any:
 
 def read_recording_arg(path: str, robot: Any | None = None) -> Any:
     """A recording (CSV or Welding_Motoman folder), checked against ``robot``'s joint limits when given, and its
-    quaternion order against ``robot``'s nominal model (:func:`calibration.recording.check_quaternion_order`)."""
-    from calibration.recording import read_recording
-
-    from calibration.recording import check_quaternion_order
+    quaternion order against ``robot``'s nominal model (:func:`calibration.data.recording.check_quaternion_order`)."""
+    from calibration.data.recording import check_quaternion_order, read_recording
 
     if robot is None:
         return read_recording(path)
@@ -214,9 +212,9 @@ def read_recording_arg(path: str, robot: Any | None = None) -> Any:
 
 def read_given_arg(path: str, robot: Any) -> Any:
     """``--given TRAIN`` (the poses a top-up builds on): :func:`read_recording_arg`, and refused when it is not
-    ``robot``'s poses (:func:`app.analysis.fitting.refuse_another_arms`), as a training recording is: another arm's
+    ``robot``'s poses (:func:`calibration.frames.policy.refuse_another_arms`), as a training recording is: another arm's
     joint angles would make the design, and the predicted sigma, those of the wrong arm."""
-    from app.analysis.fitting import refuse_another_arms
+    from calibration.frames.policy import refuse_another_arms
 
     rec = read_recording_arg(path, robot)
     refuse_another_arms(robot, rec, "--given recording")
@@ -225,7 +223,7 @@ def read_given_arg(path: str, robot: Any) -> Any:
 
 def _quaternion_columns(path: str) -> str:
     """How a recording names its quaternion columns: qw..qz, or a Welding_Motoman pose file's columns 4-7."""
-    from calibration.recording import welding_layout
+    from calibration.data.recording import welding_layout
 
     layout = welding_layout(path)
     return "qw, qx, qy, qz" if layout is None else f"{layout[1].name} columns 4-7"
@@ -256,8 +254,8 @@ def model_and_robot(args: argparse.Namespace, path: str, *, needs_robot: bool = 
         DataError: the file is unusable, records another robot than ``--robot``, or holds another robot type's
             geometry; ConfigError: the robot (given or recorded) is not in the cell and ``needs_robot``.
     """
-    from calibration.model_checks import check_model_for
     from calibration.models import load_model
+    from calibration.models.checks import check_model_for
 
     cell = cell_spec(args)
     if args.robot:
@@ -279,7 +277,7 @@ ADD_WEIGHT_HELP = ("weight of each --add pose against one training pose in the f
 
 def add_topup_options(p: argparse.ArgumentParser) -> None:
     """``--add`` and ``--add-weight`` of fit, compare, diagnose and recalibrate."""
-    from calibration.recording import DEFAULT_ADD_WEIGHT
+    from calibration.data.recording import DEFAULT_ADD_WEIGHT
 
     p.add_argument("--add", action="append", default=[], metavar="PICKED.csv", help=ADD_HELP)
     p.add_argument("--add-weight", type=add_weight, default=DEFAULT_ADD_WEIGHT, help=ADD_WEIGHT_HELP)
@@ -287,13 +285,13 @@ def add_topup_options(p: argparse.ArgumentParser) -> None:
 
 def added_poses(args: argparse.Namespace, trains: list[Any], robot: Any) -> Any:
     """The first training recording with ``--add``'s poses appended as stand-alone poses
-    (:func:`calibration.recording.with_added`); unchanged without ``--add``.
+    (:func:`calibration.data.recording.with_added`); unchanged without ``--add``.
 
     Raises:
         CellCalError: ``--add`` with several ``--train`` recordings (which day would they join?).
     """
+    from calibration.data.recording import with_added
     from calibration.errors import CellCalError
-    from calibration.recording import with_added
 
     added = list(getattr(args, "add", None) or ())
     if not added:
@@ -307,16 +305,16 @@ def added_poses(args: argparse.Namespace, trains: list[Any], robot: Any) -> Any:
 def fitter_from_args(args: argparse.Namespace) -> Any:
     """A Fitter for ``--robot``/``--train``/``--cpa``/``--a``, and the robot's cell entry.
 
-    The training recording's frames are checked first (:func:`app.analysis.fitting.checked_fitter_for`): a frame
+    The training recording's frames are checked first (:func:`app.workflows.fit.checked_fitter_for`): a frame
     problem is printed as a warning and the fitter fits the frames before the kinematics; the check is kept in
     ``args.frame_check`` for the command's JSON. Several ``--train`` recordings make one arm with per-recording
-    frames (:func:`app.analysis.fitting.days_fitter_for`): what differs between them is printed and kept in
+    frames (:func:`app.workflows.fit.days_fitter_for`): what differs between them is printed and kept in
     ``args.days``.
     """
     import sys
 
-    from app.analysis.fitting import checked_fitter_for
-    from calibration.methods import FitOptions
+    from app.workflows.fit import checked_fitter_for
+    from calibration.methods.options import FitOptions
 
     robot = cell_spec(args).robot(args.robot)
     trains = [read_recording_arg(path, robot) for path in args.train]
@@ -324,7 +322,7 @@ def fitter_from_args(args: argparse.Namespace) -> Any:
     cpa = read_recording_arg(args.cpa, robot) if args.cpa else None
     args.days = None
     if len(trains) > 1:
-        from app.analysis.fitting import days_fitter_for
+        from app.workflows.fit import days_fitter_for
 
         args.days = days_fitter_for(robot, trains, cpa, FitOptions(a=args.a, epoch_progress=epoch_bar(args)))
         print(args.days.summary(), file=sys.stderr)
@@ -368,11 +366,11 @@ def _folder_files(args: argparse.Namespace) -> list[tuple[str, str, str]]:
 
     folders: dict[str, tuple[str, ...]] = {}
     if isinstance(getattr(args, "session", None), str):
-        from app.cell.session_store import DB_NAME, LOCK_NAME
+        from app.collection.session_store import DB_NAME, LOCK_NAME
 
         folders["session"] = (DB_NAME, f"{DB_NAME}-wal", f"{DB_NAME}-shm", LOCK_NAME)
     if isinstance(getattr(args, "model_dir", None), str):
-        from app.analysis.recalibrate import CURRENT
+        from app.workflows.recalibrate import CURRENT
 
         folders["model_dir"] = (CURRENT,)
     return [(name, file, os.path.join(getattr(args, name), file)) for name, files in folders.items() for file in files]
@@ -390,7 +388,7 @@ def check_output_args(args: argparse.Namespace) -> None:
     """
     import os
 
-    from calibration.files import check_output_path
+    from calibration.data.files import check_output_path
     from calibration.errors import OutputError
 
     check_input_args(args)
@@ -419,15 +417,15 @@ def check_output_args(args: argparse.Namespace) -> None:
 def check_input_args(args: argparse.Namespace) -> None:
     """Refuse, before any work and without opening it, an input file option naming a FIFO, a device or a socket: a
     FIFO blocked its reader forever, ``/dev/zero`` as a recording read until memory ran out. Each reader refuses
-    them too (:func:`calibration.files.read_input_bytes`, with its own bound on the size); this names the option.
+    them too (:func:`calibration.data.files.read_input_bytes`, with its own bound on the size); this names the option.
 
     Raises:
         DataError: naming the option and the path.
     """
     import sys
 
+    from calibration.data.files import InputRefused, check_input_path
     from calibration.errors import DataError
-    from calibration.files import InputRefused, check_input_path
 
     for name in INPUT_FILE_OPTIONS:
         for path in _named_files(getattr(args, name, None)):
@@ -482,7 +480,7 @@ def epoch_bar(args: argparse.Namespace) -> Any:
 def write_json(path: str | None, data: dict[str, Any]) -> None:
     """Write ``data`` as JSON to ``path`` atomically; nothing when ``path`` is None."""
     if path:
-        from calibration.files import atomic_write_text
+        from calibration.data.files import atomic_write_text
 
         atomic_write_text(path, json.dumps(data, indent=1))
 
@@ -501,7 +499,7 @@ def add_report_options(p: argparse.ArgumentParser, what: str, tolerance_note: st
 
 
 def tolerance_from_args(args: argparse.Namespace) -> Any:
-    """The report's :class:`~app.analysis.report.Tolerance` from ``--tolerance-mm``/``--tolerance-deg``, with
+    """The report's :class:`~app.reports.acceptance.Tolerance` from ``--tolerance-mm``/``--tolerance-deg``, with
     ``--report`` checked to be a folder or a new path (call before any work, so bad input writes nothing).
 
     Raises:
@@ -509,7 +507,7 @@ def tolerance_from_args(args: argparse.Namespace) -> Any:
     """
     from pathlib import Path
 
-    from app.analysis.report import Tolerance
+    from app.reports.acceptance import Tolerance
     from calibration.errors import ConfigError
 
     report = getattr(args, "report", None)

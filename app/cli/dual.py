@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from app.cli.cell_options import add_motion_options
 from app.cli.common import cell_spec, show_progress, write_json
@@ -36,9 +37,9 @@ def _model_pair(spec: str | None, where: str, cell: Any) -> dict[str, Any]:
 def cmd_plan_dual(args: argparse.Namespace) -> int:
     import numpy as np
 
+    from app.collection.plans.dual import save_plan
     from app.dual.paths import Q_REF_DEG, read_path, read_pose, relative_pose
     from app.dual.planner import DualPlanner, PlannerOptions
-    from app.dual.plan_result import save_plan
     from calibration.errors import ModelError
 
     cell = cell_spec(args)
@@ -67,7 +68,7 @@ def cmd_plan_dual(args: argparse.Namespace) -> int:
         raise ModelError(f"{len(plan.failed)} of {len(plan.waypoints)} waypoints not solved (waypoint"
                          f"{'s' if len(plan.failed) > 1 else ''} {_index_ranges(plan.failed)}), nothing written"
                          f"{_named_outputs(args)}; first: waypoint {i}: {plan.waypoints[i].reason}")
-    from app.cell.plan_safety import check_plan_safe
+    from app.collection.plan_safety import check_plan_safe
 
     check_plan_safe(planner.cell, plan, "the solved plan", models=models)  # the checks every exit runs on the file
     if args.out:
@@ -161,7 +162,7 @@ def _validate_real(args: argparse.Namespace, cell: Any) -> Any:
     import numpy as np
 
     from app.cli.cell_options import confirm_motion, open_runtime, safety_for, speed_fraction
-    from app.cell.motion import live_poses
+    from app.collection.motion import live_poses
     from app.dual.validate import check_contact_sequence
     from app.dual.validate_real import contact_configurations, open_probe, run_real_validation
     from calibration.errors import ModelError
@@ -188,7 +189,7 @@ def _validate_real(args: argparse.Namespace, cell: Any) -> Any:
 
 
 def cmd_preview(args: argparse.Namespace) -> int:
-    from app.dual.preview import preview
+    from app.dual.preview.page import preview
     from calibration.errors import ModelError
 
     if not args.html and not args.serve:
@@ -227,7 +228,7 @@ def serve_until_stopped() -> None:
 def cmd_export_targets(args: argparse.Namespace) -> int:
     from app.dual.export_targets import checked_rows, write_targets
     from app.jobs.plan_job import job_bytes
-    from calibration.files import atomic_write_bytes
+    from calibration.data.files import atomic_write_bytes
 
     cell = cell_spec(args)
     rows = checked_rows(args.plan, cell, args.frame, args.skip_failed, models=_model_pair(args.models, "--models", cell))

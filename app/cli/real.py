@@ -11,12 +11,12 @@ import logging
 import math
 import signal
 import threading
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
-from app.cli.common import cell_spec, non_negative_float, non_negative_int, positive_float, show_progress, \
-    write_json
+from app.cli.common import cell_spec, non_negative_float, non_negative_int, positive_float, show_progress, write_json
 from calibration.errors import CellCalError
 
 log = logging.getLogger("cellcal.app")
@@ -41,7 +41,7 @@ def _ready(message: str) -> None:
 
 
 def cmd_mocap_bridge(args: argparse.Namespace) -> int:
-    from app.cell.mocap_service import BridgeService
+    from app.collection.mocap_bridge import BridgeService
 
     cell = cell_spec(args)
     stop = stop_on_signals()
@@ -77,7 +77,7 @@ def cmd_router(args: argparse.Namespace) -> int:
 
 
 def cmd_fake_controller(args: argparse.Namespace) -> int:
-    from app.cell.runtime import park_q
+    from app.collection.runtime.sim import park_q
     from drivers.motoros.fake_cell import run_fake_controller
 
     cell = cell_spec(args)
@@ -102,8 +102,8 @@ def cmd_fake_controller(args: argparse.Namespace) -> int:
 
 
 def cmd_fake_motive(args: argparse.Namespace) -> int:
-    from drivers.natnet.fake_motive import FakeMotive
     from calibration.physics import PlantedErrors
+    from drivers.natnet.fake_motive import FakeMotive
     from drivers.sim.rehearsal import RehearsalMocap, StateReader, rehearsal_truths
 
     cell = cell_spec(args)
@@ -136,8 +136,8 @@ def cmd_fake_motive(args: argparse.Namespace) -> int:
 
 def cmd_register(args: argparse.Namespace) -> int:
     from app.cli.cell_options import confirm_motion, motion_config, open_runtime, safety_for
-    from app.cell.register import base_update_hint, measure_registration, plan_registration, relative_bases
-    from cell_config.loader import load_registration, save_registration
+    from app.collection.register import base_update_hint, measure_registration, plan_registration, relative_bases
+    from cell_config.registration import load_registration, save_registration
 
     cell = cell_spec(args)
     cell.robot(args.robot)

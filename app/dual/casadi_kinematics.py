@@ -1,7 +1,7 @@
 """Forward kinematics of every model kind as a casadi function, for planners that need exact Jacobians.
 
 ``casadi_fk(model)`` wraps the model's own expression, ``model.casadi(q)`` (every model kind, and a bare
-:class:`~calibration.poe.PoeModel`, provides one; see :mod:`calibration.casadi_expr`), in a :class:`CasadiFk`
+:class:`~calibration.kinematics.poe.PoeModel`, provides one; see :mod:`calibration.kinematics.casadi_expr`), in a :class:`CasadiFk`
 whose ``function`` maps ``(q (6,), x (k,))`` to the tool pose, the joint origins and axes. Every kind is exact
 in q (``k = 0``): constant, pi, cdc with a casadi-expressible interpolator, physics and diagnosed (their joint
 effects' deflection is part of the expression, so the planner differentiates through it). Only a ``cdc``
@@ -23,9 +23,10 @@ import signal
 import subprocess
 import tempfile
 import weakref
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 

@@ -18,11 +18,11 @@ from typing import Any
 
 import numpy as np
 
-from app.cell.plan_file import read_plan
-from app.cell.plan_safety import check_plan_safe
-from app.dual.plan_result import PlanResult
+from app.collection.plan_safety import check_plan_safe
+from app.collection.plans.dual import PlanResult
+from app.collection.plans.reader import read_plan
+from calibration.data.files import atomic_write_text
 from calibration.errors import DataError, ModelError, UnsafeTarget
-from calibration.files import atomic_write_text
 from cell_config.loader import CellSpec
 
 
@@ -109,7 +109,7 @@ def write_targets(rows: list[dict[str, Any]], path: str | Path, frame: str = "fl
 def checked_rows(plan: PlanResult | str | Path, cell: CellSpec, frame: str = "flange", skip_failed: bool = False,
                  models: Mapping[str, Any] | None = None) -> list[dict[str, Any]]:
     """The rows of :func:`export_rows` of a plan (object or plan file) that passed
-    :func:`app.cell.plan_safety.check_plan_safe` (see :func:`export_targets` for the checks and errors)."""
+    :func:`app.collection.plan_safety.check_plan_safe` (see :func:`export_targets` for the checks and errors)."""
     source = "<plan>" if isinstance(plan, PlanResult) else str(plan)
     if not isinstance(plan, PlanResult):
         plan = read_plan(plan, "dual")
@@ -125,7 +125,7 @@ def export_targets(plan: PlanResult | str | Path, cell: CellSpec, out: str | Pat
                    skip_failed: bool = False, models: Mapping[str, Any] | None = None) -> int:
     """Export a plan (object or plan file) as controller targets to ``out`` (.csv or .json).
 
-    The plan must first pass :func:`app.cell.plan_safety.check_plan_safe`, the checks plan-dual made when it
+    The plan must first pass :func:`app.collection.plan_safety.check_plan_safe`, the checks plan-dual made when it
     solved it (clearances and floor along every move, the step between waypoints, the relative pose recomputed
     from ``models``, the nominal ones for a robot not given), so a plan edited since cannot leave unchecked.
 
@@ -134,7 +134,7 @@ def export_targets(plan: PlanResult | str | Path, cell: CellSpec, out: str | Pat
 
     Raises:
         UnsafeTarget: an unsolved waypoint (unless ``skip_failed``), a joint beyond its limit, or any defect of
-            :func:`~app.cell.plan_safety.check_plan_safe` (an :class:`~app.cell.plan_safety.UnsafePlan` naming the
+            :func:`~app.collection.plan_safety.check_plan_safe` (an :class:`~app.collection.plan_safety.UnsafePlan` naming the
             waypoint); nothing is written.
         DataError, ModelError: unreadable plan, nothing to export (no waypoints, or none solved with
             ``skip_failed``), unknown frame or file type.

@@ -14,14 +14,13 @@ from typing import Any
 
 import numpy as np
 
-from app.dual.plan_result import PlanResult
+from app.collection.plans.dual import PlanResult
 from app.dual.planner import DualPlanner, PlannerOptions
-from calibration import so3
+from calibration.data.files import read_input_text
+from calibration.data.recording import MAX_ABS_POSITION_MM
 from calibration.errors import DataError, ModelError
-from calibration.files import read_input_text
-from calibration.recording import MAX_ABS_POSITION_MM
+from calibration.kinematics import so3
 from cell_config.loader import CellSpec
-
 
 #: Reference configuration of the cell [deg]: tools about 410 mm apart, facing, 300 mm arm clearance.
 Q_REF_DEG = np.array([0.0, 15.0, 5.0, 0.0, 30.0, 0.0, 0.0, 0.0, 0.0, 0.0, -30.0, 0.0])
@@ -91,7 +90,7 @@ def pose_from_numbers(v: Any, where: str) -> np.ndarray:
 
 def _read_pose_file(path: Path) -> str:
     """The text of a pose or path file: a regular UTF-8 file of at most
-    :data:`calibration.files.MAX_INPUT_BYTES` (a FIFO, a device or binary content is refused naming the file).
+    :data:`calibration.data.files.MAX_INPUT_BYTES` (a FIFO, a device or binary content is refused naming the file).
 
     Raises:
         DataError: naming the file and what is wrong.

@@ -21,17 +21,18 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable, Literal, get_args
+from typing import Any, Literal, get_args
 
 import numpy as np
 
-from app.cell.capsules import PROCESS_ZONE, SEGMENTS, CellCapsules, pairs_outside
+from app.collection.plans.dual import PlanResult, WaypointResult
 from app.dual.casadi_kinematics import buffer_evaluator, casadi_fk, start_compile
-from app.dual.plan_result import PlanResult, WaypointResult
-from calibration import so3
 from calibration.errors import ModelError
+from calibration.kinematics import so3
 from calibration.models import ConstantModel
+from cell_config.capsules import PROCESS_ZONE, SEGMENTS, CellCapsules, pairs_outside
 from cell_config.loader import CellSpec
 
 logger = logging.getLogger("cellcal.app")
@@ -50,7 +51,7 @@ class PlannerOptions:
         limit_zone_deg: a penalty starts this far inside the margin [deg].
         clearance_mm: hard minimum surface distance between the arms' capsules [mm].
         clearance_zone_mm: a penalty starts this far above ``clearance_mm`` [mm].
-        pairs: checked capsule pairs (R1 capsule, R2 capsule) of :mod:`app.cell.capsules` (the cell's one capsule
+        pairs: checked capsule pairs (R1 capsule, R2 capsule) of :mod:`cell_config.capsules` (the cell's one capsule
             model; radii from the robot YAMLs): every pair but the process zone's (wrist and tool of both arms,
             which the relative pose brings together on purpose).
         singular_min: hard minimum of each singularity measure (0..1).

@@ -10,7 +10,7 @@ directly with Gaussian position/orientation noise (no simulated motion, so it st
 * CPA: one single-joint sweep per joint about a mid-workspace pose (120 deg each: shorter arcs make the circle
   fits, hence the axes, noise-sensitive).
 
-Model sets are fitted on them with :class:`~calibration.methods.Fitter` (``nominal``, ``cpa``, ``fbf13``,
+Model sets are fitted on them with :class:`~calibration.methods.fitter.Fitter` (``nominal``, ``cpa``, ``fbf13``,
 ``ae``, ``pi`` the physics-informed model, ...). ``pi`` knows the shape of gravity torques but not the link
 masses, so it does not get the twin's structure for free.
 """
@@ -23,13 +23,15 @@ from typing import Any
 
 import numpy as np
 
-from app.cell.runtime import SimCellOptions
-from calibration import so3
-from calibration.cdc import expand_anchors
+from app.collection.runtime.sim import SimCellOptions
+from app.workflows.fit import fitter_for
+from calibration.data.recording import Recording
 from calibration.errors import ModelError
+from calibration.kinematics import so3
+from calibration.method_names import METHODS
+from calibration.methods.cdc import expand_anchors
 from calibration.models import KinematicModel
-from calibration.physics import PlantedErrors
-from calibration.recording import Recording
+from calibration.physics import GravityModel, PlantedErrors, planted_twin
 from cell_config.loader import CellSpec
 
 logger = logging.getLogger("cellcal.app")
@@ -58,7 +60,6 @@ class TrainingGrid:
 
 def make_twins(cell: CellSpec, options: SimCellOptions = VALIDATION_CELL) -> dict[str, Any]:
     """The true twin of each arm (R1 seeded ``options.seed``, R2 ``options.seed + 1``), from the one planter."""
-    from calibration.physics import GravityModel, planted_twin
 
     twins = {}
     for k, name in enumerate(ROBOTS):
@@ -110,7 +111,6 @@ def cpa_design(n_per_sweep: int = 15, span_deg: float = 120.0) -> tuple[np.ndarr
 
 def check_methods(methods: tuple[str, ...]) -> None:
     """Raise ModelError naming the first unknown method and the valid ones."""
-    from calibration.methods import METHODS
 
     bad = [m for m in methods if m not in METHODS]
     if bad:
@@ -128,7 +128,6 @@ def fit_model_sets(cell: CellSpec, twins: dict[str, Any], methods: tuple[str, ..
     Raises:
         ModelError: an unknown method (the message names the valid ones).
     """
-    from app.analysis.fitting import fitter_for
 
     check_methods(methods)
     out: dict[str, dict[str, KinematicModel]] = {m: {} for m in methods}

@@ -27,8 +27,20 @@ from typing import Any
 
 import numpy as np
 
+from app.collection.motion import move_safely, read_q
+from app.collection.safety import CellSafety
+from app.dual.paths import Q_REF_DEG, relative_pose, sweep_path
+from app.dual.planner import DualPlanner, PlannerOptions
+from app.dual.sim import SIM_METHODS, VALIDATION_CELL, TrainingGrid, fit_model_sets, make_twins
 from calibration.errors import ModelError
+from calibration.models import ConstantModel
+from calibration.models.physics import PhysicsModel
 from cell_config.loader import CellSpec
+from drivers.can_probe import CanContactProbe
+from drivers.errors import DriverTimeout
+from drivers.sim import SimClock, SimRobotConfig, SimRobotDriver
+from drivers.sim.can_probe import SimulatedProbe
+from drivers.sim.contact import SimContactSensor
 
 logger = logging.getLogger("cellcal.app")
 
@@ -42,7 +54,7 @@ class DeviationStats:
     max_mm: float
 
     @classmethod
-    def of(cls, d: np.ndarray) -> "DeviationStats":
+    def of(cls, d: np.ndarray) -> DeviationStats:
         return cls(float(np.mean(d)), float(np.std(d)), float(np.max(d)))
 
 
@@ -150,7 +162,7 @@ def check_contact_sequence(safety: Any, q_plan: np.ndarray, q_start: np.ndarray)
     joint-space path is checked against limits, floor and the other arm's capsules.
 
     Args:
-        safety: the cell's :class:`~app.cell.safety.CellSafety`.
+        safety: the cell's :class:`~app.collection.safety.CellSafety`.
         q_plan: configurations [rad], shape (N, 12) (R1 then R2).
         q_start: both arms' joint angles now [rad], shape (12,).
 
@@ -170,13 +182,13 @@ def collect_contacts(drivers: dict[str, Any], probe: Any, q_plan: np.ndarray, sa
     """Drive both arms through the configurations and record the joint readings where contact is confirmed.
 
     The whole sequence is checked first (:func:`check_contact_sequence`); then each arm moves in turn through
-    :func:`~app.cell.motion.move_safely` (checked again against the other arm's live pose).
+    :func:`~app.collection.motion.move_safely` (checked again against the other arm's live pose).
 
     Args:
         drivers: ``{"R1": RobotDriver, "R2": RobotDriver}``, connected.
         probe: a connected contact probe with ``latest`` and ``wait_for_contact`` (:class:`CanContactProbe`).
         q_plan: configurations [rad], shape (N, 12) (R1 then R2).
-        safety: the cell's :class:`~app.cell.safety.CellSafety`.
+        safety: the cell's :class:`~app.collection.safety.CellSafety`.
         speed_fraction: fraction of the maximum joint speeds.
         settle_timeout_s: per move [s]. contact_timeout_s: how long to wait for a touch after settling [s].
 
@@ -187,8 +199,6 @@ def collect_contacts(drivers: dict[str, Any], probe: Any, q_plan: np.ndarray, sa
         UnsafeTarget: a move is unsafe (refused before the first motion when the plan is, else before that move).
         NonFiniteFeedback: an arm's joint feedback is not finite (nothing more moves).
     """
-    from app.cell.motion import move_safely, read_q
-    from drivers.errors import DriverTimeout
 
     q_plan = np.atleast_2d(np.asarray(q_plan, dtype=float))
     check_contact_sequence(safety, q_plan, np.concatenate([read_q(drivers[n]) for n in CONTACT_ORDER]))
@@ -220,9 +230,6 @@ def contact_plan(cell: CellSpec, twins: dict[str, Any], n: int) -> tuple[np.ndar
     Raises:
         ModelError: a configuration could not be solved (its reason is in the message).
     """
-    from app.dual.paths import Q_REF_DEG, relative_pose, sweep_path
-    from app.dual.planner import DualPlanner, PlannerOptions
-    from calibration.physics import PhysicsModel
 
     truth = {k: PhysicsModel(k, "twin", t.geometry, t.effects) for k, t in twins.items()}
     planner = DualPlanner(cell, truth["R1"], truth["R2"], PlannerOptions(compile="off"))
@@ -245,18 +252,12 @@ def run_sim_validation(cell: CellSpec, n: int = 20, model_sets: dict[str, dict[s
         n: number of contact configurations (>= 2).
         model_sets: ``{label: {"R1": model, "R2": model}}``; fitted on twin data when None.
         methods: model sets to fit when ``model_sets`` is None (default ``SIM_METHODS``).
-        options: the simulated cell, :class:`~app.cell.runtime.SimCellOptions` (default
+        options: the simulated cell, :class:`~app.collection.runtime.sim.SimCellOptions` (default
             :data:`~app.dual.sim.VALIDATION_CELL`).
         grid: where the training anchors lie, :class:`~app.dual.sim.TrainingGrid`.
         tolerance_mm: the simulated probe touches within this distance [mm].
         channel: python-can virtual channel shared by the simulated and the reading probe.
     """
-    from app.cell.safety import CellSafety
-    from app.dual.sim import SIM_METHODS, VALIDATION_CELL, TrainingGrid, fit_model_sets, make_twins
-    from drivers.can_probe import CanContactProbe
-    from drivers.sim.can_probe import SimulatedProbe
-    from drivers.sim.contact import SimContactSensor
-    from drivers.sim import SimClock, SimRobotConfig, SimRobotDriver
 
     if n < 2:
         raise ModelError(f"validation needs at least 2 configurations, got {n}")
@@ -288,6 +289,5 @@ def run_sim_validation(cell: CellSpec, n: int = 20, model_sets: dict[str, dict[s
 
 
 def _nominal(cell: CellSpec, name: str) -> Any:
-    from calibration.models import ConstantModel
 
     return ConstantModel(name, "nominal", cell.robot(name).model())

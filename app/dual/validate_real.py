@@ -15,9 +15,19 @@ from typing import Any
 
 import numpy as np
 
-from app.dual.validate import (ContactValidation, DeviationStats, check_contact_sequence, collect_contacts,
-                               evaluate_models)
-from calibration.errors import CellCalError, DataError, ModelError
+from app.collection.motion import live_poses
+from app.collection.plan_safety import check_plan_safe
+from app.collection.plans.reader import read_plan
+from app.dual.validate import (
+    ContactValidation,
+    DeviationStats,
+    check_contact_sequence,
+    collect_contacts,
+    evaluate_models,
+)
+from calibration.errors import CellCalError, ConfigError, DataError, ModelError
+from calibration.models import ConstantModel
+from drivers.can_probe import CanContactProbe
 
 log = logging.getLogger("cellcal.app")
 
@@ -25,7 +35,7 @@ log = logging.getLogger("cellcal.app")
 def contact_configurations(plan_path: str | Path, cell: Any,
                            models: dict[str, Any] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """``(q (N, 12) [rad], p_wp_contact (3,) [mm])`` from a dual plan file that passes the checks every plan
-    passes before it leaves (:func:`app.cell.plan_safety.check_plan_safe`).
+    passes before it leaves (:func:`app.collection.plan_safety.check_plan_safe`).
 
     Args:
         plan_path: the dual plan file.
@@ -36,10 +46,8 @@ def contact_configurations(plan_path: str | Path, cell: Any,
     Raises:
         DataError: not a dual plan file.
         ModelError: the plan has unsolved waypoints or fewer than 2.
-        UnsafeTarget: an :class:`~app.cell.plan_safety.UnsafePlan` naming the waypoint.
+        UnsafeTarget: an :class:`~app.collection.plan_safety.UnsafePlan` naming the waypoint.
     """
-    from app.cell.plan_file import read_plan
-    from app.cell.plan_safety import check_plan_safe
 
     plan = read_plan(plan_path, "dual")
     check_plan_safe(cell, plan, str(plan_path), models=models)
@@ -61,8 +69,6 @@ def open_probe(cell: Any) -> Any:
     Raises:
         ConfigError: the cell file has no probe block.
     """
-    from calibration.errors import ConfigError
-    from drivers.can_probe import CanContactProbe
 
     p = cell.probe
     if p is None:
@@ -77,7 +83,7 @@ def run_real_validation(cell: Any, rt: Any, safety: Any, q_plan: np.ndarray, p_c
     """Drive the configurations on the real arms, confirm contacts, and score every model set.
 
     Args:
-        cell: the cell. rt: a connected :class:`~app.cell.real_cell.RealCell` (both arms).
+        cell: the cell. rt: a connected :class:`~app.collection.runtime.real.RealCell` (both arms).
         safety: the cell's safety checker. q_plan: configurations [rad] (N, 12). p_contact: the point [mm] (3,).
         model_sets: ``{label: {"R1": model, "R2": model}}``; the nominal pair is always added.
         probe: a connected contact probe.
@@ -86,8 +92,6 @@ def run_real_validation(cell: Any, rt: Any, safety: Any, q_plan: np.ndarray, p_c
         UnsafeTarget: a move of the sequence is unsafe (before any motion).
         CellCalError: no contact was confirmed at any configuration.
     """
-    from app.cell.motion import live_poses
-    from calibration.models import ConstantModel
 
     now = live_poses(rt.drivers)
     check_contact_sequence(safety, q_plan, np.concatenate([now["R1"], now["R2"]]))

@@ -21,8 +21,10 @@ outside the joint limits, or one the calibrated arm cannot reach within them, is
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -30,8 +32,46 @@ import numpy as np
 from app.dual.export_targets import R_from_rpy_deg, rpy_deg
 from app.jobs.arm_ik import ArmIk, IkResult, pose_error
 from app.jobs.jbi import Job, JobError, JobPosition, format_values
-from calibration.models import ConstantModel
+from calibration.errors import DataError, ModelError
+from calibration.models import ConstantModel, load_model
+from calibration.models.checks import check_model_for
 from cell_config.loader import CellSpec
+
+_ROBOT_SPEC = re.compile(r"^([A-Za-z][A-Za-z0-9_]*)=(.+)$")
+
+
+def load_job_models(specs: list[str], cell: Any) -> dict[str, Any]:
+    """``FILE`` (the robot the model was fitted for) or ``ROBOT=FILE`` per entry -> {robot: model}.
+
+    Raises:
+        DataError: unreadable model file, unknown robot, a model fitted for another robot or holding another robot
+            type's geometry, or a robot twice.
+    """
+
+    models: dict[str, Any] = {}
+    for spec in specs:
+        m = _ROBOT_SPEC.match(spec)
+        robot, path = (m.group(1), m.group(2)) if m and not Path(spec).exists() else (None, spec)
+        if robot is not None and robot not in cell.robots:
+            raise DataError(spec, None, None, f"unknown robot {robot!r} in --model; valid: {', '.join(cell.robots)}")
+        if Path(path).is_dir():
+            raise DataError(path, None, None, "expected a model file, found a directory")
+        try:
+            model = load_model(path)
+        except (UnicodeDecodeError, OSError) as e:
+            raise DataError(path, None, None, f"not a readable model file ({e.__class__.__name__})") from e
+        robot = robot or model.robot
+        if model.robot != robot:
+            raise DataError(path, None, None, f"model fitted for {model.robot}, given for {robot}")
+        if robot not in cell.robots:
+            raise ModelError(f"{path}: model of unknown robot {robot!r}; valid: {', '.join(cell.robots)}")
+        check_model_for(model, robot, cell.robot(robot).model(), path)  # another robot type's geometry
+        if robot in models:
+            raise DataError(path, None, None, f"a second model for {robot}; give one --model per robot")
+        models[robot] = model
+    return models
+
+
 
 __all__ = ["HOME_DEG", "NEAR_ORIENTATION_DEG", "Compensation", "JobCompensator", "PointResult"]
 

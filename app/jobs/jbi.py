@@ -40,8 +40,8 @@ from datetime import datetime
 from pathlib import Path
 from typing import Literal
 
+from calibration.data.files import read_input_bytes
 from calibration.errors import CellCalError
-from calibration.files import read_input_bytes
 
 __all__ = ["JOB_POSTYPES", "Job", "JobError", "JobPosition", "parse_job", "pulse_job", "read_job", "write_job"]
 

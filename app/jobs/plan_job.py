@@ -10,7 +10,7 @@ and R2 is RB2, the controller's robot numbering of this cell (its MotoROS groups
 
 from __future__ import annotations
 
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -36,4 +36,4 @@ def job_bytes(rows: list[dict[str, Any]], path: str | Path, speed_pct: float = J
     steps: dict[int, dict[str, list[int]]] = {}
     for r in rows:
         steps.setdefault(r["index"], {})[JOB_UNITS[r["robot"]]] = [int(v) for v in r["pulses"]]
-    return pulse_job(path.stem, list(steps.values()), speed_pct, date or datetime.now(timezone.utc))
+    return pulse_job(path.stem, list(steps.values()), speed_pct, date or datetime.now(UTC))

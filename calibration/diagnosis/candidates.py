@@ -19,15 +19,17 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import block_diag
 
-from calibration.diagnosis.extended import ExtendedEffect, MassFreeCompliance, StructuralDeflection, ToolFrame
+from calibration.diagnosis.extended import StructuralDeflection, ToolFrame
 from calibration.diagnosis.inuse import InUse
 from calibration.errors import ModelError
-from calibration.physics.base import Context, Effect
+from calibration.kinematics.poe import PoeModel
+from calibration.physics.base import Effect
 from calibration.physics.compliance import JointCompliance, LumpedCompliance, PayloadCompliance
+from calibration.physics.context import Context
+from calibration.physics.extended import ExtendedEffect, MassFreeCompliance
 from calibration.physics.gravity import GravityModel
 from calibration.physics.joint_effects import Backlash, GearTransmission, JointOffset, MocapLatency
 from calibration.physics.thermal import ThermalDrift, link_names
-from calibration.poe import PoeModel
 
 #: Warm-up time constants [s] scanned for thermal drift driven by ``t`` (refined afterwards).
 TAU_GRID_S = (300.0, 900.0, 2700.0, 8100.0)

@@ -25,35 +25,46 @@ Every acceptance (selection, its backward confirmation, the held-out confirmatio
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Callable
 
 import numpy as np
 from scipy import special  # not scipy.stats: its import costs ~1 s per command (the same values, bit for bit)
 from scipy.linalg import block_diag
 
+from calibration.data.recording import Recording
 from calibration.diagnosis import explain
 from calibration.diagnosis.candidates import KINDS, Candidate, Signatures, Untested, dedupe, library, merge, visibility
 from calibration.diagnosis.drivers import Driver, Mismatch, drivers, locate_mismatch
-from calibration.diagnosis.fits import JointFits, usable_workers
+from calibration.diagnosis.fits import JointFits
 from calibration.diagnosis.inuse import InUse
-from calibration.diagnosis.model import result_model
 from calibration.diagnosis.noise import NoiseFloor, channel_weight, noise_floor
 from calibration.diagnosis.refit import JointFit, JointProblem, filter_prior
+from calibration.diagnosis.refitted_model import result_model
 from calibration.diagnosis.report import Accuracy, Diagnosis, EffectEvidence, FoundEffect, PlotData
-from calibration.diagnosis.selection import (SAME_PHYSICS, Evidence, LinearSelection, Selection, SelectionOptions,
-                                             blocked_folds, extends, forward_select, tune_warmup)
+from calibration.diagnosis.selection import (
+    SAME_PHYSICS,
+    Evidence,
+    LinearSelection,
+    Selection,
+    SelectionOptions,
+    blocked_folds,
+    extends,
+    forward_select,
+    tune_warmup,
+)
 from calibration.errors import DataError, ModelError
 from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, rotation_residual_scale, weighted_residuals
+from calibration.identification.observability import DEFAULT_RELATIVE_TOLERANCE, Observability, analyse
+from calibration.kinematics.poe import PoeModel, pose_error
 from calibration.models import KinematicModel
 from calibration.models.guard import REGION_KEY, Region, extrapolation
-from calibration.observability import DEFAULT_RELATIVE_TOLERANCE, Observability, analyse
-from calibration.physics.base import Context, Effect
-from calibration.physics.gravity import GravityModel
+from calibration.physics.base import Effect
 from calibration.physics.compliance import JointCompliance, LumpedPayloadCompliance, PayloadCompliance
+from calibration.physics.context import Context
+from calibration.physics.gravity import GravityModel
 from calibration.physics.joint_effects import JointOffset
-from calibration.poe import PoeModel, pose_error
-from calibration.recording import Recording
+from calibration.workers import usable_workers
 
 log = logging.getLogger("cellcal.calibration")
 

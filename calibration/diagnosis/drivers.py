@@ -17,9 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from calibration.errors import ModelError
-from calibration.physics.base import Context
+from calibration.kinematics.poe import PoeModel
+from calibration.physics.context import Context
 from calibration.physics.gravity import GravityModel, point_mass_torque
-from calibration.poe import PoeModel
 
 N_JOINTS = 6
 

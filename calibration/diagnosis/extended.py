@@ -1,6 +1,6 @@
-"""Candidate effects that are blocks of :class:`calibration.physics_informed.ExtendedKinematics`.
+"""Candidate effects that are blocks of :class:`calibration.physics.extended.ExtendedKinematics`.
 
-What the real R1 data showed beyond the geometry (see :mod:`calibration.physics_informed`):
+What the real R1 data showed beyond the geometry (see :mod:`calibration.physics.extended`):
 
 - ``tool_frame``: the tool-marker rotation in the flange frame (3 parameters, rad);
 - ``joint_compliance`` in the mass-free form (5 parameters, rad): the gravity-shaped deflection of joints 2
@@ -8,9 +8,9 @@ What the real R1 data showed beyond the geometry (see :mod:`calibration.physics_
 - ``structural_deflection``: a smooth pose correction in the joint-1 frame, 7 Fourier terms in (q2, q3) per
   pose axis (42 parameters, mm and rad), the link bending joint compliance alone cannot represent.
 
-Each is a :class:`~calibration.physics.base.ExtendedEffect` (names and values, so the selection and the
+Each is a :class:`~calibration.physics.extended.ExtendedEffect` (names and values, so the selection and the
 report treat it like any other candidate) whose values add to one block of the extended parameters ``theta``;
-the blocks and their names are declared once, in :data:`calibration.physics_informed.BLOCKS`.
+the blocks and their names are declared once, in :data:`calibration.physics.layout.BLOCKS`.
 :class:`calibration.diagnosis.inuse.InUse` applies them and gives their signatures. The mass-free compliance
 is a joint effect like any other and is registered (``joint_compliance``, form ``mass_free``; defined in
 :mod:`calibration.physics.compliance`); the tool rotation and the deflection act on the pose of a ``pi``
@@ -24,9 +24,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calibration.physics.base import ExtendedEffect
-from calibration.physics.compliance import MassFreeCompliance
-from calibration.physics_informed import BLOCKS
+from calibration.physics.extended import ExtendedEffect, MassFreeCompliance
+from calibration.physics.layout import BLOCKS
 
 __all__ = ["ExtendedEffect", "MassFreeCompliance", "StructuralDeflection", "ToolFrame"]
 _NAMES = {b.name: b.names for b in BLOCKS}

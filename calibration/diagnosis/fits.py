@@ -14,8 +14,8 @@ set), so the outcome is the same bits with or without workers; only the time cha
 from __future__ import annotations
 
 import multiprocessing as mp
+from collections.abc import Callable
 from concurrent.futures import Future, ProcessPoolExecutor
-from typing import Callable
 
 import numpy as np
 
@@ -33,16 +33,6 @@ _STATE: Callable[[Chosen], JointFit] | None = None
 def _fit_job(chosen: Chosen) -> JointFit:
     """Worker job: one joint fit with ``chosen``."""
     return _STATE(chosen)  # type: ignore[misc]
-
-
-def usable_workers(limit: int = 2) -> int:
-    """Worker processes for the check: the usable cores (at most ``limit``), none inside a worker process or
-    without the ``fork`` start method."""
-    from calibration.robust import default_workers
-
-    if mp.parent_process() is not None or "fork" not in mp.get_all_start_methods():
-        return 1
-    return default_workers(limit)
 
 
 class JointFits:
@@ -99,7 +89,7 @@ class JointFits:
             _STATE = None
         self._pending.clear()
 
-    def __enter__(self) -> "JointFits":
+    def __enter__(self) -> JointFits:
         return self
 
     def __exit__(self, *exc: object) -> None:

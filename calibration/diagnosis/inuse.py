@@ -1,6 +1,6 @@
 """The model in use, of any kind, as extended kinematics: its pose with effects added, and its Jacobians.
 
-Every model kind maps onto :class:`calibration.physics_informed.ExtendedKinematics` parameters ``theta``
+Every model kind maps onto :class:`calibration.physics.extended.ExtendedKinematics` parameters ``theta``
 (geometry 27, tool rotation 3, mass-free compliance 5, structural deflection 42):
 
 - ``constant`` / ``physics``: the geometry, every other block zero (a physics model's effects stay effects);
@@ -22,16 +22,19 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from calibration.diagnosis.extended import ExtendedEffect
 from calibration.errors import ModelError
+from calibration.kinematics.parameterisation import MinimalParameterisation
+from calibration.kinematics.poe import PoeModel
 from calibration.models import ConstantModel, KinematicModel
-from calibration.parameterisation import MinimalParameterisation
-from calibration.physics.base import Context, Effect, apply_effects, geometry_on_top
-from calibration.physics_informed import ExtendedKinematics
-from calibration.poe import PoeModel
+from calibration.models.cdc import CdcModel
+from calibration.models.physics import PhysicsModel
+from calibration.models.pi import PhysicsInformedModel
+from calibration.physics.base import Effect, apply_effects, geometry_on_top
+from calibration.physics.context import Context
+from calibration.physics.extended import ExtendedEffect, ExtendedKinematics
 
 if TYPE_CHECKING:
-    from calibration.cdc import CdcModel
+    from calibration.models.cdc import CdcModel
 
 
 @dataclass(frozen=True)
@@ -49,15 +52,12 @@ class InUse:
     kin: ExtendedKinematics
     theta: np.ndarray
     kind: str = "constant"
-    cdc: "CdcModel | None" = None
+    cdc: CdcModel | None = None
     effects: tuple[Effect, ...] = ()
 
     @classmethod
-    def from_model(cls, model: KinematicModel | None, nominal: PoeModel, x: np.ndarray | None = None) -> "InUse":
+    def from_model(cls, model: KinematicModel | None, nominal: PoeModel, x: np.ndarray | None = None) -> InUse:
         """The in-use form of a model (None: the nominal geometry moved to ``x``)."""
-        from calibration.cdc import CdcModel
-        from calibration.physics.model import PhysicsModel
-        from calibration.physics_informed import PhysicsInformedModel
 
         if model is None or isinstance(model, (ConstantModel, PhysicsModel)):
             kin = ExtendedKinematics(MinimalParameterisation(nominal, fit_tool=True))
@@ -85,7 +85,7 @@ class InUse:
     def n_geometric(self) -> int:
         return self.kin.par.size
 
-    def with_theta(self, theta: np.ndarray, effects: tuple[Effect, ...] | None = None) -> "InUse":
+    def with_theta(self, theta: np.ndarray, effects: tuple[Effect, ...] | None = None) -> InUse:
         return InUse(self.kin, np.asarray(theta, dtype=float), self.kind, self.cdc,
                      self.effects if effects is None else tuple(effects))
 

@@ -18,16 +18,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calibration import so3
-from calibration.diagnosis.extended import ExtendedEffect
 from calibration.diagnosis.inuse import InUse
 from calibration.errors import ModelError
 from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, lm, rotation_residual_scale, weighted_residuals
 from calibration.identification.lm import Groups, Linearisation, LMSettings, Residuals, StopReason
 from calibration.identification.observability import DEFAULT_RELATIVE_TOLERANCE, analyse_jacobian, filter_weights
-from calibration.parameterisation import MinimalParameterisation
-from calibration.physics.base import Context, Effect
-from calibration.physics_informed import ExtendedKinematics
+from calibration.kinematics import so3
+from calibration.kinematics.parameterisation import MinimalParameterisation
+from calibration.physics.base import Effect
+from calibration.physics.context import Context
+from calibration.physics.extended import ExtendedEffect, ExtendedKinematics
 
 
 @dataclass(frozen=True)

@@ -40,7 +40,7 @@ class Accuracy:
     max_deg: float
 
     @classmethod
-    def of(cls, model: str, position_mm: np.ndarray, orientation_deg: np.ndarray) -> "Accuracy":
+    def of(cls, model: str, position_mm: np.ndarray, orientation_deg: np.ndarray) -> Accuracy:
         return cls(model, float(np.sqrt(np.mean(position_mm**2))), float(np.max(position_mm)),
                    float(np.sqrt(np.mean(orientation_deg**2))), float(np.max(orientation_deg)))
 
@@ -145,7 +145,7 @@ class Diagnosis:
         orientation_weight_a: the orientation weight the evidence was weighed with.
         weighting: ``noise`` (from the per-channel noise floors) or ``fixed``.
         days: with several recordings (days), what differs between them
-            (:class:`calibration.daydiff.DaysResult`), else None.
+            (:class:`calibration.frames.daydiff.DaysResult`), else None.
         extrapolation: the held-out poses against the saved model's training range
             (:func:`calibration.models.guard.extrapolation`: how many lie outside, by how much, whether the guard
             acted), or None.

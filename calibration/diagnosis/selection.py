@@ -19,8 +19,8 @@ refined here, against the columns already chosen (:func:`refine_warmup`).
 
 from __future__ import annotations
 
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
-from typing import Callable, Collection
 
 import numpy as np
 from scipy import special
@@ -136,11 +136,11 @@ class Selection:
     def of_kind(self, kind: str) -> list[Candidate]:
         return [s.candidate for s in self.steps if s.candidate.kind == kind]
 
-    def without(self, kind: str) -> "Selection":
+    def without(self, kind: str) -> Selection:
         keep = [i for i, s in enumerate(self.steps) if s.candidate.kind != kind]
         return Selection(tuple(self.steps[i] for i in keep), tuple(self.columns[i] for i in keep))
 
-    def fit_evidence(self, problem: "LinearSelection", kind: str, given: Collection[str]) -> Evidence:
+    def fit_evidence(self, problem: LinearSelection, kind: str, given: Collection[str]) -> Evidence:
         """Nested tests on the fit data of adding the steps of ``kind`` to the steps of the kinds ``given``."""
         base = [i for i, s in enumerate(self.steps) if s.candidate.kind in given]
         extra = [i for i, s in enumerate(self.steps) if s.candidate.kind == kind]
@@ -295,7 +295,9 @@ def refine_warmup(effect: ThermalDrift, problem: LinearSelection, sets: list[np.
                   ) -> ThermalDrift:
     """The warm-up effect with the time constant, within a factor ``e^1.2`` of its own, that fits best with the
     column sets ``sets``."""
-    from scipy.optimize import minimize_scalar  # here: scipy.optimize costs ~0.3 s to import, and only this kind needs it
+    from scipy.optimize import (
+        minimize_scalar,  # here: scipy.optimize costs ~0.3 s to import, and only this kind needs it
+    )
 
     lt0 = np.log(effect.tau_s)
     res = minimize_scalar(_warmup_rss, bounds=(lt0 - 1.2, lt0 + 1.2), args=(effect, problem, sets, signature),

@@ -20,7 +20,7 @@ from calibration.errors import ModelError
 
 #: Share of the largest residuals that must lie on the +direction side for the shift to count as one-sided.
 #: Symmetric residuals give about 0.5: the pi fit's residual on six of the eight R1 training recordings gives
-#: 0.55-0.62, on 0613 and 0627 after 0.91 and 0.98 (``python scripts/sameday_causes.py``).
+#: 0.55-0.62, on 0613 and 0627 after 0.91 and 0.98 (``python scripts/studies/sameday_causes.py``).
 ONE_SIDED_SHARE = 0.8
 #: Residuals above this quantile of the error norm define the direction.
 LARGE_QUANTILE = 95.0

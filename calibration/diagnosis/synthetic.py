@@ -13,14 +13,24 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from calibration import so3
+from calibration.data.recording import Recording, put_in
+from calibration.kinematics import so3
+from calibration.kinematics.so3 import make_T
+from calibration.physics import (
+    Backlash,
+    GearTransmission,
+    JointCompliance,
+    PayloadCompliance,
+    ThermalDrift,
+    apply_effects,
+)
+from calibration.physics.gravity import GravityModel, joint_origins
 from calibration.physics.twin import Twin
-from calibration.recording import Recording
 
 if TYPE_CHECKING:
+    from calibration.kinematics.poe import PoeModel
     from calibration.physics.base import Effect
     from calibration.physics.gravity import GravityModel
-    from calibration.poe import PoeModel
 
 
 @dataclass(frozen=True)
@@ -119,10 +129,9 @@ def heldout_design(design: Design, n: int, seed: int) -> tuple[np.ndarray, dict[
     return q, cols
 
 
-def proof_templates(gravity: "GravityModel", seed: int) -> dict[str, "Effect"]:
+def proof_templates(gravity: GravityModel, seed: int) -> dict[str, Effect]:
     """Where the proof plants each kind: compliances on joints 2 and 3, the gear error on a joint that
     changes with the seed, backlash on joints 1-3, growth of links p23 and p34 (warm-up, 1800 s)."""
-    from calibration.physics import Backlash, GearTransmission, JointCompliance, PayloadCompliance, ThermalDrift
 
     j = (1, 2, 3, 4, 5, 6)[seed % 6]
     return {"joint_compliance": JointCompliance(gravity, (2, 3), np.zeros(2)),
@@ -132,7 +141,7 @@ def proof_templates(gravity: "GravityModel", seed: int) -> dict[str, "Effect"]:
             "thermal_drift": ThermalDrift(("p23", "p34"), np.zeros(2), "warmup", 1800.0)}
 
 
-def make_case(nominal: "PoeModel", gravity: "GravityModel", magnitudes_mm: dict[str, float], seed: int,
+def make_case(nominal: PoeModel, gravity: GravityModel, magnitudes_mm: dict[str, float], seed: int,
               design: Design = Design(), n_heldout: int = 300) -> tuple[Twin, Recording, Recording]:
     """A twin with the given effects concealed (magnitudes = RMS tool displacement on the design), planted
     geometric errors (0.5 mm, 0.5 mrad), and its fit and held-out recordings."""
@@ -154,7 +163,7 @@ NARROW_DESIGN = Design(spread_deg=3.0)
 WIDE_DESIGN = Design(spread_deg=60.0)
 
 
-def tool_error_case(nominal: "PoeModel", gravity: "GravityModel", shift_mm: float = 18.0, angle_deg: float = 0.5,
+def tool_error_case(nominal: PoeModel, gravity: GravityModel, shift_mm: float = 18.0, angle_deg: float = 0.5,
                     seed: int = 0, train_design: Design = NARROW_DESIGN, test_design: Design = WIDE_DESIGN,
                     n_heldout: int = 300) -> tuple[Recording, Recording, np.ndarray]:
     """Training and held-out recordings whose tool-marker registration is off by ``shift_mm`` and ``angle_deg``.
@@ -163,8 +172,6 @@ def tool_error_case(nominal: "PoeModel", gravity: "GravityModel", shift_mm: floa
     ``train_design``'s clusters, held-out on random poses of ``test_design``; both measured through the same wrong
     marker frame ``T_tool`` (marker in flange, returned (4, 4) [mm]): ``T_meas = T_true @ T_tool``.
     """
-    from calibration.frames import put_in
-    from calibration.models.rebased import make_T
 
     twin, train, _ = make_case(nominal, gravity, {"joint_compliance": 0.3}, seed, train_design, 1)
     q, cols = heldout_design(test_design, n_heldout, seed + 1)
@@ -173,16 +180,15 @@ def tool_error_case(nominal: "PoeModel", gravity: "GravityModel", shift_mm: floa
     return put_in(train, np.eye(4), T_tool), put_in(test, np.eye(4), T_tool), T_tool
 
 
-def orientation_rms_deg(model: "PoeModel", effect: "Effect", q: np.ndarray, context: dict[str, np.ndarray]) -> float:
+def orientation_rms_deg(model: PoeModel, effect: Effect, q: np.ndarray, context: dict[str, np.ndarray]) -> float:
     """RMS tool-rotation change [deg] that ``effect`` causes on its own at q (N, 6) under ``context``."""
-    from calibration.physics import apply_effects
 
     R0, _ = model.fk(q)
     R1, _ = apply_effects(model, [effect], q, context)
     return float(np.degrees(np.sqrt(np.mean(np.sum(so3.log(R1 @ np.swapaxes(R0, -1, -2)) ** 2, axis=1)))))
 
 
-def make_wrist_case(nominal: "PoeModel", gravity: "GravityModel", orientation_deg: float, seed: int,
+def make_wrist_case(nominal: PoeModel, gravity: GravityModel, orientation_deg: float, seed: int,
                     design: Design = Design(), n_heldout: int = 300, joint: int = 6
                     ) -> tuple[Twin, Recording, Recording]:
     """A twin with a gear error on wrist ``joint`` seen mainly in the orientation: the tool marker sits a few
@@ -191,7 +197,6 @@ def make_wrist_case(nominal: "PoeModel", gravity: "GravityModel", orientation_de
 
     Otherwise like :func:`make_case` (planted geometric errors, the same design, the same held-out recording).
     """
-    from calibration.physics import GearTransmission
 
     q, _, cols = design_and_context(design, seed)
     ctx = context_of(cols)
@@ -207,11 +212,10 @@ def make_wrist_case(nominal: "PoeModel", gravity: "GravityModel", orientation_de
     return twin, fit, measure(twin, qh, colsh, design, rng, "synthetic held-out")
 
 
-def perturbed_gravity(gravity: "GravityModel", model: "PoeModel", relative: float, seed: int) -> "GravityModel":
+def perturbed_gravity(gravity: GravityModel, model: PoeModel, relative: float, seed: int) -> GravityModel:
     """Link masses and centres of mass that differ from ``gravity`` by ``relative`` (0.3: 30 %): each mass and
     each component of each centre of mass (relative to its joint's axis point) scaled by ``1 +- relative``, the
     signs drawn with ``seed``. The truth of a twin whose real loading is not the YAML's."""
-    from calibration.physics.gravity import GravityModel, joint_origins
 
     rng = np.random.default_rng(seed + 7_000)
     m, com = gravity.masses_coms(model)

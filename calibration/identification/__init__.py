@@ -11,10 +11,24 @@ The joint geometry + physics refit of diagnosis (:class:`calibration.diagnosis.r
 problem of the same solver.
 """
 
-from calibration.identification.geometric import (DEFAULT_ORIENTATION_WEIGHT, GeometricProblem, Kinematics, NlsResult,
-                                                  rotation_residual_scale, weighted_residuals)
-from calibration.identification.lm import (Groups, LeastSquaresProblem, Linearisation, LMResult, LMSettings, Residuals,
-                                           StopReason, solve)
+from calibration.identification.geometric import (
+                                                  DEFAULT_ORIENTATION_WEIGHT,
+                                                  GeometricProblem,
+                                                  Kinematics,
+                                                  NlsResult,
+                                                  rotation_residual_scale,
+                                                  weighted_residuals,
+)
+from calibration.identification.lm import (
+                                                  Groups,
+                                                  LeastSquaresProblem,
+                                                  Linearisation,
+                                                  LMResult,
+                                                  LMSettings,
+                                                  Residuals,
+                                                  StopReason,
+                                                  solve,
+)
 
 __all__ = [
     "DEFAULT_ORIENTATION_WEIGHT", "GeometricProblem", "Groups", "Kinematics", "LMResult", "LMSettings",

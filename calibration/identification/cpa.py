@@ -11,10 +11,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calibration import so3
+from calibration.data.recording import Recording
 from calibration.errors import ModelError
-from calibration.parameterisation import MinimalParameterisation
-from calibration.recording import Recording
+from calibration.kinematics import so3
+from calibration.kinematics.parameterisation import MinimalParameterisation
 
 MIN_SWEEP_SAMPLES = 4
 MIN_SWEEP_RAD = np.radians(5.0)

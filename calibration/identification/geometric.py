@@ -14,10 +14,10 @@ from typing import Protocol
 
 import numpy as np
 
-from calibration import so3
 from calibration.errors import ModelError
 from calibration.identification import lm
 from calibration.identification.lm import Groups, Linearisation, LMSettings, Residuals, StopReason
+from calibration.kinematics import so3
 
 
 class Kinematics(Protocol):

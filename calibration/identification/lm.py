@@ -85,11 +85,11 @@ class Groups:
     counts: np.ndarray
 
     @classmethod
-    def single(cls, n_rows: int) -> "Groups":
+    def single(cls, n_rows: int) -> Groups:
         return cls(np.array([0]), np.array([n_rows]))
 
     @classmethod
-    def sorted_from_index(cls, index: np.ndarray) -> tuple[np.ndarray, "Groups"]:
+    def sorted_from_index(cls, index: np.ndarray) -> tuple[np.ndarray, Groups]:
         """Row order that makes each problem's rows contiguous, and the groups of the reordered rows.
 
         Args:

@@ -36,8 +36,12 @@ from typing import Any
 from calibration.errors import ModelError
 from calibration.interpolation.autoencoder import AutoencoderInterpolator
 from calibration.interpolation.base import Interpolator
-from calibration.interpolation.fourier import (FBF13_TERMS, Fourier13Interpolator, FourierReducedInterpolator,
-                                               fbf13_basis)
+from calibration.interpolation.fourier import (
+    FBF13_TERMS,
+    Fourier13Interpolator,
+    FourierReducedInterpolator,
+    fbf13_basis,
+)
 from calibration.interpolation.mlp import MlpInterpolator
 from calibration.interpolation.rbf import RBF_KERNELS, RbfInterpolator
 from calibration.interpolation.scattered import CubicInterpolator, LinearInterpolator, NearestInterpolator

@@ -19,17 +19,28 @@ the output scaler are stored; prediction is a numpy forward pass, bit-identical 
 
 from __future__ import annotations
 
-from typing import Any, ClassVar, Sequence
+from collections.abc import Sequence
+from typing import Any, ClassVar
 
 import numpy as np
 
 from calibration.errors import ModelError
 from calibration.interpolation.base import Interpolator, field, from_options
-from calibration.interpolation.mlp import (DEFAULT_PRECISION, EpochCallback, Standardiser, check_precision,
-                                           check_training_options, forward, forward_casadi, layers_from_dict,
-                                           layers_to_dict, scale_casadi, stored_precision, train_mlp)
+from calibration.interpolation.mlp import (
+    DEFAULT_PRECISION,
+    EpochCallback,
+    Standardiser,
+    check_precision,
+    check_training_options,
+    forward,
+    forward_casadi,
+    layers_from_dict,
+    layers_to_dict,
+    scale_casadi,
+    stored_precision,
+    train_mlp,
+)
 from calibration.interpolation.scattered import LinearInterpolator
-
 
 #: The paper's encoder widths (three hidden layers of 200, the decoder mirrored; the default here).
 PAPER_HIDDEN = (200, 200, 200)

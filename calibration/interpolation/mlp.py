@@ -20,8 +20,9 @@ from __future__ import annotations
 import contextlib
 import logging
 import time
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
-from typing import Any, Callable, ClassVar, Iterator, Sequence
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -85,7 +86,7 @@ def check_training_options(kind: str, hidden: Sequence[int], max_iter: int, lear
 
 #: Arithmetic of the network trainings: float32 since issue 14 (half the cost of float64; on the 8 R1 training
 #: recordings the same recommendation, best method and robustness flags as float64, every candidate's held-out RMS
-#: within 0.0003 mm, ``scripts/recommend_days.py --against``). Files saved before it
+#: within 0.0003 mm, ``scripts/studies/recommend_days.py --against``). Files saved before it
 #: name no precision and were trained in float64, which :func:`stored_precision` keeps.
 PRECISIONS = ("float32", "float64")
 DEFAULT_PRECISION = "float32"
@@ -137,7 +138,7 @@ def train_mlp(x: np.ndarray, y: np.ndarray, hidden: Sequence[int], max_iter: int
     The same arithmetic, in the same order, as scikit-learn's ``MLPRegressor(activation="relu", solver="adam",
     shuffle=True, tol=0)`` (Glorot-uniform initialisation and batch shuffles from ``RandomState(random_state)``,
     batches of min(200, K)), so it gives the same bits as the networks trained with it before (checked by
-    tests/calibration/test_interpolation.py against scikit-learn), without scikit-learn and about a third faster:
+    tests/calibration/interpolation/test_interpolation.py against scikit-learn), without scikit-learn and about a third faster:
     no loss evaluated per batch, Adam's moments updated in place.
 
     Args:

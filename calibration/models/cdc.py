@@ -2,10 +2,10 @@
 
 Its blocks are the terms every configuration shares (tool rotation, compliance, deflection); the geometric
 block is the interpolator's. Its casadi expression writes the interpolator out in casadi through the kind's
-``casadi_predict`` (:func:`calibration.casadi_expr.interpolator_sx`; every built-in kind has one), clipped
+``casadi_predict`` (:func:`calibration.kinematics.casadi_expr.interpolator_sx`; every built-in kind has one), clipped
 to ``bounds`` like the numpy path, so derivatives include the parameters' dependence on q; for an
 interpolator without one the geometric block is a frozen input (kind ``cdc-frozen``). The fits that build it are in
-:mod:`calibration.cdc`.
+:mod:`calibration.methods.cdc`.
 
 Its reference (:attr:`CdcModel.reference`) is ``geometric`` when every term beyond the geometric block is zero
 (the paper's construction: methods ``fbf13``, ``linear``, ...) and ``pi`` otherwise (``pi+fbf13``, ...). The file
@@ -21,12 +21,14 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from calibration.casadi_expr import CasadiPose, interpolator_sx
 from calibration.errors import ModelFileError
-from calibration.models.base import Block, KinematicModel, poe_from_dict, poe_to_dict
-from calibration.parameterisation import MinimalParameterisation
-from calibration.physics_informed import ExtendedKinematics
-from calibration.poe import PoeModel
+from calibration.interpolation import interpolator_from_dict
+from calibration.kinematics.blocks import Block
+from calibration.kinematics.casadi_expr import CasadiPose, interpolator_sx
+from calibration.kinematics.parameterisation import MinimalParameterisation
+from calibration.kinematics.poe import PoeModel, poe_from_dict, poe_to_dict
+from calibration.models.base import KinematicModel
+from calibration.physics.extended import ExtendedKinematics
 
 CDC_INPUTS = (1, 2)  # q2, q3 (0-based)
 
@@ -84,7 +86,7 @@ class CdcModel(KinematicModel):
     def vector(self) -> np.ndarray:
         return np.asarray(self.theta_ref[self.kinematics.par.size:], dtype=float).copy()
 
-    def with_vector(self, theta: np.ndarray) -> "CdcModel":
+    def with_vector(self, theta: np.ndarray) -> CdcModel:
         g = self.kinematics.par.size
         return replace(self, theta_ref=np.concatenate([self.theta_ref[:g], np.asarray(theta, dtype=float)]))
 
@@ -129,7 +131,7 @@ class CdcModel(KinematicModel):
         return (par.nominal,) + tuple(ca.DM(a) for a in par.geometry(self.theta_ref[: par.size]))
 
     def urdf_geometry(self) -> Any:
-        from calibration.urdf import UrdfGeometry
+        from calibration.models.urdf import UrdfGeometry  # xml.etree only when a URDF is asked for
 
         joints = ", ".join(f"q{i + 1}" for i in self.inputs)
         lost = (f"the configuration-dependent geometry (the {self.kinematics.par.size} geometric parameters "
@@ -145,8 +147,7 @@ class CdcModel(KinematicModel):
                 **({} if self.bounds is None else {"bounds": self.bounds.tolist()})}
 
     @classmethod
-    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "CdcModel":
-        from calibration.interpolation import interpolator_from_dict
+    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> CdcModel:
 
         kin = ExtendedKinematics(MinimalParameterisation(poe_from_dict(body["nominal"]), bool(body["fit_tool"])))
         theta_ref = _vector(body["theta_ref"], kin.size, "theta_ref")

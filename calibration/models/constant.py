@@ -11,8 +11,9 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from calibration.models.base import Block, KinematicModel, poe_from_dict, poe_to_dict
-from calibration.poe import PoeModel
+from calibration.kinematics.blocks import Block
+from calibration.kinematics.poe import PoeModel, poe_from_dict, poe_to_dict
+from calibration.models.base import KinematicModel
 
 
 @dataclass
@@ -35,7 +36,8 @@ class ConstantModel(KinematicModel):
 
     def _chart(self) -> Any:
         """Minimal parameters around this geometry (``x = 0`` is this model; the flange point included)."""
-        from calibration.parameterisation import MinimalParameterisation
+        # here, not at the top: the CLI loads this kind with every plan check, the fitting maths only when asked for
+        from calibration.kinematics.parameterisation import MinimalParameterisation
 
         return MinimalParameterisation(self.model, fit_tool=True)
 
@@ -45,7 +47,7 @@ class ConstantModel(KinematicModel):
     def vector(self) -> np.ndarray:
         return np.zeros(self._chart().size)
 
-    def with_vector(self, theta: np.ndarray) -> "ConstantModel":
+    def with_vector(self, theta: np.ndarray) -> ConstantModel:
         return replace(self, model=self._chart().model(np.asarray(theta, dtype=float)))
 
     def jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -58,12 +60,12 @@ class ConstantModel(KinematicModel):
     def casadi(self, q: Any, theta: Any = None, q_at: Any = None) -> Any:
         if theta is None:
             return self.model.casadi(q, kind="constant")
-        from calibration.casadi_expr import chain_pose, poe_chain
+        from calibration.kinematics.casadi_expr import chain_pose, poe_chain
 
         return chain_pose(poe_chain(self.model, q, *self._chart().casadi_geometry(theta)), "constant")
 
     def urdf_geometry(self) -> Any:
-        from calibration.urdf import UrdfGeometry
+        from calibration.models.urdf import UrdfGeometry  # xml.etree only when a URDF is asked for
 
         return UrdfGeometry(self.model, f"the constant {self.method} geometry")
 
@@ -71,5 +73,5 @@ class ConstantModel(KinematicModel):
         return {"geometry": poe_to_dict(self.model)}
 
     @classmethod
-    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "ConstantModel":
+    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> ConstantModel:
         return cls(robot, method, poe_from_dict(body["geometry"]), int(body.get("n_parameters", 0)), info)

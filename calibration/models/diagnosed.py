@@ -2,7 +2,7 @@
 
 Its blocks are the base model's, then one per effect; its numpy pose and its casadi expression take the same
 steps (joint effects deflect q on the base model's arm, the base model runs at the deflected joints), so a
-planner sees its exact derivatives. :func:`calibration.diagnosis.model.result_model` builds it.
+planner sees its exact derivatives. :func:`calibration.diagnosis.refitted_model.result_model` builds it.
 """
 
 from __future__ import annotations
@@ -12,11 +12,13 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from calibration.casadi_expr import CasadiPose, poe_chain
 from calibration.errors import ModelError
-from calibration.models.base import Block, KinematicModel
+from calibration.kinematics.blocks import Block
+from calibration.kinematics.casadi_expr import CasadiPose, poe_chain
+from calibration.models.base import KinematicModel
 from calibration.models.physics import casadi_effects, effect_blocks, split_values
-from calibration.physics.base import NO_GUARD, Context, Effect, effect_from_dict, effects_read, geometry_on_top
+from calibration.physics.base import NO_GUARD, Effect, effect_from_dict, effects_read, geometry_on_top
+from calibration.physics.context import Context
 
 
 @dataclass
@@ -87,7 +89,7 @@ class DiagnosedModel(KinematicModel):
     def vector(self) -> np.ndarray:
         return np.concatenate([self.base.vector()] + [e.values for e in self.effects])
 
-    def with_vector(self, theta: np.ndarray) -> "DiagnosedModel":
+    def with_vector(self, theta: np.ndarray) -> DiagnosedModel:
         theta = np.asarray(theta, dtype=float)
         k = self.base.vector().size
         values = split_values(self.effects, theta[k:])
@@ -98,7 +100,6 @@ class DiagnosedModel(KinematicModel):
         """The pose at the default context on casadi symbols, exactly as :meth:`fk`: the effects deflect the
         joints on the base model's arm, then the base model's own expression runs at the deflected joints with
         its configuration-dependent parameters at the reading ``q``. Exact in q (no frozen fixed point)."""
-        import casadi as ca
 
         k = self.base.vector().size
         base_theta = None if theta is None else theta[:k]
@@ -121,6 +122,6 @@ class DiagnosedModel(KinematicModel):
         return {"base": self.base.to_dict(), "effects": [e.to_dict() for e in self.effects]}
 
     @classmethod
-    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "DiagnosedModel":
+    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> DiagnosedModel:
         return cls(robot, method, KinematicModel.from_dict(body["base"]),
                    tuple(effect_from_dict(e) for e in body.get("effects", [])), info)

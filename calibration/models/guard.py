@@ -23,7 +23,7 @@ shape is a function of one, seen over too little of the span the shape shows its
 takes to show a fifth of its fitted rise, :data:`HELD_BELOW_RISE`), is evaluated at that entry softly clamped into
 the range (:meth:`Region.hold_context`, margin a share of the span). A warm-up fitted on ten minutes has then seen
 its slope, not its bend, and its asymptote is a guess; held at the edge, it does not promise millimetres hours
-later. ``scripts/bench_time_guard.py`` (synthetic twins, a 1800 s warm-up, 670 s recordings, poses 1-4 h on): a fit
+later. ``scripts/benchmarks/bench_time_guard.py`` (synthetic twins, a 1800 s warm-up, 670 s recordings, poses 1-4 h on): a fit
 whose time constant ran off (25 h) promised 4.5-5.0 / 8.9-10.4 mm without the hold and about 1.0 / 1.3 with it; a
 fit that found its time constant (1.0-4.2 recording spans) is better free (0.05-0.77 mm mean) than held (about 1.0).
 The first rule held any recording shorter than the fitted time constant, and so those too (a region saved with it
@@ -37,15 +37,16 @@ casadi expression) is not held.
 A ``pi`` model has no guard. Its compliance is the mass-free gravity shape; its structural deflection's shape is
 fitted, in q2 and q3 only, which every shared training day sees over 60 deg or more, so the rule would not hold it
 there either (and holding it in q2, q3 was measured to cost the q2/q3 edge folds of
-``scripts/extrapolation_folds.py``). :func:`extrapolation` says how many poses lie outside the region and by how
+``scripts/studies/extrapolation_folds.py``). :func:`extrapolation` says how many poses lie outside the region and by how
 much (``evaluate`` and ``predict`` report it).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, Literal, Mapping, Sequence
+from typing import Any, Literal
 
 import numpy as np
 
@@ -59,7 +60,7 @@ MARGIN_SHARE = 0.1
 #: The smallest clamp margin [rad]: a joint the training data never moved is held at the one angle it saw.
 MIN_MARGIN_RAD = 1e-3
 #: A joint the training data saw over less than this [rad] is seen narrowly: an effect whose fitted shape depends on
-#: its angle is held at the edge there. Chosen on the training-only folds of ``scripts/extrapolation_folds.py``
+#: its angle is held at the edge there. Chosen on the training-only folds of ``scripts/studies/extrapolation_folds.py``
 #: (see :data:`RULE_BY_EFFECT`); on the shared days the training spans are 12 deg or less (q1, q4-q6) or 60 deg or more
 #: (q2, q3), so any value between gives the same figures.
 NARROW_SPAN_RAD = math.radians(20.0)
@@ -76,7 +77,7 @@ GuardRule = Literal["by_effect", "every_joint"]
 RULES = (RULE_BY_EFFECT, RULE_EVERY_JOINT)
 #: Share of an effect's exponential approach to its asymptote (a warm-up's rise from a cold start) the training
 #: data must span, ``1 - exp(-seen / span)``, for the fitted curve to be trusted beyond it; less is held at the edge
-#: (regions fitted from now on, :data:`CONTEXT_RULE_RISE`). Chosen with ``scripts/bench_time_guard.py`` (a
+#: (regions fitted from now on, :data:`CONTEXT_RULE_RISE`). Chosen with ``scripts/benchmarks/bench_time_guard.py`` (a
 #: concealed 1800 s warm-up, 670 s recordings, poses 1-4 h later): over seeds 0-29, every fit whose time constant
 #: came out at 5.47 spans or more (to 133) was better held (max 1.65-10.4 mm free, at most 1.37 held), and every
 #: one between 1.01 and 4.17 spans better free (0.05-0.77 mm mean free against about 1 mm held); a fifth of the
@@ -100,7 +101,7 @@ def data_margin_rad(lower_rad: np.ndarray, upper_rad: np.ndarray) -> np.ndarray:
     ``MIN_MARGIN_RAD`` and ``DEFAULT_MARGIN_RAD``. An effect identified inside a narrow band is not carried further
     beyond it than a share of the band's own width; a wide band keeps the 2 deg margin.
 
-    Chosen on the shared days' training recordings only (``scripts/extrapolation_folds.py``: edge clusters of q2
+    Chosen on the shared days' training recordings only (``scripts/studies/extrapolation_folds.py``: edge clusters of q2
     or q3, or the q1/q4-q6 steps, held out and extrapolated to; position mean/max [mm] on them). On 0620's steps
     (a gear error on a wrist joint seen within +-2 deg) the fixed 2 deg gives 0.185/0.666, 10 % of the span
     0.164/0.657, held hard at the edge 0.160/0.655. On the wide joints a share of the span cuts both ways: 10 % of
@@ -173,9 +174,9 @@ class Region:
 
     @classmethod
     def of(cls, q: np.ndarray, margin_rad: float | np.ndarray | None = None,
-           context: Mapping[str, np.ndarray] | None = None) -> "Region":
+           context: Mapping[str, np.ndarray] | None = None) -> Region:
         """The range of joint angles q [rad] (N, n) and of the entries of :data:`GUARDED_CONTEXT` in the training
-        ``context`` (a recording's :meth:`~calibration.recording.Recording.context`); by default each joint's
+        ``context`` (a recording's :meth:`~calibration.data.recording.Recording.context`); by default each joint's
         margin from the data's own spread (:func:`data_margin_rad`)."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
         lo, hi = q.min(axis=0), q.max(axis=0)
@@ -265,7 +266,9 @@ class Region:
         Raises:
             ModelError: a held entry is neither a scalar nor of shape (N,).
         """
-        from calibration.physics.base import context_array
+        from calibration.physics.context import (
+            context_array,  # not at the top: a model need not load the physics package
+        )
 
         held = {k: sides for k, sides in self.held_context(effect).items()
                 if context is not None and context.get(k) is not None}
@@ -283,7 +286,7 @@ class Region:
         Raises:
             ModelError: such an entry is neither a scalar nor of shape (N,).
         """
-        from calibration.physics.base import context_array
+        from calibration.physics.context import context_array
 
         out = {}
         for k, (lo, hi) in self.context_range.items():
@@ -291,7 +294,7 @@ class Region:
                 out[k] = excess_beyond(context_array(context, k, N), lo, hi)
         return out
 
-    def without_context(self) -> "Region":
+    def without_context(self) -> Region:
         """The same region with no context range: its joint guard alone."""
         return replace(self, context_range={})
 
@@ -305,7 +308,7 @@ class Region:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "Region":
+    def from_dict(cls, d: dict[str, Any]) -> Region:
         """Inverse of :meth:`to_dict`; a region saved before the rule existed (no ``rule``) keeps the guard it had
         then, every effect held in every joint, and one saved before the context rule (no ``context_rule``) keeps
         its hold in time (:data:`CONTEXT_RULE_SPAN`)."""
@@ -347,7 +350,7 @@ def extrapolation(model: Any, q: np.ndarray, context: Mapping[str, Any] | None =
     Args:
         model: a :class:`~calibration.models.base.KinematicModel`.
         q: joint angles [rad] (N, n).
-        context: the poses' recorded context (a recording's :meth:`~calibration.recording.Recording.context`), or
+        context: the poses' recorded context (a recording's :meth:`~calibration.data.recording.Recording.context`), or
             None (the default context, which the guard never holds).
 
     Returns:

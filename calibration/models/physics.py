@@ -12,11 +12,13 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from calibration.casadi_expr import CasadiPose, casadi_ops, chain_pose, poe_chain
-from calibration.models.base import Block, KinematicModel, poe_from_dict, poe_to_dict
+from calibration.kinematics.blocks import Block
+from calibration.kinematics.casadi_expr import CasadiPose, casadi_ops, chain_pose, poe_chain
+from calibration.kinematics.poe import PoeModel, poe_from_dict, poe_to_dict
+from calibration.models.base import KinematicModel
 from calibration.models.guard import Region
-from calibration.physics.base import Context, Effect, apply_effects, effect_from_dict, effects_read
-from calibration.poe import PoeModel
+from calibration.physics.base import Effect, apply_effects, effect_from_dict, effects_read
+from calibration.physics.context import Context
 
 
 def effect_blocks(effects: tuple[Effect, ...]) -> tuple[Block, ...]:
@@ -110,7 +112,7 @@ class PhysicsModel(KinematicModel):
     def vector(self) -> np.ndarray:
         return np.concatenate([e.values for e in self.effects]) if self.effects else np.zeros(0)
 
-    def with_vector(self, theta: np.ndarray) -> "PhysicsModel":
+    def with_vector(self, theta: np.ndarray) -> PhysicsModel:
         values = split_values(self.effects, np.asarray(theta, dtype=float))
         return replace(self, effects=tuple(e.with_values(v) for e, v in zip(self.effects, values)))
 
@@ -125,7 +127,7 @@ class PhysicsModel(KinematicModel):
         return chain_pose(poe_chain(self.model, q_chain, H, P_eff), "physics")
 
     def urdf_geometry(self) -> Any:
-        from calibration.urdf import UrdfGeometry
+        from calibration.models.urdf import UrdfGeometry  # xml.etree only when a URDF is asked for
 
         lost = tuple(f"the {e.kind} effect ({e.size} parameters)" for e in self.effects)
         return UrdfGeometry(self.model, f"the fitted geometry of the {self.method} model", lost)
@@ -135,7 +137,7 @@ class PhysicsModel(KinematicModel):
                 "effects": [e.to_dict() for e in self.effects]}
 
     @classmethod
-    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "PhysicsModel":
+    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> PhysicsModel:
         return cls(robot, method, poe_from_dict(body["geometry"]),
                    tuple(effect_from_dict(e) for e in body.get("effects", [])),
                    int(body.get("geometric_parameters", 0)), info)

@@ -1,7 +1,7 @@
-"""The ``pi`` model kind: a fitted :class:`~calibration.physics_informed.ExtendedKinematics` (77 parameters).
+"""The ``pi`` model kind: a fitted :class:`~calibration.physics.extended.ExtendedKinematics` (77 parameters).
 
 Its blocks are the kinematics' (geometry 27, tool rotation 3, mass-free compliance 5, structural deflection
-42, declared once in :mod:`calibration.physics_informed`); its pose, analytic Jacobian and casadi expression
+42, declared once in :mod:`calibration.physics.extended`); its pose, analytic Jacobian and casadi expression
 all read that one layout. It has no extrapolation guard (:mod:`calibration.models.guard` says why): its compliance
 is the mass-free gravity shape, and its structural deflection's fitted shape is in q2 and q3, which the training
 designs see widely.
@@ -14,12 +14,13 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from calibration.casadi_expr import CasadiPose
 from calibration.errors import ModelFileError
-from calibration.models.base import Block, KinematicModel, poe_from_dict, poe_to_dict
-from calibration.parameterisation import MinimalParameterisation
-from calibration.physics_informed import ExtendedKinematics
-from calibration.poe import PoeModel
+from calibration.kinematics.blocks import Block
+from calibration.kinematics.casadi_expr import CasadiPose
+from calibration.kinematics.parameterisation import MinimalParameterisation
+from calibration.kinematics.poe import PoeModel, poe_from_dict, poe_to_dict
+from calibration.models.base import KinematicModel
+from calibration.physics.extended import ExtendedKinematics
 
 
 @dataclass
@@ -50,7 +51,7 @@ class PhysicsInformedModel(KinematicModel):
     def vector(self) -> np.ndarray:
         return np.asarray(self.theta, dtype=float).copy()
 
-    def with_vector(self, theta: np.ndarray) -> "PhysicsInformedModel":
+    def with_vector(self, theta: np.ndarray) -> PhysicsInformedModel:
         return replace(self, theta=np.asarray(theta, dtype=float))
 
     def jacobian(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -82,7 +83,7 @@ class PhysicsInformedModel(KinematicModel):
         return (par.nominal,) + par.casadi_geometry(theta[: par.size])
 
     def urdf_geometry(self) -> Any:
-        from calibration.urdf import UrdfGeometry
+        from calibration.models.urdf import UrdfGeometry  # xml.etree only when a URDF is asked for
 
         return UrdfGeometry(self.kinematics.constant_arm(self.theta),
                             f"the {self.kinematics.par.size}-parameter geometry block and the tool rotation of the "
@@ -93,7 +94,7 @@ class PhysicsInformedModel(KinematicModel):
                 "rank": self.rank, "theta": self.theta.tolist(), "names": self.kinematics.names()}
 
     @classmethod
-    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "PhysicsInformedModel":
+    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> PhysicsInformedModel:
         kin = ExtendedKinematics(MinimalParameterisation(poe_from_dict(body["nominal"]), bool(body["fit_tool"])))
         theta = np.array(body["theta"], dtype=float) if isinstance(body["theta"], list) else None
         if theta is None or theta.shape != (kin.size,):

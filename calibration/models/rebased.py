@@ -4,11 +4,11 @@
 the base (mocap-to-base registration) on the left and of the tool marker (marker-to-flange registration) on the
 right of the inner model's pose; both constant (4, 4) [mm]; and, optionally, constant joint-angle offsets [rad]
 added to the readings before the inner model sees them (a day whose joint zeros moved; zero by default, and then
-not written to the file). :func:`calibration.rebase.rebase` fits them.
+not written to the file). :func:`calibration.frames.rebase.rebase` fits them.
 
 Its blocks are the inner model's, then ``base_correction`` and ``tool_correction`` (6 each): perturbations
 ``[dp (3) mm, dtheta (3) rad]`` about the stored corrections, ``p <- p + dp``, ``R <- exp(dtheta) R`` (the
-convention of :func:`calibration.registration.retract`), so ``vector()`` ends in 12 zeros. Its pose, its
+convention of :func:`calibration.frames.registration.retract`), so ``vector()`` ends in 12 zeros. Its pose, its
 analytic Jacobians and its casadi expression all wrap the inner model's by the same two transforms.
 """
 
@@ -19,21 +19,16 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from calibration import so3
-from calibration.casadi_expr import CasadiPose
 from calibration.errors import ModelError, ModelFileError
-from calibration.models.base import Block, KinematicModel
-from calibration.poe import PoeModel
+from calibration.kinematics import so3
+from calibration.kinematics.blocks import Block
+from calibration.kinematics.casadi_expr import CasadiPose, exp_sx
+from calibration.kinematics.poe import PoeModel
+from calibration.kinematics.so3 import make_T
+from calibration.models.base import KinematicModel
 
 #: Names of one correction block (perturbation of a transform in its parent frame).
 CORRECTION_NAMES = ("dx", "dy", "dz", "rx", "ry", "rz")
-
-
-def make_T(R: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """Homogeneous transform (4, 4) from a rotation (3, 3) and a translation (3,) [mm]."""
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, p
-    return T
 
 
 def wrap_pose(T_base: np.ndarray, R: np.ndarray, p: np.ndarray, T_tool: np.ndarray
@@ -126,7 +121,7 @@ class RebasedModel(KinematicModel):
         return replace(inner, lower_rad=inner.lower_rad - self.joint_offsets,
                        upper_rad=inner.upper_rad - self.joint_offsets)
 
-    def with_region(self, region: Any) -> "RebasedModel":
+    def with_region(self, region: Any) -> RebasedModel:
         """The same rebase with another training region (in its joint readings), in its own info and its inner
         model's (the one that holds), moved by the joint offsets into the inner model's readings."""
         own = KinematicModel.with_region(self, region)
@@ -148,7 +143,7 @@ class RebasedModel(KinematicModel):
     def vector(self) -> np.ndarray:
         return np.concatenate([self.inner.vector(), np.zeros(12)])
 
-    def with_vector(self, theta: np.ndarray) -> "RebasedModel":
+    def with_vector(self, theta: np.ndarray) -> RebasedModel:
         theta = np.asarray(theta, dtype=float)
         k = theta.size - 12
         d = theta[k:]
@@ -207,7 +202,6 @@ class RebasedModel(KinematicModel):
         last 12 symbols perturb them as :meth:`with_vector` does); the skeleton moves with the base only."""
         import casadi as ca
 
-        from calibration.casadi_expr import exp_sx
 
         k = self.inner.vector().size
         pose = self.inner.casadi(self._shifted(q), None if theta is None else theta[:k], self._shifted(q_at))
@@ -246,7 +240,7 @@ class RebasedModel(KinematicModel):
                 **({"joint_offsets_rad": self.joint_offsets.tolist()} if self.joint_offsets.any() else {})}
 
     @classmethod
-    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> "RebasedModel":
+    def _from_body(cls, robot: str, method: str, info: dict[str, Any], body: dict[str, Any]) -> RebasedModel:
         if not isinstance(body.get("inner"), dict):
             raise ModelFileError("", "inner", "expected the wrapped model (a mapping)")
         inner = KinematicModel.from_dict(body["inner"])

@@ -23,7 +23,7 @@ Effects that are linear in their parameters give a regressor ``Y (N, n, m)`` wit
 ``[p (mm); rotation (rad)]`` in the base frame) so a fitter gets Jacobians cheaply.
 
 One definition, two backends: a joint effect writes its regressor once, as :meth:`Effect.joint_terms` against
-:class:`calibration.casadi_expr.Ops`; :meth:`Effect.regressor` evaluates it on numpy arrays and
+:class:`calibration.kinematics.casadi_expr.Ops`; :meth:`Effect.regressor` evaluates it on numpy arrays and
 :meth:`Effect.casadi_dq` on casadi symbols (the default context), so a planner differentiates through the
 deflection exactly. A geometry effect does the same with :meth:`Effect.grow`.
 
@@ -36,87 +36,22 @@ mass-free joint compliance) to its class; effects that are blocks of the ``pi`` 
 from __future__ import annotations
 
 import abc
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, fields, replace
-from typing import Any, Callable, ClassVar, Literal, Mapping, Protocol, Sequence
+from typing import Any, ClassVar, Literal, Protocol
 
 import numpy as np
 
-from calibration.casadi_expr import NUMPY, Ops
 from calibration.errors import ModelError
-from calibration.poe import PoeModel
+from calibration.kinematics.casadi_expr import NUMPY, Ops
+from calibration.kinematics.poe import PoeModel
+from calibration.physics.context import Context, FittedSpan, check_q
 
 #: ``(joint index 0-based, value column, d delta_q[joint] / d values[column])``: one regressor entry.
 Term = tuple[int, int, Any]
 
-Context = Mapping[str, Any]
 
-#: Past which edges of the training range an effect's fitted shape in a context entry is a guess (see
-#: :meth:`Effect.fitted_context`): both, or only above (a warm-up curve is pinned at zero at ``t = 0`` by its formula).
-Sides = Literal["both", "above"]
-
-
-@dataclass(frozen=True)
-class FittedSpan:
-    """How an effect's fitted shape depends on a context entry: ``span`` over which the shape shows itself (in the
-    entry's unit; a warm-up's time constant [s], the span of an exponential approach to its asymptote) and the
-    ``sides`` of the training range past which it is a guess."""
-
-    span: float
-    sides: Sides = "both"
-
-
-EFFECT_KINDS: dict[str, type["Effect"]] = {}
-
-
-def check_q(model: PoeModel, q: np.ndarray) -> np.ndarray:
-    """Joint angles as a float array (N, n), or ModelError naming the expected shape."""
-    q = np.atleast_2d(np.asarray(q, dtype=float))
-    if q.ndim != 2 or q.shape[1] != model.n_joints:
-        raise ModelError(f"q must have shape (N, {model.n_joints}), got {q.shape}")
-    return q
-
-
-def context_array(context: Context | None, key: str, N: int, default: float = 0.0) -> np.ndarray:
-    """One per-sample context entry broadcast to shape (N,).
-
-    Args:
-        context: the context mapping (may be None).
-        key: entry name (``t``, ``temp_c``, ``payload_kg``, ``dir3``).
-        N: number of samples.
-        default: value used when the key is absent.
-    """
-    if context is None or key not in context or context[key] is None:
-        return np.full(N, float(default))
-    a = np.asarray(context[key], dtype=float)
-    if a.ndim > 1 or (a.ndim == 1 and a.shape[0] not in (1, N)):
-        raise ModelError(f"context[{key!r}] must be a scalar or have shape ({N},), got {a.shape}")
-    return np.broadcast_to(a, (N,)).astype(float)
-
-
-def context_dirs(context: Context | None, N: int, n: int) -> np.ndarray:
-    """Approach directions ``dir1..dirn`` stacked to shape (N, n), entries in {-1, 0, 1}."""
-    d = np.stack([context_array(context, f"dir{i + 1}", N) for i in range(n)], axis=1)
-    if not np.all(np.isin(d, (-1.0, 0.0, 1.0))):
-        raise ModelError("context dir1..dir6 must contain only -1, 0 or 1")
-    return d
-
-
-def context_qd(context: Context | None, N: int, n: int) -> np.ndarray:
-    """Joint velocities ``qd`` [rad/s] as shape (N, n) (zeros when absent)."""
-    if context is None or context.get("qd") is None:
-        return np.zeros((N, n))
-    qd = np.asarray(context["qd"], dtype=float)
-    if qd.shape != (N, n):
-        raise ModelError(f"context['qd'] must have shape ({N}, {n}), got {qd.shape}")
-    return qd
-
-
-def check_joints(joints: tuple[int, ...], n: int = 6) -> tuple[int, ...]:
-    """Validate 1-based joint numbers."""
-    joints = tuple(int(j) for j in joints)
-    if not joints or any(j < 1 or j > n for j in joints) or len(set(joints)) != len(joints):
-        raise ModelError(f"joints must be distinct numbers in 1..{n}, got {list(joints)}")
-    return joints
+EFFECT_KINDS: dict[str, type[Effect]] = {}
 
 
 @dataclass(frozen=True, eq=False)
@@ -163,7 +98,7 @@ class Effect(abc.ABC):
         """Parameters as ``{name: value}`` (the report's ``parameters`` entry)."""
         return {k: float(v) for k, v in zip(self.names, self.values)}
 
-    def with_values(self, values: np.ndarray) -> "Effect":
+    def with_values(self, values: np.ndarray) -> Effect:
         """The same effect with other parameter values (m,)."""
         return replace(self, values=np.asarray(values, dtype=float))
 
@@ -195,10 +130,10 @@ class Effect(abc.ABC):
         """The non-zero regressor entries, written once for numpy and casadi. Joint effects only.
 
         Args:
-            ops: the backend (:data:`calibration.casadi_expr.NUMPY` or ``casadi_ops()``).
+            ops: the backend (:data:`calibration.kinematics.casadi_expr.NUMPY` or ``casadi_ops()``).
             q: per-joint angles [rad]: numpy columns (N,) or casadi scalars.
-            chain: returns the frames of the effect's geometry at ``q`` (a :class:`~calibration.poe.Chain` or
-                :class:`~calibration.casadi_expr.SxChain`); called only by effects that need it.
+            chain: returns the frames of the effect's geometry at ``q`` (a :class:`~calibration.kinematics.poe.Chain` or
+                :class:`~calibration.kinematics.casadi_expr.SxChain`); called only by effects that need it.
             context: per-sample context (numpy) or None (casadi: the default context).
             N: number of samples (1 for casadi).
         """
@@ -256,7 +191,7 @@ class Effect(abc.ABC):
         return out
 
     @classmethod
-    def _from_config(cls, config: dict[str, Any], values: np.ndarray) -> "Effect":
+    def _from_config(cls, config: dict[str, Any], values: np.ndarray) -> Effect:
         kw = {k: tuple(v) if isinstance(v, list) else v for k, v in config.items()}
         return cls(values=values, **kw)
 
@@ -376,27 +311,3 @@ def geometry_on_top(model: PoeModel, effects: Sequence[Effect], q: np.ndarray, c
     return R1 @ np.swapaxes(R0, 1, 2) @ R, p + p1 - p0
 
 
-@dataclass(frozen=True, eq=False)
-class ExtendedEffect(Effect, register=False):
-    """An effect whose values add to one block of the ``pi`` parameters (after the geometric block).
-
-    The blocks are declared once, in :data:`calibration.physics_informed.BLOCKS`; ``block_name`` names one.
-    """
-
-    block_name: ClassVar[str] = ""
-
-    def block(self, n_geometric: int) -> slice:
-        """Where its values sit in ``theta`` of an ``ExtendedKinematics`` with ``n_geometric`` geometry."""
-        from calibration.physics_informed import block_slice
-
-        return block_slice(self.block_name, n_geometric)
-
-    def pose_jacobian(self, model: PoeModel, q: np.ndarray, context: Context | None = None) -> np.ndarray:
-        """First-order pose change per parameter on a POE model: its block's columns of the ``pi`` Jacobian
-        at ``theta = 0`` around that model."""
-        from calibration.parameterisation import MinimalParameterisation
-        from calibration.physics_informed import ExtendedKinematics
-
-        q = check_q(model, q)
-        kin = ExtendedKinematics(MinimalParameterisation(model, fit_tool=True))
-        return kin.jacobian(q, np.zeros(kin.size))[2][..., self.block(kin.par.size)]

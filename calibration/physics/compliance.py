@@ -8,7 +8,7 @@ in the compliances ``c_i`` [rad/(N m)], one per listed joint (1-based).
 ``joint_compliance`` in the mass-free form (``form: mass_free``, :class:`MassFreeCompliance`), for when the
 link masses are unknown: the shape of the shoulder and elbow gravity torques of a planar two-link arm with
 unknown lumped masses, ``u = q2 - q3``, ``dq2 = c1 sin q2 + c2 cos u + c3 sin u``, ``dq3 = c4 cos u + c5 sin u``
-[rad]. It is also the compliance block of the ``pi`` model (:mod:`calibration.physics_informed`).
+[rad]. It is also the compliance block of the ``pi`` model (:mod:`calibration.physics.extended`).
 
 ``joint_compliance`` in the lumped form (``form: lumped``, :class:`LumpedCompliance`), for when the link masses
 and centres of mass are not the robot YAML's: each listed joint deflects by a free combination of the columns of
@@ -30,13 +30,12 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from calibration.casadi_expr import Ops
 from calibration.errors import ModelError
-from calibration.physics.base import Context, Effect, ExtendedEffect, Term, check_joints, context_array
+from calibration.kinematics.casadi_expr import Ops
+from calibration.kinematics.poe import PoeModel
+from calibration.physics.base import Effect, Term
+from calibration.physics.context import Context, check_joints, context_array
 from calibration.physics.gravity import GravityModel, chain_torque_columns, chain_torques, independent_link_columns
-from calibration.poe import PoeModel
-
-COMPLIANCE_NAMES = ("c2_sin_q2_rad", "c2_cos_u_rad", "c2_sin_u_rad", "c3_cos_u_rad", "c3_sin_u_rad")
 
 
 def _select(tau: list[Any], joints: tuple[int, ...]) -> list[Term]:
@@ -78,7 +77,7 @@ class JointCompliance(Effect):
         return {"joints": list(self.joints), "gravity": self.gravity.to_dict()}
 
     @classmethod
-    def _from_config(cls, config: dict[str, Any], values: np.ndarray) -> "JointCompliance":
+    def _from_config(cls, config: dict[str, Any], values: np.ndarray) -> JointCompliance:
         return cls(GravityModel.from_dict(config["gravity"]), tuple(config["joints"]), values)
 
 
@@ -118,34 +117,6 @@ class PayloadCompliance(Effect):
         return _select([t * mass for t in chain_torques(ops, chain(), None, self.g)], self.joints)
 
 
-@dataclass(frozen=True, eq=False)
-class MassFreeCompliance(ExtendedEffect):
-    """Gravity-shaped deflection of joints 2 and 3 with unknown masses, ``u = q2 - q3``:
-    ``dq2 = c1 sin q2 + c2 cos u + c3 sin u``, ``dq3 = c4 cos u + c5 sin u`` [rad] (values ``c1..c5``)."""
-
-    kind = "joint_compliance"
-    context_keys = frozenset()
-    form: ClassVar[str] = "mass_free"
-    block_name: ClassVar[str] = "compliance"
-    joints: tuple[int, ...] = (2, 3)
-    values: np.ndarray = field(default_factory=lambda: np.zeros(len(COMPLIANCE_NAMES)))
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        return COMPLIANCE_NAMES
-
-    def fitted_joints(self, n: int) -> tuple[int, ...]:
-        return ()  # a gravity torque's shape: it extrapolates by its formula
-
-    def joint_terms(self, ops: Ops, q: list[Any], chain: Any, context: Context | None, N: int) -> list[Term]:
-        u = q[1] - q[2]
-        return [(1, 0, ops.sin(q[1])), (1, 1, ops.cos(u)), (1, 2, ops.sin(u)), (2, 3, ops.cos(u)),
-                (2, 4, ops.sin(u))]
-
-    def pose_jacobian(self, model: Any, q: np.ndarray, context: Context | None = None) -> np.ndarray:
-        return Effect.pose_jacobian(self, model, q, context)  # a joint effect: jacobian_q @ regressor
-
-
 _LUMPED_PARTS = (("m", "rad_kg_per_Nm"), ("mx", "rad_kg_mm_per_Nm"), ("my", "rad_kg_mm_per_Nm"),
                  ("mz", "rad_kg_mm_per_Nm"))
 
@@ -180,7 +151,7 @@ class LumpedCompliance(Effect):
         super().__post_init__()
 
     @classmethod
-    def for_arm(cls, model: PoeModel, joints: tuple[int, ...] = (2, 3)) -> "LumpedCompliance":
+    def for_arm(cls, model: PoeModel, joints: tuple[int, ...] = (2, 3)) -> LumpedCompliance:
         """The lumped form on ``joints`` of ``model``'s arm with every independent column, values zero."""
         columns = tuple(independent_link_columns(model, j - 1) for j in joints)
         return cls(joints, columns, np.zeros(sum(len(c) for c in columns)))
@@ -207,7 +178,7 @@ class LumpedCompliance(Effect):
         return {"joints": list(self.joints), "columns": [list(c) for c in self.columns]}
 
     @classmethod
-    def _from_config(cls, config: dict[str, Any], values: np.ndarray) -> "LumpedCompliance":
+    def _from_config(cls, config: dict[str, Any], values: np.ndarray) -> LumpedCompliance:
         return cls(tuple(config["joints"]), tuple(tuple(c) for c in config["columns"]), values)
 
 

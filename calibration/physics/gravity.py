@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from calibration.errors import ModelError
-from calibration.poe import PoeModel
+from calibration.kinematics.poe import PoeModel
 
 G_STANDARD = 9.80665  # [m/s^2]
 _SPHERE_RADIUS_M = 0.05  # point masses get a small sphere inertia so pinocchio's model is regular
@@ -90,8 +90,8 @@ def chain_torques(ops: Any, chain: Any, lumped: np.ndarray | None, g: float = G_
     torque of 1 kg at the tool point, ``a_i . (p_tool - o_i) / 1000`` (see :func:`point_mass_torque`).
 
     Args:
-        ops: :data:`calibration.casadi_expr.NUMPY` (chain of (N, ...) arrays) or ``casadi_ops()``.
-        chain: a :class:`calibration.poe.Chain` or :class:`calibration.casadi_expr.SxChain`.
+        ops: :data:`calibration.kinematics.casadi_expr.NUMPY` (chain of (N, ...) arrays) or ``casadi_ops()``.
+        chain: a :class:`calibration.kinematics.poe.Chain` or :class:`calibration.kinematics.casadi_expr.SxChain`.
     """
     g_vec = np.array([0.0, 0.0, -g])
     n = len(chain.axes_base)
@@ -118,8 +118,8 @@ def chain_torque_columns(ops: Any, chain: Any, joint: int, columns: tuple[int, .
     with ``a = g_vec x w_i``.
 
     Args:
-        ops: the backend (:data:`calibration.casadi_expr.NUMPY` or ``casadi_ops()``).
-        chain: a :class:`calibration.poe.Chain` or :class:`calibration.casadi_expr.SxChain`.
+        ops: the backend (:data:`calibration.kinematics.casadi_expr.NUMPY` or ``casadi_ops()``).
+        chain: a :class:`calibration.kinematics.poe.Chain` or :class:`calibration.kinematics.casadi_expr.SxChain`.
         joint: 0-based joint index i.
         columns: lumped column indices (0-based, of links k >= i).
     """
@@ -176,7 +176,7 @@ class GravityModel:
 
     @classmethod
     def from_links(cls, model: PoeModel, masses_kg: np.ndarray, com_mm: np.ndarray,
-                   g: float = G_STANDARD) -> "GravityModel":
+                   g: float = G_STANDARD) -> GravityModel:
         """From link masses [kg] (n,) and centres of mass in the base frame at q = 0 [mm] (n, 3)."""
         m = np.asarray(masses_kg, dtype=float).reshape(-1)
         com = np.asarray(com_mm, dtype=float)
@@ -187,7 +187,7 @@ class GravityModel:
         return cls(np.concatenate([m[:, None], m[:, None] * s], axis=1).ravel(), g)
 
     @classmethod
-    def from_spec(cls, spec: Any, model: PoeModel | None = None) -> "GravityModel":
+    def from_spec(cls, spec: Any, model: PoeModel | None = None) -> GravityModel:
         """From a :class:`cell_config.loader.RobotSpec` with ``links`` (nominal geometry when model is None)."""
         if not spec.links:
             raise ModelError(f"robot {spec.name} has no 'links' (mass_kg, com_mm) in its YAML")
@@ -263,5 +263,5 @@ class GravityModel:
         return {"lumped": self.lumped.tolist(), "g": float(self.g)}
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "GravityModel":
+    def from_dict(cls, d: dict[str, Any]) -> GravityModel:
         return cls(np.array(d["lumped"], dtype=float), float(d.get("g", G_STANDARD)))

@@ -4,7 +4,7 @@ All are linear in their parameters and act as ``q_true = q + delta_q``; each wri
 (:meth:`~calibration.physics.base.Effect.joint_terms`) for numpy and casadi:
 
 - ``joint_offset``: ``delta_q_i = offset{i}_rad`` (the simplest geometric error; axis tilts, origin offsets,
-  link lengths, base and tool frames are left to :class:`calibration.parameterisation.MinimalParameterisation`
+  link lengths, base and tool frames are left to :class:`calibration.kinematics.parameterisation.MinimalParameterisation`
   and the geometric fitter).
 - ``backlash``: ``delta_q_i = b{i}_rad * dir_i / 2``, the lost motion seen from each approach direction.
 - ``gear_transmission``: ``delta_q_i = sum_k a_k sin(k q_i) + b_k cos(k q_i)`` with harmonics ``k`` per joint
@@ -19,9 +19,10 @@ from typing import Any
 
 import numpy as np
 
-from calibration.casadi_expr import Ops
 from calibration.errors import ModelError
-from calibration.physics.base import Context, Effect, Term, check_joints, context_dirs, context_qd
+from calibration.kinematics.casadi_expr import Ops
+from calibration.physics.base import Effect, Term
+from calibration.physics.context import Context, check_joints, context_dirs, context_qd
 
 
 @dataclass(frozen=True, eq=False)
@@ -118,7 +119,7 @@ class GearTransmission(Effect):
         return {"harmonics": [[j, list(ks)] for j, ks in self.harmonics]}
 
     @classmethod
-    def _from_config(cls, config: dict[str, Any], values: np.ndarray) -> "GearTransmission":
+    def _from_config(cls, config: dict[str, Any], values: np.ndarray) -> GearTransmission:
         return cls(tuple((int(j), tuple(ks)) for j, ks in config["harmonics"]), values)
 
 

@@ -19,8 +19,9 @@ from typing import Any, Literal
 import numpy as np
 
 from calibration.errors import ModelError
-from calibration.physics.base import Context, Effect, FittedSpan, check_q, context_array
-from calibration.poe import PoeModel
+from calibration.kinematics.poe import PoeModel
+from calibration.physics.base import Effect
+from calibration.physics.context import Context, FittedSpan, check_q, context_array
 
 
 def link_names(n: int) -> list[str]:

@@ -11,26 +11,28 @@ true parameters. :meth:`Twin.random` plants effects at given magnitudes with a s
 Planting magnitudes are stated as what a person can check: the RMS tool-position perturbation [mm] each
 effect causes on its own over a reference set of poses, under a context that excites it (see
 :func:`reference_context`). Geometric errors are planted as parameters of
-:class:`~calibration.parameterisation.MinimalParameterisation` (offsets [mm], tilts [rad]).
+:class:`~calibration.kinematics.parameterisation.MinimalParameterisation` (offsets [mm], tilts [rad]).
 """
 
 from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
 from calibration.errors import ModelError
-from calibration.parameterisation import MinimalParameterisation
-from calibration.physics.base import Context, Effect, apply_effects, context_keys_of, effect_from_dict
+from calibration.kinematics.parameterisation import MinimalParameterisation
+from calibration.kinematics.poe import PoeModel, poe_from_dict, poe_to_dict
+from calibration.physics.base import Effect, apply_effects, context_keys_of, effect_from_dict
 from calibration.physics.compliance import JointCompliance, PayloadCompliance
+from calibration.physics.context import Context
 from calibration.physics.gravity import GravityModel
 from calibration.physics.joint_effects import Backlash, GearTransmission, JointOffset, MocapLatency
 from calibration.physics.thermal import ThermalDrift
-from calibration.poe import PoeModel
 
 TWIN_SCHEMA = "cellcal.twin/1"
 log = logging.getLogger("cellcal.calibration")
@@ -109,7 +111,7 @@ class PlantedErrors:
 
 
 def planted_twin(nominal: PoeModel, errors: PlantedErrors = PlantedErrors(), seed: int = 0,
-                 gravity: GravityModel | None = None) -> "Twin":
+                 gravity: GravityModel | None = None) -> Twin:
     """The true arm: ``nominal`` with seeded geometric errors and, if asked, a joint compliance under gravity.
 
     Args:
@@ -149,7 +151,7 @@ class Twin:
 
     @classmethod
     def from_parameters(cls, parameterisation: MinimalParameterisation, x: np.ndarray,
-                        effects: tuple[Effect, ...] = (), info: dict[str, Any] | None = None) -> "Twin":
+                        effects: tuple[Effect, ...] = (), info: dict[str, Any] | None = None) -> Twin:
         """Twin whose geometry is the minimal parameter vector ``x`` (m,) around the nominal arm."""
         info = dict(info or {})
         info["geometric"] = dict(zip(parameterisation.names(), np.asarray(x, dtype=float).tolist()))
@@ -175,7 +177,7 @@ class Twin:
     def random(cls, nominal: PoeModel, magnitudes_mm: Mapping[str, float], seed: int,
                gravity: GravityModel | None = None, offset_std_mm: float = 0.0, tilt_std_rad: float = 0.0,
                templates: Mapping[str, Effect] | None = None, q_ref: np.ndarray | None = None,
-               context: Context | None = None) -> "Twin":
+               context: Context | None = None) -> Twin:
         """Plant geometric errors and effects at given magnitudes.
 
         Args:
@@ -206,14 +208,12 @@ class Twin:
 
     def to_dict(self) -> dict[str, Any]:
         """Truth file content (plain Python)."""
-        from calibration.models import poe_to_dict
 
         return {"schema": TWIN_SCHEMA, "geometry": poe_to_dict(self.geometry),
                 "effects": [e.to_dict() for e in self.effects], "info": self.info}
 
     @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> "Twin":
-        from calibration.models import poe_from_dict
+    def from_dict(cls, d: Mapping[str, Any]) -> Twin:
 
         if d.get("schema") != TWIN_SCHEMA:
             raise ModelError(f"unsupported twin schema {d.get('schema')!r}; expected {TWIN_SCHEMA!r}")

@@ -28,7 +28,7 @@ class JointStatePublisher:
         robot: robot name in the cell (``R1``).
     """
 
-    def __init__(self, session: "zenoh.Session", cell: str, robot: str) -> None:
+    def __init__(self, session: zenoh.Session, cell: str, robot: str) -> None:
         import zenoh
 
         self.key = joints_key(cell, robot)
@@ -61,7 +61,7 @@ class JointStatePublisher:
             self._publisher.undeclare()
             self._closed = True
 
-    def __enter__(self) -> "JointStatePublisher":
+    def __enter__(self) -> JointStatePublisher:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -78,7 +78,7 @@ class JointStateSubscriber:
         max_buffered: states kept between read() calls; older ones are dropped and counted.
     """
 
-    def __init__(self, session: "zenoh.Session", cell: str, robot: str, max_buffered: int = 10_000) -> None:
+    def __init__(self, session: zenoh.Session, cell: str, robot: str, max_buffered: int = 10_000) -> None:
         import zenoh
 
         self.key = joints_key(cell, robot)
@@ -108,7 +108,7 @@ class JointStateSubscriber:
             self._subscriber.undeclare()
             self._closed = True
 
-    def __enter__(self) -> "JointStateSubscriber":
+    def __enter__(self) -> JointStateSubscriber:
         return self
 
     def __exit__(self, *exc: object) -> None:

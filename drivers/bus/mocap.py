@@ -9,10 +9,11 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Mapping, Sequence
+from typing import TYPE_CHECKING
 
-from cell_config.loader import ZenohConfig
+from cell_config.devices import ZenohConfig
 from drivers.base import MocapSource, RigidBodyFrame
 from drivers.bus.inbox import Inbox, InboxStats
 from drivers.bus.payloads import decode_mocap, encode_mocap
@@ -64,7 +65,7 @@ class MocapBridge:
     recording; blocking instead lets the source's own buffer absorb the burst, where drops are counted.
     """
 
-    def __init__(self, source: MocapSource, session: "zenoh.Session", cell: str,
+    def __init__(self, source: MocapSource, session: zenoh.Session, cell: str,
                  names: Mapping[int, str] | None = None, poll_s: float = 0.05, express: bool = True) -> None:
         mocap_key(cell, "*")  # validates the cell name now rather than at the first frame
         self.source = source
@@ -73,7 +74,7 @@ class MocapBridge:
         self._session = session
         self._names = dict(names or {})
         self._express = express
-        self._publishers: dict[int, "zenoh.Publisher"] = {}
+        self._publishers: dict[int, zenoh.Publisher] = {}
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -133,7 +134,7 @@ class MocapBridge:
                 pub.undeclare()
             self._publishers.clear()
 
-    def __enter__(self) -> "MocapBridge":
+    def __enter__(self) -> MocapBridge:
         self.start()
         return self
 
@@ -152,7 +153,7 @@ class ZenohMocapSource(MocapSource):
         max_buffered_frames: frames kept between read() calls; older ones are dropped and counted.
     """
 
-    def __init__(self, cell: str, *, config: ZenohConfig | None = None, session: "zenoh.Session | None" = None,
+    def __init__(self, cell: str, *, config: ZenohConfig | None = None, session: zenoh.Session | None = None,
                  rigid_bodies: Sequence[str] | None = None, max_buffered_frames: int = 10_000) -> None:
         if config is not None and session is not None:
             raise DriverError("zenoh", "give either config or session, not both")

@@ -1,6 +1,6 @@
 """Zenoh sessions and key expressions of the cellcal bus.
 
-Sessions are built from the cell's :class:`~cell_config.loader.ZenohConfig`: peer mode, multicast
+Sessions are built from the cell's :class:`~cell_config.devices.ZenohConfig`: peer mode, multicast
 scouting off and, when no endpoint is configured, a listener on an ephemeral loopback port, so nothing
 leaves the machine unless ``cell.yaml`` says so. Separate machines work by listing endpoints
 (``listen: [tcp/0.0.0.0:7447]`` on one, ``connect: [tcp/<ip>:7447]`` on the other) or by pointing every
@@ -15,7 +15,7 @@ import re
 import time
 from typing import TYPE_CHECKING, Any
 
-from cell_config.loader import ZenohConfig
+from cell_config.devices import ZenohConfig
 from drivers.errors import DriverError
 
 if TYPE_CHECKING:
@@ -62,7 +62,7 @@ def session_settings(config: ZenohConfig) -> dict[str, Any]:
     }
 
 
-def open_session(config: ZenohConfig | None = None) -> "zenoh.Session":
+def open_session(config: ZenohConfig | None = None) -> zenoh.Session:
     """Open a zenoh session for ``config`` (defaults: peer, loopback listener, no multicast scouting).
 
     Raises:
@@ -80,7 +80,7 @@ def open_session(config: ZenohConfig | None = None) -> "zenoh.Session":
         raise DriverError(DEVICE, f"cannot open a session with {settings} ({e})") from e
 
 
-def wait_for_subscriber(session: "zenoh.Session", key: str, timeout_s: float) -> bool:
+def wait_for_subscriber(session: zenoh.Session, key: str, timeout_s: float) -> bool:
     """Block until some subscriber on the network matches ``key``; False after ``timeout_s`` [s].
 
     Samples put before the route exists are lost, so a publisher that must not miss the first frames

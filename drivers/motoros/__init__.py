@@ -8,8 +8,9 @@ Typical use, both arms of one controller sharing its connections::
         r1.wait_settled(timeout_s=30.0)
 """
 
+from drivers.errors import InvalidArgument
 from drivers.motoros.driver import MotorosDriver, to_robot_status
-from drivers.motoros.errors import ControllerNotReady, InvalidArgument, NonFiniteFeedback
+from drivers.motoros.errors import ControllerNotReady, NonFiniteFeedback
 from drivers.motoros.fake import FakeMotorosController
 from drivers.motoros.fake_cell import build_fake_controller, run_fake_controller, serve_fake_controller
 from drivers.motoros.framing import Framer

@@ -27,13 +27,22 @@ from __future__ import annotations
 import enum
 import struct
 from dataclasses import dataclass, field
-from typing import ClassVar, Union
+from typing import ClassVar
 
 import numpy as np
 
 from drivers.errors import ProtocolError
-from drivers.motoros.codes import (SUBCODE_NAMES, Command, CommType, InvalidSubcode, MsgType, NotReadySubcode,
-                                   ReplyType, Result, describe)
+from drivers.motoros.codes import (
+    SUBCODE_NAMES,
+    Command,
+    CommType,
+    InvalidSubcode,
+    MsgType,
+    NotReadySubcode,
+    ReplyType,
+    Result,
+    describe,
+)
 
 MAX_JOINTS = 10
 MAX_GROUPS = 4
@@ -92,7 +101,7 @@ class Packet:
                 + _HEADER.pack(self.msg_type, self.comm_type, self.reply_type) + self.body)
 
     @classmethod
-    def from_frame(cls, frame: bytes) -> "Packet":
+    def from_frame(cls, frame: bytes) -> Packet:
         """Parse the bytes after the length prefix; raises ProtocolError when shorter than a header."""
         if len(frame) < _HEADER.size:
             raise ProtocolError(CODEC_DEVICE, f"frame of {len(frame)} bytes is shorter than a header")
@@ -119,7 +128,7 @@ class RobotStatusMsg:
         return Packet(self.TYPE, CommType.TOPIC, ReplyType.INVALID, body).to_bytes()
 
     @classmethod
-    def decode(cls, body: bytes) -> "RobotStatusMsg":
+    def decode(cls, body: bytes) -> RobotStatusMsg:
         _check_size(body, cls._S.size, "RobotStatus")
         return cls(*cls._S.unpack(body))
 
@@ -150,7 +159,7 @@ class JointFeedback:
         return Packet(self.TYPE, CommType.TOPIC, ReplyType.INVALID, self.body()).to_bytes()
 
     @classmethod
-    def decode(cls, body: bytes) -> "JointFeedback":
+    def decode(cls, body: bytes) -> JointFeedback:
         _check_size(body, _FEEDBACK_SIZE, "JointFeedback")
         group, valid, time = _FEEDBACK_HEAD.unpack_from(body)
         j = np.array(_JOINTS.unpack_from(body, _FEEDBACK_HEAD.size))
@@ -172,7 +181,7 @@ class JointFeedbackEx:
         return Packet(self.TYPE, CommType.TOPIC, ReplyType.INVALID, body).to_bytes()
 
     @classmethod
-    def decode(cls, body: bytes) -> "JointFeedbackEx":
+    def decode(cls, body: bytes) -> JointFeedbackEx:
         _check_size(body, 4 + MAX_GROUPS * _FEEDBACK_SIZE, "JointFeedbackEx")
         (n,) = _PREFIX.unpack_from(body)
         if not 0 <= n <= MAX_GROUPS:
@@ -201,7 +210,7 @@ class JointTrajPtFull:
         return Packet(self.TYPE, CommType.SERVICE_REQUEST, ReplyType.INVALID, body).to_bytes()
 
     @classmethod
-    def decode(cls, body: bytes) -> "JointTrajPtFull":
+    def decode(cls, body: bytes) -> JointTrajPtFull:
         _check_size(body, cls._HEAD.size + _JOINTS.size, "JointTrajPtFull")
         group, seq, valid, time = cls._HEAD.unpack_from(body)
         j = np.array(_JOINTS.unpack_from(body, cls._HEAD.size))
@@ -223,7 +232,7 @@ class JointTrajPtFullEx:
         return Packet(self.TYPE, CommType.SERVICE_REQUEST, ReplyType.INVALID, body).to_bytes()
 
     @classmethod
-    def decode(cls, body: bytes) -> "JointTrajPtFullEx":
+    def decode(cls, body: bytes) -> JointTrajPtFullEx:
         if len(body) < 8:
             raise ProtocolError(CODEC_DEVICE, f"JointTrajPtFullEx body is {len(body)} bytes, expected >= 8")
         n, seq = struct.unpack_from("<ii", body)
@@ -250,7 +259,7 @@ class MotionCtrl:
         return Packet(self.TYPE, CommType.SERVICE_REQUEST, ReplyType.INVALID, body).to_bytes()
 
     @classmethod
-    def decode(cls, body: bytes) -> "MotionCtrl":
+    def decode(cls, body: bytes) -> MotionCtrl:
         _check_size(body, cls._HEAD.size + 4 * MAX_JOINTS, "MotoMotionCtrl")
         return cls(*cls._HEAD.unpack_from(body))
 
@@ -277,7 +286,7 @@ class MotionReply:
         return Packet(self.TYPE, CommType.SERVICE_REPLY, ReplyType.SUCCESS, body).to_bytes()
 
     @classmethod
-    def decode(cls, body: bytes) -> "MotionReply":
+    def decode(cls, body: bytes) -> MotionReply:
         _check_size(body, cls._HEAD.size + 4 * MAX_JOINTS, "MotoMotionReply")
         data = struct.unpack_from(f"<{MAX_JOINTS}f", body, cls._HEAD.size)
         return cls(*cls._HEAD.unpack_from(body), data=tuple(float(x) for x in data))
@@ -287,8 +296,8 @@ class MotionReply:
         return describe(self.result, self.subcode)
 
 
-Message = Union[RobotStatusMsg, JointFeedback, JointFeedbackEx, JointTrajPtFull, JointTrajPtFullEx,
-                MotionCtrl, MotionReply]
+Message = (RobotStatusMsg | JointFeedback | JointFeedbackEx | JointTrajPtFull | JointTrajPtFullEx
+           | MotionCtrl | MotionReply)
 _DECODERS = {cls.TYPE: cls.decode for cls in (RobotStatusMsg, JointFeedback, JointFeedbackEx,
                                               JointTrajPtFull, JointTrajPtFullEx, MotionCtrl, MotionReply)}
 

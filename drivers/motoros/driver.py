@@ -31,11 +31,18 @@ from typing import Literal
 import numpy as np
 
 from drivers.base import JointState, RobotDriver, RobotStatus
-from drivers.errors import DriverDisconnected, DriverError, DriverTimeout, RobotFault
-from drivers.motoros.codec import (Command, JointFeedback, JointTrajPtFull, JointTrajPtFullEx, MotionCtrl,
-                                   MotionReply, MsgType, Result, RobotStatusMsg, ValidFields)
-from drivers.motoros.codes import OPERATOR_SUBCODES, NotReadySubcode
-from drivers.motoros.errors import ControllerNotReady, InvalidArgument, NonFiniteFeedback
+from drivers.errors import DriverDisconnected, DriverError, DriverTimeout, InvalidArgument, RobotFault
+from drivers.motoros.codec import (
+    JointFeedback,
+    JointTrajPtFull,
+    JointTrajPtFullEx,
+    MotionCtrl,
+    MotionReply,
+    RobotStatusMsg,
+    ValidFields,
+)
+from drivers.motoros.codes import OPERATOR_SUBCODES, Command, MsgType, NotReadySubcode, Result
+from drivers.motoros.errors import ControllerNotReady, NonFiniteFeedback
 from drivers.motoros.link import MotorosLink
 
 log = logging.getLogger("cellcal.drivers")

@@ -25,18 +25,26 @@ import logging
 import socket
 import threading
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
-from drivers.errors import DriverError, ProtocolError
-from drivers.motoros.codec import (JointFeedback, JointFeedbackEx, JointTrajPtFull, JointTrajPtFullEx, Message,
-                                   MotionReply, Result, ValidFields, decode)
-from drivers.motoros.codes import CommType, InvalidSubcode, MsgType
-from drivers.motoros.errors import InvalidArgument
+from drivers.errors import DriverError, InvalidArgument, ProtocolError
+from drivers.motoros.codec import (
+    JointFeedback,
+    JointFeedbackEx,
+    JointTrajPtFull,
+    JointTrajPtFullEx,
+    Message,
+    MotionReply,
+    Packet,
+    ValidFields,
+    decode,
+)
+from drivers.motoros.codes import CommType, InvalidSubcode, MsgType, Result
 from drivers.motoros.fake_arm import INTERPOLATION_PERIOD_S, SimulatedGroup
 from drivers.motoros.fake_logic import SimulatedController
-from drivers.motoros.framing import Framer, Packet, recv_into_framer
+from drivers.motoros.framing import Framer, recv_into_framer
 
 log = logging.getLogger("cellcal.drivers")
 
@@ -127,7 +135,7 @@ class FakeMotorosController:
         self._state_clients: list[socket.socket] = []
 
     # -- lifecycle -------------------------------------------------------------------------------
-    def start(self) -> "FakeMotorosController":
+    def start(self) -> FakeMotorosController:
         """Bind both ports (SO_REUSEADDR) and start the threads; returns self."""
         self._listeners = []
         self._listeners.append(self._listen(self.motion_port, "motion"))
@@ -162,7 +170,7 @@ class FakeMotorosController:
         while self._threads:  # an acceptor may still spawn a handler until it sees the stop flag
             self._threads.pop().join(timeout=2.0)
 
-    def __enter__(self) -> "FakeMotorosController":
+    def __enter__(self) -> FakeMotorosController:
         return self.start()
 
     def __exit__(self, *exc: object) -> None:

@@ -24,12 +24,20 @@ buffer), and non-finite point positions are answered INVALID 3012 (MotoROS conve
 from __future__ import annotations
 
 import threading
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
-from drivers.motoros.codec import (JointFeedback, JointTrajPtFull, JointTrajPtFullEx, Message, MotionCtrl,
-                                   MotionReply, RobotStatusMsg, ValidFields)
+from drivers.motoros.codec import (
+    JointFeedback,
+    JointTrajPtFull,
+    JointTrajPtFullEx,
+    Message,
+    MotionCtrl,
+    MotionReply,
+    RobotStatusMsg,
+    ValidFields,
+)
 from drivers.motoros.codes import Command, InvalidSubcode, NotReadySubcode, Result
 from drivers.motoros.fake_arm import SimulatedGroup
 

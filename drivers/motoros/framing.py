@@ -11,9 +11,8 @@ from __future__ import annotations
 import socket
 import struct
 
-from drivers.errors import DriverDisconnected, ProtocolError
+from drivers.errors import DriverDisconnected, InvalidArgument, ProtocolError
 from drivers.motoros.codec import Packet
-from drivers.motoros.errors import InvalidArgument
 
 HEADER_BYTES = 12
 # The largest MotoROS packet (JointFeedbackEx) is 544 bytes after the prefix; leave room, reject the absurd.

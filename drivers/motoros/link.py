@@ -41,10 +41,10 @@ import threading
 import time
 from pathlib import Path
 
-from calibration.files import ExclusiveLock, LockHeld, private_folder
-from drivers.errors import DriverDisconnected, DriverError, DriverTimeout
-from drivers.motoros.codec import Command, JointFeedback, MotionCtrl, MotionReply, Result, RobotStatusMsg, decode
-from drivers.motoros.errors import InvalidArgument
+from calibration.data.files import ExclusiveLock, LockHeld, private_folder
+from drivers.errors import DriverDisconnected, DriverError, DriverTimeout, InvalidArgument
+from drivers.motoros.codec import JointFeedback, MotionCtrl, MotionReply, RobotStatusMsg, decode
+from drivers.motoros.codes import Command, Result
 from drivers.motoros.framing import Framer, recv_into_framer
 from drivers.motoros.state import StateStream
 

@@ -32,9 +32,17 @@ from dataclasses import dataclass
 from drivers.base import MocapSource, RigidBodyFrame
 from drivers.errors import DriverDisconnected, DriverError, DriverTimeout, ProtocolError
 from drivers.natnet.link import NatNetLink
+from drivers.natnet.messages import (
+    MessageId,
+    ServerInfo,
+    build_connect,
+    build_request,
+    check_version,
+    parse_server_info,
+    split_packet,
+)
 from drivers.natnet.modeldef import ModelDefinitions, parse_model_definitions
-from drivers.natnet.packets import (MessageId, ServerInfo, build_connect, build_request, check_version,
-                                    parse_frame, parse_server_info, split_packet)
+from drivers.natnet.packets import parse_frame
 
 log = logging.getLogger("cellcal.drivers")
 _MODELDEF_RETRY_S = 0.5

@@ -23,7 +23,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from drivers.errors import DriverError
-from drivers.natnet.packets import MessageId
+from drivers.natnet.messages import MessageId
 
 log = logging.getLogger("cellcal.drivers")
 
@@ -221,7 +221,7 @@ class FakeNatNetServer:
         while not self._stop.is_set():
             try:
                 data, addr = self._sock.recvfrom(65536)
-            except (socket.timeout, OSError):
+            except (TimeoutError, OSError):
                 continue
             if len(data) < 4:
                 continue
@@ -288,7 +288,7 @@ class FakeNatNetServer:
             self._thread.join(timeout=1.0)
         self._sock.close()
 
-    def __enter__(self) -> "FakeNatNetServer":
+    def __enter__(self) -> FakeNatNetServer:
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -19,7 +19,7 @@ from collections.abc import Callable, Mapping
 
 import numpy as np
 
-from calibration import so3
+from calibration.kinematics import so3
 from drivers.errors import DriverError
 from drivers.natnet.fake import FakeBody, FakeFrame, FakeNatNetServer
 
@@ -161,7 +161,7 @@ class FakeMotive:
         if failure is not None:
             raise failure
 
-    def __enter__(self) -> "FakeMotive":
+    def __enter__(self) -> FakeMotive:
         self.start()
         return self
 

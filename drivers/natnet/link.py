@@ -83,7 +83,7 @@ class NatNetLink:
         self.cmd.settimeout(max(timeout_s, 1e-3))
         try:
             packet, source = self.cmd.recvfrom(RECV_SIZE)
-        except (socket.timeout, ConnectionRefusedError):
+        except (TimeoutError, ConnectionRefusedError):
             return None
         return packet if self._from_server(source) else None
 

@@ -23,10 +23,21 @@ import numpy as np
 
 from drivers.base import RigidBodyFrame
 from drivers.errors import ProtocolError
-from drivers.natnet.messages import (HEADER, MessageId, ServerInfo, build_connect, build_request,  # noqa: F401
-                                     check_version, has_byte_counts, has_precision_timestamp,
-                                     parse_server_info, split_packet)
-from drivers.natnet.reader import DEVICE, I32 as _I32, Reader as _Reader
+from drivers.natnet.messages import (  # noqa: F401
+    HEADER,
+    MessageId,
+    ServerInfo,
+    build_connect,
+    build_request,
+    check_version,
+    has_byte_counts,
+    has_precision_timestamp,
+    parse_server_info,
+    split_packet,
+)
+from drivers.natnet.reader import DEVICE
+from drivers.natnet.reader import I32 as _I32
+from drivers.natnet.reader import Reader as _Reader
 
 M_TO_MM = 1000.0
 TRACKING_VALID = 0x01
@@ -104,7 +115,7 @@ class MocapFrame:
         :data:`PRECISION_FRACTION_PER_S`), and read in the wrong one its sub-second part would run at a quarter of
         real time and jump at each whole second, so a measurement window cut on it would hold the wrong frames.
         The collector needs only a clock that keeps the capture instants' rate (it learns the offset to the host
-        clock itself, :mod:`app.cell.mocap_window`), which the frame time does.
+        clock itself, :mod:`app.collection.mocap_window`), which the frame time does.
         """
         return self.timestamp
 

@@ -40,7 +40,7 @@ class SimulatedProbe:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
-    def start(self) -> "SimulatedProbe":
+    def start(self) -> SimulatedProbe:
         """Open the bus and start heartbeating; returns self."""
         can = import_can()
         self._bus = can.Bus(channel=self.channel, interface=self.interface, **self._bus_kwargs)
@@ -59,7 +59,7 @@ class SimulatedProbe:
             self._bus.shutdown()
             self._bus = None
 
-    def __enter__(self) -> "SimulatedProbe":
+    def __enter__(self) -> SimulatedProbe:
         return self.start()
 
     def __exit__(self, *exc: object) -> None:

@@ -2,10 +2,10 @@
 
 The CDC paper reports its largest gain on R2 (the MA1440): nominal 1.08 / 3.07 mm (mean / max on its test path),
 FBF 0.42 / 0.99 mm. Nothing in the project measured R2; this module makes a recording of such an arm, so that
-``scripts/bench_days.py`` shows a regression of the configuration-dependent (CDC) methods on R2 before it lands.
+``scripts/benchmarks/bench_days.py`` shows a regression of the configuration-dependent (CDC) methods on R2 before it lands.
 
 The error model is written here on purpose, independent of :mod:`calibration.physics` and of the pi model's
-blocks (:mod:`calibration.physics_informed`), so that the recording is not a twin of what it is fitted with:
+blocks (:mod:`calibration.physics.extended`), so that the recording is not a twin of what it is fitted with:
 
 - **geometry**: every link vector shifted and every joint axis tilted (seeded draws), joint zero offsets;
 - **own-weight compliance**: joints 2, 3 and 5 twist under gravity torques computed from point masses placed
@@ -21,7 +21,7 @@ Each effect is planted by its RMS tool displacement over the test path (``*_mm``
 millimetres whatever the draw. The defaults (:data:`PAPER_SIZE`) were chosen on this simulation alone, toward the
 paper's R2 figures: on 5 seeds drawn at run time the test path's nominal error is 0.95-1.55 mm mean, 2.1-2.6 mm max
 (paper 1.08 / 3.07), the paper's fbf13 0.30-0.48 / 1.06-1.46 mm on 2 of them (paper 0.42 / 0.99), pi 0.27-0.54 mm
-mean and the pi-based CDC methods 7-30 % below pi (``scripts/bench_days.py --r2-only``).
+mean and the pi-based CDC methods 7-30 % below pi (``scripts/benchmarks/bench_days.py --r2-only``).
 
 Designs like the paper's R2 recordings: a training grid of anchors over (q2, q3) (5 deg steps, the q3 range
 depending on q2), each anchor followed by +1 deg on joints 1..6 in turn (clusters of 7), joints 1, 4, 5, 6 within
@@ -36,8 +36,8 @@ from typing import Any
 
 import numpy as np
 
-from calibration import so3
-from calibration.recording import Recording
+from calibration.data.recording import Recording
+from calibration.kinematics import so3
 
 #: Cycles per joint turn of the planted transmission errors of joints 2 and 3.
 GEAR_CYCLES = (3.0, 5.0)

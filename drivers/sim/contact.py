@@ -38,7 +38,7 @@ class SimContactSensor:
                 self.touching = inside
                 self.probe.touch() if inside else self.probe.release()
 
-    def __enter__(self) -> "SimContactSensor":
+    def __enter__(self) -> SimContactSensor:
         self._thread.start()
         return self
 

@@ -15,13 +15,12 @@ from __future__ import annotations
 import logging
 import math
 import threading
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
-from calibration import so3
+from calibration.kinematics import so3
 from drivers.base import MocapSource, RigidBodyFrame
 from drivers.errors import DriverDisconnected, InvalidArgument
 from drivers.sim.robot import SimRobotDriver

@@ -17,15 +17,17 @@ from __future__ import annotations
 
 import math
 import threading
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
-from calibration import so3
+from calibration.kinematics import so3
 from calibration.physics import PlantedErrors
 from drivers.errors import DriverError
-
+from drivers.motoros.state import StateStream
+from drivers.sim.truth import cell_truths
 
 
 def rigid(R: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -84,7 +86,6 @@ def _unit(v: np.ndarray) -> np.ndarray:
 def rehearsal_truths(cell: Any, seed: int, errors: PlantedErrors = PlantedErrors(compliance_mm=1.0)
                      ) -> dict[str, Any]:
     """Each arm's physics twin (a :class:`~drivers.sim.truth.TwinTruth`), seeded like the simulated cell."""
-    from drivers.sim.truth import cell_truths
 
     return cell_truths(cell, seed, errors)
 
@@ -101,13 +102,12 @@ class StateReader:
     """
 
     def __init__(self, host: str, state_port: int) -> None:
-        from drivers.motoros.state import StateStream
 
         self._stop = threading.Event()
         self._stream = StateStream(host, state_port, f"motoros-state@{host}:{state_port}", self._stop,
                                    connect_timeout_s=1.0, backoff_s=0.05, max_backoff_s=0.5, stale_after_s=0.5)
 
-    def start(self) -> "StateReader":
+    def start(self) -> StateReader:
         self._stream.start()
         return self
 

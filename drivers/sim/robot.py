@@ -23,7 +23,6 @@ from drivers.errors import DriverDisconnected, DriverTimeout, InvalidArgument, R
 from drivers.sim.clock import SimClock
 from drivers.sim.truth import Truth
 
-
 log = logging.getLogger("cellcal.drivers")
 
 _PROFILE_PEAK = 1.5  # peak / mean speed of the smoothstep profile 3s^2 - 2s^3

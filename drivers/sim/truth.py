@@ -20,8 +20,8 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from calibration.kinematics.poe import PoeModel
 from calibration.physics import GravityModel, PlantedErrors, planted_twin
-from calibration.poe import PoeModel
 from drivers.errors import InvalidArgument
 
 

@@ -7,8 +7,19 @@ import pytest
 import yaml
 
 from calibration.errors import ConfigError
-from cell_config import (DEFAULT_CELL, REHEARSAL_CELL, ControllerConfig, MocapConfig, ProbeConfig, RobotRegistration,
-                         ZenohConfig, load_cell, load_registration, load_robot, save_registration)
+from cell_config import (
+    DEFAULT_CELL,
+    REHEARSAL_CELL,
+    ControllerConfig,
+    MocapConfig,
+    ProbeConfig,
+    RobotRegistration,
+    ZenohConfig,
+    load_cell,
+    load_registration,
+    load_robot,
+    save_registration,
+)
 
 
 def test_default_cell_loads_both_arms():
@@ -226,8 +237,8 @@ def test_the_cell_files_dwell_window_is_the_real_collections_window(tmp_path):
     import argparse
     import dataclasses
 
-    from app.cell.collect import CollectConfig
     from app.cli.cell_options import motion_config
+    from app.collection.collect import CollectConfig
 
     real, sim = argparse.Namespace(sim=False, speed=None), argparse.Namespace(sim=True, speed=None)
     default = load_cell(_copy_rehearsal(tmp_path, lambda d: None))

@@ -10,8 +10,8 @@ from collections.abc import Iterator
 import pytest
 
 from drivers.can_probe import STATUS_ARMED, STATUS_CONTACT, CanContactProbe, ProbeStats, encode_event, encode_heartbeat
-from drivers.sim.can_probe import SimulatedProbe
 from drivers.errors import DriverError, DriverTimeout
+from drivers.sim.can_probe import SimulatedProbe
 
 
 @pytest.fixture

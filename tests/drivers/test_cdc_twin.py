@@ -1,16 +1,16 @@
 """The simulated R2 of drivers.sim.cdc_twin, and what the pi-based CDC methods make of it.
 
 The fit runs on a small grid (10 deg anchor steps, 70 clusters) with short strength grids, so it takes a second or
-two; ``scripts/bench_days.py --r2-only`` runs the paper-like 5 deg grid, where the CDC gain over pi is measured. On
+two; ``scripts/benchmarks/bench_days.py --r2-only`` runs the paper-like 5 deg grid, where the CDC gain over pi is measured. On
 grids this small the gain is not reliable (seeds 1-8: from -6 % to +15 %), so no test asserts it here.
 """
 
 import numpy as np
 import pytest
 
-from app.analysis.fitting import fitter_for
-from calibration.methods import FitOptions
-from calibration.metrics import errors
+from app.workflows.fit import fitter_for
+from calibration.evaluation.metrics import errors
+from calibration.methods.options import FitOptions
 from cell_config import load_cell
 from drivers.sim.cdc_twin import PAPER_SIZE, CdcSize, Grid, simulated_day
 

@@ -8,8 +8,18 @@ import numpy as np
 import pytest
 
 from drivers.errors import ProtocolError
-from drivers.motoros.codec import (Command, JointFeedback, JointFeedbackEx, JointTrajPtFull, JointTrajPtFullEx,
-                                   MotionCtrl, MotionReply, MsgType, Packet, Result, RobotStatusMsg, decode)
+from drivers.motoros.codec import (
+    JointFeedback,
+    JointFeedbackEx,
+    JointTrajPtFull,
+    JointTrajPtFullEx,
+    MotionCtrl,
+    MotionReply,
+    Packet,
+    RobotStatusMsg,
+    decode,
+)
+from drivers.motoros.codes import Command, MsgType, Result
 from drivers.motoros.framing import Framer
 
 Q = np.arange(1, 7) * 0.125  # exactly representable in float32

@@ -10,12 +10,20 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from drivers.errors import DriverDisconnected, DriverError, DriverTimeout, RobotFault
+from drivers.errors import DriverDisconnected, DriverError, DriverTimeout, InvalidArgument, RobotFault
 from drivers.motoros import FakeMotorosController, MotorosDriver, MotorosLink
-from drivers.motoros.codec import (Command, JointFeedback, JointTrajPtFull, JointTrajPtFullEx, MotionCtrl, MotionReply,
-                                   Result, RobotStatusMsg, decode)
+from drivers.motoros.codec import (
+    JointFeedback,
+    JointTrajPtFull,
+    JointTrajPtFullEx,
+    MotionCtrl,
+    MotionReply,
+    RobotStatusMsg,
+    decode,
+)
+from drivers.motoros.codes import Command, Result
+from drivers.motoros.errors import ControllerNotReady, NonFiniteFeedback
 from drivers.motoros.framing import Framer
-from drivers.motoros.errors import ControllerNotReady, InvalidArgument, NonFiniteFeedback
 
 SPEED = np.full(6, 4.0)  # rad/s, fake and driver agree
 Q0 = np.array([[0.1, -0.2, 0.3, 0.0, 0.5, -0.6], [-1.0, 0.25, 0.0, 0.5, 0.0, 1.5]])

@@ -15,7 +15,8 @@ import pytest
 from calibration.errors import ConfigError
 from cell_config import DEFAULT_CELL, load_cell
 from drivers.motoros import MotorosDriver, MotorosLink
-from drivers.motoros.codec import Command, JointTrajPtFull, MotionCtrl
+from drivers.motoros.codec import JointTrajPtFull, MotionCtrl
+from drivers.motoros.codes import Command
 from drivers.motoros.errors import NonFiniteFeedback
 from drivers.motoros.fake_cell import build_fake_controller, run_fake_controller
 

@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 
-from calibration import so3
+from calibration.kinematics import so3
 from drivers.errors import DriverError, DriverTimeout, ProtocolError
 from drivers.natnet import FakeBody, FakeFrame, FakeMotive, FakeNatNetServer, MessageId, NatNetSource, encode_frame
 

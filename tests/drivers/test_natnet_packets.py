@@ -9,9 +9,20 @@ import numpy as np
 import pytest
 
 from drivers.errors import ProtocolError
-from drivers.natnet import (FakeBody, FakeFrame, MessageId, build_connect, build_request, encode_frame,
-                            encode_model_definitions, encode_server_info, parse_frame, parse_model_definitions,
-                            parse_server_info, split_packet)
+from drivers.natnet import (
+    FakeBody,
+    FakeFrame,
+    MessageId,
+    build_connect,
+    build_request,
+    encode_frame,
+    encode_model_definitions,
+    encode_server_info,
+    parse_frame,
+    parse_model_definitions,
+    parse_server_info,
+    split_packet,
+)
 
 VERSIONS = [(3, 0), (3, 1), (4, 0), (4, 1), (4, 2)]
 

@@ -8,12 +8,20 @@ import time
 import numpy as np
 import pytest
 
-from calibration import so3
+from calibration.kinematics import so3
 from calibration.physics import Twin
 from cell_config import load_cell
 from drivers.errors import DriverDisconnected, DriverTimeout, RobotFault
-from drivers.sim import (SimClock, SimFault, SimMocapConfig, SimMocapSource, SimRobotConfig, SimRobotDriver,
-                         TwinTruth, planted_truth)
+from drivers.sim import (
+    SimClock,
+    SimFault,
+    SimMocapConfig,
+    SimMocapSource,
+    SimRobotConfig,
+    SimRobotDriver,
+    TwinTruth,
+    planted_truth,
+)
 
 
 @pytest.fixture
@@ -201,7 +209,7 @@ def test_bad_arguments_raise_invalid_argument_carrying_the_value(r1):
 
 def test_motoros_and_sim_share_one_invalid_argument():
     from drivers.errors import InvalidArgument
-    from drivers.motoros.errors import InvalidArgument as MotorosInvalidArgument
+    from drivers.errors import InvalidArgument as MotorosInvalidArgument
 
     assert MotorosInvalidArgument is InvalidArgument
 

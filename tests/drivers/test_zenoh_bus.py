@@ -9,10 +9,19 @@ import time
 import numpy as np
 import pytest
 
-from cell_config.loader import ZenohConfig
+from cell_config.devices import ZenohConfig
 from drivers.base import JointState, MocapSource, RigidBodyFrame
-from drivers.bus import (JointStatePublisher, JointStateSubscriber, MocapBridge, ZenohMocapSource, encode_mocap,
-                         joints_key, mocap_key, open_session, wait_for_subscriber)
+from drivers.bus import (
+    JointStatePublisher,
+    JointStateSubscriber,
+    MocapBridge,
+    ZenohMocapSource,
+    encode_mocap,
+    joints_key,
+    mocap_key,
+    open_session,
+    wait_for_subscriber,
+)
 from drivers.errors import DriverDisconnected, DriverError
 from drivers.natnet import FakeBody, FakeFrame, FakeNatNetServer, NatNetSource
 

@@ -8,10 +8,17 @@ import struct
 import numpy as np
 import pytest
 
-from cell_config.loader import ZenohConfig
+from cell_config.devices import ZenohConfig
 from drivers.base import JointState, RigidBodyFrame
-from drivers.bus import (decode_joints, decode_mocap, encode_joints, encode_mocap, joints_key, mocap_key,
-                         session_settings)
+from drivers.bus import (
+    decode_joints,
+    decode_mocap,
+    encode_joints,
+    encode_mocap,
+    joints_key,
+    mocap_key,
+    session_settings,
+)
 from drivers.errors import DriverError, ProtocolError
 
 FRAME = RigidBodyFrame(body_id=3, position_mm=np.array([1250.5, -42.125, 3.0e3]),

@@ -18,6 +18,9 @@ import sys
 from pathlib import Path
 
 PRODUCT = ("calibration", "app", "drivers", "cell_config")
+# only imports of the product's own modules are lifted (the circles hid behind them); stdlib and third-party
+# imports stay where they are, so a lift adds no import time of its own (tqdm, importlib.metadata, ...)
+PROJECT_ONLY = True
 # kept local (CONVENTIONS: heavy or optional, so `cellcal --help` stays fast); ruff TID253 enforces it
 HEAVY = {"casadi", "meshcat", "zenoh", "pinocchio", "sklearn", "matplotlib", "jinja2", "tornado", "umsgpack", "can",
          "scipy", "threadpoolctl", "pin", "cmeel", "coal", "IPython"}
@@ -68,7 +71,7 @@ def lift(path: Path, rel: str, report: list[str]) -> str | None:
         for node in ast.walk(fn):
             if not isinstance(node, (ast.Import, ast.ImportFrom)) or getattr(node, "level", 0):
                 continue
-            if top_name(node) in HEAVY or top_name(node) == "__future__":
+            if top_name(node) in HEAVY or top_name(node) == "__future__" or (PROJECT_ONLY and top_name(node) not in PRODUCT):
                 continue
             if id(node) in in_try:
                 report.append(f"{rel}:{node.lineno}: inside try (optional dependency?): left local")

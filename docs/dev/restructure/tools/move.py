@@ -6,6 +6,13 @@ every import and dotted/path reference. NOT run on /work/main: run it in a clean
     python plan32/move.py --repo .                  # git mv + rewrites
     python plan32/move.py --repo . --split          # also cut the top-level definitions of SPLITS
     python plan32/move.py --repo . --no-git         # plain renames (a copy that is not a git work tree)
+    python plan32/move.py --repo . --rewrite-only FILE...   # after the move: rewrite files written for the old tree
+
+``--rewrite-only`` is for files other branches add or change in the old layout and that are merged after the move:
+it reads ``rewrite_map.json`` (written beside this script by the move itself: every module move, every name that
+changed module, every moved path), ``git mv``s a FILE given by its old path to its new one (a row of table.tsv),
+then rewrites its imports, dotted names, path strings and ``parents[N]`` depth exactly as the move did, and runs
+``ruff --fix`` (import order, unused imports) on it. A file at an old path with no row is reported, not moved.
 
 Inputs: ``table.tsv`` beside this file (old path, new path, note; new "-" = delete, old "+new" = created) and
 the SPLITS / SHIM_SYMBOLS / STRING_OVERRIDES tables below. Outputs: the changed tree and ``move-report.txt``
@@ -674,10 +681,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--split", action="store_true", help="also cut the top-level definitions of SPLITS")
     ap.add_argument("--no-git", action="store_true", help="plain renames instead of git mv/rm")
     ap.add_argument("--no-ruff", action="store_true")
+    ap.add_argument("--rewrite-only", nargs="+", metavar="FILE",
+                    help="after the move: place and rewrite these files (paths relative to --repo)")
     a = ap.parse_args(argv)
     repo = Path(a.repo).resolve()
     dry, git = a.dry_run, not a.no_git
     rep = Report()
+    if a.rewrite_only:
+        return rewrite_only(repo, a.rewrite_only, git, not a.no_ruff)
     if not (repo / "calibration/methods.py").exists():
         print("calibration/methods.py is gone: the move has run here already; refusing to run twice")
         return 2
@@ -751,8 +762,72 @@ def main(argv: list[str] | None = None) -> int:
         except FileNotFoundError:
             rep("ruff not found: run `ruff check --select I,F401 --fix` yourself")
     if not dry:
+        import json
+        (HERE / "rewrite_map.json").write_text(json.dumps(
+            {"moves": moves, "sym": sorted([m, n, t] for (m, n), t in sym.items()), "paths": paths}, indent=0) + "\n")
         (repo / "move-report.txt").write_text("\n".join(rep.lines) + "\n")
         print(f"\n{len(rep.lines)} notes in {repo / 'move-report.txt'}")
+    return 0
+
+
+def rewrite_only(repo: Path, files: list[str], git: bool, ruff: bool) -> int:
+    """Rewrite files written for the old tree, with the map the move wrote (see the module docstring)."""
+    import json
+    data = json.loads((HERE / "rewrite_map.json").read_text())
+    moves, paths = data["moves"], data["paths"]
+    sym = {(m, n): t for m, n, t in data["sym"]}
+    rep = Report()
+    dpat, ppat = dotted_pattern(moves, sym), path_pattern(paths)
+    done = []
+    for f in files:
+        rel = str(Path(f))
+        if rel in paths and (repo / rel).exists():      # a file at its old path: to its new one first
+            new_rel = paths[rel]
+            if (repo / new_rel).exists():
+                rep(f"{rel}: {new_rel} exists already; merge the two by hand")
+                continue
+            (repo / new_rel).parent.mkdir(parents=True, exist_ok=True)
+            if git:
+                subprocess.run(["git", "mv", rel, new_rel], cwd=repo, check=True)
+            else:
+                os.replace(repo / rel, repo / new_rel)
+            old_rel, rel = rel, new_rel
+        else:
+            old_rel = None
+            top = rel.split("/")[0]
+            if top in ROOTS and mod_of(rel) in moves and moves[mod_of(rel)] != mod_of(rel):
+                rep(f"{rel}: an old path whose module moved, but the file is not in the table: place it by hand")
+            else:
+                parts = mod_of(rel).split(".")
+                pkgs = [".".join(parts[:i]) for i in range(len(parts) - 1, 0, -1)]
+                gone = next((p for p in pkgs if p in moves and moves[p] != p), None)
+                if top in ROOTS and (gone or not (repo / rel).parent.is_dir()):
+                    rep(f"{rel}: its package {gone or Path(rel).parent} moved or is gone in the new tree: its "
+                        f"imports are rewritten in place; git mv it to its room yourself (a row in table.tsv for "
+                        f"the record) and fix a Path(__file__).parents[N] by the change of depth")
+        p = repo / rel
+        if not p.exists():
+            rep(f"{rel}: not found")
+            continue
+        text = p.read_text()
+        if rel.endswith(".py"):
+            new = rewrite_imports(Path(rel), text, moves, sym, rep)
+            new = rewrite_dotted(Path(rel), new, moves, sym, dpat, rep)
+            new = rewrite_module_aliases(repo, Path(rel), new, moves, sym, rep)
+            new = rewrite_paths(new, paths, ppat)
+            if old_rel:
+                new = fix_depth(new, old_rel, rel)
+            done.append(rel)
+        else:
+            new = rewrite_paths(text, paths, ppat)
+            new = dotted_pattern(moves, sym).sub(
+                lambda m: STRING_OVERRIDES.get(m.group(0), (moves.get(m.group(1)) or m.group(1))
+                                               + (f".{m.group(2)}" if m.group(2) else "")), new)
+        if new != text:
+            p.write_text(new)
+            print(f"rewrote {rel}")
+    if ruff and done:
+        subprocess.run(["ruff", "check", "--no-cache", "--select", "I,F401", "--fix", "--quiet", *done], cwd=repo)
     return 0
 
 

@@ -1,0 +1,1 @@
+"""Data in and out: recordings (``recording``), atomic output files and locks (``files``), YAML (``yamlio``)."""
