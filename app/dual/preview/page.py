@@ -10,7 +10,7 @@ Plans: any plan file (:func:`app.collection.plans.reader.read_plan`): a dual pla
 single-robot collection plan moves its arm target by target while the other keeps its previous configuration
 (its parking pose at the start, where ``cellcal plan`` checked the plan with it; the safety checks start there
 too). A plan with a joint beyond its limit is refused, as export-targets refuses it. Any other defect of
-:func:`app.cell.plan_safety.plan_defects` (the checks every exit of a plan runs: relative pose recomputed from the
+:func:`app.collection.plan_safety.plan_defects` (the checks every exit of a plan runs: relative pose recomputed from the
 models, the step between waypoints, floor and clearances, ...) is drawn, so the person sees it: red dots on the
 unsafe waypoints, ``UNSAFE`` and the reason in the readout.
 
@@ -200,7 +200,7 @@ def preview(cell: CellSpec, plan: Any, html_out: str | Path | None = None, serve
         raise ModelError("preview needs html_out (a static page) or serve=True (a live viewer)")
     p = read_preview_plan(plan)
     margin, margin_at = limit_margin(cell, p)
-    from app.cell.runtime import park_q
+    from app.collection.runtime.sim import park_q
 
     start = None if p.kind == "dual" else {n: park_q(n) for n in cell.robots}  # where plan checked it from
     defects = tuple(plan_defects(cell, read_plan(plan), models=plan_models, q_start=start))

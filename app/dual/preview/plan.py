@@ -1,8 +1,8 @@
 """A plan as the preview draws it: both arms' joints per frame, the plan's residuals, its joint-limit margin.
 
-Any plan file (:func:`app.cell.plan_file.read_plan`): a dual plan draws both arms per waypoint; a single-robot
+Any plan file (:func:`app.collection.plans.reader.read_plan`): a dual plan draws both arms per waypoint; a single-robot
 collection plan moves its arm target by target while the other keeps its previous configuration (its parking pose,
-:func:`app.cell.runtime.park_q`, at the start: where ``cellcal plan`` checked the plan with it, and where the
+:func:`app.collection.runtime.sim.park_q`, at the start: where ``cellcal plan`` checked the plan with it, and where the
 simulated and the fake controller's arms stand). A plan with a joint beyond its limit is refused, as
 export-targets refuses it.
 """
@@ -74,7 +74,7 @@ def read_preview_plan(plan: Any) -> PreviewPlan:
                            np.array([x.converged for x in w]),
                            tuple("converged" if x.converged else f"NOT converged: {x.reason}" for x in w),
                            plan.T_wp_gun)
-    from app.cell.runtime import park_q
+    from app.collection.runtime.sim import park_q
 
     current = {"R1": park_q("R1"), "R2": park_q("R2")}
     q: dict[str, list[np.ndarray]] = {"R1": [], "R2": []}

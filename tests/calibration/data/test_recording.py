@@ -214,7 +214,7 @@ def test_other_separator_is_named(tmp_path, sep, name):
     assert f"seems to be separated by {name}" in str(e.value) and "comma-separated" in str(e.value)
     assert str(path) in str(e.value) and e.value.row == 1 and "\n" not in str(e.value)
     # the page it points to is in the repository (it pointed to ../shared/spec, outside it)
-    assert FORMAT_DOC in str(e.value) and (Path(__file__).resolve().parents[2] / FORMAT_DOC).is_file()
+    assert FORMAT_DOC in str(e.value) and (Path(__file__).resolve().parents[3] / FORMAT_DOC).is_file()
     for text in ("q1,q2,q3,q4,q5,q6\n0,1,2,3,4,5\n", "0,1,2,3,4,5\n"):  # joint files, with and without a header
         with pytest.raises(DataError, match=f"seems to be separated by {name}"):
             read_joints(write(tmp_path, text.replace(",", sep), "j.csv"))
