@@ -60,7 +60,7 @@ from calibration.kinematics.poe import PoeModel, pose_error
 from calibration.models import KinematicModel
 from calibration.models.guard import REGION_KEY, Region, extrapolation
 from calibration.physics.base import Effect
-from calibration.physics.compliance import JointCompliance, LumpedPayloadCompliance, PayloadCompliance
+from calibration.physics.compliance import JointCompliance, LumpedCompliance, LumpedPayloadCompliance, PayloadCompliance
 from calibration.physics.context import Context
 from calibration.physics.gravity import GravityModel
 from calibration.physics.joint_effects import JointOffset
@@ -532,6 +532,17 @@ def _on_compliant_joints(kind: str, selection: Selection, pool: list[tuple[Candi
     tests the payload compliance on that set (the forward pass may have met the elbow's share before the elbow's own
     weight was established; a joint fitted with the unphysical sign still leaves it, see :func:`_wrong_sign`)."""
     chosen = selection.of_kind(kind)
+    if len(chosen) > 1 and any(isinstance(c.effect, LumpedCompliance) for c in chosen):
+        # One effect holds a kind's joints: the lumped form of joints 2-3 beside a YAML-shaped joint 5 is confirmed
+        # as the YAML shape of all of them, which the lumped form then replaces on joints 2-3 when the held-out data
+        # ask for it (as when the forward pass chose the YAML pair).
+        pair = [c for c, _ in pool if c.kind == kind and c.joints == (2, 3) and isinstance(c.effect, JointCompliance)]
+        if pair:
+            chosen = pair + [c for c in chosen if not isinstance(c.effect, LumpedCompliance)]
+        else:  # no YAML pair to stand for it: the lumped form alone (one effect cannot hold both shapes)
+            log.info("diagnose: %s on joints %s left out beside the lumped form of joints 2-3", kind,
+                     sorted({j for c in chosen if not isinstance(c.effect, LumpedCompliance) for j in c.joints}))
+            chosen = [c for c in chosen if isinstance(c.effect, LumpedCompliance)]
     base = SAME_PHYSICS.get(kind)
     if base is None or not chosen:
         return chosen

@@ -106,3 +106,28 @@ def test_a_gear_error_does_not_stand_in_for_the_tool_frame():
         flexible = {"joint_compliance": prob.add(np.concatenate([cols["c2"], cols["c3"]], axis=1))}
         sel = forward_select(prob, pool, lambda e: np.zeros((6 * N, 0)), flexible, {"joint_compliance": (2, 3)})
         assert {s.candidate.kind for s in sel.steps} == {"joint_compliance", "tool_frame"}, (seed, sel.kinds())
+
+
+def test_a_lumped_pair_beside_a_yaml_joint_is_confirmed_as_one_yaml_effect():
+    # The forward pass may choose the lumped form of joints 2-3 and a YAML-shaped joint 5: one effect holds a kind's
+    # joints, so the confirmation starts from the YAML shape of all of them (the lumped form replaces joints 2-3 later
+    # when the held-out data ask); merging them as they came gave a basis of the wrong size (real R1 data: ModelError
+    # "effect_basis must have 18 rows, got (19, 6)").
+    from calibration.diagnosis.core import _on_compliant_joints
+    from calibration.diagnosis.selection import Evidence, Selection, Step
+    from calibration.physics import GravityModel, JointCompliance, LumpedCompliance
+    from cell_config import load_cell
+
+    cr = load_cell().robot("R1")
+    nominal = cr.model()
+    gravity = GravityModel.from_spec(cr.robot, nominal)
+    lumped = Candidate("joint_compliance", "joints 2-3 (lumped form)", (2, 3), LumpedCompliance.for_arm(nominal))
+    yaml5 = Candidate("joint_compliance", "joint 5", (5,), JointCompliance(gravity, (5,), np.zeros(1)))
+    pair = Candidate("joint_compliance", "joints 2-3", (2, 3), JointCompliance(gravity, (2, 3), np.zeros(2)))
+    steps = tuple(Step(c, Evidence(0.0, 0.0)) for c in (lumped, yaml5))
+    sel = Selection(steps, tuple(np.zeros(1, dtype=int) for _ in steps))
+    got = _on_compliant_joints("joint_compliance", sel, [(pair, None), (lumped, None), (yaml5, None)])
+    assert [c.label for c in got] == ["joints 2-3", "joint 5"]
+    assert all(isinstance(c.effect, JointCompliance) for c in got)
+    alone = Selection(steps[:1], sel.columns[:1])
+    assert _on_compliant_joints("joint_compliance", alone, [(pair, None)]) == [lumped]
