@@ -150,12 +150,36 @@ def test_the_pages_command_blocks_run_in_order_from_a_fresh_copy(page, tmp_path,
         if extra:
             assert kind in RUN_CLASSES, f"{page.name}: reductions announced before a block that does not run"
     copy = fresh_copy(tmp_path, [page])
+    before = set(_files(copy))
     monkeypatch.chdir(copy)
     variables: dict[str, str] = {}
     for body, extra in runnable:
         ran = run_block(body, variables, extra)
         for command in extra:
             assert command in ran, f"{page.name}: a reduction for {command}, which the block does not run"
+    written = sorted(set(_files(copy)) - before)
+    assert not (left := not_ignored(written)), f"{page.name} leaves files git does not ignore: {left[:5]}"
+
+
+def _files(root: Path) -> list[str]:
+    """Every file under ``root``, relative to it (POSIX)."""
+    return [p.relative_to(root).as_posix() for p in root.rglob("*") if p.is_file() or p.is_symlink()]
+
+
+def not_ignored(paths: list[str]) -> list[str]:
+    """Those of ``paths`` (relative to the repository root) that the repository's .gitignore does not ignore: what a
+    page's commands would leave in ``git status`` (the README's tour wrote r1_plan.json, s_r1/ ... into the root)."""
+    if not paths:
+        return []
+    done = subprocess.run(["git", "check-ignore", "--no-index", "--stdin", "-z"], cwd=ROOT, input="\0".join(paths),
+                          capture_output=True, text=True)
+    assert done.returncode in (0, 1), done.stderr
+    ignored = set(done.stdout.split("\0"))
+    return [p for p in paths if p not in ignored]
+
+
+def test_the_ignore_check_tells_an_output_under_tutorial_out_from_one_in_the_root():
+    assert not_ignored(["tutorial_out/readme/r1_plan.json", "r1_plan.json", "demo_out/report.html"]) == ["r1_plan.json"]
 
 
 def test_the_block_reader_joins_continuations_reads_reductions_and_the_runner_refuses_other_commands():

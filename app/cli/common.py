@@ -9,6 +9,8 @@ import math
 import re
 from typing import Any
 
+from calibration.errors import OutputError
+
 log = logging.getLogger("cellcal.app")
 
 
@@ -392,6 +394,7 @@ def check_output_args(args: argparse.Namespace) -> None:
     from calibration.errors import OutputError
 
     check_input_args(args)
+    check_no_stdout_dash(args)
     outputs: list[tuple[str, str]] = []
     for name in OUTPUT_FILE_OPTIONS:
         value = getattr(args, name, None)
@@ -412,6 +415,26 @@ def check_output_args(args: argparse.Namespace) -> None:
         if clash is not None:
             raise OutputError(value, f"--{name} is also the --{_option(clash[0])} {clash[1]}; refusing to "
                                      f"overwrite it (give --{name} another file)")
+
+
+#: Commands whose ``--session`` folder they create or extend (elsewhere ``--session`` is read).
+SESSION_WRITERS = ("collect",)
+
+#: Every option naming something a command writes, file or folder (``--session`` only where the command writes it).
+WRITTEN_OPTIONS = (*OUTPUT_FILE_OPTIONS, "report", "model_dir", "session")
+
+
+def check_no_stdout_dash(args: argparse.Namespace) -> None:
+    """Refuse ``-`` as an output: every command writes its outputs to files (several at once, a summary on stdout
+    beside them), so the Unix "standard output" reading cannot hold; ``export-urdf --out -`` wrote a file named ``-``.
+
+    Raises:
+        OutputError: the first output option given as ``-``.
+    """
+    for name in WRITTEN_OPTIONS:
+        if getattr(args, name, None) == "-" and (name != "session" or args.command in SESSION_WRITERS):
+            raise OutputError(f"--{_option(name)} -", "cellcal writes its outputs to files, not to standard output "
+                                                      "(nor to a file named '-'); give a file name")
 
 
 def check_input_args(args: argparse.Namespace) -> None:

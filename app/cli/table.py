@@ -8,11 +8,10 @@ from __future__ import annotations
 
 import argparse
 
+from app.cli.common import SESSION_WRITERS
+
 #: Options naming something a command writes (files or folders), in the order the parser declares them.
 OUTPUT_OPTIONS = ("--out", "--report", "--html", "--model-dir", "--xacro", "--jbi")
-
-#: Commands whose ``--session`` folder they create or extend (elsewhere ``--session`` is read).
-SESSION_WRITERS = ("collect",)
 
 HEADER = "| command | required inputs | writes | `--json` | what |\n|---|---|---|---|---|"
 

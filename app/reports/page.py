@@ -27,7 +27,7 @@ import numpy as np
 
 from app.reports.acceptance import Acceptance, IsoTable, Tolerance
 from app.reports.command_warnings import register_page, warnings_so_far
-from app.reports.verdict import ACCEPTED, CONDITIONAL, default_next_steps, page_verdict, verdict
+from app.reports.verdict import ACCEPTED, CONDITIONAL, next_steps, page_verdict, verdict
 from calibration.data.files import atomic_write_text, make_folders, read_output_bytes
 from calibration.evaluation.comparison import Comparison
 
@@ -117,7 +117,7 @@ def render_html(page: Page) -> str:
 
     given = warnings_so_far()
     verdicts = [verdict(s, page.tolerance, given) for s in page.sections]
-    steps = [s.next_steps or default_next_steps(v) for s, v in zip(page.sections, verdicts)]
+    steps = [next_steps(v, s.next_steps) for s, v in zip(page.sections, verdicts)]
     env = jinja2.Environment(loader=jinja2.PackageLoader("app.reports", "templates"),
                              autoescape=jinja2.select_autoescape(["html", "j2"]), undefined=jinja2.StrictUndefined,
                              trim_blocks=False)

@@ -4,6 +4,7 @@ renders it at the top of the page)."""
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Protocol
@@ -76,8 +77,69 @@ def default_next_steps(v: Verdict) -> list[str]:
         return [f"Do not put {v.model or 'a model'} into service. Find what the model misses where it fails "
                 "(cellcal diagnose --robot ROBOT --train TRAIN --test TEST) and collect more poses there."]
     if v.status == CONDITIONAL:
-        return ["Resolve each condition listed (or state why it does not matter for this cell) before signing; "
-                f"then put {v.model} into service (cellcal export-urdf, compensate-job or export-targets with this "
-                "model)."]
+        return [f"With the conditions resolved, sign below and put {v.model} into service (cellcal export-urdf, "
+                "compensate-job or export-targets with this model)."]
     return [f"Sign below and put {v.model} into service (cellcal export-urdf, compensate-job or export-targets with "
             "this model)."]
+
+
+@dataclass(frozen=True)
+class Remedy:
+    """What to do about one kind of condition: the warnings it answers (a regular expression), the step, and the
+    command the step names (a step the command already gives, as evaluate's top-up, is not repeated)."""
+
+    kind: str
+    pattern: str
+    command: str
+    step: str
+
+
+#: One remedy per kind of warning a command gives (:mod:`app.reports.command_warnings`), in the order shown.
+REMEDIES = (
+    Remedy("extrapolation", r"outside the joint range|beyond the .* training data|outside the \(q2, q3\) region",
+           "cellcal select",
+           "The model extrapolates beyond the poses it was trained on: collect poses that cover the task and refit "
+           "(cellcal select --robot ROBOT --data CANDIDATES.csv --given TRAIN.csv --task TASK.csv --poses 21 --out "
+           "topup.csv, measure them with cellcal collect, then cellcal fit with --add topup.csv)."),
+    Remedy("unseen directions", r"parameter directions", "cellcal plan",
+           "The training poses leave parameter directions unseen: plan poses that see them all (cellcal plan --robot "
+           "ROBOT --design optimal --out plan.json), measure them (cellcal collect) and refit."),
+    Remedy("instability", r"may be unstable", "--method pi",
+           "An interpolated model may be unstable between its anchors: put the pi model into service instead (cellcal "
+           "fit --method pi), or train on more clusters (a denser plan) and refit."),
+    Remedy("frames", r"off by a frame", "cellcal register",
+           "A frame of the cell is off, not the kinematics: register the cell again (cellcal register --robot ROBOT) "
+           "so that the cell file holds the measured base and tool frames, then evaluate again."),
+    Remedy("outliers", r"gross measurement errors|gross-error bound", "remeasure",
+           "Training rows were set aside as gross errors: check the markers of the rows named (a swap, a wrong rigid "
+           "body), remeasure those poses and refit."),
+    Remedy("measurement shift", r"jumps by .* along one direction", "mocap calibration",
+           "The recording holds a measurement jump: check the mocap calibration of that session and remeasure the "
+           "shifted poses."),
+)
+
+
+def _remedies(conditions: Sequence[str]) -> list[Remedy]:
+    return [r for r in REMEDIES if any(re.search(r.pattern, c) for c in conditions)]
+
+
+def condition_steps(conditions: Sequence[str], said: str = "") -> list[str]:
+    """The remedy of each kind of condition among ``conditions``, once per kind, except those whose command ``said``
+    (the steps given already) names; one closing step for the conditions no remedy answers."""
+    steps = [r.step for r in _remedies(conditions) if r.command not in said]
+    other = [c for c in conditions if not _remedies([c])]
+    if other:
+        steps.append(f"For the other condition{'s' if len(other) > 1 else ''} listed, resolve "
+                     f"{'each' if len(other) > 1 else 'it'} or state on this page why it does not matter for this "
+                     "cell.")
+    return steps
+
+
+def next_steps(v: Verdict, given: Sequence[str]) -> list[str]:
+    """The next steps of a verdict: ``given`` (the command's own steps) or the default one, and under conditions,
+    first, what to do about each of them (:func:`condition_steps`): recalibrate's "sign below" followed the
+    conditions without a word about them."""
+    steps = list(given) or default_next_steps(v)
+    if v.status != CONDITIONAL:
+        return steps
+    return condition_steps(v.conditions, " ".join(given)) + steps

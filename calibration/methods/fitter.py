@@ -367,7 +367,9 @@ class Fitter:
                 info["warning"] = info["heldout"].pop("warning")
         o, x = at(cutoff)
         self._cache["nls0_damping"] = cutoff
-        return self._constant("nls0", x, o.rank, **info, hidden_directions=o.unobservable())
+        # the parameters it carries, as every kind counts them (cpa, pi, the CDC methods); the ones the data could
+        # not see are named in hidden_directions (a rank here made nls1 "11 parameters" beside pi's full 77)
+        return self._constant("nls0", x, self.par.size, **info, hidden_directions=o.unobservable())
 
     def nls0_damping(self) -> float:
         """The Tikhonov cutoff of ``nls0`` (FitOptions.nls0_damping, or the one chosen on held-out clusters)."""
@@ -421,7 +423,7 @@ class Fitter:
 
     def _fit_nls1(self) -> ConstantModel:
         obs = self.observability()
-        return self._constant("nls1", self.global_fit(), obs.rank, hidden_directions=obs.unobservable(),
+        return self._constant("nls1", self.global_fit(), self.par.size, hidden_directions=obs.unobservable(),
                               warning=obs.summary())
 
     def _fit_pi(self) -> PhysicsInformedModel:

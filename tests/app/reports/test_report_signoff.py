@@ -8,7 +8,7 @@ import html as html_lib
 import re
 import sys
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +18,7 @@ from app.cli.commands import main
 from app.reports.acceptance import Acceptance, Tolerance, iso_unavailable
 from app.reports.command_warnings import collecting, warnings_so_far
 from app.reports.page import MAX_SERIES, Page, Section, shown_series, write_html
-from app.reports.verdict import ACCEPTED, CONDITIONAL, NOT_ACCEPTED, verdict
+from app.reports.verdict import ACCEPTED, CONDITIONAL, NOT_ACCEPTED, REMEDIES, Verdict, next_steps, verdict
 from calibration.data.recording import write_recording
 from tests.app.browser import browser_or_skip, screenshot_dom_pdf
 from tests.app.reports.test_report import _Page
@@ -419,3 +419,63 @@ def test_recalibrate_warns_as_fit_does_and_its_report_carries_it(rendered):
     unseen = [w for w in r.given if "parameter directions" in w]
     assert len(unseen) == 1 and unseen[0] in _conditions(r.html), r.given
     assert 'data-status="accepted with conditions"' in r.dom or 'data-status="not accepted"' in r.dom
+
+
+#: One warning of each kind a command gives (the texts of the messages that give them), and what its step names.
+CONDITION_KINDS = {
+    "extrapolation": ("1500 of 1500 poses lie outside the joint range of the pi model's training data (by up to 92.0 "
+                      "deg)", "cellcal select"),
+    "unseen directions": ("The data cannot see 16 of 27 parameter directions (condition number 2.96e+03); they mostly "
+                          "involve joints 1, 4, 5, 6.", "--design optimal"),
+    "instability": ("fbf13 may be unstable: at 2% of 625 probe configurations within 10 deg of the anchors' (q2, q3) "
+                    "box its raw parameters leave the local fits' range", "--method pi"),
+    "frames": ("The R1 recording is off by a frame, not by kinematics: the base is off (2.1 mm)", "cellcal register"),
+    "outliers": ("3 of 200 training rows of train.csv rejected as gross measurement errors (beyond 5 mm / 1 deg)",
+                 "remeasure"),
+    "measurement shift": ("the training recording has 12 of 300 poses whose measured position jumps by 0.40 mm along "
+                          "one direction (+0.1, +0.9, +0.0, base frame)", "mocap calibration"),
+    "other": ("R2's mocap lost 3 % of its frames", "state on this page why"),
+}
+SIGN = ["models_r1/current.yaml now holds the nls1 candidate; sign below to accept it."]  # recalibrate's own step
+
+
+@pytest.mark.parametrize("kind", list(CONDITION_KINDS))
+def test_a_conditional_verdicts_next_step_says_what_to_do_about_each_kind_of_condition(kind):
+    """recalibrate's next step was only "sign below" under conditions; every kind of condition now gets its remedy,
+    before the command's own step, whatever that step is."""
+    text, named = CONDITION_KINDS[kind]
+    v = Verdict("Recalibration of R1", "candidate nls1", CONDITIONAL, "within the tolerance", (text,))
+    for given in (SIGN, []):
+        steps = next_steps(v, given)
+        assert any(named in s for s in steps[:-1]), (kind, steps)  # before the last (the sign-off) step
+        assert steps[-len(given):] == given if given else steps[-1].startswith("With the conditions resolved")
+    assert next_steps(replace(v, status=ACCEPTED, conditions=()), SIGN) == SIGN  # no conditions: nothing to resolve
+
+
+def test_a_remedy_the_command_gave_already_is_not_repeated_and_each_kind_comes_once():
+    texts = [CONDITION_KINDS["extrapolation"][0], CONDITION_KINDS["extrapolation"][0].replace("1500", "12"),
+             CONDITION_KINDS["unseen directions"][0]]
+    v = Verdict("R1", "pi", CONDITIONAL, "within the tolerance", tuple(texts))
+    evaluate_step = ["... Collect poses that cover the task and refit: cellcal select --robot R1 --data C.csv ..."]
+    steps = next_steps(v, evaluate_step)
+    assert sum("cellcal select" in s for s in steps) == 1 and sum("--design optimal" in s for s in steps) == 1, steps
+
+
+@pytest.mark.parametrize("kind", REPORT_KINDS)
+def test_every_reports_next_step_answers_its_conditions(kind, written):
+    """On the page: a report accepted with conditions names, among its next steps, what to do about each kind of
+    condition it lists (recalibrate on a grid plan: unseen directions -> cellcal plan --design optimal)."""
+    html, _ = written(kind)
+    text = html.read_text()
+    if 'data-status="accepted with conditions"' not in text:
+        assert kind != "recalibrate", "the grid plan's unseen directions no longer make it conditional: check nothing"
+        return
+    steps = " ".join(html_lib.unescape(re.search(r'<ul class="next-step">(.*?)</ul>', text, re.S).group(1)).split())
+    conditions = _conditions(html)
+    assert conditions, kind
+    answered = [r for r in REMEDIES if any(re.search(r.pattern, c) for c in conditions)]
+    for r in answered:
+        assert CONDITION_KINDS[r.kind][1] in steps, (kind, r.kind, steps)
+    assert answered or CONDITION_KINDS["other"][1] in steps, (kind, steps)
+    if kind == "recalibrate":
+        assert "--design optimal" in steps, steps
