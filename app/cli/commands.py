@@ -85,7 +85,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _adder(sub: Any) -> Callable[..., argparse.ArgumentParser]:
+def _adder(sub: argparse._SubParsersAction[OneLineErrorParser]) -> Callable[..., argparse.ArgumentParser]:
     """The ``add(name, func, help_text, reads_cell=True)`` every command group registers its subcommands with: a
     subparser of ``sub`` that runs ``func``, with the ``--cell`` option unless ``reads_cell`` is False."""
     def add(name: str, func: Callable[[argparse.Namespace], int], help_text: str, *,
