@@ -596,9 +596,16 @@ def _check_joint_limits(path: str, q: Any, robot: Any) -> None:
 
 def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     """Register the cell-workflow subcommands."""
-    from app.cli.cell_options import add_motion_options
-    from calibration.method_names import METHODS
+    _add_init_import_parsers(add)
+    _add_plan_parser(add)
+    _add_select_parser(add)
+    _add_collect_export_parsers(add)
+    _add_recalibrate_parser(add)
+    _add_demo_parser(add)
 
+
+def _add_init_import_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
+    """init-cell, import-motive."""
     p = add("init-cell", cmd_init_cell, "write an editable cell folder (cell.yaml with its devices, robots/, tools/) "
                                         "that loads as written; never overwrites", reads_cell=False)
     p.add_argument("folder", metavar="DIR", help="the folder to write (new or without these files): DIR/cell.yaml, "
@@ -623,6 +630,9 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                                                 "frames, t)")
     p.add_argument("--json", help="write the pose count and frames per pose as JSON")
 
+
+def _add_plan_parser(add: Callable[..., argparse.ArgumentParser]) -> None:
+    """plan."""
     p = add("plan", cmd_plan, "make a collection plan for one arm (the optimal design or the paper's grid, CPA sweeps, "
                                 "validation poses)")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
@@ -657,6 +667,9 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     p.add_argument("--json", help="write the plan summary (target counts per kind, and the design figures: each "
                                   "parameter's sigma in the unit sigma_units gives it) as JSON")
 
+
+def _add_select_parser(add: Callable[..., argparse.ArgumentParser]) -> None:
+    """select."""
     p = add("select", cmd_select, "choose the most informative clusters of a recording (the plan --design optimal "
                                   "criterion), or the poses of a candidate recording a task needs beyond a training "
                                   "recording (--given, --task, --poses), and write them as a recording subset")
@@ -680,6 +693,11 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                    help="measurement noise assumed for the predicted parameter uncertainty [mm]")
     p.add_argument("--json", help="write the chosen clusters and the design figures (each parameter's sigma in the unit "
                                   "sigma_units gives it: rad for a rotation or offset, not the table's mdeg) as JSON")
+
+
+def _add_collect_export_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
+    """collect, export."""
+    from app.cli.cell_options import add_motion_options
 
     p = add("collect", cmd_collect, "guided collection session of one arm (durable, resumable)")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
@@ -705,6 +723,13 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                                    "by default")
     p.add_argument("--robot", help="refuse the session unless it was collected on this robot (R1, R2)")
     p.add_argument("--json", help="write the sample count as JSON")
+
+
+def _add_recalibrate_parser(add: Callable[..., argparse.ArgumentParser]) -> None:
+    """recalibrate (its parser only; the command is :func:`cmd_recalibrate`)."""
+    from app.cli.cell_options import add_motion_options
+    from calibration.method_names import METHODS
+
     p = add("recalibrate", cmd_recalibrate, "fit a new model, compare it with the one in service on fresh validation "
                                             "poses, replace it only if better")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
@@ -725,6 +750,10 @@ def add_cell_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
                        "; with no usable model in service, a candidate whose RMS on the validation poses is above it "
                        "is refused (exit 2, filed under rejected/)")
     add_motion_options(p)
+
+
+def _add_demo_parser(add: Callable[..., argparse.ArgumentParser]) -> None:
+    """demo."""
     p = add("demo", cmd_demo, "the main job on the simulated cell: collect both arms over zenoh, fit, evaluate, "
                               "report")
     p.add_argument("--out", default="demo_out", help="output folder (an earlier demo there is replaced)")

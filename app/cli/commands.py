@@ -72,7 +72,22 @@ def build_parser() -> argparse.ArgumentParser:
                                                                     "stderr is not a terminal)")
     parser.add_argument("--version", action="version", version=f"cellcal {version()}")
     sub = parser.add_subparsers(dest="command", required=True)
+    add = _adder(sub)
+    _add_model_parsers(add)
+    _add_rebase_parser(add)
+    _add_export_urdf_parser(add)
+    _add_compare_parser(add)
+    _add_diagnose_parser(add)
+    add_dual_parsers(add)
+    add_cell_parsers(add)
+    add_real_parsers(add)
+    add_job_parsers(add)
+    return parser
 
+
+def _adder(sub: argparse._SubParsersAction[OneLineErrorParser]) -> Callable[..., argparse.ArgumentParser]:
+    """The ``add(name, func, help_text, reads_cell=True)`` every command group registers its subcommands with: a
+    subparser of ``sub`` that runs ``func``, with the ``--cell`` option unless ``reads_cell`` is False."""
     def add(name: str, func: Callable[[argparse.Namespace], int], help_text: str, *,
             reads_cell: bool = True) -> argparse.ArgumentParser:
         p = sub.add_parser(name, help=help_text, formatter_class=DefaultsHelpFormatter)
@@ -81,6 +96,11 @@ def build_parser() -> argparse.ArgumentParser:
             add_cell_option(p)
         return p
 
+    return add
+
+
+def _add_model_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
+    """fit, predict, evaluate."""
     from calibration.method_names import METHODS
 
     p = add("fit", cmd_fit, "fit one method and save the model")
@@ -107,6 +127,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", help="write the statistics as JSON")
     _add_sigma_options(p)
     add_report_options(p, "the model's errors and plots")
+
+
+def _add_rebase_parser(add: Callable[..., argparse.ArgumentParser]) -> None:
     p = add("rebase", cmd_rebase, "move a fitted model of any kind onto a new day: refit only its base and tool-marker "
                                   "frames on a few poses")
     p.add_argument("--robot", help="robot name in the cell (R1, R2; default: the robot the model records): refuse "
@@ -132,6 +155,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="fit both frames and the joint offsets of joints 4 and 5 (14): for poses that move the "
                             "wrist widely (cellcal plan --design optimal --for rebase); a still wrist cannot see "
                             "them")
+
+
+def _add_export_urdf_parser(add: Callable[..., argparse.ArgumentParser]) -> None:
     p = add("export-urdf", cmd_export_urdf, "write a model's calibrated geometry as a URDF with the ROS-Industrial "
                                             "Motoman names (or a xacro macro), joint limits and efforts; says what "
                                             "a URDF cannot hold")
@@ -151,6 +177,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "package's macro (e.g. motoman_ma2010): same names, calibrated joint origins")
     p.add_argument("--macro", help="the xacro macro's name (default cellcal_<robot model>, e.g. cellcal_ma2010)")
     p.add_argument("--json", help="write what was exported and what was lost as JSON")
+
+
+def _add_compare_parser(add: Callable[..., argparse.ArgumentParser]) -> None:
     p = add("compare", cmd_compare, "the paper's comparison table for every method")
     _add_fit_inputs(p)
     p.add_argument("--test", required=True, help="recording CSV or Welding_Motoman folder the methods never fit on")
@@ -159,6 +188,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a saved model (a diagnose result, ...) to add as a row of its own; repeatable")
     p.add_argument("--json", help="write the comparison as JSON")
     add_report_options(p, "every method's errors, tables and plots; also report.md and the PNGs")
+
+
+def _add_diagnose_parser(add: Callable[..., argparse.ArgumentParser]) -> None:
     p = add("diagnose", cmd_diagnose, "find the physics the model in use left out, model it, show the fit improve")
     p.add_argument("--robot", required=True, help="robot name in the cell (R1, R2)")
     p.add_argument("--train", "--data", dest="train", required=True, action="append",
@@ -179,11 +211,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--weighting", choices=("noise", "fixed"), default="noise",
                    help="weigh position and orientation by their noise floors estimated from the data (noise), or "
                         "by the fixed a = 1641 (1 mm ~ 1 deg)")
-    add_dual_parsers(add)
-    add_cell_parsers(add)
-    add_real_parsers(add)
-    add_job_parsers(add)
-    return parser
 
 
 def version() -> str:

@@ -396,17 +396,7 @@ class SessionStore:
             DataError: non-finite value, quaternion norm off by more than 1e-3, joint outside [lower, upper],
                 or the target already recorded.
         """
-        values = np.concatenate([s.q, s.p, s.quat, [s.std_pos_mm, s.std_rot_deg, s.marker_err, s.t]])
-        if values.shape != (17,) or not np.all(np.isfinite(values)):
-            raise DataError(self.path, None, f"target {s.target_index}", "sample has non-finite or missing values")
-        self._check_quat(s.quat, f"target {s.target_index}")
-        if lower is not None and upper is not None:
-            bad = np.flatnonzero((s.q < lower) | (s.q > upper))
-            if bad.size:
-                j = int(bad[0])
-                raise DataError(self.path, None, f"target {s.target_index}",
-                                f"q{j + 1} = {math.degrees(s.q[j]):.6g} deg is outside the joint limits "
-                                f"[{math.degrees(lower[j]):.1f}, {math.degrees(upper[j]):.1f}] deg")
+        _check_sample(self.path, s, lower, upper)
         row = ([s.target_index, "ok", robot, kind, cluster] + [float(v) for v in s.q]
                + [float(v) for v in s.p] + [float(v) for v in s.quat]
                + [s.std_pos_mm, s.std_rot_deg, s.marker_err, int(s.frames), s.t]
@@ -481,36 +471,57 @@ class SessionStore:
         except sqlite3.DatabaseError as e:  # a damaged page, a table of another layout
             raise DataError(self.path, None, None, f"not a usable session database ({e})") from None
         for r in rows:
-            self._check_row(r)
+            _check_row(self.path, r)
         return rows
 
-    def _check_row(self, r: dict[str, Any]) -> None:
-        """Refuse a recorded row whose values :meth:`add_sample` would not have written (a damaged or edited
-        database): text or NULL where a number belongs, a non-finite number, an unknown status, a quaternion that
-        is not unit.
 
-        Raises:
-            DataError: naming the database, the target and the column.
-        """
-        where = f"target {r['target_index']}"
-        if not isinstance(r["target_index"], int) or r["status"] not in ("ok", "skipped") \
-                or not isinstance(r["robot"], str) or not isinstance(r["kind"], str):
-            raise DataError(self.path, None, where, f"malformed row (status {r['status']!r}, robot {r['robot']!r}, "
-                                                    f"kind {r['kind']!r})")
-        numeric = ["cluster"] + (_MEASURED_COLUMNS if r["status"] == "ok" else [])
-        for c in numeric:
-            v = r[c]
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise DataError(self.path, None, f"{where}, column {c}", f"expected a finite number, found {v!r}")
-        if r["status"] == "ok":
-            self._check_quat([r[c] for c in ("qw", "qx", "qy", "qz")], where)
+def _check_sample(path: Path, s: Sample, lower: np.ndarray | None, upper: np.ndarray | None) -> None:
+    """Refuse a sample :meth:`SessionStore.add_sample` must not write: a non-finite or missing value, a quaternion
+    that is not unit, a joint outside [lower, upper].
 
-    def _check_quat(self, quat: Any, where: str) -> None:
-        """Refuse a quaternion whose norm is off 1 by more than :data:`QUAT_NORM_TOL` (written or read back)."""
-        norm = float(np.linalg.norm(np.asarray(quat, dtype=float)))
-        if abs(norm - 1.0) > QUAT_NORM_TOL:
-            raise DataError(self.path, None, where, f"quaternion norm {norm:.6f} is not 1")
+    Raises:
+        DataError: naming the database, the target and the value.
+    """
+    values = np.concatenate([s.q, s.p, s.quat, [s.std_pos_mm, s.std_rot_deg, s.marker_err, s.t]])
+    if values.shape != (17,) or not np.all(np.isfinite(values)):
+        raise DataError(path, None, f"target {s.target_index}", "sample has non-finite or missing values")
+    _check_quat(path, s.quat, f"target {s.target_index}")
+    if lower is not None and upper is not None:
+        bad = np.flatnonzero((s.q < lower) | (s.q > upper))
+        if bad.size:
+            j = int(bad[0])
+            raise DataError(path, None, f"target {s.target_index}",
+                            f"q{j + 1} = {math.degrees(s.q[j]):.6g} deg is outside the joint limits "
+                            f"[{math.degrees(lower[j]):.1f}, {math.degrees(upper[j]):.1f}] deg")
 
+
+def _check_row(path: Path, r: dict[str, Any]) -> None:
+    """Refuse a recorded row whose values :meth:`SessionStore.add_sample` would not have written (a damaged or
+    edited database): text or NULL where a number belongs, a non-finite number, an unknown status, a quaternion that
+    is not unit.
+
+    Raises:
+        DataError: naming the database, the target and the column.
+    """
+    where = f"target {r['target_index']}"
+    if not isinstance(r["target_index"], int) or r["status"] not in ("ok", "skipped") \
+            or not isinstance(r["robot"], str) or not isinstance(r["kind"], str):
+        raise DataError(path, None, where, f"malformed row (status {r['status']!r}, robot {r['robot']!r}, "
+                                           f"kind {r['kind']!r})")
+    numeric = ["cluster"] + (_MEASURED_COLUMNS if r["status"] == "ok" else [])
+    for c in numeric:
+        v = r[c]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise DataError(path, None, f"{where}, column {c}", f"expected a finite number, found {v!r}")
+    if r["status"] == "ok":
+        _check_quat(path, [r[c] for c in ("qw", "qx", "qy", "qz")], where)
+
+
+def _check_quat(path: Path, quat: Any, where: str) -> None:
+    """Refuse a quaternion whose norm is off 1 by more than :data:`QUAT_NORM_TOL` (written or read back)."""
+    norm = float(np.linalg.norm(np.asarray(quat, dtype=float)))
+    if abs(norm - 1.0) > QUAT_NORM_TOL:
+        raise DataError(path, None, where, f"quaternion norm {norm:.6f} is not 1")
 
 def _refuse_special(path: Path) -> None:
     """Refuse a session database that is a FIFO, a device or a socket: SQLite blocked forever opening a FIFO.

@@ -90,6 +90,34 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
     limits = (spec.lower_rad, spec.upper_rad)
     used = load_model(model, robot, nominal) if model is not None else None  # another robot's model: refused
     paths = [data] if isinstance(data, (str, Path)) else list(data)
+    rec, days, ho, gross = _read_inputs(cr, robot, nominal, limits, paths, heldout, added, add_weight)
+    gravity = _gravity(spec, nominal)
+
+    with bar(total=len(DIAGNOSE_STEPS), enabled=progress, desc=f"{robot} diagnose", unit="step") as steps:
+        def step(name: str) -> None:  # the bar counts the steps done; its label names the one running
+            steps.set_postfix_str(name, refresh=False)
+            steps.update(DIAGNOSE_STEPS.index(name) - steps.n)
+
+        result = diagnose(robot, nominal, rec, ho, used, gravity, limits, options, progress=step)
+        steps.update(steps.total - steps.n)
+    warn_unobservable(cr, rec, gravity, options)  # once the data passed the diagnosis's checks: a refusal is one line
+    inputs = [*(("data", p) for p in paths), *(("add", p) for p in added), ("heldout", heldout), ("model", model)]
+    if days is not None:
+        result = replace(result, days=days)
+    _write_outputs(result, inputs, gross, used, ho, model_out, json_path, report_dir, tolerance, command)
+    return result
+
+
+def _read_inputs(cr: Any, robot: str, nominal: Any, limits: tuple[Any, Any], paths: list[str | Path],
+                 heldout: str | Path | None, added: Sequence[str | Path],
+                 add_weight: int) -> tuple[Any, Any, Any, Any]:
+    """:func:`run_diagnose`'s recordings, checked: the training one (several days joined in the first one's frames,
+    the added poses joined, gross rows taken out of a single day), the days' differences, the held-out recording and
+    the gross rows taken out (None with several days).
+
+    Raises:
+        CellCalError: an unreadable recording, another arm's, quaternions in another order, ``added`` with days.
+    """
     days = None
     if len(paths) > 1:
         rec, days = _days(robot, nominal, paths, limits)
@@ -114,25 +142,23 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
         rec, gross = _without_gross_rows(cr, rec)
     if ho is not None:
         refuse_another_arms(cr, ho, "test recording")
+    return rec, days, ho, gross
+
+
+def _gravity(spec: Any, nominal: Any) -> GravityModel | None:
+    """The arm's gravity model from its YAML, or None (with a warning) when joint compliance cannot be tested."""
     try:
-        gravity = GravityModel.from_spec(spec, nominal)
+        return GravityModel.from_spec(spec, nominal)
     except ModelError as e:
         log.warning("joint compliance cannot be tested: %s", e)
-        gravity = None
+        return None
 
-    with bar(total=len(DIAGNOSE_STEPS), enabled=progress, desc=f"{robot} diagnose", unit="step") as steps:
-        def step(name: str) -> None:  # the bar counts the steps done; its label names the one running
-            steps.set_postfix_str(name, refresh=False)
-            steps.update(DIAGNOSE_STEPS.index(name) - steps.n)
 
-        result = diagnose(robot, nominal, rec, ho, used, gravity, limits, options, progress=step)
-        steps.update(steps.total - steps.n)
-    warn_unobservable(cr, rec, gravity, options)  # once the data passed the diagnosis's checks: a refusal is one line
-    inputs = [*(("data", p) for p in paths), *(("add", p) for p in added), ("heldout", heldout), ("model", model)]
-    if days is not None:
-        result = replace(result, days=days)
+def _write_outputs(result: Diagnosis, inputs: list[tuple[str, Any]], gross: Any, used: Any, ho: Any,
+                   model_out: str | Path | None, json_path: str | Path | None, report_dir: str | Path | None,
+                   tolerance: Any, command: str) -> None:
+    """Write what :func:`run_diagnose` was asked for: the refitted model, the JSON report, the report folder."""
     if model_out is not None:
-
         save_model(with_provenance(result.model, provenance(inputs)), model_out)
     if json_path is not None:
         doc = result.to_json()
@@ -144,7 +170,6 @@ def run_diagnose(robot: str, data: str | Path | Sequence[str | Path], heldout: s
         if used is not None:
             models = {f"{result.baseline.model} (before)": used, **models}
         write_report(result, report_dir, tolerance, ho, models, inputs, command)
-    return result
 
 
 def warn_unobservable(cr: Any, rec: Any, gravity: Any, options: Any) -> None:

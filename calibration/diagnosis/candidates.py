@@ -138,59 +138,16 @@ def library(model: PoeModel, q: np.ndarray, context: Context, gravity: GravityMo
     cands: list[Candidate] = []
     skipped: list[Untested] = []
     if "joint_compliance" in kinds:
-        if compliance_form == "mass_free" or (compliance_form == "auto" and gravity is None):
-            cands.append(Candidate("joint_compliance", "joints 2-3 (mass-free form)", (2, 3), MassFreeCompliance()))
-        elif compliance_form == "lumped":
-            cands.append(Candidate("joint_compliance", "joints 2-3 (lumped form)", (2, 3),
-                                   LumpedCompliance.for_arm(model, (2, 3))))
-        else:
-            tau = gravity.torque(model, q)
-            for j in range(2, n + 1):
-                if np.ptp(tau[:, j - 1]) > 1e-6:
-                    cands.append(Candidate("joint_compliance", f"joint {j}", (j,), JointCompliance(gravity, (j,), np.zeros(1))))
-            if np.ptp(tau[:, 1]) > 1e-6 and np.ptp(tau[:, 2]) > 1e-6:
-                # The shoulder and the elbow in the YAML's shape as one step: the lumped form of joints 2-3 competes in
-                # the forward pass (see core.candidate_signatures), and this pair is what it is weighed against.
-                cands.append(Candidate("joint_compliance", "joints 2-3", (2, 3),
-                                       JointCompliance(gravity, (2, 3), np.zeros(2))))
+        cands += _joint_compliance(model, q, gravity, compliance_form)
     if "payload_compliance" in kinds:
-        if "payload_kg" not in context or not np.any(np.asarray(context["payload_kg"]) != 0):
-            skipped.append(Untested("payload_compliance", "joints 2-6", (), "no payload_kg column (or no payload carried)"))
-        elif not _varies(context, "payload_kg"):
-            # A payload that never changes is a load on the last link like the tool's: its deflection is part of the
-            # own-weight compliance, whose lumped form takes any such load. Only a payload that changes shows a
-            # deflection of its own (the difference between payloads).
-            skipped.append(Untested("payload_compliance", "joints 2-6", (),
-                                    "the payload_kg column does not change (a constant payload is part of the own "
-                                    "weight)"))
-        else:
-            cands += [Candidate("payload_compliance", f"joint {j}", (j,), PayloadCompliance((j,), np.zeros(1)))
-                      for j in range(2, n + 1)]
-            # The shoulder and the elbow carry the payload together: as a pair their deflections are tested at once
-            # (the elbow's alone is often too weak beside the shoulder's to pass on its own).
-            cands.append(Candidate("payload_compliance", "joints 2-3", (2, 3), PayloadCompliance((2, 3), np.zeros(2))))
+        _payload_compliance(context, n, cands, skipped)
     if "gear_transmission" in kinds:
         cands += [Candidate("gear_transmission", f"joint {j}", (j,), GearTransmission(((j, (1, 2)),), np.zeros(4)))
                   for j in range(1, n + 1)]
     if "backlash" in kinds:
-        for j in range(1, n + 1):
-            d = np.asarray(context.get(f"dir{j}", np.zeros(1)), dtype=float)
-            if np.any(d > 0) and np.any(d < 0):
-                cands.append(Candidate("backlash", f"joint {j}", (j,), Backlash((j,), np.zeros(1))))
-            else:
-                skipped.append(Untested("backlash", f"joint {j}", (j,),
-                                        f"no dir{j} column with both approach directions"))
+        _backlash(context, n, cands, skipped)
     if "thermal_drift" in kinds:
-        links = [l for c, l in enumerate(link_names(n)) if np.linalg.norm(model.P[:, c]) > MIN_LINK_MM]
-        if _varies(context, "t"):
-            cands += [Candidate("thermal_drift", f"link {l}", (), ThermalDrift((l,), np.zeros(1), "warmup", tau), 1)
-                      for l in links for tau in TAU_GRID_S]
-        if _varies(context, "temp_c"):
-            ref = float(np.min(context["temp_c"]))
-            cands += [Candidate("thermal_drift", f"link {l}", (),
-                                ThermalDrift((l,), np.zeros(1), "temperature", ref_temp_c=ref)) for l in links]
-        if not (_varies(context, "t") or _varies(context, "temp_c")):
-            skipped.append(Untested("thermal_drift", "links", (), "no t or temp_c column that varies"))
+        _thermal_drift(model, context, cands, skipped)
     if "mocap_latency" in kinds:
         if "qd" in context and np.any(np.asarray(context["qd"]) != 0):
             cands.append(Candidate("mocap_latency", "all joints", (), MocapLatency(values=np.zeros(1))))
@@ -204,6 +161,72 @@ def library(model: PoeModel, q: np.ndarray, context: Context, gravity: GravityMo
         cands.append(Candidate("structural_deflection", "links 2-3 (q2, q3; joint-1 frame)", (2, 3),
                                StructuralDeflection()))
     return cands, skipped
+
+
+def _joint_compliance(model: PoeModel, q: np.ndarray, gravity: GravityModel | None,
+                      compliance_form: str) -> list[Candidate]:
+    """The joint-compliance candidates of :func:`library`: one mass-free or lumped pair, or per joint whose gravity
+    torque varies over ``q`` and the shoulder-elbow pair."""
+    if compliance_form == "mass_free" or (compliance_form == "auto" and gravity is None):
+        return [Candidate("joint_compliance", "joints 2-3 (mass-free form)", (2, 3), MassFreeCompliance())]
+    if compliance_form == "lumped":
+        return [Candidate("joint_compliance", "joints 2-3 (lumped form)", (2, 3),
+                          LumpedCompliance.for_arm(model, (2, 3)))]
+    cands = []
+    tau = gravity.torque(model, q)
+    for j in range(2, model.n_joints + 1):
+        if np.ptp(tau[:, j - 1]) > 1e-6:
+            cands.append(Candidate("joint_compliance", f"joint {j}", (j,), JointCompliance(gravity, (j,), np.zeros(1))))
+    if np.ptp(tau[:, 1]) > 1e-6 and np.ptp(tau[:, 2]) > 1e-6:
+        # The shoulder and the elbow in the YAML's shape as one step: the lumped form of joints 2-3 competes in
+        # the forward pass (see core.candidate_signatures), and this pair is what it is weighed against.
+        cands.append(Candidate("joint_compliance", "joints 2-3", (2, 3),
+                               JointCompliance(gravity, (2, 3), np.zeros(2))))
+    return cands
+
+
+def _payload_compliance(context: Context, n: int, cands: list[Candidate], skipped: list[Untested]) -> None:
+    """Append :func:`library`'s payload-compliance candidates, or why they cannot be tested."""
+    if "payload_kg" not in context or not np.any(np.asarray(context["payload_kg"]) != 0):
+        skipped.append(Untested("payload_compliance", "joints 2-6", (), "no payload_kg column (or no payload carried)"))
+    elif not _varies(context, "payload_kg"):
+        # A payload that never changes is a load on the last link like the tool's: its deflection is part of the
+        # own-weight compliance, whose lumped form takes any such load. Only a payload that changes shows a
+        # deflection of its own (the difference between payloads).
+        skipped.append(Untested("payload_compliance", "joints 2-6", (),
+                                "the payload_kg column does not change (a constant payload is part of the own "
+                                "weight)"))
+    else:
+        cands += [Candidate("payload_compliance", f"joint {j}", (j,), PayloadCompliance((j,), np.zeros(1)))
+                  for j in range(2, n + 1)]
+        # The shoulder and the elbow carry the payload together: as a pair their deflections are tested at once
+        # (the elbow's alone is often too weak beside the shoulder's to pass on its own).
+        cands.append(Candidate("payload_compliance", "joints 2-3", (2, 3), PayloadCompliance((2, 3), np.zeros(2))))
+
+
+def _backlash(context: Context, n: int, cands: list[Candidate], skipped: list[Untested]) -> None:
+    """Append :func:`library`'s backlash candidate of each joint approached from both sides, the others untested."""
+    for j in range(1, n + 1):
+        d = np.asarray(context.get(f"dir{j}", np.zeros(1)), dtype=float)
+        if np.any(d > 0) and np.any(d < 0):
+            cands.append(Candidate("backlash", f"joint {j}", (j,), Backlash((j,), np.zeros(1))))
+        else:
+            skipped.append(Untested("backlash", f"joint {j}", (j,),
+                                    f"no dir{j} column with both approach directions"))
+
+
+def _thermal_drift(model: PoeModel, context: Context, cands: list[Candidate], skipped: list[Untested]) -> None:
+    """Append :func:`library`'s thermal-drift candidates (warm-up over time, temperature) of each long link."""
+    links = [l for c, l in enumerate(link_names(model.n_joints)) if np.linalg.norm(model.P[:, c]) > MIN_LINK_MM]
+    if _varies(context, "t"):
+        cands += [Candidate("thermal_drift", f"link {l}", (), ThermalDrift((l,), np.zeros(1), "warmup", tau), 1)
+                  for l in links for tau in TAU_GRID_S]
+    if _varies(context, "temp_c"):
+        ref = float(np.min(context["temp_c"]))
+        cands += [Candidate("thermal_drift", f"link {l}", (),
+                            ThermalDrift((l,), np.zeros(1), "temperature", ref_temp_c=ref)) for l in links]
+    if not (_varies(context, "t") or _varies(context, "temp_c")):
+        skipped.append(Untested("thermal_drift", "links", (), "no t or temp_c column that varies"))
 
 
 def visibility(S_fit: np.ndarray, Q_geo: np.ndarray, S_ref: np.ndarray, n_fit: int, n_ref: int, visible_min: float

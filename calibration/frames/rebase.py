@@ -726,23 +726,47 @@ def rebase_auto(model: KinematicModel, rec: Recording, cluster_size: int = 7, q_
                                  seen_fraction=fraction)
         return rebased, result, PROJECTED if fraction > 0 else "frames"
     if workspace_rule in ("shrink", "shrink (held-out noise)"):
-        problem = RebaseProblem.from_recording(model, rec, **choice_options(choice, **options))
-        result = problem.solve()
-        if workspace_rule == "shrink":  # the fit's own residual scale, per weighted component, over its dof
-            rows = result.n_samples * 6
-            noise = result.objective_after * float(np.sqrt(rows / max(rows - result.fitted, 1)))
-        else:
-            noise = float(np.sqrt(np.mean(errs[choice] ** 2) / 3.0))
-        factor = shrink_factor(problem, result, noise, q_workspace)
-        if factor <= 0.0:
-            raise RebaseRefused(
-                f"rebase refused: on the poses of {rec.source or 'the data'} held out in turn {choice} gains "
-                f"{means['none'] - means[choice]:.3f} mm, but its frame move is no larger than its uncertainty at the "
-                "robot's other configurations; nothing written")
-        z = np.linalg.lstsq(problem.basis, result.delta, rcond=None)[0] * factor
-        result = replace(problem.result_at(z, result.converged, result.reason, result.iterations, result.seconds),
-                         shrink=factor)
-        return result.model(model), result, choice
+        return _rebase_shrunk(model, rec, choice, errs, means, workspace_rule, q_workspace, options)
+    return _rebase_refuse_rule(model, rec, choice, errs, means, q_workspace, options)
+
+
+def _rebase_shrunk(model: KinematicModel, rec: Recording, choice: str, errs: dict[str, np.ndarray],
+                   means: dict[str, float], workspace_rule: str, q_workspace: np.ndarray,
+                   options: dict[str, Any]) -> tuple[RebasedModel, RebaseResult, str]:
+    """:func:`rebase_auto`'s ``shrink`` rules: ``choice``'s move scaled back by :func:`shrink_factor`.
+
+    Raises:
+        RebaseRefused: a factor of 0 (the move is no larger than its uncertainty over the workspace).
+    """
+    problem = RebaseProblem.from_recording(model, rec, **choice_options(choice, **options))
+    result = problem.solve()
+    if workspace_rule == "shrink":  # the fit's own residual scale, per weighted component, over its dof
+        rows = result.n_samples * 6
+        noise = result.objective_after * float(np.sqrt(rows / max(rows - result.fitted, 1)))
+    else:
+        noise = float(np.sqrt(np.mean(errs[choice] ** 2) / 3.0))
+    factor = shrink_factor(problem, result, noise, q_workspace)
+    if factor <= 0.0:
+        raise RebaseRefused(
+            f"rebase refused: on the poses of {rec.source or 'the data'} held out in turn {choice} gains "
+            f"{means['none'] - means[choice]:.3f} mm, but its frame move is no larger than its uncertainty at the "
+            "robot's other configurations; nothing written")
+    z = np.linalg.lstsq(problem.basis, result.delta, rcond=None)[0] * factor
+    result = replace(problem.result_at(z, result.converged, result.reason, result.iterations, result.seconds),
+                     shrink=factor)
+    return result.model(model), result, choice
+
+
+def _rebase_refuse_rule(model: KinematicModel, rec: Recording, choice: str, errs: dict[str, np.ndarray],
+                        means: dict[str, float], q_workspace: np.ndarray,
+                        options: dict[str, Any]) -> tuple[RebasedModel, RebaseResult, str]:
+    """:func:`rebase_auto`'s ``refuse`` rule: the largest candidate up to ``choice`` whose mean spread over the
+    workspace is below its held-out gain.
+
+    Raises:
+        RebaseRefused: no candidate passes.
+    """
+    candidates = AUTO_CHOICES
     harms = {}
     for name in reversed(candidates[1:candidates.index(choice) + 1]):
         gain = means["none"] - means[name]
@@ -759,7 +783,6 @@ def rebase_auto(model: KinematicModel, rec: Recording, cluster_size: int = 7, q_
         + ", ".join(f"{k} {means['none'] - means[k]:.3f}" for k in harms) + " mm, but their uncertainty predicts "
         + ", ".join(f"{k} {v:.3f}" for k, v in harms.items()) + " mm at the robot's other configurations: the data "
         "do not confirm a change that is safe away from them; nothing written")
-
 
 def choice_options(choice: str, **options: Any) -> dict[str, Any]:
     """The :class:`RebaseProblem` options of a :data:`CHOICES` candidate other than ``none`` (``options``: the

@@ -162,12 +162,7 @@ def train_mlp(x: np.ndarray, y: np.ndarray, hidden: Sequence[int], max_iter: int
     x, y = np.ascontiguousarray(x, dtype=dtype), np.ascontiguousarray(y, dtype=dtype)
     t0 = time.perf_counter()
     rs = np.random.RandomState(random_state)
-    units = [x.shape[1], *hidden, y.shape[1]]
-    weights, biases = [], []
-    for fan_in, fan_out in zip(units[:-1], units[1:]):
-        bound = np.sqrt(6.0 / (fan_in + fan_out))
-        weights.append(rs.uniform(-bound, bound, (fan_in, fan_out)).astype(dtype, copy=False))
-        biases.append(rs.uniform(-bound, bound, fan_out).astype(dtype, copy=False))
+    weights, biases = _glorot_uniform(rs, [x.shape[1], *hidden, y.shape[1]], dtype)
     n_layers, n = len(weights), x.shape[0]
     params = weights + biases
     m1, m2 = [np.zeros_like(p) for p in params], [np.zeros_like(p) for p in params]
@@ -183,43 +178,70 @@ def train_mlp(x: np.ndarray, y: np.ndarray, hidden: Sequence[int], max_iter: int
             order = order[perm]
             for start in range(0, n, batch):
                 idx = order[start:start + batch]
-                acts[0] = x[idx]
-                for i in range(n_layers):
-                    a = acts[i] @ weights[i]
-                    a += biases[i]
-                    if i < n_layers - 1:
-                        np.maximum(a, 0, out=a)
-                    acts[i + 1] = a
-                delta = acts[-1] - y[idx]
-                for i in range(n_layers - 1, -1, -1):
-                    g = acts[i].T @ delta
-                    g += alpha * weights[i]
-                    g /= len(idx)
-                    grads[i], grads[n_layers + i] = g, np.sum(delta, axis=0) / len(idx)
-                    if i > 0:
-                        delta = delta @ weights[i].T
-                        np.copyto(delta, 0.0, where=acts[i] == 0)  # ReLU derivative
+                _gradients(x[idx], y[idx], weights, biases, alpha, acts, grads)
                 t += 1
                 lr = learning_rate * np.sqrt(1 - ADAM_BETA_2 ** t) / (1 - ADAM_BETA_1 ** t)
-                for p, m, v, g, s, u in zip(params, m1, m2, grads, scratch, step):
-                    m *= ADAM_BETA_1
-                    np.multiply(g, 1 - ADAM_BETA_1, out=s)
-                    m += s
-                    v *= ADAM_BETA_2
-                    np.square(g, out=s)
-                    s *= 1 - ADAM_BETA_2
-                    v += s
-                    np.sqrt(v, out=s)
-                    s += ADAM_EPSILON
-                    np.multiply(m, -lr, out=u)
-                    u /= s
-                    p += u
+                _adam_step(params, m1, m2, grads, scratch, step, lr)
             if progress is not None:
                 progress(epoch + 1, max_iter)
     if not all(np.isfinite(p).all() for p in params):
         raise ModelError(f"MLP training diverged (non-finite weights) on {n} anchors; check the anchor values")
     logger.info("trained MLP %s: %d epochs (%s), %.2f s", tuple(hidden), max_iter, precision, time.perf_counter() - t0)
     return [w.astype(np.float64) for w in weights], [b.astype(np.float64) for b in biases]
+
+
+def _glorot_uniform(rs: np.random.RandomState, units: Sequence[int],
+                    dtype: np.dtype) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """scikit-learn's Glorot-uniform initialisation: per layer its weights, then its biases, from ``rs``."""
+    weights, biases = [], []
+    for fan_in, fan_out in zip(units[:-1], units[1:]):
+        bound = np.sqrt(6.0 / (fan_in + fan_out))
+        weights.append(rs.uniform(-bound, bound, (fan_in, fan_out)).astype(dtype, copy=False))
+        biases.append(rs.uniform(-bound, bound, fan_out).astype(dtype, copy=False))
+    return weights, biases
+
+
+def _gradients(xb: np.ndarray, yb: np.ndarray, weights: Sequence[np.ndarray], biases: Sequence[np.ndarray],
+               alpha: float, acts: list[np.ndarray], grads: list[np.ndarray]) -> None:
+    """One batch's forward pass into ``acts`` and its squared-loss gradients (L2 ``alpha``) into ``grads``:
+    the weights' first, then the biases'."""
+    n_layers = len(weights)
+    acts[0] = xb
+    for i in range(n_layers):
+        a = acts[i] @ weights[i]
+        a += biases[i]
+        if i < n_layers - 1:
+            np.maximum(a, 0, out=a)
+        acts[i + 1] = a
+    delta = acts[-1] - yb
+    for i in range(n_layers - 1, -1, -1):
+        g = acts[i].T @ delta
+        g += alpha * weights[i]
+        g /= len(xb)
+        grads[i], grads[n_layers + i] = g, np.sum(delta, axis=0) / len(xb)
+        if i > 0:
+            delta = delta @ weights[i].T
+            np.copyto(delta, 0.0, where=acts[i] == 0)  # ReLU derivative
+
+
+def _adam_step(params: Sequence[np.ndarray], m1: Sequence[np.ndarray], m2: Sequence[np.ndarray],
+               grads: Sequence[np.ndarray], scratch: Sequence[np.ndarray], step: Sequence[np.ndarray],
+               lr: float) -> None:
+    """Adam's update of ``params`` in place at the bias-corrected rate ``lr``: the moments ``m1``, ``m2`` updated in
+    place, ``scratch`` in the parameters' precision, the ``step`` in float64 (as scikit-learn's)."""
+    for p, m, v, g, s, u in zip(params, m1, m2, grads, scratch, step):
+        m *= ADAM_BETA_1
+        np.multiply(g, 1 - ADAM_BETA_1, out=s)
+        m += s
+        v *= ADAM_BETA_2
+        np.square(g, out=s)
+        s *= 1 - ADAM_BETA_2
+        v += s
+        np.sqrt(v, out=s)
+        s += ADAM_EPSILON
+        np.multiply(m, -lr, out=u)
+        u /= s
+        p += u
 
 
 def forward(z: np.ndarray, weights: Sequence[np.ndarray], biases: Sequence[np.ndarray],
