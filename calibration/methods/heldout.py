@@ -245,20 +245,24 @@ def paired_se_mm(a: HeldOut, b: HeldOut) -> float:
     return float(d.std(ddof=1) / np.sqrt(d.size))
 
 
-def paired_one_se_choice(strengths: tuple[float, ...], scores: list[HeldOut]) -> int:
-    """Index of the strongest regularisation whose held-out RMS exceeds the best's by at most the standard error
-    of that difference (:func:`paired_se_mm`): the one-standard-error rule with the paired standard error, for
-    fits scored on the same folds (where each fit's own standard error mostly measures how the clusters differ,
-    which every fit shares)."""
+def paired_one_se_choice(strengths: tuple[float, ...], scores: list[HeldOut], k: float = 1.0) -> int:
+    """Index of the strongest regularisation whose held-out RMS exceeds the best's by at most ``k`` times the
+    standard error of that difference (:func:`paired_se_mm`): the one-standard-error rule (``k`` = 1) with the paired
+    standard error, for fits scored on the same folds (where each fit's own standard error mostly measures how the
+    clusters differ, which every fit shares). A larger ``k`` leaves the stronger regularisation only for a weaker one
+    the held-out clusters find better by more than ``k`` paired standard errors."""
     best = int(np.argmin([s.rms_mm for s in scores]))
     ok = [i for i, s in enumerate(scores)
-          if i == best or s.rms_mm - scores[best].rms_mm <= paired_se_mm(s, scores[best])]
+          if i == best or s.rms_mm - scores[best].rms_mm <= k * paired_se_mm(s, scores[best])]
     return max(ok, key=lambda i: strengths[i])
 
 
 #: Rules choosing a strength from held-out scores, by the name :class:`calibration.methods.options.FitOptions` takes.
 CHOICE_RULES: dict[str, Callable[[tuple[float, ...], list[HeldOut]], int]] = {
-    "one_se": one_se_choice, "paired_one_se": paired_one_se_choice}
+    "one_se": one_se_choice,
+    "paired_one_se": paired_one_se_choice,
+    "paired_two_se": lambda strengths, scores: paired_one_se_choice(strengths, scores, 2.0),
+    "paired_three_se": lambda strengths, scores: paired_one_se_choice(strengths, scores, 3.0)}
 
 
 # -- gross measurement errors (issue 30) ----------------------------------------------------------------------------

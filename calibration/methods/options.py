@@ -13,7 +13,7 @@ from calibration.identification.observability import DEFAULT_RELATIVE_TOLERANCE
 from calibration.physics.layout import check_registration_parts
 
 #: The rules FitOptions.local_prior_rule names (implemented in calibration.methods.heldout.CHOICE_RULES).
-LOCAL_PRIOR_RULES = ("one_se", "paired_one_se")
+LOCAL_PRIOR_RULES = ("one_se", "paired_one_se", "paired_two_se", "paired_three_se")
 
 
 @dataclass(frozen=True)
@@ -34,7 +34,8 @@ class FitOptions:
         local_prior_rule: how the held-out scores choose among them: ``one_se`` (default), the strongest prior
             within one standard error (each prior's own, over clusters) of the lowest held-out RMS; ``paired_one_se``,
             the same with the standard error of the paired difference to the lowest (the priors are scored on the
-            same folds, so this is much smaller); see :data:`calibration.methods.heldout.CHOICE_RULES` and
+            same folds, so this is much smaller); ``paired_two_se``, ``paired_three_se``: within two or three paired
+            standard errors; see :data:`calibration.methods.heldout.CHOICE_RULES` and
             ``scripts/studies/local_prior_rule.py``.
         fourier_ridge_grid: candidate ridge strengths of fbf13/fbf7 (0 = the paper's least squares), chosen on
             held-out clusters by the same rule. It reaches 10 (times the basis Gram matrix's mean diagonal), where

@@ -9,7 +9,12 @@ prior's held-out RMS, its own standard error, the paired standard error of its d
 workspace ratio, and the prior each rule of :data:`calibration.methods.heldout.CHOICE_RULES` takes from the same
 scores. The test errors that follow from a choice are ``scripts/benchmarks/bench_days.py``'s.
 
-    python scripts/studies/local_prior_rule.py [--days test0801_R1,...|none] [--r2-seeds S1,S2|N] [--json FILE]
+With ``--twin-test pi+fbf13,...`` each twin's own test path (simulated, never a recording) also gives every prior's
+test mean for those methods, and each rule's; ``--null-twins`` adds, per seed, the same arm without the
+configuration-dependent error (``cdc_mm`` = 0), where a weaker prior can only fit noise.
+
+    python scripts/studies/local_prior_rule.py [--days test0801_R1,...|none] [--r2-seeds S1,S2|N] [--null-twins]
+                                               [--twin-test m1,m2] [--json FILE]
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +33,7 @@ sys.path.insert(0, str(ROOT))
 
 from app.workflows.fit import fitter_for  # noqa: E402
 from calibration.data.recording import read_recording  # noqa: E402
+from calibration.evaluation.metrics import errors  # noqa: E402
 from calibration.methods import heldout as robust  # noqa: E402
 from calibration.methods import workspace  # noqa: E402
 from cell_config import load_cell  # noqa: E402
@@ -36,6 +43,19 @@ from scripts.benchmarks.bench_days import DATA  # noqa: E402
 #: The R1 training recordings bench_days judges (its UNITS), in date order.
 DAYS = ("test0516_R1", "test0613_R1", "test0620_R1", "test0627_beforecalib", "test0627_aftercalib", "test0725_R1",
         "test0801_R1")
+
+
+def twin_test(fitter: Any, test: Any, grid: list[float], methods: tuple[str, ...]) -> dict[str, dict[str, float]]:
+    """Test-path mean position error [mm] of pi and of each method at every prior of ``grid`` (a simulated twin's
+    own test path, never a recording), the local fits shared with ``fitter``."""
+    out = {"pi": {"-": float(np.mean(errors(fitter.fit("pi")[0], test).position_mm))}}
+    for m in methods:
+        out[m] = {}
+        for prior in grid:
+            at = replace(fitter, options=replace(fitter.options, local_prior=prior), _cache={})
+            at._cache.update({k: fitter._cache[k] for k in ("pi", "local_by_prior")})
+            out[m][f"{prior:g}"] = float(np.mean(errors(at.fit(m)[0], test).position_mm))
+    return out
 
 
 def scores_of(fitter: Any) -> dict[str, Any]:
@@ -56,6 +76,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--days", default=",".join(DAYS), help="training recordings, comma-separated, or 'none'")
     parser.add_argument("--r2-seeds", default="3", help="simulated R2 seeds (comma-separated) or one count N: N "
                                                          "seeds drawn at run time (default 3)")
+    parser.add_argument("--null-twins", action="store_true", help="also a twin without configuration-dependent "
+                                                                  "error (cdc_mm = 0) per seed")
+    parser.add_argument("--twin-test", default="", help="methods (comma-separated) whose test-path mean on each twin "
+                                                         "is computed at every prior, and per rule at its choice")
     parser.add_argument("--json", help="write the figures to this JSON file")
     args = parser.parse_args(argv)
     days = [] if args.days == "none" else args.days.split(",")
@@ -73,10 +97,17 @@ def main(argv: list[str] | None = None) -> int:
         out[day] = scores_of(fitter_for(r1, read_recording(path, r1.robot.lower_rad, r1.robot.upper_rad)))
         print(f"{day}: {out[day]['chosen']}", file=sys.stderr, flush=True)
     r2 = cell.robot("R2")
+    methods = tuple(m for m in args.twin_test.split(",") if m)
+    sizes = {"R2 sim": PAPER_SIZE, **({"R2 null": replace(PAPER_SIZE, cdc_mm=0.0)} if args.null_twins else {})}
     for seed in seeds:
-        sim = simulated_day(r2.robot, r2.tool, seed, PAPER_SIZE, label="simulated R2")
-        out[f"R2 sim {seed}"] = scores_of(fitter_for(r2, sim.train))
-        print(f"R2 sim {seed}: {out[f'R2 sim {seed}']['chosen']}", file=sys.stderr, flush=True)
+        for kind, size in sizes.items():
+            sim = simulated_day(r2.robot, r2.tool, seed, size, label="simulated R2")
+            fitter = fitter_for(r2, sim.train)
+            name = f"{kind} {seed}"
+            out[name] = scores_of(fitter)
+            if methods:
+                out[name]["test_mean_mm"] = twin_test(fitter, sim.test, out[name]["grid"], methods)
+            print(f"{name}: {out[name]['chosen']}", file=sys.stderr, flush=True)
     print("| data | prior: held-out RMS ± own SE (paired SE to best) [workspace ratio] | " +
           " | ".join(robust.CHOICE_RULES) + " |")
     print("|---|---|" + "---|" * len(robust.CHOICE_RULES))
@@ -84,6 +115,15 @@ def main(argv: list[str] | None = None) -> int:
         cells = "; ".join(f"{g:g}: {m:.4f} ± {s:.4f} ({'–' if p is None else f'{p:.4f}'}) [{w:.2f}]" for g, m, s, p, w
                           in zip(r["grid"], r["rms_mm"], r["se_mm"], r["paired_se_to_best_mm"], r["workspace_ratio"]))
         print(f"| {name} | {cells} | " + " | ".join(f"{r['chosen'][k]:g}" for k in robust.CHOICE_RULES) + " |")
+    tested = {n: r for n, r in out.items() if "test_mean_mm" in r}
+    if tested:
+        print("\nTwin test paths: mean position error [mm] at each rule's prior (gain over pi)\n")
+        print("| twin | pi | " + " | ".join(f"{m} {rule}" for m in methods for rule in robust.CHOICE_RULES) + " |")
+        print("|---|---|" + "---|" * (len(methods) * len(robust.CHOICE_RULES)))
+        for n, r in tested.items():
+            t, pi = r["test_mean_mm"], r["test_mean_mm"]["pi"]["-"]
+            at = [t[m][format(r["chosen"][rule], "g")] for m in methods for rule in robust.CHOICE_RULES]
+            print(f"| {n} | {pi:.4f} | " + " | ".join(f"{e:.4f} ({1 - e / pi:.1%})" for e in at) + " |")
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1))
     return 0

@@ -67,6 +67,21 @@ def test_paired_rule_tells_apart_what_shared_folds_tie(seed):
     assert robust.paired_one_se_choice((0.3, 1.0), [scores[0], scores[0]]) == 1
 
 
+@pytest.mark.parametrize("seed", range(6))
+def test_paired_k_se_rule_leaves_the_stronger_only_beyond_k_paired_errors(seed):
+    rng = np.random.default_rng(seed)
+    groups = np.repeat(np.arange(30), 7)
+    base = rng.uniform(0.05, 0.3, 30)[groups]
+    weaker = robust.HeldOut.of_errors(base, base, groups)
+    stronger = robust.HeldOut.of_errors(base * (1.0 + rng.normal(0.01, 0.02, 30)[groups]), base, groups)
+    if stronger.rms_mm < weaker.rms_mm:
+        weaker, stronger = stronger, weaker
+    z = (stronger.rms_mm - weaker.rms_mm) / robust.paired_se_mm(stronger, weaker)
+    chosen = [robust.paired_one_se_choice((0.3, 1.0), [weaker, stronger], k) for k in (0.5, 1.0, 2.0, 3.0, 5.0)]
+    assert chosen == [int(z <= k) for k in (0.5, 1.0, 2.0, 3.0, 5.0)]
+    assert robust.CHOICE_RULES["paired_three_se"]((0.3, 1.0), [weaker, stronger]) == int(z <= 3.0)
+
+
 def test_paired_se_refuses_fits_on_other_clusters():
     a = robust.HeldOut.of_errors(np.ones(6), np.ones(6), np.repeat([0, 1, 2], 2))
     b = robust.HeldOut.of_errors(np.ones(4), np.ones(4), np.repeat([0, 1], 2))
@@ -75,7 +90,7 @@ def test_paired_se_refuses_fits_on_other_clusters():
 
 
 def test_local_prior_rule_is_validated_and_applied(fitter):
-    with pytest.raises(ModelError, match="local_prior_rule.*one_se, paired_one_se"):
+    with pytest.raises(ModelError, match="local_prior_rule.*one_se, paired_one_se, paired_two_se"):
         FitOptions(local_prior_rule="median")
     fitter.local_fits()
     grid, scores, ratios = fitter._cache["local_prior_scores"]["pi"]
