@@ -36,7 +36,11 @@ class FitOptions:
             the same with the standard error of the paired difference to the lowest (the priors are scored on the
             same folds, so this is much smaller); ``paired_two_se``, ``paired_three_se``: within two or three paired
             standard errors; see :data:`calibration.methods.heldout.CHOICE_RULES` and
-            ``scripts/studies/local_prior_rule.py``.
+            ``scripts/studies/local_prior_rule.py``. Not the default (issue 31 part 4): on the simulated R2 the paired
+            rules take 0.3 where ``one_se`` takes 1.0 (pi+fbf13 9.3 -> 10.5 % below pi on seed 1433846632, on 9
+            other seeds -0.2 to +1.3 points), but ``paired_one_se`` also weakens the prior on 3 of the 7 R1 training
+            recordings (0627 before, 0627 after, 0801), and that raised 9 of their 12 pi-based CDC test means (by up to
+            5.2 %); ``paired_three_se`` changes no R1 choice, but its k was picked after seeing those R1 test rows.
         fourier_ridge_grid: candidate ridge strengths of fbf13/fbf7 (0 = the paper's least squares), chosen on
             held-out clusters by the same rule. It reaches 10 (times the basis Gram matrix's mean diagonal), where
             the fit is nearly the anchors' mean, so sparse anchors can always fall back to a smooth fit; strengths a

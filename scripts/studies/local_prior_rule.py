@@ -11,10 +11,11 @@ scores. The test errors that follow from a choice are ``scripts/benchmarks/bench
 
 With ``--twin-test pi+fbf13,...`` each twin's own test path (simulated, never a recording) also gives every prior's
 test mean for those methods, and each rule's; ``--null-twins`` adds, per seed, the same arm without the
-configuration-dependent error (``cdc_mm`` = 0), where a weaker prior can only fit noise.
+configuration-dependent error (``cdc_mm`` = 0), where a weaker prior can only fit noise. ``--by-kind pi+fbf13,...``
+scores the priors with each method's own interpolator too (the choice by the kind fitted).
 
     python scripts/studies/local_prior_rule.py [--days test0801_R1,...|none] [--r2-seeds S1,S2|N] [--null-twins]
-                                               [--twin-test m1,m2] [--json FILE]
+                                               [--twin-test m1,m2] [--by-kind m1,m2] [--json FILE]
 """
 
 from __future__ import annotations
@@ -58,6 +59,24 @@ def twin_test(fitter: Any, test: Any, grid: list[float], methods: tuple[str, ...
     return out
 
 
+def by_kind(fitter: Any, methods: tuple[str, ...]) -> dict[str, dict[str, Any]]:
+    """The prior each rule takes when the held-out clusters are scored with the interpolator each method fits (its
+    own strength choice at that prior) instead of ``linear``: the choice by the kind actually fitted (training
+    clusters only; priors beyond the workspace limit left out as the Fitter does)."""
+    grid, _, ratios = fitter._cache["local_prior_scores"]["pi"]
+    priors = tuple(g for g, r in zip(grid, ratios) if r <= workspace.WORKSPACE_RATIO_LIMIT)
+    out = {}
+    for m in methods:
+        scores = []
+        for prior in priors:
+            at = replace(fitter, options=replace(fitter.options, local_prior=prior), _cache={})
+            at._cache.update({k: fitter._cache[k] for k in ("pi", "local_by_prior")})
+            scores.append(at._held_out_check(m, at._cdc_options(m)).result())
+        out[m] = {"priors": list(priors), "heldout_rms_mm": [round(h.rms_mm, 4) for h in scores],
+                  **{name: priors[rule(priors, scores)] for name, rule in robust.CHOICE_RULES.items()}}
+    return out
+
+
 def scores_of(fitter: Any) -> dict[str, Any]:
     """The local-prior scores of one Fitter (pi reference) and each rule's choice from them."""
     fitter.local_prior("pi")
@@ -80,6 +99,8 @@ def main(argv: list[str] | None = None) -> int:
                                                                   "error (cdc_mm = 0) per seed")
     parser.add_argument("--twin-test", default="", help="methods (comma-separated) whose test-path mean on each twin "
                                                          "is computed at every prior, and per rule at its choice")
+    parser.add_argument("--by-kind", default="", help="CDC methods (comma-separated, not the neural ones) whose own "
+                                                       "interpolator also scores the priors (the choice by kind)")
     parser.add_argument("--json", help="write the figures to this JSON file")
     args = parser.parse_args(argv)
     days = [] if args.days == "none" else args.days.split(",")
@@ -87,6 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     seeds = parts if "," in args.r2_seeds else \
         [int(s) for s in np.random.default_rng().integers(0, 2 ** 31, parts[0])] if parts[0] > 0 else []
     out: dict[str, Any] = {}
+    kinds = tuple(m for m in args.by_kind.split(",") if m)
     cell = load_cell()
     r1 = cell.robot("R1")
     for day in days:
@@ -94,7 +116,10 @@ def main(argv: list[str] | None = None) -> int:
         if not path.exists():
             print(f"training recording not found: {path}", file=sys.stderr)
             return 2
-        out[day] = scores_of(fitter_for(r1, read_recording(path, r1.robot.lower_rad, r1.robot.upper_rad)))
+        fitter = fitter_for(r1, read_recording(path, r1.robot.lower_rad, r1.robot.upper_rad))
+        out[day] = scores_of(fitter)
+        if kinds:
+            out[day]["by_kind"] = by_kind(fitter, kinds)
         print(f"{day}: {out[day]['chosen']}", file=sys.stderr, flush=True)
     r2 = cell.robot("R2")
     methods = tuple(m for m in args.twin_test.split(",") if m)
@@ -105,6 +130,8 @@ def main(argv: list[str] | None = None) -> int:
             fitter = fitter_for(r2, sim.train)
             name = f"{kind} {seed}"
             out[name] = scores_of(fitter)
+            if kinds:
+                out[name]["by_kind"] = by_kind(fitter, kinds)
             if methods:
                 out[name]["test_mean_mm"] = twin_test(fitter, sim.test, out[name]["grid"], methods)
             print(f"{name}: {out[name]['chosen']}", file=sys.stderr, flush=True)
@@ -115,6 +142,14 @@ def main(argv: list[str] | None = None) -> int:
         cells = "; ".join(f"{g:g}: {m:.4f} ± {s:.4f} ({'–' if p is None else f'{p:.4f}'}) [{w:.2f}]" for g, m, s, p, w
                           in zip(r["grid"], r["rms_mm"], r["se_mm"], r["paired_se_to_best_mm"], r["workspace_ratio"]))
         print(f"| {name} | {cells} | " + " | ".join(f"{r['chosen'][k]:g}" for k in robust.CHOICE_RULES) + " |")
+    if kinds:
+        print("\nChoice by the kind fitted (held-out RMS per prior; each rule's prior)\n")
+        print("| data | method | held-out RMS per prior | " + " | ".join(robust.CHOICE_RULES) + " |")
+        print("|---|---|---|" + "---|" * len(robust.CHOICE_RULES))
+        for n, r in out.items():
+            for m, k in r.get("by_kind", {}).items():
+                rms = "; ".join(f"{p:g}: {v:.4f}" for p, v in zip(k["priors"], k["heldout_rms_mm"]))
+                print(f"| {n} | {m} | {rms} | " + " | ".join(f"{k[rule]:g}" for rule in robust.CHOICE_RULES) + " |")
     tested = {n: r for n, r in out.items() if "test_mean_mm" in r}
     if tested:
         print("\nTwin test paths: mean position error [mm] at each rule's prior (gain over pi)\n")
