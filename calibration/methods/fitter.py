@@ -244,13 +244,15 @@ class Fitter:
                                                  self._workspace_probes())[0])
         ok = [i for i, r in enumerate(ratios) if r <= workspace.WORKSPACE_RATIO_LIMIT]
         if ok:
-            chosen = grid[ok[robust.one_se_choice(tuple(grid[i] for i in ok), [scores[i] for i in ok])]]
+            rule = robust.CHOICE_RULES[self.options.local_prior_rule]
+            chosen = grid[ok[rule(tuple(grid[i] for i in ok), [scores[i] for i in ok])]]
         else:
             chosen = max(grid)
+        self._cache.setdefault("local_prior_scores", {})[reference] = (grid, scores, ratios)
         self._cache.setdefault("local_prior_cv", {})[reference] = {
             "chosen": chosen, "grid": list(grid), "heldout_rms_mm": [round(s.rms_mm, 4) for s in scores],
             "se_mm": [round(s.se_rms_mm, 4) for s in scores], "workspace_ratio": [round(r, 2) for r in ratios],
-            "within_workspace_limit": bool(ok)}
+            "within_workspace_limit": bool(ok), "rule": self.options.local_prior_rule}
         log.info("local prior %g (%s reference) chosen on held-out clusters: %s", chosen, reference,
                  self._cache["local_prior_cv"][reference])
         return chosen

@@ -56,6 +56,8 @@ class HeldOut:
         max_mm: worst held-out position error of the CDC model [mm].
         reference_max_mm: same for the reference.
         se_rms_mm: standard error of rms_mm over clusters [mm] (delta method on the per-cluster mean squares).
+        cluster_ms_mm2: mean squared held-out position error of each held-out cluster [mm^2], in cluster order
+            (sorted labels), for paired comparisons of fits scored on the same folds (:func:`paired_se_mm`).
     """
 
     rms_mm: float
@@ -63,6 +65,7 @@ class HeldOut:
     max_mm: float
     reference_max_mm: float
     se_rms_mm: float
+    cluster_ms_mm2: tuple[float, ...] = ()
 
     @property
     def ratio(self) -> float:
@@ -77,7 +80,8 @@ class HeldOut:
         per_cluster = np.bincount(groups, err ** 2) / np.bincount(groups)
         rms = float(np.sqrt(np.mean(err ** 2)))
         se = float(per_cluster.std(ddof=1) / np.sqrt(len(per_cluster)) / (2.0 * max(rms, 1e-12)))
-        return cls(rms, float(np.sqrt(np.mean(ref ** 2))), float(err.max()), float(ref.max()), se)
+        return cls(rms, float(np.sqrt(np.mean(ref ** 2))), float(err.max()), float(ref.max()), se,
+                   tuple(float(v) for v in per_cluster))
 
 
 def cluster_folds(n_clusters: int, n_folds: int = N_FOLDS, seed: int = 0) -> np.ndarray:
@@ -227,6 +231,38 @@ def one_se_choice(strengths: tuple[float, ...], scores: list[HeldOut]) -> int:
     limit = scores[best].rms_mm + scores[best].se_rms_mm
     ok = [i for i, s in enumerate(scores) if s.rms_mm <= limit]
     return max(ok, key=lambda i: strengths[i])
+
+
+def paired_se_mm(a: HeldOut, b: HeldOut) -> float:
+    """Standard error [mm] of ``a.rms_mm - b.rms_mm`` over clusters, for two fits scored on the same held-out
+    clusters (same folds): the delta method on the per-cluster differences of ``ms / (2 rms)``. Much smaller than
+    either fit's own standard error when the clusters that are hard for one are hard for the other."""
+    ma, mb = np.asarray(a.cluster_ms_mm2), np.asarray(b.cluster_ms_mm2)
+    if ma.shape != mb.shape or ma.size < 2:
+        raise ModelError(f"paired standard error needs both fits' per-cluster errors on the same clusters, got "
+                         f"{ma.size} and {mb.size}")
+    d = ma / (2.0 * max(a.rms_mm, 1e-12)) - mb / (2.0 * max(b.rms_mm, 1e-12))
+    return float(d.std(ddof=1) / np.sqrt(d.size))
+
+
+def paired_one_se_choice(strengths: tuple[float, ...], scores: list[HeldOut], k: float = 1.0) -> int:
+    """Index of the strongest regularisation whose held-out RMS exceeds the best's by at most ``k`` times the
+    standard error of that difference (:func:`paired_se_mm`): the one-standard-error rule (``k`` = 1) with the paired
+    standard error, for fits scored on the same folds (where each fit's own standard error mostly measures how the
+    clusters differ, which every fit shares). A larger ``k`` leaves the stronger regularisation only for a weaker one
+    the held-out clusters find better by more than ``k`` paired standard errors."""
+    best = int(np.argmin([s.rms_mm for s in scores]))
+    ok = [i for i, s in enumerate(scores)
+          if i == best or s.rms_mm - scores[best].rms_mm <= k * paired_se_mm(s, scores[best])]
+    return max(ok, key=lambda i: strengths[i])
+
+
+#: Rules choosing a strength from held-out scores, by the name :class:`calibration.methods.options.FitOptions` takes.
+CHOICE_RULES: dict[str, Callable[[tuple[float, ...], list[HeldOut]], int]] = {
+    "one_se": one_se_choice,
+    "paired_one_se": paired_one_se_choice,
+    "paired_two_se": lambda strengths, scores: paired_one_se_choice(strengths, scores, 2.0),
+    "paired_three_se": lambda strengths, scores: paired_one_se_choice(strengths, scores, 3.0)}
 
 
 # -- gross measurement errors (issue 30) ----------------------------------------------------------------------------

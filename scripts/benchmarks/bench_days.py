@@ -28,6 +28,7 @@ against pi (goal: at least :data:`R2_GOAL_GAIN` better on the mean). The seeds a
 
     python scripts/benchmarks/bench_days.py [--json FILE] [--methods m1,m2,...] [--cross-methods m1,...] [--quick]
                                  [--rebase-clusters spread|design] [--r2-seeds S1,S2|none] [--r2-only]
+                                 [--local-prior-rule one_se|paired_one_se]
 """
 
 from __future__ import annotations
@@ -53,6 +54,7 @@ from calibration.frames.rebase import RebaseProblem, choice_options, choose_dire
 from calibration.kinematics.poe import pose_error  # noqa: E402
 from calibration.method_names import CDC_INTERPOLATORS, METHODS  # noqa: E402
 from calibration.methods.fitter import Fitter
+from calibration.methods.options import LOCAL_PRIOR_RULES, FitOptions  # noqa: E402
 from calibration.models import ConstantModel  # noqa: E402
 from calibration.models.rebased import wrap_pose  # noqa: E402
 from cell_config import load_cell  # noqa: E402
@@ -71,6 +73,8 @@ R2_SIM_DAYS = 2
 R2_GOAL_GAIN = 0.10
 N_REBASE_CLUSTERS = 3
 CLUSTER_SIZE = 7
+#: The fit options of every fit (set from the command line by :func:`main`).
+OPTIONS = FitOptions()
 
 
 @dataclass(frozen=True)
@@ -97,7 +101,7 @@ def make_fitter(robot: Any, train: Recording) -> Fitter:
     """A Fitter for one arm of the cell (its nominal model, link masses, joint limits), as ``compare`` builds it."""
     from app.workflows.fit import fitter_for
 
-    return fitter_for(robot, train)
+    return fitter_for(robot, train, options=OPTIONS)
 
 
 def spread_clusters(rec: Recording, k: int = N_REBASE_CLUSTERS) -> list[int]:
@@ -152,13 +156,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rebase-clusters", choices=("spread", "design"), default="spread",
                         help="the 3 clusters of B's training recording to rebase on: spread widest over (q2, q3) "
                              "(default) or those the rebase design criterion picks (cellcal select --for rebase)")
-    parser.add_argument("--cross-methods", help="methods of the cross-day matrix (default: the same as --methods)")
+    parser.add_argument("--cross-methods", help="methods of the cross-day matrix (default: the same as --methods; "
+                                                "'none': no cross-day matrix)")
     parser.add_argument("--quick", action="store_true", help=f"only {','.join(QUICK_METHODS)}")
     parser.add_argument("--r2-seeds", type=r2_seeds, default=None,
                         help=f"seeds of the simulated R2 rows, comma-separated, or 'none' (default: {R2_SIM_DAYS} "
                              "seeds drawn at run time, printed)")
     parser.add_argument("--r2-only", action="store_true", help="only the simulated R2 rows (no shared day read)")
+    parser.add_argument("--local-prior-rule", choices=LOCAL_PRIOR_RULES, default=FitOptions().local_prior_rule,
+                        help="the rule choosing the local prior of the CDC fits on held-out training clusters "
+                             "(FitOptions.local_prior_rule)")
     args = parser.parse_args(argv)
+    global OPTIONS
+    OPTIONS = FitOptions(local_prior_rule=args.local_prior_rule)
     data = args.data
     methods = parse(args.methods, QUICK_METHODS if args.quick else DEFAULT_METHODS)
     seeds = args.r2_seeds if args.r2_seeds is not None else \
@@ -172,7 +182,8 @@ def main(argv: list[str] | None = None) -> int:
     if not data.exists():
         print(f"shared recordings not found at {data}", file=sys.stderr)
         return 2
-    cross_methods = [m for m in parse(args.cross_methods, tuple(methods)) if m in methods]
+    cross_methods = [] if args.cross_methods == "none" else \
+        [m for m in parse(args.cross_methods, tuple(methods)) if m in methods]
     timings: dict[str, float] = {}
     start = time.perf_counter()
 
@@ -190,17 +201,20 @@ def main(argv: list[str] | None = None) -> int:
     recommended: dict[str, dict[str, Any]] = {}
     same_day: dict[str, dict[str, dict[str, Any]]] = {}
     target_unit: dict[str, str] = {}
+    local_priors: dict[str, float] = {}
     select_s = eval_s = 0.0
     for u in UNITS:
         fitter = make_fitter(robot, train[u.name])
         models[u.name], fit_seconds[u.name] = {}, {}
         for m in methods:
             models[u.name][m], fit_seconds[u.name][m] = fitter.fit(m)
+        if any(m.startswith("pi+") for m in methods):
+            local_priors[u.name] = fitter.local_prior("pi")
         t_select = time.perf_counter()
         recommended[u.name] = recommend_fitted(fitter, models[u.name]).to_json()
         select_s += time.perf_counter() - t_select
         print(f"fitted {u.name}: {sum(fit_seconds[u.name].values()):.1f} s; recommended "
-              f"{recommended[u.name]['method']}", file=sys.stderr, flush=True)
+              f"{recommended[u.name]['method']}; local prior {local_priors.get(u.name)}", file=sys.stderr, flush=True)
         t_eval = time.perf_counter()
         for label, _ in u.tests:  # the day's rows at once, so a long run shows them as it goes
             target_unit[label] = u.name
@@ -278,7 +292,8 @@ def main(argv: list[str] | None = None) -> int:
                "recommendation": recommended, "frame_checks": frame_checks,
                "training_frame_checks": {k: c.to_json() for k, c in train_checks.items()},
                "fit_seconds": fit_seconds, "rebase_clusters": rebase_clusters, "goal_ratio": GOAL_RATIO,
-               "timings": timings, "r2_sim": r2}
+               "timings": timings, "r2_sim": r2, "local_prior": local_priors,
+               "local_prior_rule": args.local_prior_rule}
         Path(args.json).write_text(json.dumps(out, indent=1))
     return 0
 

@@ -45,6 +45,66 @@ def test_one_se_rule_takes_the_strongest_tied_strength():
     assert robust.one_se_choice((0.1, 1.0, 3.0, 10.0), h) == 2
 
 
+def test_held_out_figures_keep_each_clusters_mean_square():
+    err, groups = np.array([1.0, 3.0, 2.0, 2.0]), np.array([7, 7, 2, 2])
+    h = robust.HeldOut.of_errors(err, err, groups)
+    np.testing.assert_allclose(h.cluster_ms_mm2, [4.0, 5.0])  # sorted labels: cluster 2, then 7
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_paired_rule_tells_apart_what_shared_folds_tie(seed):
+    # Fits scored on the same clusters: per-cluster errors that differ widely between clusters (what each fit's own
+    # standard error measures) and a small consistent excess of the stronger strengths. The paired standard error sees
+    # the excess; the one-SE rule with each fit's own SE takes the strongest within it, the paired rule the best.
+    rng = np.random.default_rng(seed)
+    groups = np.repeat(np.arange(40), 7)
+    base = rng.uniform(0.05, 0.3, 40)[groups] * rng.uniform(0.8, 1.2, groups.size)
+    scores = [robust.HeldOut.of_errors(base * (1.0 + k), base, groups) for k in (0.0, 0.02, 0.5)]
+    assert robust.paired_se_mm(scores[1], scores[0]) < 0.2 * scores[0].se_rms_mm
+    assert robust.one_se_choice((0.3, 1.0, 10.0), scores) == 1
+    assert robust.paired_one_se_choice((0.3, 1.0, 10.0), scores) == 0
+    # a fit the held-out clusters cannot tell from the best (the same errors): the stronger one is taken
+    assert robust.paired_one_se_choice((0.3, 1.0), [scores[0], scores[0]]) == 1
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_paired_k_se_rule_leaves_the_stronger_only_beyond_k_paired_errors(seed):
+    rng = np.random.default_rng(seed)
+    groups = np.repeat(np.arange(30), 7)
+    base = rng.uniform(0.05, 0.3, 30)[groups]
+    weaker = robust.HeldOut.of_errors(base, base, groups)
+    stronger = robust.HeldOut.of_errors(base * (1.0 + rng.normal(0.01, 0.02, 30)[groups]), base, groups)
+    if stronger.rms_mm < weaker.rms_mm:
+        weaker, stronger = stronger, weaker
+    z = (stronger.rms_mm - weaker.rms_mm) / robust.paired_se_mm(stronger, weaker)
+    chosen = [robust.paired_one_se_choice((0.3, 1.0), [weaker, stronger], k) for k in (0.5, 1.0, 2.0, 3.0, 5.0)]
+    assert chosen == [int(z <= k) for k in (0.5, 1.0, 2.0, 3.0, 5.0)]
+    assert robust.CHOICE_RULES["paired_three_se"]((0.3, 1.0), [weaker, stronger]) == int(z <= 3.0)
+
+
+def test_paired_se_refuses_fits_on_other_clusters():
+    a = robust.HeldOut.of_errors(np.ones(6), np.ones(6), np.repeat([0, 1, 2], 2))
+    b = robust.HeldOut.of_errors(np.ones(4), np.ones(4), np.repeat([0, 1], 2))
+    with pytest.raises(ModelError, match="same clusters"):
+        robust.paired_se_mm(a, b)
+
+
+def test_local_prior_rule_is_validated_and_applied(fitter):
+    with pytest.raises(ModelError, match="local_prior_rule.*one_se, paired_one_se, paired_two_se"):
+        FitOptions(local_prior_rule="median")
+    fitter.local_fits()
+    grid, scores, ratios = fitter._cache["local_prior_scores"]["pi"]
+    ok = [i for i, r in enumerate(ratios) if r <= workspace.WORKSPACE_RATIO_LIMIT]
+    for name, rule in robust.CHOICE_RULES.items():
+        other = Fitter(fitter.robot, fitter.nominal, fitter.train, FitOptions(local_prior_rule=name))
+        other._cache["local_prior_scores"] = {}
+        other._cache["local_by_prior"] = fitter._cache["local_by_prior"]  # the same local fits: only the rule runs
+        other._cache["pi"] = fitter._cache["pi"]
+        expected = grid[ok[rule(tuple(grid[i] for i in ok), [scores[i] for i in ok])]] if ok else max(grid)
+        assert other.local_prior("pi") == expected
+        assert other._cache["local_prior_cv"]["pi"]["rule"] == name
+
+
 def test_cdc_model_clips_to_its_bounds_and_keeps_them_in_its_file(tmp_path, r1_nominal):
     par = MinimalParameterisation(r1_nominal)
     rng = np.random.default_rng(2)
