@@ -24,7 +24,6 @@ import logging
 import multiprocessing as mp
 import time
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -434,9 +433,9 @@ class Fitter:
             try:
                 model, seconds = future.result()  # the worker's own error, or BrokenProcessPool if it died
             except BaseException:  # an interrupt here must not wait for the rest of the diagnosis
-                _terminate(pool)
+                pool.terminate()
                 raise
-            pool.shutdown(wait=True)
+            pool.shutdown(cancel=False)
             self._cache.setdefault("worker_seconds", {})["diagnosed"] = seconds
             return model
         return self._diagnose()
@@ -557,16 +556,11 @@ class Fitter:
     def _start_diagnosis(self) -> None:
         """Start ``diagnosed``'s fit in a forked worker process of its own (collected by :meth:`fit`); a no-op
         when it is fitted or started, without ``fork`` or with one usable core."""
-        global _FORKED
         if ("diagnosis_job" in self._cache or "diagnosed" in self._cache.get("fitted", ())
                 or workers.default_workers(robust.N_FOLDS) < 2 or "fork" not in mp.get_all_start_methods()):
             return
-        pool = ProcessPoolExecutor(1, mp_context=mp.get_context("fork"))
-        _FORKED = self  # the worker forks during the submit
-        try:
-            self._cache["diagnosis_job"] = pool, pool.submit(_diagnosis_job)
-        finally:
-            _FORKED = None
+        pool = workers.ForkPool(1, self)  # the worker forks during the submit, with this Fitter as it is then
+        self._cache["diagnosis_job"] = pool, pool.submit(_diagnosis_job)
 
     def prefetch_held_out_errors(self, methods: list[str] | tuple[str, ...]) -> None:
         """:meth:`held_out_errors` of the neural CDC methods among ``methods``, their fold refits (a network
@@ -600,15 +594,10 @@ class Fitter:
 
     def _submit(self, job: Callable[..., Any], *args: Any) -> Any:
         """``job(*args)`` in this Fitter's worker pool (made on first use), a future. The workers fork at the first
-        submit and run every later job with this Fitter as it was then (:data:`_FORKED`)."""
-        global _FORKED
+        submit and run every later job with this Fitter as it was then (:class:`calibration.workers.ForkPool`)."""
         if "pool" not in self._cache:
-            self._cache["pool"] = ProcessPoolExecutor(workers.default_workers(robust.N_FOLDS), mp_context=mp.get_context("fork"))
-        _FORKED = self  # the workers fork during the submit
-        try:
-            return self._cache["pool"].submit(job, *args)
-        finally:
-            _FORKED = None
+            self._cache["pool"] = workers.ForkPool(workers.default_workers(robust.N_FOLDS), self)
+        return self._cache["pool"].submit(job, *args)
 
     def _submit_folds(self, jobs: list[tuple[str, int]]) -> None:
         """Start the fold refits ``(method, fold)`` not yet made or started, in forked workers (in this process
@@ -634,7 +623,7 @@ class Fitter:
         """Drop the jobs not started and wait for the workers to exit."""
         pool = self._cache.pop("pool", None)
         if pool is not None:
-            pool.shutdown(wait=True, cancel_futures=True)
+            pool.shutdown()
         self._cache.pop("fold_jobs", None)
         self._cache.pop("prefetched", None)
 
@@ -644,7 +633,7 @@ class Fitter:
         job = self._cache.pop("diagnosis_job", None)
         for pool in (job[0] if job else None, self._cache.get("pool")):
             if pool is not None:
-                _terminate(pool)
+                pool.terminate()
         self._shutdown_jobs()  # drops the network jobs' bookkeeping (their workers are gone already)
 
     def held_out_errors(self, method: str) -> np.ndarray | None:
@@ -821,10 +810,6 @@ class Fitter:
         return info
 
 
-#: The Fitter whose worker pool is forking (set during its submits, cleared after): the workers' jobs run on it.
-_FORKED: Fitter | None = None
-
-
 def _fold_error_of(fitter: Fitter, method: str, fold: int) -> tuple[np.ndarray, float]:
     """``method`` refitted without fold ``fold``'s clusters of ``fitter``: its position errors [mm] on them and the
     refit's time [s]."""
@@ -835,31 +820,22 @@ def _fold_error_of(fitter: Fitter, method: str, fold: int) -> tuple[np.ndarray, 
     return err, time.perf_counter() - start
 
 
-def _fold_error_job(method: str, fold: int) -> tuple[np.ndarray, float]:
+def _fold_error_job(fitter: Fitter, method: str, fold: int) -> tuple[np.ndarray, float]:
     """Worker job of :meth:`Fitter._submit_folds`: :func:`_fold_error_of` on the Fitter that forked it."""
-    return _fold_error_of(_FORKED, method, fold)  # type: ignore[arg-type]
+    return _fold_error_of(fitter, method, fold)
 
 
-def _prefetch_final(method: str, options: dict[str, Any]) -> tuple[CdcModel, float]:
+def _prefetch_final(fitter: Fitter, method: str, options: dict[str, Any]) -> tuple[CdcModel, float]:
     """Worker job of :meth:`Fitter.prefetch`: the final model and its fit time [s]."""
     start = time.perf_counter()
-    model = _FORKED._build_cdc(method, options)  # type: ignore[union-attr]
+    model = fitter._build_cdc(method, options)
     return model, time.perf_counter() - start
 
 
-def _terminate(pool: ProcessPoolExecutor) -> None:
-    """Stop an executor's workers now. It has no public terminate (3.14's terminate_workers): its processes, then
-    its own shutdown, which finds them dead, cancels what is queued and reaps them (joining them here raced its
-    manager thread)."""
-    for proc in list((getattr(pool, "_processes", None) or {}).values()):
-        proc.terminate()
-    pool.shutdown(wait=True, cancel_futures=True)
-
-
-def _diagnosis_job() -> tuple[KinematicModel, float]:
+def _diagnosis_job(fitter: Fitter) -> tuple[KinematicModel, float]:
     """Worker job of :meth:`Fitter._start_diagnosis`: ``diagnosed``'s model and its fit time [s]."""
     start = time.perf_counter()
-    model = _FORKED._diagnose()  # type: ignore[union-attr]
+    model = fitter._diagnose()
     return model, time.perf_counter() - start
 
 
