@@ -10,9 +10,10 @@ from calibration import workers
 from calibration.errors import DataError, ModelError, ModelFileError
 from calibration.interpolation import Fourier13Interpolator, make_interpolator
 from calibration.kinematics.parameterisation import MinimalParameterisation
+from calibration.methods import diagnosed, workspace
 from calibration.methods import heldout as robust
-from calibration.methods import workspace
 from calibration.methods.cdc import cluster_anchors, geometric_cdc
+from calibration.methods.cdc_fit import cdc_options
 from calibration.methods.fitter import Fitter
 from calibration.methods.options import FitOptions
 from calibration.models import load_model, save_model
@@ -206,7 +207,7 @@ def _diagnosis_in_a_worker(synthetic_arm, r1_nominal, monkeypatch, job) -> Fitte
         pytest.skip("one usable core: no worker is forked")
     _, _, truth = synthetic_arm
     q, cluster = cluster_design(step_deg=30.0)
-    monkeypatch.setattr(Fitter, "_diagnose", job)
+    monkeypatch.setattr(diagnosed, "run_diagnosis", job)
     fitter = Fitter("R1", r1_nominal, measure(truth.fk, q, 0.02, 0.01, 1, cluster), FitOptions(local_prior=0.1))
     fitter.prefetch(["nominal", "diagnosed"])
     return fitter
@@ -275,11 +276,11 @@ def test_pi_ae_trains_the_issue_14_autoencoder_and_the_papers_ae_keeps_the_paper
     the paper's three of 200, which is also the interpolator's default and one option away for pi+ae."""
     from calibration.interpolation.autoencoder import PAPER_HIDDEN, AutoencoderInterpolator
 
-    assert fitter._cdc_options("pi+ae")["hidden"] == (128, 128) == FitOptions().pi_ae_hidden
-    assert "hidden" not in fitter._cdc_options("ae") and AutoencoderInterpolator().hidden == PAPER_HIDDEN == (200,) * 3
+    assert cdc_options(fitter, "pi+ae")["hidden"] == (128, 128) == FitOptions().pi_ae_hidden
+    assert "hidden" not in cdc_options(fitter, "ae") and AutoencoderInterpolator().hidden == PAPER_HIDDEN == (200,) * 3
     paper = Fitter(fitter.robot, fitter.nominal, fitter.train, FitOptions(local_prior=0.1, pi_ae_hidden=PAPER_HIDDEN))
-    assert paper._cdc_options("pi+ae")["hidden"] == PAPER_HIDDEN
-    assert not any("hidden" in fitter._cdc_options(m) for m in ("nn", "pi+nn"))  # nn keeps the paper's network
+    assert cdc_options(paper, "pi+ae")["hidden"] == PAPER_HIDDEN
+    assert not any("hidden" in cdc_options(fitter, m) for m in ("nn", "pi+nn"))  # nn keeps the paper's network
 
 
 def test_the_unstable_fit_warning_says_what_a_user_can_do(synthetic_arm, r1_nominal, monkeypatch):
