@@ -56,7 +56,7 @@ def fit_cdc(fitter: HeldOutRefits, method: str) -> KinematicModel:
         model = build_model(fitter, method, options)
         h = check.result()
     else:
-        final = fitter._cache.get("prefetched", {}).pop(method, None)
+        final = fitter._cache.prefetched.pop(method, None)
         if final is not None:  # final network (and the check's fold refits) trained in worker processes
             model, final_s = fitter._collect(final)
         else:
@@ -74,8 +74,8 @@ def fit_cdc(fitter: HeldOutRefits, method: str) -> KinematicModel:
                 raise
         for f in range(robust.NEURAL_EVALUATED_FOLDS):
             fitter._fold_error(method, f)
-        fitter._cache.setdefault("worker_seconds", {})[method] = final_s + sum(
-            fitter._cache["fold_seconds"][method, f] for f in range(robust.NEURAL_EVALUATED_FOLDS))
+        fitter._cache.worker_seconds[method] = final_s + sum(
+            fitter._cache.fold_seconds[method, f] for f in range(robust.NEURAL_EVALUATED_FOLDS))
         h = _neural_check(fitter, method)
     model.info.update(_cdc_checks(fitter, method, model, h))
     return model
@@ -109,9 +109,9 @@ def _choose_strength(fitter: HeldOutRefits, method: str, options: dict[str, Any]
     a fold refit takes the :attr:`warm` Fitter's choice."""
 
     if fitter.warm is not None:
-        if method not in fitter.warm._cache.get("strengths", {}):
+        if method not in fitter.warm._cache.strengths:
             fitter.warm.fit(method)
-        return fitter.warm._cache["strengths"][method][name]
+        return fitter.warm._cache.strengths[method][name]
     ref_name, kind = cdc_method(method)
     (kin, theta), local = fitter.reference(ref_name), fitter.local_fits(ref_name)
     groups, _ = cluster_anchors(fitter.clustered, fitter.options.cluster_size)
@@ -130,7 +130,7 @@ def _choose_strength(fitter: HeldOutRefits, method: str, options: dict[str, Any]
         raise ModelError(f"{method}: no {name} of {list(grid)} can be fitted on the held-out folds of "
                          f"{len(local.anchors)} clusters")
     chosen = grid[usable[robust.one_se_choice(tuple(grid[i] for i in usable), [scores[i] for i in usable])]]
-    fitter._cache.setdefault("strengths", {})[method] = {
+    fitter._cache.strengths[method] = {
         name: chosen, "grid": list(grid),
         "heldout_rms_mm": [None if s is None else round(s.rms_mm, 4) for s in scores]}
     return chosen
@@ -154,10 +154,10 @@ def _cdc_checks(fitter: HeldOutRefits, method: str, model: Any, h: robust.HeldOu
         "workspace_correction": {"ratio": round(ratio, 2), "probe_p99_mm": round(probe_mm, 4),
                                  "train_p99_mm": round(train_mm, 4)},
         "reference": reference,
-        "local_prior": fitter._cache.get("local_prior_cv", {}).get(reference, {"chosen": fitter.options.local_prior}),
+        "local_prior": fitter._cache.local_prior_cv.get(reference, {"chosen": fitter.options.local_prior}),
     }
-    if method in fitter._cache.get("strengths", {}):
-        info["strength"] = fitter._cache["strengths"][method]
+    if method in fitter._cache.strengths:
+        info["strength"] = fitter._cache.strengths[method]
     problems = []
     if h.ratio > robust.HELDOUT_RATIO_LIMIT:
         problems.append(f"on training clusters held out from it, its position RMS is {h.rms_mm:.3f} mm (max "

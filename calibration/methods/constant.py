@@ -114,7 +114,7 @@ def fit_nls0(fitter: HeldOutRefits, method: str) -> ConstantModel:
         if "warning" in info["heldout"]:
             info["warning"] = info["heldout"].pop("warning")
     o, x = at(cutoff)
-    fitter._cache["nls0_damping"] = cutoff
+    fitter._cache.nls0_damping = cutoff
     return _constant(fitter, "nls0", x, o.rank, **info, hidden_directions=o.unobservable())
 
 
@@ -122,9 +122,9 @@ def nls0_damping(fitter: HeldOutRefits) -> float:
     """The Tikhonov cutoff of ``nls0`` (FitOptions.nls0_damping, or the one chosen on held-out clusters)."""
     if fitter.options.nls0_damping is not None:
         return fitter.options.nls0_damping
-    if "nls0_damping" not in fitter._cache:
+    if fitter._cache.nls0_damping is None:
         fitter.fit("nls0")
-    return fitter._cache["nls0_damping"]
+    return fitter._cache.nls0_damping
 
 
 def _nls0_held_out(fitter: HeldOutRefits, at: Callable[[float], tuple[Observability, np.ndarray]], used: np.ndarray,

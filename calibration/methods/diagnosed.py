@@ -18,7 +18,7 @@ from calibration.models import KinematicModel
 
 @register("diagnosed")
 def fit_diagnosed(fitter: HeldOutRefits, method: str) -> KinematicModel:
-    job = fitter._cache.pop("diagnosis_job", None)
+    job, fitter._cache.diagnosis_job = fitter._cache.diagnosis_job, None
     if job is not None:  # started by prefetch in its own worker process: the same bits as here
         pool, future = job
         try:
@@ -27,7 +27,7 @@ def fit_diagnosed(fitter: HeldOutRefits, method: str) -> KinematicModel:
             pool.terminate()
             raise
         pool.shutdown(cancel=False)
-        fitter._cache.setdefault("worker_seconds", {})["diagnosed"] = seconds
+        fitter._cache.worker_seconds["diagnosed"] = seconds
         return model
     return run_diagnosis(fitter)
 
@@ -44,11 +44,11 @@ def run_diagnosis(fitter: HeldOutRefits) -> KinematicModel:
 def start_diagnosis(fitter: HeldOutRefits) -> None:
     """Start ``diagnosed``'s fit in a forked worker process of its own (collected by :func:`fit_diagnosed`); a
     no-op when it is fitted or started, without ``fork`` or with one usable core."""
-    if ("diagnosis_job" in fitter._cache or "diagnosed" in fitter._cache.get("fitted", ())
+    if (fitter._cache.diagnosis_job is not None or "diagnosed" in fitter._cache.fitted
             or workers.default_workers(robust.N_FOLDS) < 2 or "fork" not in mp.get_all_start_methods()):
         return
     pool = workers.ForkPool(1, fitter)  # the worker forks during the submit, with this Fitter as it is then
-    fitter._cache["diagnosis_job"] = pool, pool.submit(_diagnosis_job)
+    fitter._cache.diagnosis_job = pool, pool.submit(_diagnosis_job)
 
 
 def _diagnosis_job(fitter: HeldOutRefits) -> tuple[KinematicModel, float]:

@@ -37,6 +37,7 @@ from calibration.methods import heldout as robust
 from calibration.methods.folds import HeldOutRefits
 from calibration.methods.recommend import off_reference
 from calibration.methods.registry import fit_function
+from calibration.methods.shared import SharedCache
 from calibration.models import KinematicModel
 from calibration.models.guard import REGION_KEY, Region
 
@@ -58,7 +59,7 @@ class Fitter(HeldOutRefits):
         train = self.train
 
         def errors(keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            fitter = replace(self, train=train if keep.all() else train.subset(keep), _cache={})
+            fitter = replace(self, train=train if keep.all() else train.subset(keep), _cache=SharedCache())
             R, p = fitter.par.model(fitter.global_fit()).fk(train.q)
             return pose_error(train.R, train.p, R, p)
 
@@ -68,7 +69,7 @@ class Fitter(HeldOutRefits):
         if gross.rows:
             keep = np.ones(len(train), dtype=bool)
             keep[list(gross.rows)] = False
-            fitter = replace(self, train=_with_clusters(train, self.options.cluster_size).subset(keep), _cache={})
+            fitter = replace(self, train=_with_clusters(train, self.options.cluster_size).subset(keep), _cache=SharedCache())
         else:
             fitter = self
         fitter.gross = gross
@@ -82,8 +83,8 @@ class Fitter(HeldOutRefits):
         start = time.perf_counter()
         model = fit_function(method)(self, method)
         # A prefetched fit ran in worker processes: its time is what its jobs took there, as if run here.
-        seconds = self._cache.get("worker_seconds", {}).pop(method, time.perf_counter() - start) + shared
-        self._cache.setdefault("fitted", set()).add(method)
+        seconds = self._cache.worker_seconds.pop(method, time.perf_counter() - start) + shared
+        self._cache.fitted.add(method)
         model.info.setdefault("fit_seconds", seconds)
         model.info.setdefault("train_samples", len(self.train))
         if self.gross is not None and (self.gross.rows or self.gross.too_many):
@@ -100,7 +101,7 @@ class Fitter(HeldOutRefits):
             needs = ("pi", "local pi") if reference == "pi" else ("global", "local geometric")
         steps = {"global": self.global_fit, "pi": self.physics_informed,
                  "local pi": lambda: self.local_fits("pi"), "local geometric": lambda: self.local_fits("geometric")}
-        seconds = self._cache.setdefault("seconds", {})
+        seconds = self._cache.seconds
         for step in needs:
             if step not in seconds:
                 start = time.perf_counter()
@@ -126,9 +127,9 @@ class Fitter(HeldOutRefits):
         """
         if "diagnosed" in methods:
             diagnosed.start_diagnosis(self)
-        prefetched = self._cache.setdefault("prefetched", {})
+        prefetched = self._cache.prefetched
         neural = [m for m in ("ae", "pi+ae", "nn", "pi+nn") if m in methods and m not in prefetched
-                  and m not in self._cache.get("fitted", ())]
+                  and m not in self._cache.fitted]
         if not neural or workers.default_workers(robust.N_FOLDS) < 2 or "fork" not in mp.get_all_start_methods():
             return
         for m in neural:  # the shared fits of each reference, once, before the workers fork

@@ -22,7 +22,7 @@ from calibration.evaluation.metrics import errors
 from calibration.method_names import CDC_METHODS, NEURAL_METHODS, cdc_method
 from calibration.methods import heldout as robust
 from calibration.methods.cdc import cluster_anchors
-from calibration.methods.shared import SharedFits
+from calibration.methods.shared import SharedCache, SharedFits
 from calibration.models import KinematicModel
 
 
@@ -48,13 +48,13 @@ class HeldOutRefits(SharedFits, ABC):
             return None
         if method in ("nominal", "cpa"):
             return errors(self.fit(method)[0], self.train).position_mm
-        if method not in self._cache.get("fitted", ()):
+        if method not in self._cache.fitted:
             self.fit(method)  # chooses the strengths the fold refits reuse
         return self._fold_errors(method)
 
     def _fold_errors(self, method: str) -> np.ndarray:
         """:meth:`held_out_errors` of a method whose strengths are chosen (cached)."""
-        cache = self._cache.setdefault("held_out_errors", {})
+        cache = self._cache.held_out_errors
         if method not in cache:
             err = np.empty(len(self.train))
             for f, (held, _) in enumerate(self._fold_fitters()):
@@ -65,23 +65,23 @@ class HeldOutRefits(SharedFits, ABC):
     def _fold_error(self, method: str, fold: int) -> np.ndarray:
         """Position errors [mm] on fold ``fold``'s poses of ``method`` refitted without them (cached; collected
         from a worker when one refits it)."""
-        cached = self._cache.setdefault("fold_errors", {})
+        cached = self._cache.fold_errors
         if (method, fold) not in cached:
-            job = self._cache.get("fold_jobs", {}).pop((method, fold), None)
+            job = self._cache.fold_jobs.pop((method, fold), None)
             err, seconds = self._collect(job) if job is not None else _fold_error_of(self, method, fold)
             cached[method, fold] = err
-            self._cache.setdefault("fold_seconds", {})[method, fold] = seconds
+            self._cache.fold_seconds[method, fold] = seconds
         return cached[method, fold]
 
     def _fold_fitters(self) -> list[tuple[np.ndarray, HeldOutRefits]]:
         """``(held-out mask, Fitter on the other clusters)`` per fold, shared by every method (cached)."""
-        if "folds" not in self._cache:
+        if self._cache.folds is None:
             self._require_clusters(2, "held-out figures (each fold refitted on the other clusters)")
             groups, anchors = cluster_anchors(self.train, self.options.cluster_size)
             folds = robust.cluster_folds(len(anchors), robust.N_FOLDS, self.options.seed)[groups]
-            self._cache["folds"] = [(folds == f, replace(self, train=self.train.subset(folds != f), warm=self,
-                                                         _cache={})) for f in range(robust.N_FOLDS)]
-        return self._cache["folds"]
+            self._cache.folds = [(folds == f, replace(self, train=self.train.subset(folds != f), warm=self,
+                                                      _cache=SharedCache())) for f in range(robust.N_FOLDS)]
+        return self._cache.folds
 
     def prefetch_held_out_errors(self, methods: list[str] | tuple[str, ...]) -> None:
         """:meth:`held_out_errors` of the neural CDC methods among ``methods``, their fold refits (a network
@@ -91,12 +91,12 @@ class HeldOutRefits(SharedFits, ABC):
         The fold Fitters' shared fits (reference, local fits) are made here first, so no worker repeats them.
         A no-op without the ``fork`` start method or with one usable core.
         """
-        cache = self._cache.setdefault("held_out_errors", {})
+        cache = self._cache.held_out_errors
         neural = [m for m in methods if m in NEURAL_METHODS and m not in cache]
         if not neural or workers.default_workers(robust.N_FOLDS) < 2 or "fork" not in mp.get_all_start_methods():
             return
         for m in neural:
-            if m not in self._cache.get("fitted", ()):
+            if m not in self._cache.fitted:
                 self.fit(m)  # chooses the strengths the fold refits reuse
         try:
             self._submit_folds([(m, f) for m in neural for f in range(robust.N_FOLDS)])
@@ -116,18 +116,18 @@ class HeldOutRefits(SharedFits, ABC):
     def _submit(self, job: Callable[..., Any], *args: Any) -> Any:
         """``job(*args)`` in this Fitter's worker pool (made on first use), a future. The workers fork at the first
         submit and run every later job with this Fitter as it was then (:class:`calibration.workers.ForkPool`)."""
-        if "pool" not in self._cache:
-            self._cache["pool"] = workers.ForkPool(workers.default_workers(robust.N_FOLDS), self)
-        return self._cache["pool"].submit(job, *args)
+        if self._cache.pool is None:
+            self._cache.pool = workers.ForkPool(workers.default_workers(robust.N_FOLDS), self)
+        return self._cache.pool.submit(job, *args)
 
     def _submit_folds(self, jobs: list[tuple[str, int]]) -> None:
         """Start the fold refits ``(method, fold)`` not yet made or started, in forked workers (in this process
         when there is one usable core or no ``fork``)."""
-        cached, pending = self._cache.setdefault("fold_errors", {}), self._cache.setdefault("fold_jobs", {})
+        cached, pending = self._cache.fold_errors, self._cache.fold_jobs
         jobs = [j for j in jobs if j not in cached and j not in pending]
         if not jobs or workers.default_workers(robust.N_FOLDS) < 2 or "fork" not in mp.get_all_start_methods():
             return
-        if "pool" not in self._cache:  # workers forked later see them
+        if self._cache.pool is None:  # workers forked later see them
             self._prepare_folds(jobs)
         for m, f in jobs:
             pending[m, f] = self._submit(_fold_error_job, m, f)
@@ -137,22 +137,21 @@ class HeldOutRefits(SharedFits, ABC):
         try:
             return future.result()  # a worker that died raises BrokenProcessPool
         finally:
-            if not self._cache.get("prefetched") and not self._cache.get("fold_jobs"):
+            if not self._cache.prefetched and not self._cache.fold_jobs:
                 self._shutdown_jobs()
 
     def _shutdown_jobs(self) -> None:
         """Drop the jobs not started and wait for the workers to exit."""
-        pool = self._cache.pop("pool", None)
+        pool, self._cache.pool = self._cache.pool, None
         if pool is not None:
             pool.shutdown()
-        self._cache.pop("fold_jobs", None)
-        self._cache.pop("prefetched", None)
+        self._cache.fold_jobs, self._cache.prefetched = {}, {}  # new ones: a caller may hold the old
 
     def abort_jobs(self) -> None:
         """Stop every worker process now (the network pool and ``diagnosed``'s), its results dropped: after a
         failure or an interrupt in the parent, which must not wait for a fit nobody will collect."""
-        job = self._cache.pop("diagnosis_job", None)
-        for pool in (job[0] if job else None, self._cache.get("pool")):
+        job, self._cache.diagnosis_job = self._cache.diagnosis_job, None
+        for pool in (job[0] if job else None, self._cache.pool):
             if pool is not None:
                 pool.terminate()
         self._shutdown_jobs()  # drops the network jobs' bookkeeping (their workers are gone already)

@@ -6,6 +6,7 @@ local prior chosen on held-out clusters). :class:`SharedFits` holds the training
 from __future__ import annotations
 
 import logging
+from concurrent.futures import Future
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -28,12 +29,68 @@ from calibration.models.cdc import CDC_INPUTS
 from calibration.models.pi import PhysicsInformedModel
 from calibration.physics.extended import ExtendedKinematics
 from calibration.physics.gravity import GravityModel
+from calibration.workers import ForkPool
 
 log = logging.getLogger("cellcal.calibration")
 
 #: Clusters a CDC method needs: its interpolator over (q2, q3) needs 3 anchors, and its strengths are chosen on
 #: clusters held out in turn (5 folds), so 4 leave 3 on every fold.
 MIN_CDC_CLUSTERS = 4
+
+
+@dataclass
+class SharedCache:
+    """What a fitter made once and keeps: the shared fits, the choices made on held-out clusters, the fold refits
+    and the worker jobs under way (each None or empty until made).
+
+    Attributes:
+        clustered: the training poses in clusters (:attr:`SharedFits.clustered`).
+        par, observability, pi_observability: the parameterisation and the observability analyses of the geometric
+            and physics-informed parameters.
+        x_global: the global geometric fit (nls1's parameters); pi: the global physics-informed fit.
+        geometric_reference: kinematics and parameters of the paper's CDC reference (the geometric fit).
+        local: local cluster fits per CDC reference, at its local prior; local_by_prior: per (reference, prior).
+        local_prior_cv: how each reference's local prior was chosen (grid, held-out figures, chosen).
+        workspace_probes: joint configurations over the limits for the workspace check [rad], shape (P, n).
+        seconds: wall time of each shared fit step [s] ("global", "pi", "local pi", "local geometric").
+        fitted: methods fitted; worker_seconds: fit time [s] of methods fitted in worker processes, until collected.
+        nls0_damping: nls0's chosen Tikhonov cutoff; strengths: each CDC method's chosen interpolator strength.
+        diagnosis_job: ``diagnosed``'s worker pool and its future, until collected.
+        pool: the worker pool of the network and fold jobs; prefetched: futures of final networks per method;
+        fold_jobs: futures of fold refits per (method, fold).
+        folds: (held-out mask, fitter on the other clusters) per fold.
+        held_out_errors: per method, every training pose's held-out position error [mm];
+        fold_errors, fold_seconds: per (method, fold), the refit's errors on the fold [mm] and its time [s].
+    """
+
+    clustered: Recording | None = None
+    par: MinimalParameterisation | None = None
+    observability: Observability | None = None
+    pi_observability: Observability | None = None
+    x_global: np.ndarray | None = None
+    pi: PhysicsInformedModel | None = None
+    geometric_reference: tuple[ExtendedKinematics, np.ndarray] | None = None
+    local: dict[str, LocalFits] = field(default_factory=dict)
+    local_by_prior: dict[tuple[str, float], LocalFits] = field(default_factory=dict)
+    local_prior_cv: dict[str, dict[str, Any]] = field(default_factory=dict)
+    workspace_probes: np.ndarray | None = None
+    seconds: dict[str, float] = field(default_factory=dict)
+    fitted: set[str] = field(default_factory=set)
+    worker_seconds: dict[str, float] = field(default_factory=dict)
+    nls0_damping: float | None = None
+    strengths: dict[str, dict[str, Any]] = field(default_factory=dict)
+    diagnosis_job: tuple[ForkPool, Future] | None = None
+    pool: ForkPool | None = None
+    prefetched: dict[str, Future] = field(default_factory=dict)
+    fold_jobs: dict[tuple[str, int], Future] = field(default_factory=dict)
+    folds: list[tuple[np.ndarray, Any]] | None = None
+    held_out_errors: dict[str, np.ndarray] = field(default_factory=dict)
+    fold_errors: dict[tuple[str, int], np.ndarray] = field(default_factory=dict)
+    fold_seconds: dict[tuple[str, int], float] = field(default_factory=dict)
+
+    def is_empty(self) -> bool:
+        """Nothing made yet (a fresh fitter, whose options may still change)."""
+        return all(not v if isinstance(v, (dict, set)) else v is None for v in vars(self).values())
 
 
 @dataclass
@@ -56,7 +113,7 @@ class SharedFits:
     gravity: GravityModel | None = None
     joint_limits: tuple[np.ndarray, np.ndarray] | None = None
     warm: Any = field(default=None, repr=False)
-    _cache: dict[str, Any] = field(default_factory=dict, repr=False)
+    _cache: SharedCache = field(default_factory=SharedCache, repr=False)
     gross: robust.GrossRows | None = field(default=None, repr=False)
 
     @property
@@ -65,28 +122,28 @@ class SharedFits:
         :func:`calibration.data.recording.standalone_mask`):
         what the local (per-cluster) fits of the CDC methods, their held-out checks and nls0 read; the global fits
         (nls1, pi, geometric, diagnosed) and the held-out folds use every pose, a stand-alone pose as its own unit."""
-        if "clustered" not in self._cache:
+        if self._cache.clustered is None:
             alone = standalone_mask(self.train)
-            self._cache["clustered"] = self.train.subset(~alone) if alone.any() else self.train
-        return self._cache["clustered"]
+            self._cache.clustered = self.train.subset(~alone) if alone.any() else self.train
+        return self._cache.clustered
 
     @property
     def par(self) -> MinimalParameterisation:
-        if "par" not in self._cache:
-            self._cache["par"] = MinimalParameterisation(self.nominal, self.options.fit_tool)
-        return self._cache["par"]
+        if self._cache.par is None:
+            self._cache.par = MinimalParameterisation(self.nominal, self.options.fit_tool)
+        return self._cache.par
 
     def observability(self) -> Observability:
-        if "obs" not in self._cache:
-            self._cache["obs"] = self.warm.observability() if self.warm is not None else \
+        if self._cache.observability is None:
+            self._cache.observability = self.warm.observability() if self.warm is not None else \
                 analyse(self.par, self.train.q, a=self.options.a, tolerance=self.options.tolerance)
-        return self._cache["obs"]
+        return self._cache.observability
 
     def _pi_observability(self) -> Observability:
-        if "pi_obs" not in self._cache:
-            self._cache["pi_obs"] = self.warm._pi_observability() if self.warm is not None else \
+        if self._cache.pi_observability is None:
+            self._cache.pi_observability = self.warm._pi_observability() if self.warm is not None else \
                 analyse(ExtendedKinematics(self.par), self.train.q, a=self.options.a, tolerance=self.options.tolerance)
-        return self._cache["pi_obs"]
+        return self._cache.pi_observability
 
     def _global(self, rec: Recording, obs: Observability, x0: np.ndarray | None = None) -> np.ndarray:
         problem = GeometricProblem(self.par, rec.q, rec.R, rec.p, a=self.options.a, basis=obs.basis)
@@ -98,14 +155,14 @@ class SharedFits:
         return res.x[0]
 
     def global_fit(self) -> np.ndarray:
-        if "x_global" not in self._cache:
+        if self._cache.x_global is None:
             x0 = None if self.warm is None else self.warm.global_fit()
-            self._cache["x_global"] = self._global(self.train, self.observability(), x0)
-        return self._cache["x_global"]
+            self._cache.x_global = self._global(self.train, self.observability(), x0)
+        return self._cache.x_global
 
     def physics_informed(self) -> PhysicsInformedModel:
         """The global physics-informed fit (cached): method ``pi`` and the reference of the CDC local fits."""
-        if "pi" not in self._cache:
+        if self._cache.pi is None:
             kin = ExtendedKinematics(self.par)
             obs = self._pi_observability()
             z0 = None if self.warm is None else self.warm.physics_informed().theta[None]
@@ -118,9 +175,9 @@ class SharedFits:
             if not res.converged.all():
                 log.warning("physics-informed fit stopped after %d iterations without converging (%s)",
                             res.iterations, res.reason[0].value)
-            self._cache["pi"] = PhysicsInformedModel(self.robot, "pi", kin, res.x[0], obs.rank,
-                                                     {"hidden_directions": len(obs.singular_values) - obs.rank})
-        return self._cache["pi"]
+            self._cache.pi = PhysicsInformedModel(self.robot, "pi", kin, res.x[0], obs.rank,
+                                                  {"hidden_directions": len(obs.singular_values) - obs.rank})
+        return self._cache.pi
 
     def reference(self, reference: str = "pi") -> tuple[ExtendedKinematics, np.ndarray]:
         """Kinematics and global parameters the local fits of a CDC construction vary around (cached).
@@ -133,12 +190,12 @@ class SharedFits:
             return pi.kinematics, pi.theta
         if reference != "geometric":
             raise ModelError(f"unknown CDC reference {reference!r}; valid: {', '.join(CDC_REFERENCES)}")
-        if "geometric_reference" not in self._cache:
+        if self._cache.geometric_reference is None:
             kin = ExtendedKinematics(self.par)
             theta = np.zeros(kin.size)
             theta[: self.par.size] = self.global_fit()
-            self._cache["geometric_reference"] = (kin, theta)
-        return self._cache["geometric_reference"]
+            self._cache.geometric_reference = (kin, theta)
+        return self._cache.geometric_reference
 
     def _reference_fk(self, reference: str) -> Any:
         kin, theta = self.reference(reference)
@@ -146,7 +203,7 @@ class SharedFits:
 
     def local_fits(self, reference: str = "pi") -> LocalFits:
         """The local cluster fits around ``reference`` at the local prior of FitOptions (or chosen, see there)."""
-        cache = self._cache.setdefault("local", {})
+        cache = self._cache.local
         if reference not in cache:
             if self.warm is None:  # a fold refit's Fitter has fewer: its parent's count was checked
                 self._require_clusters(MIN_CDC_CLUSTERS, "a CDC method (its interpolator over (q2, q3) needs 3 "
@@ -165,10 +222,10 @@ class SharedFits:
         if self.options.local_prior is not None:
             return self.options.local_prior
         self.local_fits(reference)
-        return self._cache["local_prior_cv"][reference]["chosen"]
+        return self._cache.local_prior_cv[reference]["chosen"]
 
     def _local_at(self, prior: float, reference: str) -> LocalFits:
-        fits = self._cache.setdefault("local_by_prior", {})
+        fits = self._cache.local_by_prior
         if (reference, prior) not in fits:
             kin, theta = self.reference(reference)
             fits[reference, prior] = fit_local(kin, self.train, theta, self.options.a, prior,
@@ -194,12 +251,12 @@ class SharedFits:
             chosen = grid[ok[robust.one_se_choice(tuple(grid[i] for i in ok), [scores[i] for i in ok])]]
         else:
             chosen = max(grid)
-        self._cache.setdefault("local_prior_cv", {})[reference] = {
+        self._cache.local_prior_cv[reference] = {
             "chosen": chosen, "grid": list(grid), "heldout_rms_mm": [round(s.rms_mm, 4) for s in scores],
             "se_mm": [round(s.se_rms_mm, 4) for s in scores], "workspace_ratio": [round(r, 2) for r in ratios],
             "within_workspace_limit": bool(ok)}
         log.info("local prior %g (%s reference) chosen on held-out clusters: %s", chosen, reference,
-                 self._cache["local_prior_cv"][reference])
+                 self._cache.local_prior_cv[reference])
         return chosen
 
     def _require_clusters(self, n: int, what: str) -> None:
@@ -242,10 +299,10 @@ class SharedFits:
                                 "over an area") from None
 
     def _workspace_probes(self) -> np.ndarray:
-        if "workspace_probes" not in self._cache:
+        if self._cache.workspace_probes is None:
             _, anchor_q = cluster_anchors(self.clustered, self.options.cluster_size)
-            self._cache["workspace_probes"] = workspace.workspace_probes(
+            self._cache.workspace_probes = workspace.workspace_probes(
                 anchor_q[:, list(CDC_INPUTS)], self.joint_limits, self.par.n_joints, CDC_INPUTS,
                 seed=self.options.seed)
-        return self._cache["workspace_probes"]
+        return self._cache.workspace_probes
 

@@ -193,12 +193,12 @@ def test_a_prefetched_diagnosis_runs_in_its_own_worker_and_is_the_fit_made_here(
     """compare's diagnosed fit shares nothing with the other methods: prefetch forks it first, so it overlaps the
     shared fits; the same model as diagnosed here."""
     train, here, fitter = _here_and_prefetched(synthetic_arm, r1_nominal, "diagnosed")
-    assert "diagnosis_job" in fitter._cache or workers.default_workers(robust.N_FOLDS) < 2
+    assert fitter._cache.diagnosis_job is not None or workers.default_workers(robust.N_FOLDS) < 2
     assert multiprocessing.active_children() or workers.default_workers(robust.N_FOLDS) < 2
     there, seconds = fitter.fit("diagnosed")
     assert np.array_equal(there.fk(train.q)[1], here.fk(train.q)[1]) and seconds > 0
     assert there.info["verdict"] == here.info["verdict"]
-    assert "diagnosis_job" not in fitter._cache and multiprocessing.active_children() == []
+    assert fitter._cache.diagnosis_job is None and multiprocessing.active_children() == []
 
 
 def _diagnosis_in_a_worker(synthetic_arm, r1_nominal, monkeypatch, job) -> Fitter:
@@ -223,7 +223,7 @@ def test_a_data_error_in_the_diagnosis_worker_reaches_the_caller_as_itself(synth
     with pytest.raises(DataError, match=r"train.csv, row 4, column 'q2': not a number") as e:
         fitter.fit("diagnosed")
     assert (e.value.path, e.value.row, e.value.column) == ("train.csv", 4, "q2")
-    assert "diagnosis_job" not in fitter._cache and multiprocessing.active_children() == []
+    assert fitter._cache.diagnosis_job is None and multiprocessing.active_children() == []
 
 
 def test_a_failure_elsewhere_stops_the_diagnosis_worker_without_waiting_for_it(synthetic_arm, r1_nominal,
@@ -237,7 +237,7 @@ def test_a_failure_elsewhere_stops_the_diagnosis_worker_without_waiting_for_it(s
     start = time.monotonic()
     fitter.abort_jobs()
     assert time.monotonic() - start < 10.0 and multiprocessing.active_children() == []
-    assert "diagnosis_job" not in fitter._cache
+    assert fitter._cache.diagnosis_job is None
 
 
 def test_held_out_errors_refitted_in_workers_are_those_refitted_here(synthetic_arm, r1_nominal):
@@ -248,7 +248,7 @@ def test_held_out_errors_refitted_in_workers_are_those_refitted_here(synthetic_a
     here = Fitter("R1", r1_nominal, train, FitOptions(local_prior=0.1)).held_out_errors("nn")
     fitter = Fitter("R1", r1_nominal, train, FitOptions(local_prior=0.1))
     fitter.prefetch_held_out_errors(["nominal", "nn"])
-    assert "nn" in fitter._cache.get("held_out_errors", {}) or workers.default_workers(robust.N_FOLDS) < 2
+    assert "nn" in fitter._cache.held_out_errors or workers.default_workers(robust.N_FOLDS) < 2
     there = fitter.held_out_errors("nn")
     assert there.shape == (len(train),) and np.all(np.isfinite(there))
     assert np.array_equal(there, here)

@@ -75,3 +75,16 @@ def test_a_fork_pool_runs_its_jobs_on_its_state_and_terminate_stops_them_now():
     pool.terminate()
     assert time.perf_counter() - start < 5.0 and running.done()
     assert multiprocessing.active_children() == []
+
+
+def test_the_shared_fits_are_made_once_into_the_typed_cache_and_a_fold_starts_fresh(r1_nominal, synthetic_arm):
+    q, cluster = cluster_design(step_deg=30.0)
+    fitter = Fitter("R1", r1_nominal, measure(synthetic_arm[2].fk, q, 0.02, 0.01, 1, cluster))
+    assert fitter._cache.is_empty()
+    fitter.fit("nls1")
+    x = fitter._cache.x_global
+    assert x is not None and fitter._cache.fitted == {"nls1"} and set(fitter._cache.seconds) == {"global"}
+    fitter.fit("nls1")
+    assert fitter._cache.x_global is x and not fitter._cache.is_empty()
+    for _, sub in fitter._fold_fitters():
+        assert sub._cache.is_empty() and sub._cache is not fitter._cache and sub.warm is fitter
