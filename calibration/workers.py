@@ -63,7 +63,7 @@ class ForkPool:
                                              initargs=(state,))
         self._workers: list[mp.process.BaseProcess] | None = None
 
-    def submit(self, job: Callable[..., Any], *args: Any) -> Future:
+    def submit(self, job: Callable[..., Any], *args: Any) -> Future[Any]:
         """``job(state, *args)`` in a worker, a future (``job`` a module-level function: it is pickled by name)."""
         if self._workers is not None:
             return self._executor.submit(_run, job, *args)

@@ -79,10 +79,10 @@ class SharedCache:
     worker_seconds: dict[str, float] = field(default_factory=dict)
     nls0_damping: float | None = None
     strengths: dict[str, dict[str, Any]] = field(default_factory=dict)
-    diagnosis_job: tuple[ForkPool, Future] | None = None
+    diagnosis_job: tuple[ForkPool, Future[Any]] | None = None
     pool: ForkPool | None = None
-    prefetched: dict[str, Future] = field(default_factory=dict)
-    fold_jobs: dict[tuple[str, int], Future] = field(default_factory=dict)
+    prefetched: dict[str, Future[Any]] = field(default_factory=dict)
+    fold_jobs: dict[tuple[str, int], Future[Any]] = field(default_factory=dict)
     folds: list[tuple[np.ndarray, Any]] | None = None
     held_out_errors: dict[str, np.ndarray] = field(default_factory=dict)
     fold_errors: dict[tuple[str, int], np.ndarray] = field(default_factory=dict)
