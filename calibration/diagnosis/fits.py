@@ -13,26 +13,23 @@ set), so the outcome is the same bits with or without workers; only the time cha
 
 from __future__ import annotations
 
-import multiprocessing as mp
 from collections.abc import Callable
-from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import Future
 
 import numpy as np
 
 from calibration.diagnosis.refit import JointFit
 from calibration.physics.base import Effect
+from calibration.workers import ForkPool
 
 #: An effect template with its parameter basis, as diagnose's selection passes them.
 Chosen = list[tuple[Effect, np.ndarray]]
 
-#: The fit of the live :class:`JointFits` (set while it may fork workers). Forking shares it without pickling the
-#: model in use and the recording.
-_STATE: Callable[[Chosen], JointFit] | None = None
 
-
-def _fit_job(chosen: Chosen) -> JointFit:
-    """Worker job: one joint fit with ``chosen``."""
-    return _STATE(chosen)  # type: ignore[misc]
+def _fit_job(fit: Callable[[Chosen], JointFit], chosen: Chosen) -> JointFit:
+    """Worker job: one joint fit with ``chosen`` (``fit`` shared by the fork, without pickling the model in use and
+    the recording)."""
+    return fit(chosen)
 
 
 class JointFits:
@@ -45,16 +42,12 @@ class JointFits:
     """
 
     def __init__(self, fit: Callable[[Chosen], JointFit], workers: int = 1) -> None:
-        global _STATE
-        if _STATE is not None:
-            raise RuntimeError("one JointFits at a time: another is still open")
         self._fit = fit
         self._done: dict[tuple[tuple[int, int], ...], tuple[Chosen, JointFit]] = {}
         self._pending: dict[tuple[tuple[int, int], ...], tuple[Chosen, Future]] = {}
-        self._pool: ProcessPoolExecutor | None = None
+        self._pool: ForkPool | None = None
         if workers > 1:
-            _STATE = fit  # the workers fork on the first submits, while this is set (cleared by close)
-            self._pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("fork"))
+            self._pool = ForkPool(workers, fit)  # the workers fork on the first submit, each with ``fit``
 
     @staticmethod
     def _key(chosen: Chosen) -> tuple[tuple[int, int], ...]:
@@ -82,11 +75,9 @@ class JointFits:
 
     def close(self) -> None:
         """Drop the fits not started and wait for the workers to exit."""
-        global _STATE
         if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool.shutdown()
             self._pool = None
-            _STATE = None
         self._pending.clear()
 
     def __enter__(self) -> JointFits:

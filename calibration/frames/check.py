@@ -293,7 +293,7 @@ def base_free(fitter: Any) -> Any:
     the shared training days' extrapolation folds the damped rigid part does better (``scripts/studies/pi_base_frame.py``).
     """
 
-    if not isinstance(fitter, Fitter) or fitter._cache:
+    if not isinstance(fitter, Fitter) or not fitter._cache.is_empty():
         raise ModelError(f"the frames-first fit needs a fresh Fitter from make_fitter, got {type(fitter).__name__}"
                          + (" that has fitted already" if isinstance(fitter, Fitter) else ""))
     return replace(fitter, options=replace(fitter.options, pi_base_free=True))

@@ -15,7 +15,7 @@ With sparse anchors the plain least squares over 13 terms is nearly interpolatin
 the anchors (on 16 clusters of the 0801 recording fbf13 reached a 3.8 mm max on the test poses); a ridge > 0
 on the 12 non-constant coefficients (relative to the basis Gram matrix's mean diagonal) shrinks the fit toward
 the anchors' mean and makes the problem well-posed with fewer than 13 anchors. The Fitter chooses the strength on
-held-out training clusters (:meth:`calibration.methods.fitter.Fitter._choose_strength`), never on a test recording.
+held-out training clusters (:func:`calibration.methods.cdc_fit._choose_strength`), never on a test recording.
 
 Both are global smooth fits: they are exact only when the values lie in the span of the basis, and they
 extrapolate outside the anchors' convex hull, where ``out_of_range`` flags queries (see ``support``).

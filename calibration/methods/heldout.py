@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import multiprocessing as mp
 from collections.abc import Callable
-from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import Future
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,6 +31,7 @@ from calibration.data.recording import Recording
 from calibration.errors import ModelError
 from calibration.interpolation.base import Interpolator
 from calibration.physics.extended import ExtendedKinematics
+from calibration.workers import ForkPool
 
 #: Default number of held-out folds (whole clusters).
 N_FOLDS = 5
@@ -99,14 +100,10 @@ def position_errors(kin: ExtendedKinematics, theta: np.ndarray, rec: Recording) 
     return np.linalg.norm(rec.p - p, axis=1)
 
 
-def _fit_fold(f: int) -> np.ndarray:
-    """Worker job of :class:`HeldOutCheck`: its fold f."""
-    return _FOLD_STATE.fold_prediction(f)  # type: ignore[union-attr]
-
-
-#: The check the forked fold workers run (set while the pool forks, cleared after). Forking shares it without
-#: pickling its ``make``, which is usually a lambda.
-_FOLD_STATE: HeldOutCheck | None = None
+def _fit_fold(check: HeldOutCheck, f: int) -> np.ndarray:
+    """Worker job of :class:`HeldOutCheck`: its fold f (the check shared by the fork, without pickling its
+    ``make``, which is usually a lambda)."""
+    return check.fold_prediction(f)
 
 
 class HeldOutCheck:
@@ -138,7 +135,6 @@ class HeldOutCheck:
                  anchors: np.ndarray, x_local: np.ndarray, groups: np.ndarray, rec: Recording,
                  inputs: tuple[int, ...], clamp: bool = True, n_folds: int = N_FOLDS, seed: int = 0,
                  workers: int = 1, n_evaluated: int | None = None, reference_mm: np.ndarray | None = None) -> None:
-        global _FOLD_STATE
         self._reference_mm = reference_mm
         self._kin, self._theta_ref, self._x_local, self._groups, self._rec = kin, theta_ref, x_local, groups, rec
         self._clamp, self._n_total = clamp, n_folds
@@ -149,15 +145,11 @@ class HeldOutCheck:
         self._idx = [np.flatnonzero((self._folds == f)[groups]) for f in range(self._n_folds)]
         queries = [rec.q[idx][:, list(inputs)] for idx in self._idx]
         self._make, self._anchors, self._queries = make, anchors, queries
-        self._pool: ProcessPoolExecutor | None = None
+        self._pool: ForkPool | None = None
         self._pending: list[Future] = []
         if workers > 1 and "fork" in mp.get_all_start_methods():
-            _FOLD_STATE = self  # the workers fork during the submits below
-            try:
-                self._pool = ProcessPoolExecutor(min(workers, self._n_folds), mp_context=mp.get_context("fork"))
-                self._pending = [self._pool.submit(_fit_fold, f) for f in range(self._n_folds)]
-            finally:
-                _FOLD_STATE = None
+            self._pool = ForkPool(min(workers, self._n_folds), self)  # the workers fork during the first submit
+            self._pending = [self._pool.submit(_fit_fold, f) for f in range(self._n_folds)]
 
     @property
     def n_evaluated(self) -> int:
@@ -182,7 +174,7 @@ class HeldOutCheck:
         """Drop the folds not started and wait for the workers to exit (the caller failed before asking for the
         result, or has it)."""
         if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool.shutdown()
             self._pool = None
 
     def result(self) -> HeldOut:

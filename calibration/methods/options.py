@@ -48,7 +48,7 @@ class FitOptions:
         nls0_clusters: number of clusters nearest q = 0 used by ``nls0``.
         nls0_damping: relative cutoff of ``nls0``'s Tikhonov filter toward nominal (the fraction of the largest
             scaled singular value below which directions are damped); None (default) chooses it from
-            ``nls0_damping_grid`` on the training clusters nls0 does not use (see :meth:`Fitter._fit_nls0`).
+            ``nls0_damping_grid`` on the training clusters nls0 does not use (see :func:`calibration.methods.constant.fit_nls0`).
         nls0_damping_grid: candidate cutoffs, half-decades from the truncation ``tolerance`` up.
         fbf7_rank: rank of the SVD-reduced Fourier basis.
         cluster_size: samples per anchor when the recording has no cluster column.

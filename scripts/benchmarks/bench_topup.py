@@ -58,6 +58,7 @@ from calibration.identification.design import select_recording  # noqa: E402
 from calibration.kinematics.parameterisation import MinimalParameterisation  # noqa: E402
 from calibration.method_names import METHODS, NEURAL_METHODS  # noqa: E402
 from calibration.methods.fitter import Fitter  # noqa: E402
+from calibration.methods.shared import SharedCache  # noqa: E402
 from calibration.methods.topup import (  # noqa: E402
     SIGMA_PARAM_SD_MM,
     SIGMA_RESIDUAL_MM,
@@ -236,7 +237,7 @@ def sigma_fold_errors(nominal: Any, train: Recording) -> dict[str, Any]:
     masks = fold_masks(nominal, train)
     errs = [e[m] for m in masks[:5]]
     for m in masks[5:]:
-        model, _ = replace(fitter, train=train.subset(~m), warm=fitter, _cache={}).fit("pi")
+        model, _ = replace(fitter, train=train.subset(~m), warm=fitter, _cache=SharedCache()).fit("pi")
         errs.append(errors(model, train.subset(m)).position_mm)
     return {"fold_errors_mm": [np.round(x, 4).tolist() for x in errs]}
 

@@ -35,8 +35,12 @@ sys.path.insert(0, str(ROOT))
 from app.workflows.fit import fitter_for  # noqa: E402
 from calibration.data.recording import read_recording  # noqa: E402
 from calibration.evaluation.metrics import errors  # noqa: E402
+from calibration.methods import (
+    cdc_fit,  # noqa: E402
+    workspace,  # noqa: E402
+)
 from calibration.methods import heldout as robust  # noqa: E402
-from calibration.methods import workspace  # noqa: E402
+from calibration.methods.shared import SharedCache  # noqa: E402
 from cell_config import load_cell  # noqa: E402
 from drivers.sim.cdc_twin import PAPER_SIZE, simulated_day  # noqa: E402
 from scripts.benchmarks.bench_days import DATA  # noqa: E402
@@ -53,8 +57,8 @@ def twin_test(fitter: Any, test: Any, grid: list[float], methods: tuple[str, ...
     for m in methods:
         out[m] = {}
         for prior in grid:
-            at = replace(fitter, options=replace(fitter.options, local_prior=prior), _cache={})
-            at._cache.update({k: fitter._cache[k] for k in ("pi", "local_by_prior")})
+            at = replace(fitter, options=replace(fitter.options, local_prior=prior), _cache=SharedCache())
+            at._cache.pi, at._cache.local_by_prior = fitter._cache.pi, fitter._cache.local_by_prior
             out[m][f"{prior:g}"] = float(np.mean(errors(at.fit(m)[0], test).position_mm))
     return out
 
@@ -63,15 +67,15 @@ def by_kind(fitter: Any, methods: tuple[str, ...]) -> dict[str, dict[str, Any]]:
     """The prior each rule takes when the held-out clusters are scored with the interpolator each method fits (its
     own strength choice at that prior) instead of ``linear``: the choice by the kind actually fitted (training
     clusters only; priors beyond the workspace limit left out as the Fitter does)."""
-    grid, _, ratios = fitter._cache["local_prior_scores"]["pi"]
+    grid, _, ratios = fitter._cache.local_prior_scores["pi"]
     priors = tuple(g for g, r in zip(grid, ratios) if r <= workspace.WORKSPACE_RATIO_LIMIT)
     out = {}
     for m in methods:
         scores = []
         for prior in priors:
-            at = replace(fitter, options=replace(fitter.options, local_prior=prior), _cache={})
-            at._cache.update({k: fitter._cache[k] for k in ("pi", "local_by_prior")})
-            scores.append(at._held_out_check(m, at._cdc_options(m)).result())
+            at = replace(fitter, options=replace(fitter.options, local_prior=prior), _cache=SharedCache())
+            at._cache.pi, at._cache.local_by_prior = fitter._cache.pi, fitter._cache.local_by_prior
+            scores.append(cdc_fit._held_out_check(at, m, cdc_fit.cdc_options(at, m)).result())
         out[m] = {"priors": list(priors), "heldout_rms_mm": [round(h.rms_mm, 4) for h in scores],
                   **{name: priors[rule(priors, scores)] for name, rule in robust.CHOICE_RULES.items()}}
     return out
@@ -80,7 +84,7 @@ def by_kind(fitter: Any, methods: tuple[str, ...]) -> dict[str, dict[str, Any]]:
 def scores_of(fitter: Any) -> dict[str, Any]:
     """The local-prior scores of one Fitter (pi reference) and each rule's choice from them."""
     fitter.local_prior("pi")
-    grid, scores, ratios = fitter._cache["local_prior_scores"]["pi"]
+    grid, scores, ratios = fitter._cache.local_prior_scores["pi"]
     ok = [i for i, r in enumerate(ratios) if r <= workspace.WORKSPACE_RATIO_LIMIT]
     best = min(ok, key=lambda i: scores[i].rms_mm) if ok else None
     chosen = {name: (grid[ok[rule(tuple(grid[i] for i in ok), [scores[i] for i in ok])]] if ok else max(grid))

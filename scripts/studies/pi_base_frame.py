@@ -2,7 +2,7 @@
 
 ``FitOptions.pi_base_free``: pi's Tikhonov filter toward nominal either damps every geometric parameter as it is
 (``damped``), or damps what is left of them after their best rigid motion of the arm (``base free``,
-:func:`calibration.methods.pi.base_free_prior`; :meth:`ExtendedKinematics.base_motion` gives the 6 directions), so a
+:func:`calibration.identification.observability.base_free_prior`; :meth:`ExtendedKinematics.base_motion` gives the 6 directions), so a
 mocap-to-base registration error costs the fit nothing. Printed, for both:
 
 - **twins** (unless ``--no-twins``): the synthetic arms of ``scripts/benchmarks/bench_frames.py`` (planted geometry and joint

@@ -40,6 +40,7 @@ from calibration.evaluation.metrics import errors  # noqa: E402
 from calibration.methods.cdc import cluster_anchors  # noqa: E402
 from calibration.methods.options import FitOptions  # noqa: E402
 from calibration.methods.recommend import cluster_rms  # noqa: E402
+from calibration.methods.shared import SharedCache  # noqa: E402
 from cell_config import load_cell  # noqa: E402
 from scripts.benchmarks.bench_days import (
     DATA,  # noqa: E402
@@ -73,7 +74,7 @@ def twins(seeds: list[int], sizes: list[tuple[float, float]], ways: dict[str, di
                 base = fitter_on(robot, train)
                 row["nls1"] = mean_max(errors(base.fit("nls1")[0], test).position_mm)
                 for way, fields in ways.items():
-                    fitter = replace(base, options=replace(base.options, **fields), _cache={})
+                    fitter = replace(base, options=replace(base.options, **fields), _cache=SharedCache())
                     row[f"pi {way}"] = mean_max(errors(fitter.fit("pi")[0], test).position_mm)
                 rows.append(row)
                 print(f"| {arm} | {seed} | {shift_mm:g} / {angle_deg:g} | "

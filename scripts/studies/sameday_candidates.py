@@ -37,6 +37,7 @@ from calibration.identification.geometric import rotation_residual_scale, weight
 from calibration.methods import heldout as robust  # noqa: E402
 from calibration.methods.cdc import cluster_anchors  # noqa: E402
 from calibration.methods.options import FitOptions  # noqa: E402
+from calibration.methods.shared import SharedCache  # noqa: E402
 from scripts.benchmarks.bench_days import DATA  # noqa: E402
 from scripts.studies.heldout_folds import run_days
 
@@ -65,7 +66,7 @@ def rejecting_fit(fitter, rule):
         if np.array_equal(new, keep):
             break
         keep = new
-        current = replace(fitter, train=fitter.train.subset(keep), warm=fitter, _cache={})
+        current = replace(fitter, train=fitter.train.subset(keep), warm=fitter, _cache=SharedCache())
     return current.physics_informed(), keep
 
 
@@ -93,11 +94,11 @@ def day_rows(robot, day: str) -> dict:
     e = {v: np.empty(len(train)) for v in VARIANTS}
     for f in range(robust.N_FOLDS):
         held = train.subset(folds == f)
-        sub = replace(full, train=train.subset(folds != f), warm=full, _cache={})
+        sub = replace(full, train=train.subset(folds != f), warm=full, _cache=SharedCache())
         e["plain"][folds == f] = np.linalg.norm(residual(sub.physics_informed(), held), axis=1)
         for v in ("trim", "shift"):
             e[v][folds == f] = np.linalg.norm(residual(rejecting_fit(sub, RULES[v])[0], held), axis=1)
-        sub_a = replace(full_a, train=train.subset(folds != f), warm=full_a, _cache={})
+        sub_a = replace(full_a, train=train.subset(folds != f), warm=full_a, _cache=SharedCache())
         e["noise_a"][folds == f] = np.linalg.norm(residual(sub_a.physics_informed(), held), axis=1)
 
     def figures(x: np.ndarray) -> dict:

@@ -34,6 +34,7 @@ sys.path.insert(0, str(ROOT))
 from app.workflows.fit import fitter_for  # noqa: E402
 from calibration.data.recording import read_recording  # noqa: E402
 from calibration.diagnosis.shifts import one_sided_shift  # noqa: E402
+from calibration.methods.shared import SharedCache  # noqa: E402
 from cell_config import load_cell  # noqa: E402
 from scripts.benchmarks.bench_days import DATA, UNITS  # noqa: E402
 
@@ -62,7 +63,7 @@ def seen_residual(fitter, interleaved: bool) -> np.ndarray:
     folds = rows % N_TEST_FOLDS if interleaved else rows * N_TEST_FOLDS // len(rec)
     r = np.empty((len(rec), 3))
     for f in range(N_TEST_FOLDS):
-        sub = replace(fitter, train=rec.subset(folds != f), warm=fitter, _cache={})
+        sub = replace(fitter, train=rec.subset(folds != f), warm=fitter, _cache=SharedCache())
         r[folds == f] = position_residual(sub.physics_informed(), rec.subset(folds == f))
     return r
 

@@ -61,6 +61,6 @@ def test_cdc_methods_on_the_losing_reference_are_not_refitted_on_the_folds(const
         {"fbf13": "nls1", "pi+linear": "pi"}[m])) for m in ("fbf13", "pi+linear")}
     skipped = set(off_reference(references))
     assert len(skipped) == 1, references  # one of the two references loses
-    computed = set(fitter._cache["held_out_errors"])
+    computed = set(fitter._cache.held_out_errors)
     assert not skipped & computed and ({"fbf13", "pi+linear"} - skipped) <= computed
     assert skipped <= set(cmp.analysis["recommendation"]["not_candidates"])

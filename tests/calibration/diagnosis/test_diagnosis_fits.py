@@ -49,7 +49,7 @@ def test_each_set_is_fitted_once_here_without_workers():
 
 
 @needs_fork
-def test_fits_started_ahead_come_from_the_workers_and_one_fits_object_at_a_time():
+def test_fits_started_ahead_come_from_the_workers_of_their_own_fits_object():
     calls = []
 
     def fit(chosen):
@@ -59,8 +59,9 @@ def test_fits_started_ahead_come_from_the_workers_and_one_fits_object_at_a_time(
     a, b = Template(1.0), Template(2.0)
     B = np.eye(1)
     with JointFits(fit, workers=2) as fits:
-        with pytest.raises(RuntimeError, match="one JointFits at a time"):
-            JointFits(fit, workers=2)
+        with JointFits(lambda chosen: -1.0, workers=2) as other:  # two open at once: each forks with its own fit
+            other.start([(a, B), (b, B)])
+            assert other.get([(a, B), (b, B)]) == -1.0
         fits.start([(a, B)], [(a, B), (b, B)], [(a, B)])
         assert fits.get([(a, B), (b, B)]) == 3.5 and fits.get([(a, B)]) == 1.5
         assert calls == []  # both made in the workers

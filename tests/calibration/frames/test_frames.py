@@ -236,7 +236,7 @@ def test_a_prior_matrix_is_the_prior_its_diagonal_weights_give():
 def test_the_base_free_prior_ignores_a_rigid_motion_and_damps_the_rest_as_before():
     """|W P x| is |w * (x - B xi)| at the xi that minimises it, in the prior's own weights (not unit ones: the
     parameters mix mm and rad)."""
-    from calibration.methods.pi import base_free_prior
+    from calibration.identification.observability import base_free_prior
     from calibration.physics.extended import ExtendedKinematics
 
     kin = ExtendedKinematics(MinimalParameterisation(load_cell().robot("R1").model(), fit_tool=True))

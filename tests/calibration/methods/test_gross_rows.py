@@ -31,7 +31,7 @@ def test_clean_data_rejects_no_row(clean, r1_nominal):
     fitter = Fitter("R1", r1_nominal, clean)
     screened = fitter.without_gross_rows()
     assert screened is fitter and screened.gross.rows == () and not screened.gross.message()
-    assert not fitter._cache  # still fresh: calibration.frames.check.base_free may change its options
+    assert fitter._cache.is_empty()  # still fresh: calibration.frames.check.base_free may change its options
 
 
 @pytest.mark.parametrize("error_mm", [5.0, 50.0])

@@ -10,9 +10,10 @@ from calibration import workers
 from calibration.errors import DataError, ModelError, ModelFileError
 from calibration.interpolation import Fourier13Interpolator, make_interpolator
 from calibration.kinematics.parameterisation import MinimalParameterisation
+from calibration.methods import diagnosed, workspace
 from calibration.methods import heldout as robust
-from calibration.methods import workspace
 from calibration.methods.cdc import cluster_anchors, geometric_cdc
+from calibration.methods.cdc_fit import cdc_options
 from calibration.methods.fitter import Fitter
 from calibration.methods.options import FitOptions
 from calibration.models import load_model, save_model
@@ -93,16 +94,15 @@ def test_local_prior_rule_is_validated_and_applied(fitter):
     with pytest.raises(ModelError, match="local_prior_rule.*one_se, paired_one_se, paired_two_se"):
         FitOptions(local_prior_rule="median")
     fitter.local_fits()
-    grid, scores, ratios = fitter._cache["local_prior_scores"]["pi"]
+    grid, scores, ratios = fitter._cache.local_prior_scores["pi"]
     ok = [i for i, r in enumerate(ratios) if r <= workspace.WORKSPACE_RATIO_LIMIT]
     for name, rule in robust.CHOICE_RULES.items():
         other = Fitter(fitter.robot, fitter.nominal, fitter.train, FitOptions(local_prior_rule=name))
-        other._cache["local_prior_scores"] = {}
-        other._cache["local_by_prior"] = fitter._cache["local_by_prior"]  # the same local fits: only the rule runs
-        other._cache["pi"] = fitter._cache["pi"]
+        other._cache.local_by_prior = fitter._cache.local_by_prior  # the same local fits: only the rule runs
+        other._cache.pi = fitter._cache.pi
         expected = grid[ok[rule(tuple(grid[i] for i in ok), [scores[i] for i in ok])]] if ok else max(grid)
         assert other.local_prior("pi") == expected
-        assert other._cache["local_prior_cv"]["pi"]["rule"] == name
+        assert other._cache.local_prior_cv["pi"]["rule"] == name
 
 
 def test_cdc_model_clips_to_its_bounds_and_keeps_them_in_its_file(tmp_path, r1_nominal):
@@ -252,12 +252,12 @@ def test_a_prefetched_diagnosis_runs_in_its_own_worker_and_is_the_fit_made_here(
     """compare's diagnosed fit shares nothing with the other methods: prefetch forks it first, so it overlaps the
     shared fits; the same model as diagnosed here."""
     train, here, fitter = _here_and_prefetched(synthetic_arm, r1_nominal, "diagnosed")
-    assert "diagnosis_job" in fitter._cache or workers.default_workers(robust.N_FOLDS) < 2
+    assert fitter._cache.diagnosis_job is not None or workers.default_workers(robust.N_FOLDS) < 2
     assert multiprocessing.active_children() or workers.default_workers(robust.N_FOLDS) < 2
     there, seconds = fitter.fit("diagnosed")
     assert np.array_equal(there.fk(train.q)[1], here.fk(train.q)[1]) and seconds > 0
     assert there.info["verdict"] == here.info["verdict"]
-    assert "diagnosis_job" not in fitter._cache and multiprocessing.active_children() == []
+    assert fitter._cache.diagnosis_job is None and multiprocessing.active_children() == []
 
 
 def _diagnosis_in_a_worker(synthetic_arm, r1_nominal, monkeypatch, job) -> Fitter:
@@ -266,7 +266,7 @@ def _diagnosis_in_a_worker(synthetic_arm, r1_nominal, monkeypatch, job) -> Fitte
         pytest.skip("one usable core: no worker is forked")
     _, _, truth = synthetic_arm
     q, cluster = cluster_design(step_deg=30.0)
-    monkeypatch.setattr(Fitter, "_diagnose", job)
+    monkeypatch.setattr(diagnosed, "run_diagnosis", job)
     fitter = Fitter("R1", r1_nominal, measure(truth.fk, q, 0.02, 0.01, 1, cluster), FitOptions(local_prior=0.1))
     fitter.prefetch(["nominal", "diagnosed"])
     return fitter
@@ -282,7 +282,7 @@ def test_a_data_error_in_the_diagnosis_worker_reaches_the_caller_as_itself(synth
     with pytest.raises(DataError, match=r"train.csv, row 4, column 'q2': not a number") as e:
         fitter.fit("diagnosed")
     assert (e.value.path, e.value.row, e.value.column) == ("train.csv", 4, "q2")
-    assert "diagnosis_job" not in fitter._cache and multiprocessing.active_children() == []
+    assert fitter._cache.diagnosis_job is None and multiprocessing.active_children() == []
 
 
 def test_a_failure_elsewhere_stops_the_diagnosis_worker_without_waiting_for_it(synthetic_arm, r1_nominal,
@@ -296,7 +296,7 @@ def test_a_failure_elsewhere_stops_the_diagnosis_worker_without_waiting_for_it(s
     start = time.monotonic()
     fitter.abort_jobs()
     assert time.monotonic() - start < 10.0 and multiprocessing.active_children() == []
-    assert "diagnosis_job" not in fitter._cache
+    assert fitter._cache.diagnosis_job is None
 
 
 def test_held_out_errors_refitted_in_workers_are_those_refitted_here(synthetic_arm, r1_nominal):
@@ -307,7 +307,7 @@ def test_held_out_errors_refitted_in_workers_are_those_refitted_here(synthetic_a
     here = Fitter("R1", r1_nominal, train, FitOptions(local_prior=0.1)).held_out_errors("nn")
     fitter = Fitter("R1", r1_nominal, train, FitOptions(local_prior=0.1))
     fitter.prefetch_held_out_errors(["nominal", "nn"])
-    assert "nn" in fitter._cache.get("held_out_errors", {}) or workers.default_workers(robust.N_FOLDS) < 2
+    assert "nn" in fitter._cache.held_out_errors or workers.default_workers(robust.N_FOLDS) < 2
     there = fitter.held_out_errors("nn")
     assert there.shape == (len(train),) and np.all(np.isfinite(there))
     assert np.array_equal(there, here)
@@ -335,11 +335,11 @@ def test_pi_ae_trains_the_issue_14_autoencoder_and_the_papers_ae_keeps_the_paper
     the paper's three of 200, which is also the interpolator's default and one option away for pi+ae."""
     from calibration.interpolation.autoencoder import PAPER_HIDDEN, AutoencoderInterpolator
 
-    assert fitter._cdc_options("pi+ae")["hidden"] == (128, 128) == FitOptions().pi_ae_hidden
-    assert "hidden" not in fitter._cdc_options("ae") and AutoencoderInterpolator().hidden == PAPER_HIDDEN == (200,) * 3
+    assert cdc_options(fitter, "pi+ae")["hidden"] == (128, 128) == FitOptions().pi_ae_hidden
+    assert "hidden" not in cdc_options(fitter, "ae") and AutoencoderInterpolator().hidden == PAPER_HIDDEN == (200,) * 3
     paper = Fitter(fitter.robot, fitter.nominal, fitter.train, FitOptions(local_prior=0.1, pi_ae_hidden=PAPER_HIDDEN))
-    assert paper._cdc_options("pi+ae")["hidden"] == PAPER_HIDDEN
-    assert not any("hidden" in fitter._cdc_options(m) for m in ("nn", "pi+nn"))  # nn keeps the paper's network
+    assert cdc_options(paper, "pi+ae")["hidden"] == PAPER_HIDDEN
+    assert not any("hidden" in cdc_options(fitter, m) for m in ("nn", "pi+nn"))  # nn keeps the paper's network
 
 
 def test_the_unstable_fit_warning_says_what_a_user_can_do(synthetic_arm, r1_nominal, monkeypatch):

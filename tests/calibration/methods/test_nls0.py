@@ -9,7 +9,8 @@ from calibration.errors import ModelError
 from calibration.evaluation.metrics import errors
 from calibration.methods import heldout as robust
 from calibration.methods.cdc import cluster_anchors
-from calibration.methods.fitter import NLS0_HELDOUT_MAX_RATIO, Fitter
+from calibration.methods.constant import NLS0_HELDOUT_MAX_RATIO
+from calibration.methods.fitter import Fitter
 from calibration.methods.options import FitOptions
 from cell_config import load_cell
 from tests.conftest import SHARED_DATA, cluster_design, measure
