@@ -295,7 +295,7 @@ class RecalibrationInputs:
         method: the candidate's fitting method (not used with ``rebase``).
         rebase: refit only the base and tool-marker frames of the model in service.
         added: the ``--add`` stand-alone pose files and their recordings (checked against the robot).
-        add_weight: their weight in the fit.
+        add_weight: their weight in the fit (each added pose's rows repeated).
         tolerance: the acceptance :class:`~app.reports.acceptance.Tolerance`.
         dry_run: only check the plans from where the arm stands (no motion, nothing fitted).
         report: the HTML report's path, or None.
@@ -311,7 +311,7 @@ class RecalibrationInputs:
     method: str
     rebase: bool
     added: tuple[tuple[str, Recording], ...]
-    add_weight: float
+    add_weight: int
     tolerance: Any
     dry_run: bool = False
     report: str | None = None
@@ -426,9 +426,9 @@ def _collect(robot: Any, runtime: Any, inputs: RecalibrationInputs, hooks: Recal
 
     config, safety = motion
     seed = inputs.validation_seed if inputs.validation_seed is not None else int(time.time()) % 100_000
-    in_use = ({"model": run.service.model, "model_name": "the model in service"} if run.service.model is not None
-              else {"model": ConstantModel(robot.name, "nominal", robot.model(), 0, {}),
-                    "model_name": f"the nominal {inputs.robot}"})  # what -v's line per target compares with
+    in_use, in_use_name = ((run.service.model, "the model in service") if run.service.model is not None else
+                           (ConstantModel(robot.name, "nominal", robot.model(), 0, {}),
+                            f"the nominal {inputs.robot}"))  # what -v's line per target compares with
     plan, session = inputs.plan, run.session
     with runtime as rt:
         parked = {n: d.read_joints().q for n, d in rt.others(inputs.robot).items()}
@@ -444,10 +444,11 @@ def _collect(robot: Any, runtime: Any, inputs: RecalibrationInputs, hooks: Recal
             hooks.stop_hint(f" (nothing installed; the training session so far is {session}: finish it with "
                             f"cellcal collect --robot {inputs.robot} --session {session} --resume, then "
                             f"recalibrate --session {session})")
-            collect.collect_arm(rt, safety, inputs.robot, plan, session, config, progress=hooks.progress, **in_use)
+            collect.collect_arm(rt, safety, inputs.robot, plan, session, config, progress=hooks.progress,
+                                model=in_use, model_name=in_use_name)
         hooks.stop_hint(f" (nothing installed; recalibrate --session {session} reuses the training session)")
         collect.collect_arm(rt, safety, inputs.robot, val_plan, run.work / "validation", config,
-                            progress=hooks.progress, **in_use)
+                            progress=hooks.progress, model=in_use, model_name=in_use_name)
     return None
 
 
@@ -469,7 +470,7 @@ def _fit_and_decide(robot: Any, inputs: RecalibrationInputs, hooks: Recalibratio
     train = with_added(read_recording(work / "train.csv", *limits), [r for _, r in inputs.added],
                        weight=inputs.add_weight)  # --add: stand-alone poses
     model, rebased = _fit_candidate(robot, inputs, hooks, run.service, train, cpa)
-    sources = [("train", work / "train.csv"), *(("add", a) for a, _ in inputs.added),
+    sources: list[tuple[str, str | Path | None]] = [("train", work / "train.csv"), *(("add", a) for a, _ in inputs.added),
                ("cpa", work / "cpa.csv" if cpa else None), ("validation", work / "validation.csv")]
     if inputs.rebase:
         sources.append(("model rebased", inputs.model_dir / CURRENT))
@@ -522,7 +523,7 @@ def write_report(result: RecalibrationResult, inputs: RecalibrationInputs) -> An
     from app.reports.sections import evaluation_section
 
     model, in_service, decision, tolerance = result.model, result.in_service, result.decision, inputs.tolerance
-    if model is None or decision is None or inputs.report is None:
+    if model is None or decision is None or result.validation is None or inputs.report is None:
         raise ValueError("a report needs a decision (not a dry run) and a report path")
     models = {f"candidate {model.method}": model}
     if in_service is not None:
