@@ -8,6 +8,10 @@ is not better is kept out of service and filed as ``rejected/<timestamp>.yaml`` 
 service that fails validation (a NaN parameter, a matrix that is not a rotation, an unknown method) is never
 kept: the decision reports why, and a valid candidate replaces it. A model of another robot there means the
 wrong folder, and the recalibration stops before any motion.
+
+:func:`recalibrate` is the whole workflow of ``cellcal recalibrate`` (collect, fit or rebase, validate,
+install): plain :class:`RecalibrationInputs` in, a :class:`RecalibrationResult` out; it prints nothing, its
+lines and questions go through :class:`RecalibrationHooks`.
 """
 
 from __future__ import annotations
