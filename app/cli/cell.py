@@ -15,7 +15,6 @@ from app.cli.common import (
     command_line,
     epoch_bar,
     load_model_for,
-    log,
     non_negative_int,
     positive_float,
     read_given_arg,
@@ -23,7 +22,6 @@ from app.cli.common import (
     show_progress,
     tolerance_from_args,
     validation_count,
-    warn_gross_rows,
     write_json,
 )
 from calibration.errors import CellCalError
@@ -372,21 +370,9 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_recalibrate(args: argparse.Namespace) -> int:
-    import time as _time
-
-    from app.cli.cell_options import confirm_motion, motion_config, open_runtime, safety_for
-    from app.collection.collect import collect_arm, export
-    from app.collection.plans.session import validation_plan
-    from app.reports.provenance import provenance, with_provenance
-    from app.workflows.recalibrate import (
-        check_model_dir,
-        decide_and_install,
-        model_in_service,
-        model_to_rebase,
-        rebase_candidate,
-    )
-    from calibration.data.recording import read_recording, with_added
-    from calibration.models import ConstantModel
+    """Parse and check, open the runtime, run :func:`app.workflows.recalibrate.recalibrate`, print, write JSON."""
+    from app.cli.cell_options import open_runtime
+    from app.workflows.recalibrate import check_model_dir, recalibrate, write_report
 
     cell = cell_spec(args)
     robot = cell.robot(args.robot)
@@ -399,117 +385,48 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     if args.session:
         _require_session(args.session, args.robot, ("anchor", "perturb", "cpa") if args.method == "cpa" else
                          ("anchor", "perturb"), purpose="recalibrate")
-    added = [read_recording_arg(path, robot) for path in args.add]  # bad extra poses: refused before any motion
-    service = model_in_service(model_dir, args.robot, robot.model())  # another robot's model: stop before motion
-    if args.rebase:
-        model_to_rebase(model_dir, service)  # nothing to rebase: stop before motion
-    if service.problem:
-        log.warning("the model in service %s is unusable (%s); a valid candidate will replace it",
-                    model_dir / "current.yaml", service.problem)
-    stamp = _time.strftime("%Y%m%dT%H%M%S")
-    work = model_dir / "sessions" / stamp
-    seed = args.validation_seed if args.validation_seed is not None else int(_time.time()) % 100_000
-    config, safety = motion_config(cell, args), safety_for(cell, args)
-    in_use = ({"model": service.model, "model_name": "the model in service"} if service.model is not None else
-              {"model": ConstantModel(robot.name, "nominal", robot.model(), 0, {}),
-               "model_name": f"the nominal {args.robot}"})  # what -v's line per target compares with
-    with runtime as rt:
-        session = Path(args.session) if args.session else work / "train"
-        parked = {n: d.read_joints().q for n, d in rt.others(args.robot).items()}
-        val_plan = validation_plan(args.robot, safety, parked, args.validation, seed=seed)
-        if args.dry_run:
-            from app.collection.plans.collection import Plan
-
-            both = Plan((plan.targets if plan is not None else ()) + val_plan.targets, val_plan.params)
-            return _dry_run(args, rt, safety, both, config)
-        confirm_motion(args, f"{args.robot} will visit {len(plan) if plan is not None else 0} training and "
-                             f"{len(val_plan)} validation targets at {config.speed_fraction:g} of full speed")
-        if plan is not None:  # what Ctrl-C says (app.cli.commands.main): recalibrate itself has no --resume
-            args.stop_hint = (f" (nothing installed; the training session so far is {session}: finish it with "
-                              f"cellcal collect --robot {args.robot} --session {session} --resume, then "
-                              f"recalibrate --session {session})")
-            collect_arm(rt, safety, args.robot, plan, session, config, progress=show_progress(args),
-                        **in_use)
-        args.stop_hint = f" (nothing installed; recalibrate --session {session} reuses the training session)"
-        collect_arm(rt, safety, args.robot, val_plan, work / "validation", config, progress=show_progress(args),
-                    **in_use)
-    read = lambda p: read_recording(p, robot.robot.lower_rad, robot.robot.upper_rad)  # noqa: E731
-    export(session, work / "train.csv", kinds=("anchor", "perturb"))
-    cpa = None
-    if args.method == "cpa":
-        export(session, work / "cpa.csv", kinds=("cpa",))
-        cpa = read(work / "cpa.csv")
-    export(work / "validation", work / "validation.csv")
-    rebased = None
-    train = with_added(read(work / "train.csv"), added, weight=args.add_weight)  # --add: stand-alone poses
-    if args.rebase:
-        model, rebased = rebase_candidate(model_dir, service, train, (robot.robot.lower_rad, robot.robot.upper_rad))
-        print(rebased.summary())
-    else:
-        from app.workflows.fit import fitter_for
-        from calibration.methods.options import FitOptions
-
-        fitter = fitter_for(robot, train, cpa, FitOptions(epoch_progress=epoch_bar(args)))
-        warn_gross_rows(fitter)  # the rows are in the model's info too
-        model, _ = fitter.fit(args.method)
-        if model.info.get("warning"):  # as fit warns (the directions the training poses leave unseen)
-            print(f"warning: {model.info['warning']}", file=sys.stderr)
-    inputs = [("train", work / "train.csv"), *(("add", a) for a in args.add),
-              ("cpa", work / "cpa.csv" if cpa else None),
-              ("validation", work / "validation.csv")]
-    if args.rebase:
-        inputs.append(("model rebased", model_dir / "current.yaml"))
-    model = with_provenance(model, provenance(inputs))
-    validation = read(work / "validation.csv")
-    in_service = service.model
-    report_inputs = inputs + ([("model in service", model_dir / "current.yaml")] if in_service is not None else [])
-    report_record = provenance(report_inputs)  # before the decision moves the model in service to previous/
-    args.stop_hint = ""
-    decision = decide_and_install(model_dir, model, validation, robot.model(), tolerance.position_mm)
+    added = tuple((path, read_recording_arg(path, robot)) for path in args.add)  # bad poses: refused before motion
+    inputs = _recalibration_inputs(args, model_dir, plan, added, tolerance)
+    result = recalibrate(cell, runtime, inputs, _recalibration_hooks(args, cell))
+    if result.decision is None:  # the dry run printed and wrote its own
+        return result.exit_code
+    decision = result.decision
     if decision.refused:
         write_json(args.json, decision.to_json())
         raise CellCalError(decision.summary())
     print(decision.summary())
     print(f"model in service: {decision.current_path}" + (f"; previous one archived as {decision.archived}"
                                                            if decision.archived else ""))
-    write_json(args.json, {**decision.to_json(), **({} if rebased is None else {"rebase": {
-        "samples": rebased.n_samples, "fitted_directions": rebased.fitted, "held": list(rebased.held),
-        "position_mean_mm": {"before": rebased.mean_before_mm, "after": rebased.mean_after_mm},
-        "objective_rms": {"before": rebased.objective_before, "after": rebased.objective_after},
-        "shrink": rebased.shrink}})})
+    write_json(args.json, result.to_json())
     if args.report:
-        from app.reports.page import Page, write_html
-        from app.reports.sections import evaluation_section
-
-        models = {f"candidate {model.method}": model}
-        if in_service is not None:
-            models[f"in service {in_service.method}"] = in_service
-        section = evaluation_section(f"Recalibration of {args.robot}", models, validation, args.report, tolerance,
-                                     "the fresh validation recording",  # the model in service after the decision
-                                     recommended=f"candidate {model.method}" if decision.replaced or in_service is None
-                                     else f"in service {in_service.method}",
-                                     why=[decision.summary(), recalibration_rule(model, in_service, tolerance)],
-                                     next_steps=[f"{decision.current_path} now holds the {model.method} candidate"
-                                                 + (f" (the previous model archived as {decision.archived})"
-                                                    if decision.archived else "") + "; sign below to accept it."
-                                                 if decision.replaced or in_service is None else
-                                                 f"Nothing to install: {decision.current_path} still holds the model "
-                                                 "in service; sign below to accept that it stays."])
-        page = write_html(Page(section.title, command_line(args), tolerance, report_record, [section]), args.report)
-        print(f"report: {page}")
+        print(f"report: {write_report(result, inputs)}")
     return 0
 
 
-def recalibration_rule(candidate: Any, in_service: Any, tolerance: Any) -> str:
-    """The report's why for a recalibration: the models' parameter counts and the test that decided."""
-    new = f"The candidate {candidate.method} has {candidate.n_parameters} parameters, fitted on the training poses"
-    if in_service is None:
-        return (f"{new}. With no model in service, the rule is the tolerance: it is installed when its position RMS "
-                f"on the fresh validation poses (measured after the fit, not used by it) is at most "
-                f"{tolerance.position_mm:g} mm.")
-    return (f"{new}; the model in service ({in_service.method}) has {in_service.n_parameters}. The rule: the candidate "
-            "replaces it only when its position RMS on the fresh validation poses (measured after the fit, used by "
-            "neither) is lower.")
+def _recalibration_inputs(args: argparse.Namespace, model_dir: Path, plan: Any, added: tuple[Any, ...],
+                          tolerance: Any) -> Any:
+    """recalibrate's checked arguments as the workflow's :class:`~app.workflows.recalibrate.RecalibrationInputs`."""
+    from app.workflows.recalibrate import RecalibrationInputs
+
+    return RecalibrationInputs(
+        robot=args.robot, model_dir=model_dir, plan=plan, session=Path(args.session) if args.session else None,
+        validation=args.validation, validation_seed=args.validation_seed, method=args.method, rebase=args.rebase,
+        added=added, add_weight=args.add_weight, tolerance=tolerance, dry_run=args.dry_run, report=args.report,
+        command=command_line(args) if args.report else "")
+
+
+def _recalibration_hooks(args: argparse.Namespace, cell: Any) -> Any:
+    """The workflow's hooks: stdout/stderr lines, the operator's confirmation, the Ctrl-C line on ``args``."""
+    from app.cli.cell_options import confirm_motion, motion_config, safety_for
+    from app.workflows.recalibrate import RecalibrationHooks
+
+    return RecalibrationHooks(
+        say=print, warn=lambda line: print(line, file=sys.stderr),
+        confirm=lambda summary: confirm_motion(args, summary),
+        stop_hint=lambda hint: setattr(args, "stop_hint", hint),
+        dry_run=lambda rt, safety, plan, config: _dry_run(args, rt, safety, plan, config),
+        motion=lambda: (motion_config(cell, args), safety_for(cell, args)),
+        progress=show_progress(args), epoch_progress=epoch_bar(args))
 
 
 def cmd_demo(args: argparse.Namespace) -> int:

@@ -8,6 +8,10 @@ is not better is kept out of service and filed as ``rejected/<timestamp>.yaml`` 
 service that fails validation (a NaN parameter, a matrix that is not a rotation, an unknown method) is never
 kept: the decision reports why, and a valid candidate replaces it. A model of another robot there means the
 wrong folder, and the recalibration stops before any motion.
+
+:func:`recalibrate` is the whole workflow of ``cellcal recalibrate`` (collect, fit or rebase, validate,
+install): plain :class:`RecalibrationInputs` in, a :class:`RecalibrationResult` out; it prints nothing, its
+lines and questions go through :class:`RecalibrationHooks`.
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ import logging
 import math
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -277,3 +282,265 @@ def rebase_candidate(model_dir: str | Path, service: InService, train: Recording
         raise ModelError(f"the rebase of the model in service on {train.source} did not converge "
                          f"({result.reason.value}); nothing installed")
     return rebased, result
+
+
+@dataclass(frozen=True)
+class RecalibrationInputs:
+    """What ``cellcal recalibrate`` was asked, checked by the command before the workflow runs.
+
+    Attributes:
+        robot: the arm recalibrated (a name in the cell).
+        model_dir: the model folder (checked by :func:`check_model_dir`).
+        plan: the training plan to collect (a collection :class:`~app.collection.plans.collection.Plan`), or None
+            with ``session``.
+        session: an existing training session folder to reuse, or None with ``plan``.
+        validation: how many fresh validation poses to measure (at least 1).
+        validation_seed: the seed of the validation poses; None: from the clock.
+        method: the candidate's fitting method (not used with ``rebase``).
+        rebase: refit only the base and tool-marker frames of the model in service.
+        added: the ``--add`` stand-alone pose files and their recordings (checked against the robot).
+        add_weight: their weight in the fit (each added pose's rows repeated).
+        tolerance: the acceptance :class:`~app.reports.acceptance.Tolerance`.
+        dry_run: only check the plans from where the arm stands (no motion, nothing fitted).
+        report: the HTML report's path, or None.
+        command: the command line, for the report.
+    """
+
+    robot: str
+    model_dir: Path
+    plan: Any
+    session: Path | None
+    validation: int
+    validation_seed: int | None
+    method: str
+    rebase: bool
+    added: tuple[tuple[str, Recording], ...]
+    add_weight: int
+    tolerance: Any
+    dry_run: bool = False
+    report: str | None = None
+    command: str = ""
+
+
+@dataclass(frozen=True)
+class RecalibrationHooks:
+    """How the workflow talks to its caller (it prints nothing itself).
+
+    Attributes:
+        say: one line for the operator (the CLI prints it on stdout).
+        warn: one warning line (the CLI prints it on stderr).
+        confirm: asks before the first motion with this summary; raises to refuse.
+        stop_hint: what an interruption from now on leaves behind (the CLI's Ctrl-C line).
+        dry_run: checks a plan from where the arm stands (runtime, safety, plan, collect config) and returns the
+            exit code, for ``inputs.dry_run``.
+        progress: show progress bars while collecting.
+        motion: the collection config and the safety checker (asked once the model folder is checked).
+        epoch_progress: the neural interpolators' epoch bar (``FitOptions.epoch_progress``), or None.
+    """
+
+    say: Callable[[str], None]
+    warn: Callable[[str], None]
+    confirm: Callable[[str], None]
+    stop_hint: Callable[[str], None]
+    dry_run: Callable[[Any, Any, Any, Any], int]
+    motion: Callable[[], tuple[Any, Any]]
+    progress: bool = False
+    epoch_progress: Any = None
+
+
+@dataclass(frozen=True)
+class RecalibrationResult:
+    """What a recalibration did.
+
+    Attributes:
+        decision: the :class:`Decision` (None after a dry run).
+        model: the candidate (with its provenance), or None after a dry run.
+        in_service: the usable model that was in service before, or None.
+        rebased: the :class:`~calibration.frames.rebase.RebaseResult` with ``rebase``, else None.
+        validation: the fresh validation recording, or None after a dry run.
+        record: the provenance of the inputs (taken before the decision moved the model in service).
+        exit_code: the dry run's exit code (0 otherwise).
+    """
+
+    decision: Decision | None
+    model: KinematicModel | None = None
+    in_service: KinematicModel | None = None
+    rebased: Any = None
+    validation: Recording | None = None
+    record: Any = None
+    exit_code: int = 0
+
+    def to_json(self) -> dict[str, Any]:
+        """The ``--json`` of ``recalibrate``: the decision, and with ``--rebase`` the frame fit."""
+        if self.decision is None:
+            raise ValueError("a dry run decides nothing: it writes its own JSON")
+        r = self.rebased
+        return {**self.decision.to_json(), **({} if r is None else {"rebase": {
+            "samples": r.n_samples, "fitted_directions": r.fitted, "held": list(r.held),
+            "position_mean_mm": {"before": r.mean_before_mm, "after": r.mean_after_mm},
+            "objective_rms": {"before": r.objective_before, "after": r.objective_after},
+            "shrink": r.shrink}})}
+
+
+@dataclass(frozen=True)
+class _Work:
+    """The run's folders and the service it started from."""
+
+    service: InService
+    work: Path
+    session: Path
+    cpa: bool
+
+
+def recalibrate(cell: Any, runtime: Any, inputs: RecalibrationInputs, hooks: RecalibrationHooks) -> RecalibrationResult:
+    """Collect (or reuse) a training session and fresh validation poses, fit (or rebase) a candidate, and install
+    it only when it beats the model in service on them (:func:`decide_and_install`); write the report if asked.
+
+    Args:
+        cell: the cell description.
+        runtime: the cell runtime (a SimCell or RealCell, not yet entered).
+        inputs: what was asked.
+        hooks: the caller's output, confirmation, interruption and motion hooks.
+
+    Raises:
+        DataError: the model in service is another robot's, or ``rebase`` has none to refit.
+        ModelError: the candidate failed (a rebase that did not converge, non-finite errors).
+    """
+    robot = cell.robot(inputs.robot)
+    service = model_in_service(inputs.model_dir, inputs.robot, robot.model())  # another robot's: stop before motion
+    if inputs.rebase:
+        model_to_rebase(inputs.model_dir, service)  # nothing to rebase: stop before motion
+    if service.problem:
+        log.warning("the model in service %s is unusable (%s); a valid candidate will replace it",
+                    inputs.model_dir / CURRENT, service.problem)
+    work = inputs.model_dir / "sessions" / time.strftime("%Y%m%dT%H%M%S")
+    run = _Work(service, work, inputs.session if inputs.session else work / "train", inputs.method == "cpa")
+    code = _collect(robot, runtime, inputs, hooks, hooks.motion(), run)
+    if code is not None:
+        return RecalibrationResult(None, exit_code=code)
+    return _fit_and_decide(robot, inputs, hooks, run)
+
+
+def _collect(robot: Any, runtime: Any, inputs: RecalibrationInputs, hooks: RecalibrationHooks,
+             motion: tuple[Any, Any], run: _Work) -> int | None:
+    """Measure the training plan (if any) and the fresh validation poses; the dry run's exit code, else None."""
+    from app.collection import collect
+    from app.collection.plans.session import validation_plan
+    from calibration.models import ConstantModel
+
+    config, safety = motion
+    seed = inputs.validation_seed if inputs.validation_seed is not None else int(time.time()) % 100_000
+    in_use, in_use_name = ((run.service.model, "the model in service") if run.service.model is not None else
+                           (ConstantModel(robot.name, "nominal", robot.model(), 0, {}),
+                            f"the nominal {inputs.robot}"))  # what -v's line per target compares with
+    plan, session = inputs.plan, run.session
+    with runtime as rt:
+        parked = {n: d.read_joints().q for n, d in rt.others(inputs.robot).items()}
+        val_plan = validation_plan(inputs.robot, safety, parked, inputs.validation, seed=seed)
+        if inputs.dry_run:
+            from app.collection.plans.collection import Plan
+
+            both = Plan((plan.targets if plan is not None else ()) + val_plan.targets, val_plan.params)
+            return hooks.dry_run(rt, safety, both, config)
+        hooks.confirm(f"{inputs.robot} will visit {len(plan) if plan is not None else 0} training and "
+                      f"{len(val_plan)} validation targets at {config.speed_fraction:g} of full speed")
+        if plan is not None:  # what Ctrl-C says (app.cli.commands.main): recalibrate itself has no --resume
+            hooks.stop_hint(f" (nothing installed; the training session so far is {session}: finish it with "
+                            f"cellcal collect --robot {inputs.robot} --session {session} --resume, then "
+                            f"recalibrate --session {session})")
+            collect.collect_arm(rt, safety, inputs.robot, plan, session, config, progress=hooks.progress,
+                                model=in_use, model_name=in_use_name)
+        hooks.stop_hint(f" (nothing installed; recalibrate --session {session} reuses the training session)")
+        collect.collect_arm(rt, safety, inputs.robot, val_plan, run.work / "validation", config,
+                            progress=hooks.progress, model=in_use, model_name=in_use_name)
+    return None
+
+
+def _fit_and_decide(robot: Any, inputs: RecalibrationInputs, hooks: RecalibrationHooks,
+                    run: _Work) -> RecalibrationResult:
+    """Export the recordings, fit (or rebase) the candidate, judge it on the validation poses, report."""
+    from app.collection.collect import export
+    from app.reports.provenance import provenance, with_provenance
+    from calibration.data.recording import read_recording, with_added
+
+    limits = (robot.robot.lower_rad, robot.robot.upper_rad)
+    work = run.work
+    export(run.session, work / "train.csv", kinds=("anchor", "perturb"))
+    cpa = None
+    if run.cpa:
+        export(run.session, work / "cpa.csv", kinds=("cpa",))
+        cpa = read_recording(work / "cpa.csv", *limits)
+    export(work / "validation", work / "validation.csv")
+    train = with_added(read_recording(work / "train.csv", *limits), [r for _, r in inputs.added],
+                       weight=inputs.add_weight)  # --add: stand-alone poses
+    model, rebased = _fit_candidate(robot, inputs, hooks, run.service, train, cpa)
+    sources: list[tuple[str, str | Path | None]] = [("train", work / "train.csv"), *(("add", a) for a, _ in inputs.added),
+               ("cpa", work / "cpa.csv" if cpa else None), ("validation", work / "validation.csv")]
+    if inputs.rebase:
+        sources.append(("model rebased", inputs.model_dir / CURRENT))
+    model = with_provenance(model, provenance(sources))
+    validation = read_recording(work / "validation.csv", *limits)
+    in_service = run.service.model
+    record = provenance(sources + ([("model in service", inputs.model_dir / CURRENT)] if in_service is not None
+                                   else []))  # before the decision moves the model in service to previous/
+    hooks.stop_hint("")
+    decision = decide_and_install(inputs.model_dir, model, validation, robot.model(), inputs.tolerance.position_mm)
+    return RecalibrationResult(decision, model, in_service, rebased, validation, record)
+
+
+def _fit_candidate(robot: Any, inputs: RecalibrationInputs, hooks: RecalibrationHooks, service: InService,
+                   train: Recording, cpa: Recording | None) -> tuple[KinematicModel, Any]:
+    """The candidate: the model in service rebased on ``train``, or a new ``inputs.method`` fit of it."""
+    if inputs.rebase:
+        model, rebased = rebase_candidate(inputs.model_dir, service, train,
+                                          (robot.robot.lower_rad, robot.robot.upper_rad))
+        hooks.say(rebased.summary())
+        return model, rebased
+    from app.workflows.fit import fitter_for
+    from calibration.methods.options import FitOptions
+
+    fitter = fitter_for(robot, train, cpa, FitOptions(epoch_progress=hooks.epoch_progress))
+    gross = getattr(fitter, "gross", None)  # the rows are in the model's info too
+    if gross is not None and gross.message():
+        hooks.warn(f"warning: {gross.message()}")
+    model, _ = fitter.fit(inputs.method)
+    if model.info.get("warning"):  # as fit warns (the directions the training poses leave unseen)
+        hooks.warn(f"warning: {model.info['warning']}")
+    return model, None
+
+
+def recalibration_rule(candidate: Any, in_service: Any, tolerance: Any) -> str:
+    """The report's why for a recalibration: the models' parameter counts and the test that decided."""
+    new = f"The candidate {candidate.method} has {candidate.n_parameters} parameters, fitted on the training poses"
+    if in_service is None:
+        return (f"{new}. With no model in service, the rule is the tolerance: it is installed when its position RMS "
+                f"on the fresh validation poses (measured after the fit, not used by it) is at most "
+                f"{tolerance.position_mm:g} mm.")
+    return (f"{new}; the model in service ({in_service.method}) has {in_service.n_parameters}. The rule: the candidate "
+            "replaces it only when its position RMS on the fresh validation poses (measured after the fit, used by "
+            "neither) is lower.")
+
+
+def write_report(result: RecalibrationResult, inputs: RecalibrationInputs) -> Any:
+    """The recalibration's HTML report: candidate and model in service on the validation poses, the decision."""
+    from app.reports.page import Page, write_html
+    from app.reports.sections import evaluation_section
+
+    model, in_service, decision, tolerance = result.model, result.in_service, result.decision, inputs.tolerance
+    if model is None or decision is None or result.validation is None or inputs.report is None:
+        raise ValueError("a report needs a decision (not a dry run) and a report path")
+    models = {f"candidate {model.method}": model}
+    if in_service is not None:
+        models[f"in service {in_service.method}"] = in_service
+    archived = f" (the previous model archived as {decision.archived})" if decision.archived else ""
+    section = evaluation_section(f"Recalibration of {inputs.robot}", models, result.validation, inputs.report,
+                                 tolerance, "the fresh validation recording",  # the model in service after the decision
+                                 recommended=f"candidate {model.method}" if decision.replaced or in_service is None
+                                 else f"in service {in_service.method}",
+                                 why=[decision.summary(), recalibration_rule(model, in_service, tolerance)],
+                                 next_steps=[f"{decision.current_path} now holds the {model.method} candidate"
+                                             + archived + "; sign below to accept it."
+                                             if decision.replaced or in_service is None else
+                                             f"Nothing to install: {decision.current_path} still holds the model "
+                                             "in service; sign below to accept that it stays."])
+    return write_html(Page(section.title, inputs.command, tolerance, result.record, [section]), inputs.report)

@@ -266,3 +266,36 @@ def test_a_sim_time_scale_out_of_range_is_refused_before_anything_is_written(tmp
                   "--method", "nls1", "--sim"]):
         assert_bad_input(capsys, argv + ["--time-scale", scale, "--no-progress"], "--time-scale must be in (0, 1000]")
     assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+def test_the_recalibrate_workflow_runs_without_the_cli_and_prints_nothing(tmp_path, capsys):
+    # issue 32 point 7: the workflow lived in cmd_recalibrate, wrote its Ctrl-C hint onto argparse's args and
+    # printed; now it takes plain inputs and hooks, and every line goes through the hooks
+    from app.collection.collect import DEMO_COLLECT
+    from app.collection.plans.reader import read_plan
+    from app.collection.runtime.sim import SimCell, SimCellOptions
+    from app.collection.safety import CellSafety
+    from app.reports.acceptance import Tolerance
+    from app.workflows.recalibrate import RecalibrationHooks, RecalibrationInputs, recalibrate
+    from cell_config import load_cell
+
+    args, models = _sim_recalibrate(tmp_path, "nls1", 4)
+    capsys.readouterr()
+    cell = load_cell()
+    said: list[tuple[str, str]] = []
+    hooks = RecalibrationHooks(say=lambda s: said.append(("say", s)), warn=lambda s: said.append(("warn", s)),
+                               confirm=lambda s: said.append(("confirm", s)),
+                               stop_hint=lambda s: said.append(("hint", s)),
+                               dry_run=lambda *a: pytest.fail("not a dry run"),
+                               motion=lambda: (DEMO_COLLECT, CellSafety(cell)))
+    inputs = RecalibrationInputs("R1", models, read_plan(tmp_path / "plan.json", "collection"), None, 4, 2, "nls1",
+                                 False, (), 1, Tolerance())
+    result = recalibrate(cell, SimCell(cell, SimCellOptions(time_scale=200, deterministic=True)), inputs, hooks)
+    assert capsys.readouterr().out == ""
+    assert result.decision is not None and result.decision.replaced and result.rebased is None
+    assert result.to_json() == result.decision.to_json() and result.decision.validation_samples == 4
+    lines = [(kind, s) for kind, s in said if kind != "warn"]  # the small plan leaves directions unseen: a warning
+    assert [kind for kind, _ in lines] == ["confirm", "hint", "hint", "hint"] and lines[-1] == ("hint", "")
+    assert "R1 will visit" in lines[0][1] and "recalibrate --session" in lines[2][1]
+    assert all(s.startswith("warning: ") for kind, s in said if kind == "warn")
+    assert load_model(models / "current.yaml").method == "nls1"
