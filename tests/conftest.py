@@ -138,18 +138,21 @@ def write_backlash_case(folder: Path, **sizes: int) -> tuple[Path, Path]:
 #: depends on this list: a module missing from it still runs, later. The rehearsal leads: it waits on real-time
 #: OS processes, so the other worker's CPU-bound modules run beside it. test_preview is placed by its size with a
 #: headless browser (without one its browser tests skip and it is short).
-LONGEST_FIRST = ("tests/app/collection/test_rehearsal.py", "tests/app/workflows/test_demo_seed.py", "tests/calibration/models/test_models.py",
-                 "tests/calibration/diagnosis/test_diagnosis_parsimony.py", "tests/app/workflows/test_diagnose.py",
-                 "tests/test_readme.py", "tests/calibration/methods/test_heldout.py", "tests/app/cli/test_rebase_design_cli.py",
-                 "tests/app/reports/test_report.py", "tests/app/reports/test_report_signoff.py",
-                 "tests/app/dual/test_preview.py", "tests/calibration/models/test_model_kinds.py",
-                 "tests/calibration/diagnosis/test_diagnosis.py", "tests/app/dual/test_dual_plan.py",
-                 "tests/drivers/test_motoros_driver.py", "tests/app/cli/test_cli_dual.py", "tests/app/workflows/test_real_data.py",
-                 "tests/app/cli/test_cli.py", "tests/app/workflows/test_diagnose_days.py", "tests/calibration/interpolation/test_interpolation.py",
-                 "tests/calibration/frames/test_multiday.py", "tests/calibration/diagnosis/test_diagnosis_channels.py",
-                 "tests/app/collection/test_collect_session.py", "tests/app/cli/test_cli_json.py",
-                 "tests/app/workflows/test_recalibrate_rebase.py", "tests/calibration/frames/test_daydiff.py",
-                 "tests/calibration/methods/test_nls0.py")
+LONGEST_FIRST = ("tests/app/collection/test_rehearsal.py", "tests/test_readme.py", "tests/app/dual/test_preview.py",
+                 "tests/drivers/test_motoros_driver.py", "tests/app/reports/test_report_signoff.py",
+                 "tests/app/workflows/test_diagnose.py", "tests/app/workflows/test_demo_seed.py",
+                 "tests/calibration/diagnosis/test_diagnosis.py", "tests/app/reports/test_report.py",
+                 "tests/calibration/models/test_models.py", "tests/app/workflows/test_analysis_matrix.py",
+                 "tests/calibration/methods/test_heldout.py", "tests/app/workflows/test_recalibrate.py",
+                 "tests/drivers/test_natnet_client.py", "tests/app/collection/test_collect_verbose.py",
+                 "tests/calibration/models/test_model_kinds.py", "tests/app/collection/test_collect_session.py",
+                 "tests/app/cli/test_rebase_design_cli.py",
+                 "tests/calibration/diagnosis/test_diagnosis_parsimony.py", "tests/app/cli/test_cli_frames.py",
+                 "tests/app/collection/test_planning_safety.py", "tests/app/cli/test_cli_dual.py",
+                 "tests/app/cli/test_cli.py", "tests/app/cli/test_staged_outputs.py",
+                 "tests/app/dual/test_dual_plan.py", "tests/app/workflows/test_real_data.py",
+                 "tests/calibration/frames/test_multiday.py", "tests/app/cli/test_cli_topup.py",
+                 "tests/app/workflows/test_recalibrate_rebase.py", "tests/app/collection/test_collect_outcome.py")
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
