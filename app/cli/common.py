@@ -345,9 +345,11 @@ def warn_gross_rows(fitter: Any) -> None:
     """Print the training rows the fitter set aside as gross measurement errors (``Fitter.gross``), if any."""
     import sys
 
-    gross = getattr(fitter, "gross", None)
-    if gross is not None and gross.message():
-        print(f"warning: {gross.message()}", file=sys.stderr)
+    from app.workflows.fit import gross_rows_warning
+
+    warning = gross_rows_warning(fitter)
+    if warning:
+        print(warning, file=sys.stderr)
 
 
 #: File outputs every subcommand may take; ``demo --out`` is a folder and is left to the demo.

@@ -22,6 +22,13 @@ from calibration.physics.gravity import GravityModel
 log = logging.getLogger("cellcal.app")
 
 
+def gross_rows_warning(fitter: Any) -> str | None:
+    """The warning line for the training rows ``fitter`` set aside as gross measurement errors (``Fitter.gross``),
+    or None when it set none aside; ``fit``, ``compare`` and ``recalibrate`` give it the same way."""
+    gross = getattr(fitter, "gross", None)
+    return f"warning: {gross.message()}" if gross is not None and gross.message() else None
+
+
 def fitter_for(robot: Any, train: Any, cpa: Any | None = None, options: Any | None = None) -> Any:
     """A Fitter for one arm of the cell: its nominal model, link masses and joint limits, on the training recording
     less its gross measurement errors (``Fitter.without_gross_rows``; ``fitter.gross`` names them).

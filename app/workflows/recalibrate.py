@@ -496,13 +496,13 @@ def _fit_candidate(robot: Any, inputs: RecalibrationInputs, hooks: Recalibration
                                           (robot.robot.lower_rad, robot.robot.upper_rad))
         hooks.say(rebased.summary())
         return model, rebased
-    from app.workflows.fit import fitter_for
+    from app.workflows.fit import fitter_for, gross_rows_warning
     from calibration.methods.options import FitOptions
 
     fitter = fitter_for(robot, train, cpa, FitOptions(epoch_progress=hooks.epoch_progress))
-    gross = getattr(fitter, "gross", None)  # the rows are in the model's info too
-    if gross is not None and gross.message():
-        hooks.warn(f"warning: {gross.message()}")
+    warning = gross_rows_warning(fitter)  # the rows are in the model's info too
+    if warning:
+        hooks.warn(warning)
     model, _ = fitter.fit(inputs.method)
     if model.info.get("warning"):  # as fit warns (the directions the training poses leave unseen)
         hooks.warn(f"warning: {model.info['warning']}")
