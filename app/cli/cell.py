@@ -6,7 +6,7 @@ import argparse
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from app.cli.common import (
     add_report_options,
@@ -25,6 +25,9 @@ from app.cli.common import (
     write_json,
 )
 from calibration.errors import CellCalError
+
+if TYPE_CHECKING:
+    from app.collection.runtime.cell import Cell
 
 #: The anchor-grid steps ``plan --q2-step/--q3-step`` and ``demo --anchor-step`` accept [deg].
 MIN_GRID_STEP_DEG, MAX_GRID_STEP_DEG = 0.5, 90.0
@@ -313,7 +316,7 @@ def cmd_collect(args: argparse.Namespace) -> int:
     return 0
 
 
-def _dry_run(args: argparse.Namespace, rt: Any, safety: Any, plan: Any, config: Any) -> int:
+def _dry_run(args: argparse.Namespace, rt: Cell, safety: Any, plan: Any, config: Any) -> int:
     """Check the whole plan from where the arm stands against the other arms' live poses; print it; no motion."""
     from app.collection.dry_run import summarize_plan
     from app.collection.motion import live_poses, read_q

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from app.collection.runtime.cell import Cell
 from calibration.data.files import check_output_path
 from calibration.data.recording import Recording
 from calibration.errors import ConfigError, DataError, ModelError
@@ -392,13 +393,13 @@ class _Work:
     cpa: bool
 
 
-def recalibrate(cell: Any, runtime: Any, inputs: RecalibrationInputs, hooks: RecalibrationHooks) -> RecalibrationResult:
+def recalibrate(cell: Any, runtime: Cell, inputs: RecalibrationInputs, hooks: RecalibrationHooks) -> RecalibrationResult:
     """Collect (or reuse) a training session and fresh validation poses, fit (or rebase) a candidate, and install
     it only when it beats the model in service on them (:func:`decide_and_install`); write the report if asked.
 
     Args:
         cell: the cell description.
-        runtime: the cell runtime (a SimCell or RealCell, not yet entered).
+        runtime: the cell at run time (a SimCell or RealCell, not yet entered).
         inputs: what was asked.
         hooks: the caller's output, confirmation, interruption and motion hooks.
 
@@ -421,7 +422,7 @@ def recalibrate(cell: Any, runtime: Any, inputs: RecalibrationInputs, hooks: Rec
     return _fit_and_decide(robot, inputs, hooks, run)
 
 
-def _collect(robot: Any, runtime: Any, inputs: RecalibrationInputs, hooks: RecalibrationHooks,
+def _collect(robot: Any, runtime: Cell, inputs: RecalibrationInputs, hooks: RecalibrationHooks,
              motion: tuple[Any, Any], run: _Work) -> int | None:
     """Measure the training plan (if any) and the fresh validation poses; the dry run's exit code, else None."""
     from app.collection import collect
