@@ -20,7 +20,7 @@ def _model_pair(spec: str | None, where: str, cell: Any) -> dict[str, Any]:
 
     Each file must record the arm it is given for and hold that arm's geometry (robot YAML).
     """
-    from app.cli.common import load_model_for
+    from app.workflows.inputs import load_model_for
     from calibration.errors import DataError
 
     models: dict[str, Any] = {}

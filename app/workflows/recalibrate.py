@@ -20,15 +20,18 @@ import logging
 import math
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from app.collection.plans.reader import read_arm_plan
 from app.collection.runtime.cell import Cell
+from app.collection.session_store import require_session
+from app.workflows.inputs import read_recording_for
 from calibration.data.files import check_output_path
 from calibration.data.recording import Recording
-from calibration.errors import ConfigError, DataError, ModelError
+from calibration.errors import CellCalError, ConfigError, DataError, ModelError
 from calibration.evaluation.metrics import error_stats, errors
 from calibration.frames.rebase import rebase_auto, workspace_configurations
 from calibration.kinematics.poe import PoeModel
@@ -321,6 +324,34 @@ class RecalibrationInputs:
     dry_run: bool = False
     report: str | None = None
     command: str = ""
+
+
+def checked_inputs(robot: Any, model_dir: str | Path, plan: str | None, session: str | None, validation: int,
+                   method: str, added: Sequence[str], **settings: Any) -> RecalibrationInputs:
+    """recalibrate's arguments checked and its input files read, before any motion: the model folder
+    (:func:`check_model_dir`), the validation count, the plan (one arm's, ``robot``'s), the session to reuse
+    (``robot``'s, complete for ``method``) and the added poses.
+
+    Args:
+        robot: the arm's cell entry.
+        settings: the other :class:`RecalibrationInputs` fields, as they are (``validation_seed``, ``rebase``,
+            ``add_weight``, ``tolerance``, ``dry_run``, ``report``, ``command``).
+
+    Raises:
+        ConfigError: the model folder is a file; CellCalError: fewer than 1 validation pose; DataError: a plan,
+            session or recording that is unreadable or not ``robot``'s, or an incomplete session.
+    """
+    folder = check_model_dir(model_dir)
+    if validation < 1:
+        raise CellCalError(f"--validation must be at least 1, got {validation}")
+    plan_read = read_arm_plan(plan, robot.name) if plan else None
+    if session:
+        require_session(session, robot.name, ("anchor", "perturb", "cpa") if method == "cpa" else
+                        ("anchor", "perturb"), purpose="recalibrate")
+    poses = tuple((path, read_recording_for(path, robot)) for path in added)  # bad poses: refused before motion
+    return RecalibrationInputs(robot=robot.name, model_dir=folder, plan=plan_read,
+                               session=Path(session) if session else None, validation=validation, method=method,
+                               added=poses, **settings)
 
 
 @dataclass(frozen=True)

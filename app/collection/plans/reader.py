@@ -96,3 +96,18 @@ def read_plan(source: str | Path | dict[str, Any] | Plan | PlanResult, kind: Pla
         return plan_from_data(d, path, kind)
     except RecursionError:  # a deeply nested entry, read by a recursive check
         raise DataError(path, None, None, "not a plan file (an entry nested too deep)") from None
+
+
+def read_arm_plan(path: str | Path, robot: str) -> Plan:
+    """A collection plan file that moves ``robot`` only (``collect --plan``, ``recalibrate --plan``).
+
+    Raises:
+        DataError: what :func:`read_plan` refuses, a dual plan, or a plan that moves another arm (or none).
+    """
+    plan = read_plan(path, "collection")
+    if not isinstance(plan, Plan):  # read_plan refuses another kind; this only narrows the type
+        raise DataError(path, None, "kind", "this is a dual plan; expected a collection plan")
+    if plan.robots != (robot,):
+        raise DataError(path, None, "targets", f"the plan moves {', '.join(plan.robots) or 'nothing'}, "
+                                               f"expected {robot} only")
+    return plan
