@@ -423,7 +423,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     robot = cell_spec(args).robot(args.robot)
     files = {f"{Path(f).stem} (file)": load_model_for(f, robot) for f in args.model}
     test = read_recording_arg(args.test, robot)
-    refuse_another_arms(robot, test, "test recording")  # before any fit: another arm's test would waste them all
+    refuse_another_arms(robot.arm(), test, "test recording")  # before any fit: another arm's test would waste them all
     fitter, robot = fitter_from_args(args)  # the training recordings are checked the same way before fitting
     cmp = run_comparison(fitter, test, methods, progress=show_progress(args), files=files)
     cmp.analysis["frames"] = {"training": None if args.frame_check is None else args.frame_check.to_json()}

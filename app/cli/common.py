@@ -219,7 +219,7 @@ def read_given_arg(path: str, robot: Any) -> Any:
     from calibration.frames.policy import refuse_another_arms
 
     rec = read_recording_arg(path, robot)
-    refuse_another_arms(robot, rec, "--given recording")
+    refuse_another_arms(robot.arm(), rec, "--given recording")
     return rec
 
 
