@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calibration.arm import Arm
 from calibration.errors import ConfigError
 from calibration.kinematics import so3
 from calibration.kinematics.poe import PoeModel
@@ -151,6 +152,14 @@ class CellRobot:
 
     def model(self) -> PoeModel:
         return self.robot.model(self.tool)
+
+    def arm(self) -> Arm:
+        """This arm as calibration takes it (:class:`calibration.arm.Arm`): its name in the cell, the nominal model
+        carrying its tool, the robot YAML's joint limits and link masses (None when the YAML has no ``links``)."""
+        links = self.robot.links
+        return Arm(self.name, self.robot.name, self.model(), (self.robot.lower_rad, self.robot.upper_rad),
+                   np.array([link.mass_kg for link in links], dtype=float) if links else None,
+                   np.array([link.com_mm for link in links], dtype=float) if links else None)
 
 
 @dataclass(frozen=True)

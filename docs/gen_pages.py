@@ -1,4 +1,5 @@
-"""Pages generated at build time (mkdocs-gen-files): the CLI reference from the parser, the API pages from the packages.
+"""Pages generated at build time (mkdocs-gen-files): the CLI reference from the parser, the API pages from the packages,
+the drawing of the imports from the code (grimp, the engine import-linter checks the contracts with).
 
 The parser is imported on one line only (``build_parser`` below): when the CLI module moves, change that line.
 The API pages are found by walking the package folders, so a module that moves takes its page along with it.
@@ -9,7 +10,10 @@ from __future__ import annotations
 
 import argparse
 import os
+from collections import Counter
 from pathlib import Path
+
+import grimp
 
 from app.cli.commands import build_parser  # the one import of the parser in the docs
 from app.cli.table import command_table
@@ -94,6 +98,48 @@ def api_path(module: str) -> str:
     return Path(*parts).with_suffix(".md").as_posix()
 
 
+def folder_edges() -> Counter[tuple[str, str]]:
+    """Imports between the product's folders, counted module pair by module pair (every import, function-local too).
+
+    A folder is a top package's direct child (``calibration.frames``, ``app.cli``; a loose module counts as its own
+    folder) or, across top packages, the top package itself (``app -> calibration``).
+    """
+    graph = grimp.build_graph(*PACKAGES, include_external_packages=False, cache_dir=None)
+    edges: Counter[tuple[str, str]] = Counter()
+    for importer in graph.modules:
+        for imported in graph.find_modules_directly_imported_by(importer):
+            a, b = importer.split("."), imported.split(".")
+            if a[0] != b[0]:
+                edges[(a[0], b[0])] += 1
+            elif len(a) > 1 and len(b) > 1 and a[1] != b[1]:
+                edges[(".".join(a[:2]), ".".join(b[:2]))] += 1
+    return edges
+
+
+def _mermaid(edges: dict[tuple[str, str], int]) -> list[str]:
+    lines = ["```mermaid", "flowchart TD"]
+    nodes = sorted({n for edge in edges for n in edge})
+    lines += [f'    {n.replace(".", "_")}["{n.split(".")[-1]}"]' for n in nodes]
+    lines += [f"    {a.replace('.', '_')} -->|{k}| {b.replace('.', '_')}" for (a, b), k in sorted(edges.items())]
+    return [*lines, "```"]
+
+
+def imports_page() -> str:
+    """The import drawing (Markdown with Mermaid): the four top packages, then the folders inside each."""
+    edges = folder_edges()
+    parts = ["# Import graph", "",
+             "Drawn from the code when the site is built, with grimp (the engine `lint-imports` checks the",
+             "contracts in `pyproject.toml` with); every import counts, function-local ones too. An arrow is",
+             "\"imports\", its number the module pairs behind it. There is no circle: `make test` fails on one.",
+             "", "## The product's layers", ""]
+    parts += _mermaid({e: k for e, k in edges.items() if "." not in e[0]})
+    for package in PACKAGES:
+        inside = {e: k for e, k in edges.items() if e[0].startswith(package + ".")}
+        if inside:
+            parts += ["", f"## Inside `{package}/`", "", *_mermaid(inside)]
+    return "\n".join(parts) + "\n"
+
+
 def write_pages() -> None:
     import mkdocs_gen_files
 
@@ -102,6 +148,8 @@ def write_pages() -> None:
     for module in api_modules():
         with mkdocs_gen_files.open(Path("api", api_path(module)), "w") as page:
             page.write(api_page(module))
+    with mkdocs_gen_files.open("reference/imports.md", "w") as page:
+        page.write(imports_page())
     with mkdocs_gen_files.open("api/index.md", "w") as page:
         page.write("# API\n\nThe Python modules, from their docstrings. The command line (`cellcal`) is the supported "
                    "interface; these pages are for readers of the code.\n\n"

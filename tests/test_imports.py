@@ -35,3 +35,56 @@ def test_every_module_of_the_product_imports():
     assert out.returncode == 0, out.stderr
     count, *fails = out.stdout.strip().splitlines()
     assert int(count) > 150 and not fails, fails
+
+
+def _gen_pages():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("gen_pages", ROOT / "docs" / "gen_pages.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _layers(container: str | None) -> list[set[str]]:
+    import tomllib
+
+    contracts = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]["contracts"]
+    for contract in contracts:
+        if contract["type"] == "layers" and contract.get("containers", [None]) == [container]:
+            return [{name.strip() for name in layer.split("|")} for layer in contract["layers"]]
+    raise AssertionError(f"no layers contract for {container}")
+
+
+def _rank(layers: list[set[str]], name: str) -> int:
+    return next(i for i, layer in enumerate(layers) if name in layer)
+
+
+def test_the_import_drawing_agrees_with_the_contracts_and_has_no_circle():
+    """The drawing on the docs site (reference/imports.md) is made from the same graph engine as ``lint-imports``;
+    every arrow it draws between the top packages and between calibration's and app's folders points down the
+    layers pyproject.toml declares, and the folders of drivers/ and cell_config/ form no circle."""
+    from graphlib import CycleError, TopologicalSorter
+
+    edges = _gen_pages().folder_edges()
+    assert edges, "no import drawn"
+    top = _layers(None)
+    for (a, b) in edges:
+        if "." not in a:
+            assert _rank(top, a) < _rank(top, b), f"{a} -> {b} goes up the product's layers"
+    for container in ("calibration", "app"):
+        layers = _layers(container)
+        for (a, b) in edges:
+            if a.startswith(container + "."):
+                la, lb = _rank(layers, a.split(".")[1]), _rank(layers, b.split(".")[1])
+                assert la < lb, f"{a} -> {b} is drawn against the layers of {container}"
+    graph: dict[str, set[str]] = {}
+    for (a, b) in edges:
+        graph.setdefault(a, set()).add(b)
+    try:
+        tuple(TopologicalSorter(graph).static_order())
+    except CycleError as e:  # pragma: no cover - the failure message
+        raise AssertionError(f"import circle between folders: {e.args[1]}") from e
+    page = _gen_pages().imports_page()
+    assert page.count("```mermaid") == 1 + sum(any(a.startswith(p + ".") for a, _ in edges)
+                                               for p in ("calibration", "cell_config", "drivers", "app"))

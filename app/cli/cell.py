@@ -151,7 +151,7 @@ def cmd_select(args: argparse.Namespace) -> int:
                            "--poses K (the poses of --data a task needs beyond TRAIN)")
     robot = cell_spec(args).robot(args.robot)
     rec = read_recording_for(args.data, robot)
-    refuse_another_arms(robot, rec)  # another arm's clusters would be chosen by this arm's Jacobian
+    refuse_another_arms(robot.arm(), rec)  # another arm's clusters would be chosen by this arm's Jacobian
     n_clusters = len(set(rec.clusters().tolist()))
     check_budget(args.budget, n_clusters, unit="clusters")
     par = MinimalParameterisation(robot.model(), fit_tool=True)

@@ -24,12 +24,12 @@ from typing import Any
 import numpy as np
 
 from app.collection.runtime.sim import SimCellOptions
-from app.workflows.fit import fitter_for
 from calibration.data.recording import Recording
 from calibration.errors import ModelError
 from calibration.kinematics import so3
 from calibration.method_names import METHODS
 from calibration.methods.cdc import expand_anchors
+from calibration.methods.fitter import Fitter
 from calibration.models import KinematicModel
 from calibration.physics import GravityModel, PlantedErrors, planted_twin
 from cell_config.loader import CellSpec
@@ -137,7 +137,7 @@ def fit_model_sets(cell: CellSpec, twins: dict[str, Any], methods: tuple[str, ..
         train = measure(twins[name], q, options, options.seed + 10 + k, cluster)
         qc, cc = cpa_design()
         cpa = measure(twins[name], qc, options, options.seed + 20 + k, cc)
-        fitter = fitter_for(spec, train, cpa)
+        fitter = Fitter.for_arm(spec.arm(), train, cpa)
         for method in methods:
             out[method][name] = fitter.fit(method)[0]
             logger.info("fitted %s for %s on %d samples", method, name, len(train))

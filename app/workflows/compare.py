@@ -219,7 +219,7 @@ def compare(cell: Any, inputs: CompareInputs, warn: Callable[[str], None]) -> Co
     robot = cell.robot(inputs.training.robot)
     files = {f"{Path(f).stem} (file)": load_model_for(f, robot) for f in inputs.model_files}
     test = read_recording_for(inputs.test, robot)
-    refuse_another_arms(robot, test, "test recording")  # before any fit: another arm's test would waste them all
+    refuse_another_arms(robot.arm(), test, "test recording")  # before any fit: another arm's test would waste them all
     trained = trained_fitter(cell, inputs.training, warn)  # the training recordings are checked the same way
     cmp = run_comparison(trained.fitter, test, list(inputs.methods), progress=inputs.progress, files=files)
     check = trained.frame_check

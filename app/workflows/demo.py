@@ -36,11 +36,11 @@ from app.progress import EpochBar
 from app.reports.provenance import provenance, with_provenance
 from app.reports.sections import write_demo_report
 from app.workflows.compare import run_comparison
-from app.workflows.fit import fitter_for
 from calibration.data.files import atomic_write_text
 from calibration.data.recording import read_recording
 from calibration.errors import ConfigError, DataError
 from calibration.method_names import METHODS
+from calibration.methods.fitter import Fitter
 from calibration.methods.options import FitOptions
 from calibration.models import ConstantModel, save_model
 from cell_config.loader import CellSpec
@@ -146,7 +146,7 @@ def fit_and_compare(cell: CellSpec, robot: str, rec: Recordings, methods: tuple[
     """Fit ``methods`` on the training set, evaluate them on the test set, save every model as YAML."""
 
     epochs = EpochBar(f"{robot} nn/ae training") if progress else None
-    fitter = fitter_for(cell.robot(robot), rec.train, rec.cpa, FitOptions(epoch_progress=epochs))
+    fitter = Fitter.for_arm(cell.robot(robot).arm(), rec.train, rec.cpa, FitOptions(epoch_progress=epochs))
     cmp = run_comparison(fitter, rec.test, methods, progress)
     model_dir.mkdir(parents=True, exist_ok=True)
     record = provenance([("train", rec.train_csv), ("cpa", rec.cpa_csv)])

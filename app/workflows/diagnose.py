@@ -19,7 +19,6 @@ import numpy as np
 from app.progress import bar
 from app.reports.diagnosis import write_report
 from app.reports.provenance import provenance, with_provenance
-from app.workflows.fit import fitter_for
 from calibration.data.files import atomic_write_text
 from calibration.data.recording import check_quaternion_order, put_in, read_recording, take_out, with_added
 from calibration.diagnosis import DiagnoseOptions, Diagnosis, diagnose
@@ -29,6 +28,7 @@ from calibration.frames.daydiff import check_same_robot, compare_days, day_names
 from calibration.frames.multiday import pool
 from calibration.frames.policy import refuse_another_arms, refuse_repeated
 from calibration.frames.rebase import corrections
+from calibration.methods.fitter import Fitter
 from calibration.models import load_model, save_model
 from calibration.physics.gravity import GravityModel
 from cell_config import load_cell
@@ -42,7 +42,7 @@ def _without_gross_rows(robot: Any, rec: Any) -> tuple[Any, Any]:
     otherwise be explained by whatever effect fits it best. Warns naming the rows; returns the screening (None when
     it is turned off)."""
 
-    screened = fitter_for(robot, rec)
+    screened = Fitter.for_arm(robot.arm(), rec)
     gross = screened.gross
     if gross is not None and (gross.rows or gross.too_many):
         log.warning("%s", gross.message())
@@ -138,10 +138,10 @@ def _read_inputs(cr: Any, robot: str, nominal: Any, limits: tuple[Any, Any], pat
 
     gross = None
     if days is None:  # another arm's recording is refused, as fit does (several recordings: by _days)
-        refuse_another_arms(cr, rec)
+        refuse_another_arms(cr.arm(), rec)
         rec, gross = _without_gross_rows(cr, rec)
     if ho is not None:
-        refuse_another_arms(cr, ho, "test recording")
+        refuse_another_arms(cr.arm(), ho, "test recording")
     return rec, days, ho, gross
 
 

@@ -1,8 +1,6 @@
-"""Fitting one arm of the cell: a :class:`~calibration.methods.fitter.Fitter` set up from the arm's cell entry.
-
-Shared by the workflows that fit models (the demo, the simulated dual-cell validation, ``cellcal fit`` and
-``compare``): the arm's nominal model, its link masses (for the joint compliance; the mass-free form when the
-robot YAML has none) and its joint limits.
+"""Fitting one arm of the cell for ``cellcal fit`` and ``compare``: the training recordings refused when they are
+not the arm's, then the frame check or the multi-day fit (:mod:`calibration.frames`) on the arm's
+:meth:`~cell_config.loader.CellRobot.arm`, whose fitters are :meth:`calibration.methods.fitter.Fitter.for_arm`.
 
 :func:`fit_model` is the workflow of ``cellcal fit``: plain :class:`FitInputs` in, a :class:`FitResult` out; it prints
 nothing, its warning lines go to the caller's ``warn``. :func:`trained_fitter` (shared with ``compare``) reads and
@@ -19,14 +17,12 @@ from typing import Any
 from app.reports.provenance import provenance, with_provenance
 from app.workflows.inputs import read_recording_for, with_added_poses
 from calibration.data.recording import DEFAULT_ADD_WEIGHT
-from calibration.errors import CellCalError, ModelError
+from calibration.errors import CellCalError
 from calibration.frames.check import FrameCheck, framed
 from calibration.frames.multiday import MultiDayFit, fit_days
 from calibration.frames.policy import refuse_another_arms, refuse_repeated
-from calibration.methods.fitter import Fitter
 from calibration.methods.options import FitOptions
-from calibration.models import ConstantModel, KinematicModel, save_model
-from calibration.physics.gravity import GravityModel
+from calibration.models import KinematicModel, save_model
 
 log = logging.getLogger("cellcal.app")
 
@@ -38,31 +34,9 @@ def gross_rows_warning(fitter: Any) -> str | None:
     return f"warning: {gross.message()}" if gross is not None and gross.message() else None
 
 
-def fitter_for(robot: Any, train: Any, cpa: Any | None = None, options: Any | None = None) -> Any:
-    """A Fitter for one arm of the cell: its nominal model, link masses and joint limits, on the training recording
-    less its gross measurement errors (``Fitter.without_gross_rows``; ``fitter.gross`` names them).
-
-    Args:
-        robot: the arm's cell entry (:meth:`cell_config.loader.CellSpec.robot`).
-        train: the training :class:`~calibration.data.recording.Recording`.
-        cpa: the CPA sweeps recording, or None.
-        options: :class:`~calibration.methods.options.FitOptions` (default options when None).
-    """
-
-    nominal = robot.model()
-    try:
-        gravity = GravityModel.from_spec(robot.robot, nominal)
-    except ModelError as e:
-        log.warning("%s: joint compliance takes the mass-free form: %s", robot.name, e)
-        gravity = None
-    fitter = Fitter(robot.name, nominal, train, options or FitOptions(), cpa, gravity,
-                    (robot.robot.lower_rad, robot.robot.upper_rad))
-    return fitter.without_gross_rows() if fitter.options.reject_gross_rows else fitter
-
-
 def checked_fitter_for(robot: Any, train: Any, cpa: Any | None = None, options: Any | None = None
                        ) -> tuple[Any, Any]:
-    """:func:`fitter_for` after a frame check of the training recording against the nominal arm.
+    """:meth:`Fitter.for_arm` of the arm after a frame check of the training recording against its nominal model.
 
     When the check finds a frame or tool-registration problem, the fitter fits the frame(s) at fault first and the
     kinematics after (:class:`calibration.frames.check.FramedFit`), and the check's message is logged. A recording that
@@ -75,10 +49,9 @@ def checked_fitter_for(robot: Any, train: Any, cpa: Any | None = None, options: 
         DataError: the training recording is not this arm's (:func:`refuse_unexplained`).
     """
 
-    nominal = ConstantModel(robot.name, "nominal", robot.model(), 0, {})
-    check = refuse_another_arms(robot, train)
-    fitter, check = framed(lambda rec: fitter_for(robot, rec, cpa, options), nominal, train, check)
-    if check.found:
+    arm = robot.arm()
+    fitter, check = framed(arm, train, refuse_another_arms(arm, train), cpa, options)
+    if check.frame is not None:  # check.found
         log.info("%s Fitting the %s frame%s first, then the kinematics.", check.message(), check.frame,
                  "s" if " and " in check.frame else "")
     return fitter, check
@@ -94,11 +67,11 @@ def days_fitter_for(robot: Any, trains: list[Any], cpa: Any | None = None, optio
         DataError: a training recording is not this arm's (:func:`refuse_unexplained`), or is given twice.
     """
 
-    nominal = ConstantModel(robot.name, "nominal", robot.model(), 0, {})
+    arm = robot.arm()
     for rec in trains:
-        refuse_another_arms(robot, rec)
+        refuse_another_arms(arm, rec)
     refuse_repeated([rec.source for rec in trains])
-    return fit_days(lambda rec: fitter_for(robot, rec, cpa, options), nominal, trains)
+    return fit_days(arm, trains, cpa=cpa, options=options)
 
 
 @dataclass(frozen=True)

@@ -44,7 +44,7 @@ def read_given(path: str, robot: Any) -> Recording:
     ``robot``'s poses (:func:`calibration.frames.policy.refuse_another_arms`), as a training recording is: another
     arm's joint angles would make the design, and the predicted sigma, those of the wrong arm."""
     rec = read_recording_for(path, robot)
-    refuse_another_arms(robot, rec, "--given recording")
+    refuse_another_arms(robot.arm(), rec, "--given recording")
     return rec
 
 

@@ -528,10 +528,11 @@ def _fit_candidate(robot: Any, inputs: RecalibrationInputs, hooks: Recalibration
                                           (robot.robot.lower_rad, robot.robot.upper_rad))
         hooks.say(rebased.summary())
         return model, rebased
-    from app.workflows.fit import fitter_for, gross_rows_warning
+    from app.workflows.fit import gross_rows_warning
+    from calibration.methods.fitter import Fitter
     from calibration.methods.options import FitOptions
 
-    fitter = fitter_for(robot, train, cpa, FitOptions(epoch_progress=hooks.epoch_progress))
+    fitter = Fitter.for_arm(robot.arm(), train, cpa, FitOptions(epoch_progress=hooks.epoch_progress))
     warning = gross_rows_warning(fitter)  # the rows are in the model's info too
     if warning:
         hooks.warn(warning)

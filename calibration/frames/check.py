@@ -29,10 +29,17 @@ from typing import Any
 
 import numpy as np
 
+from calibration.arm import Arm
 from calibration.data.recording import Recording, take_out
 from calibration.errors import ModelError
 from calibration.frames.rebase import RebaseProblem, RebaseResult, check_units
+from calibration.identification.observability import Observability
+from calibration.kinematics.parameterisation import MinimalParameterisation
+from calibration.kinematics.poe import PoeModel
+from calibration.methods.cdc import LocalFits
 from calibration.methods.fitter import Fitter
+from calibration.methods.heldout import GrossRows
+from calibration.methods.options import FitOptions
 from calibration.models.base import KinematicModel
 from calibration.models.rebased import RebasedModel
 
@@ -221,10 +228,12 @@ def check_test(model: KinematicModel, test: Recording,
 class FramedFit:
     """A fitter whose training recording had a frame problem: frames first, then the kinematics.
 
-    The frame(s) at fault are fitted once on the nominal arm (:func:`framed`); ``inner`` (a :class:`~calibration.methods.fitter.Fitter`, built
-    by the caller on :func:`take_out` of the training recording) fits every method on the recording with the frames
-    taken out, so the local fits of the CDC methods see no frame error; :meth:`fit` wraps each model in the frames
-    (kind ``rebased``). ``nominal`` stays the vendor arm as is. Everything else is the inner fitter's.
+    The frame(s) at fault are fitted once on the nominal arm (:func:`framed`); ``inner`` (a fresh
+    :class:`~calibration.methods.fitter.Fitter` on :func:`take_out` of the training recording) fits every method on
+    the recording with the frames taken out, so the local fits of the CDC methods see no frame error; :meth:`fit`
+    wraps each model in the frames (kind ``rebased``). ``nominal`` stays the vendor arm as is. The comparison's
+    other reads (held-out errors, observability, local fits, the worker jobs) are the inner fitter's, on the
+    corrected recording; ``train`` is the original one.
 
     Args:
         inner: the fitter on the corrected recording.
@@ -233,13 +242,36 @@ class FramedFit:
         check: the frame check that asked for this.
     """
 
-    def __init__(self, inner: Any, train: Recording, frames: RebaseResult, check: FrameCheck) -> None:
+    def __init__(self, inner: Fitter, train: Recording, frames: RebaseResult, check: FrameCheck) -> None:
         self.inner, self.train, self.frames, self.check = inner, train, frames, check
 
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.inner, name)
+    @property
+    def robot(self) -> str:
+        return self.inner.robot
+
+    @property
+    def nominal(self) -> PoeModel:
+        return self.inner.nominal
+
+    @property
+    def options(self) -> FitOptions:
+        return self.inner.options
+
+    @property
+    def cpa_data(self) -> Recording | None:
+        return self.inner.cpa_data
+
+    @property
+    def gross(self) -> GrossRows | None:
+        """The training rows the inner fitter set aside as gross measurement errors (None: not screened)."""
+        return self.inner.gross
+
+    @property
+    def par(self) -> MinimalParameterisation:
+        return self.inner.par
 
     def fit(self, method: str) -> tuple[KinematicModel, float]:
+        """``method`` fitted on the corrected recording, wrapped in the frames (``nominal`` as it is)."""
         model, seconds = self.inner.fit(method)
         if method == "nominal":
             return model, seconds
@@ -248,13 +280,31 @@ class FramedFit:
         return RebasedModel(model.robot, model.method, model, self.frames.T_base_correction,
                             self.frames.T_tool_correction, 12, info), seconds
 
+    def held_out_errors(self, method: str) -> np.ndarray | None:
+        """The inner fitter's held-out errors of ``method`` [mm] (on the corrected recording)."""
+        return self.inner.held_out_errors(method)
 
-def framed(make_fitter: Any, nominal: KinematicModel, train: Recording,
-           check: FrameCheck | None = None) -> tuple[Any, FrameCheck]:
-    """``make_fitter(train)`` as is when the training recording has no frame problem, else a :class:`FramedFit`
-    around ``make_fitter(train with the frame at fault taken out)`` (a fresh :class:`~calibration.methods.fitter.Fitter`,
-    its pi then left base-free by :func:`base_free`); and the check (its message quotes what was
-    taken out).
+    def prefetch(self, methods: list[str] | tuple[str, ...], held_out: bool = False) -> None:
+        self.inner.prefetch(methods, held_out)
+
+    def prefetch_held_out_errors(self, methods: list[str] | tuple[str, ...]) -> None:
+        self.inner.prefetch_held_out_errors(methods)
+
+    def abort_jobs(self) -> None:
+        self.inner.abort_jobs()
+
+    def observability(self) -> Observability:
+        return self.inner.observability()
+
+    def local_fits(self, reference: str = "pi") -> LocalFits:
+        return self.inner.local_fits(reference)
+
+
+def framed(arm: Arm, train: Recording, check: FrameCheck | None = None, cpa: Recording | None = None,
+           options: FitOptions | None = None) -> tuple[Fitter | FramedFit, FrameCheck]:
+    """``Fitter.for_arm(arm, train, cpa, options)`` as is when the training recording has no frame problem, else a
+    :class:`FramedFit` around a fresh one on ``train`` with the frame at fault taken out (its pi then left base-free
+    by :func:`base_free`); and the check (its message quotes what was taken out).
 
     Only the frame found at fault is taken out (its own 6-DOF fit, the other frame held at identity), both only when
     both are. Fitted together on poses whose wrist barely moves, the two frames trade a few directions (a base and a
@@ -264,10 +314,19 @@ def framed(make_fitter: Any, nominal: KinematicModel, train: Recording,
     alone on the corrected recording: when it moves beyond ``SHIFT_LIMIT_MM`` or ``ANGLE_LIMIT_DEG`` it is at
     fault too, and both are taken out from their joint fit (a base off by 4.5 mm and 0.24 deg, within the limits,
     under an 18 mm marker error fits at 5.4 mm there); below them it is within what the kinematic fits absorb on
-    every shared day. ``check``: :func:`check_recording` of ``train`` when the caller already ran it."""
+    every shared day.
+
+    Args:
+        arm: the arm (its nominal model is what the frames are checked and fitted against).
+        train: the training recording.
+        check: :func:`check_recording` of ``train`` against ``arm``'s nominal model when the caller already ran it.
+        cpa: the CPA sweeps recording, or None.
+        options: the fit options (default options when None).
+    """
+    nominal = arm.nominal_model()
     check = check if check is not None else check_recording(nominal, train)
-    if not check.found:
-        return make_fitter(train), check
+    if check.frame is None:
+        return Fitter.for_arm(arm, train, cpa, options), check
     frames = check.fits[check.frame].result
     corrected = take_out(train, frames.T_base_correction, frames.T_tool_correction)
     if check.frame in ("base", "tool"):
@@ -278,10 +337,10 @@ def framed(make_fitter: Any, nominal: KinematicModel, train: Recording,
             check = replace(check, frame="base and tool", quoted="base and tool")
             frames = check.fits["base and tool"].result
             corrected = take_out(train, frames.T_base_correction, frames.T_tool_correction)
-    return FramedFit(base_free(make_fitter(corrected)), train, frames, check), check
+    return FramedFit(base_free(Fitter.for_arm(arm, corrected, cpa, options)), train, frames, check), check
 
 
-def base_free(fitter: Any) -> Any:
+def base_free(fitter: Fitter) -> Fitter:
     """``fitter`` (a fresh :class:`~calibration.methods.fitter.Fitter`) with its pi fit blind to a rigid motion of the arm
     (``FitOptions.pi_base_free``), for a recording whose registration the frame check found off.
 
@@ -294,7 +353,7 @@ def base_free(fitter: Any) -> Any:
     """
 
     if not isinstance(fitter, Fitter) or not fitter._cache.is_empty():
-        raise ModelError(f"the frames-first fit needs a fresh Fitter from make_fitter, got {type(fitter).__name__}"
+        raise ModelError(f"the frames-first fit needs a fresh Fitter (Fitter.for_arm), got {type(fitter).__name__}"
                          + (" that has fitted already" if isinstance(fitter, Fitter) else ""))
     return replace(fitter, options=replace(fitter.options, pi_base_free=True))
 

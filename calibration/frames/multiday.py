@@ -27,19 +27,20 @@ is a common pair; :meth:`MultiDayFit.summary` says so in a line of its own.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from calibration.arm import Arm
 from calibration.data.recording import Recording, take_out
 from calibration.errors import ModelError
 from calibration.evaluation.metrics import errors
 from calibration.frames.check import FramedFit, FrameFit, base_free, check_recording, fit_frames
 from calibration.frames.daydiff import compare_days, day_names
+from calibration.methods.fitter import Fitter
+from calibration.methods.options import FitOptions
 from calibration.models.base import KinematicModel
-from calibration.models.constant import ConstantModel
 from calibration.models.rebased import RebasedModel
 
 #: Rounds of frames and pooled arm after the start (frames against the first recording's own fit).
@@ -91,7 +92,7 @@ class MultiDayFit:
             None when not computed.
     """
 
-    fitter: Any
+    fitter: Fitter | FramedFit
     days: tuple[Day, ...]
     reference: str
     differences: Any = None
@@ -170,37 +171,41 @@ def _rms(model: KinematicModel, rec: Recording) -> float:
     return float(np.sqrt(np.mean(errors(model, rec).position_mm ** 2)))
 
 
-def fit_days(make_fitter: Callable[[Recording], Any], nominal: KinematicModel, recs: list[Recording],
-             reference: str = "pi") -> MultiDayFit:
-    """One arm over ``recs`` with per-recording frames (see the module docstring).
+def fit_days(arm: Arm, recs: list[Recording], reference: str = "pi", cpa: Recording | None = None,
+             options: FitOptions | None = None) -> MultiDayFit:
+    """One arm over ``recs`` with per-recording frames (see the module docstring); every fit is
+    ``Fitter.for_arm(arm, recording, cpa, options)``.
 
     Args:
-        make_fitter: a :class:`~calibration.methods.fitter.Fitter` for a recording.
-        nominal: the nominal arm (the first recording's frame check, the first frames).
+        arm: the arm (its nominal model gives the first recording's frame check, the first frames, and the
+            per-parameter comparison of the days).
         recs: two or more training recordings.
         reference: the method the frames are fitted against between rounds, and the days compared with.
+        cpa: the CPA sweeps recording, or None.
+        options: the fit options (default options when None).
 
     Raises:
         ModelError: fewer than two recordings.
     """
     if len(recs) < 2:
         raise ModelError(f"a joint fit needs at least two recordings, got {len(recs)}")
+    nominal = arm.nominal_model()
     first = check_recording(nominal, recs[0])
     gauge = first.fits["base and tool"].result if first.found else None
     fixed = recs[0] if gauge is None else take_out(recs[0], gauge.T_base_correction, gauge.T_tool_correction)
-    own = [make_fitter(r).fit(reference)[0] for r in recs]
-    arm = own[0] if gauge is None else RebasedModel(own[0].robot, own[0].method, own[0], gauge.T_base_correction,
-                                                    gauge.T_tool_correction, 12)
+    own = [Fitter.for_arm(arm, r, cpa, options).fit(reference)[0] for r in recs]
+    joint = own[0] if gauge is None else RebasedModel(own[0].robot, own[0].method, own[0], gauge.T_base_correction,
+                                                      gauge.T_tool_correction, 12)
     for _ in range(ROUNDS):
-        frames = [FrameFit.of("base and tool", fit_frames(arm, r)) for r in recs[1:]]
+        frames = [FrameFit.of("base and tool", fit_frames(joint, r)) for r in recs[1:]]
         others = [take_out(r, f.result.T_base_correction, f.result.T_tool_correction)
                   for r, f in zip(recs[1:], frames)]
-        fitter = make_fitter(pool([fixed] + others))
+        pooled = Fitter.for_arm(arm, pool([fixed] + others), cpa, options)
         if gauge is not None:  # as the frames-first fit of one recording: the rigid part of its pi left free
-            fitter = base_free(fitter)
-        arm = fitter.fit(reference)[0]
-    if gauge is not None:
-        fitter = FramedFit(fitter, pool([recs[0]] + others), gauge, first)
+            pooled = base_free(pooled)
+        joint = pooled.fit(reference)[0]
+    fitter: Fitter | FramedFit = pooled if gauge is None else \
+        FramedFit(pooled, pool([recs[0]] + others), gauge, first)
 
     names = day_names([r.source for r in recs])
     days = []
@@ -209,11 +214,8 @@ def fit_days(make_fitter: Callable[[Recording], Any], nominal: KinematicModel, r
         if f is None:
             wrapped = fitter.fit(reference)[0]  # in the first recording's frames
         else:
-            wrapped = RebasedModel(arm.robot, arm.method, arm, f.result.T_base_correction,
+            wrapped = RebasedModel(joint.robot, joint.method, joint, f.result.T_base_correction,
                                    f.result.T_tool_correction, 12)
         days.append(Day(names[i], len(r), f, _rms(wrapped, r), _rms(own[i], r)))
-    differences = None
-    if isinstance(nominal, ConstantModel):
-
-        differences = compare_days(nominal.model, recs, names)
+    differences = compare_days(arm.nominal, recs, names)
     return MultiDayFit(fitter, tuple(days), reference, differences)

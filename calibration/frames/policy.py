@@ -5,9 +5,10 @@ from __future__ import annotations
 
 from typing import Any
 
+from calibration.arm import Arm
+from calibration.data.recording import Recording
 from calibration.errors import DataError
-from calibration.frames.check import UNEXPLAINED_MM, check_recording
-from calibration.models import ConstantModel
+from calibration.frames.check import UNEXPLAINED_MM, FrameCheck, check_recording
 
 
 def refuse_repeated(paths: list[Any]) -> None:
@@ -49,8 +50,8 @@ def refuse_unexplained(source: str, robot: str, against: str, before_mm: float, 
                         "recording of another arm?")
 
 
-def refuse_another_arms(robot: Any, rec: Any, subject: str = "training recording") -> Any:
-    """The frame check of ``rec`` against ``robot``'s nominal arm (:func:`calibration.frames.check.check_recording`),
+def refuse_another_arms(arm: Arm, rec: Recording, subject: str = "training recording") -> FrameCheck:
+    """The frame check of ``rec`` against ``arm``'s nominal model (:func:`calibration.frames.check.check_recording`),
     refused when not even the best rigid fit of both frames explains it (:func:`refuse_unexplained`): a check of
     rigid fits only, made before any method is fitted on or evaluated against the recording.
 
@@ -61,7 +62,6 @@ def refuse_another_arms(robot: Any, rec: Any, subject: str = "training recording
         DataError: ``rec`` is not this arm's (naming the recording and the arm).
     """
 
-    nominal = ConstantModel(robot.name, "nominal", robot.model(), 0, {})
-    check = check_recording(nominal, rec, subject)
-    refuse_unexplained(rec.source, robot.name, f"{robot.name}'s nominal arm", check.mean_mm, check.left_mm)
+    check = check_recording(arm.nominal_model(), rec, subject)
+    refuse_unexplained(rec.source, arm.name, f"{arm.name}'s nominal arm", check.mean_mm, check.left_mm)
     return check

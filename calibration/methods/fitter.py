@@ -28,6 +28,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from calibration import workers
+from calibration.arm import Arm
 from calibration.data.recording import Recording
 from calibration.errors import DataError, ModelError
 from calibration.kinematics.poe import pose_error
@@ -35,6 +36,7 @@ from calibration.method_names import CDC_METHODS, METHODS, REFERENCE_FITS, cdc_m
 from calibration.methods import cdc_fit, constant, diagnosed, pi  # noqa: F401  (each registers its methods)
 from calibration.methods import heldout as robust
 from calibration.methods.folds import HeldOutRefits
+from calibration.methods.options import FitOptions
 from calibration.methods.recommend import off_reference
 from calibration.methods.registry import fit_function
 from calibration.methods.shared import SharedCache
@@ -50,6 +52,27 @@ class Fitter(HeldOutRefits):
     (:class:`calibration.methods.shared.SharedFits`, its fields) and refitting them on held-out folds
     (:class:`calibration.methods.folds.HeldOutRefits`). A method is a function registered under its name
     (:mod:`calibration.methods.registry`) by its family's module."""
+
+    @classmethod
+    def for_arm(cls, arm: Arm, train: Recording, cpa: Recording | None = None,
+                options: FitOptions | None = None) -> Fitter:
+        """A Fitter for one arm: its nominal model, link masses (the mass-free joint compliance, with a warning, when
+        it has none) and joint limits, on the training recording less its gross measurement errors
+        (:meth:`without_gross_rows`, unless ``options.reject_gross_rows`` is off; ``fitter.gross`` names them).
+
+        Args:
+            arm: the arm (:meth:`cell_config.loader.CellRobot.arm`).
+            train: the training recording.
+            cpa: the CPA sweeps recording, or None.
+            options: the fit options (default options when None).
+        """
+        try:
+            gravity = arm.gravity()
+        except ModelError as e:
+            log.warning("%s: joint compliance takes the mass-free form: %s", arm.name, e)
+            gravity = None
+        fitter = cls(arm.name, arm.nominal, train, options or FitOptions(), cpa, gravity, arm.joint_limits_rad)
+        return fitter.without_gross_rows() if fitter.options.reject_gross_rows else fitter
 
     def without_gross_rows(self) -> Fitter:
         """This fitter on its training recording less its gross measurement errors (:func:`robust.gross_rows`,

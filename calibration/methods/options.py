@@ -83,8 +83,8 @@ class FitOptions:
         seed: random seed of the neural interpolators.
         reject_gross_rows: set aside the training rows whose error under the geometric fit is a gross measurement
             error (:func:`calibration.methods.heldout.gross_rows`: beyond 15 robust SDs of the median error and 1 mm / 1 deg),
-            named in a warning and in every model's ``info`` (``Fitter.without_gross_rows``, which the app's
-            fitters call). Ten 50 mm marker swaps in 1736 rows had raised pi's test mean by 89 %.
+            named in a warning and in every model's ``info`` (``Fitter.without_gross_rows``, which ``Fitter.for_arm``
+            calls). Ten 50 mm marker swaps in 1736 rows had raised pi's test mean by 89 %.
         epoch_progress: called as ``epoch_progress(epoch, n_epochs)`` after each training epoch of the neural
             interpolators (nn, ae; a progress bar); no effect on any result.
     """

@@ -99,9 +99,7 @@ UNITS = (
 
 def make_fitter(robot: Any, train: Recording) -> Fitter:
     """A Fitter for one arm of the cell (its nominal model, link masses, joint limits), as ``compare`` builds it."""
-    from app.workflows.fit import fitter_for
-
-    return fitter_for(robot, train, options=OPTIONS)
+    return Fitter.for_arm(robot.arm(), train, options=OPTIONS)
 
 
 def spread_clusters(rec: Recording, k: int = N_REBASE_CLUSTERS) -> list[int]:

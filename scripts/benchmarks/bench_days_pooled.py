@@ -15,20 +15,18 @@ import json
 import sys
 import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from calibration.data.recording import Recording, read_recording  # noqa: E402
+from calibration.data.recording import read_recording  # noqa: E402
 from calibration.evaluation.metrics import errors  # noqa: E402
 from calibration.frames.multiday import fit_days  # noqa: E402
 from calibration.frames.rebase import RebaseRefused, rebase_auto  # noqa: E402
-from calibration.models import ConstantModel  # noqa: E402
 from cell_config import load_cell  # noqa: E402
-from scripts.benchmarks.bench_days import CLUSTER_SIZE, DATA, GOAL_RATIO, UNITS, make_fitter, spread_clusters  # noqa: E402
+from scripts.benchmarks.bench_days import CLUSTER_SIZE, DATA, GOAL_RATIO, OPTIONS, UNITS, make_fitter, spread_clusters  # noqa: E402
 
 EXTRA_TRAIN = ("0524", "test0524_R1")  # a training recording without a test recording: always in the pools
 
@@ -47,27 +45,18 @@ def main(argv: list[str] | None = None) -> int:
     folders = {u.name: u.train for u in UNITS} | {EXTRA_TRAIN[0]: EXTRA_TRAIN[1]}
     train = {n: read_recording(DATA / "PH_grad_data" / folders[n], *limits) for n in names}
     tests = {lb: read_recording(DATA / "kinematic_raw_data" / f, *limits) for u in UNITS for lb, f in u.tests}
-    fitters: dict[str, Any] = {}
-
-    def fitter(rec: Recording) -> Any:  # one Fitter per recording, so each day's own pi fit is made once
-        key = rec.source if rec.source in {r.source for r in train.values()} else None
-        if key is None:
-            return make_fitter(robot, rec)
-        return fitters.setdefault(key, make_fitter(robot, rec))
-
-    nominal = ConstantModel("R1", "nominal", robot.model(), 0, {})
     rows = []
     for u in UNITS:
         b = u.name
         pool = [train[n] for n in names if n != b]
-        joint = fit_days(fitter, nominal, pool)
+        joint = fit_days(robot.arm(), pool, options=OPTIONS)
         arm = joint.fitter.fit("pi")[0]
         poses = train[b].subset(np.isin(train[b].clusters(CLUSTER_SIZE), spread_clusters(train[b])))
         try:
             rebased, _, choice = rebase_auto(arm, poses)
         except RebaseRefused:  # no frame change confirmed on the held-out clusters: the pooled arm as is
             rebased, choice = arm, "refused"
-        own = fitter(train[b]).fit("pi")[0]
+        own = make_fitter(robot, train[b]).fit("pi")[0]
         for label, _ in u.tests:
             t = tests[label]
             same = float(np.mean(errors(own, t).position_mm))

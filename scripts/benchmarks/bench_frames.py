@@ -49,7 +49,6 @@ from calibration.frames.check import framed  # noqa: E402
 from calibration.method_names import CDC_METHODS  # noqa: E402
 from calibration.methods.fitter import Fitter
 from calibration.methods.options import FitOptions
-from calibration.models import ConstantModel  # noqa: E402
 from calibration.physics.gravity import GravityModel  # noqa: E402
 from cell_config import load_cell  # noqa: E402
 
@@ -64,16 +63,20 @@ def tool_error_case_of(shift_mm: float, angle_deg: float, seed: int, spread_deg:
     return robot, train, test
 
 
+def fit_options(fit_seed: int = 0) -> FitOptions:
+    """The options of every fit here: the neural seed ``fit_seed``, the twins' rows all kept (no gross-row screening)."""
+    return FitOptions(seed=fit_seed, reject_gross_rows=False)
+
+
 def fitter_on(robot: Any, rec: Recording, fit_seed: int = 0) -> Fitter:
-    return Fitter(robot.name, robot.model(), rec, FitOptions(seed=fit_seed), None,
-                  GravityModel.from_spec(robot.robot, robot.model()), (robot.robot.lower_rad, robot.robot.upper_rad))
+    """:meth:`Fitter.for_arm` of the cell entry's arm on ``rec``, with :func:`fit_options`."""
+    return Fitter.for_arm(robot.arm(), rec, options=fit_options(fit_seed))
 
 
 def run(methods: tuple[str, ...], shift_mm: float, angle_deg: float, seed: int, spread_deg: float,
         fit_seed: int = 0, arm: str = "R1") -> dict[str, Any]:
     robot, train, test = tool_error_case_of(shift_mm, angle_deg, seed, spread_deg, arm)
-    nominal = ConstantModel(robot.name, "nominal", robot.model(), 0, {})
-    framed_fitter, check = framed(lambda rec: fitter_on(robot, rec, fit_seed), nominal, train)
+    framed_fitter, check = framed(robot.arm(), train, options=fit_options(fit_seed))
     out: dict[str, Any] = {"planted": {"tool_mm": shift_mm, "tool_deg": angle_deg, "seed": seed,
                                        "train_spread_deg": spread_deg, "fit_seed": fit_seed, "robot": arm},
                            "check": check.to_json(), "as_is": {}, "frames_first": {}}

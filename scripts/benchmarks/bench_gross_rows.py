@@ -2,7 +2,7 @@
 the gross-row rejection of :meth:`calibration.methods.fitter.Fitter.without_gross_rows`.
 
 Each day's training recording (``PH_grad_data``) gets 1 or 10 rows moved by ``--error-mm`` in a random direction (a
-marker swap; seeded), pi is fitted as ``cellcal fit`` fits it (:func:`app.workflows.fit.fitter_for`), and its
+marker swap; seeded), pi is fitted as ``cellcal fit`` fits it (:meth:`calibration.methods.fitter.Fitter.for_arm`), and its
 position error mean on that day's test recording is compared with the clean fit's. Also printed: the rows rejected on
 the clean recording (none expected) and whether they are exactly the planted ones.
 
@@ -22,9 +22,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from app.workflows.fit import fitter_for  # noqa: E402
 from calibration.data.recording import Recording, read_recording  # noqa: E402
 from calibration.kinematics.poe import pose_error  # noqa: E402
+from calibration.methods.fitter import Fitter  # noqa: E402
 from calibration.methods.heldout import GROSS_SCORE  # noqa: E402
 from calibration.methods.options import FitOptions  # noqa: E402
 from cell_config import load_cell  # noqa: E402
@@ -48,7 +48,7 @@ def corrupt(rec: Recording, n: int, error_mm: float, seed: int) -> tuple[Recordi
 
 
 def test_mean(robot, train: Recording, test: Recording, reject: bool) -> tuple[float, tuple[int, ...]]:
-    fitter = fitter_for(robot, train, None, FitOptions(reject_gross_rows=reject))
+    fitter = Fitter.for_arm(robot.arm(), train, None, FitOptions(reject_gross_rows=reject))
     model, _ = fitter.fit("pi")
     R, p = model.fk(test.q)
     return float(np.mean(pose_error(test.R, test.p, R, p)[0])), (fitter.gross.rows if fitter.gross else ())
@@ -66,7 +66,7 @@ def main() -> int:
     if args.clean:
         for folder in sorted(DATA.glob("*/*")):
             rec = read_recording(folder)
-            fitter = fitter_for(robot, rec)
+            fitter = Fitter.for_arm(robot.arm(), rec)
             g = fitter.gross
             R, p = fitter.fit("nls1")[0].fk(rec.q)
             scores = [float(np.max((e - np.median(e)) / (1.4826 * np.median(np.abs(e - np.median(e))))))

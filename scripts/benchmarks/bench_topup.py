@@ -51,7 +51,6 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from app.workflows.compare import recommend_fitted  # noqa: E402
-from app.workflows.fit import fitter_for  # noqa: E402
 from calibration.data.recording import DEFAULT_ADD_WEIGHT, Recording, read_recording, with_added  # noqa: E402
 from calibration.evaluation.metrics import errors  # noqa: E402
 from calibration.identification.design import select_recording  # noqa: E402
@@ -125,7 +124,7 @@ RECOMMEND_METHODS = tuple(m for m in METHODS if m not in ("cpa", "diagnosed"))
 
 def recommended_method(train: Recording) -> str:
     """The method ``compare --methods all`` recommends on ``train`` (clusters held out from training only)."""
-    fitter = fitter_for(load_cell().robot("R1"), train)
+    fitter = Fitter.for_arm(load_cell().robot("R1").arm(), train)
     fitter.prefetch(RECOMMEND_METHODS, held_out=True)
     order = [m for m in RECOMMEND_METHODS if m not in NEURAL_METHODS] + [m for m in RECOMMEND_METHODS
                                                                           if m in NEURAL_METHODS]

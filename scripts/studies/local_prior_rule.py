@@ -32,7 +32,6 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from app.workflows.fit import fitter_for  # noqa: E402
 from calibration.data.recording import read_recording  # noqa: E402
 from calibration.evaluation.metrics import errors  # noqa: E402
 from calibration.methods import (
@@ -40,6 +39,7 @@ from calibration.methods import (
     workspace,  # noqa: E402
 )
 from calibration.methods import heldout as robust  # noqa: E402
+from calibration.methods.fitter import Fitter  # noqa: E402
 from calibration.methods.shared import SharedCache  # noqa: E402
 from cell_config import load_cell  # noqa: E402
 from drivers.sim.cdc_twin import PAPER_SIZE, simulated_day  # noqa: E402
@@ -120,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
         if not path.exists():
             print(f"training recording not found: {path}", file=sys.stderr)
             return 2
-        fitter = fitter_for(r1, read_recording(path, r1.robot.lower_rad, r1.robot.upper_rad))
+        fitter = Fitter.for_arm(r1.arm(), read_recording(path, r1.robot.lower_rad, r1.robot.upper_rad))
         out[day] = scores_of(fitter)
         if kinds:
             out[day]["by_kind"] = by_kind(fitter, kinds)
@@ -131,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
     for seed in seeds:
         for kind, size in sizes.items():
             sim = simulated_day(r2.robot, r2.tool, seed, size, label="simulated R2")
-            fitter = fitter_for(r2, sim.train)
+            fitter = Fitter.for_arm(r2.arm(), sim.train)
             name = f"{kind} {seed}"
             out[name] = scores_of(fitter)
             if kinds:

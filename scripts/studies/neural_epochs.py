@@ -25,12 +25,12 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from app.workflows.fit import fitter_for  # noqa: E402
 from calibration import workers
 from calibration.data.recording import read_recording  # noqa: E402
 from calibration.interpolation import make_interpolator  # noqa: E402
 from calibration.methods import heldout as robust  # noqa: E402
 from calibration.methods.cdc import cluster_anchors
+from calibration.methods.fitter import Fitter  # noqa: E402
 from calibration.models.cdc import CDC_INPUTS  # noqa: E402
 from cell_config import load_cell  # noqa: E402
 from scripts.benchmarks.bench_days import DATA  # noqa: E402
@@ -51,7 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for day in args.days.split(","):
         train = read_recording(DATA / "PH_grad_data" / day, robot.robot.lower_rad, robot.robot.upper_rad)
-        fitter = fitter_for(robot, train)
+        fitter = Fitter.for_arm(robot.arm(), train)
         groups, _ = cluster_anchors(train, fitter.options.cluster_size)
         for reference in ("geometric", "pi"):
             (kin, theta), local = fitter.reference(reference), fitter.local_fits(reference)

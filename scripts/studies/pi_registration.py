@@ -34,10 +34,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from app.workflows.fit import fitter_for  # noqa: E402
 from calibration.data.recording import read_recording  # noqa: E402
 from calibration.evaluation.metrics import errors  # noqa: E402
 from calibration.methods.cdc import cluster_anchors  # noqa: E402
+from calibration.methods.fitter import Fitter  # noqa: E402
 from calibration.methods.options import FitOptions  # noqa: E402
 from calibration.methods.recommend import cluster_rms  # noqa: E402
 from calibration.methods.shared import SharedCache  # noqa: E402
@@ -96,12 +96,12 @@ def days(names: list[str], ways: dict[str, dict[str, Any]] = WAYS) -> list[dict[
         per_cluster = {}
         for way, fields in ways.items():
             options = FitOptions(**fields)
-            e = fitter_for(robot, rec, options=options).held_out_errors("pi")
+            e = Fitter.for_arm(robot.arm(), rec, options=options).held_out_errors("pi")
             per_cluster[way] = cluster_rms(e, groups)
             row[f"heldout {way}"] = round(float(np.sqrt(np.mean(e ** 2))), 4)
             for fold, held in [("steps", step_mask(rec))] + [(f"q{j + 1} edges", edge_mask(rec, j))
                                                              for j in EDGE_JOINTS]:
-                model, _ = fitter_for(robot, rec.subset(~held), options=options).fit("pi")
+                model, _ = Fitter.for_arm(robot.arm(), rec.subset(~held), options=options).fit("pi")
                 row[f"{fold} {way}"] = mean_max(errors(model, rec.subset(held)).position_mm)
         first = next(iter(ways))
         for way in list(ways)[1:]:

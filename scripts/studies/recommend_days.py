@@ -25,9 +25,9 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from app.workflows.compare import recommend_fitted  # noqa: E402
-from app.workflows.fit import fitter_for  # noqa: E402
 from calibration.data.recording import read_recording  # noqa: E402
 from calibration.method_names import CDC_METHODS, METHODS, NEURAL_METHODS  # noqa: E402
+from calibration.methods.fitter import Fitter  # noqa: E402
 from cell_config import load_cell  # noqa: E402
 from scripts.benchmarks.bench_days import DATA  # noqa: E402
 from scripts.studies.heldout_folds import DAYS
@@ -37,7 +37,7 @@ METHODS_RUN = tuple(m for m in METHODS if m not in ("cpa", "diagnosed"))
 
 def day_row(robot, day: str) -> dict:
     train = read_recording(DATA / "PH_grad_data" / day, robot.robot.lower_rad, robot.robot.upper_rad)
-    fitter = fitter_for(robot, train)
+    fitter = Fitter.for_arm(robot.arm(), train)
     t0 = time.perf_counter()
     fitter.prefetch(METHODS_RUN, held_out=True)
     order = [m for m in METHODS_RUN if m not in NEURAL_METHODS] + [m for m in METHODS_RUN if m in NEURAL_METHODS]

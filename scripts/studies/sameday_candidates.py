@@ -29,13 +29,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from app.workflows.fit import fitter_for  # noqa: E402
 from calibration.data.recording import read_recording  # noqa: E402
 from calibration.diagnosis.noise import channel_weight, noise_floor  # noqa: E402
 from calibration.diagnosis.shifts import one_sided_shift  # noqa: E402
 from calibration.identification.geometric import rotation_residual_scale, weighted_residuals  # noqa: E402
 from calibration.methods import heldout as robust  # noqa: E402
 from calibration.methods.cdc import cluster_anchors  # noqa: E402
+from calibration.methods.fitter import Fitter  # noqa: E402
 from calibration.methods.options import FitOptions  # noqa: E402
 from calibration.methods.shared import SharedCache  # noqa: E402
 from scripts.benchmarks.bench_days import DATA  # noqa: E402
@@ -85,9 +85,9 @@ def noise_weight(fitter) -> float:
 def day_rows(robot, day: str) -> dict:
     train = read_recording(DATA / "PH_grad_data" / day, robot.robot.lower_rad, robot.robot.upper_rad)
     train.extra["cluster"] = train.clusters(7).astype(float)  # clusters survive dropped rows
-    full = fitter_for(robot, train)
+    full = Fitter.for_arm(robot.arm(), train)
     a = noise_weight(full)
-    full_a = fitter_for(robot, train, options=FitOptions(a=a))
+    full_a = Fitter.for_arm(robot.arm(), train, options=FitOptions(a=a))
     _, clean = rejecting_fit(full, RULES["shift"])
     groups, anchors = cluster_anchors(train, full.options.cluster_size)
     folds = robust.cluster_folds(len(anchors), robust.N_FOLDS, full.options.seed)[groups]

@@ -34,10 +34,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from app.workflows.fit import fitter_for  # noqa: E402
 from calibration.data.recording import read_recording  # noqa: E402
 from calibration.diagnosis.shifts import OneSidedShift, one_sided_shift  # noqa: E402
 from calibration.methods.cdc import cluster_anchors  # noqa: E402
+from calibration.methods.fitter import Fitter  # noqa: E402
 from scripts.benchmarks.bench_days import DATA  # noqa: E402
 from scripts.studies.heldout_folds import run_days
 
@@ -100,7 +100,7 @@ def neighbour_differences(r: np.ndarray, groups: np.ndarray, anchors_deg: np.nda
 
 def day_row(robot, day: str) -> dict:
     train = read_recording(DATA / "PH_grad_data" / day, robot.robot.lower_rad, robot.robot.upper_rad)
-    fitter = fitter_for(robot, train)
+    fitter = Fitter.for_arm(robot.arm(), train)
     pi = fitter.physics_informed()
     _, p = pi.fk(train.q)
     r = train.p - p

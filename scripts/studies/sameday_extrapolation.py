@@ -31,9 +31,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from app.workflows.fit import fitter_for  # noqa: E402
 from calibration.data.recording import read_recording  # noqa: E402
 from calibration.diagnosis.shifts import one_sided_shift  # noqa: E402
+from calibration.methods.fitter import Fitter  # noqa: E402
 from calibration.methods.shared import SharedCache  # noqa: E402
 from cell_config import load_cell  # noqa: E402
 from scripts.benchmarks.bench_days import DATA, UNITS  # noqa: E402
@@ -72,7 +72,7 @@ def unit_row(robot, train_folder: str, label: str, test_folder: str) -> dict:
     lo, hi = robot.robot.lower_rad, robot.robot.upper_rad
     train = read_recording(DATA / "PH_grad_data" / train_folder, lo, hi)
     test = read_recording(DATA / "kinematic_raw_data" / test_folder, lo, hi)
-    pi = fitter_for(robot, train).physics_informed()
+    pi = Fitter.for_arm(robot.arm(), train).physics_informed()
     r_test = position_residual(pi, test)
     e = np.linalg.norm(r_test, axis=1)
     x = excess_deg(test.q, train.q)
@@ -84,7 +84,7 @@ def unit_row(robot, train_folder: str, label: str, test_folder: str) -> dict:
                      "max_mm": float(e[m].max()) if m.any() else None})
     train_shift = one_sided_shift(position_residual(pi, train))
     test_shift = one_sided_shift(r_test)
-    on_test = fitter_for(robot, test)
+    on_test = Fitter.for_arm(robot.arm(), test)
     e_inter = np.linalg.norm(seen_residual(on_test, True), axis=1)
     r_seen = seen_residual(on_test, False)
     e_seen = np.linalg.norm(r_seen, axis=1)

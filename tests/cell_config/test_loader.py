@@ -647,3 +647,38 @@ def test_robot_and_tool_yaml_refuse_an_unknown_key(tmp_path, kind, name, extra, 
         load(bad)
     assert e.value.key == key and "unknown key" in e.value.reason and "valid keys:" in e.value.reason
     assert e.value.path == str(bad) and "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("name", ["R1", "R2"])
+def test_a_cell_robots_arm_is_its_yaml(name):
+    """CellRobot.arm(): the name in the cell, the nominal model with the tool, the YAML's limits and link masses."""
+    from calibration.physics.gravity import GravityModel
+
+    robot = load_cell().robot(name)
+    arm = robot.arm()
+    assert (arm.name, arm.model_name) == (name, robot.robot.name)
+    q = np.random.default_rng(0).uniform(-1.0, 1.0, (10, 6))
+    for got, want in zip(arm.nominal.fk(q), robot.model().fk(q)):
+        np.testing.assert_array_equal(got, want)
+    assert arm.joint_limits_rad is not None
+    np.testing.assert_array_equal(arm.joint_limits_rad[0], robot.robot.lower_rad)
+    np.testing.assert_array_equal(arm.joint_limits_rad[1], robot.robot.upper_rad)
+    np.testing.assert_array_equal(arm.link_mass_kg, [link.mass_kg for link in robot.robot.links])
+    np.testing.assert_array_equal(arm.gravity().lumped, GravityModel.from_spec(robot.robot, robot.model()).lumped)
+
+
+def test_a_robot_yaml_without_links_gives_an_arm_without_masses():
+    from dataclasses import replace
+
+    from calibration.errors import ModelError
+    from calibration.physics.gravity import GravityModel
+
+    robot = load_cell().robot("R1")
+    bare = replace(robot, robot=replace(robot.robot, links=()))
+    arm = bare.arm()
+    assert arm.link_mass_kg is None and arm.link_com_mm is None
+    with pytest.raises(ModelError) as got:  # what GravityModel.from_spec says, word for word
+        arm.gravity()
+    with pytest.raises(ModelError) as want:
+        GravityModel.from_spec(bare.robot, bare.model())
+    assert str(got.value) == str(want.value) and "MA2010" in str(got.value)

@@ -8,8 +8,8 @@ grids this small the gain is not reliable (seeds 1-8: from -6 % to +15 %), so no
 import numpy as np
 import pytest
 
-from app.workflows.fit import fitter_for
 from calibration.evaluation.metrics import errors
+from calibration.methods.fitter import Fitter
 from calibration.methods.options import FitOptions
 from cell_config import load_cell
 from drivers.sim.cdc_twin import PAPER_SIZE, CdcSize, Grid, simulated_day
@@ -57,6 +57,6 @@ def test_no_configuration_dependent_error_when_none_is_planted(r2):
 def test_pi_fbf13_is_no_worse_than_pi_where_no_configuration_dependent_error_is_planted(r2):
     """With nothing configuration-dependent to find, the held-out choices hold the local fits at pi."""
     day = simulated_day(r2.robot, r2.tool, 9, CdcSize(cdc_mm=0.0), SMALL)
-    fitter = fitter_for(r2, day.train, options=FAST)
+    fitter = Fitter.for_arm(r2.arm(), day.train, options=FAST)
     mean = {m: float(np.mean(errors(fitter.fit(m)[0], day.test).position_mm)) for m in ("pi", "pi+fbf13")}
     assert mean["pi+fbf13"] <= 1.01 * mean["pi"], mean

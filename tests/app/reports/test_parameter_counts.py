@@ -12,8 +12,8 @@ import pytest
 from app.reports.page import recommendation_why
 from app.reports.sections import comparison_rows
 from app.workflows.compare import recommendation_line, run_comparison
-from app.workflows.fit import fitter_for
 from calibration.kinematics.parameterisation import MinimalParameterisation
+from calibration.methods.fitter import Fitter
 from cell_config import load_cell
 from tests.conftest import cluster_design, measure
 
@@ -27,7 +27,7 @@ def narrow(synthetic_arm):
     q, cluster = cluster_design(step_deg=20.0, spread_wrist=False)
     train = measure(truth.fk, q, 0.02, 0.01, 1, cluster)
     test = measure(truth.fk, np.random.default_rng(5).uniform(-0.6, 0.6, (20, 6)), 0.02, 0.01, 2)
-    fitter = fitter_for(load_cell().robot("R1"), train)
+    fitter = Fitter.for_arm(load_cell().robot("R1").arm(), train)
     return fitter, run_comparison(fitter, test, METHODS)
 
 

@@ -168,13 +168,13 @@ def test_compare_report_pass_fail_iso_and_provenance(compare_report, data):
 def test_a_tight_tolerance_fails_every_model_and_a_recommendation_is_shown(tmp_path, data, synthetic_arm):
     from app.reports.sections import write_report
     from app.workflows.compare import run_comparison
-    from app.workflows.fit import fitter_for
     from calibration.data.recording import read_recording
+    from calibration.methods.fitter import Fitter
     from cell_config import load_cell
 
     robot = load_cell().robot("R1")
     test = read_recording(data / "random.csv")
-    cmp = run_comparison(fitter_for(robot, read_recording(data / "train.csv")), test, ["nominal", "nls1"])
+    cmp = run_comparison(Fitter.for_arm(robot.arm(), read_recording(data / "train.csv")), test, ["nominal", "nls1"])
     cmp.recommended = "nls1"
     files = write_report(cmp, test, tmp_path, tolerance=Tolerance(0.001, 0.001), inputs=[("test", data / "random.csv")])
     page = _Page(files[-1].read_text())
@@ -267,13 +267,13 @@ def test_recalibrate_report(tmp_path):
 def test_demo_report_has_one_section_per_arm(tmp_path, data):
     from app.reports.sections import write_demo_report
     from app.workflows.compare import run_comparison
-    from app.workflows.fit import fitter_for
     from calibration.data.recording import read_recording
+    from calibration.methods.fitter import Fitter
     from cell_config import load_cell
 
     robot = load_cell().robot("R1")
     test = read_recording(data / "test.csv")
-    cmp = run_comparison(fitter_for(robot, read_recording(data / "train.csv")), test, ["nominal", "nls1"])
+    cmp = run_comparison(Fitter.for_arm(robot.arm(), read_recording(data / "train.csv")), test, ["nominal", "nls1"])
     arm = {"samples": 10, "targets": 10, "skipped_targets": 0, "train_samples": 5, "cpa_samples": 0,
            "test_samples": 5, "collect_seconds": 1.0}
     summary = {"robots": {"R1": arm}, "mocap_frames_received": 100,

@@ -202,12 +202,12 @@ def _demo_page(root: Path, recs: Path) -> list[str]:
     """The demo's page (one section per arm) from two small comparisons, while the run warned once."""
     from app.reports.sections import write_demo_report
     from app.workflows.compare import run_comparison
-    from app.workflows.fit import fitter_for
     from calibration.data.recording import read_recording
+    from calibration.methods.fitter import Fitter
     from cell_config import load_cell
 
     test = read_recording(recs / "wide.csv")
-    cmp = run_comparison(fitter_for(load_cell().robot("R1"), read_recording(recs / "train.csv")), test,
+    cmp = run_comparison(Fitter.for_arm(load_cell().robot("R1").arm(), read_recording(recs / "train.csv")), test,
                          ["nominal", "nls1", "pi"])
     cmps = {"R1": cmp, "R2": cmp}  # the page's layout is under test: one comparison serves as both arms'
     arm = {"samples": 10, "targets": 10, "skipped_targets": 0, "train_samples": 5, "cpa_samples": 0,

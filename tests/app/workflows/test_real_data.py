@@ -3,7 +3,6 @@
 import numpy as np
 import pytest
 
-from app.workflows.fit import fitter_for
 from calibration.data.recording import read_recording
 from calibration.evaluation.metrics import errors
 from calibration.method_names import PI_CDC_METHODS
@@ -26,7 +25,7 @@ def data():
 @pytest.fixture(scope="module")
 def table(data):
     nominal, train, test = data
-    fitter = fitter_for(load_cell().robot("R1"), train)
+    fitter = Fitter.for_arm(load_cell().robot("R1").arm(), train)
     out = {}
     for method in ("nominal", "base", "nls0", "nls1", "pi") + PI_CDC_METHODS:
         e = errors(fitter.fit(method)[0], test).position_mm

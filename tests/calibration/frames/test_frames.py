@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from calibration.arm import Arm
 from calibration.data.recording import put_in, take_out
 from calibration.diagnosis.synthetic import Design, tool_error_case
 from calibration.evaluation.metrics import errors
@@ -22,6 +23,8 @@ from calibration.physics.gravity import GravityModel
 from cell_config import load_cell
 from tests.conftest import cluster_design, measure, planted_parameters
 
+#: Every fit's options here: the planted recordings' rows all kept (no gross-row screening).
+KEEP_ROWS = FitOptions(reject_gross_rows=False)
 T_BASE_ERR = make_T(so3.exp(np.radians(0.2) * np.array([0.0, 0.6, 0.8])), np.array([6.0, -4.0, 3.0]))
 
 
@@ -72,7 +75,7 @@ def test_a_planted_frame_error_is_found_and_named_with_its_size(arm, planted, fr
 def test_framed_fit_wraps_the_kinematics_in_the_frames(arm, r1_nominal):
     nominal, _, train, test = arm
     rec, rec_test = put_in(train, T_BASE_ERR, np.eye(4)), put_in(test, T_BASE_ERR, np.eye(4))
-    fitter, check = framed(lambda r: Fitter("R1", r1_nominal, r, FitOptions()), nominal, rec)
+    fitter, check = framed(Arm("R1", "MA2010", r1_nominal), rec, options=KEEP_ROWS)
     assert isinstance(fitter, FramedFit) and check.frame == "base"
     assert fitter.train is rec and fitter.inner.train is not rec
     model, _ = fitter.fit("nls1")
@@ -99,9 +102,7 @@ def _framed_tool_error_case(seed: int, spread_deg: float):
     gravity = GravityModel.from_spec(robot.robot, nominal)
     train, test, _ = tool_error_case(nominal, gravity, 18.0, 0.5, seed=seed,
                                      train_design=Design(n_q2=6, n_q3=5, spread_deg=spread_deg), n_heldout=150)
-    fitter, check = framed(lambda r: Fitter("R1", nominal, r, FitOptions(), None, gravity,
-                                            (robot.robot.lower_rad, robot.robot.upper_rad)),
-                           ConstantModel("R1", "nominal", nominal, 0, {}), train)
+    fitter, check = framed(robot.arm(), train, options=KEEP_ROWS)
     return fitter, check, test
 
 
@@ -143,7 +144,7 @@ def test_the_other_frame_is_taken_out_too_when_it_is_beyond_the_limits_once_the_
     rec = put_in(train, T_base, np.eye(4))
     arm = ConstantModel("R1", "nominal", nominal, 0, {})
     assert check_recording(arm, rec).frame == "tool"
-    fitter, check = framed(lambda r: Fitter("R1", nominal, r, FitOptions()), arm, rec)
+    fitter, check = framed(Arm("R1", "MA2010", nominal), rec, options=KEEP_ROWS)
     assert check.frame == "base and tool" and "a rigid fit of the base and tool frames brings" in check.message()
     assert "base frame (mocap-to-base registration) and tool frame" in check.message()
     assert "(tool-marker-to-flange registration) are off (" in check.message()  # two frames: 'are', not 'is'
@@ -261,7 +262,7 @@ def test_a_base_free_pi_is_refused_where_it_cannot_be_built():
     kin = ExtendedKinematics(MinimalParameterisation(load_cell().robot("R1").model(), fit_tool=True))
     with pytest.raises(ModelError, match=r"3 poses do not determine the rigid motion"):
         kin.base_motion(np.zeros((3, 6)))
-    with pytest.raises(ModelError, match="needs a fresh Fitter from make_fitter, got str"):
+    with pytest.raises(ModelError, match=r"needs a fresh Fitter \(Fitter.for_arm\), got str"):
         base_free("not a fitter")
 
 
@@ -297,10 +298,9 @@ def test_the_frames_first_fit_leaves_the_base_free_and_a_clean_recording_does_no
     gravity = GravityModel.from_spec(robot.robot, nominal)
     train, _, _ = tool_error_case(nominal, gravity, 18.0, 0.5, seed=1,
                                   train_design=Design(n_q2=6, n_q3=5, spread_deg=3.0), n_heldout=10)
-    make = lambda rec: Fitter("R1", nominal, rec, FitOptions(), None, gravity)  # noqa: E731
-    fitter, check = framed(make, ConstantModel("R1", "nominal", nominal, 0, {}), train)
+    fitter, check = framed(robot.arm(), train, options=KEEP_ROWS)
     assert check.found and isinstance(fitter, FramedFit) and fitter.inner.options.pi_base_free
     clean, _, _ = tool_error_case(nominal, gravity, 0.0, 0.0, seed=1,
                                   train_design=Design(n_q2=6, n_q3=5, spread_deg=3.0), n_heldout=10)
-    fitter, check = framed(make, ConstantModel("R1", "nominal", nominal, 0, {}), clean)
+    fitter, check = framed(robot.arm(), clean, options=KEEP_ROWS)
     assert not check.found and not fitter.options.pi_base_free

@@ -6,15 +6,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from calibration.arm import Arm
 from calibration.data.recording import put_in
 from calibration.errors import ModelError
 from calibration.frames.multiday import KINEMATICS_RATIO_LIMIT, fit_days, pool
 from calibration.kinematics import so3
 from calibration.kinematics.parameterisation import MinimalParameterisation
 from calibration.kinematics.so3 import make_T
-from calibration.methods.fitter import Fitter
 from calibration.methods.options import FitOptions
-from calibration.models import ConstantModel
 from tests.conftest import cluster_design, measure, planted_parameters
 
 T_BASE = make_T(so3.exp(np.radians(0.1) * np.array([0.0, 0.6, 0.8])), np.array([1.5, -1.0, 0.8]))
@@ -41,8 +40,8 @@ def test_pool_keeps_clusters_apart(days):
 
 
 def _fit(days, r1_nominal):
-    nominal = ConstantModel("R1", "nominal", r1_nominal, 0, {})
-    return fit_days(lambda r: Fitter("R1", r1_nominal, r, FitOptions()), nominal, days, reference="nls1")
+    return fit_days(Arm("R1", "MA2010", r1_nominal), days, reference="nls1",
+                    options=FitOptions(reject_gross_rows=False))
 
 
 def test_the_frames_of_a_moved_mocap_are_recovered(days, r1_nominal):
@@ -65,8 +64,7 @@ def test_a_day_whose_arm_changed_is_flagged(days, r1_nominal):
 
 def test_one_recording_is_refused(days, r1_nominal):
     with pytest.raises(ModelError, match="at least two recordings"):
-        fit_days(lambda r: Fitter("R1", r1_nominal, r, FitOptions()), ConstantModel("R1", "nominal", r1_nominal, 0, {}),
-                 days[:1])
+        fit_days(Arm("R1", "MA2010", r1_nominal), days[:1])
 
 
 def test_the_joint_fit_says_which_parameters_differ(days, r1_nominal):

@@ -64,13 +64,12 @@ def test_more_rows_beyond_the_bound_than_a_few_rejects_none_and_says_so(clean, r
 
 
 def test_rejection_can_be_turned_off(clean, r1_nominal):
-    from app.workflows.fit import fitter_for
     from cell_config import load_cell
 
     robot = load_cell().robot("R1")
     bad = planted(clean, [10])
-    assert fitter_for(robot, bad).gross.rows == (10,)
-    off = fitter_for(robot, bad, options=FitOptions(reject_gross_rows=False))
+    assert Fitter.for_arm(robot.arm(), bad).gross.rows == (10,)
+    off = Fitter.for_arm(robot.arm(), bad, options=FitOptions(reject_gross_rows=False))
     assert off.gross is None and len(off.train) == len(clean)
 
 
