@@ -87,12 +87,14 @@ class RobotSpec:
             ``pulse_zero + pulse_sign * q * pulses_per_rad`` rounded to the nearest pulse, int64, shape (..., 6).
         """
         q = np.asarray(q, dtype=float)
-        return np.rint(self.pulse_zero + self.pulse_sign * q * self.pulses_per_rad).astype(np.int64)
+        pulses: np.ndarray = np.rint(self.pulse_zero + self.pulse_sign * q * self.pulses_per_rad).astype(np.int64)
+        return pulses
 
     def from_pulses(self, pulses: np.ndarray) -> np.ndarray:
         """Joint angles [rad] of controller pulses, shape (..., 6): the inverse of :meth:`to_pulses`."""
         pulses = np.asarray(pulses, dtype=float)
-        return (pulses - self.pulse_zero) * self.pulse_sign / self.pulses_per_rad
+        q: np.ndarray = (pulses - self.pulse_zero) * self.pulse_sign / self.pulses_per_rad
+        return q
 
     def model(self, tool: ToolSpec | None = None) -> PoeModel:
         """The nominal POE model of this arm carrying ``tool`` (flange frame when None)."""
