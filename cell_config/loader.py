@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calibration.errors import ConfigError
+from calibration.errors import ConfigError, ModelError
 from calibration.kinematics import so3
 from calibration.kinematics.poe import PoeModel
 from cell_config._yaml import Node
@@ -129,6 +129,18 @@ class ToolShape:
     radius_mm: tuple[float, float] | None = None
     centre_mm: np.ndarray | None = None
     size_mm: np.ndarray | None = None
+
+    def cylinder(self) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
+        """``(from_mm, to_mm, radius_mm)`` of a cylinder; ModelError for a box."""
+        if self.from_mm is None or self.to_mm is None or self.radius_mm is None:
+            raise ModelError(f"tool shape {self.name!r} is a {self.kind}, not a cylinder")
+        return self.from_mm, self.to_mm, self.radius_mm
+
+    def box(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(centre_mm, size_mm)`` of a box; ModelError for a cylinder."""
+        if self.centre_mm is None or self.size_mm is None:
+            raise ModelError(f"tool shape {self.name!r} is a {self.kind}, not a box")
+        return self.centre_mm, self.size_mm
 
 
 @dataclass(frozen=True)
