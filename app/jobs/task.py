@@ -54,7 +54,7 @@ def read_task(path: str, robot: str, cell: object) -> np.ndarray:
         plan = read_plan(path, "dual")
         if robot not in ("R1", "R2"):
             raise DataError(path, None, None, f"a dual plan holds the waypoints of R1 and R2, not of {robot}")
-        q_task = np.array([getattr(w, f"q_{robot}") for w in plan.waypoints if w.converged])  # type: ignore[union-attr]
+        q_task = np.array([getattr(w, f"q_{robot}") for w in plan.waypoints if w.converged])
         if not len(q_task):
             raise DataError(path, None, None, f"the plan holds no solved waypoint of {robot}")
     else:
