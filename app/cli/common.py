@@ -7,7 +7,8 @@ import json
 import logging
 import math
 import re
-from typing import Any
+from collections.abc import Callable
+from typing import Any, NoReturn, TypeVar
 
 from calibration.errors import OutputError
 
@@ -40,7 +41,7 @@ class OneLineErrorParser(argparse.ArgumentParser):
         self._argv = list(sys.argv[1:] if args is None else args)
         return super().parse_known_args(args, namespace)
 
-    def error(self, message: str) -> Any:  # type: ignore[override]
+    def error(self, message: str) -> NoReturn:
         prog = self.prog
         if message.startswith("the following arguments are required") and self._command() is self:
             unknown = [a for a in getattr(self, "_argv", []) if a.startswith("--") and not self._knows(a)]
@@ -110,7 +111,11 @@ def validation_count(text: str) -> int:
     return value
 
 
-def _checked_number(text: str, kind: type, ok: Any, expected: str) -> Any:
+_Number = TypeVar("_Number", int, float)
+
+
+def _checked_number(text: str, kind: Callable[[str], _Number], ok: Callable[[_Number], bool], expected: str
+                   ) -> _Number:
     """``kind(text)`` when it is finite and ``ok(value)``; else ArgumentTypeError "expected EXPECTED, got TEXT"."""
     try:
         value = kind(text)
