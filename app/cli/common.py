@@ -57,7 +57,7 @@ class OneLineErrorParser(argparse.ArgumentParser):
         """The subcommand's parser named in the arguments (this parser when it has none)."""
         subs = next((a for a in self._actions if isinstance(a, argparse._SubParsersAction)), None)
         name = next((a for a in getattr(self, "_argv", []) if subs is not None and a in subs.choices), None)
-        return subs.choices[name] if name is not None else self  # type: ignore[union-attr]
+        return subs.choices[name] if subs is not None and name is not None else self
 
     def _knows(self, arg: str) -> bool:
         """Whether ``arg`` (``--opt`` or ``--opt=value``) is one of this parser's options or a prefix of one."""
