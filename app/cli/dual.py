@@ -283,7 +283,7 @@ def add_dual_parsers(add: Callable[..., argparse.ArgumentParser]) -> None:
     seed.default, seed.help = None, ("seed of the simulated cell (its planted errors and calibration data); --sim "
                                      "only (default 7, the validation cell's)")
     scale.default, scale.help = None, "not used here: the simulated validation (--sim) has no clock"
-    speed.help += "; the real cell only (the simulated validation has no clock)"
+    speed.help = f"{speed.help}; the real cell only (the simulated validation has no clock)"
     p = add("preview", cmd_preview, "meshcat preview of a plan (static HTML page or live viewer)")
     p.add_argument("--plan", required=True, help="plan file (dual or collection)")
     p.add_argument("--html", help="write a self-contained HTML page")
