@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar, overload
 
 import numpy as np
 import yaml
@@ -20,6 +20,7 @@ from calibration.data.yamlio import safe_load
 from calibration.errors import ConfigError, parse_error_text
 
 _REQUIRED: Any = ...
+_T = TypeVar("_T")  # a getter's default, returned as is when the key is absent
 
 
 def read_yaml(path: Path) -> Any:
@@ -33,7 +34,7 @@ def read_yaml(path: Path) -> Any:
     except yaml.YAMLError as e:
         raise ConfigError(path, "", f"not valid YAML ({parse_error_text(e)})") from e
     except InputRefused as e:  # a FIFO, a device, a file over the bound
-        raise ConfigError(path, "", e.strerror) from None
+        raise ConfigError(path, "", str(e.strerror)) from None  # strerror: the reason InputRefused was given
     except (OSError, UnicodeDecodeError) as e:
         raise ConfigError(path, "", f"cannot read ({e.__class__.__name__}: {e})") from e
 
@@ -84,6 +85,11 @@ class Node:
             return default
         return self.data[key]
 
+    @overload
+    def child(self, key: str) -> Node: ...
+    @overload
+    def child(self, key: str, default: None) -> Node | None: ...
+
     def child(self, key: str, default: Any = _REQUIRED) -> Node | None:
         """The mapping under ``key`` (None when absent and ``default`` is None)."""
         value = self.get(key, default)
@@ -91,7 +97,12 @@ class Node:
             return None
         return Node(self.path, value, self.dotted(key))
 
-    def string(self, key: str, default: Any = _REQUIRED) -> str:
+    @overload
+    def string(self, key: str) -> str: ...
+    @overload
+    def string(self, key: str, default: _T) -> str | _T: ...
+
+    def string(self, key: str, default: Any = _REQUIRED) -> object:
         value = self.get(key, default)
         if key not in self.data:
             return value
@@ -99,13 +110,23 @@ class Node:
             raise self.error(key, f"expected a non-empty string, got {value!r}")
         return value
 
-    def boolean(self, key: str, default: Any = _REQUIRED) -> bool:
+    @overload
+    def boolean(self, key: str) -> bool: ...
+    @overload
+    def boolean(self, key: str, default: _T) -> bool | _T: ...
+
+    def boolean(self, key: str, default: Any = _REQUIRED) -> object:
         value = self.get(key, default)
         if key in self.data and not isinstance(value, bool):
             raise self.error(key, f"expected a YAML boolean (true or false, unquoted), got {value!r}")
         return value
 
-    def integer(self, key: str, default: Any = _REQUIRED, lo: int | None = None, hi: int | None = None) -> int:
+    @overload
+    def integer(self, key: str, *, lo: int | None = None, hi: int | None = None) -> int: ...
+    @overload
+    def integer(self, key: str, default: _T, lo: int | None = None, hi: int | None = None) -> int | _T: ...
+
+    def integer(self, key: str, default: Any = _REQUIRED, lo: int | None = None, hi: int | None = None) -> object:
         value = self.get(key, default)
         if key not in self.data:
             return value
@@ -116,11 +137,22 @@ class Node:
             raise self.error(key, f"expected an integer{span}, got {value}")
         return value
 
-    def port(self, key: str, default: Any = _REQUIRED) -> int:
+    @overload
+    def port(self, key: str) -> int: ...
+    @overload
+    def port(self, key: str, default: _T) -> int | _T: ...
+
+    def port(self, key: str, default: Any = _REQUIRED) -> object:
         return self.integer(key, default, 1, 65535)
 
+    @overload
+    def number(self, key: str, *, lo: float | None = None, hi: float | None = None, lo_open: bool = False) -> float: ...
+    @overload
+    def number(self, key: str, default: _T, lo: float | None = None, hi: float | None = None,
+               lo_open: bool = False) -> float | _T: ...
+
     def number(self, key: str, default: Any = _REQUIRED, lo: float | None = None, hi: float | None = None,
-               lo_open: bool = False) -> float:
+               lo_open: bool = False) -> object:
         """A finite int or float within [lo, hi] (or (lo, hi] with ``lo_open``)."""
         value = self.get(key, default)
         if key not in self.data:
@@ -133,7 +165,12 @@ class Node:
             raise self.error(key, f"expected a finite number{span}, got {value!r}")
         return float(value)
 
-    def array(self, key: str, shape: tuple[int, ...], default: Any = _REQUIRED) -> np.ndarray:
+    @overload
+    def array(self, key: str, shape: tuple[int, ...]) -> np.ndarray: ...
+    @overload
+    def array(self, key: str, shape: tuple[int, ...], default: _T) -> np.ndarray | _T: ...
+
+    def array(self, key: str, shape: tuple[int, ...], default: Any = _REQUIRED) -> object:
         """Finite numbers of the given shape (booleans and strings refused)."""
         value = self.get(key, default)
         if key not in self.data:
@@ -149,6 +186,11 @@ class Node:
         if not np.all(np.isfinite(arr)):
             raise self.error(key, "expected finite numbers")
         return arr
+
+    @overload
+    def strings(self, key: str, *, what: str = "strings") -> tuple[str, ...]: ...
+    @overload
+    def strings(self, key: str, default: Iterable[str], what: str = "strings") -> tuple[str, ...]: ...
 
     def strings(self, key: str, default: Any = _REQUIRED, what: str = "strings") -> tuple[str, ...]:
         """A list of non-empty strings."""

@@ -94,7 +94,8 @@ class ArmCapsules:
         foot = pts[:, 0] - np.array([0.0, 0.0, self.column_mm])
         pts = np.concatenate([pts, foot[:, None]], axis=1)
         seg = np.stack([np.stack([pts[:, SPANS[s][0]], pts[:, SPANS[s][1]]], axis=1) for s in SEGMENTS], axis=1)
-        return seg @ self.T_cell_base[:3, :3].T + self.T_cell_base[:3, 3]
+        seg_cell: np.ndarray = seg @ self.T_cell_base[:3, :3].T + self.T_cell_base[:3, 3]
+        return seg_cell
 
     def casadi_segments(self, ca: Any, origins_cell: Any, tool_cell: Any) -> dict[str, tuple[Any, Any]]:
         """Capsule end points as casadi columns, cell frame.
@@ -154,12 +155,14 @@ class CellCapsules:
         """
         o = other_segs[None] if other_segs.ndim == 3 else other_segs
         d = segment_distance(segs[:, :, None, 0], segs[:, :, None, 1], o[:, None, :, 0], o[:, None, :, 1])
-        return d - self.radii(robot)[None, :, None] - self.radii(other)[None, None, :]
+        gaps: np.ndarray = d - self.radii(robot)[None, :, None] - self.radii(other)[None, None, :]
+        return gaps
 
     def floor_gaps(self, robot: str, segs: np.ndarray, names: Sequence[str] = FLOOR_CHECKED) -> np.ndarray:
         """Height of the named capsules' lowest surface point above the floor [mm], shape (N, len(names))."""
         cols = [SEGMENTS.index(s) for s in names]
-        return segs[:, cols][..., 2].min(axis=2) - self.radii(robot)[cols] - self.floor_z_mm
+        gaps: np.ndarray = segs[:, cols][..., 2].min(axis=2) - self.radii(robot)[cols] - self.floor_z_mm
+        return gaps
 
     def casadi_gaps(self, ca: Any, caps: dict[str, dict[str, tuple[Any, Any]]],
                     pairs: Sequence[tuple[str, str]], robots: tuple[str, str] = ("R1", "R2")) -> Any:
@@ -200,7 +203,8 @@ def segment_distance(a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: np.ndar
     s = np.where(point_a, 0.0, np.where(point_b, np.clip(-c / a_s, 0.0, 1.0), s))
     t = np.where(point_b, 0.0, np.where(point_a, np.clip(f / e_s, 0.0, 1.0), t))
     gap = a0 + d1 * s[..., None] - (b0 + d2 * t[..., None])
-    return np.linalg.norm(gap, axis=-1)
+    distance: np.ndarray = np.linalg.norm(gap, axis=-1)
+    return distance
 
 
 def segment_distance_casadi(ca: Any, a0: Any, a1: Any, b0: Any, b1: Any) -> Any:
@@ -212,7 +216,10 @@ def segment_distance_casadi(ca: Any, a0: Any, a1: Any, b0: Any, b1: Any) -> Any:
     d1, d2, r = a1 - a0, b1 - b0, a0 - b0
     a, e, f = ca.dot(d1, d1), ca.dot(d2, d2), ca.dot(d2, r)
     c, b = ca.dot(d1, r), ca.dot(d1, d2)
-    clamp = lambda v: ca.fmin(ca.fmax(v, 0), 1)  # noqa: E731
+
+    def clamp(v: Any) -> Any:
+        return ca.fmin(ca.fmax(v, 0), 1)
+
     s = clamp((b * f - c * e) / ca.fmax(a * e - b * b, 1e-9))
     t_raw = (b * s + f) / e
     s = ca.if_else(t_raw < 0, clamp(-c / a), ca.if_else(t_raw > 1, clamp((b - c) / a), s))

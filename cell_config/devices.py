@@ -122,8 +122,8 @@ def _robot_names(node: Node, key: str, robots: Mapping[str, Any]) -> Node:
     return m
 
 
-def _host(node: Node, key: str, default: object = ...) -> str:
-    value = node.string(key, default)
+def _host(node: Node, key: str, default: str | None = None) -> str:
+    value = node.string(key) if default is None else node.string(key, default)
     if value != value.strip() or any(c.isspace() for c in value):
         raise node.error(key, f"expected a host name or address without spaces, got {value!r}")
     return value

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from calibration.arm import Arm
-from calibration.errors import ConfigError
+from calibration.errors import ConfigError, ModelError
 from calibration.kinematics import so3
 from calibration.kinematics.poe import PoeModel
 from cell_config._yaml import Node
@@ -88,12 +88,14 @@ class RobotSpec:
             ``pulse_zero + pulse_sign * q * pulses_per_rad`` rounded to the nearest pulse, int64, shape (..., 6).
         """
         q = np.asarray(q, dtype=float)
-        return np.rint(self.pulse_zero + self.pulse_sign * q * self.pulses_per_rad).astype(np.int64)
+        pulses: np.ndarray = np.rint(self.pulse_zero + self.pulse_sign * q * self.pulses_per_rad).astype(np.int64)
+        return pulses
 
     def from_pulses(self, pulses: np.ndarray) -> np.ndarray:
         """Joint angles [rad] of controller pulses, shape (..., 6): the inverse of :meth:`to_pulses`."""
         pulses = np.asarray(pulses, dtype=float)
-        return (pulses - self.pulse_zero) * self.pulse_sign / self.pulses_per_rad
+        q: np.ndarray = (pulses - self.pulse_zero) * self.pulse_sign / self.pulses_per_rad
+        return q
 
     def model(self, tool: ToolSpec | None = None) -> PoeModel:
         """The nominal POE model of this arm carrying ``tool`` (flange frame when None)."""
@@ -128,6 +130,18 @@ class ToolShape:
     radius_mm: tuple[float, float] | None = None
     centre_mm: np.ndarray | None = None
     size_mm: np.ndarray | None = None
+
+    def cylinder(self) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
+        """``(from_mm, to_mm, radius_mm)`` of a cylinder; ModelError for a box."""
+        if self.from_mm is None or self.to_mm is None or self.radius_mm is None:
+            raise ModelError(f"tool shape {self.name!r} is a {self.kind}, not a cylinder")
+        return self.from_mm, self.to_mm, self.radius_mm
+
+    def box(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(centre_mm, size_mm)`` of a box; ModelError for a cylinder."""
+        if self.centre_mm is None or self.size_mm is None:
+            raise ModelError(f"tool shape {self.name!r} is a {self.kind}, not a box")
+        return self.centre_mm, self.size_mm
 
 
 @dataclass(frozen=True)

@@ -382,8 +382,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     write_json(args.json, cmp.to_json())
     if args.report:
         inputs = [*(("train", t) for t in args.train), ("cpa", args.cpa), ("test", args.test)] + [("model", f) for f in args.model]
-        files = write_report(cmp, test, args.report, with_paper, tolerance, inputs, command_line(args))
-        print(f"report: {files[-1]}")
+        written = write_report(cmp, test, args.report, with_paper, tolerance, inputs, command_line(args))
+        print(f"report: {written[-1]}")
     return 0
 
 

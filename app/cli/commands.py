@@ -11,7 +11,7 @@ import contextlib
 import logging
 import sys
 from collections.abc import Callable
-from typing import Any
+from typing import Any, TextIO
 
 from app.cli.analysis import (
     _add_fit_inputs,
@@ -238,7 +238,7 @@ def main(argv: list[str] | None = None) -> int:
     block-buffered, so most commands had finished by then): handled here once, for every command.
     """
     guard = _StdoutGuard(sys.stdout)
-    sys.stdout = guard  # type: ignore[assignment]
+    sys.stdout = guard
     try:
         try:
             return _run(argv)
@@ -254,7 +254,7 @@ class _StdoutGuard:
     too) is pointed at the null device, so what is still printed goes nowhere instead of raising. A BrokenPipeError
     while stdout is open (a socket whose peer left) is not this one and propagates."""
 
-    def __init__(self, stream: Any) -> None:
+    def __init__(self, stream: TextIO) -> None:
         self.stream = stream
 
     def write(self, text: str) -> int:
@@ -276,7 +276,7 @@ class _StdoutGuard:
         return getattr(self.stream, name)
 
 
-def _discard_closed_streams(stdout: Any) -> bool:
+def _discard_closed_streams(stdout: TextIO) -> bool:
     """Point ``stdout``'s descriptor (and stderr's, when its reader has gone too) at the null device if its reader
     has gone; True if it had."""
     import os
@@ -319,7 +319,8 @@ def _run(argv: list[str] | None) -> int:
         resolve_cell(args)
         check_output_args(args)
         with staged_outputs() if args.command in STAGED_COMMANDS else contextlib.nullcontext(), collecting():
-            return args.func(args)  # every warning it gives reaches its report (app.reports.command_warnings)
+            code: int = args.func(args)  # every warning it gives reaches its report (app.reports.command_warnings)
+            return code
     except CellCalError as e:
         print(f"cellcal {args.command}: {e}", file=sys.stderr)
         return 2

@@ -7,7 +7,8 @@ import json
 import logging
 import math
 import re
-from typing import Any
+from collections.abc import Callable
+from typing import Any, NoReturn, TypeVar
 
 from calibration.errors import OutputError
 
@@ -40,7 +41,7 @@ class OneLineErrorParser(argparse.ArgumentParser):
         self._argv = list(sys.argv[1:] if args is None else args)
         return super().parse_known_args(args, namespace)
 
-    def error(self, message: str) -> Any:  # type: ignore[override]
+    def error(self, message: str) -> NoReturn:
         prog = self.prog
         if message.startswith("the following arguments are required") and self._command() is self:
             unknown = [a for a in getattr(self, "_argv", []) if a.startswith("--") and not self._knows(a)]
@@ -56,7 +57,7 @@ class OneLineErrorParser(argparse.ArgumentParser):
         """The subcommand's parser named in the arguments (this parser when it has none)."""
         subs = next((a for a in self._actions if isinstance(a, argparse._SubParsersAction)), None)
         name = next((a for a in getattr(self, "_argv", []) if subs is not None and a in subs.choices), None)
-        return subs.choices[name] if name is not None else self  # type: ignore[union-attr]
+        return subs.choices[name] if subs is not None and name is not None else self
 
     def _knows(self, arg: str) -> bool:
         """Whether ``arg`` (``--opt`` or ``--opt=value``) is one of this parser's options or a prefix of one."""
@@ -110,7 +111,11 @@ def validation_count(text: str) -> int:
     return value
 
 
-def _checked_number(text: str, kind: type, ok: Any, expected: str) -> Any:
+_Number = TypeVar("_Number", int, float)
+
+
+def _checked_number(text: str, kind: Callable[[str], _Number], ok: Callable[[_Number], bool], expected: str
+                   ) -> _Number:
     """``kind(text)`` when it is finite and ``ok(value)``; else ArgumentTypeError "expected EXPECTED, got TEXT"."""
     try:
         value = kind(text)

@@ -38,7 +38,8 @@ def cmd_compensate_job(args: argparse.Namespace) -> int:
                           near_orientation_deg=args.near_orientation_deg).compensate(job)
     data = write_job(job, comp.replacements)
     summary = {"job": str(args.job), "out": str(out), **comp.to_json()}
-    writers = ((args.json, lambda: write_json(args.json, summary)), (out, lambda: atomic_write_bytes(out, data)))
+    writers: tuple[tuple[str | Path, Callable[[], object]], ...] = (
+        (args.json, lambda: write_json(args.json, summary)), (out, lambda: atomic_write_bytes(out, data)))
     for path, write in writers:
         try:
             write()

@@ -25,7 +25,10 @@ def _subcommands(parser: argparse.ArgumentParser) -> list[tuple[str, argparse.Ar
 
 def _row(name: str, parser: argparse.ArgumentParser, summary: str) -> str:
     options = [a for a in parser._actions if a.option_strings]
-    flag = lambda a: next(s for s in a.option_strings if s.startswith("--"))  # noqa: E731 - the (first) long name
+
+    def flag(a: argparse.Action) -> str:  # the (first) long name
+        return next(s for s in a.option_strings if s.startswith("--"))
+
     required = " ".join(f"`{flag(a)}`" for a in options if a.required)
     writes = [flag(a) for a in options
               if flag(a) in OUTPUT_OPTIONS or (flag(a) == "--session" and name in SESSION_WRITERS)]

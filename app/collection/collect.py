@@ -56,10 +56,11 @@ def collect_arm(rt: Cell, safety: CellSafety, robot: str, plan: Plan | None, ses
     """
     driver = rt.drivers[robot]
     others = rt.others(robot)
+    clock_kw: dict[str, Any] = {} if clock is None else {"clock": clock}  # run_session's own default otherwise
     result = run_session(session_dir, driver, rt.mocap_for(robot), safety, body_id=rt.body_ids[robot], plan=plan,
                          other_drivers=others, config=config, resume=resume, retry_skipped=retry_skipped,
                          progress=progress, model=model, model_name=model_name,
-                         **({} if clock is None else {"clock": clock}))
+                         **clock_kw)
     move_safely(driver, rt.park_q(robot), safety, others, config.speed_fraction, config.settle_timeout_s)
     return result
 
@@ -170,7 +171,7 @@ class _MeasureFailed(Exception):
 class _Halt(Exception):
     """A fault that ends the run: every arm is stopped and the reason recorded (never escapes run_session)."""
 
-    def __init__(self, robot: str, error: BaseException, index: int | None, kind: str | None = None) -> None:
+    def __init__(self, robot: str, error: BaseException, index: int | None, kind: EventKind | None = None) -> None:
         self.robot, self.error, self.index, self.kind = robot, error, index, kind
         super().__init__(f"{robot}: {error}")
 

@@ -80,7 +80,9 @@ class PlanSummary:
 def move_durations_s(q: np.ndarray, max_speed_rad_s: np.ndarray, speed_fraction: float) -> np.ndarray:
     """Duration of each joint move between consecutive rows of ``q`` (N, 6) [rad] -> (N - 1,) [s]."""
     dq = np.abs(np.diff(np.atleast_2d(q), axis=0))
-    return CUBIC_PEAK_RATIO * np.max(dq / (speed_fraction * np.asarray(max_speed_rad_s)), axis=1, initial=0.0)
+    durations_s: np.ndarray = CUBIC_PEAK_RATIO * np.max(dq / (speed_fraction * np.asarray(max_speed_rad_s)), axis=1,
+                                                        initial=0.0)
+    return durations_s
 
 
 def summarize_plan(plan: Plan, safety: CellSafety, others: Mapping[str, np.ndarray] | None, q_start: np.ndarray, *,

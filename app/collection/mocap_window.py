@@ -26,12 +26,18 @@ from drivers.base import MocapSource, RigidBodyFrame
 class WindowOptions(Protocol):
     """What a window needs (:class:`app.collection.collect.CollectConfig` has it). Times are on the mocap clock [s]."""
 
-    dwell_s: float
-    discard_s: float
-    frame_timeout_s: float
-    min_frames: int
-    min_valid_fraction: float
-    max_marker_error_mm: float
+    @property
+    def dwell_s(self) -> float: ...
+    @property
+    def discard_s(self) -> float: ...
+    @property
+    def frame_timeout_s(self) -> float: ...
+    @property
+    def min_frames(self) -> int: ...
+    @property
+    def min_valid_fraction(self) -> float: ...
+    @property
+    def max_marker_error_mm(self) -> float: ...
 
 
 class WindowFailed(Exception):
@@ -111,8 +117,8 @@ def average_frames(frames: Sequence[RigidBodyFrame]) -> tuple[np.ndarray, np.nda
 def usable(f: RigidBodyFrame, max_marker_error_mm: float) -> bool:
     p = np.asarray(f.position_mm, dtype=float)
     q = np.asarray(f.quat_wxyz, dtype=float)
-    return (f.tracking_valid and f.marker_error_mm <= max_marker_error_mm and p.shape == (3,) and q.shape == (4,)
-            and bool(np.all(np.isfinite(p)) and np.all(np.isfinite(q))) and abs(np.linalg.norm(q) - 1.0) < 1e-3)
+    return bool(f.tracking_valid and f.marker_error_mm <= max_marker_error_mm and p.shape == (3,) and q.shape == (4,)
+                and bool(np.all(np.isfinite(p)) and np.all(np.isfinite(q))) and abs(np.linalg.norm(q) - 1.0) < 1e-3)
 
 
 def collect_window(mocap: MocapSource, body_id: int, config: WindowOptions, link: ClockLink,

@@ -14,6 +14,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from app.collection.safety import CellSafety
 from drivers.base import RobotDriver
 from drivers.errors import DriverError
 
@@ -58,7 +59,7 @@ def live_poses(drivers: Mapping[str, RobotDriver]) -> dict[str, np.ndarray]:
     return {name: read_q(d) for name, d in drivers.items()}
 
 
-def move_safely(driver: RobotDriver, q: np.ndarray, safety: object, others: Mapping[str, RobotDriver],
+def move_safely(driver: RobotDriver, q: np.ndarray, safety: CellSafety, others: Mapping[str, RobotDriver],
                 speed_fraction: float = 0.5, timeout_s: float = 60.0, tolerance_rad: float = 1e-4,
                 index: int | None = None) -> np.ndarray:
     """Check the joint-space path to ``q`` against limits, floor and the other arms' live poses, then move.
@@ -82,7 +83,7 @@ def move_safely(driver: RobotDriver, q: np.ndarray, safety: object, others: Mapp
     """
     q = np.asarray(q, dtype=float)
     q_now = read_q(driver)
-    safety.check_motion(driver.name, q_now, q, live_poses(others), index)  # type: ignore[attr-defined]
+    safety.check_motion(driver.name, q_now, q, live_poses(others), index)
     driver.move_to(q, speed_fraction)
     driver.wait_settled(timeout_s, tolerance_rad)
     return read_q(driver)

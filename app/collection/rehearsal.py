@@ -80,7 +80,7 @@ def cellcal_argv(cell: Path, *args: str) -> list[str]:
     return [sys.executable, "-m", "app.cli", "--cell", str(cell), *args]
 
 
-def run_cellcal(cell: Path, *args: str, timeout_s: float = 180.0) -> subprocess.CompletedProcess:
+def run_cellcal(cell: Path, *args: str, timeout_s: float = 180.0) -> subprocess.CompletedProcess[str]:
     """Run one cellcal command to its end (a separate OS process); stdin is closed, as in CI."""
     return subprocess.run(cellcal_argv(cell, *args), cwd=REPO, capture_output=True, text=True,
                           timeout=timeout_s, stdin=subprocess.DEVNULL, env=_env())
@@ -101,7 +101,7 @@ class Process:
     def __init__(self, cell: Path, *args: str) -> None:
         self.argv = cellcal_argv(cell, *args)
         self.name = args[0]
-        self.proc: subprocess.Popen | None = None
+        self.proc: subprocess.Popen[str] | None = None
         self.lines: list[str] = []
         self._reader: threading.Thread | None = None
 

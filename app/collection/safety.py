@@ -135,7 +135,10 @@ class CellSafety:
                 raise ConfigError("safety", "others", f"paired poses of {name} must be shaped like {robot}'s "
                                                       f"{q.shape}, got {np.shape(oq)}")
         segs = self.capsules(robot, q)
-        where = (lambda i: f" at target {index[i]}") if index is not None else (lambda i: "")
+
+        def where(i: int) -> str:
+            return f" at target {index[i]}" if index is not None else ""
+
         if self.config.check_floor:
             gap = self.capsule_model.floor_gaps(robot, segs, FLOOR_CHECKED)
             bad = gap < self.config.floor_clearance_mm + slack_mm
@@ -158,7 +161,8 @@ class CellSafety:
         q_from, q_to = np.asarray(q_from, dtype=float), np.asarray(q_to, dtype=float)
         n = max(1, math.ceil(float(np.max(np.abs(q_to - q_from))) / math.radians(self.config.path_step_deg)))
         s = np.linspace(0.0, 1.0, n + 1)[:, None]
-        return q_from + s * (q_to - q_from)
+        q: np.ndarray = q_from + s * (q_to - q_from)
+        return q
 
     def check_motion(self, robot: str, q_from: np.ndarray, q_to: np.ndarray,
                      others: Mapping[str, np.ndarray] | None, index: int | None = None) -> None:

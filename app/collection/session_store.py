@@ -329,7 +329,8 @@ class SessionStore:
         row = self.conn.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()
         if row is None:
             raise DataError(self.path, None, key, "missing from the session (was it created by cellcal?)")
-        return row[0]
+        value: str = row[0]  # the meta table's values are TEXT
+        return value
 
     def _meta_json(self, key: str) -> Any:
         """A metadata value as JSON, refused naming the key when it is not (a damaged or edited database).

@@ -265,8 +265,9 @@ def buffer_evaluator(F: Any, z: np.ndarray, out: np.ndarray) -> Callable[[], Non
     """A zero-copy evaluator: reads ``z``, writes ``out`` in place."""
     try:
         buf, trigger = F.buffer()
-        buf.set_arg(0, memoryview(z))
-        buf.set_res(0, memoryview(out))
+        # numpy's stubs give ndarray __buffer__ only from Python 3.12 (mypy checks as 3.11)
+        buf.set_arg(0, memoryview(z))  # type: ignore[arg-type]
+        buf.set_res(0, memoryview(out))  # type: ignore[arg-type]
     except (AttributeError, NotImplementedError, RuntimeError):
         def run() -> None:
             out[:] = np.asarray(F(z)).ravel()

@@ -31,7 +31,8 @@ def rpy_deg(R: np.ndarray) -> np.ndarray:
     rx = np.arctan2(R[..., 2, 1], R[..., 2, 2])
     ry = np.arctan2(-R[..., 2, 0], np.hypot(R[..., 0, 0], R[..., 1, 0]))
     rz = np.arctan2(R[..., 1, 0], R[..., 0, 0])
-    return np.degrees(np.stack([rx, ry, rz], axis=-1))
+    rpy: np.ndarray = np.degrees(np.stack([rx, ry, rz], axis=-1))
+    return rpy
 
 
 def R_from_rpy_deg(rpy: np.ndarray) -> np.ndarray:

@@ -41,7 +41,8 @@ def tool_pose(planner: DualPlanner, name: str, q: np.ndarray) -> np.ndarray:
 def relative_pose(planner: DualPlanner, q: np.ndarray) -> np.ndarray:
     """Gun pose in the workpiece frame at q [rad] (12,), shape (4, 4) [mm]: a relative pose known to be reachable."""
     q = np.asarray(q, dtype=float)
-    return np.linalg.inv(tool_pose(planner, "R2", q[6:])) @ tool_pose(planner, "R1", q[:6])
+    T_wp_gun: np.ndarray = np.linalg.inv(tool_pose(planner, "R2", q[6:])) @ tool_pose(planner, "R1", q[:6])
+    return T_wp_gun
 
 
 def sweep_path(planner: DualPlanner, n: int = 200, q_inward_deg: np.ndarray | None = None,

@@ -112,7 +112,7 @@ def _eq_qp(H: np.ndarray, g: np.ndarray, J: np.ndarray, e: np.ndarray) -> np.nda
     """
     U, S, Vt = np.linalg.svd(J)
     r = int(np.sum(S > 1e-9 * S[0])) if S.size and S[0] > 0 else 0
-    dq = -Vt[:r].T @ ((U[:, :r].T @ e) / S[:r])
+    dq: np.ndarray = -Vt[:r].T @ ((U[:, :r].T @ e) / S[:r])
     N = Vt[r:].T
     if N.shape[1]:
         dq = dq + N @ np.linalg.solve(N.T @ H @ N, -N.T @ (g + H @ dq))
@@ -339,7 +339,7 @@ class DualPlanner:
                 if e_mm < 0.1 * o.tol_mm and e_rad < 0.1 * o.tol_rad and small < 1e-5:
                     break
             else:  # e was small before this step; the (exact Newton) step makes it quadratically smaller
-                done = e_mm < 1e-3 and small < 1e-5
+                done = bool(e_mm < 1e-3 and small < 1e-5)
             if small < o.step_tol_rad:
                 break
         if ev is None or not self._reached(*_relative_residual(ev["poses"], T_wp_gun)):

@@ -126,7 +126,8 @@ def relative_from_poses(cell: CellSpec, p1: np.ndarray, pose2: tuple[np.ndarray,
     T1, T2 = cell.robot("R1").T_cell_base, cell.robot("R2").T_cell_base
     p1c = p1 @ T1[:3, :3].T + T1[:3, 3]
     R2c, p2c = T2[:3, :3] @ R2, p2 @ T2[:3, :3].T + T2[:3, 3]
-    return np.einsum("nji,nj->ni", R2c, p1c - p2c)
+    p_tool2_tool1: np.ndarray = np.einsum("nji,nj->ni", R2c, p1c - p2c)
+    return p_tool2_tool1
 
 
 def evaluate_models(cell: CellSpec, model_sets: dict[str, dict[str, Any]], q: np.ndarray,

@@ -234,7 +234,8 @@ def _ints(text: str, n: int, path: Path, what: str) -> tuple[int, ...]:
     return tuple(int(f) for f in fields)
 
 
-def _instructions(texts: list[str], start: int, path: Path) -> tuple[tuple[tuple[str, ...], ...], dict]:
+def _instructions(texts: list[str], start: int, path: Path
+                  ) -> tuple[tuple[tuple[str, ...], ...], dict[str, list[tuple[int, str, int]]]]:
     """Control groups and, per C position, the (group, unit, line) of every move that uses it."""
     groups: dict[int, tuple[str, ...]] = {}
     refs: dict[str, list[tuple[int, str, int]]] = {}
@@ -263,7 +264,8 @@ def _instructions(texts: list[str], start: int, path: Path) -> tuple[tuple[tuple
     return tuple(groups[g] for g in order) or (("RB1",),), refs
 
 
-def _assign(positions: list[JobPosition], refs: dict, groups: tuple, path: Path) -> tuple[JobPosition, ...]:
+def _assign(positions: list[JobPosition], refs: dict[str, list[tuple[int, str, int]]], groups: tuple[tuple[str, ...], ...],
+            path: Path) -> tuple[JobPosition, ...]:
     """Each C position with the robot that moves to it; unused or shared positions are refused."""
     out = []
     seen: set[str] = set()

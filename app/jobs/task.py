@@ -12,13 +12,14 @@ from app.collection.plans.reader import read_plan
 from app.jobs.jbi import JobError, read_job
 from calibration.data.recording import read_joints
 from calibration.errors import DataError
+from cell_config.loader import CellSpec
 
 #: File name endings of a task given as a JBI job, and as a dual plan; any other is a joints CSV.
 JOB_SUFFIXES = (".jbi",)
 PLAN_SUFFIXES = (".json",)
 
 
-def read_task(path: str, robot: str, cell: object) -> np.ndarray:
+def read_task(path: str, robot: str, cell: CellSpec) -> np.ndarray:
     """The joint angles [rad] (T, 6) of the task ``robot`` will run: a joints CSV (``q1..q6`` in rad, header or 6
     headerless columns), a dual plan (``.json``: the robot's waypoints; refused waypoints left out) or a JBI job
     (``.jbi``: the robot's PULSE positions, by the cell's pulse convention). Every configuration is checked against
@@ -31,12 +32,12 @@ def read_task(path: str, robot: str, cell: object) -> np.ndarray:
     from pathlib import Path
 
 
-    spec = cell.robot(robot).robot  # type: ignore[attr-defined]
+    spec = cell.robot(robot).robot
     lower, upper = spec.lower_rad, spec.upper_rad
     suffix = Path(path).suffix.lower()
     if suffix in JOB_SUFFIXES:
         job = read_job(path)
-        units = {f"RB{i}": name for i, name in enumerate(cell.robots, start=1)}  # type: ignore[attr-defined]
+        units = {f"RB{i}": name for i, name in enumerate(cell.robots, start=1)}
         q = []
         for pos in job.positions:
             if units.get(pos.unit) != robot:
@@ -54,7 +55,7 @@ def read_task(path: str, robot: str, cell: object) -> np.ndarray:
         plan = read_plan(path, "dual")
         if robot not in ("R1", "R2"):
             raise DataError(path, None, None, f"a dual plan holds the waypoints of R1 and R2, not of {robot}")
-        q_task = np.array([getattr(w, f"q_{robot}") for w in plan.waypoints if w.converged])  # type: ignore[union-attr]
+        q_task = np.array([getattr(w, f"q_{robot}") for w in plan.waypoints if w.converged])
         if not len(q_task):
             raise DataError(path, None, None, f"the plan holds no solved waypoint of {robot}")
     else:

@@ -92,7 +92,7 @@ def collecting() -> Iterator[Collector]:
     collector = Collector()
     stream, handler = sys.stderr, _Handler(collector)
     tee = _Tee(stream, collector)
-    sys.stderr = tee  # type: ignore[assignment]
+    sys.stderr = tee
     logging.getLogger().addHandler(handler)
     _ACTIVE.append(collector)
     ok = False

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -12,6 +13,7 @@ from app.reports.page import Image, Page, Section, Table, write_html
 from app.reports.plots import save_figure
 from app.reports.provenance import provenance
 from calibration.data.files import atomic_write_text, make_folders
+from calibration.data.recording import Recording
 from calibration.diagnosis import Diagnosis
 
 
@@ -64,8 +66,9 @@ def markdown(result: Diagnosis) -> str:
 UNSEEN = "The data cannot see "
 
 
-def write_report(result: Diagnosis, out_dir: str | Path, tolerance: Any = None, heldout: Any = None,
-                 models: dict[str, Any] | None = None, inputs: list[tuple[str, Any]] | tuple = (),
+def write_report(result: Diagnosis, out_dir: str | Path, tolerance: Tolerance | None = None,
+                 heldout: Recording | None = None, models: dict[str, Any] | None = None,
+                 inputs: Sequence[tuple[str, str | Path | None]] = (),
                  command: str = "cellcal diagnose") -> list[Path]:
     """Write ``report.md``, ``mismatch.png``, ``heldout.png`` and ``report.html`` into ``out_dir``; returns the files.
 

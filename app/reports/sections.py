@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -154,7 +155,7 @@ def acceptance_markdown(section: Section, tol: Tolerance) -> list[str]:
 
 
 def write_report(cmp: Comparison, test: Recording, out_dir: str | Path, with_paper: bool = False,
-                 tolerance: Tolerance = Tolerance(), inputs: list[tuple[str, Any]] | tuple = (),
+                 tolerance: Tolerance = Tolerance(), inputs: Sequence[tuple[str, str | Path | None]] = (),
                  command: str = "cellcal compare") -> list[Path]:
     """``compare --report``: ``report.md``, the PNG plots and ``report.html``; returns the files (html last)."""
 
@@ -254,7 +255,7 @@ def evaluation_section(title: str, models: dict[str, Any], rec: Recording, out_d
 
 
 def write_evaluation_report(title: str, command: str, models: dict[str, Any], rec: Recording, out_dir: str | Path,
-                            tol: Tolerance, inputs: list[tuple[str, Any]], label: str,
+                            tol: Tolerance, inputs: Sequence[tuple[str, str | Path | None]], label: str,
                             paragraphs: list[str] | None = None, next_steps: list[str] | None = None,
                             why: list[str] | None = None, sigma: SigmaMap | None = None) -> Path:
     """``evaluate``/``recalibrate --report``: ``report.html`` (+ its PNGs) in ``out_dir``; returns the page; with
@@ -271,7 +272,7 @@ def write_evaluation_report(title: str, command: str, models: dict[str, Any], re
 
 def write_demo_report(out_dir: Path, comparisons: dict[str, Comparison], tests: dict[str, Recording],
                       summary: dict[str, Any], tolerance: Tolerance | None = None, report_dir: Path | None = None,
-                      inputs: list[tuple[str, Any]] | tuple = ()) -> Path:
+                      inputs: Sequence[tuple[str, str | Path | None]] = ()) -> Path:
     """The demo's ``report.html`` (in ``report_dir``, default ``out_dir``): one section per arm.
 
     Each arm's ``report.md`` and PNG plots go to ``out_dir/<robot>/``.

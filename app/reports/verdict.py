@@ -15,11 +15,14 @@ from app.reports.acceptance import Acceptance, Tolerance
 class Judged(Protocol):
     """What a verdict reads of a report section (:class:`app.reports.page.Section`, which renders the verdict)."""
 
-    title: str
-    acceptance: Sequence[Acceptance]
-    acceptance_data: str
-    conditions: Sequence[str]
-
+    @property
+    def title(self) -> str: ...
+    @property
+    def acceptance(self) -> Sequence[Acceptance]: ...
+    @property
+    def acceptance_data(self) -> str: ...
+    @property
+    def conditions(self) -> Sequence[str]: ...
     @property
     def in_service(self) -> str | None: ...
 

@@ -84,7 +84,8 @@ def _run_comparison(fitter: Fitter, test: Recording, methods: list[str] | tuple[
         out.add(method, model, seconds, fitter.train, test)
     if not out.models:  # the recommendation's "no method has held-out errors" did not say why
         raise ModelError("no method to compare: " + "; ".join(f"{m} skipped: {why}" for m, why in out.skipped.items()))
-    for rows in (out.models, out.fit_seconds, out.train_errors, out.test_errors):
+    tables: tuple[dict[str, Any], ...] = (out.models, out.fit_seconds, out.train_errors, out.test_errors)
+    for rows in tables:
         fitted = dict(rows)
         rows.clear()
         rows.update({m: fitted[m] for m in methods if m in fitted})
@@ -114,7 +115,7 @@ def recommend_fitted(fitter: Fitter, models: dict[str, KinematicModel]) -> Recom
     no test recording enters."""
     constant_fit = {"geometric": "nls1", "pi": "pi"}  # the constant fit each CDC reference is
     references = {m: constant_fit[cdc_method(m)[0]] for m in models if m in CDC_METHODS}
-    cdc_references = {m: (ref, fitter.held_out_errors(ref)) for m, ref in references.items()}
+    cdc_references = {m: (ref, _reference_errors(fitter, ref)) for m, ref in references.items()}
     # the CDC methods on the losing reference are no candidates whatever their own held-out errors: not refitted
     unread = off_reference(cdc_references)
     neural = [m for m in models if m in NEURAL_METHODS and m not in unread]
@@ -126,6 +127,14 @@ def recommend_fitted(fitter: Fitter, models: dict[str, KinematicModel]) -> Recom
     groups, _ = cluster_anchors(fitter.train, fitter.options.cluster_size)
     return recommend(held_out, {m: model.n_parameters for m, model in models.items()}, groups,
                      cdc_references=cdc_references)
+
+
+def _reference_errors(fitter: Fitter, ref: str) -> np.ndarray:
+    """The held-out errors of a CDC method's reference (a constant fit: ``nls1`` or ``pi``, which always has them)."""
+    e = fitter.held_out_errors(ref)
+    if e is None:
+        raise ModelError(f"the CDC reference {ref} has no held-out errors")
+    return e
 
 
 def _recommend(fitter: Fitter, cmp: Comparison, files: dict[str, KinematicModel]) -> Recommendation:

@@ -37,7 +37,7 @@ from app.reports.provenance import provenance, with_provenance
 from app.reports.sections import write_demo_report
 from app.workflows.compare import run_comparison
 from calibration.data.files import atomic_write_text
-from calibration.data.recording import read_recording
+from calibration.data.recording import Recording, read_recording
 from calibration.errors import ConfigError, DataError
 from calibration.method_names import METHODS
 from calibration.methods.fitter import Fitter
@@ -116,9 +116,9 @@ class Recordings:
     train_csv: Path
     cpa_csv: Path | None
     test_csv: Path
-    train: Any
-    cpa: Any
-    test: Any
+    train: Recording
+    cpa: Recording | None
+    test: Recording
 
 
 def export_recordings(session_dir: Path, out_dir: Path, cell: CellSpec, robot: str) -> Recordings:
@@ -129,14 +129,18 @@ def export_recordings(session_dir: Path, out_dir: Path, cell: CellSpec, robot: s
     """
 
     spec = cell.robot(robot).robot
-    train_csv, cpa_csv, test_csv = out_dir / "train.csv", out_dir / "cpa.csv", out_dir / "test.csv"
+    train_csv, cpa_path, test_csv = out_dir / "train.csv", out_dir / "cpa.csv", out_dir / "test.csv"
     export(session_dir, train_csv, kinds=("anchor", "perturb"))
+    cpa_csv: Path | None = cpa_path
     try:
-        export(session_dir, cpa_csv, kinds=("cpa",))
+        export(session_dir, cpa_path, kinds=("cpa",))
     except DataError:
         cpa_csv = None
     export(session_dir, test_csv, kinds=("validation",))
-    read = lambda p: read_recording(p, spec.lower_rad, spec.upper_rad)  # noqa: E731
+
+    def read(p: Path) -> Recording:
+        return read_recording(p, spec.lower_rad, spec.upper_rad)
+
     return Recordings(train_csv, cpa_csv, test_csv, read(train_csv), read(cpa_csv) if cpa_csv else None,
                       read(test_csv))
 

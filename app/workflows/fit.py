@@ -53,7 +53,7 @@ def checked_fitter_for(robot: Any, train: Any, cpa: Any | None = None, options: 
     fitter, check = framed(arm, train, refuse_another_arms(arm, train), cpa, options)
     if check.frame is not None:  # check.found
         log.info("%s Fitting the %s frame%s first, then the kinematics.", check.message(), check.frame,
-                 "s" if " and " in check.frame else "")
+                 "s" if check.frame is not None and " and " in check.frame else "")
     return fitter, check
 
 

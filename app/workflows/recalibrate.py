@@ -31,7 +31,7 @@ from app.collection.session_store import require_session
 from app.workflows.inputs import read_recording_for
 from calibration.data.files import check_output_path
 from calibration.data.recording import Recording
-from calibration.errors import CellCalError, ConfigError, DataError, ModelError
+from calibration.errors import CellCalError, ConfigError, DataError, ModelError, ModelFileError
 from calibration.evaluation.metrics import error_stats, errors
 from calibration.frames.rebase import rebase_auto, workspace_configurations
 from calibration.kinematics.poe import PoeModel
@@ -112,11 +112,12 @@ class Decision:
         if self.current_problem is not None:
             return (f"{self.robot}: replaced the unusable model in service ({self.current_problem}) with {new} on "
                     f"{self.validation_samples} validation poses")
-        if self.current is None:
+        current_rms_mm = self.current_rms_mm  # None exactly when no model was in service
+        if current_rms_mm is None:
             return f"{self.robot}: no model in service; installed {new} on {self.validation_samples} validation poses"
-        old = f"model in service {self.current_rms_mm:.4f} mm RMS"
+        old = f"model in service {current_rms_mm:.4f} mm RMS"
         # the difference too: both rounded to 0.1 um read 'replaced: 0.1812 < 0.1812' (new-user run)
-        by = f"{abs(self.current_rms_mm - self.candidate_rms_mm):.2g} mm"
+        by = f"{abs(current_rms_mm - self.candidate_rms_mm):.2g} mm"
         if self.replaced:
             return (f"{self.robot}: replaced: {new} < {old} (lower by {by}) on {self.validation_samples} validation "
                     "poses")
@@ -166,7 +167,7 @@ def model_in_service(model_dir: Path, robot: str, nominal: PoeModel | None = Non
     try:
         model = load_model(path)
     except DataError as e:
-        return InService(None, f"{e.key}: {e.reason}" if getattr(e, "key", "") else e.reason)
+        return InService(None, f"{e.key}: {e.reason}" if isinstance(e, ModelFileError) and e.key else e.reason)
     check_model_for(model, robot, nominal, path)
     return InService(model)
 

@@ -58,7 +58,7 @@ class JointStatePublisher:
     def close(self) -> None:
         """Undeclare the publisher; safe to call twice."""
         if not self._closed:
-            self._publisher.undeclare()
+            self._publisher.undeclare()  # type: ignore[no-untyped-call]  # zenoh's stub leaves undeclare() unannotated
             self._closed = True
 
     def __enter__(self) -> JointStatePublisher:
@@ -105,7 +105,7 @@ class JointStateSubscriber:
     def close(self) -> None:
         """Undeclare the subscriber; safe to call twice."""
         if not self._closed:
-            self._subscriber.undeclare()
+            self._subscriber.undeclare()  # type: ignore[no-untyped-call]  # zenoh's stub leaves undeclare() unannotated
             self._closed = True
 
     def __enter__(self) -> JointStateSubscriber:

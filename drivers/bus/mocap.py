@@ -131,7 +131,7 @@ class MocapBridge:
             self._thread = None
         with self._lock:
             for pub in self._publishers.values():
-                pub.undeclare()
+                pub.undeclare()  # type: ignore[no-untyped-call]  # zenoh's stub leaves undeclare() unannotated
             self._publishers.clear()
 
     def __enter__(self) -> MocapBridge:
@@ -163,7 +163,7 @@ class ZenohMocapSource(MocapSource):
         self._owns_session = session is None
         self._inbox: Inbox[MocapSample] = Inbox(
             ",".join(self.keys), lambda b: MocapSample(*decode_mocap(b), time.time()), max_buffered_frames)
-        self._subscribers: list = []
+        self._subscribers: list[zenoh.Subscriber[None]] = []
 
     @property
     def stats(self) -> InboxStats:
@@ -199,8 +199,8 @@ class ZenohMocapSource(MocapSource):
     def close(self) -> None:
         """Undeclare the subscribers and close an owned session; safe to call twice."""
         for sub in self._subscribers:
-            sub.undeclare()
+            sub.undeclare()  # type: ignore[no-untyped-call]  # zenoh's stub leaves undeclare() unannotated
         self._subscribers.clear()
         if self._owns_session and self._session is not None:
-            self._session.close()
+            self._session.close()  # type: ignore[no-untyped-call]  # zenoh's stub leaves close() unannotated
             self._session = None

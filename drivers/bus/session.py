@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 import re
 import time
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 from cell_config.devices import ZenohConfig
 from drivers.errors import DriverError
@@ -94,10 +94,11 @@ def wait_for_subscriber(session: zenoh.Session, key: str, timeout_s: float) -> b
     except zenoh.ZError as e:
         raise DriverError(DEVICE, f"cannot declare a publisher on {key} ({e})") from e
     try:
-        while not probe.matching_status.matching:
+        # zenoh's stub types matching_status as bool; it is a MatchingStatus
+        while not cast("zenoh.MatchingStatus", probe.matching_status).matching:
             if time.monotonic() >= deadline:
                 return False
             time.sleep(0.01)
         return True
     finally:
-        probe.undeclare()
+        probe.undeclare()  # type: ignore[no-untyped-call]  # zenoh's stub leaves undeclare() unannotated

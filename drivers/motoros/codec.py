@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import enum
 import struct
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import ClassVar
 
@@ -105,7 +106,8 @@ class Packet:
         """Parse the bytes after the length prefix; raises ProtocolError when shorter than a header."""
         if len(frame) < _HEADER.size:
             raise ProtocolError(CODEC_DEVICE, f"frame of {len(frame)} bytes is shorter than a header")
-        return cls(*_HEADER.unpack_from(frame), body=bytes(frame[_HEADER.size:]))
+        msg_type, comm_type, reply_type = _HEADER.unpack_from(frame)
+        return cls(msg_type, comm_type, reply_type, body=bytes(frame[_HEADER.size:]))
 
 
 @dataclass(frozen=True)
@@ -289,7 +291,8 @@ class MotionReply:
     def decode(cls, body: bytes) -> MotionReply:
         _check_size(body, cls._HEAD.size + 4 * MAX_JOINTS, "MotoMotionReply")
         data = struct.unpack_from(f"<{MAX_JOINTS}f", body, cls._HEAD.size)
-        return cls(*cls._HEAD.unpack_from(body), data=tuple(float(x) for x in data))
+        group, sequence, command, result, subcode = cls._HEAD.unpack_from(body)
+        return cls(group, sequence, command, result, subcode, data=tuple(float(x) for x in data))
 
     def describe(self) -> str:
         """Human-readable result, e.g. ``NOT_READY (5003: e-stop)``."""
@@ -298,7 +301,7 @@ class MotionReply:
 
 Message = (RobotStatusMsg | JointFeedback | JointFeedbackEx | JointTrajPtFull | JointTrajPtFullEx
            | MotionCtrl | MotionReply)
-_DECODERS = {cls.TYPE: cls.decode for cls in (RobotStatusMsg, JointFeedback, JointFeedbackEx,
+_DECODERS: dict[int, Callable[[bytes], Message]] = {cls.TYPE: cls.decode for cls in (RobotStatusMsg, JointFeedback, JointFeedbackEx,
                                               JointTrajPtFull, JointTrajPtFullEx, MotionCtrl, MotionReply)}
 
 

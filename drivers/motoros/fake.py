@@ -176,7 +176,7 @@ class FakeMotorosController:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def _spawn(self, target: Callable[..., None], args: tuple) -> None:
+    def _spawn(self, target: Callable[..., None], args: tuple[object, ...]) -> None:
         thread = threading.Thread(target=target, args=args, name="fake-motoros", daemon=True)
         self._threads.append(thread)
         thread.start()

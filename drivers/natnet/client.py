@@ -110,6 +110,7 @@ class NatNetSource(MocapSource):
         self._model_definitions: ModelDefinitions | None = None
         self._model_definitions_seq = 0
         self._server_info: ServerInfo | None = None
+        self._buffer_size = max_buffered_frames
         self._buffer: collections.deque[RigidBodyFrame] = collections.deque(maxlen=max_buffered_frames)
         self._cond = threading.Condition()
         self._stats = NatNetStats()
@@ -166,7 +167,7 @@ class NatNetSource(MocapSource):
         self._stop.clear()
         self._thread = threading.Thread(target=self._receive_loop, name="natnet-receive", daemon=True)
         self._thread.start()
-        log.info("%s: connected, NatNet %d.%d, data port %d", self.device, *self._version, self.data_port)
+        log.info("%s: connected, NatNet %d.%d, data port %d", self.device, *self._stream_version(), self.data_port)
 
     def _await_server_info(self) -> None:
         deadline = time.monotonic() + self.connect_timeout_s
@@ -183,6 +184,12 @@ class NatNetSource(MocapSource):
                 self._count_rejected(e)
         raise DriverTimeout(self.device, "NAT_SERVERINFO (is Motive streaming? or configure version=)",
                             self.connect_timeout_s)
+
+    def _stream_version(self) -> tuple[int, int]:
+        """The version in use once connect() has it (configured, or from ``NAT_SERVERINFO``)."""
+        if self._version is None:
+            raise DriverError(self.device, "NatNet version unknown: connect() first")
+        return self._version
 
     def _accept_server_info(self, info: ServerInfo) -> None:
         version = check_version(info.natnet_version[:2])
@@ -208,12 +215,12 @@ class NatNetSource(MocapSource):
             if message_id == MessageId.SERVER_INFO:
                 self._accept_server_info(parse_server_info(payload))
             elif message_id == MessageId.MODEL_DEF:
-                definitions = parse_model_definitions(payload, self._version)
+                definitions = parse_model_definitions(payload, self._stream_version())
                 with self._cond:
                     self._model_definitions = definitions
                     self._model_definitions_seq += 1
                     self._cond.notify_all()
-            frame = parse_frame(payload, self._version) if message_id == MessageId.FRAME_OF_DATA else None
+            frame = parse_frame(payload, self._stream_version()) if message_id == MessageId.FRAME_OF_DATA else None
         except ProtocolError as e:
             self._count_rejected(e, received=True)
             return
@@ -222,7 +229,7 @@ class NatNetSource(MocapSource):
             if frame is None:
                 self._stats = dataclasses.replace(s, packets_received=s.packets_received + 1)
                 return
-            overflow = max(0, len(self._buffer) + len(frame.rigid_bodies) - self._buffer.maxlen)
+            overflow = max(0, len(self._buffer) + len(frame.rigid_bodies) - self._buffer_size)
             self._buffer.extend(frame.rigid_bodies)
             self._stats = dataclasses.replace(s, packets_received=s.packets_received + 1,
                                               frames_parsed=s.frames_parsed + 1,
@@ -285,7 +292,7 @@ class NatNetSource(MocapSource):
                                     timeout=min(_MODELDEF_RETRY_S, remaining))
                 if self._failure is not None:
                     raise self._failure
-                if self._model_definitions_seq != seq:
+                if self._model_definitions_seq != seq and self._model_definitions is not None:
                     return self._model_definitions
         raise DriverTimeout(self.device, "NAT_MODELDEF (reply to NAT_REQUEST_MODELDEF)", timeout_s)
 

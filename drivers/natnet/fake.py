@@ -215,7 +215,8 @@ class FakeNatNetServer:
     @property
     def command_port(self) -> int:
         """The UDP port the server answers commands on."""
-        return self._sock.getsockname()[1]
+        port: int = self._sock.getsockname()[1]
+        return port
 
     def _serve(self) -> None:
         while not self._stop.is_set():

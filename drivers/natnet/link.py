@@ -21,6 +21,7 @@ import socket
 import threading
 import time
 from collections.abc import Callable
+from typing import cast
 
 from drivers.natnet.messages import MessageId, build_request
 
@@ -74,15 +75,22 @@ class NatNetLink:
         """The local data port bound, None when closed."""
         return None if self.data is None else self.data.getsockname()[1]
 
+    def _sockets(self) -> tuple[socket.socket, socket.socket]:
+        """The (command, data) sockets; raises OSError when the link is not open."""
+        if self.cmd is None or self.data is None:
+            raise OSError(f"{self.device}: NatNet link is not open")
+        return self.cmd, self.data
+
     def send(self, packet: bytes) -> None:
         """Send to the server's command port; raises OSError."""
-        self.cmd.sendto(packet, self.server)
+        self._sockets()[0].sendto(packet, self.server)
 
     def recv_command(self, timeout_s: float) -> bytes | None:
         """One datagram of the server from the command socket, None after ``timeout_s`` [s] (blocking mode only)."""
-        self.cmd.settimeout(max(timeout_s, 1e-3))
+        cmd = self._sockets()[0]
+        cmd.settimeout(max(timeout_s, 1e-3))
         try:
-            packet, source = self.cmd.recvfrom(RECV_SIZE)
+            packet, source = cmd.recvfrom(RECV_SIZE)
         except (TimeoutError, ConnectionRefusedError):
             return None
         return packet if self._from_server(source) else None
@@ -110,7 +118,7 @@ class NatNetLink:
             OSError, ValueError: a socket failed (or was closed under the loop).
         """
         sel = selectors.DefaultSelector()
-        for sock in (self.cmd, self.data):
+        for sock in self._sockets():
             sock.setblocking(False)
             sel.register(sock, selectors.EVENT_READ)
         now = time.monotonic()
@@ -119,7 +127,7 @@ class NatNetLink:
             while not stop.is_set():
                 for key, _ in sel.select(POLL_S):
                     try:
-                        packet, source = key.fileobj.recvfrom(RECV_SIZE)
+                        packet, source = cast(socket.socket, key.fileobj).recvfrom(RECV_SIZE)
                     except ConnectionRefusedError:  # ICMP port unreachable: the server is down
                         continue
                     if not self._from_server(source):

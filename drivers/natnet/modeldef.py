@@ -166,7 +166,8 @@ def parse_model_definitions(payload: bytes | memoryview, version: tuple[int, int
     """
     version = check_version(version)
     r = Reader(payload)
-    bodies, marker_sets, skeletons, counts = [], [], [], {}
+    bodies, marker_sets, skeletons = [], [], []
+    counts: dict[int, int] = {}
     for _ in range(r.count("data description count", 4)):
         kind = r.i32("data description type")
         size = r.count("data description byte count", 1) if has_byte_counts(version) else None

@@ -210,12 +210,14 @@ def parse_frame(payload: bytes | memoryview, version: tuple[int, int]) -> MocapF
         s.close()
 
     timecode, timecode_sub, timestamp = r.unpack(_SUFFIX, "frame suffix")
-    stamps = r.unpack(_STAMPS, "camera timestamps")
-    precision = r.unpack(_PRECISION, "precision timestamp") if has_precision_timestamp(version) else (0, 0)
+    stamp_mid_exposure, stamp_received, stamp_transmit = r.unpack(_STAMPS, "camera timestamps")
+    precision_sec, precision_frac = (r.unpack(_PRECISION, "precision timestamp")
+                                     if has_precision_timestamp(version) else (0, 0))
     (params,) = r.unpack(_PARAMS, "frame params")
 
     frame = MocapFrame(frame_number, (), tuple(marker_sets), unlabeled, skeleton_count, labeled_count,
-                       timecode, timecode_sub, timestamp, *stamps, params, *precision)
+                       timecode, timecode_sub, timestamp, stamp_mid_exposure, stamp_received, stamp_transmit,
+                       params, precision_sec, precision_frac)
     capture_time = frame.capture_time
     kept = [b for b in bodies if _usable_pose(b[1], b[2], b[3])]
     rigid_bodies = tuple(

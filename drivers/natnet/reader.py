@@ -8,6 +8,7 @@ made once, so reading N strings costs O(total length), not O(N x length).
 from __future__ import annotations
 
 import struct
+from typing import Any
 
 from drivers.errors import ProtocolError
 
@@ -37,13 +38,14 @@ class Reader:
         self.offset += n
         return chunk
 
-    def unpack(self, fmt: struct.Struct, what: str) -> tuple:
+    def unpack(self, fmt: struct.Struct, what: str) -> tuple[Any, ...]:
         """Unpack ``fmt`` at the cursor."""
         return fmt.unpack(self.take(fmt.size, what))
 
     def i32(self, what: str) -> int:
         """One little-endian ``int32``."""
-        return self.unpack(I32, what)[0]
+        value: int = self.unpack(I32, what)[0]
+        return value
 
     def count(self, what: str, min_item_size: int) -> int:
         """An ``int32`` item count, rejected when negative or when its items cannot fit in what is left."""

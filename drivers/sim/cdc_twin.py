@@ -98,11 +98,13 @@ def _rot(h: np.ndarray, q: np.ndarray) -> np.ndarray:
     K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -h[:, 2], h[:, 1], -h[:, 0]
     K = K - np.swapaxes(K, 1, 2)
     s, c = np.sin(q)[:, None, None], np.cos(q)[:, None, None]
-    return np.eye(3) + s * K + (1.0 - c) * (K @ K)
+    R: np.ndarray = np.eye(3) + s * K + (1.0 - c) * (K @ K)
+    return R
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+    u: np.ndarray = v / np.linalg.norm(v, axis=-1, keepdims=True)
+    return u
 
 
 @dataclass(frozen=True)
@@ -137,7 +139,7 @@ class ConcealedArm:
     wobble: tuple[tuple[int, float, float, np.ndarray], ...]
     info: dict[str, Any] = field(default_factory=dict, compare=False)
 
-    def _chain(self, q: np.ndarray, H: np.ndarray, P: np.ndarray, tilts: list[np.ndarray] | None = None
+    def _chain(self, q: np.ndarray, H: np.ndarray, P: np.ndarray, tilts: list[np.ndarray | None] | None = None
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Frames of the chain at joint angles q (N, 6): link rotations (7, N, 3, 3) (base, after each joint),
         joint origins (6, N, 3), base-frame axes (6, N, 3), tool R (N, 3, 3) and p (N, 3)."""
@@ -146,8 +148,9 @@ class ConcealedArm:
         p = np.broadcast_to(P[:, 0], (N, 3)).copy()
         Rs, origins, axes = [R], [], []
         for i in range(6):
-            if tilts is not None and tilts[i] is not None:
-                R = R @ tilts[i]
+            tilt = None if tilts is None else tilts[i]
+            if tilt is not None:
+                R = R @ tilt
             h = np.broadcast_to(H[:, i], (N, 3))
             origins.append(p.copy())
             axes.append((R @ h[..., None])[..., 0])
@@ -290,7 +293,8 @@ def test_path(anchors: np.ndarray, n: int, lower_rad: np.ndarray, upper_rad: np.
     i = np.minimum(s.astype(int), n_way - 2)
     f = (s - i)[:, None]
     q = (1 - f) * way[i] + f * way[i + 1]
-    return np.clip(q, lower_rad, upper_rad)
+    clipped: np.ndarray = np.clip(q, lower_rad, upper_rad)
+    return clipped
 
 
 def measure(arm: ConcealedArm, q: np.ndarray, size: CdcSize, rng: np.random.Generator, source: str,

@@ -80,7 +80,8 @@ def hidden_frames(cell: Any, seed: int) -> dict[str, HiddenFrames]:
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
-    return v / np.linalg.norm(v)
+    u: np.ndarray = v / np.linalg.norm(v)
+    return u
 
 
 def rehearsal_truths(cell: Any, seed: int, errors: PlantedErrors = PlantedErrors(compliance_mm=1.0)

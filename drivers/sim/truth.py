@@ -16,12 +16,13 @@ The physics twin (:class:`calibration.physics.Twin`) reads the directions as ``d
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from calibration.kinematics.poe import PoeModel
 from calibration.physics import GravityModel, PlantedErrors, planted_twin
+from cell_config.loader import CellSpec, RobotSpec
 from drivers.errors import InvalidArgument
 
 
@@ -65,7 +66,7 @@ class TwinTruth:
         twin: typically a :class:`calibration.physics.Twin`.
     """
 
-    def __init__(self, twin: Any) -> None:
+    def __init__(self, twin: Truth) -> None:
         if not (hasattr(twin, "pose") and hasattr(twin, "context_keys")):
             raise InvalidArgument("sim:truth", "twin", twin, "an object with pose(q, context) and context_keys")
         self.twin = twin
@@ -83,7 +84,7 @@ class TwinTruth:
 
 
 def planted_truth(nominal: PoeModel, errors: PlantedErrors = PlantedErrors(), seed: int = 0,
-                  spec: Any = None) -> TwinTruth:
+                  spec: RobotSpec | None = None) -> TwinTruth:
     """A simulated arm's truth: the one planter, :func:`calibration.physics.planted_twin`, behind a :class:`TwinTruth`.
 
     Args:
@@ -104,7 +105,7 @@ def planted_truth(nominal: PoeModel, errors: PlantedErrors = PlantedErrors(), se
     return TwinTruth(planted_twin(nominal, errors, seed, gravity))
 
 
-def cell_truths(cell: Any, seed: int, errors: PlantedErrors, robots: tuple[str, ...] | None = None
+def cell_truths(cell: CellSpec, seed: int, errors: PlantedErrors, robots: tuple[str, ...] | None = None
                 ) -> dict[str, TwinTruth]:
     """Each arm's truth, seeded as the simulated cell seeds them (``seed * 100 + k + 1`` for the k-th arm).
 

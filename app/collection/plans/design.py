@@ -300,7 +300,8 @@ def topup_candidates(robot: str, safety: CellSafety, others: Mapping[str, np.nda
     for j, w in zip((0, 3, 4, 5), DesignSpec().wide_deg):
         wide[:, j] = rng.uniform(max(-math.radians(w), lo[j]), min(math.radians(w), hi[j]), len(wide))
     q = np.clip(np.concatenate([near, wide]), lo, hi)
-    return q[_safe_poses(robot, safety, others, q, np.arange(len(q)))]
+    safe: np.ndarray = q[_safe_poses(robot, safety, others, q, np.arange(len(q)))]
+    return safe
 
 
 def topup_plan(robot: str, nominal: object, safety: CellSafety, others: Mapping[str, np.ndarray],

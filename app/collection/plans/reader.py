@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal, overload
 
 from app.collection.plans.collection import Plan
 from app.collection.plans.dual import PlanResult
@@ -60,8 +60,18 @@ def plan_from_data(d: Any, source: str | Path = "<plan>", kind: PlanKind | None 
     return PlanResult.from_dict(d, source) if found == "dual" else Plan.from_dict(d, str(source))
 
 
-def read_plan(source: str | Path | dict[str, Any] | Plan | PlanResult, kind: PlanKind | None = None
-              ) -> Plan | PlanResult:
+PlanSource = str | Path | dict[str, Any] | Plan | PlanResult
+
+
+@overload
+def read_plan(source: PlanSource, kind: Literal["collection"]) -> Plan: ...
+@overload
+def read_plan(source: PlanSource, kind: Literal["dual"]) -> PlanResult: ...
+@overload
+def read_plan(source: PlanSource, kind: None = None) -> Plan | PlanResult: ...
+
+
+def read_plan(source: PlanSource, kind: PlanKind | None = None) -> Plan | PlanResult:
     """Read a plan file (or take parsed content or a plan object) as a :class:`Plan` or :class:`PlanResult`.
 
     Args:

@@ -109,7 +109,7 @@ class SettledFrames(MocapSource):
         sync_timeout_s: longest real wait for that [s]; then the read fails as a driver timeout.
     """
 
-    def __init__(self, inner: MocapSource, clock: Any, latency_s: float, step_s: float | None = None,
+    def __init__(self, inner: MocapSource, clock: SimClock, latency_s: float, step_s: float | None = None,
                  in_sync: Callable[[], bool] | None = None, sync_timeout_s: float = 10.0) -> None:
         if clock.stepped and (in_sync is None or step_s is None):
             raise ConfigError("SimCell", "mocap", "a stepped clock needs a step and an in-sync check")
@@ -155,7 +155,13 @@ class SettledFrames(MocapSource):
             frames = [f for f in self.inner.read(0.0) if f.capture_time >= self._not_before]
             if frames or self.clock.now() >= deadline:
                 return sorted(frames, key=lambda f: (f.frame_number, f.body_id))
-            self.clock.advance(min(self.step_s, deadline - self.clock.now()))  # type: ignore[type-var]
+            self.clock.advance(min(self._step_s(), deadline - self.clock.now()))
+
+    def _step_s(self) -> float:
+        """The stepped clock's step [s] (``__init__`` refuses a stepped clock without one)."""
+        if self.step_s is None:
+            raise ConfigError("SimCell", "mocap", "a stepped clock needs a step and an in-sync check")
+        return self.step_s
 
     def wait_in_sync(self) -> None:
         """Stepped clock: wait (in real time) until every frame captured up to now has come through Zenoh.
@@ -236,9 +242,9 @@ class SimCell:
         self.truths: dict[str, Any] = {}
         self.body_ids = {name: i + 1 for i, name in enumerate(self.robots)}
         self.mocap: MocapSource | None = None
-        self.subscriber: Any = None
-        self.bridge: Any = None
-        self._sim_mocap: Any = None
+        self.subscriber: ZenohMocapSource | None = None
+        self.bridge: MocapBridge | None = None
+        self._sim_mocap: SimMocapSource | None = None
         self.clock: Any = None
         self._sessions: list[Any] = []
 

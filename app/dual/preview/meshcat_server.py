@@ -38,7 +38,7 @@ def _bridge_class(page_extra: str = "") -> Any:
             self.set_header("Content-Type", "text/html; charset=utf-8")
             self.write(page.replace("</body>", page_extra + "</body>", 1))
 
-    class LoopbackBridge(ZMQWebSocketBridge):
+    class LoopbackBridge(ZMQWebSocketBridge):  # type: ignore[misc]  # meshcat ships no stubs: its class is Any
         """meshcat's bridge whose web server listens on :data:`HOST` only and whose page carries ``page_extra``."""
 
         def make_app(self) -> Any:
@@ -47,13 +47,14 @@ def _bridge_class(page_extra: str = "") -> Any:
                 (r"/static/(.*)", StaticFileHandlerNoCache, {"path": VIEWER_ROOT, "default_filename": VIEWER_HTML}),
                 (r"/", WebSocketHandler, {"bridge": self})])
             listen = app.listen
-            app.listen = lambda port, **kwargs: listen(port, address=HOST, **kwargs)
+            # patched on this instance on purpose: meshcat calls app.listen(port), which binds every interface
+            app.listen = lambda port, **kwargs: listen(port, address=HOST, **kwargs)  # type: ignore[method-assign]
             return app
 
     return LoopbackBridge
 
 
-def start(page_extra: str = "") -> tuple[subprocess.Popen, str, str]:
+def start(page_extra: str = "") -> tuple[subprocess.Popen[str], str, str]:
     """Start the server as a subprocess (killed when this process exits): ``(process, zmq_url, web_url)``.
 
     Args:
@@ -67,7 +68,7 @@ def start(page_extra: str = "") -> tuple[subprocess.Popen, str, str]:
         extra.write_text(page_extra, encoding="utf-8")
         proc = subprocess.Popen([sys.executable, "-u", "-m", "app.dual.preview.meshcat_server", "--page-extra", str(extra)],
                                 stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, start_new_session=True)
-        atexit.register(lambda: (proc.kill(), proc.wait()))
+        atexit.register(_kill_and_wait, proc)
         urls: dict[str, str] = {}
         while len(urls) < 2:
             line = proc.stdout.readline() if proc.stdout is not None else ""
@@ -77,6 +78,11 @@ def start(page_extra: str = "") -> tuple[subprocess.Popen, str, str]:
             if m:
                 urls[m.group(1)] = m.group(2)
     return proc, urls["zmq_url"], urls["web_url"]
+
+
+def _kill_and_wait(proc: subprocess.Popen[str]) -> None:
+    proc.kill()
+    proc.wait()
 
 
 def main(argv: list[str] | None = None) -> None:

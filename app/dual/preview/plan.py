@@ -121,7 +121,7 @@ def limit_margin(cell: CellSpec, plan: PreviewPlan) -> tuple[float, tuple[int, s
             raise UnsafeTarget(name, j + 1, float(q[i, j]), float(limit), f"waypoint {i} of the plan is beyond the "
                                                                           "joint limits; not drawn")
         margin = np.degrees(np.minimum(q - spec.lower_rad, spec.upper_rad - q))
-        i, j = np.unravel_index(int(np.argmin(margin)), margin.shape)
+        i, j = (int(v) for v in np.unravel_index(int(np.argmin(margin)), margin.shape))
         if margin[i, j] < best[0]:
-            best = (float(margin[i, j]), (int(i), name, int(j) + 1))
+            best = (float(margin[i, j]), (i, name, j + 1))
     return best

@@ -53,7 +53,8 @@ def _flange_poses(cell: CellSpec, T_cell_tool: np.ndarray, name: str) -> np.ndar
     tool = cell.robot(name).tool
     T_flange_tool = np.eye(4)
     T_flange_tool[:3, :3], T_flange_tool[:3, 3] = tool.R_flange_tool, tool.p_flange_tool * 1e-3
-    return T_cell_tool @ np.linalg.inv(T_flange_tool)
+    T_cell_flange: np.ndarray = T_cell_tool @ np.linalg.inv(T_flange_tool)
+    return T_cell_flange
 
 
 def _capsule_transforms(seg_m: np.ndarray) -> dict[str, np.ndarray]:
@@ -107,16 +108,18 @@ def _draw_carried(vis: Any, cell: CellSpec, name: str) -> None:
     for shape in cell.robot(name).tool.shapes:
         node = vis[f"{name}/flange/{shape.name}"]
         if shape.kind == "cylinder":
-            a, b = shape.from_mm * 1e-3, shape.to_mm * 1e-3
-            r_from, r_to = (r * 1e-3 for r in shape.radius_mm)
+            from_mm, to_mm, radius_mm = shape.cylinder()
+            a, b = from_mm * 1e-3, to_mm * 1e-3
+            r_from, r_to = (r * 1e-3 for r in radius_mm)
             node.set_object(g.Cylinder(float(np.linalg.norm(b - a)), radiusTop=r_to, radiusBottom=r_from), mat)
             node.set_transform(_segment_transform(a, b))
         else:
-            node.set_object(g.Box((shape.size_mm * 1e-3).tolist()), mat)
-            node.set_transform(tf.translation_matrix(shape.centre_mm * 1e-3))
+            centre_mm, size_mm = shape.box()
+            node.set_object(g.Box((size_mm * 1e-3).tolist()), mat)
+            node.set_transform(tf.translation_matrix(centre_mm * 1e-3))
 
 
-class _TextTexture(g.Texture):
+class _TextTexture(g.Texture):  # type: ignore[misc]  # meshcat ships no stubs: its classes are Any
     """The meshcat viewer's ``_text`` texture: ``text`` drawn on a 256 x 256 canvas (meshcat-python 0.3 has no
     ``TextTexture``/``SceneText``)."""
     def __init__(self, text: str, font_size: int = 64) -> None:
@@ -128,7 +131,7 @@ class _TextTexture(g.Texture):
                 "font_face": "sans-serif"}
 
 
-class _Plate(g.Geometry):
+class _Plate(g.Geometry):  # type: ignore[misc]  # meshcat ships no stubs: its classes are Any
     """A square plane of side ``width_m`` [m] facing -y of its parent frame (the camera), its up along +z."""
     def __init__(self, width_m: float) -> None:
         super().__init__()
