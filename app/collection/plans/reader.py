@@ -115,8 +115,6 @@ def read_arm_plan(path: str | Path, robot: str) -> Plan:
         DataError: what :func:`read_plan` refuses, a dual plan, or a plan that moves another arm (or none).
     """
     plan = read_plan(path, "collection")
-    if not isinstance(plan, Plan):  # read_plan refuses another kind; this only narrows the type
-        raise DataError(path, None, "kind", "this is a dual plan; expected a collection plan")
     if plan.robots != (robot,):
         raise DataError(path, None, "targets", f"the plan moves {', '.join(plan.robots) or 'nothing'}, "
                                                f"expected {robot} only")
