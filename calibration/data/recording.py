@@ -25,6 +25,7 @@ import numpy as np
 from calibration.data.files import atomic_write_text, read_input_text
 from calibration.errors import DataError, ModelError
 from calibration.kinematics import so3
+from calibration.kinematics.arrays import IntArray
 
 
 def take_out(rec: Recording, T_base: np.ndarray, T_tool: np.ndarray) -> Recording:
@@ -101,7 +102,8 @@ class Recording:
     source: str = ""
 
     def __len__(self) -> int:
-        return self.q.shape[0]
+        n: int = self.q.shape[0]
+        return n
 
     @property
     def R(self) -> np.ndarray:
@@ -349,7 +351,7 @@ def read_recording(path: str | Path, lower: np.ndarray | None = None, upper: np.
     if "cluster" in extra and np.any(extra["cluster"] != np.round(extra["cluster"])):
         i = int(np.flatnonzero(extra["cluster"] != np.round(extra["cluster"]))[0])
         raise DataError(path, first + i, "cluster", "expected an integer cluster id")
-    back = np.flatnonzero(np.diff(extra["t"]) < 0) if "t" in extra else ()
+    back: IntArray | tuple[int, ...] = np.flatnonzero(np.diff(extra["t"]) < 0) if "t" in extra else ()
     if len(back):  # the format: t is the time since the session started, monotonic
         i = int(back[0]) + 1
         raise DataError(path, first + i, "t", f"time goes backwards ({extra['t'][i - 1]:g} s, then {extra['t'][i]:g} "
