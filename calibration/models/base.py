@@ -17,12 +17,13 @@ from __future__ import annotations
 
 import abc
 import logging
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Self
 
 import numpy as np
 
 from calibration.errors import ModelError
 from calibration.kinematics.blocks import Block
+from calibration.kinematics.casadi_expr import CasadiPose
 from calibration.kinematics.poe import PoeModel
 from calibration.models.registry import KINDS, model_class
 
@@ -64,7 +65,7 @@ class KinematicModel(abc.ABC):
         none for a model without context-dependent effects."""
         return frozenset()
 
-    def with_region(self, region: Any) -> KinematicModel:
+    def with_region(self, region: Any) -> Self:
         """The same model with another training region (a :class:`calibration.models.guard.Region`, or None: none,
         which turns the extrapolation guard off)."""
         from dataclasses import replace
@@ -108,8 +109,8 @@ class KinematicModel(abc.ABC):
         """The same model with other parameters (m,)."""
         raise ModelError(f"a {self.kind} model has no parameter vector")
 
-    def casadi(self, q: Any, theta: Any = None, q_at: Any = None) -> Any:
-        """The pose as casadi expressions (a :class:`calibration.kinematics.casadi_expr.CasadiPose`).
+    def casadi(self, q: Any, theta: Any = None, q_at: Any = None) -> CasadiPose:
+        """The pose as casadi expressions.
 
         Args:
             q: casadi symbols (or expressions) of the joint angles the kinematics see [rad] (6,).
@@ -181,6 +182,7 @@ class KinematicModel(abc.ABC):
         if d.get("schema") not in READABLE_SCHEMAS:
             raise ModelError(f"unsupported model schema {d.get('schema')!r}; expected one of {READABLE_SCHEMAS}")
         kind = d.get("kind")
-        return model_class(kind)._from_body(d["robot"], d["method"], d.get("info", {}), d)
+        model: KinematicModel = model_class(kind)._from_body(d["robot"], d["method"], d.get("info", {}), d)
+        return model
 
 
