@@ -17,7 +17,8 @@ from __future__ import annotations
 
 import abc
 import logging
-from typing import Any, ClassVar, Self
+from dataclasses import Field
+from typing import TYPE_CHECKING, Any, ClassVar, Self
 
 import numpy as np
 
@@ -44,6 +45,9 @@ class KinematicModel(abc.ABC):
     robot: str
     method: str
     info: dict[str, Any]
+    if TYPE_CHECKING:
+        # Every model kind is a dataclass, so dataclasses.replace applies to any KinematicModel.
+        __dataclass_fields__: ClassVar[dict[str, Field[Any]]]
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -73,7 +77,7 @@ class KinematicModel(abc.ABC):
         from calibration.models.guard import REGION_KEY  # the guard loads when a region is asked for, not with a model
 
         info = {k: v for k, v in self.info.items() if k != REGION_KEY}
-        return replace(self, info=info if region is None else {**info, REGION_KEY: region.to_dict()})  # type: ignore[type-var]
+        return replace(self, info=info if region is None else {**info, REGION_KEY: region.to_dict()})
 
     def out_of_range(self, q: np.ndarray) -> np.ndarray:
         """Boolean mask (N,) of configurations outside the region the model was fitted on."""
