@@ -66,7 +66,7 @@ def result_model(robot: str, inuse: InUse, used: KinematicModel | None, theta: n
         cdc = inuse.cdc
         ref = full.copy()
         ref[:g] = cdc.theta_ref[:g]
-        base: KinematicModel = CdcModel(robot, cdc.method, inuse.kin, ref, cdc.interpolator, cdc.inputs, dict(cdc.info),
+        base: CdcModel | PhysicsInformedModel = CdcModel(robot, cdc.method, inuse.kin, ref, cdc.interpolator, cdc.inputs, dict(cdc.info),
                                               cdc.bounds)
         base_kind = "cdc"
     else:

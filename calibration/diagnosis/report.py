@@ -199,7 +199,8 @@ class Diagnosis:
             out["days"] = self.days.to_json()
         if self.extrapolation is not None:
             out["extrapolation"] = self.extrapolation
-        return _finite(out)
+        finite: dict[str, Any] = _finite(out)
+        return finite
 
 
 def _skipped(u: Untested) -> dict[str, Any]:

@@ -26,6 +26,7 @@ import numpy as np
 from scipy import special
 
 from calibration.diagnosis.candidates import Candidate
+from calibration.kinematics.arrays import FloatArray
 from calibration.physics.base import Effect
 from calibration.physics.thermal import ThermalDrift
 
@@ -220,7 +221,8 @@ class LinearSelection:
         try:
             return np.linalg.solve(G + 1e-12 * np.eye(len(b)), b)
         except np.linalg.LinAlgError:
-            return np.linalg.lstsq(G, b, rcond=None)[0]
+            solution: FloatArray = np.linalg.lstsq(G, b, rcond=None)[0]
+            return solution
 
     def _idx(self, sets: list[np.ndarray]) -> np.ndarray:
         return np.concatenate([self.base] + list(sets)).astype(int)
@@ -257,7 +259,8 @@ class LinearSelection:
         return ss, ssp
 
     def bic(self, rss: float, p: int) -> float:
-        return self.n_res * np.log(rss / self.n_res) + p * np.log(self.n_res)
+        bic: float = self.n_res * np.log(rss / self.n_res) + p * np.log(self.n_res)
+        return bic
 
     def fit_evidence(self, base: list[np.ndarray], base_dof: int, extra: list[np.ndarray], extra_dof: int
                      ) -> Evidence:
@@ -322,7 +325,8 @@ def tune_warmup(pool: list[tuple[Candidate, np.ndarray]], problem: LinearSelecti
                 ) -> list[tuple[Candidate, np.ndarray]]:
     """One warm-up thermal candidate per link, its time constant refined from the best of the grid; the
     other candidates first, in order."""
-    out, best = [], {}
+    out: list[tuple[Candidate, np.ndarray]] = []
+    best: dict[str, tuple[float, Candidate]] = {}
     for c, S in pool:
         if _is_warmup(c):
             cost = problem.rss([], signature(c.effect))
