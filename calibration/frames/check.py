@@ -25,7 +25,7 @@ before (the figures are quoted next to each constant).
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -268,7 +268,7 @@ def framed(make_fitter: Any, nominal: KinematicModel, train: Recording,
     check = check if check is not None else check_recording(nominal, train)
     if not check.found:
         return make_fitter(train), check
-    frames = check.fits[check.frame].result
+    frames = check.fits[cast(str, check.frame)].result  # found: a frame
     corrected = take_out(train, frames.T_base_correction, frames.T_tool_correction)
     if check.frame in ("base", "tool"):
         other = "tool" if check.frame == "base" else "base"
