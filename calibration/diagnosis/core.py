@@ -498,7 +498,8 @@ def _present_kinds(base: FittedInUse) -> set[str]:
 
 
 def _screen(cands: list[Candidate], A: np.ndarray, sig: Signatures, q_ref: np.ndarray, ctx_ref: Context,
-            visible_min: float) -> tuple[list[tuple[Candidate, np.ndarray]], list[Untested], dict[CandidateKey, np.ndarray]]:
+            visible_min: float
+            ) -> tuple[list[tuple[Candidate, np.ndarray]], list[Untested], dict[CandidateKey, np.ndarray]]:
     """Identifiable candidates with their signatures in their visible directions, the others with the reason,
     and the visible directions of each identifiable one."""
     Q = np.linalg.qr(A)[0]

@@ -157,9 +157,10 @@ def _nls0_held_out(fitter: HeldOutRefits, at: Callable[[float], tuple[Observabil
     nls1_mm = cast(np.ndarray, fitter.held_out_errors("nls1"))[rest]  # None for diagnosed only
     h = robust.HeldOut.of_errors(errors(_constant(fitter, "nls0", at(cutoff)[1], 0), held).position_mm,
                                  nls1_mm, groups)
-    heldout: dict[str, Any] = {"clusters": int(groups.max()) + 1, "rms_mm": round(h.rms_mm, 4), "max_mm": round(h.max_mm, 4),
-               "nls1_rms_mm": round(h.reference_rms_mm, 4), "nls1_max_mm": round(h.reference_max_mm, 4),
-               "nominal_rms_mm": round(float(np.sqrt(np.mean(nominal_mm ** 2))), 4)}
+    heldout: dict[str, Any] = {
+        "clusters": int(groups.max()) + 1, "rms_mm": round(h.rms_mm, 4), "max_mm": round(h.max_mm, 4),
+        "nls1_rms_mm": round(h.reference_rms_mm, 4), "nls1_max_mm": round(h.reference_max_mm, 4),
+        "nominal_rms_mm": round(float(np.sqrt(np.mean(nominal_mm ** 2))), 4)}
     log.info("nls0 damping %g (%s) on the %d training clusters it does not use: %s", cutoff, damping,
              heldout["clusters"], heldout)
     if h.max_mm > NLS0_HELDOUT_MAX_RATIO * h.reference_max_mm:
