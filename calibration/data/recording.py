@@ -19,6 +19,7 @@ import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
@@ -504,7 +505,15 @@ def _offset_spread_deg(R_nominal: np.ndarray, R_measured: np.ndarray) -> float:
     return float(np.degrees(np.median(np.linalg.norm(so3.log(np.swapaxes(offsets, 1, 2) @ mean), axis=1))))
 
 
-def check_quaternion_order(rec: Recording, nominal: object, columns: str = "qw, qx, qy, qz") -> None:
+class PoseModel(Protocol):
+    """Anything with forward kinematics (a :class:`calibration.kinematics.poe.PoeModel` or a fitted model)."""
+
+    def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Tool pose ``(R (N, 3, 3), p (N, 3) [mm])`` at joint angles q [rad] (N, n)."""
+        ...
+
+
+def check_quaternion_order(rec: Recording, nominal: PoseModel, columns: str = "qw, qx, qy, qz") -> None:
     """Refuse a recording whose quaternions are stored x, y, z, w (Motive's order) under the format's w, x, y, z
     columns: read as they are, its orientations would fit a model ~20-40 deg off.
 
@@ -522,7 +531,7 @@ def check_quaternion_order(rec: Recording, nominal: object, columns: str = "qw, 
     """
     if len(rec) < 3:
         return
-    R_nominal, _ = nominal.fk(rec.q)  # type: ignore[attr-defined]
+    R_nominal, _ = nominal.fk(rec.q)
     as_read = _offset_spread_deg(R_nominal, rec.R)
     if not as_read > QUAT_ORDER_SPREAD_DEG:
         return

@@ -15,7 +15,7 @@ Once selected, the candidates of one kind are merged into one effect acting on a
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from scipy.linalg import block_diag
@@ -275,8 +275,9 @@ def merge(kind: str, cands: list[Candidate], bases: dict[CandidateKey, np.ndarra
 def merged_effect(kind: str, cands: list[Candidate]) -> Effect:
     first = cands[0].effect
     if kind == "thermal_drift":
-        links = tuple(c.effect.links[0] for c in cands)  # type: ignore[attr-defined]
-        return ThermalDrift(links, np.zeros(len(links)), first.mode, first.tau_s, first.ref_temp_c)  # type: ignore[attr-defined]
+        thermal = [cast(ThermalDrift, c.effect) for c in cands]  # the candidates of one kind
+        links = tuple(t.links[0] for t in thermal)
+        return ThermalDrift(links, np.zeros(len(links)), thermal[0].mode, thermal[0].tau_s, thermal[0].ref_temp_c)
     if kind in ("mocap_latency", "tool_frame", "structural_deflection") or isinstance(first, (ExtendedEffect,
                                                                                                LumpedCompliance)):
         return first
@@ -284,7 +285,7 @@ def merged_effect(kind: str, cands: list[Candidate]) -> Effect:
     if kind == "gear_transmission":
         return type(first)(tuple((j, (1, 2)) for j in joints), np.zeros(4 * len(joints)))
     if kind == "joint_compliance":
-        return type(first)(first.gravity, joints, np.zeros(len(joints)))  # type: ignore[attr-defined]
+        return type(first)(cast(JointCompliance, first).gravity, joints, np.zeros(len(joints)))  # the per-joint form
     return type(first)(joints=joints, values=np.zeros(len(joints)))
 
 

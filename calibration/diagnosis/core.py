@@ -728,7 +728,7 @@ def _heldout_evidence(problem: LinearSelection, selection: Selection, kind: str,
     cv_z = next(s.evidence.heldout_z for s in selection.steps if s.candidate.kind == kind)
     rule = Evidence(fit.delta_bic, fit.f_pvalue, z, before[0].rms_mm, after[0].rms_mm, float(np.mean(before[1])),
                     float(np.mean(after[1])))
-    return rule, EffectEvidence(fit.delta_bic, fit.f_pvalue, cv_z, before[0], after[0], z)  # type: ignore[arg-type]
+    return rule, EffectEvidence(fit.delta_bic, fit.f_pvalue, cv_z, before[0], after[0], z)
 
 
 def joint_fit(base: FittedInUse, chosen: list[tuple[Effect, np.ndarray]], rec: Recording, options: DiagnoseOptions
