@@ -101,8 +101,9 @@ class Fitter(HeldOutRefits):
         if method in CDC_METHODS:
             reference = cdc_method(method)[0]
             needs = ("pi", "local pi") if reference == "pi" else ("global", "local geometric")
-        steps: dict[str, Callable[[], object]] = {"global": self.global_fit, "pi": self.physics_informed,
-                 "local pi": lambda: self.local_fits("pi"), "local geometric": lambda: self.local_fits("geometric")}
+        steps: dict[str, Callable[[], object]] = {
+            "global": self.global_fit, "pi": self.physics_informed,
+            "local pi": lambda: self.local_fits("pi"), "local geometric": lambda: self.local_fits("geometric")}
         seconds = self._cache.seconds
         for step in needs:
             if step not in seconds:
