@@ -45,12 +45,14 @@ def free_ports(*kinds: int) -> list[int]:
 
 
 def write_rehearsal_cell(folder: Path, via_router: bool = False, dwell_s: float | None = None,
-                         stream_wait_s: float | None = None, **controller: Any) -> Path:
+                         stream_wait_s: float | None = None, first_frame_s: float | None = None,
+                         **controller: Any) -> Path:
     """A copy of ``cell_config/rehearsal.yaml`` in ``folder`` with free ports; ``controller`` overrides keys.
 
     ``via_router``: the bridge and the collector both connect (as clients) to ``cellcal router`` instead of the
     collector connecting to the bridge. ``dwell_s``: the measurement window (``mocap.dwell_s``), when given;
-    ``stream_wait_s``: how long the collector waits for a stopped mocap stream (``mocap.stream_wait_s``).
+    ``stream_wait_s``: how long the collector waits for a stopped mocap stream (``mocap.stream_wait_s``);
+    ``first_frame_s``: how long opening the cell waits for each arm's first mocap frame (``mocap.first_frame_s``).
     """
     data = yaml.safe_load((PACKAGE_DIR / "rehearsal.yaml").read_text())
     for entry in data["robots"].values():
@@ -65,6 +67,8 @@ def write_rehearsal_cell(folder: Path, via_router: bool = False, dwell_s: float 
         data["mocap"]["dwell_s"] = dwell_s
     if stream_wait_s is not None:
         data["mocap"]["stream_wait_s"] = stream_wait_s
+    if first_frame_s is not None:
+        data["mocap"]["first_frame_s"] = first_frame_s
     data["zenoh"]["roles"]["bridge"]["listen"] = [f"tcp/127.0.0.1:{bridge}"]
     data["zenoh"]["roles"]["collector"]["connect"] = [f"tcp/127.0.0.1:{bridge}"]
     data["zenoh"]["roles"]["router"]["listen"] = [f"tcp/127.0.0.1:{router}"]
