@@ -25,7 +25,7 @@ before (the figures are quoted next to each constant).
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
