@@ -88,3 +88,10 @@ def test_the_import_drawing_agrees_with_the_contracts_and_has_no_circle():
     page = _gen_pages().imports_page()
     assert page.count("```mermaid") == 1 + sum(any(a.startswith(p + ".") for a, _ in edges)
                                                for p in ("calibration", "cell_config", "drivers", "app"))
+
+
+def test_the_tests_have_one_conftest():
+    """Test modules import helpers with ``from conftest import ...`` (tests/ has no ``__init__.py``): a second
+    ``conftest.py`` in a subfolder takes that name first for the modules below it and breaks their imports."""
+    found = sorted(p.relative_to(ROOT).as_posix() for p in (ROOT / "tests").rglob("conftest.py"))
+    assert found == ["tests/conftest.py"], found
