@@ -1,8 +1,7 @@
 """Every module of the product imports, in a fresh interpreter that walks the four packages and imports each module
 in turn: a package ``__init__`` that runs into a circle, a name used before a split defined it, or a module that
 needs an optional import nobody declared fails here rather than in a user's command. (The import contracts,
-``lint-imports`` in ``make test``, hold the absence of circles; ``docs/dev/restructure/tools/import_alone.py``
-imports each module with the others dropped, 7 to 10 s, too slow for a test.)"""
+``lint-imports`` in ``make test``, hold the absence of circles, and the import drawing of the docs site is checked against them below.)"""
 
 from __future__ import annotations
 
