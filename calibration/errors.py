@@ -142,6 +142,6 @@ def parse_error_text(e: BaseException) -> str:
     if mark is not None:  # yaml.MarkedYAMLError
         problem = " ".join(str(getattr(e, "problem", "") or e.__class__.__name__).split())
         return f"line {mark.line + 1}, column {mark.column + 1}: {problem}"
-    if all(hasattr(e, a) for a in ("lineno", "colno", "msg")):  # json.JSONDecodeError
-        return f"line {e.lineno}, column {e.colno}: {e.msg}"  # type: ignore[attr-defined]
+    if hasattr(e, "lineno") and hasattr(e, "colno") and hasattr(e, "msg"):  # json.JSONDecodeError
+        return f"line {e.lineno}, column {e.colno}: {e.msg}"
     return " ".join(str(e).split()) or e.__class__.__name__

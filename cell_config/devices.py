@@ -80,6 +80,8 @@ class MocapConfig:
             default (:class:`app.collection.collect.CollectConfig`). It must hold ``min_frames`` frames at the frame rate.
         stream_wait_s: how long the collector waits for a stopped mocap stream (the bridge restarted, the network
             dropped) before the measurement counts as failed [s].
+        first_frame_s: how long opening the real cell waits for the first frame of each arm's rigid body before
+            refusing to move [s].
     """
 
     server_address: str
@@ -91,6 +93,7 @@ class MocapConfig:
     data_port: int = 1511
     dwell_s: float | None = None
     stream_wait_s: float = 30.0
+    first_frame_s: float = 5.0
 
 
 @dataclass(frozen=True)
@@ -107,7 +110,7 @@ class ProbeConfig:
 CONTROLLER_KEYS = ("host", "motion_port", "state_port", "groups", "connect_timeout_s", "reply_timeout_s",
                    "start_traj_timeout_s", "max_speed_fraction", "joint_margin_deg")
 MOCAP_KEYS = ("server_address", "local_address", "multicast", "multicast_group", "command_port", "data_port",
-              "rigid_bodies", "dwell_s", "stream_wait_s")
+              "rigid_bodies", "dwell_s", "stream_wait_s", "first_frame_s")
 PROBE_KEYS = ("interface", "channel", "bitrate", "base_id")
 
 
@@ -178,6 +181,7 @@ def parse_mocap(node: Node | None, robots: Mapping[str, Any]) -> MocapConfig | N
         command_port=command_port, data_port=data_port, dwell_s=node.number("dwell_s", None, lo=0.0, hi=MAX_DWELL_S,
                                                                        lo_open=True),
         stream_wait_s=node.number("stream_wait_s", d.stream_wait_s, lo=0.0, hi=3600.0, lo_open=True),
+        first_frame_s=node.number("first_frame_s", d.first_frame_s, lo=0.0, hi=3600.0, lo_open=True),
     )
 
 

@@ -92,6 +92,18 @@ def synthetic_arm(r1_nominal):
     return par, x, par.model(x)
 
 
+@pytest.fixture(scope="session")
+def chromium(tmp_path_factory: pytest.TempPathFactory):
+    """The headless browser of this test session (of this worker, under xdist), started at its first page; the
+    tests that ask for it skip when no browser is installed. (Here, not in tests/app/conftest.py: a second module
+    named ``conftest`` would shadow this one for the tests that import ``assert_bad_input`` from it.)"""
+    from tests.app.browser import Chromium, browser_or_skip
+
+    browser = Chromium(browser_or_skip(), tmp_path_factory.mktemp("chromium"))
+    yield browser
+    browser.close()
+
+
 def assert_bad_input(capsys: pytest.CaptureFixture, argv: list[str], *fragments: str) -> None:
     """The CLI exits 2 on ``argv`` with exactly one stderr line containing every fragment."""
     from app.cli.commands import main

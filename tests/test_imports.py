@@ -1,8 +1,7 @@
 """Every module of the product imports, in a fresh interpreter that walks the four packages and imports each module
 in turn: a package ``__init__`` that runs into a circle, a name used before a split defined it, or a module that
 needs an optional import nobody declared fails here rather than in a user's command. (The import contracts,
-``lint-imports`` in ``make test``, hold the absence of circles; ``docs/dev/restructure/tools/import_alone.py``
-imports each module with the others dropped, 7 to 10 s, too slow for a test.)"""
+``lint-imports`` in ``make test``, hold the absence of circles, and the import drawing of the docs site is checked against them below.)"""
 
 from __future__ import annotations
 
@@ -88,3 +87,10 @@ def test_the_import_drawing_agrees_with_the_contracts_and_has_no_circle():
     page = _gen_pages().imports_page()
     assert page.count("```mermaid") == 1 + sum(any(a.startswith(p + ".") for a, _ in edges)
                                                for p in ("calibration", "cell_config", "drivers", "app"))
+
+
+def test_the_tests_have_one_conftest():
+    """Test modules import helpers with ``from conftest import ...`` (tests/ has no ``__init__.py``): a second
+    ``conftest.py`` in a subfolder takes that name first for the modules below it and breaks their imports."""
+    found = sorted(p.relative_to(ROOT).as_posix() for p in (ROOT / "tests").rglob("conftest.py"))
+    assert found == ["tests/conftest.py"], found

@@ -45,12 +45,14 @@ def free_ports(*kinds: int) -> list[int]:
 
 
 def write_rehearsal_cell(folder: Path, via_router: bool = False, dwell_s: float | None = None,
-                         stream_wait_s: float | None = None, **controller: Any) -> Path:
+                         stream_wait_s: float | None = None, first_frame_s: float | None = None,
+                         **controller: Any) -> Path:
     """A copy of ``cell_config/rehearsal.yaml`` in ``folder`` with free ports; ``controller`` overrides keys.
 
     ``via_router``: the bridge and the collector both connect (as clients) to ``cellcal router`` instead of the
     collector connecting to the bridge. ``dwell_s``: the measurement window (``mocap.dwell_s``), when given;
-    ``stream_wait_s``: how long the collector waits for a stopped mocap stream (``mocap.stream_wait_s``).
+    ``stream_wait_s``: how long the collector waits for a stopped mocap stream (``mocap.stream_wait_s``);
+    ``first_frame_s``: how long opening the cell waits for each arm's first mocap frame (``mocap.first_frame_s``).
     """
     data = yaml.safe_load((PACKAGE_DIR / "rehearsal.yaml").read_text())
     for entry in data["robots"].values():
@@ -65,6 +67,8 @@ def write_rehearsal_cell(folder: Path, via_router: bool = False, dwell_s: float 
         data["mocap"]["dwell_s"] = dwell_s
     if stream_wait_s is not None:
         data["mocap"]["stream_wait_s"] = stream_wait_s
+    if first_frame_s is not None:
+        data["mocap"]["first_frame_s"] = first_frame_s
     data["zenoh"]["roles"]["bridge"]["listen"] = [f"tcp/127.0.0.1:{bridge}"]
     data["zenoh"]["roles"]["collector"]["connect"] = [f"tcp/127.0.0.1:{bridge}"]
     data["zenoh"]["roles"]["router"]["listen"] = [f"tcp/127.0.0.1:{router}"]
@@ -104,9 +108,11 @@ class Process:
         self.proc: subprocess.Popen[str] | None = None
         self.lines: list[str] = []
         self._reader: threading.Thread | None = None
+        self._terminated = False  # SIGTERM sent to the running process
 
     def start(self, ready: bool = True, timeout_s: float = 30.0) -> Process:
         self.lines = []
+        self._terminated = False
         self.proc = subprocess.Popen(self.argv, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                      stdin=subprocess.DEVNULL, text=True, env=_env())
         self._reader = threading.Thread(target=self._read, daemon=True)
@@ -147,12 +153,17 @@ class Process:
             self.proc.kill()
             self.proc.wait(timeout=10)
 
+    def terminate(self) -> None:
+        """SIGTERM, once, without waiting: the process closes its sockets and sessions and exits (see :meth:`stop`)."""
+        if self.proc is not None and self.proc.poll() is None and not self._terminated:
+            self.proc.send_signal(signal.SIGTERM)
+            self._terminated = True
+
     def stop(self, timeout_s: float = 15.0) -> int:
         """SIGTERM and wait; returns the exit code."""
         if self.proc is None:
             return 0
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
+        self.terminate()
         try:
             code = self.proc.wait(timeout=timeout_s)
         except subprocess.TimeoutExpired:
@@ -206,7 +217,10 @@ class Rehearsal:
         return self
 
     def __exit__(self, *exc: object) -> None:
-        for p in (self.bridge, self.motive, self.controller):
+        processes = (self.bridge, self.motive, self.controller)
+        for p in processes:  # all told at once: each takes a few tenths of a second to close its sockets and exit
+            p.terminate()
+        for p in processes:
             p.stop()
 
 

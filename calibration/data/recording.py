@@ -19,12 +19,14 @@ import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
 from calibration.data.files import atomic_write_text, read_input_text
 from calibration.errors import DataError, ModelError
 from calibration.kinematics import so3
+from calibration.kinematics.arrays import IntArray
 
 
 def take_out(rec: Recording, T_base: np.ndarray, T_tool: np.ndarray) -> Recording:
@@ -101,7 +103,8 @@ class Recording:
     source: str = ""
 
     def __len__(self) -> int:
-        return self.q.shape[0]
+        n: int = self.q.shape[0]
+        return n
 
     @property
     def R(self) -> np.ndarray:
@@ -349,7 +352,7 @@ def read_recording(path: str | Path, lower: np.ndarray | None = None, upper: np.
     if "cluster" in extra and np.any(extra["cluster"] != np.round(extra["cluster"])):
         i = int(np.flatnonzero(extra["cluster"] != np.round(extra["cluster"]))[0])
         raise DataError(path, first + i, "cluster", "expected an integer cluster id")
-    back = np.flatnonzero(np.diff(extra["t"]) < 0) if "t" in extra else ()
+    back: IntArray | tuple[int, ...] = np.flatnonzero(np.diff(extra["t"]) < 0) if "t" in extra else ()
     if len(back):  # the format: t is the time since the session started, monotonic
         i = int(back[0]) + 1
         raise DataError(path, first + i, "t", f"time goes backwards ({extra['t'][i - 1]:g} s, then {extra['t'][i]:g} "
@@ -502,7 +505,15 @@ def _offset_spread_deg(R_nominal: np.ndarray, R_measured: np.ndarray) -> float:
     return float(np.degrees(np.median(np.linalg.norm(so3.log(np.swapaxes(offsets, 1, 2) @ mean), axis=1))))
 
 
-def check_quaternion_order(rec: Recording, nominal: object, columns: str = "qw, qx, qy, qz") -> None:
+class PoseModel(Protocol):
+    """Anything with forward kinematics (a :class:`calibration.kinematics.poe.PoeModel` or a fitted model)."""
+
+    def fk(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Tool pose ``(R (N, 3, 3), p (N, 3) [mm])`` at joint angles q [rad] (N, n)."""
+        ...
+
+
+def check_quaternion_order(rec: Recording, nominal: PoseModel, columns: str = "qw, qx, qy, qz") -> None:
     """Refuse a recording whose quaternions are stored x, y, z, w (Motive's order) under the format's w, x, y, z
     columns: read as they are, its orientations would fit a model ~20-40 deg off.
 
@@ -520,7 +531,7 @@ def check_quaternion_order(rec: Recording, nominal: object, columns: str = "qw, 
     """
     if len(rec) < 3:
         return
-    R_nominal, _ = nominal.fk(rec.q)  # type: ignore[attr-defined]
+    R_nominal, _ = nominal.fk(rec.q)
     as_read = _offset_spread_deg(R_nominal, rec.R)
     if not as_read > QUAT_ORDER_SPREAD_DEG:
         return

@@ -15,6 +15,7 @@ Once selected, the candidates of one kind are merged into one effect acting on a
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, cast
 
 import numpy as np
 from scipy.linalg import block_diag
@@ -45,6 +46,9 @@ KINDS = ("joint_compliance", "payload_compliance", "gear_transmission", "backlas
 #: when known.
 COMPLIANCE_FORMS = ("auto", "masses", "mass_free", "lumped")
 
+#: The identity of a candidate with its settings (:meth:`Candidate.key`): kind, label, thermal mode and time constant.
+CandidateKey = tuple[str, str, Any, Any]
+
 
 @dataclass(frozen=True)
 class Candidate:
@@ -64,7 +68,7 @@ class Candidate:
     effect: Effect
     extra_dof: int = 0
 
-    def key(self) -> tuple:
+    def key(self) -> CandidateKey:
         """Identity of the candidate including its settings (for de-duplication)."""
         return (self.kind, self.label, getattr(self.effect, "mode", ""), getattr(self.effect, "tau_s", 0.0))
 
@@ -172,6 +176,8 @@ def _joint_compliance(model: PoeModel, q: np.ndarray, gravity: GravityModel | No
     if compliance_form == "lumped":
         return [Candidate("joint_compliance", "joints 2-3 (lumped form)", (2, 3),
                           LumpedCompliance.for_arm(model, (2, 3)))]
+    if gravity is None:  # library() asks for link masses before the form that needs them
+        raise ModelError(f"compliance form {compliance_form!r} needs link masses; use 'mass_free' or 'auto'")
     cands = []
     tau = gravity.torque(model, q)
     for j in range(2, model.n_joints + 1):
@@ -259,7 +265,7 @@ def visibility(S_fit: np.ndarray, Q_geo: np.ndarray, S_ref: np.ndarray, n_fit: i
     return float(sv[0]), excited, basis
 
 
-def merge(kind: str, cands: list[Candidate], bases: dict[tuple, np.ndarray]) -> tuple[Effect, np.ndarray]:
+def merge(kind: str, cands: list[Candidate], bases: dict[CandidateKey, np.ndarray]) -> tuple[Effect, np.ndarray]:
     """One effect of ``kind`` acting on every joint/link of the chosen candidates, and its parameter basis."""
     cands = sorted(cands, key=lambda c: (c.joints, c.label))
     B = block_diag(*[bases.get(c.key(), np.eye(c.effect.size)) for c in cands])
@@ -269,8 +275,9 @@ def merge(kind: str, cands: list[Candidate], bases: dict[tuple, np.ndarray]) -> 
 def merged_effect(kind: str, cands: list[Candidate]) -> Effect:
     first = cands[0].effect
     if kind == "thermal_drift":
-        links = tuple(c.effect.links[0] for c in cands)  # type: ignore[attr-defined]
-        return ThermalDrift(links, np.zeros(len(links)), first.mode, first.tau_s, first.ref_temp_c)  # type: ignore[attr-defined]
+        thermal = [cast(ThermalDrift, c.effect) for c in cands]  # the candidates of one kind
+        links = tuple(t.links[0] for t in thermal)
+        return ThermalDrift(links, np.zeros(len(links)), thermal[0].mode, thermal[0].tau_s, thermal[0].ref_temp_c)
     if kind in ("mocap_latency", "tool_frame", "structural_deflection") or isinstance(first, (ExtendedEffect,
                                                                                                LumpedCompliance)):
         return first
@@ -278,8 +285,8 @@ def merged_effect(kind: str, cands: list[Candidate]) -> Effect:
     if kind == "gear_transmission":
         return type(first)(tuple((j, (1, 2)) for j in joints), np.zeros(4 * len(joints)))
     if kind == "joint_compliance":
-        return type(first)(first.gravity, joints, np.zeros(len(joints)))  # type: ignore[attr-defined]
-    return type(first)(joints=joints, values=np.zeros(len(joints)))  # type: ignore[call-arg]
+        return type(first)(cast(JointCompliance, first).gravity, joints, np.zeros(len(joints)))  # the per-joint form
+    return type(first)(joints=joints, values=np.zeros(len(joints)))
 
 
 def dedupe(items: list[Untested], testable: set[str]) -> list[Untested]:

@@ -27,6 +27,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from typing import Any, Protocol, cast
 
 import numpy as np
 from scipy import special  # not scipy.stats: its import costs ~1 s per command (the same values, bit for bit)
@@ -34,7 +35,17 @@ from scipy.linalg import block_diag
 
 from calibration.data.recording import Recording
 from calibration.diagnosis import explain
-from calibration.diagnosis.candidates import KINDS, Candidate, Signatures, Untested, dedupe, library, merge, visibility
+from calibration.diagnosis.candidates import (
+    KINDS,
+    Candidate,
+    CandidateKey,
+    Signatures,
+    Untested,
+    dedupe,
+    library,
+    merge,
+    visibility,
+)
 from calibration.diagnosis.drivers import Driver, Mismatch, drivers, locate_mismatch
 from calibration.diagnosis.fits import JointFits
 from calibration.diagnosis.inuse import InUse
@@ -56,6 +67,7 @@ from calibration.diagnosis.selection import (
 from calibration.errors import DataError, ModelError
 from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, rotation_residual_scale, weighted_residuals
 from calibration.identification.observability import DEFAULT_RELATIVE_TOLERANCE, Observability, analyse
+from calibration.kinematics.arrays import FloatArray
 from calibration.kinematics.poe import PoeModel, pose_error
 from calibration.models import KinematicModel
 from calibration.models.guard import REGION_KEY, Region, extrapolation
@@ -67,6 +79,13 @@ from calibration.physics.joint_effects import JointOffset
 from calibration.workers import usable_workers
 
 log = logging.getLogger("cellcal.calibration")
+
+
+class _PerJoint(Protocol):
+    """An effect on named joints: the compliances in every form, backlash, joint offsets."""
+
+    @property
+    def joints(self) -> tuple[int, ...]: ...
 
 
 @dataclass(frozen=True)
@@ -200,7 +219,7 @@ class Hypotheses:
 
     problem: LinearSelection
     pool: list[tuple[Candidate, np.ndarray]]
-    bases: dict[tuple, np.ndarray]
+    bases: dict[CandidateKey, np.ndarray]
     hidden: list[Untested]
     untested: list[Untested]
     signature: Signatures
@@ -367,6 +386,7 @@ def split_data(data: Recording, heldout: Recording | None, options: DiagnoseOpti
 def fit_model_in_use(model: KinematicModel | None, nominal: PoeModel, split: Split, options: DiagnoseOptions
                      ) -> FittedInUse:
     """The model in use fitted to the fit data: its geometric block (cdc: held) and its own effects."""
+    obs: Observability | None
     if model is None:
         inuse, effects, basis, obs, name = _fit_geometric(nominal, split, options)
     else:
@@ -478,7 +498,8 @@ def _present_kinds(base: FittedInUse) -> set[str]:
 
 
 def _screen(cands: list[Candidate], A: np.ndarray, sig: Signatures, q_ref: np.ndarray, ctx_ref: Context,
-            visible_min: float) -> tuple[list[tuple[Candidate, np.ndarray]], list[Untested], dict[tuple, np.ndarray]]:
+            visible_min: float
+            ) -> tuple[list[tuple[Candidate, np.ndarray]], list[Untested], dict[CandidateKey, np.ndarray]]:
     """Identifiable candidates with their signatures in their visible directions, the others with the reason,
     and the visible directions of each identifiable one."""
     Q = np.linalg.qr(A)[0]
@@ -598,7 +619,8 @@ def _confirm(base: FittedInUse, split: Split, hypotheses: Hypotheses, selection:
         keep = [i for i, w in enumerate(wrong) if not w or len(w) < len(getattr(kept[i][0], "joints", ()))]
         rejected += [explain.found(final.effects[n + i], final.effect_std[n + i], found[i].evidence)
                      for i in range(len(kept)) if i not in keep]
-        kept = [_subset_joints(*kept[i], [k for k, j in enumerate(kept[i][0].joints) if j not in wrong[i]])  # type: ignore[attr-defined]
+        kept = [_subset_joints(*kept[i], [k for k, j in enumerate(cast(_PerJoint, kept[i][0]).joints)
+                                          if j not in wrong[i]])
                 if wrong[i] else kept[i] for i in keep]
         found, kept_kinds = [found[i] for i in keep], [kept_kinds[i] for i in keep]
         final = fits.get(kept)
@@ -624,12 +646,12 @@ def _wrong_sign(effect: Effect, std: np.ndarray) -> list[int]:
 
 def _subset_joints(effect: Effect, B: np.ndarray, keep: list[int]) -> tuple[Effect, np.ndarray]:
     """A per-joint effect restricted to the joints at indices ``keep``, with its parameter basis."""
-    joints = tuple(effect.joints[i] for i in keep)  # type: ignore[attr-defined]
+    joints = tuple(cast(_PerJoint, effect).joints[i] for i in keep)  # a per-joint effect (_wrong_sign)
     rows = B[keep]
     cols = np.flatnonzero(np.any(rows != 0, axis=0))
     values = np.zeros(len(joints))
-    e = (JointCompliance(effect.gravity, joints, values) if isinstance(effect, JointCompliance)  # type: ignore[attr-defined]
-         else type(effect)(joints=joints, values=values))  # type: ignore[call-arg]
+    e = (JointCompliance(effect.gravity, joints, values) if isinstance(effect, JointCompliance)
+         else type(effect)(joints=joints, values=values))
     return e, rows[:, cols]
 
 
@@ -645,7 +667,7 @@ def _flexible(kept: list[tuple[Effect, np.ndarray]], hypotheses: Hypotheses,
             out.append((e, B))
             continue
         out.append(flex)
-        rest = [i for i, j in enumerate(e.joints) if j not in flex[0].joints]
+        rest = [i for i, j in enumerate(e.joints) if j not in cast(_PerJoint, flex[0]).joints]  # a compliance form
         if rest:
             out.append(_subset_joints(e, B, rest))
     return out
@@ -706,7 +728,7 @@ def _heldout_evidence(problem: LinearSelection, selection: Selection, kind: str,
     cv_z = next(s.evidence.heldout_z for s in selection.steps if s.candidate.kind == kind)
     rule = Evidence(fit.delta_bic, fit.f_pvalue, z, before[0].rms_mm, after[0].rms_mm, float(np.mean(before[1])),
                     float(np.mean(after[1])))
-    return rule, EffectEvidence(fit.delta_bic, fit.f_pvalue, cv_z, before[0], after[0], z)  # type: ignore[arg-type]
+    return rule, EffectEvidence(fit.delta_bic, fit.f_pvalue, cv_z, before[0], after[0], z)
 
 
 def joint_fit(base: FittedInUse, chosen: list[tuple[Effect, np.ndarray]], rec: Recording, options: DiagnoseOptions
@@ -764,7 +786,7 @@ def report(robot: str, split: Split, base: FittedInUse, residual: ResidualDriver
                      refitted.orientation_weight_a, refitted.weighting, extrapolation=ex)
 
 
-def extrapolation_note(ex: dict) -> str:
+def extrapolation_note(ex: dict[str, Any]) -> str:
     """One sentence on the held-out poses outside the saved model's training range and what the guard did."""
     did = (f"the extrapolation guard held the model's effects fitted in joints the data saw narrowly at the edge of "
            f"that range, moving the predicted position by up to {ex['guard_shift_mm_max']:.3f} mm" if ex["guard_acted"]
@@ -833,7 +855,8 @@ def _reference(heldout: Recording | None, fit_q: np.ndarray, ctx: Context, limit
 def _geometric_columns(inuse: InUse, q: np.ndarray, theta: np.ndarray, basis: np.ndarray, w_rot: float) -> np.ndarray:
     J = inuse.jacobian_geometry(q, theta) @ basis
     J[:, 3:] *= w_rot
-    return J.reshape(J.shape[0] * 6, J.shape[-1])
+    rows: FloatArray = J.reshape(J.shape[0] * 6, J.shape[-1])
+    return rows
 
 
 def _base_name(model: KinematicModel) -> str:

@@ -3,11 +3,15 @@ and the verdict."""
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
 from calibration.diagnosis.candidates import Candidate, Untested
 from calibration.diagnosis.report import Accuracy, EffectEvidence, FoundEffect
 from calibration.physics.base import Effect
+from calibration.physics.joint_effects import GearTransmission
+from calibration.physics.thermal import ThermalDrift
 
 PHYSICS = {
     "joint_compliance": "joint compliance under gravity",
@@ -49,12 +53,13 @@ def not_identifiable(c: Candidate, visible: float, excited: float, q_fit: np.nda
 def found(effect: Effect, std: np.ndarray, evidence: EffectEvidence) -> FoundEffect:
     """The report entry of a fitted effect."""
     params = effect.parameters()
-    unc: dict[str, float | None] = {k: float(s) for k, s in zip(effect.names, std)}
+    std_of: dict[str, float] = {k: float(s) for k, s in zip(effect.names, std)}
+    unc: dict[str, float | None] = dict(std_of)  # plus None for a parameter that was not fitted
     joints: tuple[int, ...] = tuple(getattr(effect, "joints", ()))
     links: tuple[str, ...] = ()
     kind = effect.kind
     if kind == "gear_transmission":
-        joints = tuple(j for j, _ in effect.harmonics)  # type: ignore[attr-defined]
+        joints = tuple(j for j, _ in cast(GearTransmission, effect).harmonics)
         amps = []
         for j in joints:
             for k in (1, 2):
@@ -63,20 +68,21 @@ def found(effect: Effect, std: np.ndarray, evidence: EffectEvidence) -> FoundEff
         text = f"The reducer of joint{'s' if len(joints) > 1 else ''} {_and([str(j) for j in joints])} has a periodic " \
                f"transmission error in harmonics of its own angle ({'; '.join(amps)})."
     elif kind == "thermal_drift":
-        links = tuple(effect.links)  # type: ignore[attr-defined]
-        unit = " mm" if effect.mode == "warmup" else " mm/K"  # type: ignore[attr-defined]
+        thermal = cast(ThermalDrift, effect)
+        links = tuple(thermal.links)
+        unit = " mm" if thermal.mode == "warmup" else " mm/K"
         grow = [f"{l} {_pm(params[n], unc[n], unit)}" for l, n in zip(links, effect.names)]
-        if effect.mode == "warmup":  # type: ignore[attr-defined]
-            params["tau_s"] = float(effect.tau_s)  # type: ignore[attr-defined]
+        if thermal.mode == "warmup":
+            params["tau_s"] = float(thermal.tau_s)
             unc["tau_s"] = None
             text = f"The arm grows as it warms up: link{'s' if len(links) > 1 else ''} {_and(grow)} with a warm-up " \
-                   f"time constant of {effect.tau_s:.0f} s."  # type: ignore[attr-defined]
+                   f"time constant of {thermal.tau_s:.0f} s."
         else:
             text = f"The arm grows with temperature: link{'s' if len(links) > 1 else ''} {_and(grow)}."
     elif kind == "tool_frame":
         ang = 1e3 * np.linalg.norm(effect.values)
         text = f"The tool marker is rotated in the flange frame by {ang:.3f} mrad " \
-               f"(rx, ry, rz = {', '.join(_pm(1e3 * params[n], 1e3 * unc[n] if unc[n] is not None else None) for n in effect.names)} mrad)."  # type: ignore[operator]
+               f"(rx, ry, rz = {', '.join(_pm(1e3 * params[n], 1e3 * std_of[n]) for n in effect.names)} mrad)."
     elif kind == "structural_deflection":
         C = effect.values.reshape(-1, 6)
         text = f"The structure bends with the shoulder and elbow angles beyond what joint compliance explains: a " \
@@ -89,7 +95,7 @@ def found(effect: Effect, std: np.ndarray, evidence: EffectEvidence) -> FoundEff
                f"{v[4]:.3f} sin u mrad (u = q2 - q3, the shape of the shoulder and elbow gravity torques)."
     elif kind == "mocap_latency":
         text = f"The pose is measured late while the arm moves: latency " \
-               f"{_pm(1e3 * params['latency_s'], 1e3 * unc['latency_s'], ' ms')}."  # type: ignore[operator]
+               f"{_pm(1e3 * params['latency_s'], 1e3 * std_of['latency_s'], ' ms')}."
     else:
         vals = [f"{n.split('_')[0]} = {_pm(params[n], unc[n])} {n.split('_', 1)[1].replace('_per_', '/').replace('_', ' ')}"
                 for n in effect.names]

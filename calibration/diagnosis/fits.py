@@ -44,7 +44,7 @@ class JointFits:
     def __init__(self, fit: Callable[[Chosen], JointFit], workers: int = 1) -> None:
         self._fit = fit
         self._done: dict[tuple[tuple[int, int], ...], tuple[Chosen, JointFit]] = {}
-        self._pending: dict[tuple[tuple[int, int], ...], tuple[Chosen, Future]] = {}
+        self._pending: dict[tuple[tuple[int, int], ...], tuple[Chosen, Future[JointFit]]] = {}
         self._pool: ForkPool | None = None
         if workers > 1:
             self._pool = ForkPool(workers, fit)  # the workers fork on the first submit, each with ``fit``

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from calibration.errors import ModelError
+from calibration.kinematics.arrays import FloatArray
 from calibration.kinematics.parameterisation import MinimalParameterisation
 from calibration.kinematics.poe import PoeModel
 from calibration.models import ConstantModel, KinematicModel
@@ -159,7 +160,8 @@ class InUse:
             J = effect.pose_jacobian(geo, q, context)
             E = self.kin.deflection_rotation(q, self.thetas(q, theta))
             return np.concatenate([E @ J[:, :3], E @ J[:, 3:]], axis=1)
-        return self.jacobian_q(q, theta) @ effect.regressor(geo, q, context)
+        J_effect: FloatArray = self.jacobian_q(q, theta) @ effect.regressor(geo, q, context)
+        return J_effect
 
     def signature(self, effect: Effect, q: np.ndarray, context: Context | None, theta: np.ndarray, w_rot: float
                   ) -> np.ndarray:

@@ -59,7 +59,7 @@ class JointFit:
     iterations: int
     converged: bool
     seconds: float
-    theta: np.ndarray | None = None
+    theta: np.ndarray
     reason: StopReason | None = None
 
 

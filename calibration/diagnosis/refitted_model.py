@@ -66,8 +66,8 @@ def result_model(robot: str, inuse: InUse, used: KinematicModel | None, theta: n
         cdc = inuse.cdc
         ref = full.copy()
         ref[:g] = cdc.theta_ref[:g]
-        base: KinematicModel = CdcModel(robot, cdc.method, inuse.kin, ref, cdc.interpolator, cdc.inputs, dict(cdc.info),
-                                              cdc.bounds)
+        base: CdcModel | PhysicsInformedModel = CdcModel(robot, cdc.method, inuse.kin, ref, cdc.interpolator,
+                                                         cdc.inputs, dict(cdc.info), cdc.bounds)
         base_kind = "cdc"
     else:
         base = PhysicsInformedModel(robot, "diagnose", inuse.kin, full, n_geometric_free, dict(info))

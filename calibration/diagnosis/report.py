@@ -57,14 +57,15 @@ class EffectEvidence:
     Attributes:
         delta_bic: BIC of the final model minus that of the final model without this effect (fit data).
         f_pvalue: nested F-test p-value of the same comparison.
-        cv_z: z-score of the cross-validated held-out improvement when the effect was selected.
+        cv_z: z-score of the cross-validated held-out improvement when the effect was selected (None when the
+            selection judged the fit data only).
         before, after: held-out accuracy of the model with the effects kept before it, and with it too.
         heldout_z: z-score of the per-sample held-out improvement (the confirmation on held-out data).
     """
 
     delta_bic: float
     f_pvalue: float
-    cv_z: float
+    cv_z: float | None
     before: Accuracy
     after: Accuracy
     heldout_z: float = float("nan")
@@ -199,7 +200,8 @@ class Diagnosis:
             out["days"] = self.days.to_json()
         if self.extrapolation is not None:
             out["extrapolation"] = self.extrapolation
-        return _finite(out)
+        finite: dict[str, Any] = _finite(out)
+        return finite
 
 
 def _skipped(u: Untested) -> dict[str, Any]:

@@ -21,11 +21,13 @@ from __future__ import annotations
 
 from collections.abc import Callable, Collection
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 from scipy import special
 
 from calibration.diagnosis.candidates import Candidate
+from calibration.kinematics.arrays import FloatArray
 from calibration.physics.base import Effect
 from calibration.physics.thermal import ThermalDrift
 
@@ -220,7 +222,8 @@ class LinearSelection:
         try:
             return np.linalg.solve(G + 1e-12 * np.eye(len(b)), b)
         except np.linalg.LinAlgError:
-            return np.linalg.lstsq(G, b, rcond=None)[0]
+            solution: FloatArray = np.linalg.lstsq(G, b, rcond=None)[0]
+            return solution
 
     def _idx(self, sets: list[np.ndarray]) -> np.ndarray:
         return np.concatenate([self.base] + list(sets)).astype(int)
@@ -257,7 +260,8 @@ class LinearSelection:
         return ss, ssp
 
     def bic(self, rss: float, p: int) -> float:
-        return self.n_res * np.log(rss / self.n_res) + p * np.log(self.n_res)
+        bic: float = self.n_res * np.log(rss / self.n_res) + p * np.log(self.n_res)
+        return bic
 
     def fit_evidence(self, base: list[np.ndarray], base_dof: int, extra: list[np.ndarray], extra_dof: int
                      ) -> Evidence:
@@ -322,7 +326,8 @@ def tune_warmup(pool: list[tuple[Candidate, np.ndarray]], problem: LinearSelecti
                 ) -> list[tuple[Candidate, np.ndarray]]:
     """One warm-up thermal candidate per link, its time constant refined from the best of the grid; the
     other candidates first, in order."""
-    out, best = [], {}
+    out: list[tuple[Candidate, np.ndarray]] = []
+    best: dict[str, tuple[float, Candidate]] = {}
     for c, S in pool:
         if _is_warmup(c):
             cost = problem.rss([], signature(c.effect))
@@ -331,7 +336,7 @@ def tune_warmup(pool: list[tuple[Candidate, np.ndarray]], problem: LinearSelecti
         else:
             out.append((c, S))
     for _, c in best.values():
-        e = refine_warmup(c.effect, problem, [], signature)  # type: ignore[arg-type]
+        e = refine_warmup(cast(ThermalDrift, c.effect), problem, [], signature)  # _is_warmup: a thermal drift
         out.append((Candidate(c.kind, c.label, c.joints, e, c.extra_dof), signature(e)))
     return out
 
@@ -439,7 +444,7 @@ def _refine(problem: LinearSelection, signature: Signature, c: Candidate, S: np.
     """A winning warm-up candidate with its time constant refined given the chosen columns (new columns)."""
     if not _is_warmup(c) or c.extra_dof == 0:
         return c, S
-    e = refine_warmup(c.effect, problem, columns, signature)  # type: ignore[arg-type]
+    e = refine_warmup(cast(ThermalDrift, c.effect), problem, columns, signature)  # _is_warmup: a thermal drift
     return Candidate(c.kind, c.label, c.joints, e, c.extra_dof), problem.add(signature(e))
 
 
@@ -454,11 +459,11 @@ def _rebuild(problem: LinearSelection, signature: Signature, c: Candidate, S: np
     th = [o for o in chosen if o.kind == "thermal_drift"]
     if not th:
         return c, S
-    e, t0 = c.effect, th[0].effect
-    if e.mode != t0.mode:  # type: ignore[attr-defined]
+    e, t0 = cast(ThermalDrift, c.effect), cast(ThermalDrift, th[0].effect)  # both of kind thermal_drift
+    if e.mode != t0.mode:
         return None
-    if e.mode == "warmup" and e.tau_s != t0.tau_s:  # type: ignore[attr-defined]
-        e = _with_tau(e, t0.tau_s)  # type: ignore[arg-type, attr-defined]
+    if e.mode == "warmup" and e.tau_s != t0.tau_s:
+        e = _with_tau(e, t0.tau_s)
         return Candidate(c.kind, c.label, c.joints, e, 0), problem.add(signature(e))
     return Candidate(c.kind, c.label, c.joints, e, 0), S
 

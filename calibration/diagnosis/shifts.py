@@ -13,6 +13,7 @@ happens: it sets a floor under the largest error any model reaches on a recordin
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -59,7 +60,7 @@ class OneSidedShift:
                 "not: a measurement artefact no kinematic model can follow; the largest errors on recordings of "
                 "this session include such jumps")
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         return {"found": self.found, "shifted_poses": int(self.shifted.sum()), "poses": int(self.shifted.size),
                 "direction": [float(v) for v in self.direction], "one_sided_share": self.one_sided_share,
                 "mean_shift_mm": self.mean_shift_mm, "warning": self.message()}

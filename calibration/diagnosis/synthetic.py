@@ -75,9 +75,9 @@ def context_columns(N: int, groups: np.ndarray, design: Design, rng: np.random.G
 def cluster_poses(design: Design, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Joint angles [rad] (N, 6) and cluster ids (N,) of the cluster design, anchors in random order."""
     s = design.spread_deg
-    anchors = [[rng.uniform(-s, s), q2, q3, rng.uniform(-s, s), rng.uniform(-s, min(s, 85.0)), rng.uniform(-1.5 * s, 1.5 * s)]
+    rows = [[rng.uniform(-s, s), q2, q3, rng.uniform(-s, s), rng.uniform(-s, min(s, 85.0)), rng.uniform(-1.5 * s, 1.5 * s)]
                for q2 in np.linspace(-50, 50, design.n_q2) for q3 in np.linspace(-50, 30, design.n_q3)]
-    anchors = np.radians(np.array(anchors))[rng.permutation(len(anchors))]
+    anchors = np.radians(np.array(rows))[rng.permutation(len(rows))]
     q = np.repeat(anchors, 7, axis=0)
     for j in range(6):
         q[j + 1::7, j] += np.radians(1.0)

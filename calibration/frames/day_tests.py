@@ -4,7 +4,7 @@ pair's difference (:class:`DayDiff`) and how far two days' poses overlap (:func:
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from scipy import special  # not scipy.stats: its import costs ~1 s per command (the same values, bit for bit)
@@ -109,7 +109,9 @@ class DayDiff:
             kin.append("further differences along " + ", ".join(p.name for p in self.parameters if p.differs)
                        if any(p.differs for p in self.parameters) else "further differences no named change explains")
         if self.frames_differ and not frames:  # no component alone: name the largest, correlated as they are
-            shown = sorted((f for f in self.frames if f.value is not None), key=lambda f: -abs(f.value / f.se))[:3]
+            # an identified quantity has both its value and its standard error
+            shown = sorted((f for f in self.frames if f.value is not None),
+                           key=lambda f: -abs(cast(float, f.value) / cast(float, f.se)))[:3]
             frames = [f"jointly (chi2 {self.frames_test.chi2:.0f} over {self.frames_test.dof}; largest: "
                       + "; ".join(f.text() for f in shown) + ")"]
         frames_text = ("frames differ: " + "; ".join(frames)) if self.frames_differ else \

@@ -39,7 +39,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from scipy import special  # not scipy.stats: its import costs ~1 s per command (the same values, bit for bit)
@@ -52,6 +52,7 @@ from calibration.frames.days_problem import (
     IDENTIFIED_TOLERANCE,
     DaysProblem,
     Named,
+    Reduced,
     _Day,
     common,
     covariance,
@@ -106,7 +107,7 @@ class DaysResult:
     drift_note: str = ""
 
     @classmethod
-    def build(cls, problem: DaysProblem, x: np.ndarray, own: list[tuple[np.ndarray, dict, np.ndarray]]
+    def build(cls, problem: DaysProblem, x: np.ndarray, own: list[tuple[np.ndarray, Reduced, np.ndarray]]
               ) -> DaysResult:
         D = len(own)
         sm = problem.scale[:problem.m]
@@ -116,7 +117,7 @@ class DaysResult:
         z_crit = float(-special.ndtri(ALPHA / (2 * n_tests)))
         alpha_joint = ALPHA / max(D - 1, 1)
         ref_x, _, ref_U = own[0]
-        pooled_A = sum(lin["A"] for _, lin, _ in own)
+        pooled_A = cast(np.ndarray, sum(lin["A"] for _, lin, _ in own))  # not the empty sum 0: two recordings or more
         G = problem.gauge(x)
         days = []
         for (x_d, lin, U), C, day in zip(own[1:], covs[1:], problem.days[1:]):
@@ -183,7 +184,7 @@ class DaysResult:
 
 
 def _compare(problem: DaysProblem, day: _Day, x_d: np.ndarray, U_d: np.ndarray, C_d: np.ndarray, x_r: np.ndarray,
-             U_r: np.ndarray, C_r: np.ndarray, ref: _Day, lin_r: dict, lin_d: dict, named: list[Named],
+             U_r: np.ndarray, C_r: np.ndarray, ref: _Day, lin_r: Reduced, lin_d: Reduced, named: list[Named],
              G: np.ndarray, z_crit: float, alpha: float) -> DayDiff:
     sm = problem.scale[:problem.m]
     W = common(U_d, U_r)
@@ -272,7 +273,7 @@ def _name(named: list[Named], sm: np.ndarray, W: np.ndarray, testable: list[int]
             Test(chi2, dof, p, bool(not within(chi2, len(chosen)))), alternatives)
 
 
-def _frames(problem: DaysProblem, day: _Day, ref: _Day, lin_d: dict, lin_r: dict, U_d: np.ndarray,
+def _frames(problem: DaysProblem, day: _Day, ref: _Day, lin_d: Reduced, lin_r: Reduced, U_d: np.ndarray,
             U_r: np.ndarray, z_crit: float, alpha: float, explained: np.ndarray) -> tuple[tuple[Quantity, ...], Test]:
     """The frame corrections of ``day`` against the reference's, net of ``explained`` (scaled), per component, with
     sandwich errors."""
@@ -340,7 +341,8 @@ def compare_days(nominal: PoeModel, recs: list[Recording], names: list[str] | No
     """What differs between ``recs`` (see the module docstring), with the drift within each recording that
     carries time order (``t``, else ``temp_c``)."""
     result = _solved(DaysProblem(nominal, recs, names))
-    drift, untested = [], []
+    drift: list[DayDiff] = []
+    untested: list[str] = []
     for r, name in zip(recs, result.names):
         column = next((c for c in ("t", "temp_c") if c in r.extra), None)
         if column is None:

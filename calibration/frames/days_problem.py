@@ -117,6 +117,10 @@ class _Day:
         return cls(name or rec.source, rec.q, rec.R, rec.p, rec.clusters())
 
 
+#: The frames-reduced linearisation of one recording (:meth:`DaysProblem.reduced`), arrays by name.
+Reduced = dict[str, np.ndarray]
+
+
 class DaysProblem:
     """The shared arm and each recording's own arm, built once from the recordings, then solved.
 
@@ -185,7 +189,7 @@ class DaysProblem:
                          - self.residual(day, zm[:self.m], zm[self.m:])) / (2 * FD_STEP))
         return np.stack(cols, axis=-1)
 
-    def reduced(self, day: _Day, x: np.ndarray) -> dict[str, np.ndarray]:
+    def reduced(self, day: _Day, x: np.ndarray) -> Reduced:
         """The frames-reduced linearisation of one recording at ``x`` and its frames: information ``A`` (m, m),
         gradient ``b`` (m,) (scaled), the frames' blocks, and per-cluster scores for the sandwich."""
         r = self.residual(day, x, day.delta)
@@ -244,7 +248,7 @@ class DaysProblem:
         lin = self.reduced(day, x)
         return x, lin, identified(lin["A"])
 
-    def solve(self) -> tuple[np.ndarray, list[tuple[np.ndarray, dict, np.ndarray]]]:
+    def solve(self) -> tuple[np.ndarray, list[tuple[np.ndarray, Reduced, np.ndarray]]]:
         """The shared arm ``x`` and each day's own fit, after the noise floors (see the module docstring);
         :func:`calibration.frames.daydiff.compare_days` builds the tests from them."""
         x = self.fit_shared(np.zeros(self.m))

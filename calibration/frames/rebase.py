@@ -51,6 +51,7 @@ from calibration.identification.observability import (
     scaled_rows,
 )
 from calibration.kinematics import so3
+from calibration.kinematics.arrays import FloatArray
 from calibration.kinematics.poe import pose_error
 from calibration.kinematics.so3 import make_T
 from calibration.models.base import KinematicModel
@@ -313,7 +314,7 @@ class RebaseProblem:
     @classmethod
     def from_recording(cls, model: KinematicModel, rec: Recording, **options: Any) -> RebaseProblem:
         """The problem on a recording's poses (``options`` as in the constructor)."""
-        return cls(model, rec.q, rec.R, rec.p, **options)  # type: ignore[arg-type]
+        return cls(model, rec.q, rec.R, rec.p, **options)
 
     # -- the least-squares problem of calibration.identification.lm, in the coordinates z of the basis --
 
@@ -557,7 +558,7 @@ def choose_directions(model: KinematicModel, rec: Recording, cluster_size: int =
 
 def _fewest_within_one_se(errs: dict[str, np.ndarray], candidates: tuple[str, ...]) -> str:
     means = {k: float(np.mean(v)) for k, v in errs.items()}
-    best = min(means, key=means.get)
+    best = min(means, key=means.__getitem__)
     limit = means[best] + float(np.std(errs[best], ddof=1) / np.sqrt(errs[best].size))
     return next(k for k in candidates if means[k] <= limit)
 
@@ -621,7 +622,8 @@ def workspace_spread(problem: RebaseProblem, result: RebaseResult, noise_mm: flo
     info = J.T @ J + (lin.J_prior.T @ lin.J_prior if lin.J_prior is not None else 0.0)
     cov = noise_mm ** 2 * problem.basis @ np.linalg.pinv(info) @ problem.basis.T
     G = rebase_rows(problem.model, q_workspace, problem.offsets)[:, :3]  # (M, 3, 12 + k) position rows
-    return np.sqrt(np.maximum(np.einsum("mij,jk,mik->m", G, cov, G), 0.0))
+    sigma_mm: FloatArray = np.sqrt(np.maximum(np.einsum("mij,jk,mik->m", G, cov, G), 0.0))
+    return sigma_mm
 
 
 #: Configurations of the workspace check of :func:`rebase_auto` (uniform within the joint limits, a fixed seed so

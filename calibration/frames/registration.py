@@ -23,6 +23,7 @@ from calibration.errors import DataError, ModelError, UnsafeTarget
 from calibration.identification import DEFAULT_ORIENTATION_WEIGHT, rotation_residual_scale
 from calibration.identification.observability import DEFAULT_REACH_MM
 from calibration.kinematics import so3
+from calibration.kinematics.arrays import FloatArray
 from calibration.kinematics.poe import PoeModel
 from calibration.kinematics.so3 import make_T
 
@@ -84,7 +85,8 @@ class HasWorldBase(Protocol):
 def _project_rotation(M: np.ndarray) -> np.ndarray:
     """Nearest rotation matrix (Frobenius) to a 3x3 matrix."""
     U, _, Vt = np.linalg.svd(M)
-    return U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    R: FloatArray = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    return R
 
 
 def transform_difference(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
@@ -127,7 +129,7 @@ class RegistrationProblem:
         guess = make_T(model.R_flange_tool, model.p_flange_tool) if T_flange_marker_guess is None \
             else T_flange_marker_guess
         self._setup(R_bf, p_bf, R_world_marker, p_world_marker, guess, a)
-        self.q = q
+        self.q: np.ndarray | None = q  # None when built from flange poses
         self._check_motion()
 
     @classmethod
@@ -331,7 +333,8 @@ class RegistrationProblem:
         H_inv = np.linalg.pinv(J.T @ J)
         noise = np.tile([s_p**2] * 3 + [(w_rot * s_r) ** 2] * 3, self.n_samples)
         sigma = np.sqrt(np.diag(H_inv @ (J.T * noise) @ J @ H_inv))
-        return sigma * np.tile([1.0] * 3 + [math.degrees(1.0)] * 3, 2)
+        sigmas: FloatArray = sigma * np.tile([1.0] * 3 + [math.degrees(1.0)] * 3, 2)
+        return sigmas
 
     def condition_number(self, T_world_base: np.ndarray, T_flange_marker: np.ndarray,
                          reach_mm: float = DEFAULT_REACH_MM) -> float:

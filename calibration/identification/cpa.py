@@ -14,6 +14,7 @@ import numpy as np
 from calibration.data.recording import Recording
 from calibration.errors import ModelError
 from calibration.kinematics import so3
+from calibration.kinematics.arrays import FloatArray
 from calibration.kinematics.parameterisation import MinimalParameterisation
 
 MIN_SWEEP_SAMPLES = 4
@@ -80,7 +81,9 @@ def identify_cpa(par: MinimalParameterisation, sweeps: dict[int, Recording]) -> 
     if missing:
         raise ModelError(f"CPA needs a sweep of every joint; missing joints {missing}")
     nominal = par.nominal
-    axes, points, circles = [], [], []
+    axes: list[FloatArray] = []
+    points: list[FloatArray] = []
+    circles = []
     for j in range(n):
         sweep = sweeps[j + 1]
         circle = fit_circle(sweep.p)

@@ -54,6 +54,7 @@ from calibration.data.recording import Recording
 from calibration.errors import ModelError
 from calibration.identification.geometric import DEFAULT_ORIENTATION_WEIGHT
 from calibration.identification.observability import DEFAULT_REACH_MM, DEFAULT_RELATIVE_TOLERANCE, scaled_rows
+from calibration.kinematics.arrays import FloatArray
 from calibration.kinematics.parameterisation import MinimalParameterisation
 
 #: Relative singular value below which a direction of the reference design counts as not identifiable.
@@ -196,7 +197,8 @@ class _Spread:
         if not chosen:
             return np.zeros(len(self.anchors))
         d = np.min(np.linalg.norm(self.anchors[:, None] - self.anchors[chosen][None], axis=2), axis=1)
-        return np.log(np.clip(d / self.d_ref, 1e-12, 1.0))
+        gain: FloatArray = np.log(np.clip(d / self.d_ref, 1e-12, 1.0))
+        return gain
 
     def total(self, order: list[int]) -> float:
         """The term summed over ``order`` (each anchor against those before it)."""
@@ -241,7 +243,8 @@ def select(cands: Candidates, budget: int, spread_weight: float = DEFAULT_SPREAD
         M = M + cands.info[best]
 
     def criterion(order: list[int]) -> float:
-        return float(_logdet(prior + cands.info[order].sum(axis=0))) / r + spread_weight * spread.total(order)
+        value: float = float(_logdet(prior + cands.info[order].sum(axis=0))) / r + spread_weight * spread.total(order)
+        return value
 
     current = criterion(chosen)
     for _ in range(exchange_passes):

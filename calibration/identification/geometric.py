@@ -18,6 +18,7 @@ from calibration.errors import ModelError
 from calibration.identification import lm
 from calibration.identification.lm import Groups, Linearisation, LMSettings, Residuals, StopReason
 from calibration.kinematics import so3
+from calibration.kinematics.arrays import FloatArray
 
 
 class Kinematics(Protocol):
@@ -134,14 +135,17 @@ class GeometricProblem:
 
     def parameters(self, z: np.ndarray) -> np.ndarray:
         """Parameters (G, m) of the solver's variables z (G, k)."""
-        return self.x_ref + z @ self.basis.T
+        x: FloatArray = self.x_ref + z @ self.basis.T
+        return x
 
     def _prior(self, x: np.ndarray) -> np.ndarray | None:
         if self.prior_weight is None:
             return None
         if self.prior_weight.ndim == 2:
-            return (x - self.x_ref) @ self.prior_weight.T
-        return self.prior_weight * (x - self.x_ref)
+            r_prior_W: FloatArray = (x - self.x_ref) @ self.prior_weight.T
+            return r_prior_W
+        r_prior_w: FloatArray = self.prior_weight * (x - self.x_ref)
+        return r_prior_w
 
     def residuals(self, z: np.ndarray) -> Residuals:
         """Weighted residual rows (N, 6) and prior residuals (G, p) at z (G, k): p = m, or the prior matrix's rows."""

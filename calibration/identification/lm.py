@@ -15,11 +15,12 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from enum import Enum
-from typing import Any, Literal, Protocol
+from typing import Any, Literal, Protocol, cast
 
 import numpy as np
 
 from calibration.errors import ModelError
+from calibration.kinematics.arrays import FloatArray
 
 
 class StopReason(str, Enum):
@@ -258,12 +259,14 @@ def solve(problem: LeastSquaresProblem, z0: np.ndarray | None = None, settings: 
     for it in range(1, settings.max_iter + 1):
         if done.all():
             break
-        step = damped_step(*normal_equations(groups, lin), lam, settings)
+        # lin and current are None only when every problem was done before the first iteration (then it broke above)
+        lin_z, cost_z = cast(Linearisation, lin), cast(FloatArray, current)
+        step = damped_step(*normal_equations(groups, lin_z), lam, settings)
         step[done] = 0.0
         trial = clock.residuals(z + step)
         cost_try = cost(groups, trial)
-        better = cost_try < current
-        rel = np.abs(current - cost_try) / np.maximum(current, 1e-300)
+        better = cost_try < cost_z
+        rel = np.abs(cost_z - cost_try) / np.maximum(cost_z, 1e-300)
         lam = np.where(better, np.maximum(lam / settings.damping_down, settings.damping_min), lam * settings.damping_up)
         stops = [(StopReason.COST, better & (rel < settings.cost_rtol)),
                  (StopReason.STEP, np.linalg.norm(step, axis=1) < settings.step_atol),

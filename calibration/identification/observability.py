@@ -14,6 +14,7 @@ import numpy as np
 
 from calibration.errors import ModelError
 from calibration.identification.geometric import DEFAULT_ORIENTATION_WEIGHT, Kinematics, rotation_residual_scale
+from calibration.kinematics.arrays import FloatArray
 
 DEFAULT_REACH_MM = 1000.0
 DEFAULT_RELATIVE_TOLERANCE = 1e-2
@@ -44,7 +45,8 @@ class Observability:
     @property
     def basis(self) -> np.ndarray:
         """(m, rank) matrix whose columns span the observable parameter directions (unscaled units)."""
-        return self.scale[:, None] * self.V[:, : self.rank]
+        basis: FloatArray = self.scale[:, None] * self.V[:, : self.rank]
+        return basis
 
     def unobservable(self, top: int = 3) -> list[str]:
         """Each hidden direction described by its largest parameter contributions."""
@@ -118,7 +120,8 @@ def scaled_rows(J: np.ndarray, scale: np.ndarray, a: float = DEFAULT_ORIENTATION
     millimetre-equivalent units (times ``scale``), shape (N, 6, m)."""
     J = np.array(J, dtype=float)
     J[:, 3:] *= rotation_residual_scale(a)
-    return J * np.asarray(scale, dtype=float)
+    J_scaled: FloatArray = J * np.asarray(scale, dtype=float)
+    return J_scaled
 
 
 def filter_weights(obs: Observability) -> np.ndarray:
@@ -128,7 +131,8 @@ def filter_weights(obs: Observability) -> np.ndarray:
     cutoff are fitted as without a prior; those below it are damped smoothly toward the prior's reference
     (nominal) instead of being cut off.
     """
-    return obs.tolerance * obs.singular_values[0] / obs.scale
+    weights: FloatArray = obs.tolerance * obs.singular_values[0] / obs.scale
+    return weights
 
 
 def base_free_prior(weights: np.ndarray, B: np.ndarray) -> np.ndarray:
@@ -137,4 +141,5 @@ def base_free_prior(weights: np.ndarray, B: np.ndarray) -> np.ndarray:
     motion, so a base-frame error costs the fit nothing and the damping acts on what is left."""
     W2B = (weights ** 2)[:, None] * B
     P = np.eye(len(weights)) - B @ np.linalg.solve(B.T @ W2B, W2B.T)
-    return weights[:, None] * P
+    W: FloatArray = weights[:, None] * P
+    return W

@@ -54,8 +54,8 @@ _CLASSES: dict[str, type[Interpolator]] = {cls.kind: cls for cls in (
 KINDS: tuple[str, ...] = tuple(_CLASSES)
 
 
-def interpolator_class(kind: str) -> type[Interpolator]:
-    """The class implementing ``kind``; ModelError naming the valid kinds otherwise."""
+def interpolator_class(kind: Any) -> type[Interpolator]:
+    """The class implementing ``kind`` (any value, as read from a file); ModelError naming the valid kinds otherwise."""
     try:
         return _CLASSES[kind]
     except (KeyError, TypeError):
@@ -85,7 +85,7 @@ def interpolator_from_dict(d: dict[str, Any]) -> Interpolator:
     """Rebuild any interpolator from its ``to_dict()`` output, dispatching on ``d["kind"]``."""
     if not isinstance(d, dict):
         raise ModelError(f"expected an interpolator dict with a 'kind' key, got {type(d).__name__}")
-    return interpolator_class(d.get("kind")).from_dict(d)  # type: ignore[arg-type]
+    return interpolator_class(d.get("kind")).from_dict(d)
 
 
 __all__ = [

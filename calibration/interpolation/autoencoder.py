@@ -20,7 +20,7 @@ the output scaler are stored; prediction is a numpy forward pass, bit-identical 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Self
 
 import numpy as np
 
@@ -87,7 +87,7 @@ class AutoencoderInterpolator(Interpolator):
         z = np.asarray(z, dtype=np.float64)
         if z.ndim != 2 or z.shape[1] != self.latent:
             raise ModelError(f"{self.kind}: latent codes must have shape (N, {self.latent}), got {z.shape}")
-        return self._ys.invert(forward(z, self._w, self._b, relu_in=True))  # type: ignore[union-attr]
+        return self._fitted(self._ys).invert(forward(z, self._w, self._b, relu_in=True))
 
     def out_of_range(self, x: np.ndarray) -> np.ndarray:
         """Whether each query (N, d) lies outside the anchors' convex hull; bool (N,)."""
@@ -112,30 +112,30 @@ class AutoencoderInterpolator(Interpolator):
 
     def _predict(self, x: np.ndarray) -> np.ndarray:
         z = self._latent().predict(x)
-        return self._ys.invert(forward(z, self._w, self._b, relu_in=True))  # type: ignore[union-attr]
+        return self._fitted(self._ys).invert(forward(z, self._w, self._b, relu_in=True))
 
     def casadi_predict(self, u: Any) -> Any:
         """The latent codes' linear casadi form, decoded by the decoder's casadi forward pass (m, 1)."""
         self._require_fitted()
         z = self._latent().casadi_predict(u)
         y = forward_casadi(z, self._w, self._b, relu_in=True)
-        return scale_casadi(self._ys, y, invert=True)  # type: ignore[arg-type]
+        return scale_casadi(self._fitted(self._ys), y, invert=True)
 
     def _state(self) -> dict[str, Any]:
         return {"options": {"latent": self.latent, "hidden": list(self.hidden), "max_iter": self.max_iter,
                             "learning_rate": self.learning_rate, "alpha": self.alpha,
                             "random_state": self.random_state, "precision": self.precision},
                 "latent_interpolator": self._latent().to_dict(),
-                "y_scaler": self._ys.to_dict(),  # type: ignore[union-attr]
+                "y_scaler": self._fitted(self._ys).to_dict(),
                 "decoder": layers_to_dict(self._w, self._b)}
 
     @classmethod
-    def _from_state(cls, d: dict[str, Any]) -> Interpolator:
+    def _from_state(cls, d: dict[str, Any]) -> Self:
         obj = from_options(cls, stored_precision(d))
-        obj._codes = LinearInterpolator.from_dict(field(d, "latent_interpolator"))  # type: ignore[assignment]
+        obj._codes = codes = LinearInterpolator.from_dict(field(d, "latent_interpolator"))
         obj._ys = Standardiser.from_dict({**field(d, "y_scaler"), "kind": cls.kind})
         obj._w, obj._b = layers_from_dict(d, "decoder")
-        if obj._w[0].shape[0] != obj.latent or obj._codes.n_outputs != obj.latent:  # type: ignore[union-attr]
+        if obj._w[0].shape[0] != obj.latent or codes.n_outputs != obj.latent:
             raise ModelError(f"{cls.kind} dict: decoder/latent codes do not match latent = {obj.latent}")
         return obj
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import abc
 import logging
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Self, TypeVar
 
 import numpy as np
 
@@ -20,6 +20,8 @@ logger = logging.getLogger("cellcal.calibration")
 
 #: Version of the dict layout written by ``to_dict``; bumped on incompatible changes.
 FORMAT_VERSION = 1
+
+_T = TypeVar("_T")
 
 
 class Interpolator(abc.ABC):
@@ -55,7 +57,7 @@ class Interpolator(abc.ABC):
         """Output dimension m (the values' columns)."""
         return self._dims()[1]
 
-    def fit(self, x: np.ndarray, y: np.ndarray) -> Interpolator:
+    def fit(self, x: np.ndarray, y: np.ndarray) -> Self:
         """Fit on the anchors.
 
         Args:
@@ -124,7 +126,7 @@ class Interpolator(abc.ABC):
                 **self._state()}
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> Interpolator:
+    def from_dict(cls, d: dict[str, Any]) -> Self:
         """Rebuild an interpolator written by ``to_dict``; it predicts bit-identically.
 
         Raises:
@@ -157,11 +159,17 @@ class Interpolator(abc.ABC):
 
     @classmethod
     @abc.abstractmethod
-    def _from_state(cls, d: dict[str, Any]) -> Interpolator:
+    def _from_state(cls, d: dict[str, Any]) -> Self:
         """Rebuild from the dict written by ``_state`` (plus the base keys)."""
 
     def _require_fitted(self) -> None:
         self._dims()
+
+    def _fitted(self, value: _T | None) -> _T:
+        """``value``, a part of the fitted state (None before ``fit``), or ModelError when not fitted."""
+        if value is None:
+            raise ModelError(f"{self.kind} interpolator is not fitted: call fit(x, y) or from_dict() first")
+        return value
 
     def _dims(self) -> tuple[int, int]:
         if self._d is None or self._m is None:
@@ -180,6 +188,9 @@ class Interpolator(abc.ABC):
         return x
 
 
+InterpolatorT = TypeVar("InterpolatorT", bound=Interpolator)
+
+
 def as_matrix(a: Any, name: str, allow_empty: bool = False) -> np.ndarray:
     """A finite float64 array of shape (rows, cols), or ModelError naming the expected shape."""
     try:
@@ -196,7 +207,7 @@ def as_matrix(a: Any, name: str, allow_empty: bool = False) -> np.ndarray:
     return arr
 
 
-def from_options(cls: type[Interpolator], d: dict[str, Any]) -> Any:
+def from_options(cls: type[InterpolatorT], d: dict[str, Any]) -> InterpolatorT:
     """``cls(**d["options"])`` (empty options when absent), or ModelError for a malformed mapping."""
     options = d.get("options", {})
     if not isinstance(options, dict):

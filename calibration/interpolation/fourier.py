@@ -27,13 +27,14 @@ get exact derivatives of the parameters with respect to the joints (casadi is im
 from __future__ import annotations
 
 import abc
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Self
 
 import numpy as np
 
 from calibration.errors import ModelError
 from calibration.interpolation.base import Interpolator, array_field, as_matrix, from_options
 from calibration.interpolation.support import AnchorSupport
+from calibration.kinematics.arrays import FloatArray
 
 #: Names of the 13 basis functions, in column order (labels for the singular-vector heat map).
 FBF13_TERMS = ("sin q2", "sin q3", "cos q2", "cos q3", "sin(q2+q3)", "cos(q2+q3)",
@@ -104,7 +105,7 @@ class _FourierBase(Interpolator):
     def out_of_range(self, x: np.ndarray) -> np.ndarray:
         """Whether each query (N, 2) lies outside the anchors' convex hull; bool (N,)."""
         x = self._check_query(x)
-        return self._support.outside(x)  # type: ignore[union-attr]
+        return self._fitted(self._support).outside(x)
 
     def casadi_predict(self, u: Any) -> Any:
         """The prediction as a casadi expression: ``M b(u)`` with M the (m, 13) map from the 13-term basis.
@@ -136,7 +137,8 @@ def _ridge_solve(b: np.ndarray, y: np.ndarray, ridge: float) -> np.ndarray:
     """Coefficients (m, n) of ``y ~ b c``: least squares (pseudo-inverse) for ridge = 0, else ridge regression
     with penalty ``ridge * mean(diag(b^T b))`` on every column but a constant one (the mean is not shrunk)."""
     if ridge == 0.0:
-        return (np.linalg.pinv(b) @ y).T
+        A: FloatArray = (np.linalg.pinv(b) @ y).T
+        return A
     gram = b.T @ b
     const = np.all(np.isclose(b, b[:1]), axis=0)
     penalty = ridge * float(np.mean(np.diag(gram))) * np.diag(~const).astype(float)
@@ -169,7 +171,7 @@ class Fourier13Interpolator(_FourierBase):
     def coefficients(self) -> np.ndarray:
         """Coefficient matrix A, shape (m, 13) (rows: outputs, columns: ``FBF13_TERMS``)."""
         self._require_fitted()
-        return self._A.copy()  # type: ignore[union-attr]
+        return self._fitted(self._A).copy()
 
     def singular_values(self) -> np.ndarray:
         """Singular values of A, descending, shape (min(m, 13),)."""
@@ -185,17 +187,18 @@ class Fourier13Interpolator(_FourierBase):
         self._A = _ridge_solve(fbf13_basis(x), y, self.ridge)
 
     def _basis_map(self) -> np.ndarray:
-        return self._A  # type: ignore[return-value]
+        return self._fitted(self._A)
 
     def _predict(self, x: np.ndarray) -> np.ndarray:
-        return fbf13_basis(x) @ self._A.T  # type: ignore[union-attr]
+        y: FloatArray = fbf13_basis(x) @ self._fitted(self._A).T
+        return y
 
     def _state(self) -> dict[str, Any]:
-        return {"options": {"ridge": self.ridge}, "anchors": self._anchors.tolist(),  # type: ignore[union-attr]
-                "coefficients": self._A.tolist()}  # type: ignore[union-attr]
+        return {"options": {"ridge": self.ridge}, "anchors": self._fitted(self._anchors).tolist(),
+                "coefficients": self._fitted(self._A).tolist()}
 
     @classmethod
-    def _from_state(cls, d: dict[str, Any]) -> Interpolator:
+    def _from_state(cls, d: dict[str, Any]) -> Self:
         obj = from_options(cls, d)
         obj._set_anchors(array_field(d, "anchors", 2))
         obj._A = _checked(d, "coefficients", (None, 13))
@@ -225,13 +228,13 @@ class FourierReducedInterpolator(_FourierBase):
     def reduced_basis(self) -> np.ndarray:
         """V_r, shape (13, r): column j holds the weights of reduced basis function j on ``FBF13_TERMS``."""
         self._require_fitted()
-        return self._V.copy()  # type: ignore[union-attr]
+        return self._fitted(self._V).copy()
 
     @property
     def coefficients(self) -> np.ndarray:
         """Coefficients C on the reduced basis, shape (m, r)."""
         self._require_fitted()
-        return self._C.copy()  # type: ignore[union-attr]
+        return self._fitted(self._C).copy()
 
     def _fit(self, x: np.ndarray, y: np.ndarray) -> None:
         self._set_anchors(x)
@@ -242,17 +245,19 @@ class FourierReducedInterpolator(_FourierBase):
         self._C = _ridge_solve(b @ self._V, y, self.ridge)
 
     def _predict(self, x: np.ndarray) -> np.ndarray:
-        return (fbf13_basis(x) @ self._V) @ self._C.T  # type: ignore[operator,union-attr]
+        y: FloatArray = (fbf13_basis(x) @ self._fitted(self._V)) @ self._fitted(self._C).T
+        return y
 
     def _basis_map(self) -> np.ndarray:
-        return self._C @ self._V.T  # type: ignore[operator,union-attr]
+        M: FloatArray = self._fitted(self._C) @ self._fitted(self._V).T
+        return M
 
     def _state(self) -> dict[str, Any]:
-        return {"options": {"rank": self.rank, "ridge": self.ridge}, "anchors": self._anchors.tolist(),  # type: ignore[union-attr]
-                "reduced_basis": self._V.tolist(), "coefficients": self._C.tolist()}  # type: ignore[union-attr]
+        return {"options": {"rank": self.rank, "ridge": self.ridge}, "anchors": self._fitted(self._anchors).tolist(),
+                "reduced_basis": self._fitted(self._V).tolist(), "coefficients": self._fitted(self._C).tolist()}
 
     @classmethod
-    def _from_state(cls, d: dict[str, Any]) -> Interpolator:
+    def _from_state(cls, d: dict[str, Any]) -> Self:
         obj = from_options(cls, d)
         obj._set_anchors(array_field(d, "anchors", 2))
         obj._V = _checked(d, "reduced_basis", (13, obj.rank))

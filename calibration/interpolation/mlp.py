@@ -22,13 +22,14 @@ import logging
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Self
 
 import numpy as np
 
 from calibration.errors import ModelError
 from calibration.interpolation.base import Interpolator, array_field, field, from_options
 from calibration.interpolation.support import AnchorSupport
+from calibration.kinematics.arrays import FloatArray
 
 logger = logging.getLogger("cellcal.calibration")
 
@@ -56,11 +57,13 @@ class Standardiser:
 
     def apply(self, v: np.ndarray) -> np.ndarray:
         """Standardised v, same shape."""
-        return (v - self.mean) / self.scale
+        scaled: FloatArray = (v - self.mean) / self.scale
+        return scaled
 
     def invert(self, z: np.ndarray) -> np.ndarray:
         """Original units from standardised z, same shape."""
-        return z * self.scale + self.mean
+        unscaled: FloatArray = z * self.scale + self.mean
+        return unscaled
 
     def to_dict(self) -> dict[str, list[float]]:
         return {"mean": self.mean.tolist(), "scale": self.scale.tolist()}
@@ -348,7 +351,7 @@ class MlpInterpolator(Interpolator):
     def out_of_range(self, x: np.ndarray) -> np.ndarray:
         """Whether each query (N, d) lies outside the anchors' convex hull; bool (N,)."""
         x = self._check_query(x)
-        return self._support.outside(x)  # type: ignore[union-attr]
+        return self._fitted(self._support).outside(x)
 
     def _fit(self, x: np.ndarray, y: np.ndarray) -> None:
         self._support, self._anchors = AnchorSupport(x), x
@@ -358,24 +361,24 @@ class MlpInterpolator(Interpolator):
                                      self.precision)
 
     def _predict(self, x: np.ndarray) -> np.ndarray:
-        return self._ys.invert(forward(self._xs.apply(x), self._w, self._b))  # type: ignore[union-attr]
+        return self._fitted(self._ys).invert(forward(self._fitted(self._xs).apply(x), self._w, self._b))
 
     def casadi_predict(self, u: Any) -> Any:
         """The standardise / forward / unstandardise pass of ``predict`` as a casadi column (m, 1)."""
         self._require_fitted()
-        z = forward_casadi(scale_casadi(self._xs, u), self._w, self._b)  # type: ignore[arg-type]
-        return scale_casadi(self._ys, z, invert=True)  # type: ignore[arg-type]
+        z = forward_casadi(scale_casadi(self._fitted(self._xs), u), self._w, self._b)
+        return scale_casadi(self._fitted(self._ys), z, invert=True)
 
     def _state(self) -> dict[str, Any]:
         return {"options": {"hidden": list(self.hidden), "max_iter": self.max_iter,
                             "learning_rate": self.learning_rate, "alpha": self.alpha,
                             "random_state": self.random_state, "precision": self.precision},
-                "anchors": self._anchors.tolist(),  # type: ignore[union-attr]
-                "x_scaler": self._xs.to_dict(), "y_scaler": self._ys.to_dict(),  # type: ignore[union-attr]
+                "anchors": self._fitted(self._anchors).tolist(),
+                "x_scaler": self._fitted(self._xs).to_dict(), "y_scaler": self._fitted(self._ys).to_dict(),
                 "network": layers_to_dict(self._w, self._b)}
 
     @classmethod
-    def _from_state(cls, d: dict[str, Any]) -> Interpolator:
+    def _from_state(cls, d: dict[str, Any]) -> Self:
         obj = from_options(cls, stored_precision(d))
         anchors = array_field(d, "anchors", 2)
         obj._support, obj._anchors = AnchorSupport(anchors), anchors

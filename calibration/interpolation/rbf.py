@@ -23,6 +23,7 @@ import numpy as np
 from calibration.errors import ModelError
 from calibration.interpolation.base import check_choice
 from calibration.interpolation.scattered import AnchoredInterpolator
+from calibration.kinematics.arrays import FloatArray
 
 #: Kernels accepted by scipy's RBFInterpolator.
 RBF_KERNELS = ("thin_plate_spline", "cubic", "quintic", "linear", "gaussian", "multiquadric",
@@ -99,7 +100,8 @@ class RbfInterpolator(AnchoredInterpolator):
     def _predict(self, x: np.ndarray) -> np.ndarray:
         if x.shape[0] == 0:
             return np.zeros((0, self.n_outputs))
-        return self._rbf(x)
+        y: FloatArray = self._rbf(x)  # scipy's RBFInterpolator (N, m)
+        return y
 
 
 def _kernel_sx(kernel: str, r2: Any) -> Any:

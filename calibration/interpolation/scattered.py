@@ -19,13 +19,14 @@ for the same input), so prediction after a round trip is bit-identical.
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Self
 
 import numpy as np
 
 from calibration.errors import ModelError
 from calibration.interpolation.base import Interpolator, array_field, from_options
 from calibration.interpolation.support import AnchorSupport
+from calibration.kinematics.arrays import FloatArray
 
 
 class AnchoredInterpolator(Interpolator):
@@ -55,11 +56,11 @@ class AnchoredInterpolator(Interpolator):
         return {}
 
     def _state(self) -> dict[str, Any]:
-        return {"options": self._options(), "anchors": self._anchors.tolist(),  # type: ignore[union-attr]
-                "values": self._values.tolist()}  # type: ignore[union-attr]
+        return {"options": self._options(), "anchors": self._fitted(self._anchors).tolist(),
+                "values": self._fitted(self._values).tolist()}
 
     @classmethod
-    def _from_state(cls, d: dict[str, Any]) -> Interpolator:
+    def _from_state(cls, d: dict[str, Any]) -> Self:
         obj = from_options(cls, d)
         obj._fit(array_field(d, "anchors", 2), array_field(d, "values", 2))
         return obj
@@ -70,18 +71,20 @@ class AnchoredInterpolator(Interpolator):
         return self._support
 
     def _nearest_values(self, x: np.ndarray) -> np.ndarray:
-        return self._values[self._hull().nearest(x)]  # type: ignore[index]
+        values: FloatArray = self._fitted(self._values)[self._hull().nearest(x)]
+        return values
 
     def _nearest_casadi(self, u: Any) -> Any:
         """The nearest anchor's values (m, 1) as casadi: a strict-< argmin chain (the first anchor wins ties)."""
         import casadi as ca
 
         self._require_fitted()
-        A, V = self._anchors, self._values
-        best_d, best_v = None, None
-        for k in range(A.shape[0]):  # type: ignore[union-attr]
-            dk = ca.sumsqr(u - ca.DM(A[k]))  # type: ignore[index]
-            vk = ca.DM(V[k])  # type: ignore[index]
+        A, V = self._fitted(self._anchors), self._fitted(self._values)
+        best_d: Any = None  # casadi expressions, once the first anchor is seen
+        best_v: Any = None
+        for k in range(A.shape[0]):
+            dk = ca.sumsqr(u - ca.DM(A[k]))
+            vk = ca.DM(V[k])
             if best_d is None:
                 best_d, best_v = dk, vk
             else:
@@ -112,12 +115,19 @@ class _TriangulatedInterpolator(AnchoredInterpolator):
         self._interp: Any = None
 
     def _predict(self, x: np.ndarray) -> np.ndarray:
-        out = self._interp(x)
+        out: FloatArray = self._interp(x)  # scipy's LinearND/CloughTocher2D interpolator (N, m)
         # Same point location as scipy's, plus any NaN scipy produced on the hull boundary.
         fill = self._hull().outside(x) | np.isnan(out).any(axis=1)
         if fill.any():
             out[fill] = self._nearest_values(x[fill])
         return out
+
+    def _triangulation(self) -> Any:
+        """The anchors' Delaunay triangulation (scipy's): these kinds need d >= 2, where the support has one."""
+        tri = self._hull().tri
+        if tri is None:
+            raise ModelError(f"{self.kind}: needs x with at least 2 columns; the anchors have no triangulation")
+        return tri
 
 
 class LinearInterpolator(_TriangulatedInterpolator):
@@ -140,7 +150,7 @@ class LinearInterpolator(_TriangulatedInterpolator):
         import casadi as ca
 
         self._require_fitted()
-        tri = self._hull().tri
+        tri, V = self._triangulation(), self._fitted(self._values)
         eps = 100 * np.finfo(float).eps  # scipy's find_simplex tolerance on the barycentric coordinates
         d = self.n_inputs
         out = self._nearest_casadi(u)
@@ -153,7 +163,7 @@ class LinearInterpolator(_TriangulatedInterpolator):
             inside = bary[0] >= -eps
             for j in range(1, d + 1):
                 inside = ca.logic_and(inside, bary[j] >= -eps)
-            value = ca.mtimes(ca.DM(self._values[tri.simplices[s]].T), bary)  # type: ignore[index]
+            value = ca.mtimes(ca.DM(V[tri.simplices[s]].T), bary)
             out = ca.if_else(inside, value, out)
         return out
 
@@ -174,7 +184,7 @@ class CubicInterpolator(_TriangulatedInterpolator):
         import casadi as ca
 
         self._require_fitted()
-        tri = self._hull().tri
+        tri = self._triangulation()
         eps = 100 * np.finfo(float).eps
         coeffs = _clough_tocher_coefficients(tri, self._interp.values, self._interp.grad)  # (T, m, 19)
         out = self._nearest_casadi(u)

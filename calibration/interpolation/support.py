@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from calibration.errors import ModelError
+from calibration.kinematics.arrays import BoolArray, IntArray
 
 
 class AnchorSupport:
@@ -61,10 +62,12 @@ class AnchorSupport:
         """
         if self.tri is None:
             return (x[:, 0] < self._lo) | (x[:, 0] > self._hi)
-        return self.tri.find_simplex(x) < 0
+        outside: BoolArray = self.tri.find_simplex(x) < 0
+        return outside
 
     def nearest(self, x: np.ndarray) -> np.ndarray:
         """Index of the nearest anchor (Euclidean in x) for each query, shape (N,) int."""
         if x.shape[0] == 0:
             return np.zeros(0, dtype=np.intp)
-        return self._tree.query(x)[1]
+        index: IntArray = self._tree.query(x)[1]
+        return index

@@ -1,2 +1,3 @@
 """Kinematics: rotations (``so3``), the product-of-exponentials model (``poe``), its minimal parameterisation
-(``parameterisation``) and the numpy/casadi building blocks (``casadi_expr``)."""
+(``parameterisation``), the numpy/casadi building blocks (``casadi_expr``) and the array types annotations use
+(``arrays``)."""

@@ -20,6 +20,7 @@ import numpy as np
 
 from calibration.errors import ModelError
 from calibration.kinematics import so3
+from calibration.kinematics.arrays import FloatArray
 
 
 def poe_to_dict(m: PoeModel) -> dict[str, Any]:
@@ -47,11 +48,11 @@ class Chain:
         p_base_tool: tool position [mm], shape (N, 3).
     """
 
-    R_base_link: np.ndarray
-    p_base_origin: np.ndarray
-    axes_base: np.ndarray
-    R_base_tool: np.ndarray
-    p_base_tool: np.ndarray
+    R_base_link: FloatArray
+    p_base_origin: FloatArray
+    axes_base: FloatArray
+    R_base_tool: FloatArray
+    p_base_tool: FloatArray
 
 
 @dataclass(frozen=True)
@@ -66,11 +67,11 @@ class PoeModel:
         p_flange_tool: tool position in the flange frame [mm], shape (3,).
     """
 
-    H: np.ndarray
-    P: np.ndarray
-    R_flange: np.ndarray = field(default_factory=lambda: np.eye(3))
-    R_flange_tool: np.ndarray = field(default_factory=lambda: np.eye(3))
-    p_flange_tool: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    H: FloatArray
+    P: FloatArray
+    R_flange: FloatArray = field(default_factory=lambda: np.eye(3))
+    R_flange_tool: FloatArray = field(default_factory=lambda: np.eye(3))
+    p_flange_tool: FloatArray = field(default_factory=lambda: np.zeros(3))
 
     def __post_init__(self) -> None:
         H = np.asarray(self.H, dtype=float)
@@ -89,7 +90,8 @@ class PoeModel:
 
     @property
     def n_joints(self) -> int:
-        return self.H.shape[1]
+        n: int = self.H.shape[1]
+        return n
 
     @property
     def R_6_tool(self) -> np.ndarray:

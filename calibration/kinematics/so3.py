@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from calibration.kinematics.arrays import FloatArray
+
 
 def make_T(R: np.ndarray, p: np.ndarray) -> np.ndarray:
     """Homogeneous transform (4, 4) from a rotation (3, 3) and a translation (3,) [mm]."""
@@ -88,7 +90,8 @@ def exp(phi: np.ndarray) -> np.ndarray:
     a = np.where(small, 1.0 - theta**2 / 6.0, np.sin(theta) / safe)
     b = np.where(small, 0.5 - theta**2 / 24.0, (1.0 - np.cos(theta)) / safe**2)
     K = hat(phi)
-    return np.eye(3) + a[..., None, None] * K + b[..., None, None] * (K @ K)
+    R: FloatArray = np.eye(3) + a[..., None, None] * K + b[..., None, None] * (K @ K)
+    return R
 
 
 def log(R: np.ndarray) -> np.ndarray:
@@ -100,7 +103,8 @@ def log(R: np.ndarray) -> np.ndarray:
     sin_t = np.sin(theta)
     small = sin_t < 1e-9
     scale = np.where(small, 1.0 + theta**2 / 6.0, theta / np.where(small, 1.0, sin_t))
-    return w * scale[..., None]
+    phi: FloatArray = w * scale[..., None]
+    return phi
 
 
 def right_jacobian_inv(e: np.ndarray) -> np.ndarray:
@@ -114,7 +118,8 @@ def right_jacobian_inv(e: np.ndarray) -> np.ndarray:
     t = np.where(small, 1.0, theta)
     coef = np.where(small, 1.0 / 12.0, 1.0 / t**2 - (1.0 + np.cos(t)) / (2.0 * t * np.sin(t)))
     K = hat(e)
-    return np.eye(3) + 0.5 * K + coef[..., None, None] * (K @ K)
+    J_inv: FloatArray = np.eye(3) + 0.5 * K + coef[..., None, None] * (K @ K)
+    return J_inv
 
 
 def left_jacobian(phi: np.ndarray) -> np.ndarray:
@@ -126,7 +131,8 @@ def left_jacobian(phi: np.ndarray) -> np.ndarray:
     a = np.where(small, 0.5 - theta**2 / 24.0, (1.0 - np.cos(t)) / t**2)
     b = np.where(small, 1.0 / 6.0 - theta**2 / 120.0, (t - np.sin(t)) / t**3)
     K = hat(phi)
-    return np.eye(3) + a[..., None, None] * K + b[..., None, None] * (K @ K)
+    J: FloatArray = np.eye(3) + a[..., None, None] * K + b[..., None, None] * (K @ K)
+    return J
 
 
 def quat_to_R(quat: np.ndarray) -> np.ndarray:
@@ -166,7 +172,8 @@ def R_to_quat(R: np.ndarray) -> np.ndarray:
     k = np.argmax(diag, axis=-1)
     q = np.take_along_axis(cands, k[..., None, None], axis=-2)[..., 0, :]
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    return q * np.where(q[..., :1] < 0, -1.0, 1.0)
+    wxyz: FloatArray = q * np.where(q[..., :1] < 0, -1.0, 1.0)
+    return wxyz
 
 
 def orthonormal_complement(h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -111,7 +111,8 @@ def _choose_strength(fitter: HeldOutRefits, method: str, options: dict[str, Any]
     if fitter.warm is not None:
         if method not in fitter.warm._cache.strengths:
             fitter.warm.fit(method)
-        return fitter.warm._cache.strengths[method][name]
+        strength: float = fitter.warm._cache.strengths[method][name]
+        return strength
     ref_name, kind = cdc_method(method)
     (kin, theta), local = fitter.reference(ref_name), fitter.local_fits(ref_name)
     groups, _ = cluster_anchors(fitter.clustered, fitter.options.cluster_size)
@@ -126,10 +127,11 @@ def _choose_strength(fitter: HeldOutRefits, method: str, options: dict[str, Any]
             log.info("%s %s=%g cannot be fitted on the held-out folds: %s", method, name, v, e)
             scores.append(None)
     usable = [i for i, s in enumerate(scores) if s is not None]
+    usable_scores = [s for s in scores if s is not None]
     if not usable:
         raise ModelError(f"{method}: no {name} of {list(grid)} can be fitted on the held-out folds of "
                          f"{len(local.anchors)} clusters")
-    chosen = grid[usable[robust.one_se_choice(tuple(grid[i] for i in usable), [scores[i] for i in usable])]]
+    chosen = grid[usable[robust.one_se_choice(tuple(grid[i] for i in usable), usable_scores)]]
     fitter._cache.strengths[method] = {
         name: chosen, "grid": list(grid),
         "heldout_rms_mm": [None if s is None else round(s.rms_mm, 4) for s in scores]}

@@ -7,7 +7,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from dataclasses import replace
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -126,7 +126,7 @@ def nls0_damping(fitter: HeldOutRefits) -> float:
         return fitter.options.nls0_damping
     if fitter._cache.nls0_damping is None:
         fitter.fit("nls0")
-    return fitter._cache.nls0_damping
+    return cast(float, fitter._cache.nls0_damping)  # set by the nls0 fit just run
 
 
 def _nls0_held_out(fitter: HeldOutRefits, at: Callable[[float], tuple[Observability, np.ndarray]], used: np.ndarray,
@@ -154,12 +154,13 @@ def _nls0_held_out(fitter: HeldOutRefits, at: Callable[[float], tuple[Observabil
         cutoff = grid[robust.one_se_choice(grid, scores)]
         damping = {"chosen": cutoff, "grid": list(grid), "heldout_rms_mm": [round(s.rms_mm, 4) for s in scores],
                    "se_mm": [round(s.se_rms_mm, 4) for s in scores]}
-    nls1_mm = fitter.held_out_errors("nls1")[rest]
+    nls1_mm = cast(np.ndarray, fitter.held_out_errors("nls1"))[rest]  # None for diagnosed only
     h = robust.HeldOut.of_errors(errors(_constant(fitter, "nls0", at(cutoff)[1], 0), held).position_mm,
                                  nls1_mm, groups)
-    heldout = {"clusters": int(groups.max()) + 1, "rms_mm": round(h.rms_mm, 4), "max_mm": round(h.max_mm, 4),
-               "nls1_rms_mm": round(h.reference_rms_mm, 4), "nls1_max_mm": round(h.reference_max_mm, 4),
-               "nominal_rms_mm": round(float(np.sqrt(np.mean(nominal_mm ** 2))), 4)}
+    heldout: dict[str, Any] = {
+        "clusters": int(groups.max()) + 1, "rms_mm": round(h.rms_mm, 4), "max_mm": round(h.max_mm, 4),
+        "nls1_rms_mm": round(h.reference_rms_mm, 4), "nls1_max_mm": round(h.reference_max_mm, 4),
+        "nominal_rms_mm": round(float(np.sqrt(np.mean(nominal_mm ** 2))), 4)}
     log.info("nls0 damping %g (%s) on the %d training clusters it does not use: %s", cutoff, damping,
              heldout["clusters"], heldout)
     if h.max_mm > NLS0_HELDOUT_MAX_RATIO * h.reference_max_mm:

@@ -22,6 +22,7 @@ def fit_diagnosed(fitter: HeldOutRefits, method: str) -> KinematicModel:
     if job is not None:  # started by prefetch in its own worker process: the same bits as here
         pool, future = job
         try:
+            model: KinematicModel
             model, seconds = future.result()  # the worker's own error, or BrokenProcessPool if it died
         except BaseException:  # an interrupt here must not wait for the rest of the diagnosis
             pool.terminate()

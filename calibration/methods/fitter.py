@@ -23,7 +23,9 @@ from __future__ import annotations
 import logging
 import multiprocessing as mp
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
+from typing import cast
 
 import numpy as np
 
@@ -118,12 +120,13 @@ class Fitter(HeldOutRefits):
 
     def _prepare_shared(self, method: str) -> float:
         """Run (once) the shared fits ``method`` builds on; returns their wall time [s], charged to each user."""
-        needs = {"nls1": ("global",), "pi": ("pi",)}.get(method, ())
+        needs: tuple[str, ...] = {"nls1": ("global",), "pi": ("pi",)}.get(method, ())
         if method in CDC_METHODS:
             reference = cdc_method(method)[0]
             needs = ("pi", "local pi") if reference == "pi" else ("global", "local geometric")
-        steps = {"global": self.global_fit, "pi": self.physics_informed,
-                 "local pi": lambda: self.local_fits("pi"), "local geometric": lambda: self.local_fits("geometric")}
+        steps: dict[str, Callable[[], object]] = {
+            "global": self.global_fit, "pi": self.physics_informed,
+            "local pi": lambda: self.local_fits("pi"), "local geometric": lambda: self.local_fits("geometric")}
         seconds = self._cache.seconds
         for step in needs:
             if step not in seconds:
@@ -161,7 +164,8 @@ class Fitter(HeldOutRefits):
         folds = [(m, f) for m in neural for f in range(robust.NEURAL_EVALUATED_FOLDS)]
         if held_out:
 
-            unread = off_reference({m: (ref, self.held_out_errors(ref)) for m in methods if m in CDC_METHODS
+            unread = off_reference({m: (ref, cast(np.ndarray, self.held_out_errors(ref)))  # a reference: never None
+                                    for m in methods if m in CDC_METHODS
                                     for ref in [REFERENCE_FITS[cdc_method(m)[0]]]})
             folds += [(m, f) for m in neural if m not in unread
                       for f in range(robust.NEURAL_EVALUATED_FOLDS, robust.N_FOLDS)]

@@ -24,12 +24,14 @@ import multiprocessing as mp
 from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from calibration.data.recording import Recording
 from calibration.errors import ModelError
 from calibration.interpolation.base import Interpolator
+from calibration.kinematics.arrays import FloatArray
 from calibration.physics.extended import ExtendedKinematics
 from calibration.workers import ForkPool
 
@@ -97,7 +99,8 @@ def position_errors(kin: ExtendedKinematics, theta: np.ndarray, rec: Recording) 
     """Position error norm per sample [mm] of parameters theta (N, size) or (size,) on rec."""
     theta = np.broadcast_to(theta, (len(rec), kin.size))
     _, p = kin.pose(rec.q, np.ascontiguousarray(theta))
-    return np.linalg.norm(rec.p - p, axis=1)
+    err_mm: FloatArray = np.linalg.norm(rec.p - p, axis=1)
+    return err_mm
 
 
 def _fit_fold(check: HeldOutCheck, f: int) -> np.ndarray:
@@ -146,7 +149,7 @@ class HeldOutCheck:
         queries = [rec.q[idx][:, list(inputs)] for idx in self._idx]
         self._make, self._anchors, self._queries = make, anchors, queries
         self._pool: ForkPool | None = None
-        self._pending: list[Future] = []
+        self._pending: list[Future[Any]] = []
         if workers > 1 and "fork" in mp.get_all_start_methods():
             self._pool = ForkPool(min(workers, self._n_folds), self)  # the workers fork during the first submit
             self._pending = [self._pool.submit(_fit_fold, f) for f in range(self._n_folds)]
@@ -316,7 +319,7 @@ class GrossRows:
                 f"errors (beyond {self.bound_mm:.3g} mm / {self.bound_deg:.3g} deg, {GROSS_SCORE:g} robust SDs above "
                 f"the median error; data rows, 1-based): {shown}{more}. Check the markers of those poses")
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         return {"rows": [i + 1 for i in self.rows], "position_mm": list(self.position_mm),
                 "orientation_deg": list(self.orientation_deg), "bound_mm": self.bound_mm, "bound_deg": self.bound_deg,
                 "n_samples": self.n_samples, "beyond_bound": self.beyond, "rejected": len(self.rows)}

@@ -18,6 +18,7 @@ from calibration.identification import GeometricProblem
 from calibration.identification.observability import Observability, analyse, base_free_prior, filter_weights
 from calibration.interpolation import make_interpolator
 from calibration.interpolation.support import AnchorSupport
+from calibration.kinematics.arrays import FloatArray
 from calibration.kinematics.parameterisation import MinimalParameterisation
 from calibration.kinematics.poe import PoeModel
 from calibration.method_names import CDC_REFERENCES
@@ -154,7 +155,8 @@ class SharedFits:
         if not res.converged.all():
             log.warning("global NLS stopped after %d iterations without converging (%s)", res.iterations,
                         res.reason[0].value)
-        return res.x[0]
+        x: FloatArray = res.x[0]
+        return x
 
     def global_fit(self) -> np.ndarray:
         if self._cache.x_global is None:
@@ -224,7 +226,8 @@ class SharedFits:
         if self.options.local_prior is not None:
             return self.options.local_prior
         self.local_fits(reference)
-        return self._cache.local_prior_cv[reference]["chosen"]
+        weight: float = self._cache.local_prior_cv[reference]["chosen"]
+        return weight
 
     def _local_at(self, prior: float, reference: str) -> LocalFits:
         fits = self._cache.local_by_prior

@@ -51,6 +51,7 @@ split, where the task lies beyond every candidate). The other five days were not
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -58,6 +59,7 @@ import numpy as np
 from calibration.errors import ModelError
 from calibration.identification.geometric import DEFAULT_ORIENTATION_WEIGHT
 from calibration.identification.observability import DEFAULT_REACH_MM, scaled_rows
+from calibration.kinematics.arrays import FloatArray
 from calibration.kinematics.parameterisation import MinimalParameterisation
 from calibration.physics.extended import ExtendedKinematics
 
@@ -144,6 +146,7 @@ class _Features:
     def __init__(self, nominal: object, prior: TopupPrior, centres: np.ndarray, theta: np.ndarray | None) -> None:
         par = MinimalParameterisation(nominal, fit_tool=True)  # type: ignore[arg-type]
         self.prior = prior
+        self._jac: Callable[[np.ndarray], np.ndarray]  # q (N, 6) -> pose Jacobian (N, 6, m)
         if prior.kind == "pi":
             kin = ExtendedKinematics(par)
             self._jac = lambda q: kin.jacobian(q, np.zeros(kin.size) if theta is None else theta)[2]
@@ -162,7 +165,8 @@ class _Features:
 
     def _kernel(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         d2 = np.sum(a * a, 1)[:, None] + np.sum(b * b, 1)[None] - 2 * a @ b.T
-        return np.exp(-0.5 * np.maximum(d2, 0.0) / self.prior.length_rad ** 2)
+        K: FloatArray = np.exp(-0.5 * np.maximum(d2, 0.0) / self.prior.length_rad ** 2)
+        return K
 
     def rows(self, q: np.ndarray) -> np.ndarray:
         """Feature rows (N, 6, p), in mm per unit weight; every weight has a unit prior."""
@@ -192,7 +196,8 @@ def _posterior(nominal: object, q_given: np.ndarray, known: np.ndarray, prior: T
 def _tail_mean(v: np.ndarray, tail: float) -> np.ndarray:
     """Mean of the largest ``ceil(tail * T)`` entries of each column of v (T, C), shape (C,)."""
     n = max(1, int(np.ceil(tail * v.shape[0])))
-    return np.mean(np.partition(v, v.shape[0] - n, axis=0)[v.shape[0] - n:], axis=0)
+    mean: FloatArray = np.mean(np.partition(v, v.shape[0] - n, axis=0)[v.shape[0] - n:], axis=0)
+    return mean
 
 
 def choose(nominal: object, q_given: np.ndarray, q_candidates: np.ndarray, q_task: np.ndarray, k: int,
@@ -284,7 +289,8 @@ def predicted_position_cov(nominal: object, q_given: np.ndarray, q_query: np.nda
     q_query = np.asarray(q_query, dtype=float).reshape(-1, 6)
     feats, C = _posterior(nominal, q_given, np.concatenate([q_given, q_query]), prior, theta)
     P = feats.rows(q_query)[:, :3]  # (Q, 3, p)
-    return np.einsum("nip,pq,njq->nij", P, C, P) + residual_mm ** 2 * np.eye(3)
+    cov: FloatArray = np.einsum("nip,pq,njq->nij", P, C, P) + residual_mm ** 2 * np.eye(3)
+    return cov
 
 
 def predicted_sigma(nominal: object, q_given: np.ndarray, q_query: np.ndarray, prior: TopupPrior | None = None,
@@ -293,7 +299,8 @@ def predicted_sigma(nominal: object, q_given: np.ndarray, q_query: np.ndarray, p
     """Predicted position error (RMS of the error norm) [mm] of a global model (pi, nls1) fitted on ``q_given``, at
     each query configuration, shape (Q,): the trace of :func:`predicted_position_cov`, square-rooted."""
     cov = predicted_position_cov(nominal, q_given, q_query, prior, theta, param_sd_mm, residual_mm)
-    return np.sqrt(np.trace(cov, axis1=1, axis2=2))
+    sigma_mm: FloatArray = np.sqrt(np.trace(cov, axis1=1, axis2=2))
+    return sigma_mm
 
 
 #: Standard normal draws (fixed) for :func:`gaussian_share_over`: its figure is the same on every call.

@@ -8,6 +8,11 @@ from collections.abc import Callable
 
 import numpy as np
 
+from calibration.kinematics.arrays import FloatArray
+
+#: A model's forward kinematics, ``q (N, n) [rad] -> (R (N, 3, 3), p (N, 3) [mm])`` (``KinematicModel.fk``).
+PoseFunction = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+
 #: A CDC fit whose workspace correction (p99) exceeds its training correction by this factor is flagged; the
 #: local prior is chosen among the strengths that stay below it.
 WORKSPACE_RATIO_LIMIT = 2.0
@@ -35,7 +40,8 @@ def range_excess(predicted: np.ndarray, x_local: np.ndarray, floor: np.ndarray |
     """
     lo, hi = x_local.min(axis=0), x_local.max(axis=0)
     width = np.maximum(hi - lo, floor)
-    return ((np.maximum(predicted - hi, 0.0) + np.maximum(lo - predicted, 0.0)) / width).max(axis=1)
+    excess: FloatArray = ((np.maximum(predicted - hi, 0.0) + np.maximum(lo - predicted, 0.0)) / width).max(axis=1)
+    return excess
 
 
 def workspace_probes(anchors_q23: np.ndarray, joint_limits: tuple[np.ndarray, np.ndarray] | None, n_joints: int,
@@ -49,7 +55,8 @@ def workspace_probes(anchors_q23: np.ndarray, joint_limits: tuple[np.ndarray, np
     return q
 
 
-def workspace_ratio(fk: Callable, reference_fk: Callable, q_train: np.ndarray, q_probe: np.ndarray) -> tuple[float, float, float]:
+def workspace_ratio(fk: PoseFunction, reference_fk: PoseFunction, q_train: np.ndarray, q_probe: np.ndarray
+                    ) -> tuple[float, float, float]:
     """``(ratio, p99 probe [mm], p99 train [mm])`` of the position correction ``|p(q) - p_ref(q)|``."""
     train = np.percentile(np.linalg.norm(fk(q_train)[1] - reference_fk(q_train)[1], axis=1), 99)
     probe = np.percentile(np.linalg.norm(fk(q_probe)[1] - reference_fk(q_probe)[1], axis=1), 99)

@@ -17,12 +17,14 @@ from __future__ import annotations
 
 import abc
 import logging
-from typing import Any, ClassVar
+from dataclasses import Field
+from typing import TYPE_CHECKING, Any, ClassVar, Self
 
 import numpy as np
 
 from calibration.errors import ModelError
 from calibration.kinematics.blocks import Block
+from calibration.kinematics.casadi_expr import CasadiPose
 from calibration.kinematics.poe import PoeModel
 from calibration.models.registry import KINDS, model_class
 
@@ -43,6 +45,9 @@ class KinematicModel(abc.ABC):
     robot: str
     method: str
     info: dict[str, Any]
+    if TYPE_CHECKING:
+        # Every model kind is a dataclass, so dataclasses.replace applies to any KinematicModel.
+        __dataclass_fields__: ClassVar[dict[str, Field[Any]]]
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -64,7 +69,7 @@ class KinematicModel(abc.ABC):
         none for a model without context-dependent effects."""
         return frozenset()
 
-    def with_region(self, region: Any) -> KinematicModel:
+    def with_region(self, region: Any) -> Self:
         """The same model with another training region (a :class:`calibration.models.guard.Region`, or None: none,
         which turns the extrapolation guard off)."""
         from dataclasses import replace
@@ -72,7 +77,7 @@ class KinematicModel(abc.ABC):
         from calibration.models.guard import REGION_KEY  # the guard loads when a region is asked for, not with a model
 
         info = {k: v for k, v in self.info.items() if k != REGION_KEY}
-        return replace(self, info=info if region is None else {**info, REGION_KEY: region.to_dict()})  # type: ignore[type-var]
+        return replace(self, info=info if region is None else {**info, REGION_KEY: region.to_dict()})
 
     def out_of_range(self, q: np.ndarray) -> np.ndarray:
         """Boolean mask (N,) of configurations outside the region the model was fitted on."""
@@ -108,8 +113,8 @@ class KinematicModel(abc.ABC):
         """The same model with other parameters (m,)."""
         raise ModelError(f"a {self.kind} model has no parameter vector")
 
-    def casadi(self, q: Any, theta: Any = None, q_at: Any = None) -> Any:
-        """The pose as casadi expressions (a :class:`calibration.kinematics.casadi_expr.CasadiPose`).
+    def casadi(self, q: Any, theta: Any = None, q_at: Any = None) -> CasadiPose:
+        """The pose as casadi expressions.
 
         Args:
             q: casadi symbols (or expressions) of the joint angles the kinematics see [rad] (6,).
@@ -181,6 +186,7 @@ class KinematicModel(abc.ABC):
         if d.get("schema") not in READABLE_SCHEMAS:
             raise ModelError(f"unsupported model schema {d.get('schema')!r}; expected one of {READABLE_SCHEMAS}")
         kind = d.get("kind")
-        return model_class(kind)._from_body(d["robot"], d["method"], d.get("info", {}), d)
+        model: KinematicModel = model_class(kind)._from_body(d["robot"], d["method"], d.get("info", {}), d)
+        return model
 
 

@@ -23,6 +23,7 @@ import numpy as np
 
 from calibration.errors import ModelFileError
 from calibration.interpolation import interpolator_from_dict
+from calibration.kinematics.arrays import BoolArray
 from calibration.kinematics.blocks import Block
 from calibration.kinematics.casadi_expr import CasadiPose, interpolator_sx
 from calibration.kinematics.parameterisation import MinimalParameterisation
@@ -72,7 +73,8 @@ class CdcModel(KinematicModel):
 
     def out_of_range(self, q: np.ndarray) -> np.ndarray:
         q = np.atleast_2d(np.asarray(q, dtype=float))
-        return self.interpolator.out_of_range(q[:, list(self.inputs)])
+        outside: BoolArray = self.interpolator.out_of_range(q[:, list(self.inputs)])
+        return outside
 
     @property
     def n_parameters(self) -> int:
@@ -128,7 +130,8 @@ class CdcModel(KinematicModel):
         import casadi as ca
 
         par = self.kinematics.par
-        return (par.nominal,) + tuple(ca.DM(a) for a in par.geometry(self.theta_ref[: par.size]))
+        H, P = par.geometry(self.theta_ref[: par.size])
+        return par.nominal, ca.DM(H), ca.DM(P)
 
     def urdf_geometry(self) -> Any:
         from calibration.models.urdf import UrdfGeometry  # xml.etree only when a URDF is asked for

@@ -7,13 +7,16 @@ point included), so its Jacobians are the analytic POE ones and its casadi expre
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
 from calibration.kinematics.blocks import Block
 from calibration.kinematics.poe import PoeModel, poe_from_dict, poe_to_dict
 from calibration.models.base import KinematicModel
+
+if TYPE_CHECKING:
+    from calibration.kinematics.parameterisation import MinimalParameterisation
 
 
 @dataclass
@@ -34,7 +37,7 @@ class ConstantModel(KinematicModel):
     def n_parameters(self) -> int:
         return self.parameters
 
-    def _chart(self) -> Any:
+    def _chart(self) -> MinimalParameterisation:
         """Minimal parameters around this geometry (``x = 0`` is this model; the flange point included)."""
         # here, not at the top: the CLI loads this kind with every plan check, the fitting maths only when asked for
         from calibration.kinematics.parameterisation import MinimalParameterisation

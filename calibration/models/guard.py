@@ -46,11 +46,12 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, Literal
+from typing import Any, Final, Literal
 
 import numpy as np
 
 from calibration.errors import ModelError
+from calibration.kinematics.arrays import BoolArray, FloatArray
 
 #: Width over which the clamp saturates outside the training range [rad], for a region saved without its own
 #: (models fitted before the margins came from the data; see :func:`data_margin_rad`).
@@ -70,9 +71,9 @@ NARROW_SPAN_RAD = math.radians(20.0)
 #: better on 8 folds, the same on 12, worse on 4 (0524 q3 edges +0.011, 0613 q2 edges +0.024, 0801 q2 edges
 #: +0.027 mm mean; 0801 q3 edges +0.001 mean, -0.035 max). Letting the compliances extrapolate while holding every
 #: harmonic in every joint, even one fitted over 100 deg of q2, is worse than either (0.2101/0.6712).
-RULE_BY_EFFECT = "by_effect"
+RULE_BY_EFFECT: Final = "by_effect"
 #: Every effect held in every joint: a region saved before the effects declared their own (no ``rule`` key).
-RULE_EVERY_JOINT = "every_joint"
+RULE_EVERY_JOINT: Final = "every_joint"
 GuardRule = Literal["by_effect", "every_joint"]
 RULES = (RULE_BY_EFFECT, RULE_EVERY_JOINT)
 #: Share of an effect's exponential approach to its asymptote (a warm-up's rise from a cold start) the training
@@ -110,12 +111,14 @@ def data_margin_rad(lower_rad: np.ndarray, upper_rad: np.ndarray) -> np.ndarray:
     margin changes nothing beyond the third decimal.
     """
     span = np.asarray(upper_rad, dtype=float) - np.asarray(lower_rad, dtype=float)
-    return np.clip(MARGIN_SHARE * span, MIN_MARGIN_RAD, DEFAULT_MARGIN_RAD)
+    margin_rad: FloatArray = np.clip(MARGIN_SHARE * span, MIN_MARGIN_RAD, DEFAULT_MARGIN_RAD)
+    return margin_rad
 
 
 def excess_beyond(v: np.ndarray, lo: Any, hi: Any) -> np.ndarray:
     """How far v lies outside [lo, hi], zero inside (same shape as v)."""
-    return np.maximum(lo - v, 0.0) + np.maximum(v - hi, 0.0)
+    excess: FloatArray = np.maximum(lo - v, 0.0) + np.maximum(v - hi, 0.0)
+    return excess
 
 
 def soft_clamp(v: np.ndarray, lo: Any, hi: Any, m: Any, below: bool = True) -> np.ndarray:
@@ -217,7 +220,8 @@ class Region:
 
     def narrow(self) -> np.ndarray:
         """Per joint (n,), whether the training data saw it over less than :data:`NARROW_SPAN_RAD`."""
-        return self.upper_rad - self.lower_rad < NARROW_SPAN_RAD
+        narrow: BoolArray = self.upper_rad - self.lower_rad < NARROW_SPAN_RAD
+        return narrow
 
     def held_joints(self, effect: Any) -> tuple[int, ...]:
         """The 0-based joints ``effect`` (a :class:`~calibration.physics.base.Effect`) is held in under this
@@ -272,7 +276,7 @@ class Region:
 
         held = {k: sides for k, sides in self.held_context(effect).items()
                 if context is not None and context.get(k) is not None}
-        if not held:
+        if not held or context is None:  # held is empty when context is None
             return context
         return {**context, **{k: soft_clamp(context_array(context, k, N), *self.context_range[k],
                                             self.context_margin(k), below=sides == "both")

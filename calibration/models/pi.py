@@ -79,7 +79,8 @@ class PhysicsInformedModel(KinematicModel):
 
         par = self.kinematics.par
         if theta is None:
-            return (par.nominal,) + tuple(ca.DM(a) for a in par.geometry(self.theta[: par.size]))
+            H, P = par.geometry(self.theta[: par.size])
+            return par.nominal, ca.DM(H), ca.DM(P)
         return (par.nominal,) + par.casadi_geometry(theta[: par.size])
 
     def urdf_geometry(self) -> Any:

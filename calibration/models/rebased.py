@@ -128,7 +128,7 @@ class RebasedModel(KinematicModel):
         if region is not None and self.joint_offsets.any():
             region = replace(region, lower_rad=region.lower_rad + self.joint_offsets,
                              upper_rad=region.upper_rad + self.joint_offsets)
-        return replace(own, inner=self.inner.with_region(region))  # type: ignore[type-var]
+        return replace(own, inner=self.inner.with_region(region))
 
     @property
     def n_parameters(self) -> int:

@@ -38,11 +38,12 @@ from __future__ import annotations
 import abc
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, fields, replace
-from typing import Any, ClassVar, Literal, Protocol
+from typing import TYPE_CHECKING, Any, ClassVar, Literal, Protocol
 
 import numpy as np
 
 from calibration.errors import ModelError
+from calibration.kinematics.arrays import FloatArray
 from calibration.kinematics.casadi_expr import NUMPY, Ops
 from calibration.kinematics.poe import PoeModel
 from calibration.physics.context import Context, FittedSpan, check_q
@@ -70,6 +71,14 @@ class Effect(abc.ABC):
     #: (:meth:`drivers.sim.SimRobotDriver.true_pose`); tests check that an undeclared entry never changes a pose.
     context_keys: ClassVar[frozenset[str] | None] = None
     target: ClassVar[Literal["joints", "geometry", "pose"]] = "joints"
+    if TYPE_CHECKING:
+        # For the type checker only: every subclass declares ``values`` as its own dataclass field, after its
+        # settings, so its constructor reads ``Kind(settings..., values)``. A field here would come first in every
+        # subclass's constructor; the comment form keeps this declaration out of the dataclass fields.
+        values = np.zeros(0)  # type: np.ndarray
+
+        def __init__(self, *args: Any, **kwargs: Any) -> None:
+            """The constructor of a subclass: its settings, then ``values``."""
 
     def __init_subclass__(cls, register: bool = True, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -100,7 +109,8 @@ class Effect(abc.ABC):
 
     def with_values(self, values: np.ndarray) -> Effect:
         """The same effect with other parameter values (m,)."""
-        return replace(self, values=np.asarray(values, dtype=float))
+        # mypy checks replace() against the base's dataclass fields, and ``values`` is each subclass's field
+        return replace(self, values=np.asarray(values, dtype=float))  # type: ignore[call-arg]
 
     def fitted_joints(self, n: int) -> tuple[int, ...]:
         """The 0-based joints, of an arm of n, whose angles the effect's fitted shape is a function of: where the
@@ -169,7 +179,8 @@ class Effect(abc.ABC):
         q = check_q(model, q)
         if self.target != "joints":
             return np.zeros_like(q)
-        return self.regressor(model, q, context) @ self.values
+        dq: FloatArray = self.regressor(model, q, context) @ self.values
+        return dq
 
     def geometry(self, model: PoeModel, N: int, context: Context | None = None,
                  P: np.ndarray | None = None) -> np.ndarray:
@@ -179,7 +190,8 @@ class Effect(abc.ABC):
     def pose_jacobian(self, model: PoeModel, q: np.ndarray, context: Context | None = None) -> np.ndarray:
         """First-order pose change per parameter, ``d[p (mm); theta (rad)] / d values``, shape (N, 6, m)."""
         q = check_q(model, q)
-        return model.jacobian_q(q) @ self.regressor(model, q, context)
+        J: FloatArray = model.jacobian_q(q) @ self.regressor(model, q, context)
+        return J
 
     def _config(self) -> dict[str, Any]:
         """Settings other than ``values`` as plain Python (override when not plain fields)."""

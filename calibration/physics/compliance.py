@@ -31,6 +31,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from calibration.errors import ModelError
+from calibration.kinematics.arrays import FloatArray
 from calibration.kinematics.casadi_expr import Ops
 from calibration.kinematics.poe import PoeModel
 from calibration.physics.base import Effect, Term
@@ -109,11 +110,12 @@ class PayloadCompliance(Effect):
         return ()  # a gravity torque's shape: it extrapolates by its formula
 
     def joint_terms(self, ops: Ops, q: list[Any], chain: Any, context: Context | None, N: int) -> list[Term]:
-        mass = context_array(context, "payload_kg", N)  # the default context (casadi): no payload
+        payload_kg = context_array(context, "payload_kg", N)  # the default context (casadi): no payload
+        mass: FloatArray | float = payload_kg  # per sample (numpy), or one number (casadi)
         if ops.name != "numpy":
-            if not np.any(mass):
+            if not np.any(payload_kg):
                 return []
-            mass = float(mass[0])
+            mass = float(payload_kg[0])
         return _select([t * mass for t in chain_torques(ops, chain(), None, self.g)], self.joints)
 
 
@@ -216,11 +218,12 @@ class LumpedPayloadCompliance(Effect):
         return ()  # a gravity torque's shape: it extrapolates by its formula
 
     def joint_terms(self, ops: Ops, q: list[Any], chain: Any, context: Context | None, N: int) -> list[Term]:
-        mass = context_array(context, "payload_kg", N)
+        payload_kg = context_array(context, "payload_kg", N)
+        mass: FloatArray | float = payload_kg  # per sample (numpy), or one number (casadi)
         if ops.name != "numpy":
-            if not np.any(mass):
+            if not np.any(payload_kg):
                 return []
-            mass = float(mass[0])
+            mass = float(payload_kg[0])
         frames = chain()
         last = 4 * (self.n_joints - 1)
         terms: list[Term] = []

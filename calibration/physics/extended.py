@@ -27,6 +27,7 @@ import numpy as np
 
 from calibration.errors import ModelError
 from calibration.kinematics import so3
+from calibration.kinematics.blocks import Block
 from calibration.kinematics.casadi_expr import (
     NUMPY,
     CasadiPose,
@@ -48,7 +49,6 @@ from calibration.physics.layout import (
     DEFLECTION_TERMS,
     EZ,
     TOOL_NAMES,
-    Block,
     block_slice,
     check_registration_parts,
     deflection_basis,

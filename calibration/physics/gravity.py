@@ -22,9 +22,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from calibration.errors import ModelError
-from calibration.kinematics.poe import PoeModel
+from calibration.kinematics.arrays import FloatArray
+from calibration.kinematics.poe import Chain, PoeModel
 
 G_STANDARD = 9.80665  # [m/s^2]
 _SPHERE_RADIUS_M = 0.05  # point masses get a small sphere inertia so pinocchio's model is regular
@@ -35,7 +37,7 @@ def joint_origins(model: PoeModel) -> np.ndarray:
     return np.cumsum(model.P, axis=1)[:, : model.n_joints].T
 
 
-def _lever_factors(model: PoeModel, q: np.ndarray, g: float):
+def _lever_factors(model: PoeModel, q: np.ndarray, g: float) -> tuple[Chain, FloatArray]:
     """Chain and ``a_i = g_vec x w_i`` [m/s^2] per joint, shape (n, N, 3)."""
     c = model.chain(q)
     g_vec = np.array([0.0, 0.0, -g])
@@ -79,7 +81,8 @@ def point_mass_torque(model: PoeModel, q: np.ndarray, mass_kg: np.ndarray, g: fl
     c, a = _lever_factors(model, q, g)
     r = c.p_base_tool[None] - c.p_base_origin[:-1]  # (n, N, 3) [mm]
     tau = np.einsum("inj,inj->ni", a, r) / 1000.0
-    return tau * np.broadcast_to(np.asarray(mass_kg, dtype=float), (q.shape[0],))[:, None]
+    tau_Nm: FloatArray = tau * np.broadcast_to(np.asarray(mass_kg, dtype=float), (q.shape[0],))[:, None]
+    return tau_Nm
 
 
 def chain_torques(ops: Any, chain: Any, lumped: np.ndarray | None, g: float = G_STANDARD) -> list[Any]:
@@ -175,7 +178,7 @@ class GravityModel:
         object.__setattr__(self, "lumped", lumped)
 
     @classmethod
-    def from_links(cls, model: PoeModel, masses_kg: np.ndarray, com_mm: np.ndarray,
+    def from_links(cls, model: PoeModel, masses_kg: ArrayLike, com_mm: np.ndarray,
                    g: float = G_STANDARD) -> GravityModel:
         """From link masses [kg] (n,) and centres of mass in the base frame at q = 0 [mm] (n, 3)."""
         m = np.asarray(masses_kg, dtype=float).reshape(-1)

@@ -19,6 +19,7 @@ from typing import Any, Literal
 import numpy as np
 
 from calibration.errors import ModelError
+from calibration.kinematics.arrays import FloatArray
 from calibration.kinematics.poe import PoeModel
 from calibration.physics.base import Effect
 from calibration.physics.context import Context, FittedSpan, check_q, context_array
@@ -84,7 +85,8 @@ class ThermalDrift(Effect):
         """The per-sample factor multiplying the growth parameters, shape (N,)."""
         if self.mode == "warmup":
             t = context_array(context, "t", N)
-            return 1.0 - np.exp(-np.maximum(t, 0.0) / self.tau_s)
+            factor: FloatArray = 1.0 - np.exp(-np.maximum(t, 0.0) / self.tau_s)
+            return factor
         return context_array(context, "temp_c", N, self.ref_temp_c) - self.ref_temp_c
 
     def _directions(self, model: PoeModel) -> tuple[list[int], np.ndarray]:

@@ -47,9 +47,9 @@ def default_effect(kind: str, gravity: GravityModel | None = None) -> Effect:
         if gravity is None:
             raise ModelError("joint_compliance needs a GravityModel (link masses), e.g. GravityModel.from_spec")
         return JointCompliance(gravity)
-    makers = {"payload_compliance": PayloadCompliance, "gear_transmission": GearTransmission,
-              "backlash": Backlash, "thermal_drift": ThermalDrift, "mocap_latency": MocapLatency,
-              "joint_offset": JointOffset}
+    makers: dict[str, type[Effect]] = {
+        "payload_compliance": PayloadCompliance, "gear_transmission": GearTransmission, "backlash": Backlash,
+        "thermal_drift": ThermalDrift, "mocap_latency": MocapLatency, "joint_offset": JointOffset}
     if kind not in makers:
         raise ModelError(f"unknown effect kind {kind!r}; valid: joint_compliance, {', '.join(makers)}")
     return makers[kind]()

@@ -198,10 +198,14 @@ _CONTROLLER_KEYS = ("host, motion_port, state_port, groups, connect_timeout_s, r
     (_set("mocap", "data_port", 1510), "mocap.data_port", "other than command_port (1510)"),
     (_set("mocap", "command_port", 99999), "mocap.command_port", "expected an integer in [1, 65535]"),
     (_set("mocap", "rigid_body_ids", {"R1": 1}), "mocap.rigid_body_ids", "valid keys: server_address, local_address, "
-     "multicast, multicast_group, command_port, data_port, rigid_bodies, dwell_s, stream_wait_s"),
+     "multicast, multicast_group, command_port, data_port, rigid_bodies, dwell_s, stream_wait_s, first_frame_s"),
     (_set("mocap", "dwell_s", 0), "mocap.dwell_s", "expected a finite number in (0, 10], got 0"),
     (_set("mocap", "dwell_s", "0.5"), "mocap.dwell_s", "expected a finite number in (0, 10]"),
     (_set("mocap", "dwell_s", 1e7), "mocap.dwell_s", "expected a finite number in (0, 10], got 10000000.0"),
+    (_set("mocap", "first_frame_s", 0), "mocap.first_frame_s", "expected a finite number in (0, 3600], got 0"),
+    (_set("mocap", "first_frame_s", "5"), "mocap.first_frame_s", "expected a finite number in (0, 3600]"),
+    (_set("mocap", "first_frame_s", float("nan")), "mocap.first_frame_s", "expected a finite number in (0, 3600]"),
+    (_set("mocap", "first_frame_s", 7200), "mocap.first_frame_s", "expected a finite number in (0, 3600], got 7200"),
     (_set("probe", "bitrate", "500k"), "probe.bitrate", "expected an integer >= 1"),
     (_set("probe", "bitrate", 0), "probe.bitrate", "expected an integer >= 1"),
     (_set("probe", "base_id", 0x7FF), "probe.base_id", "expected an integer in [0, 2046]"),
@@ -247,6 +251,25 @@ def test_the_cell_files_dwell_window_is_the_real_collections_window(tmp_path):
     short = load_cell(_copy_rehearsal(tmp_path, _set("mocap", "dwell_s", 0.2), "short.yaml"))
     assert short.mocap.dwell_s == 0.2 and motion_config(short, real).dwell_s == 0.2
     assert motion_config(short, sim) == motion_config(dataclasses.replace(short, mocap=None), sim)
+
+
+def test_the_cell_files_first_frame_wait_is_the_real_cells(tmp_path, capsys):
+    """``mocap.first_frame_s`` sets how long opening the real cell waits for each arm's first mocap frame; absent,
+    5 s (the wait before the key existed). A bad value is refused in one line naming the file and the key, before
+    the command does anything."""
+    from app.collection.runtime.real import RealCell
+    from tests.conftest import assert_bad_input
+
+    default = load_cell(_copy_rehearsal(tmp_path, lambda d: None))
+    assert default.mocap.first_frame_s == 5.0 and RealCell(default, registered=False).first_frame_s == 5.0
+    short = load_cell(_copy_rehearsal(tmp_path, _set("mocap", "first_frame_s", 0.5), "short.yaml"))
+    assert short.mocap.first_frame_s == 0.5 and RealCell(short, registered=False).first_frame_s == 0.5
+    assert RealCell(short, registered=False, first_frame_s=2.0).first_frame_s == 2.0  # the caller's value wins
+    bad = _copy_rehearsal(tmp_path, _set("mocap", "first_frame_s", -1), "bad.yaml")
+    session = tmp_path / "s"
+    assert_bad_input(capsys, ["--cell", str(bad), "collect", "--robot", "R1", "--session", str(session), "--yes"],
+                     str(bad), "mocap.first_frame_s", "(0, 3600]", "-1")
+    assert not session.exists()
 
 
 @pytest.mark.parametrize("block, key", [("zenoh", "multicast_scouting"), ("mocap", "multicast")])

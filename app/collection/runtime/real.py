@@ -149,21 +149,25 @@ class RealCell:
         stream_wait_s: how long a read waits for a stopped mocap stream [s]; None: the cell file's
             ``mocap.stream_wait_s`` (30 s by default).
         first_frame_s: how long :meth:`open` waits for the first frame of each arm's rigid body [s]: without the
-            mocap an arm would reach its first target and wait ``stream_wait_s`` there before failing.
+            mocap an arm would reach its first target and wait ``stream_wait_s`` there before failing. None: the cell
+            file's ``mocap.first_frame_s`` (5 s by default).
         reset_alarms: let START_TRAJ_MODE reset a standing controller alarm (MotoROS does); off by default, so a
             standing alarm refuses motion until the operator clears it or asks for the reset (``--reset-alarms``).
     """
 
     def __init__(self, cell: Any, robots: Sequence[str] | None = None, *, registered: bool = True,
-                 stream_wait_s: float | None = None, first_frame_s: float = 5.0, reset_alarms: bool = False) -> None:
+                 stream_wait_s: float | None = None, first_frame_s: float | None = None,
+                 reset_alarms: bool = False) -> None:
         self.cell = cell
-        self.first_frame_s = first_frame_s
         self.reset_alarms = reset_alarms
         self.robots = tuple(cell.robots if robots is None else robots)
         self.registered = registered
         if stream_wait_s is None:
             stream_wait_s = cell.mocap.stream_wait_s if cell.mocap is not None else 30.0
         self.stream_wait_s = stream_wait_s
+        if first_frame_s is None:
+            first_frame_s = cell.mocap.first_frame_s if cell.mocap is not None else 5.0
+        self.first_frame_s = first_frame_s
         self.drivers: dict[str, RobotDriver] = {}
         self.body_ids = {name: i + 1 for i, name in enumerate(cell.robots)}
         self._mocap: dict[str, BaseFrameMocap] = {}

@@ -292,8 +292,9 @@ def test_operator_checks_refuse_or_only_look_and_nothing_moves(tmp_path: Path, p
 
 def test_a_silent_mocap_is_refused_before_any_motion(tmp_path: Path, plans: dict[str, Path]) -> None:
     """Without the bridge, register and collect moved the arm to its first target and waited 30 s there for a
-    mocap frame before failing (new-user run): the cell now waits for each arm's first frame when it opens."""
-    cell_path = registered_cell(tmp_path)
+    mocap frame before failing (new-user run): the cell now waits for each arm's first frame when it opens, here
+    0.5 s (mocap.first_frame_s; 5 s by default: this test is about the refusal, not the length of the wait)."""
+    cell_path = registered_cell(tmp_path, first_frame_s=0.5)
     session = tmp_path / "s"
     with Rehearsal(cell_path, *PURE, seed=SEED) as r:
         r.bridge.stop()
@@ -302,7 +303,8 @@ def test_a_silent_mocap_is_refused_before_any_motion(tmp_path: Path, plans: dict
                      ("register", "--robot", "R1")):
             done = run_cellcal(cell_path, *args, "--yes", "--no-progress")
             assert done.returncode == 2, done.stdout + done.stderr
-            assert "no frames of R1's rigid body" in done.stderr and "before any motion" in done.stderr, done.stderr
+            assert "no frames of R1's rigid body 'weldgun' in 0.5 s" in done.stderr and "before any motion" in done.stderr, \
+                done.stderr
         assert time.monotonic() - started < 30.0
         assert r.controller.stop() == 0
     assert "trajectory points received: 0" in r.controller.output

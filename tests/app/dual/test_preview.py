@@ -19,7 +19,7 @@ from app.dual.preview.page import preview
 from app.dual.preview.plan import plan_frames  # noqa: E402
 from calibration.errors import DataError, ModelError  # noqa: E402
 from cell_config.loader import load_cell  # noqa: E402
-from tests.app.browser import browser_or_skip, run_browser, screenshot_and_dom  # noqa: E402
+from tests.app.browser import screenshot_and_dom  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -273,11 +273,11 @@ def test_cli_preview_json_into_a_folder_writes_nothing(real_plan, tmp_path, caps
     assert not out.exists()
 
 
-def _screenshot_and_dom(tmp_path, page, name: str, fragment: str = ""):
-    """The page's screenshot as RGB floats and its DOM after the scripts ran (one browser run)."""
+def _screenshot_and_dom(chromium, tmp_path, page, name: str, fragment: str = ""):
+    """The page's screenshot as RGB floats and its DOM after the scripts ran (one page load)."""
     import matplotlib.image as mpimg
 
-    png, dom = screenshot_and_dom(tmp_path, page.as_uri() + fragment, name)
+    png, dom = screenshot_and_dom(chromium, tmp_path, page.as_uri() + fragment, name)
     img = mpimg.imread(png)[..., :3]
     assert img.shape == (768, 1024, 3)
     return img, dom
@@ -295,13 +295,13 @@ def _masks(img) -> dict:
 
 
 @pytest.fixture(scope="module")
-def first_waypoint(cell, real_plan, tmp_path_factory):
-    """The real plan's static page, its screenshot at waypoint 0 and its DOM there (one browser run, shared by the
+def first_waypoint(cell, real_plan, tmp_path_factory, chromium):
+    """The real plan's static page, its screenshot at waypoint 0 and its DOM there (one page load, shared by the
     render and readout tests: the same page in the same state)."""
     work = tmp_path_factory.mktemp("first_waypoint")
     out = work / "preview.html"
     preview(cell, real_plan, html_out=out)
-    img, dom = _screenshot_and_dom(work, out, "shot.png")
+    img, dom = _screenshot_and_dom(chromium, work, out, "shot.png")
     return out, img, dom
 
 
@@ -348,84 +348,32 @@ def _assert_readout_is_waypoint(texts: dict, plan_file, i: int):
         assert float(texts[key]) == pytest.approx(wp[unit], rel=5e-3)  # three significant digits
 
 
-def test_browser_readout_shows_waypoint_0_and_steps_the_animation(first_waypoint, real_plan, tmp_path):
+def test_browser_readout_shows_waypoint_0_and_steps_the_animation(first_waypoint, real_plan, tmp_path, chromium):
     """Issue 12: the readout holds waypoint 0's index, joints [deg] and residual from the plan file; stepping
     to another waypoint (the page's address names it, as the slider does) moves the arms and the numbers."""
     out, first, dom = first_waypoint
     last = len(json.loads(real_plan.read_text())["waypoints"]) - 1
     _assert_readout_is_waypoint(_readout(dom), real_plan, 0)
-    moved, dom = _screenshot_and_dom(tmp_path, out, "last.png", f"#waypoint={last}")
+    moved, dom = _screenshot_and_dom(chromium, tmp_path, out, "last.png", f"#waypoint={last}")
     _assert_readout_is_waypoint(_readout(dom), real_plan, last)
     first, moved = _masks(first)["R2 arm"], _masks(moved)["R2 arm"]
     overlap = (first & moved).sum() / (first | moved).sum()
     assert overlap < 0.8, f"R2 drawn in the same place at waypoints 0 and {last} (overlap {overlap:.2f})"
 
 
-def _devtools_eval(tmp_path, url: str, expression: str):
-    """Open ``url`` in headless Chromium, wait for the viewer, evaluate ``expression`` (awaited) over the DevTools
-    protocol (loopback websocket) and return its value. Real time, not virtual time: the clip's clock runs."""
-    import asyncio
-    import urllib.request
-
-    from tornado.websocket import websocket_connect
-
-    browser = browser_or_skip()
-    log = tmp_path / "devtools.log"
-    with open(log, "w") as err:
-        proc = subprocess.Popen([browser, "--headless", "--no-sandbox", "--use-angle=swiftshader",
-                                 "--enable-unsafe-swiftshader", "--no-first-run", "--disable-background-networking",
-                                 f"--user-data-dir={tmp_path / 'profile-devtools'}", "--remote-debugging-port=0",
-                                 "--window-size=1024,768", url],
-                                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err, start_new_session=True)
-    try:
-        found = None
-        for _ in range(600):  # 60 s
-            found = re.search(r"DevTools listening on ws://127\.0\.0\.1:(\d+)/", log.read_text())
-            if found or proc.poll() is not None:
-                break
-            time.sleep(0.1)
-        assert found, f"no DevTools endpoint: {log.read_text()[-1000:]}"
-        with urllib.request.urlopen(f"http://127.0.0.1:{found.group(1)}/json", timeout=10) as reply:
-            page = next(t for t in json.load(reply) if t["type"] == "page")
-
-        async def run():
-            ws = await websocket_connect(page["webSocketDebuggerUrl"])
-            ids = iter(range(1, 10_000))
-
-            async def evaluate(expr: str):
-                n = next(ids)
-                await ws.write_message(json.dumps({"id": n, "method": "Runtime.evaluate", "params": {
-                    "expression": expr, "awaitPromise": True, "returnByValue": True}}))
-                while True:
-                    msg = json.loads(await ws.read_message())
-                    if msg.get("id") == n:
-                        return msg["result"]
-
-            for _ in range(300):  # the page and its viewer loaded (30 s)
-                ready = await evaluate("document.readyState === 'complete' && typeof viewer !== 'undefined' && "
-                                       "viewer.animator.actions.length > 0")
-                if ready.get("result", {}).get("value") is True:
-                    break
-                await asyncio.sleep(0.1)
-            result = await asyncio.wait_for(evaluate(expression), 60)
-            ws.close()
-            assert "exceptionDetails" not in result, result
-            return result["result"]["value"]
-
-        return asyncio.run(run())
-    finally:
-        os.killpg(proc.pid, signal.SIGKILL)  # the browser we started, and its helpers
-        proc.wait()
+#: The preview page and its viewer have loaded (the clip's actions exist).
+VIEWER_READY = ("document.readyState === 'complete' && typeof viewer !== 'undefined' && "
+                "viewer.animator.actions.length > 0")
 
 
-def test_browser_buttons_slider_and_play_step_the_animation(cell, real_plan, tmp_path):
+def test_browser_buttons_slider_and_play_step_the_animation(cell, real_plan, tmp_path, chromium):
     """Issue 12: prev/next and the slider seek the clip to a waypoint and show its numbers; play runs the clip
     to its end with the readout following."""
     out = tmp_path / "preview.html"
     preview(cell, real_plan, html_out=out, fps=10.0)
     d = json.loads(real_plan.read_text())
     last = len(d["waypoints"]) - 1
-    snaps = _devtools_eval(tmp_path, out.as_uri(), """(async () => {
+    snaps = chromium.evaluate(out.as_uri(), """(async () => {
       const $ = (id) => document.getElementById(id), sleep = (ms) => new Promise(r => setTimeout(r, ms));
       const out = [], snap = () => out.push({index: $("wp-index").textContent, slider: $("wp-slider").value,
         q: [1, 2, 3, 4, 5, 6].map(j => $("q-R2-" + j).textContent), t: viewer.animator.actions[0].time});
@@ -433,7 +381,7 @@ def test_browser_buttons_slider_and_play_step_the_animation(cell, real_plan, tmp
       const s = $("wp-slider"); s.value = 5; s.dispatchEvent(new Event("input")); snap();
       $("wp-play").click(); await sleep(2000); snap();
       return out;
-    })()""")
+    })()""", ready=VIEWER_READY)
     expected = [0, 1, 2, 1, 5, last]
     assert [int(x["index"]) for x in snaps] == expected and [int(x["slider"]) for x in snaps] == expected
     for snap, i in zip(snaps, expected):
@@ -478,7 +426,7 @@ def test_a_plan_beyond_the_joint_limits_is_refused_like_export_targets(cell, tmp
     assert not (tmp_path / "p.html").exists()
 
 
-def test_the_live_viewer_carries_the_readout(cell, real_plan, tmp_path):
+def test_the_live_viewer_carries_the_readout(cell, real_plan, chromium):
     """--serve: the live page (our loopback server's) has the same readout, and it steps the live scene."""
     import urllib.request
 
@@ -489,18 +437,17 @@ def test_the_live_viewer_carries_the_readout(cell, real_plan, tmp_path):
     np.testing.assert_allclose(data["q_deg"]["R2"], np.degrees([w["R2"] for w in d["waypoints"]]), rtol=1e-12)
     assert "MeshCat.Viewer" in page and "viewer.connect()" in page  # meshcat's own page, extended
     last = len(d["waypoints"]) - 1
-    _assert_readout_is_waypoint(_readout(run_browser(tmp_path, result.url + f"#waypoint={last}", "--dump-dom")),
-                                real_plan, last)
+    _assert_readout_is_waypoint(_readout(chromium.render(result.url + f"#waypoint={last}")), real_plan, last)
 
 
 @pytest.mark.parametrize("size", [(600, 1000)])
-def test_the_camera_frames_both_arms_in_any_window_shape(cell, real_plan, tmp_path, size):
+def test_the_camera_frames_both_arms_in_any_window_shape(cell, real_plan, tmp_path, size, chromium):
     """Issue 34: a portrait window cropped the arms at its sides; the page now fits the camera to the window."""
     import matplotlib.image as mpimg
 
     out = tmp_path / "preview.html"
     preview(cell, real_plan, html_out=out)
-    png, _ = screenshot_and_dom(tmp_path, out.as_uri(), f"preview_{size[0]}x{size[1]}.png", size=size)
+    png, _ = screenshot_and_dom(chromium, tmp_path, out.as_uri(), f"preview_{size[0]}x{size[1]}.png", size=size)
     img = mpimg.imread(png)[..., :3]
     assert img.shape == (size[1], size[0], 3)
     masks = _masks(img)

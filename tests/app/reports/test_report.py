@@ -19,7 +19,7 @@ from calibration.data.recording import write_recording
 from calibration.errors import CellCalError
 from calibration.evaluation.metrics import Errors
 from calibration.method_names import METHODS
-from tests.app.browser import browser_or_skip, screenshot_and_dom
+from tests.app.browser import screenshot_and_dom
 from tests.conftest import (
     R1_TEST,
     R1_TRAIN,
@@ -325,13 +325,12 @@ def test_every_axis_of_the_plots_is_labelled_with_a_unit(data, synthetic_arm):
     assert heat.axes[0].get_xlabel() == "q2 [deg]" and heat.axes[0].get_ylabel() == "q3 [deg]"
 
 
-def test_report_renders_in_headless_chromium(tmp_path, data, compare_report):
+def test_report_renders_in_headless_chromium(tmp_path, data, compare_report, chromium):
     """A real render: the page is drawn (many colours), the tables and hashes are in the DOM, every image decoded."""
     import matplotlib.image as mpimg
 
-    browser_or_skip()
     html = compare_report[0] / "report.html"
-    shot, page = screenshot_and_dom(tmp_path, html.as_uri(), "report.png", size=(1280, 2400), budget_ms=3000)
+    shot, page = screenshot_and_dom(chromium, tmp_path, html.as_uri(), "report.png", size=(1280, 2400), budget_ms=3000)
     img = mpimg.imread(shot)[..., :3]
     assert img.shape == (2400, 1280, 3)
     rgb = (img * 255).astype(np.uint8).reshape(-1, 3).astype(np.uint32)

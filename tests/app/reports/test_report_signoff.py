@@ -20,7 +20,7 @@ from app.reports.command_warnings import collecting, warnings_so_far
 from app.reports.page import MAX_SERIES, Page, Section, shown_series, write_html
 from app.reports.verdict import ACCEPTED, CONDITIONAL, NOT_ACCEPTED, REMEDIES, Verdict, next_steps, verdict
 from calibration.data.recording import write_recording
-from tests.app.browser import browser_or_skip, screenshot_dom_pdf
+from tests.app.browser import screenshot_dom_pdf
 from tests.app.reports.test_report import _Page
 from tests.conftest import SIM_FAST, cluster_design, measure, write_backlash_case
 
@@ -282,9 +282,8 @@ def written(tmp_path_factory, recs) -> Callable[[str], tuple[Path, list[str]]]:
 
 
 @pytest.fixture(scope="module")
-def rendered(written) -> Callable[[str], Rendered]:
-    """Each report kind rendered once (screenshot, DOM and PDF from one browser run), on first use."""
-    browser_or_skip()
+def rendered(written, chromium) -> Callable[[str], Rendered]:
+    """Each report kind rendered once (screenshot, DOM and PDF from one page load), on first use."""
     pypdf = pytest.importorskip("pypdf", reason="pypdf (the dev extras) reads the printed pages")
     cache: dict[str, Rendered] = {}
 
@@ -292,7 +291,7 @@ def rendered(written) -> Callable[[str], Rendered]:
         if kind not in cache:
             html, given = written(kind)
             root = html.parent.parent
-            shot, dom, pdf = screenshot_dom_pdf(root, html.as_uri(), f"{kind}_first_screen.png", SCREEN)
+            shot, dom, pdf = screenshot_dom_pdf(chromium, root, html.as_uri(), f"{kind}_first_screen.png", SCREEN)
             pages = [p.extract_text() or "" for p in pypdf.PdfReader(pdf).pages]
             cache[kind] = Rendered(html, given, shot, dom, pages)
         return cache[kind]

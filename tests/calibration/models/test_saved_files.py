@@ -3,7 +3,8 @@ predict bit for bit: a file stores kinds and schemas, never a module path, so mo
 
 ``tests/data/saved_by_0_1_0/`` holds one model of every kind (constant, pi, cdc with six interpolators, physics,
 diagnosed, rebased around four inner kinds), each as YAML and JSON, the 50 joint configurations ``q.npy`` and the
-poses the saving tree predicted there (``predictions.npz``), written by ``docs/dev/restructure/tools/golden.py``.
+poses the saving tree predicted there (``predictions.npz``), written on the 0.1.0 tree by the restructure's one-off
+``golden.py`` (``docs/dev/restructure/tools/golden.py`` in git history up to 2e3c160).
 """
 
 from __future__ import annotations
