@@ -5,44 +5,45 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from app.cli.common import (
     add_topup_options,
     cell_spec,
     command_line,
-    fitter_from_args,
-    load_model_for,
+    epoch_bar,
     model_and_robot,
-    read_given_arg,
-    read_recording_arg,
     show_progress,
     tolerance_from_args,
     write_json,
 )
 from calibration.errors import CellCalError, DataError
 
+if TYPE_CHECKING:
+    from app.workflows.fit import TrainingInputs
+
+
+def _warn(line: str) -> None:
+    """A workflow's warning line, on stderr."""
+    print(line, file=sys.stderr)
+
+
+def _training(args: argparse.Namespace) -> TrainingInputs:
+    """``--robot``/``--train``/``--add``/``--add-weight``/``--cpa``/``--a`` as the fit workflow's training inputs."""
+    from app.workflows.fit import TrainingInputs
+
+    return TrainingInputs(args.robot, tuple(args.train), args.cpa, tuple(args.add), args.add_weight, args.a,
+                          epoch_bar(args))
+
 
 def cmd_fit(args: argparse.Namespace) -> int:
-    from app.reports.provenance import provenance, with_provenance
-    from calibration.models import save_model
+    """Run :func:`app.workflows.fit.fit_model` (warnings on stderr), print its line, write JSON."""
+    from app.workflows.fit import FitInputs, fit_model
 
-    if args.method == "cpa" and args.cpa is None:  # before the training data is read: nothing to fit it from
-        raise CellCalError("--method cpa needs --cpa SWEEPS: a single-joint sweep recording (one cluster id per "
-                           "sweep; cellcal plan --cpa adds such sweeps to a plan)")
-    fitter, _ = fitter_from_args(args)
-    model, seconds = fitter.fit(args.method)
-    if args.days is not None:
-        model.info["days"] = args.days.to_json()  # the recordings' frames and figures, kept with the model
-    if model.info.get("warning"):
-        print(f"warning: {model.info['warning']}", file=sys.stderr)
-    save_model(with_provenance(model, provenance([*(("train", t) for t in args.train), ("cpa", args.cpa)])), args.out)
-    print(f"{args.method}: {model.n_parameters} parameters fitted on {len(fitter.train)} samples in {seconds:.3f} s "
-          f"-> {args.out}")
-    write_json(args.json, {"robot": args.robot, "method": args.method, "n_parameters": model.n_parameters,
-                           "samples": len(fitter.train), "fit_seconds": seconds, "out": str(args.out),
-                           "warning": model.info.get("warning") or "",
-                           "gross_rows": None if fitter.gross is None else fitter.gross.to_json()})
+    inputs = FitInputs(_training(args), args.method, args.out)  # --method cpa without --cpa: refused here
+    result = fit_model(cell_spec(args), inputs, _warn)
+    print(result.line())
+    write_json(args.json, result.to_json())
     return 0
 
 
@@ -172,6 +173,8 @@ def _evaluate_why(args: argparse.Namespace, model: Any) -> str:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
+    from app.workflows.compare import check_test_frames
+    from app.workflows.inputs import read_recording_for
     from calibration.evaluation.metrics import error_stats, errors
 
     tolerance = tolerance_from_args(args)
@@ -179,10 +182,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
     _check_sigma_options(args)
     model, robot = _model_arg(args)
-    test = read_recording_arg(args.test, robot)
+    test = read_recording_for(args.test, robot)
     given = _given_recording(args, robot)
-    frames = _test_frame_check(model, test, "recording, against the data the model was fitted on,",
-                               f"the model {args.model}")  # another arm's recording: refused before any output
+    frames = check_test_frames(model, test, "recording, against the data the model was fitted on,",
+                               f"the model {args.model}", _warn)  # another arm's recording: refused before any output
     ex = extrapolation(model, test.q, test.context())
     _warn_extrapolation(model, ex)
     result = {"robot": model.robot, "method": model.method, "samples": len(test),
@@ -236,54 +239,6 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 GAUSSIAN_OVER_2_SIGMA = 0.0074
 
 
-def _test_frame_check(model: Any, test: Any, subject: str, against: str) -> dict[str, Any]:
-    """:func:`calibration.frames.check.check_test` of ``model`` on ``test``, its message printed as a warning; JSON.
-
-    Raises:
-        DataError: even the rigid frame fit leaves ``test`` far off ``model`` (another arm's recording).
-    """
-    from calibration.frames.check import check_test
-    from calibration.frames.policy import refuse_unexplained
-
-    check = check_test(model, test, subject)
-    refuse_unexplained(test.source, model.robot, against, check.mean_mm, check.left_mm)
-    out = check.to_json()
-    if check.found:
-        caveat = _extrapolation_caveat(model, test)
-        print(f"warning: {check.message()} No kinematic model can remove that; the errors reported are "
-              f"without the frame fit.{caveat}", file=sys.stderr)
-        out["caveat"] = caveat.strip() or None
-    return out
-
-
-#: Share of a test recording's poses outside the model's training joint range beyond which a frame found on it
-#: may be the model's extrapolation instead (a rigid fit absorbs part of any smooth error over those poses).
-
-
-#: Share of a test recording's poses outside the model's training joint range beyond which a frame found on it
-#: may be the model's extrapolation instead (a rigid fit absorbs part of any smooth error over those poses).
-EXTRAPOLATED_SHARE = 0.5
-
-
-def _extrapolation_caveat(model: Any, test: Any) -> str:
-    """A sentence for a frame found on a test recording whose poses mostly lie outside the model's training joint
-    range; empty otherwise (or when the model records no training region)."""
-    from calibration.models.guard import extrapolation
-
-    ex = extrapolation(model, test.q)
-    outside = ex["outside_training_range"]
-    if not outside or outside <= EXTRAPOLATED_SHARE * ex["poses"]:
-        return ""
-    return (f" But {outside} of its {ex['poses']} poses lie outside the joint range the model was trained on (by up "
-            f"to {ex['max_excess_deg']:.1f} deg), and a rigid frame fit also absorbs part of a model's error there: "
-            "this may be the model's extrapolation rather than a frame. A frame error shows on poses inside that "
-            "range too; measure a few there to tell.")
-
-
-#: Fewer clusters than this in a rebase's data get a warning: the issue-10 design rebases on 3 spread clusters (21
-#: poses), and the frames fitted to one cluster absorb the arm's local error (a new user saw 0.638 -> 0.018 mm).
-
-
 #: Fewer clusters than this in a rebase's data get a warning: the issue-10 design rebases on 3 spread clusters (21
 #: poses), and the frames fitted to one cluster absorb the arm's local error (a new user saw 0.638 -> 0.018 mm).
 REBASE_MIN_CLUSTERS = 3
@@ -294,6 +249,7 @@ def cmd_rebase(args: argparse.Namespace) -> int:
 
     import numpy as np
 
+    from app.workflows.inputs import read_recording_for
     from calibration.data.recording import DEFAULT_CLUSTER_SIZE
     from calibration.frames.rebase import rebase, rebase_auto, workspace_configurations
     from calibration.frames.rebase_design import REBASE_OFFSETS
@@ -301,7 +257,7 @@ def cmd_rebase(args: argparse.Namespace) -> int:
 
     _check_rebase_tolerance(args.tolerance)
     model, robot = model_and_robot(args, args.model, needs_robot=True)
-    data = read_recording_arg(args.data, robot)
+    data = read_recording_for(args.data, robot)
     if args.offsets:
         rebased, result = rebase(model, data, tolerance=args.tolerance, offsets=REBASE_OFFSETS)
         choice = "frames+offsets"
@@ -411,32 +367,15 @@ def cmd_export_urdf(args: argparse.Namespace) -> int:
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
+    """Run :func:`app.workflows.compare.compare` (warnings on stderr), print the table, write JSON and the report."""
     from app.reports.sections import comparison_table, shows_paper, write_report
-    from app.workflows.compare import parse_methods, recommendation_line, run_comparison
-    from calibration.evaluation.comparison import comparison_warnings
-    from calibration.frames.policy import refuse_another_arms
+    from app.workflows.compare import CompareInputs, compare, parse_methods, recommendation_line
 
     methods = parse_methods(args.methods)
     tolerance = tolerance_from_args(args)
-    robot = cell_spec(args).robot(args.robot)
-    files = {f"{Path(f).stem} (file)": load_model_for(f, robot) for f in args.model}
-    test = read_recording_arg(args.test, robot)
-    refuse_another_arms(robot.arm(), test, "test recording")  # before any fit: another arm's test would waste them all
-    fitter, robot = fitter_from_args(args)  # the training recordings are checked the same way before fitting
-    cmp = run_comparison(fitter, test, methods, progress=show_progress(args), files=files)
-    cmp.analysis["frames"] = {"training": None if args.frame_check is None else args.frame_check.to_json()}
-    cmp.analysis["gross_rows"] = None if fitter.gross is None else fitter.gross.to_json()
-    if args.days is not None:
-        cmp.analysis["days"] = args.days.to_json()
-    checked = next((m for m in (cmp.recommended, "pi", "nls1") if m in cmp.models), None)
-    if checked is not None:
-        cmp.analysis["frames"]["test"] = {"model": checked, **_test_frame_check(
-            cmp.models[checked], test, f"test recording, against the {checked} fit of the training recording,",
-            f"the {checked} fit of the training recording")}
-    for text in comparison_warnings(cmp):
-        print(f"warning: {text}", file=sys.stderr)
+    result = compare(cell_spec(args), CompareInputs(_training(args), args.test, tuple(methods), tuple(args.model),
+                                                    show_progress(args)), _warn)
+    cmp, test = result.comparison, result.test
     with_paper = shows_paper(args.robot, test)  # the paper's figures only beside a test recording of its own cell
     print(comparison_table(cmp, with_paper=with_paper))
     print(recommendation_line(cmp))
@@ -492,12 +431,13 @@ def _given_recording(args: argparse.Namespace, robot: Any) -> Any:
     """
     if getattr(args, "given", None) is None:
         return None
+    from app.workflows.inputs import read_given, read_recording_for
     from calibration.data.recording import with_added
 
     if robot is None:
         raise CellCalError("--given needs the model's robot in the cell (its nominal arm); give --robot or --cell")
-    given = read_given_arg(args.given, robot)
-    return with_added(given, [read_recording_arg(a, robot) for a in args.add]) if args.add else given
+    given = read_given(args.given, robot)
+    return with_added(given, [read_recording_for(a, robot) for a in args.add]) if args.add else given
 
 
 def _predicted_sigma(robot: Any, given: Any, q: Any) -> Any:

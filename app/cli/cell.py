@@ -6,7 +6,7 @@ import argparse
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any
 
 from app.cli.common import (
     add_report_options,
@@ -14,17 +14,17 @@ from app.cli.common import (
     cell_spec,
     command_line,
     epoch_bar,
-    load_model_for,
     non_negative_int,
     positive_float,
-    read_given_arg,
-    read_recording_arg,
     show_progress,
     tolerance_from_args,
     validation_count,
     write_json,
 )
 from calibration.errors import CellCalError
+
+if TYPE_CHECKING:
+    from app.collection.runtime.cell import Cell
 
 #: The anchor-grid steps ``plan --q2-step/--q3-step`` and ``demo --anchor-step`` accept [deg].
 MIN_GRID_STEP_DEG, MAX_GRID_STEP_DEG = 0.5, 90.0
@@ -34,37 +34,6 @@ GRID_STEP_DEG = 5.0
 #: all 27 directions on the packaged R1 where the grid sees 11) for identification; 21 (3 clusters, the rebase
 #: design's least) for --for rebase.
 DEFAULT_BUDGET = {"identification": 196, "rebase": 21}
-
-
-def _load_plan(path: str, robot: str) -> Any:
-    from app.collection.plans.reader import read_plan
-    from calibration.errors import DataError
-
-    plan = read_plan(path, "collection")
-    if plan.robots != (robot,):
-        raise DataError(path, None, "targets", f"the plan moves {', '.join(plan.robots) or 'nothing'}, "
-                                               f"expected {robot} only")
-    return plan
-
-
-def _require_session(path: str, robot: str, kinds: tuple[str, ...] = (),
-                     purpose: Literal["resume", "recalibrate"] = "resume") -> None:
-    """Refuse at once (before any device opens) a folder without a session, or a session of another arm; with
-    ``kinds``, also one whose plan still has targets of those kinds neither measured nor skipped (a collection
-    stopped half-way: recalibrate fitted and installed a model on what it had measured, without a word)."""
-    from app.collection.session_store import SessionStore
-    from calibration.errors import DataError
-
-    with SessionStore(path, purpose=purpose) as store:  # DataError when there is none or another process holds it
-        store.check_robot(robot)
-        if kinds:
-            wanted = [i for i, t in enumerate(store.plan().targets) if t.kind in kinds]
-            left = len(set(wanted) - store.done())
-            if left:
-                raise DataError(store.path, None, None,
-                                f"the session is incomplete: {left} of its {len(wanted)} {'/'.join(kinds)} targets "
-                                f"not yet measured; finish it first (cellcal collect --robot {robot} --session "
-                                f"{path} --resume)")
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
@@ -115,6 +84,7 @@ def _plan_topup(args: argparse.Namespace, cell: Any, robot: Any, safety: Any, ot
     from app.collection.plans.design import topup_plan
     from app.collection.runtime.sim import park_q
     from app.jobs.task import read_task
+    from app.workflows.inputs import read_given
 
     missing = [o for o, v in (("--task", args.task), ("--budget", args.budget)) if v is None]
     if args.design != "optimal" or missing:
@@ -125,7 +95,7 @@ def _plan_topup(args: argparse.Namespace, cell: Any, robot: Any, safety: Any, ot
         raise CellCalError("--for, --cpa and --validation do not apply to a top-up plan (--given, --task)")
     import numpy as np
 
-    q_given = read_given_arg(args.given, robot).q if args.given is not None else np.zeros((0, 6))
+    q_given = read_given(args.given, robot).q if args.given is not None else np.zeros((0, 6))
     q_task = read_task(args.task, args.robot, cell)
     top = topup_plan(args.robot, robot.model(), safety, others, q_given, q_task, args.budget, args.noise_mm,
                      args.seed, park_q(args.robot))
@@ -166,8 +136,8 @@ def _check_grid_step(option: str, step_deg: float) -> None:
 
 
 def cmd_select(args: argparse.Namespace) -> int:
-    from app.cli.common import read_recording_arg
     from app.collection.plans.design import check_budget, figures_table
+    from app.workflows.inputs import read_recording_for
     from calibration.data.recording import write_recording
     from calibration.frames.policy import refuse_another_arms
     from calibration.frames.rebase_design import select_rebase_recording
@@ -180,7 +150,7 @@ def cmd_select(args: argparse.Namespace) -> int:
         raise CellCalError("select needs --budget CLUSTERS (clusters of --data to keep), or --given TRAIN --task TASK "
                            "--poses K (the poses of --data a task needs beyond TRAIN)")
     robot = cell_spec(args).robot(args.robot)
-    rec = read_recording_arg(args.data, robot)
+    rec = read_recording_for(args.data, robot)
     refuse_another_arms(robot.arm(), rec)  # another arm's clusters would be chosen by this arm's Jacobian
     n_clusters = len(set(rec.clusters().tolist()))
     check_budget(args.budget, n_clusters, unit="clusters")
@@ -205,6 +175,7 @@ def _select_topup(args: argparse.Namespace) -> int:
     import numpy as np
 
     from app.jobs.task import read_task
+    from app.workflows.inputs import read_given, read_recording_for
     from calibration.data.recording import copy_rows
     from calibration.methods.topup import TopupPrior, choose, predicted_sigma
 
@@ -217,8 +188,8 @@ def _select_topup(args: argparse.Namespace) -> int:
                            "--poses) takes neither")
     cell = cell_spec(args)
     robot = cell.robot(args.robot)
-    cands = read_recording_arg(args.data, robot)
-    given = read_given_arg(args.given, robot)
+    cands = read_recording_for(args.data, robot)
+    given = read_given(args.given, robot)
     q_task = read_task(args.task, args.robot, cell)
     if not 1 <= args.poses <= len(cands):
         raise CellCalError(f"--poses must be in 1..{len(cands)} (the rows of {args.data}), got {args.poses}")
@@ -260,14 +231,16 @@ def _print_events(session: str) -> list[dict[str, Any]]:
 def cmd_collect(args: argparse.Namespace) -> int:
     from app.cli.cell_options import confirm_motion, motion_config, open_runtime, safety_for
     from app.collection.collect import SessionAborted, collect_arm
-    from app.collection.session_store import SessionStore
+    from app.collection.plans.reader import read_arm_plan
+    from app.collection.session_store import SessionStore, require_session
+    from app.workflows.inputs import load_model_for
     from calibration.models import ConstantModel
 
     cell = cell_spec(args)
     cell.robot(args.robot)
     runtime = open_runtime(cell, args, robots=(args.robot,))  # a real cell's devices and registration: checked now
     if args.resume:
-        _require_session(args.session, args.robot)  # refused at once when there is none or another process holds it
+        require_session(args.session, args.robot)  # refused at once when there is none or another process holds it
     elif args.retry_skipped:
         raise CellCalError("--retry-skipped applies to --resume only (a new session has nothing skipped)")
     elif not args.plan:
@@ -276,7 +249,7 @@ def cmd_collect(args: argparse.Namespace) -> int:
         raise CellCalError(f"{args.session} already holds a session; pass --resume or choose a new folder")
     elif Path(args.session).exists() and not Path(args.session).is_dir():
         raise CellCalError(f"{args.session}: --session is a file; a session is a folder: choose a new folder")
-    plan = _load_plan(args.plan, args.robot) if args.plan else None
+    plan = read_arm_plan(args.plan, args.robot) if args.plan else None
     config, safety = motion_config(cell, args), safety_for(cell, args)
     robot = cell.robot(args.robot)
     model = (load_model_for(args.model, robot) if args.model else  # the -v lines' residuals
@@ -313,7 +286,7 @@ def cmd_collect(args: argparse.Namespace) -> int:
     return 0
 
 
-def _dry_run(args: argparse.Namespace, rt: Any, safety: Any, plan: Any, config: Any) -> int:
+def _dry_run(args: argparse.Namespace, rt: Cell, safety: Any, plan: Any, config: Any) -> int:
     """Check the whole plan from where the arm stands against the other arms' live poses; print it; no motion."""
     from app.collection.dry_run import summarize_plan
     from app.collection.motion import live_poses, read_q
@@ -370,23 +343,19 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_recalibrate(args: argparse.Namespace) -> int:
-    """Parse and check, open the runtime, run :func:`app.workflows.recalibrate.recalibrate`, print, write JSON."""
+    """Parse, open the runtime, check the inputs and run :func:`app.workflows.recalibrate.recalibrate`, print,
+    write JSON."""
     from app.cli.cell_options import open_runtime
-    from app.workflows.recalibrate import check_model_dir, recalibrate, write_report
+    from app.workflows.recalibrate import checked_inputs, recalibrate, write_report
 
     cell = cell_spec(args)
     robot = cell.robot(args.robot)
     tolerance = tolerance_from_args(args)
     runtime = open_runtime(cell, args, robots=(args.robot,))  # a real cell's devices and registration: checked now
-    model_dir = check_model_dir(args.model_dir)
-    if args.validation < 1:
-        raise CellCalError(f"--validation must be at least 1, got {args.validation}")
-    plan = _load_plan(args.plan, args.robot) if args.plan else None
-    if args.session:
-        _require_session(args.session, args.robot, ("anchor", "perturb", "cpa") if args.method == "cpa" else
-                         ("anchor", "perturb"), purpose="recalibrate")
-    added = tuple((path, read_recording_arg(path, robot)) for path in args.add)  # bad poses: refused before motion
-    inputs = _recalibration_inputs(args, model_dir, plan, added, tolerance)
+    inputs = checked_inputs(robot, args.model_dir, args.plan, args.session, args.validation, args.method, args.add,
+                            validation_seed=args.validation_seed, rebase=args.rebase, add_weight=args.add_weight,
+                            tolerance=tolerance, dry_run=args.dry_run, report=args.report,
+                            command=command_line(args) if args.report else "")
     result = recalibrate(cell, runtime, inputs, _recalibration_hooks(args, cell))
     if result.decision is None:  # the dry run printed and wrote its own
         return result.exit_code
@@ -401,18 +370,6 @@ def cmd_recalibrate(args: argparse.Namespace) -> int:
     if args.report:
         print(f"report: {write_report(result, inputs)}")
     return 0
-
-
-def _recalibration_inputs(args: argparse.Namespace, model_dir: Path, plan: Any, added: tuple[Any, ...],
-                          tolerance: Any) -> Any:
-    """recalibrate's checked arguments as the workflow's :class:`~app.workflows.recalibrate.RecalibrationInputs`."""
-    from app.workflows.recalibrate import RecalibrationInputs
-
-    return RecalibrationInputs(
-        robot=args.robot, model_dir=model_dir, plan=plan, session=Path(args.session) if args.session else None,
-        validation=args.validation, validation_seed=args.validation_seed, method=args.method, rebase=args.rebase,
-        added=added, add_weight=args.add_weight, tolerance=tolerance, dry_run=args.dry_run, report=args.report,
-        command=command_line(args) if args.report else "")
 
 
 def _recalibration_hooks(args: argparse.Namespace, cell: Any) -> Any:

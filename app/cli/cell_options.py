@@ -16,10 +16,13 @@ import argparse
 import sys
 from collections.abc import Sequence
 from dataclasses import replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from app.cli.common import non_negative_int
 from calibration.errors import CellCalError
+
+if TYPE_CHECKING:
+    from app.collection.runtime.cell import Cell
 
 #: Speed fraction used when --speed is not given (and the cap allows it).
 DEFAULT_SPEED = 0.2
@@ -120,7 +123,7 @@ def confirm_motion(args: argparse.Namespace, summary: str) -> None:
 
 
 def open_runtime(cell: Any, args: argparse.Namespace, robots: Sequence[str] | None = None, *,
-                 registered: bool = True) -> Any:
+                 registered: bool = True) -> Cell:
     """The cell runtime to use: a SimCell with ``--sim``, else the real devices of the cell file (not yet open).
 
     With ``registered=False`` the mocap reads the mocap world (registration): the simulated cell then reports

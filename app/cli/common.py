@@ -205,52 +205,10 @@ def cell_spec(args: argparse.Namespace) -> Any:
     return load_cell(args.cell) if args.cell else load_cell()
 
 
-def read_recording_arg(path: str, robot: Any | None = None) -> Any:
-    """A recording (CSV or Welding_Motoman folder), checked against ``robot``'s joint limits when given, and its
-    quaternion order against ``robot``'s nominal model (:func:`calibration.data.recording.check_quaternion_order`)."""
-    from calibration.data.recording import check_quaternion_order, read_recording
-
-    if robot is None:
-        return read_recording(path)
-    rec = read_recording(path, robot.robot.lower_rad, robot.robot.upper_rad)
-    check_quaternion_order(rec, robot.model(), _quaternion_columns(path))
-    return rec
-
-
-def read_given_arg(path: str, robot: Any) -> Any:
-    """``--given TRAIN`` (the poses a top-up builds on): :func:`read_recording_arg`, and refused when it is not
-    ``robot``'s poses (:func:`calibration.frames.policy.refuse_another_arms`), as a training recording is: another arm's
-    joint angles would make the design, and the predicted sigma, those of the wrong arm."""
-    from calibration.frames.policy import refuse_another_arms
-
-    rec = read_recording_arg(path, robot)
-    refuse_another_arms(robot.arm(), rec, "--given recording")
-    return rec
-
-
-def _quaternion_columns(path: str) -> str:
-    """How a recording names its quaternion columns: qw..qz, or a Welding_Motoman pose file's columns 4-7."""
-    from calibration.data.recording import welding_layout
-
-    layout = welding_layout(path)
-    return "qw, qx, qy, qz" if layout is None else f"{layout[1].name} columns 4-7"
-
-
-def load_model_for(path: str, robot: Any) -> Any:
-    """The model file ``path``, checked to be ``robot``'s (a cell entry): its recorded robot and its geometry.
-
-    Raises:
-        DataError: the file is unusable, or records another robot, or holds another robot type's geometry.
-    """
-    from calibration.models import load_model
-
-    return load_model(path, robot.name, robot.model())
-
-
 def model_and_robot(args: argparse.Namespace, path: str, *, needs_robot: bool = False) -> tuple[Any, Any]:
     """The model file ``path`` and the cell entry of its robot: ``--robot``, else the robot the file records.
 
-    Either way the file is checked to be that robot's, its geometry included (:func:`load_model_for`), so the
+    Either way the file is checked to be that robot's, its geometry included (:func:`app.workflows.inputs.load_model_for`), so the
     check no longer needs ``--robot`` to be given; both given and disagreeing is refused.
 
     Args:
@@ -261,6 +219,7 @@ def model_and_robot(args: argparse.Namespace, path: str, *, needs_robot: bool = 
         DataError: the file is unusable, records another robot than ``--robot``, or holds another robot type's
             geometry; ConfigError: the robot (given or recorded) is not in the cell and ``needs_robot``.
     """
+    from app.workflows.inputs import load_model_for
     from calibration.models import load_model
     from calibration.models.checks import check_model_for
 
@@ -288,73 +247,6 @@ def add_topup_options(p: argparse.ArgumentParser) -> None:
 
     p.add_argument("--add", action="append", default=[], metavar="PICKED.csv", help=ADD_HELP)
     p.add_argument("--add-weight", type=add_weight, default=DEFAULT_ADD_WEIGHT, help=ADD_WEIGHT_HELP)
-
-
-def added_poses(args: argparse.Namespace, trains: list[Any], robot: Any) -> Any:
-    """The first training recording with ``--add``'s poses appended as stand-alone poses
-    (:func:`calibration.data.recording.with_added`); unchanged without ``--add``.
-
-    Raises:
-        CellCalError: ``--add`` with several ``--train`` recordings (which day would they join?).
-    """
-    from calibration.data.recording import with_added
-    from calibration.errors import CellCalError
-
-    added = list(getattr(args, "add", None) or ())
-    if not added:
-        return trains[0]
-    if len(trains) > 1:
-        raise CellCalError(f"--add joins the poses to one training recording; {len(trains)} --train recordings given "
-                           "(fit each day with its own --add, or add the poses to the day's recording)")
-    return with_added(trains[0], [read_recording_arg(path, robot) for path in added], weight=args.add_weight)
-
-
-def fitter_from_args(args: argparse.Namespace) -> Any:
-    """A Fitter for ``--robot``/``--train``/``--cpa``/``--a``, and the robot's cell entry.
-
-    The training recording's frames are checked first (:func:`app.workflows.fit.checked_fitter_for`): a frame
-    problem is printed as a warning and the fitter fits the frames before the kinematics; the check is kept in
-    ``args.frame_check`` for the command's JSON. Several ``--train`` recordings make one arm with per-recording
-    frames (:func:`app.workflows.fit.days_fitter_for`): what differs between them is printed and kept in
-    ``args.days``.
-    """
-    import sys
-
-    from app.workflows.fit import checked_fitter_for
-    from calibration.methods.options import FitOptions
-
-    robot = cell_spec(args).robot(args.robot)
-    trains = [read_recording_arg(path, robot) for path in args.train]
-    trains[0] = added_poses(args, trains, robot)
-    cpa = read_recording_arg(args.cpa, robot) if args.cpa else None
-    args.days = None
-    if len(trains) > 1:
-        from app.workflows.fit import days_fitter_for
-
-        args.days = days_fitter_for(robot, trains, cpa, FitOptions(a=args.a, epoch_progress=epoch_bar(args)))
-        print(args.days.summary(), file=sys.stderr)
-        args.frame_check = None
-        warn_gross_rows(args.days.fitter)
-        return args.days.fitter, robot
-    options = FitOptions(a=args.a, epoch_progress=epoch_bar(args))
-    fitter, args.frame_check = checked_fitter_for(robot, trains[0], cpa, options)
-    if args.frame_check.found:
-        frame = args.frame_check.frame
-        print(f"warning: {args.frame_check.message()} The {frame} frame{'s are' if ' and ' in frame else ' is'} "
-              "fitted first, then the kinematics.", file=sys.stderr)
-    warn_gross_rows(fitter)
-    return fitter, robot
-
-
-def warn_gross_rows(fitter: Any) -> None:
-    """Print the training rows the fitter set aside as gross measurement errors (``Fitter.gross``), if any."""
-    import sys
-
-    from app.workflows.fit import gross_rows_warning
-
-    warning = gross_rows_warning(fitter)
-    if warning:
-        print(warning, file=sys.stderr)
 
 
 #: File outputs every subcommand may take; ``demo --out`` is a folder and is left to the demo.

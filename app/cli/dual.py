@@ -20,7 +20,7 @@ def _model_pair(spec: str | None, where: str, cell: Any) -> dict[str, Any]:
 
     Each file must record the arm it is given for and hold that arm's geometry (robot YAML).
     """
-    from app.cli.common import load_model_for
+    from app.workflows.inputs import load_model_for
     from calibration.errors import DataError
 
     models: dict[str, Any] = {}
@@ -35,66 +35,16 @@ def _model_pair(spec: str | None, where: str, cell: Any) -> dict[str, Any]:
 
 
 def cmd_plan_dual(args: argparse.Namespace) -> int:
-    import numpy as np
-
-    from app.collection.plans.dual import save_plan
-    from app.dual.paths import Q_REF_DEG, read_path, read_pose, relative_pose
-    from app.dual.planner import DualPlanner, PlannerOptions
-    from calibration.errors import ModelError
+    """Read the models, run :func:`app.dual.plan_dual.plan_dual` (its checks included), print, write JSON."""
+    from app.dual.plan_dual import PlanDualInputs, plan_dual
 
     cell = cell_spec(args)
     models = _model_pair(args.models, "--models", cell)
-    T_rel = read_pose(args.relative_pose) if args.relative_pose else None
-    from app.progress import bar
-
-    planner = DualPlanner(cell, models.get("R1"), models.get("R2"), PlannerOptions(compile=args.compile))
-    try:
-        path = read_path(args.path, planner)
-        q0 = np.radians(Q_REF_DEG)
-        with bar(total=len(path), enabled=show_progress(args), desc="plan-dual", unit="waypoint") as waypoints:
-            plan = planner.plan(path, relative_pose(planner, q0) if T_rel is None else T_rel, q0,
-                                on_waypoint=lambda r: waypoints.update(1))
-    finally:
-        planner.close()  # a build still running has lost its race with the plan: it is not waited for
-    ms = [w.solve_ms for w in plan.waypoints]
-    summary = {"waypoints": len(plan.waypoints), "converged": plan.converged, "failed": plan.failed,
-               "models": plan.models, "solve_ms_median": float(np.median(ms)),
-               "max_residual_mm": max(w.residual_mm for w in plan.waypoints),
-               "max_residual_deg": max(w.residual_deg for w in plan.waypoints),
-               "min_clearance_mm": min(w.clearance_mm for w in plan.waypoints),
-               "evaluations": dict(planner.evaluations), "out": args.out}
-    if not plan.converged:  # refused whole: a plan with holes would move the arms through unchecked poses
-        i = plan.failed[0]
-        raise ModelError(f"{len(plan.failed)} of {len(plan.waypoints)} waypoints not solved (waypoint"
-                         f"{'s' if len(plan.failed) > 1 else ''} {_index_ranges(plan.failed)}), nothing written"
-                         f"{_named_outputs(args)}; first: waypoint {i}: {plan.waypoints[i].reason}")
-    from app.collection.plan_safety import check_plan_safe
-
-    check_plan_safe(planner.cell, plan, "the solved plan", models=models)  # the checks every exit runs on the file
-    if args.out:
-        save_plan(plan, args.out)
-    write_json(args.json, summary)
-    print(f"{len(plan.waypoints)} waypoints solved ({plan.models['R1']}/{plan.models['R2']}), median "
-          f"{summary['solve_ms_median']:.2f} ms, residual <= {summary['max_residual_mm']:.1e} mm, clearance >= "
-          f"{summary['min_clearance_mm']:.0f} mm" + (f" -> {args.out}" if args.out else ""))
+    result = plan_dual(cell, PlanDualInputs(args.path, args.relative_pose, models, args.compile, args.out, args.json,
+                                            show_progress(args)))
+    write_json(args.json, result.to_json())
+    print(result.line())
     return 0
-
-
-def _index_ranges(indices: list[int]) -> str:
-    """``[0, 1, 2, 7, 9, 10]`` -> ``0-2, 7, 9-10`` (sorted indices, runs joined)."""
-    runs: list[list[int]] = []
-    for i in indices:
-        if runs and i == runs[-1][1] + 1:
-            runs[-1][1] = i
-        else:
-            runs.append([i, i])
-    return ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in runs)
-
-
-def _named_outputs(args: argparse.Namespace) -> str:
-    """`` to --out X or --json Y``: the outputs the command was given (empty when none)."""
-    named = [f"--{k} {v}" for k, v in (("out", args.out), ("json", args.json)) if v]
-    return f" to {' or '.join(named)}" if named else ""
 
 
 def _model_sets(specs: list[str] | None, cell: Any) -> dict[str, dict[str, Any]]:

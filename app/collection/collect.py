@@ -34,7 +34,7 @@ from app.collection.mocap_window import ClockLink, WindowFailed, average_frames,
 from app.collection.motion import NonFiniteFeedback, device_name, move_safely, read_q, stop_all
 from app.collection.plan_safety import check_plan_safe
 from app.collection.plans.collection import Plan
-from app.collection.runtime.sim import SimCell
+from app.collection.runtime.cell import Cell
 from app.collection.safety import CellSafety
 from app.collection.session_store import EventKind, Sample, SessionStore
 from calibration.data.recording import Recording, write_recording
@@ -44,7 +44,7 @@ from drivers.base import MocapSource, RobotDriver
 from drivers.errors import DriverDisconnected, DriverError, DriverTimeout, InvalidArgument, RobotFault
 
 
-def collect_arm(sim: SimCell, safety: CellSafety, robot: str, plan: Plan | None, session_dir: Path,
+def collect_arm(rt: Cell, safety: CellSafety, robot: str, plan: Plan | None, session_dir: Path,
                 config: CollectConfig, *, resume: bool = False, retry_skipped: bool = False, progress: bool = True,
                 clock: Callable[[], float] | None = None, model: Any = None,
                 model_name: str = "the model") -> SessionResult:
@@ -54,14 +54,14 @@ def collect_arm(sim: SimCell, safety: CellSafety, robot: str, plan: Plan | None,
     ``clock`` stamps the samples (default: wall time; the demo passes the simulated clock). ``model`` is the model
     each measured target's residual is logged against with INFO logging on (:func:`target_line`).
     """
-    driver = sim.drivers[robot]
-    others = sim.others(robot)
+    driver = rt.drivers[robot]
+    others = rt.others(robot)
     clock_kw: dict[str, Any] = {} if clock is None else {"clock": clock}  # run_session's own default otherwise
-    result = run_session(session_dir, driver, sim.mocap_for(robot), safety, body_id=sim.body_ids[robot], plan=plan,
+    result = run_session(session_dir, driver, rt.mocap_for(robot), safety, body_id=rt.body_ids[robot], plan=plan,
                          other_drivers=others, config=config, resume=resume, retry_skipped=retry_skipped,
                          progress=progress, model=model, model_name=model_name,
                          **clock_kw)
-    move_safely(driver, sim.park_q(robot), safety, others, config.speed_fraction, config.settle_timeout_s)
+    move_safely(driver, rt.park_q(robot), safety, others, config.speed_fraction, config.settle_timeout_s)
     return result
 
 

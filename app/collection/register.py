@@ -23,6 +23,7 @@ from tqdm import tqdm
 
 from app.collection.mocap_window import ClockLink, WindowFailed, average_frames, collect_window
 from app.collection.motion import move_safely, stop_all
+from app.collection.runtime.cell import Cell
 from calibration.errors import CellCalError
 from calibration.frames.registration import RegistrationProblem, registration_plan, transform_difference
 from calibration.kinematics import so3
@@ -81,14 +82,14 @@ def plan_registration(cell: Any, robot: str, q_center: np.ndarray, safety: Any, 
     return q_plan
 
 
-def measure_registration(rt: Any, safety: Any, robot: str, q_plan: np.ndarray, config: Any, *,
+def measure_registration(rt: Cell, safety: Any, robot: str, q_plan: np.ndarray, config: Any, *,
                          progress: bool = True, clock: Callable[[], float] = time.monotonic) -> RegistrationRun:
     """Visit every pose, measure the marker in the mocap world, solve; the arm returns to its start pose (after a
     fault or Ctrl-C every arm is stopped instead and nothing moves again).
 
     Args:
-        rt: a connected cell runtime (RealCell(registered=False) or SimCell) with ``drivers``, ``others``,
-            ``mocap_for`` and ``body_ids``.
+        rt: the open :class:`~app.collection.runtime.cell.Cell` (a RealCell with ``registered=False``, or a
+            SimCell reading the mocap world).
         safety: the cell's safety checker (every move is checked against the other arms' live poses).
         robot: the arm to register.
         q_plan: the poses [rad] (M, 6).

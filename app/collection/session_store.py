@@ -550,3 +550,24 @@ def _write_refused(e: sqlite3.Error) -> bool:
 def _hook(stage: str) -> None:
     if creation_hook is not None:
         creation_hook(stage)
+
+
+def require_session(path: str | Path, robot: str, kinds: tuple[str, ...] = (),
+                    purpose: Literal["resume", "recalibrate"] = "resume") -> None:
+    """Refuse at once (before any device opens) a folder without a session, or a session of another arm; with
+    ``kinds``, also one whose plan still has targets of those kinds neither measured nor skipped (a collection
+    stopped half-way: recalibrate fitted and installed a model on what it had measured, without a word).
+
+    Raises:
+        DataError: no session there, another process holds it, another arm's, or targets of ``kinds`` left.
+    """
+    with SessionStore(path, purpose=purpose) as store:  # DataError when there is none or another process holds it
+        store.check_robot(robot)
+        if kinds:
+            wanted = [i for i, t in enumerate(store.plan().targets) if t.kind in kinds]
+            left = len(set(wanted) - store.done())
+            if left:
+                raise DataError(store.path, None, None,
+                                f"the session is incomplete: {left} of its {len(wanted)} {'/'.join(kinds)} targets "
+                                f"not yet measured; finish it first (cellcal collect --robot {robot} --session "
+                                f"{path} --resume)")

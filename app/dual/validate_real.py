@@ -18,6 +18,7 @@ import numpy as np
 from app.collection.motion import live_poses
 from app.collection.plan_safety import check_plan_safe
 from app.collection.plans.reader import read_plan
+from app.collection.runtime.cell import Cell
 from app.dual.validate import (
     ContactValidation,
     DeviationStats,
@@ -77,13 +78,13 @@ def open_probe(cell: Any) -> Any:
     return CanContactProbe(p.channel, interface=p.interface, base_id=p.base_id, bitrate=p.bitrate)
 
 
-def run_real_validation(cell: Any, rt: Any, safety: Any, q_plan: np.ndarray, p_contact: np.ndarray,
+def run_real_validation(cell: Any, rt: Cell, safety: Any, q_plan: np.ndarray, p_contact: np.ndarray,
                         model_sets: dict[str, dict[str, Any]], probe: Any, *,
                         speed_fraction: float = 0.2) -> ContactValidation:
     """Drive the configurations on the real arms, confirm contacts, and score every model set.
 
     Args:
-        cell: the cell. rt: a connected :class:`~app.collection.runtime.real.RealCell` (both arms).
+        cell: the cell. rt: the open :class:`~app.collection.runtime.cell.Cell` (a RealCell of both arms).
         safety: the cell's safety checker. q_plan: configurations [rad] (N, 12). p_contact: the point [mm] (3,).
         model_sets: ``{label: {"R1": model, "R2": model}}``; the nominal pair is always added.
         probe: a connected contact probe.

@@ -3,25 +3,32 @@
 from __future__ import annotations
 
 import logging
-from dataclasses import replace
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from app.workflows.fit import TrainingInputs, trained_fitter
+from app.workflows.inputs import load_model_for, read_recording_for
 from calibration.data.recording import Recording
 from calibration.diagnosis.shifts import one_sided_shift
 from calibration.errors import ModelError
-from calibration.evaluation.comparison import Comparison
+from calibration.evaluation.comparison import Comparison, comparison_warnings
 from calibration.evaluation.metrics import (
     joint_correlation,
     paired_tests,
     parameter_spread,
 )
+from calibration.frames.check import check_test
+from calibration.frames.policy import refuse_another_arms, refuse_unexplained
 from calibration.method_names import CDC_METHODS, METHODS, NEURAL_METHODS, cdc_method
 from calibration.methods.cdc import cluster_anchors
 from calibration.methods.fitter import Fitter
 from calibration.methods.recommend import Recommendation, off_reference, recommend
 from calibration.models import KinematicModel
+from calibration.models.guard import extrapolation
 
 log = logging.getLogger("cellcal.app")
 
@@ -172,3 +179,104 @@ def _analysis(fitter: Fitter, test: Recording, cmp: Comparison) -> dict[str, Any
     if interp is not None:  # any kind answers: a frames-first fit wraps fbf13 in a rebased model
         analysis["fourier_singular_values"] = np.asarray(interp.singular_values()).tolist()
     return analysis
+
+
+@dataclass(frozen=True)
+class CompareInputs:
+    """What ``cellcal compare`` was asked.
+
+    Attributes:
+        training: the training data (:class:`~app.workflows.fit.TrainingInputs`).
+        test: the test recording every method is evaluated on.
+        methods: the methods to fit (:func:`parse_methods`).
+        model_files: saved models compared beside them, each a row of its own (``--model``).
+        progress: show a progress bar over the fits.
+    """
+
+    training: TrainingInputs
+    test: str
+    methods: tuple[str, ...]
+    model_files: tuple[str, ...] = ()
+    progress: bool = False
+
+
+@dataclass(frozen=True)
+class CompareResult:
+    """A comparison and the recording it was tested on.
+
+    Attributes:
+        comparison: the :class:`~calibration.evaluation.comparison.Comparison` (its ``analysis`` holds the training
+            and test frame checks, the gross rows and, with several training recordings, the days).
+        test: the test recording.
+    """
+
+    comparison: Comparison
+    test: Recording
+
+
+def compare(cell: Any, inputs: CompareInputs, warn: Callable[[str], None]) -> CompareResult:
+    """Fit every method on the training data and evaluate each, with the saved models, on the test recording.
+
+    The test recording is checked to be the arm's before any fit; the training recordings are checked as ``fit``
+    checks them (:func:`~app.workflows.fit.trained_fitter`); after the fits, the recommended model (else pi, else
+    nls1) checks the test recording's frames (:func:`check_test_frames`). Warnings go to ``warn``, one line each,
+    the comparison's own last.
+
+    Raises:
+        CellCalError: bad input (a model file or recording that is not the arm's, unreadable data).
+    """
+    robot = cell.robot(inputs.training.robot)
+    files = {f"{Path(f).stem} (file)": load_model_for(f, robot) for f in inputs.model_files}
+    test = read_recording_for(inputs.test, robot)
+    refuse_another_arms(robot.arm(), test, "test recording")  # before any fit: another arm's test would waste them all
+    trained = trained_fitter(cell, inputs.training, warn)  # the training recordings are checked the same way
+    cmp = run_comparison(trained.fitter, test, list(inputs.methods), progress=inputs.progress, files=files)
+    check = trained.frame_check
+    cmp.analysis["frames"] = {"training": None if check is None else check.to_json()}
+    cmp.analysis["gross_rows"] = trained.gross_rows()
+    if trained.days is not None:
+        cmp.analysis["days"] = trained.days.to_json()
+    checked = next((m for m in (cmp.recommended, "pi", "nls1") if m in cmp.models), None)
+    if checked is not None:
+        cmp.analysis["frames"]["test"] = {"model": checked, **check_test_frames(
+            cmp.models[checked], test, f"test recording, against the {checked} fit of the training recording,",
+            f"the {checked} fit of the training recording", warn)}
+    for text in comparison_warnings(cmp):
+        warn(f"warning: {text}")
+    return CompareResult(cmp, test)
+
+
+def check_test_frames(model: KinematicModel, test: Recording, subject: str, against: str,
+                      warn: Callable[[str], None]) -> dict[str, Any]:
+    """:func:`calibration.frames.check.check_test` of ``model`` on ``test``, its message told as a warning; JSON.
+
+    Raises:
+        DataError: even the rigid frame fit leaves ``test`` far off ``model`` (another arm's recording).
+    """
+    check = check_test(model, test, subject)
+    refuse_unexplained(test.source, model.robot, against, check.mean_mm, check.left_mm)
+    out = check.to_json()
+    if check.found:
+        caveat = _extrapolation_caveat(model, test)
+        warn(f"warning: {check.message()} No kinematic model can remove that; the errors reported are without the "
+             f"frame fit.{caveat}")
+        out["caveat"] = caveat.strip() or None
+    return out
+
+
+#: Share of a test recording's poses outside the model's training joint range beyond which a frame found on it
+#: may be the model's extrapolation instead (a rigid fit absorbs part of any smooth error over those poses).
+EXTRAPOLATED_SHARE = 0.5
+
+
+def _extrapolation_caveat(model: KinematicModel, test: Recording) -> str:
+    """A sentence for a frame found on a test recording whose poses mostly lie outside the model's training joint
+    range; empty otherwise (or when the model records no training region)."""
+    ex = extrapolation(model, test.q)
+    outside = ex["outside_training_range"]
+    if not outside or outside <= EXTRAPOLATED_SHARE * ex["poses"]:
+        return ""
+    return (f" But {outside} of its {ex['poses']} poses lie outside the joint range the model was trained on (by up "
+            f"to {ex['max_excess_deg']:.1f} deg), and a rigid frame fit also absorbs part of a model's error there: "
+            "this may be the model's extrapolation rather than a frame. A frame error shows on poses inside that "
+            "range too; measure a few there to tell.")

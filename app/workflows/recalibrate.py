@@ -20,14 +20,18 @@ import logging
 import math
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from app.collection.plans.reader import read_arm_plan
+from app.collection.runtime.cell import Cell
+from app.collection.session_store import require_session
+from app.workflows.inputs import read_recording_for
 from calibration.data.files import check_output_path
 from calibration.data.recording import Recording
-from calibration.errors import ConfigError, DataError, ModelError, ModelFileError
+from calibration.errors import CellCalError, ConfigError, DataError, ModelError, ModelFileError
 from calibration.evaluation.metrics import error_stats, errors
 from calibration.frames.rebase import rebase_auto, workspace_configurations
 from calibration.kinematics.poe import PoeModel
@@ -323,6 +327,34 @@ class RecalibrationInputs:
     command: str = ""
 
 
+def checked_inputs(robot: Any, model_dir: str | Path, plan: str | None, session: str | None, validation: int,
+                   method: str, added: Sequence[str], **settings: Any) -> RecalibrationInputs:
+    """recalibrate's arguments checked and its input files read, before any motion: the model folder
+    (:func:`check_model_dir`), the validation count, the plan (one arm's, ``robot``'s), the session to reuse
+    (``robot``'s, complete for ``method``) and the added poses.
+
+    Args:
+        robot: the arm's cell entry.
+        settings: the other :class:`RecalibrationInputs` fields, as they are (``validation_seed``, ``rebase``,
+            ``add_weight``, ``tolerance``, ``dry_run``, ``report``, ``command``).
+
+    Raises:
+        ConfigError: the model folder is a file; CellCalError: fewer than 1 validation pose; DataError: a plan,
+            session or recording that is unreadable or not ``robot``'s, or an incomplete session.
+    """
+    folder = check_model_dir(model_dir)
+    if validation < 1:
+        raise CellCalError(f"--validation must be at least 1, got {validation}")
+    plan_read = read_arm_plan(plan, robot.name) if plan else None
+    if session:
+        require_session(session, robot.name, ("anchor", "perturb", "cpa") if method == "cpa" else
+                        ("anchor", "perturb"), purpose="recalibrate")
+    poses = tuple((path, read_recording_for(path, robot)) for path in added)  # bad poses: refused before motion
+    return RecalibrationInputs(robot=robot.name, model_dir=folder, plan=plan_read,
+                               session=Path(session) if session else None, validation=validation, method=method,
+                               added=poses, **settings)
+
+
 @dataclass(frozen=True)
 class RecalibrationHooks:
     """How the workflow talks to its caller (it prints nothing itself).
@@ -393,13 +425,13 @@ class _Work:
     cpa: bool
 
 
-def recalibrate(cell: Any, runtime: Any, inputs: RecalibrationInputs, hooks: RecalibrationHooks) -> RecalibrationResult:
+def recalibrate(cell: Any, runtime: Cell, inputs: RecalibrationInputs, hooks: RecalibrationHooks) -> RecalibrationResult:
     """Collect (or reuse) a training session and fresh validation poses, fit (or rebase) a candidate, and install
     it only when it beats the model in service on them (:func:`decide_and_install`); write the report if asked.
 
     Args:
         cell: the cell description.
-        runtime: the cell runtime (a SimCell or RealCell, not yet entered).
+        runtime: the cell at run time (a SimCell or RealCell, not yet entered).
         inputs: what was asked.
         hooks: the caller's output, confirmation, interruption and motion hooks.
 
@@ -422,7 +454,7 @@ def recalibrate(cell: Any, runtime: Any, inputs: RecalibrationInputs, hooks: Rec
     return _fit_and_decide(robot, inputs, hooks, run)
 
 
-def _collect(robot: Any, runtime: Any, inputs: RecalibrationInputs, hooks: RecalibrationHooks,
+def _collect(robot: Any, runtime: Cell, inputs: RecalibrationInputs, hooks: RecalibrationHooks,
              motion: tuple[Any, Any], run: _Work) -> int | None:
     """Measure the training plan (if any) and the fresh validation poses; the dry run's exit code, else None."""
     from app.collection import collect

@@ -106,3 +106,16 @@ def read_plan(source: PlanSource, kind: PlanKind | None = None) -> Plan | PlanRe
         return plan_from_data(d, path, kind)
     except RecursionError:  # a deeply nested entry, read by a recursive check
         raise DataError(path, None, None, "not a plan file (an entry nested too deep)") from None
+
+
+def read_arm_plan(path: str | Path, robot: str) -> Plan:
+    """A collection plan file that moves ``robot`` only (``collect --plan``, ``recalibrate --plan``).
+
+    Raises:
+        DataError: what :func:`read_plan` refuses, a dual plan, or a plan that moves another arm (or none).
+    """
+    plan = read_plan(path, "collection")
+    if plan.robots != (robot,):
+        raise DataError(path, None, "targets", f"the plan moves {', '.join(plan.robots) or 'nothing'}, "
+                                               f"expected {robot} only")
+    return plan
