@@ -9,7 +9,10 @@ For every shared day with a test recording and every split of its test path (150
 each method is fitted on the day's training grid plus k candidate poses (stand-alone poses,
 :func:`calibration.data.recording.with_added`) and judged on the task's measured poses (position mean / max [mm]):
 
-- ``chosen``: the top-up design (:func:`calibration.methods.topup.choose`: joint angles of TRAIN, candidates and task only);
+- ``chosen``: the top-up design (:func:`calibration.methods.topup.choose`: joint angles of TRAIN, candidates and task only),
+  as many of its first k poses kept as ``cellcal select`` keeps (``--risk default``: the global fit's predicted task
+  error with its misfit, :mod:`calibration.methods.topup_risk`, under ``RISK_PRIOR``; ``day``: under the scales of
+  the day's own training folds; ``none``: all k). A row whose chosen poses were cut says ``(kept n)``;
 - ``random``: the median (of the mean, and separately of the max) over ``--random`` seeded random picks;
 - ``farthest``: farthest-point picks in joint space, each the candidate farthest from TRAIN and those chosen;
 - k = 0 (the grid alone) and all candidates.
@@ -27,11 +30,17 @@ the share a Gaussian error of each pose's predicted covariance puts there (:func
 (:func:`sigma_scales_for`: the residual chosen on clusters held out at random, the q1/q4-q6 steps and the q2 and q3
 edges; the parameter prior stays the fixed one, which those folds cannot bound: calibration.methods.topup).
 
+``--risk-scales`` prints the risk model's scales each day's training folds choose and the choice of all 7 days'
+folds together (what ``RISK_PRIOR`` holds). ``--designs`` names the comparison designs fitted (each costs fits:
+one recommended ``pi+nn`` fit takes about 55 s on a loaded 2-core machine, a ``pi`` fit about 1 s).
+
 Fits are cached in ``--cache`` (a JSON file keyed by day, split, method, design, k, seed and the design's
 settings), so a rerun with more days or seeds refits only what is new.
 
     python scripts/benchmarks/bench_topup.py [--days 0613,0725] [--splits interleaved,halves] [--k 0,7,14,21,49]
-                                  [--random 20] [--methods pi] [--json FILE] [--cache FILE]
+                                  [--random 20] [--methods pi] [--designs farthest,random,all] [--risk default]
+                                  [--json FILE] [--cache FILE]
+    python scripts/benchmarks/bench_topup.py --risk-scales [--days ...] [--cache FILE]
 """
 
 from __future__ import annotations
