@@ -181,6 +181,9 @@ def cmd_select(args: argparse.Namespace) -> int:
     if args.budget is None:
         raise CellCalError("select needs --budget CLUSTERS (clusters of --data to keep), or --given TRAIN --task TASK "
                            "--poses K (the poses of --data a task needs beyond TRAIN)")
+    if args.keep_all or args.sigma_residual_mm is not None:
+        raise CellCalError("--keep-all and --sigma-residual-mm belong to a top-up selection (--given, --task, --poses); "
+                           "--budget chooses clusters of one recording")
     robot = cell_spec(args).robot(args.robot)
     rec = read_recording_arg(args.data, robot)
     refuse_another_arms(robot, rec)  # another arm's clusters would be chosen by this arm's Jacobian

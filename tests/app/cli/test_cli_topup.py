@@ -91,6 +91,9 @@ def test_a_missing_part_of_a_top_up_is_named(files, capsys):
     assert_bad_input(capsys, ["select", "--robot", "R1", "--data", str(folder / "cand.csv"), "--out", str(out)],
                      "--budget", "--given")
     assert not out.exists()
+    assert_bad_input(capsys, ["select", "--robot", "R1", "--data", str(folder / "grid.csv"), "--budget", "3",
+                              "--keep-all", "--out", str(out)], "--keep-all")
+    assert not out.exists()
 
 
 def test_a_task_outside_the_joint_limits_is_refused(files, capsys):
