@@ -22,10 +22,14 @@ Adding a far pose lowers the first term and can raise the second: the criterion
 (mean + ``tail_weight`` x the mean of the worst ``tail``, as in the design) of :func:`fit_risk` along the design's
 order says how many of its poses to keep (:meth:`FitRisk.useful`, possibly none: the selection then declines).
 
-The three scales are not set by hand: :func:`held_out_risk_scales` chooses them per training recording by maximum
-likelihood on held-out training folds (errors of pi refitted without clusters at random, without the q1/q4-q6
-steps, without the q2 and q3 edges), and :data:`RISK_PRIOR` holds the defaults the CLI uses without that step:
-the median of the 7 R1 days' training-fold choices (``scripts/benchmarks/bench_topup.py --risk-scales``).
+The three scales are not set by hand: :func:`fold_log_likelihoods` scores them on a training recording's held-out
+folds (errors of pi refitted without clusters at random, without the q1/q4-q6 steps, without the q2 and q3 edges),
+and :data:`RISK_PRIOR` holds the choice of the 7 R1 days' folds together (their log-likelihoods added:
+``scripts/benchmarks/bench_topup.py --risk-scales``). What those folds can and cannot tell: each day alone chooses
+very different scales (parameter prior 0.03-1 mm-equivalent, misfit 0.02-0.5 mm over 0.25-1 rad), since every fold
+lies within a few degrees of the poses fitted, while the loss this model is for happens about 1 rad away. Under
+the pooled choice no pick of the top-up protocol on the 7 days is declined; under each day's own choice the
+halves-swapped picks of 0516, 0627 after, 0725 and 0801 would be (issue 33's notes give the figures).
 """
 
 from __future__ import annotations
@@ -38,8 +42,8 @@ from calibration.data.recording import DEFAULT_ADD_WEIGHT
 from calibration.errors import ModelError
 from calibration.methods.topup import Features, TopupPrior, farthest_points
 
-#: The risk model's defaults: parameter prior, misfit level and length, chosen on training folds only (module
-#: docstring; the per-day choices are in ``docs/tutorials/topup.md``).
+#: The risk model's defaults: parameter prior, misfit level and length of the largest likelihood of the 7 R1 days'
+#: held-out training folds together (module docstring); no test recording was read for them.
 RISK_PRIOR = TopupPrior(param_sd_mm=0.3, gp_scale_mm=0.05, length_rad=0.25)
 #: The grids :func:`held_out_risk_scales` searches.
 RISK_PARAM_GRID_MM = (0.03, 0.1, 0.3, 1.0)
