@@ -14,6 +14,7 @@ from app.cli.common import (
     epoch_bar,
     model_and_robot,
     show_progress,
+    sigma_residual,
     tolerance_from_args,
     write_json,
 )
@@ -65,13 +66,15 @@ def cmd_predict(args: argparse.Namespace) -> int:
     _warn_extrapolation(model, ex)
     R, p = model.fk(q)
     quat = so3.R_to_quat(R)
-    sigma = _predicted_sigma(robot, given, q)
+    residual, source = sigma_residual(args, robot, given) if given is not None else (0.0, "")
+    sigma = _predicted_sigma(robot, given, q, residual)
     write_table(args.out, {"x": p[:, 0], "y": p[:, 1], "z": p[:, 2], "qw": quat[:, 0], "qx": quat[:, 1],
                            "qy": quat[:, 2], "qz": quat[:, 3], **({} if sigma is None else {"sigma_mm": sigma})})
     print(f"{len(q)} pose{'' if len(q) == 1 else 's'} -> {args.out}")
     write_json(args.json, {"robot": model.robot, "method": model.method, "poses": len(q),
                            "outside_fitted_region": int(outside.sum()), "out": str(args.out),
-                           "extrapolation": ex, "counts_explained": _counts_explained(predict=True)})
+                           "extrapolation": ex, "counts_explained": _counts_explained(predict=True),
+                           **({} if given is None else {"sigma_residual_mm": residual, "sigma_residual_from": source})})
     return 0
 
 
@@ -121,15 +124,15 @@ def _model_arg(args: argparse.Namespace) -> tuple[Any, Any]:
     return model_and_robot(args, args.model)
 
 
-def _predicted_cov(robot: Any, given: Any, q: Any) -> Any:
+def _predicted_cov(robot: Any, given: Any, q: Any, residual_mm: float) -> Any:
     """The top-up design's predicted position error covariance [mm^2] (Q, 3, 3)
     (:func:`calibration.methods.topup.predicted_position_cov`) at each configuration q, given the poses the model was fitted
-    on (:func:`_given_recording`); None without them."""
+    on (:func:`_given_recording`) and the residual (:func:`app.cli.common.sigma_residual`); None without them."""
     if given is None:
         return None
     from calibration.methods.topup import predicted_position_cov
 
-    return predicted_position_cov(robot.model(), given.q, q)
+    return predicted_position_cov(robot.model(), given.q, q, residual_mm=residual_mm)
 
 
 def _sigma_of(cov: Any) -> Any:
@@ -193,7 +196,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     pos, ori = result["test"]["position_mm"], result["test"]["orientation_deg"]
     print(f"{model.method} on {len(test)} samples: position mean {pos['mean']:.3f} std {pos['std']:.3f} "
           f"max {pos['max']:.3f} mm; orientation mean {ori['mean']:.3f} max {ori['max']:.3f} deg")
-    cov = _predicted_cov(robot, given, test.q)
+    residual, source = sigma_residual(args, robot, given) if given is not None else (0.0, "")
+    cov = _predicted_cov(robot, given, test.q, residual)
     sigma_map = None
     if cov is not None:
         import numpy as np
@@ -211,7 +215,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         result["predicted_sigma"] = {
             "mean_mm": float(sigma.mean()), "max_mm": float(sigma.max()), "share_over_2_sigma": over,
             "share_over_1_sigma": float(np.mean(e > sigma)), "gaussian_share_over_2_sigma": reference,
-            "outside_given_range": int(sigma_map.outside.sum()),
+            "outside_given_range": int(sigma_map.outside.sum()), "residual_mm": residual, "residual_from": source,
             "sigma": "RMS of the position error norm the top-up design's error model predicts given --given/--add",
             "gaussian": "share of poses a Gaussian error of each pose's predicted covariance puts beyond 2 sigma "
                         "(0.74 % isotropic, 4.55 % along one axis)"}
@@ -440,10 +444,10 @@ def _given_recording(args: argparse.Namespace, robot: Any) -> Any:
     return with_added(given, [read_recording_for(a, robot) for a in args.add]) if args.add else given
 
 
-def _predicted_sigma(robot: Any, given: Any, q: Any) -> Any:
+def _predicted_sigma(robot: Any, given: Any, q: Any, residual_mm: float) -> Any:
     """The predicted position sigma [mm] (RMS of the error norm, :func:`calibration.methods.topup.predicted_sigma`) at each
     configuration q, given the poses the model was fitted on; None without them."""
-    cov = _predicted_cov(robot, given, q)
+    cov = _predicted_cov(robot, given, q, residual_mm)
     return None if cov is None else _sigma_of(cov)
 
 

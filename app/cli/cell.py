@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from app.cli.common import (
+    SIGMA_RESIDUAL_HELP,
     add_report_options,
     add_topup_options,
     cell_spec,
@@ -17,6 +18,7 @@ from app.cli.common import (
     non_negative_int,
     positive_float,
     show_progress,
+    sigma_residual,
     tolerance_from_args,
     validation_count,
     write_json,
@@ -149,6 +151,9 @@ def cmd_select(args: argparse.Namespace) -> int:
     if args.budget is None:
         raise CellCalError("select needs --budget CLUSTERS (clusters of --data to keep), or --given TRAIN --task TASK "
                            "--poses K (the poses of --data a task needs beyond TRAIN)")
+    if args.keep_all or args.sigma_residual_mm is not None:
+        raise CellCalError("--keep-all and --sigma-residual-mm belong to a top-up selection (--given, --task, --poses); "
+                           "--budget chooses clusters of one recording")
     robot = cell_spec(args).robot(args.robot)
     rec = read_recording_for(args.data, robot)
     refuse_another_arms(robot.arm(), rec)  # another arm's clusters would be chosen by this arm's Jacobian
@@ -171,13 +176,16 @@ def cmd_select(args: argparse.Namespace) -> int:
 
 def _select_topup(args: argparse.Namespace) -> int:
     """``select --given TRAIN --task TASK --poses K``: the K rows of --data (candidates) that most lower the predicted
-    position variance over the task's configurations given TRAIN (:mod:`calibration.methods.topup`); joint angles only."""
+    position variance over the task's configurations given TRAIN (:mod:`calibration.methods.topup`), of which only as
+    many are kept as lower the global fit's predicted task error, its misfit included
+    (:mod:`calibration.methods.topup_risk`; all K with ``--keep-all``); joint angles only."""
     import numpy as np
 
     from app.jobs.task import read_task
     from app.workflows.inputs import read_given, read_recording_for
     from calibration.data.recording import copy_rows
     from calibration.methods.topup import TopupPrior, choose, predicted_sigma
+    from calibration.methods.topup_risk import RISK_PRIOR, fit_risk
 
     missing = [o for o, v in (("--given", args.given), ("--task", args.task), ("--poses", args.poses)) if v is None]
     if missing:
@@ -195,22 +203,46 @@ def _select_topup(args: argparse.Namespace) -> int:
         raise CellCalError(f"--poses must be in 1..{len(cands)} (the rows of {args.data}), got {args.poses}")
     prior = TopupPrior(noise_mm=args.noise_mm)
     res = choose(robot.model(), given.q, cands.q, q_task, args.poses, prior)
-    rows = np.sort(np.asarray(res.order))
-    before = predicted_sigma(robot.model(), given.q, q_task, prior)
-    after = predicted_sigma(robot.model(), np.concatenate([given.q, cands.q[rows]]), q_task, prior)
+    risk_prior = TopupPrior(**{**RISK_PRIOR.__dict__, "noise_mm": args.noise_mm})
+    risk = fit_risk(robot.model(), given.q, cands.q[list(res.order)], q_task, risk_prior)
+    kept = args.poses if args.keep_all else risk.useful()
+    rows = np.sort(np.asarray(res.order[:kept], dtype=int))
+    residual, source = sigma_residual(args, robot, given)
+    before = predicted_sigma(robot.model(), given.q, q_task, prior, residual_mm=residual)
+    after = predicted_sigma(robot.model(), np.concatenate([given.q, cands.q[rows]]), q_task, prior,
+                            residual_mm=residual)
     copy_rows(args.data, rows, args.out, cands)
     print(f"{args.robot}: {len(rows)} of {len(cands)} candidate poses -> {args.out}")
+    _print_declined(args.poses, kept, risk.rms_mm)
     print(f"predicted position error of a global fit (pi) over the task's {len(q_task)} configurations (sigma, RMS of "
           f"the error norm): mean {before.mean():.3f} -> {after.mean():.3f} mm, worst {before.max():.3f} -> "
           f"{after.max():.3f} mm")
     write_json(args.json, {"robot": args.robot, "data": str(args.data), "given": str(args.given),
-                           "task": str(args.task), "out": str(args.out), "poses": len(rows),
-                           "rows": rows.tolist(), "order": list(res.order),
+                           "task": str(args.task), "out": str(args.out), "poses": len(rows), "asked": args.poses,
+                           "declined": args.poses - kept, "rows": rows.tolist(), "order": list(res.order[:kept]),
                            "predicted_sigma_mm": {"before": {"mean": float(before.mean()), "max": float(before.max())},
-                                                  "after": {"mean": float(after.mean()), "max": float(after.max())}},
+                                                  "after": {"mean": float(after.mean()), "max": float(after.max())},
+                                                  "residual_mm": residual, "residual_from": source},
+                           "risk_scales": {"param_sd_mm": risk_prior.param_sd_mm, "gp_scale_mm": risk_prior.gp_scale_mm,
+                                           "length_rad": risk_prior.length_rad},
+                           "predicted_fit_error_rms_mm": {"before": float(risk.rms_mm[0]),
+                                                          "after": float(risk.rms_mm[kept]),
+                                                          "each_count": risk.rms_mm.tolist()},
                            "criterion": "mean + mean of the worst 10 % of the predicted task position variance "
-                                        "(calibration.methods.topup)"})
+                                        "(calibration.methods.topup); poses kept while the global fit's predicted "
+                                        "task error, misfit included, is lowest (calibration.methods.topup_risk)"})
     return 0
+
+
+def _print_declined(asked: int, kept: int, rms_mm: Any) -> None:
+    """One line when fewer poses are kept than asked: the global fit's predicted task error is lowest with fewer."""
+    if kept == asked:
+        return
+    print(f"declined {asked - kept} of the {asked} poses asked: the global fit's predicted task error (RMS, its misfit "
+          f"included) is lowest with {kept} ({rms_mm[kept]:.3f} mm; {rms_mm[asked]:.3f} mm with all {asked}): "
+          + ("no candidate is predicted to reduce the task error (the candidates lie far from the task); "
+             if kept == 0 else "")
+          + "--keep-all keeps them all")
 
 
 def _print_events(session: str) -> list[dict[str, Any]]:
@@ -557,7 +589,13 @@ def _add_select_parser(add: Callable[..., argparse.ArgumentParser]) -> None:
                                                     "angles); --data is then the candidate poses (no clusters needed)")
     p.add_argument("--task", help="top-up: the configurations the cell will run: a joints CSV (q1..q6 [rad]), a dual "
                                   "plan (.json: this robot's waypoints) or a JBI job (.jbi: its PULSE positions)")
-    p.add_argument("--poses", type=int, metavar="K", help="top-up: how many candidate poses to choose")
+    p.add_argument("--poses", type=int, metavar="K", help="top-up: how many candidate poses to choose at most (fewer "
+                                                          "when more are predicted to make the global fit worse "
+                                                          "on the task)")
+    p.add_argument("--sigma-residual-mm", type=positive_float, metavar="MM", help=SIGMA_RESIDUAL_HELP)
+    p.add_argument("--keep-all", action="store_true",
+                   help="top-up: keep all K poses even where the global fit is predicted to do worse on the task "
+                        "with them (the candidates far from the task)")
     p.add_argument("--out", required=True, help="the subset recording CSV (top-up: the chosen rows of --data as they "
                                                 "are there)")
     p.add_argument("--for", dest="target", choices=("identification", "rebase"), default="identification",

@@ -26,12 +26,14 @@ from app.cli.analysis import (
 from app.cli.cell import add_cell_parsers
 from app.cli.common import (
     CELL_HELP,
+    SIGMA_RESIDUAL_HELP,
     DefaultsHelpFormatter,
     OneLineErrorParser,
     add_cell_option,
     add_report_options,
     add_topup_options,
     check_output_args,
+    positive_float,
     resolve_cell,
 )
 from app.cli.dual import add_dual_parsers
@@ -59,6 +61,7 @@ def _add_sigma_options(p: argparse.ArgumentParser) -> None:
                                                     "predicted position sigma [mm] (the top-up design's error model)")
     p.add_argument("--add", action="append", default=[], metavar="PICKED.csv",
                    help="poses fitted with --given (fit --add); repeatable")
+    p.add_argument("--sigma-residual-mm", type=positive_float, metavar="MM", help=SIGMA_RESIDUAL_HELP)
 
 
 def build_parser() -> argparse.ArgumentParser:

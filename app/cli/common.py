@@ -7,6 +7,7 @@ import json
 import logging
 import math
 import re
+import sys
 from collections.abc import Callable
 from typing import Any, NoReturn, TypeVar
 
@@ -239,6 +240,36 @@ ADD_HELP = ("extra poses (a recording CSV or Welding_Motoman folder, no cluster 
             "them, the local (per-cluster) fits of the CDC methods do not; repeatable")
 ADD_WEIGHT_HELP = ("weight of each --add pose against one training pose in the fits (an integer in 1..100; the default "
                    "counts a stand-alone pose as much as one training cluster of 7 poses)")
+
+
+SIGMA_RESIDUAL_HELP = ("the predicted sigma's residual per coordinate [mm] (the error a global model never learns); "
+                       "default: chosen on --given itself by maximum likelihood of pi refitted without 8 held-out "
+                       "folds (calibration.methods.topup_sigma; about 10 s for a 1736-pose grid)")
+
+
+def sigma_residual(args: argparse.Namespace, robot: Any, given: Any) -> tuple[float, str]:
+    """The predicted sigma's residual [mm] and where it came from: ``--sigma-residual-mm``, else chosen on the
+    given recording's held-out folds (:func:`calibration.methods.topup_sigma.held_out_residual`), else (a given
+    recording with fewer than 2 clusters to hold out) the fixed one, said so on stderr."""
+    import time
+
+    from calibration.errors import ModelError
+    from calibration.methods.fitter import Fitter
+    from calibration.methods.topup import SIGMA_RESIDUAL_MM
+    from calibration.methods.topup_sigma import held_out_residual
+
+    if getattr(args, "sigma_residual_mm", None) is not None:
+        return float(args.sigma_residual_mm), "--sigma-residual-mm"
+    t0 = time.perf_counter()
+    try:
+        scales = held_out_residual(Fitter.for_arm(robot.arm(), given))
+    except ModelError as e:
+        print(f"note: the predicted sigma uses the fixed residual {SIGMA_RESIDUAL_MM:g} mm: the given poses have no "
+              f"folds to hold out ({e})", file=sys.stderr)
+        return SIGMA_RESIDUAL_MM, "fixed (no held-out folds in --given)"
+    print(f"predicted sigma: residual {scales.residual_mm:g} mm per coordinate, chosen on {scales.held_out_poses} "
+          f"held-out predictions of --given (pi refitted without 8 folds, {time.perf_counter() - t0:.1f} s)")
+    return scales.residual_mm, "held-out folds of --given"
 
 
 def add_topup_options(p: argparse.ArgumentParser) -> None:

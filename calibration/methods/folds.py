@@ -73,6 +73,10 @@ class HeldOutRefits(SharedFits, ABC):
             self._cache.fold_seconds[method, fold] = seconds
         return cached[method, fold]
 
+    def fold_masks(self) -> list[np.ndarray]:
+        """The poses (N,) each fold of :meth:`held_out_errors` holds out (whole clusters)."""
+        return [held for held, _ in self._fold_fitters()]
+
     def _fold_fitters(self) -> list[tuple[np.ndarray, HeldOutRefits]]:
         """``(held-out mask, Fitter on the other clusters)`` per fold, shared by every method (cached)."""
         if self._cache.folds is None:

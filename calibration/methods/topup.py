@@ -140,7 +140,7 @@ def farthest_points(x: np.ndarray, n: int, start: int = 0) -> np.ndarray:
     return np.asarray(chosen, dtype=int)
 
 
-class _Features:
+class Features:
     """The feature rows ``Phi(q)`` (N, 6, p) of the error model: parametric columns, then M GP weights per axis."""
 
     def __init__(self, nominal: object, prior: TopupPrior, centres: np.ndarray, theta: np.ndarray | None) -> None:
@@ -183,11 +183,11 @@ class _Features:
 
 
 def _posterior(nominal: object, q_given: np.ndarray, known: np.ndarray, prior: TopupPrior,
-               theta: np.ndarray | None) -> tuple[_Features, np.ndarray]:
+               theta: np.ndarray | None) -> tuple[Features, np.ndarray]:
     """The feature map (Nystroem centres spread over ``known``) and the posterior covariance (p, p) of every weight
     after measuring ``q_given``."""
     centres = known[farthest_points(known, prior.n_inducing)]
-    feats = _Features(nominal, prior, centres, theta)
+    feats = Features(nominal, prior, centres, theta)
     F_given = feats.rows(q_given).reshape(-1, feats.p) if len(q_given) else np.zeros((0, feats.p))
     C = np.linalg.inv(np.eye(feats.p) + F_given.T @ F_given / prior.noise_mm ** 2)
     return feats, 0.5 * (C + C.T)
@@ -383,7 +383,7 @@ def held_out_sigma_scales(nominal: object, q: np.ndarray, held_out: list[np.ndar
         raise ModelError(f"held-out sigma scales: need one error array per fold, got {len(held_out)} folds and "
                          f"{len(error_mm)} error arrays")
     base = TopupPrior(**{**prior.__dict__, "param_sd_mm": 1.0, "gp_scale_mm": 0.0})
-    feats = _Features(nominal, base, q[:1], theta)
+    feats = Features(nominal, base, q[:1], theta)
     rows = feats.rows(q)[:, :, : feats.m]  # (N, 6, m): unit parameter prior
     s2 = prior.noise_mm ** 2
     v_par: dict[float, list[np.ndarray]] = {sd: [] for sd in param_grid_mm}

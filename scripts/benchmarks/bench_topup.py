@@ -9,7 +9,10 @@ For every shared day with a test recording and every split of its test path (150
 each method is fitted on the day's training grid plus k candidate poses (stand-alone poses,
 :func:`calibration.data.recording.with_added`) and judged on the task's measured poses (position mean / max [mm]):
 
-- ``chosen``: the top-up design (:func:`calibration.methods.topup.choose`: joint angles of TRAIN, candidates and task only);
+- ``chosen``: the top-up design (:func:`calibration.methods.topup.choose`: joint angles of TRAIN, candidates and task only),
+  as many of its first k poses kept as ``cellcal select`` keeps (``--risk default``: the global fit's predicted task
+  error with its misfit, :mod:`calibration.methods.topup_risk`, under ``RISK_PRIOR``; ``day``: under the scales of
+  the day's own training folds; ``none``: all k). A row whose chosen poses were cut says ``(kept n)``;
 - ``random``: the median (of the mean, and separately of the max) over ``--random`` seeded random picks;
 - ``farthest``: farthest-point picks in joint space, each the candidate farthest from TRAIN and those chosen;
 - k = 0 (the grid alone) and all candidates.
@@ -27,11 +30,17 @@ the share a Gaussian error of each pose's predicted covariance puts there (:func
 (:func:`sigma_scales_for`: the residual chosen on clusters held out at random, the q1/q4-q6 steps and the q2 and q3
 edges; the parameter prior stays the fixed one, which those folds cannot bound: calibration.methods.topup).
 
+``--risk-scales`` prints the risk model's scales each day's training folds choose and the choice of all 7 days'
+folds together (what ``RISK_PRIOR`` holds). ``--designs`` names the comparison designs fitted (each costs fits:
+one recommended ``pi+nn`` fit takes about 55 s on a loaded 2-core machine, a ``pi`` fit about 1 s).
+
 Fits are cached in ``--cache`` (a JSON file keyed by day, split, method, design, k, seed and the design's
 settings), so a rerun with more days or seeds refits only what is new.
 
     python scripts/benchmarks/bench_topup.py [--days 0613,0725] [--splits interleaved,halves] [--k 0,7,14,21,49]
-                                  [--random 20] [--methods pi] [--json FILE] [--cache FILE]
+                                  [--random 20] [--methods pi] [--designs farthest,random,all] [--risk default]
+                                  [--json FILE] [--cache FILE]
+    python scripts/benchmarks/bench_topup.py --risk-scales [--days ...] [--cache FILE]
 """
 
 from __future__ import annotations
@@ -51,6 +60,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from app.workflows.compare import recommend_fitted  # noqa: E402
+from calibration.data.folds import edge_mask, step_mask  # noqa: E402
 from calibration.data.recording import DEFAULT_ADD_WEIGHT, Recording, read_recording, with_added  # noqa: E402
 from calibration.evaluation.metrics import errors  # noqa: E402
 from calibration.identification.design import select_recording  # noqa: E402
@@ -68,8 +78,14 @@ from calibration.methods.topup import (  # noqa: E402
     predicted_position_cov,
     predicted_sigma,
 )
+from calibration.methods.topup_risk import (  # noqa: E402
+    RISK_PRIOR,
+    best_scales,
+    fit_risk,
+    fold_log_likelihoods,
+    useful_count,
+)
 from cell_config import load_cell  # noqa: E402
-from scripts.studies.extrapolation_folds import edge_mask, step_mask  # noqa: E402
 
 DATA = next((d / "shared" / "data" / "welding_motoman" for d in ROOT.parents
              if (d / "shared" / "data" / "welding_motoman").exists()), ROOT.parent / "shared" / "data" / "welding_motoman")
@@ -157,6 +173,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             kmax = max(args.k)
             pick = cache.get(f"{day_key}|{split}|choose|{tag}|{kmax}", lambda: _choose(nominal, train, cand, task, kmax,
                                                                                  prior))
+            risk = _risk_along(args, cache, nominal, train, day_key, f"{day_key}|{split}|{tag}|{kmax}", cand, task,
+                               pick["order"])
             design_s = time.perf_counter() - t0
             spread = farthest_from(train.q, cand.q, kmax)
             for asked in args.methods:
@@ -168,31 +186,36 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 grid_errors = lambda: cache.get(f"{key}|errors|grid", lambda: task_errors(  # noqa: E731
                     nominal, train, cand.subset(np.zeros(0, dtype=int)), task, method, 1))
                 base = cache.get(f"{key}|grid", lambda: _stats(grid_errors()))
-                every = cache.get(f"{key}|all", lambda: fit_and_judge(nominal, train, cand, task, method))
+                every = (cache.get(f"{key}|all", lambda: fit_and_judge(nominal, train, cand, task, method))
+                         if "all" in args.designs else None)
                 for k in args.k:
                     row: dict[str, Any] = {"day": day, "split": split, "method": method, "asked": asked, "k": k, "weight": w,
                                            "grid": base, "all": every}
                     if k == 0:
                         row.update(chosen=base, farthest=base, random=base)
                     else:
-                        added = cand.subset(np.asarray(pick["order"][:k], dtype=int))
-                        chosen_errors = lambda: cache.get(f"{wkey}|errors|{tag}|{k}", lambda: task_errors(  # noqa: E731
-                            nominal, train, added, task, method, w))
-                        row["chosen"] = cache.get(f"{wkey}|chosen|{tag}|{k}", lambda: _stats(chosen_errors()))
+                        n = k if risk is None else useful_count(risk["criterion"], k)
+                        row["kept"] = n
+                        added = cand.subset(np.asarray(pick["order"][:n], dtype=int))
+                        chosen_errors = (grid_errors if not n else lambda: cache.get(  # noqa: E731
+                            f"{wkey}|errors|{tag}|{n}", lambda: task_errors(nominal, train, added, task, method, w)))
+                        row["chosen"] = base if not n else cache.get(f"{wkey}|chosen|{tag}|{n}",
+                                                                     lambda: _stats(chosen_errors()))
                         row["farthest"] = cache.get(f"{wkey}|farthest|{k}", lambda: fit_and_judge(
-                            nominal, train, cand.subset(spread[:k]), task, method, w))
+                            nominal, train, cand.subset(spread[:k]), task, method, w)) if "farthest" in args.designs \
+                            else None
                         draws = [cache.get(f"{wkey}|random|{k}|{s}", lambda: fit_and_judge(
                             nominal, train, cand.subset(np.random.default_rng(s).choice(len(cand), k, replace=False)),
-                            task, method, w)) for s in range(args.random)]
+                            task, method, w)) for s in range(args.random if "random" in args.designs else 0)]
                         row["random"] = [float(np.median([d[0] for d in draws])),
                                          float(np.median([d[1] for d in draws]))] if draws else None
                         row["random_worse_share"] = (float(np.mean([d[0] > row["chosen"][0] for d in draws]))
                                                      if draws else None)
-                    gain = base[0] - every[0]
+                    gain = base[0] - every[0] if every is not None else 0.0
                     row["gain_share"] = float((base[0] - row["chosen"][0]) / gain) if gain > 0 else None
                     if k in args.sigma_k:
-                        added = cand.subset(np.asarray(pick["order"][:k], dtype=int))
-                        e = np.asarray(grid_errors() if k == 0 else chosen_errors())
+                        added = cand.subset(np.asarray(pick["order"][:row.get("kept", k)], dtype=int))
+                        e = np.asarray(grid_errors() if not row.get("kept", k) else chosen_errors())
                         scales = sigma_scales_for(nominal, train, cache.get(
                             f"{day_key}|sigma-scales", lambda: sigma_fold_errors(nominal, train)))
                         q_given = np.concatenate([train.q, added.q])
@@ -204,6 +227,63 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                     print(_line(row), flush=True)
             print(f"# {day} {split}: design {design_s:.1f} s (cached or computed)", flush=True)
     return out
+
+
+def _risk_along(args: argparse.Namespace, cache: Cache, nominal: Any, train: Recording, day_key: str, key: str,
+                cand: Recording, task: Recording, order: list[int]) -> dict[str, Any] | None:
+    """The global fit's predicted task error along the design's order (:func:`calibration.methods.topup_risk.fit_risk`)
+    under ``--risk`` (None: ``none``, every pose kept as before)."""
+    if args.risk == "none":
+        return None
+    prior = RISK_PRIOR
+    if args.risk == "day":
+        prior = replace(RISK_PRIOR, **{k: v for k, v in day_risk_scales(cache, nominal, train, day_key).items()
+                                       if k in ("param_sd_mm", "gp_scale_mm", "length_rad")})
+    rtag = hashlib.sha1(json.dumps(asdict(prior), sort_keys=True).encode()).hexdigest()[:10]
+
+    def make() -> dict[str, Any]:
+        r = fit_risk(nominal, train.q, cand.q[np.asarray(order, dtype=int)], task.q, prior, args.weight)
+        return {"criterion": r.criterion_mm2.tolist(), "rms_mm": r.rms_mm.tolist()}
+    return dict(cache.get(f"{key}|risk|{rtag}|w{args.weight}", make))
+
+
+def day_risk_table(cache: Cache, nominal: Any, train: Recording, day_key: str) -> dict[tuple[float, ...], float]:
+    """:func:`calibration.methods.topup_risk.fold_log_likelihoods` on the day's training folds (cached)."""
+    def make() -> list[list[float]]:
+        folds = cache.get(f"{day_key}|sigma-scales", lambda: sigma_fold_errors(nominal, train))
+        table = fold_log_likelihoods(nominal, train.q, fold_masks(nominal, train),
+                                     [np.asarray(x) for x in folds["fold_errors_mm"]])
+        return [[*key, ll] for key, ll in table.items()]
+    return {tuple(row[:4]): row[4] for row in cache.get(f"{day_key}|risk-table", make)}
+
+
+def day_risk_scales(cache: Cache, nominal: Any, train: Recording, day_key: str) -> dict[str, Any]:
+    """The risk model's scales of the largest likelihood on the day's training folds alone."""
+    table = day_risk_table(cache, nominal, train, day_key)
+    return best_scales(table, 0).to_json()  # type: ignore[arg-type]
+
+
+def risk_scales_report(args: argparse.Namespace) -> dict[str, Any]:
+    """``--risk-scales``: each day's choice and the choice of the days' tables added (what RISK_PRIOR holds)."""
+    nominal = load_cell().robot("R1").model()
+    cache = Cache(args.cache)
+    pooled: dict[tuple[float, ...], float] = {}
+    out: dict[str, Any] = {"days": {}}
+    for day in args.days:
+        train = read_recording(DATA / "PH_grad_data" / DAYS[day][0])
+        table = day_risk_table(cache, nominal, train, day)
+        for key, ll in table.items():
+            pooled[key] = pooled.get(key, 0.0) + ll
+        out["days"][day] = best_scales(table, 0).to_json()  # type: ignore[arg-type]
+        print(f"{day:<12} risk scales on its training folds: {_scales_text(out['days'][day])}", flush=True)
+    out["pooled"] = best_scales(pooled, 0).to_json()  # type: ignore[arg-type]
+    print(f"{'all days':<12} risk scales on every day's training folds: {_scales_text(out['pooled'])}")
+    return out
+
+
+def _scales_text(s: dict[str, Any]) -> str:
+    return (f"parameter prior {s['param_sd_mm']:g} mm-eq, misfit {s['gp_scale_mm']:g} mm over {s['length_rad']:g} "
+            f"rad, residual {s['residual_mm']:g} mm")
 
 
 def _stats(e: list[float]) -> list[float]:
@@ -296,7 +376,8 @@ def _fmt(v: Any) -> str:
 
 
 def _line(r: dict[str, Any]) -> str:
-    return (f"{r['day']:<12} {r['split']:<20} {r['method']:<5} k={r['k']:>3}  chosen {_fmt(r['chosen'])}  random "
+    kept = "" if r.get("kept", r["k"]) == r["k"] else f" (kept {r['kept']})"
+    return (f"{r['day']:<12} {r['split']:<20} {r['method']:<5} k={r['k']:>3}{kept}  chosen {_fmt(r['chosen'])}  random "
             f"{_fmt(r['random'])}  farthest {_fmt(r['farthest'])}  grid {_fmt(r['grid'])}  all {_fmt(r['all'])}"
             + ("" if r.get("gain_share") is None or not r["k"] else f"  gain {100 * r['gain_share']:.0f}%")
             + "".join(f"  {name} sigma {r[key]['sigma_mean_mm']:.3f} >2s {100 * r[key]['share_over_2_sigma']:.1f}% "
@@ -350,6 +431,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--sigma-k", default="0,21", help="pose counts whose predicted sigma is checked against the errors")
     p.add_argument("--train-clusters", type=int, help="train on the N clusters cellcal select --budget N keeps "
                                                         "(the cell-time comparison: 16 clusters = 112 poses)")
+    p.add_argument("--designs", default="farthest,random,all",
+                   help="designs fitted beside the chosen poses and the grid: farthest, random, all (each costs fits)")
+    p.add_argument("--risk", choices=("default", "day", "none"), default="default",
+                   help="how many of the chosen poses to keep (calibration.methods.topup_risk): 'default' as cellcal "
+                        "select does (RISK_PRIOR), 'day' with the scales of the day's own training folds, 'none' "
+                        "keeps all k")
+    p.add_argument("--risk-scales", action="store_true",
+                   help="only print the risk scales each day's training folds choose, and all days' together")
     p.add_argument("--cache", type=Path, default=Path("/tmp/bench_topup_cache.json"), help="fit cache (JSON)")
     p.add_argument("--json", type=Path, help="write every row as JSON")
     args = p.parse_args(argv)
@@ -361,6 +450,15 @@ def main(argv: list[str] | None = None) -> int:
     args.k = [int(k) for k in args.k.split(",")]
     args.sigma_k = [int(k) for k in args.sigma_k.split(",") if k.strip()]
     args.methods = [m.strip() for m in args.methods.split(",")]
+    args.designs = [d.strip() for d in args.designs.split(",") if d.strip()]
+    bad = [d for d in args.designs if d not in ("farthest", "random", "all")]
+    if bad:
+        raise SystemExit(f"unknown design {bad[0]!r}; valid: farthest, random, all")
+    if args.risk_scales:
+        out = risk_scales_report(args)
+        if args.json:
+            args.json.write_text(json.dumps(out, indent=1))
+        return 0
     out = run(args)
     for line in goal_lines(out["rows"]):
         print(line)

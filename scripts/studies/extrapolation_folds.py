@@ -27,11 +27,10 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
+from calibration.data.folds import EDGE_JOINTS, edge_mask, step_mask  # noqa: E402
 from calibration.data.recording import Recording, read_recording  # noqa: E402
 from calibration.diagnosis import StructuralDeflection  # noqa: E402
 from calibration.evaluation.metrics import errors  # noqa: E402
@@ -48,37 +47,6 @@ from calibration.models.guard import (
 from cell_config import load_cell  # noqa: E402
 from scripts.benchmarks.bench_days import DATA, cell, make_fitter, mean_max  # noqa: E402
 from scripts.studies.heldout_folds import days_parser  # noqa: E402
-
-#: Share of the anchors held out at each end of a joint's training range.
-EDGE_SHARE = 0.15
-#: The joints (0-based) whose edges are held out: the two the training design spans.
-EDGE_JOINTS = (1, 2)
-#: The joints (0-based) the design keeps near zero and steps within a cluster: holding their steps out leaves a fit
-#: that never saw them move, as on a test recording that moves them by tens of degrees.
-STEP_JOINTS = (0, 3, 4, 5)
-
-
-def edge_mask(rec: Recording, joint: int, share: float = EDGE_SHARE, cluster_size: int = 7) -> np.ndarray:
-    """Samples (N,) of the clusters whose anchor (first pose) of ``joint`` is among the lowest or highest
-    ``share`` of the anchors."""
-    cluster = rec.clusters(cluster_size)
-    ids = np.unique(cluster)
-    anchor = np.array([rec.q[np.flatnonzero(cluster == c)[0], joint] for c in ids])
-    lo, hi = np.quantile(anchor, [share, 1.0 - share])
-    edge = ids[(anchor <= lo) | (anchor >= hi)]
-    return np.isin(cluster, edge)
-
-
-def step_mask(rec: Recording, joints: tuple[int, ...] = STEP_JOINTS, cluster_size: int = 7) -> np.ndarray:
-    """Samples (N,) that step ``joints`` away from their cluster's anchor by more than half the largest step of
-    the recording (0524/0613/0620: the +-4 and +-6 deg steps, fitted on the anchors and the +-2 deg ones; the
-    other days: every 1 deg step of those joints)."""
-    cluster = rec.clusters(cluster_size)
-    first = np.r_[0, np.flatnonzero(np.diff(cluster)) + 1]
-    anchor = rec.q[first][np.searchsorted(first, np.arange(len(rec)), side="right") - 1]
-    step = np.max(np.abs(rec.q[:, list(joints)] - anchor[:, list(joints)]), axis=1)
-    return step > 0.5 * step.max()
-
 
 #: The guard variants each fold also scores ``diagnosed`` with (the fitted model, its training region changed).
 VARIANTS = ("unguarded", "fixed 2 deg margin", "held hard at the edge", "every effect in every joint",

@@ -34,6 +34,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
+from calibration.data.folds import EDGE_JOINTS, edge_mask, step_mask  # noqa: E402
 from calibration.data.recording import read_recording  # noqa: E402
 from calibration.evaluation.metrics import errors  # noqa: E402
 from calibration.methods.cdc import cluster_anchors  # noqa: E402
@@ -47,7 +48,6 @@ from scripts.benchmarks.bench_days import (
     mean_max,  # noqa: E402
 )
 from scripts.benchmarks.bench_frames import fitter_on, tool_error_case_of  # noqa: E402
-from scripts.studies.extrapolation_folds import EDGE_JOINTS, edge_mask, step_mask  # noqa: E402
 from scripts.studies.heldout_folds import days_parser
 
 #: The ways pi is fitted: label -> the FitOptions fields that differ from the defaults.

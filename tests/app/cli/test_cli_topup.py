@@ -7,8 +7,10 @@ import numpy as np
 import pytest
 
 from app.cli.commands import main
-from calibration.data.recording import write_recording, write_table
+from calibration.data.recording import read_recording, write_recording, write_table
+from calibration.methods.fitter import Fitter
 from calibration.methods.topup import SIGMA_RESIDUAL_MM
+from calibration.methods.topup_sigma import held_out_residual
 from cell_config import load_cell
 from tests.app.jobs.test_jbi import crlf, pulses
 from tests.calibration.methods.test_standalone_poses import wide_poses
@@ -89,6 +91,9 @@ def test_a_missing_part_of_a_top_up_is_named(files, capsys):
     assert_bad_input(capsys, ["select", "--robot", "R1", "--data", str(folder / "cand.csv"), "--out", str(out)],
                      "--budget", "--given")
     assert not out.exists()
+    assert_bad_input(capsys, ["select", "--robot", "R1", "--data", str(folder / "grid.csv"), "--budget", "3",
+                              "--keep-all", "--out", str(out)], "--keep-all")
+    assert not out.exists()
 
 
 def test_a_task_outside_the_joint_limits_is_refused(files, capsys):
@@ -152,8 +157,10 @@ def test_evaluate_and_predict_give_the_predicted_sigma_lower_where_the_poses_wer
     for extra in ([], ["--add", str(folder / "task-measured.csv")]):
         js = folder / "ev.json"
         assert main(["evaluate", "--model", str(folder / "grid-pi.yaml"), "--test", str(folder / "task-measured.csv"),
-                     "--given", str(folder / "grid.csv"), *extra, "--json", str(js)]) == 0
+                     "--given", str(folder / "grid.csv"), *extra, "--sigma-residual-mm", str(SIGMA_RESIDUAL_MM),
+                     "--json", str(js)]) == 0
         shares[len(extra)] = json.loads(js.read_text())["predicted_sigma"]
+        assert shares[len(extra)]["residual_from"] == "--sigma-residual-mm"
     # measured there: only the residual a global fit never learns is left
     assert np.sqrt(3) * SIGMA_RESIDUAL_MM - 1e-9 <= shares[2]["mean_mm"] < shares[0]["mean_mm"] - 0.05
     assert 0.0 <= shares[0]["share_over_2_sigma"] <= 1.0
@@ -167,6 +174,32 @@ def test_evaluate_and_predict_give_the_predicted_sigma_lower_where_the_poses_wer
     assert_bad_input(capsys, ["predict", "--model", str(folder / "grid-pi.yaml"), "--joints", str(folder / "task.csv"),
                               "--add", str(folder / "cand.csv"), "--out", str(folder / "p2.csv")], "--given")
     assert not (folder / "p2.csv").exists()
+
+
+def test_without_a_residual_given_sigma_takes_the_one_chosen_on_the_given_recordings_folds(files, synthetic_arm,
+                                                                                         capsys):
+    """evaluate, predict and select with --given use the residual of the largest likelihood of pi refitted without
+    the given recording's held-out folds (calibration.methods.topup_sigma), and say so."""
+    _, _, truth = synthetic_arm
+    folder, q_task = files
+    write_recording(measure(truth.fk, q_task, 0.02, 0.01, 7), folder / "task-measured.csv")
+    assert main(["fit", "--robot", "R1", "--train", str(folder / "grid.csv"), "--method", "pi",
+                 "--out", str(folder / "grid-pi.yaml")]) == 0
+    given = read_recording(folder / "grid.csv")
+    expected = held_out_residual(Fitter.for_arm(load_cell().robot("R1").arm(), given)).residual_mm
+    js = folder / "ev.json"
+    assert main(["evaluate", "--model", str(folder / "grid-pi.yaml"), "--test", str(folder / "task-measured.csv"),
+                 "--given", str(folder / "grid.csv"), "--json", str(js)]) == 0
+    sigma = json.loads(js.read_text())["predicted_sigma"]
+    assert sigma["residual_mm"] == expected and sigma["residual_from"] == "held-out folds of --given"
+    assert main(["predict", "--model", str(folder / "grid-pi.yaml"), "--joints", str(folder / "task.csv"),
+                 "--given", str(folder / "grid.csv"), "--out", str(folder / "pred.csv"), "--json", str(js)]) == 0
+    assert json.loads(js.read_text())["sigma_residual_mm"] == expected
+    assert main(select(folder, folder / "task.csv", "--poses", "3", "--out", str(folder / "p.csv"), "--json",
+                       str(js))) == 0
+    assert json.loads(js.read_text())["predicted_sigma_mm"]["residual_mm"] == expected
+    out = capsys.readouterr().out
+    assert out.count(f"predicted sigma: residual {expected:g} mm per coordinate, chosen on") == 3
 
 
 @pytest.mark.parametrize("bad", ["missing", "nan"])
@@ -245,3 +278,31 @@ def test_evaluate_report_with_given_shows_where_the_model_can_be_trusted_along_t
     # the wide task poses leave the grid's range, the four grid poses among them do not
     assert sigma["outside_given_range"] == len(q_task) and "(rows 1-4, 9-" in text
     capsys.readouterr()
+
+
+def test_candidates_far_from_a_task_the_grid_covers_are_declined(synthetic_arm, tmp_path, capsys):
+    """A task among a grid's configurations (every joint spread) and candidates 80 deg away in q1 and the wrist: the
+    global fit is predicted to do worse on the task with them (it bends to their region's misfit), so select keeps
+    none, says so, and writes the header alone; --keep-all keeps all K."""
+    _, _, truth = synthetic_arm
+    q, _ = cluster_design(step_deg=15.0, spread_wrist=True)
+    write_recording(measure(truth.fk, q, 0.02, 0.01, 1), tmp_path / "grid.csv")
+    q_far = wide_poses(10, seed=9)
+    q_far[:, [0, 3, 4, 5]] = np.radians(80.0) + 0.1 * q_far[:, [0, 3, 4, 5]]
+    write_recording(measure(truth.fk, q_far, 0.02, 0.01, 2), tmp_path / "cand.csv")
+    q_task = q[::5] + np.radians(1.5)
+    write_table(tmp_path / "task.csv", {f"q{i + 1}": q_task[:, i] for i in range(6)})
+    out, js = tmp_path / "picked.csv", tmp_path / "picked.json"
+    assert main(select(tmp_path, tmp_path / "task.csv", "--poses", "4", "--out", str(out), "--json", str(js),
+                       "--sigma-residual-mm", "0.1")) == 0
+    assert "declined 4 of the 4 poses asked" in capsys.readouterr().out
+    result = json.loads(js.read_text())
+    assert result["poses"] == 0 and result["declined"] == 4 and result["rows"] == []
+    risk = result["predicted_fit_error_rms_mm"]
+    assert risk["each_count"][4] > risk["before"] == risk["after"]
+    with open(out) as f:
+        assert len(list(csv.reader(f))) == 1  # the header alone
+    assert main(select(tmp_path, tmp_path / "task.csv", "--poses", "4", "--keep-all", "--out", str(out),
+                       "--sigma-residual-mm", "0.1")) == 0
+    with open(out) as f:
+        assert len(list(csv.reader(f))) == 5
