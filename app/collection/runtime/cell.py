@@ -6,8 +6,7 @@ bridge). The collection (:func:`~app.collection.collect.collect_arm`), the regis
 (:func:`~app.collection.register.measure_registration`), the recalibration
 (:func:`~app.workflows.recalibrate.recalibrate`) and the real contact validation
 (:func:`~app.dual.validate_real.run_real_validation`) take a :class:`Cell` and call nothing else on it. The Protocol
-is structural: neither class inherits it, mypy checks that each has every member (``tests/app/collection/runtime/
-test_cell_protocol.py``).
+is structural: neither class inherits it, mypy checks that each has every member (``tests/app/collection/test_cell_protocol.py``).
 """
 
 from __future__ import annotations
