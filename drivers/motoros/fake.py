@@ -129,7 +129,8 @@ class FakeMotorosController:
         self.nonfinite_feedback = False  # publishing NaN / inf joint positions (set_nonfinite_feedback)
         self._nonfinite_value = float("nan")
         self._chunk: tuple[int, float] | None = None
-        self._threads: list[threading.Thread] = []
+        self._threads: list[threading.Thread] = []  # started threads only (_spawn holds _spawn_lock across both)
+        self._spawn_lock = threading.Lock()
         self._listeners: list[socket.socket] = []
         self._motion_client: socket.socket | None = None
         self._state_clients: list[socket.socket] = []
@@ -167,8 +168,12 @@ class FakeMotorosController:
         self.drop_connections()
         for sock in self._listeners:
             sock.close()
-        while self._threads:  # an acceptor may still spawn a handler until it sees the stop flag
-            self._threads.pop().join(timeout=2.0)
+        while True:  # an acceptor may still spawn a handler until it sees the stop flag
+            with self._spawn_lock:  # a thread is listed only once started: never joined before its start
+                if not self._threads:
+                    break
+                thread = self._threads.pop()
+            thread.join(timeout=2.0)
 
     def __enter__(self) -> FakeMotorosController:
         return self.start()
@@ -178,8 +183,9 @@ class FakeMotorosController:
 
     def _spawn(self, target: Callable[..., None], args: tuple[object, ...]) -> None:
         thread = threading.Thread(target=target, args=args, name="fake-motoros", daemon=True)
-        self._threads.append(thread)
-        thread.start()
+        with self._spawn_lock:  # close() joins what it finds listed: list a thread only together with its start
+            thread.start()
+            self._threads.append(thread)
 
     # -- faults and inspection -------------------------------------------------------------------
     def _set(self, **flags: object) -> None:

@@ -750,3 +750,31 @@ def test_the_fake_keeps_a_bounded_request_history(monkeypatch) -> None:
                 sock.sendall(MotionCtrl(0, k, Command.CHECK_MOTION_READY).encode())
                 assert isinstance(_next(sock, framer), MotionReply)
         assert [m.sequence for m in fake.received] == list(range(15, 20))
+
+
+def test_close_while_an_acceptor_starts_a_handler_joins_it_once_started(monkeypatch: pytest.MonkeyPatch) -> None:
+    """close() racing a client's connection: the acceptor's new handler thread may be between its creation and its
+    start when close() walks the thread list. A fresh-clone run met it once ("cannot join thread before it is
+    started" at teardown); here each of the fake's thread starts is slowed so the window is wide, and close() must
+    wait for the start, join, and leave no thread running."""
+    import drivers.motoros.fake as fake_module
+
+    real_thread = threading.Thread
+
+    class SlowStart(real_thread):
+        def start(self) -> None:
+            time.sleep(0.3)
+            super().start()
+
+    monkeypatch.setattr(fake_module.threading, "Thread", SlowStart)
+    threads_before = set(threading.enumerate())
+    controller = FakeMotorosController(max_speed_rad_s=SPEED, initial_q=Q0).start()
+    client = socket.create_connection(("127.0.0.1", controller.motion_port), timeout=2.0)
+    try:
+        time.sleep(0.1)  # the acceptor took the client and is starting its handler (0.3 s)
+        controller.close()
+    finally:
+        client.close()
+        monkeypatch.undo()
+    leaked = [t for t in set(threading.enumerate()) - threads_before if t.is_alive()]
+    assert not leaked, f"threads left running: {leaked}"
