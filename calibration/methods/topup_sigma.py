@@ -27,22 +27,28 @@ from calibration.methods.topup import SigmaScales, held_out_sigma_scales
 SIGMA_METHOD = "pi"
 
 
+def sigma_fold_masks(fitter: HeldOutRefits) -> list[np.ndarray]:
+    """The poses (N,) each fold of the module docstring holds out, in that order: the held-out cluster folds of
+    ``fitter``, then the q1/q4-q6 steps and the q2 and q3 edges (each when it holds out some poses, not all)."""
+    train = fitter.train
+    extra = [step_mask(train)] + [edge_mask(train, j) for j in EDGE_JOINTS]
+    return fitter.fold_masks() + [m for m in extra if m.any() and not m.all()]
+
+
 def held_out_folds(fitter: HeldOutRefits) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """``(masks, errors)``: per fold of the module docstring, the poses (N,) it holds out and the position errors
+    """``(masks, errors)``: per fold of :func:`sigma_fold_masks`, the poses (N,) it holds out and the position errors
     [mm] of :data:`SIGMA_METHOD` refitted without them at those poses.
 
     Raises:
         ModelError: the recording has fewer than 2 clusters to hold out.
     """
     train = fitter.train
-    e = fitter.held_out_errors(SIGMA_METHOD)
-    masks = fitter.fold_masks()
-    errs = [np.asarray(e)[m] for m in masks]
-    for m in [step_mask(train)] + [edge_mask(train, j) for j in EDGE_JOINTS]:
-        if not m.any() or m.all():
-            continue
+    e = np.asarray(fitter.held_out_errors(SIGMA_METHOD))
+    masks = sigma_fold_masks(fitter)
+    n_clusters = len(fitter.fold_masks())
+    errs = [e[m] for m in masks[:n_clusters]]
+    for m in masks[n_clusters:]:
         model, _ = replace(fitter, train=train.subset(~m), warm=fitter, _cache=SharedCache()).fit(SIGMA_METHOD)
-        masks.append(m)
         errs.append(errors(model, train.subset(m)).position_mm)
     return masks, errs
 

@@ -60,14 +60,12 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from app.workflows.compare import recommend_fitted  # noqa: E402
-from calibration.data.folds import edge_mask, step_mask  # noqa: E402
 from calibration.data.recording import DEFAULT_ADD_WEIGHT, Recording, read_recording, with_added  # noqa: E402
 from calibration.evaluation.metrics import errors  # noqa: E402
 from calibration.identification.design import select_recording  # noqa: E402
 from calibration.kinematics.parameterisation import MinimalParameterisation  # noqa: E402
 from calibration.method_names import METHODS, NEURAL_METHODS  # noqa: E402
 from calibration.methods.fitter import Fitter  # noqa: E402
-from calibration.methods.shared import SharedCache  # noqa: E402
 from calibration.methods.topup import (  # noqa: E402
     SIGMA_PARAM_SD_MM,
     SIGMA_RESIDUAL_MM,
@@ -85,6 +83,7 @@ from calibration.methods.topup_risk import (  # noqa: E402
     fold_log_likelihoods,
     useful_count,
 )
+from calibration.methods.topup_sigma import held_out_folds, sigma_fold_masks  # noqa: E402
 from cell_config import load_cell  # noqa: E402
 
 DATA = next((d / "shared" / "data" / "welding_motoman" for d in ROOT.parents
@@ -299,11 +298,11 @@ def task_errors(nominal: Any, train: Recording, added: Recording, task: Recordin
 
 
 def fold_masks(nominal: Any, train: Recording) -> list[np.ndarray]:
-    """The training poses each held-out fold of :func:`sigma_fold_errors` leaves out: the 5 folds of clusters the
+    """The training poses each held-out fold leaves out (:func:`calibration.methods.topup_sigma.sigma_fold_masks`, the
+    folds ``predict``/``evaluate``/``select --given`` choose the residual on): the 5 folds of clusters the
     recommendation holds out (interpolation), the steps of q1 and q4-q6, the clusters at either edge of q2 and of q3
     (extrapolation, ``scripts/studies/extrapolation_folds.py``)."""
-    fitter = Fitter("R1", nominal, train)
-    return [held for held, _ in fitter._fold_fitters()] + [step_mask(train), edge_mask(train, 1), edge_mask(train, 2)]
+    return sigma_fold_masks(Fitter("R1", nominal, train))
 
 
 FOLD_NAMES = ("random clusters",) * 5 + ("steps", "q2 edges", "q3 edges")
@@ -311,13 +310,7 @@ FOLD_NAMES = ("random clusters",) * 5 + ("steps", "q2 edges", "q3 edges")
 
 def sigma_fold_errors(nominal: Any, train: Recording) -> dict[str, Any]:
     """Position errors [mm] of pi refitted without each fold of :func:`fold_masks`, at that fold's poses."""
-    fitter = Fitter("R1", nominal, train)
-    e = fitter.held_out_errors("pi")
-    masks = fold_masks(nominal, train)
-    errs = [e[m] for m in masks[:5]]
-    for m in masks[5:]:
-        model, _ = replace(fitter, train=train.subset(~m), warm=fitter, _cache=SharedCache()).fit("pi")
-        errs.append(errors(model, train.subset(m)).position_mm)
+    _, errs = held_out_folds(Fitter("R1", nominal, train))
     return {"fold_errors_mm": [np.round(x, 4).tolist() for x in errs]}
 
 
