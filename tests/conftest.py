@@ -104,6 +104,16 @@ def chromium(tmp_path_factory: pytest.TempPathFactory):
     browser.close()
 
 
+def gen_pages():
+    """``docs/gen_pages.py`` (the docs site's generated pages: CLI reference, import graph), loaded as a module."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("gen_pages", Path(__file__).resolve().parents[1] / "docs" / "gen_pages.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def assert_bad_input(capsys: pytest.CaptureFixture, argv: list[str], *fragments: str) -> None:
     """The CLI exits 2 on ``argv`` with exactly one stderr line containing every fragment."""
     from app.cli.commands import main

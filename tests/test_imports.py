@@ -9,6 +9,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from conftest import gen_pages
+
 ROOT = Path(__file__).resolve().parents[1]
 
 WALK = """
@@ -36,15 +38,6 @@ def test_every_module_of_the_product_imports():
     assert int(count) > 150 and not fails, fails
 
 
-def _gen_pages():
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("gen_pages", ROOT / "docs" / "gen_pages.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def _layers(container: str | None) -> list[set[str]]:
     import tomllib
 
@@ -65,7 +58,7 @@ def test_the_import_drawing_agrees_with_the_contracts_and_has_no_circle():
     layers pyproject.toml declares, and the folders of drivers/ and cell_config/ form no circle."""
     from graphlib import CycleError, TopologicalSorter
 
-    edges = _gen_pages().folder_edges()
+    edges = gen_pages().folder_edges()
     assert edges, "no import drawn"
     top = _layers(None)
     for (a, b) in edges:
@@ -84,7 +77,7 @@ def test_the_import_drawing_agrees_with_the_contracts_and_has_no_circle():
         tuple(TopologicalSorter(graph).static_order())
     except CycleError as e:  # pragma: no cover - the failure message
         raise AssertionError(f"import circle between folders: {e.args[1]}") from e
-    page = _gen_pages().imports_page()
+    page = gen_pages().imports_page()
     assert page.count("```mermaid") == 1 + sum(any(a.startswith(p + ".") for a, _ in edges)
                                                for p in ("calibration", "cell_config", "drivers", "app"))
 

@@ -23,7 +23,6 @@ working tree itself, whose outputs of earlier runs (a ``mycell/`` that ``init-ce
 
 from __future__ import annotations
 
-import importlib.util
 import re
 import shlex
 import shutil
@@ -34,7 +33,7 @@ import pytest
 
 from app.cli import main
 from app.cli.table import command_table
-from tests.conftest import SHARED_DATA
+from tests.conftest import SHARED_DATA, gen_pages
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
@@ -42,13 +41,6 @@ PAGES = [README] + sorted((ROOT / "docs" / "tutorials").glob("*.md"))
 RUN_CLASSES = ("bash", "sh")
 REDUCTION = "The tests run this block with"
 FENCE = re.compile(r"^```(\S*)(.*)$")
-
-
-def _gen_pages():
-    spec = importlib.util.spec_from_file_location("gen_pages", ROOT / "docs" / "gen_pages.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def command_names() -> set[str]:
@@ -207,7 +199,7 @@ def test_an_unmarked_failing_block_fails_and_a_console_block_without_its_reason_
 
 
 def test_the_cli_reference_holds_the_parsers_command_table_and_every_commands_help():
-    page = _gen_pages().cli_page()
+    page = gen_pages().cli_page()
     assert command_table() in page
     for name in command_names():
         assert f"## `{name}`\n\n```text\nusage: cellcal {name} " in page, name
